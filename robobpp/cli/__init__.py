@@ -1,0 +1,29 @@
+"""The ``robobpp`` command. Each area registers its commands from its own module in this package."""
+
+from __future__ import annotations
+
+import typer
+
+app = typer.Typer(
+    name="robobpp",
+    help="Closed-loop benchmark and evaluation service for robotic online 3D bin packing.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _register() -> None:
+    # Imported here so `robobpp --help` stays fast and each area owns its own module.
+    from robobpp.cli import datasets, evaluate, protocol, server, view
+
+    app.add_typer(datasets.app, name="datasets")
+    evaluate.register(app)
+    protocol.register(app)
+    server.register(app)
+    view.register(app)
+
+
+def main() -> None:
+    _register()
+    app()

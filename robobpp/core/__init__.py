@@ -1,0 +1,28 @@
+"""Pure-numpy geometry of the packing problem: boxes, container state, heightmap, feasibility.
+
+Nothing here imports pybullet or the web stack; every other layer builds on it.
+"""
+
+from robobpp.core.box import ORIENTATIONS, Box, ContainerSpec, Placement, oriented_dims
+from robobpp.core.container import ContainerState
+from robobpp.core.episode_spec import EpisodeSpec
+from robobpp.core.feasibility import Infeasible, check_action
+from robobpp.core.heightmap import drop_height_map, footprint_cells
+from robobpp.core.observation import Action, EpisodeInfo, Observation
+
+__all__ = [
+    "ORIENTATIONS",
+    "Action",
+    "Box",
+    "ContainerSpec",
+    "ContainerState",
+    "EpisodeInfo",
+    "EpisodeSpec",
+    "Infeasible",
+    "Observation",
+    "Placement",
+    "check_action",
+    "drop_height_map",
+    "footprint_cells",
+    "oriented_dims",
+]

@@ -1,0 +1,57 @@
+"""The container's geometric state: placed boxes and the 1 cm heightmap over them."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from robobpp.core.box import Box, ContainerSpec, Placement
+from robobpp.core.heightmap import footprint_cells
+
+
+class ContainerState:
+    """Placements plus a float heightmap (cm) kept in step with them.
+
+    The heightmap is the max top height over each cell, which is what a box dropped from above meets.
+    """
+
+    def __init__(self, spec: ContainerSpec) -> None:
+        self.spec = spec
+        self.heightmap = np.zeros(spec.grid_shape, dtype=np.float64)
+        self.placements: list[Placement] = []
+
+    @classmethod
+    def from_placements(cls, spec: ContainerSpec, placements: Iterable[Placement]) -> ContainerState:
+        """Rebuild the state from actual poses (e.g. after physics), each taken as its axis-aligned box."""
+        state = cls(spec)
+        for placement in placements:
+            state.add(placement)
+        return state
+
+    def drop_height(self, x: float, y: float, length: float, width: float) -> float:
+        """Height at which a footprint released from above comes to rest (max of the heightmap under it)."""
+        cells = footprint_cells(x, y, length, width, self.heightmap.shape)
+        region = self.heightmap[cells]
+        return float(region.max()) if region.size else 0.0
+
+    def drop(self, box: Box, x: float, y: float, orientation: int, index: int) -> Placement:
+        """The placement the box takes when dropped at (x, y): Math Pack's rule (rests on the max height)."""
+        length, width, height = box.dims(orientation)
+        z = self.drop_height(x, y, length, width)
+        return Placement(x, y, z, length, width, height, orientation, index)
+
+    def add(self, placement: Placement) -> None:
+        """Record a placement and raise the heightmap under its footprint to its top."""
+        cells = footprint_cells(placement.x, placement.y, placement.length, placement.width, self.heightmap.shape)
+        region = self.heightmap[cells]
+        np.maximum(region, placement.top, out=region)
+        self.placements.append(placement)
+
+    @property
+    def placed_volume(self) -> float:
+        return sum(p.volume for p in self.placements)
+
+    def volume_under_heightmap(self) -> float:
+        """cm³ under the heightmap over the container footprint (1 cm² cells)."""
+        return float(self.heightmap.sum())

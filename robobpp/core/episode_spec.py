@@ -1,0 +1,24 @@
+"""What one episode is: a dataset's container and an 80-box sequence (the unit of evaluation)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from robobpp.core.box import Box, ContainerSpec
+
+
+@dataclass(frozen=True, slots=True)
+class EpisodeSpec:
+    dataset: str
+    split: str
+    group: int
+    boxes: tuple[Box, ...]
+    container: ContainerSpec
+    #: Horizontal displacement (cm) beyond which a placed box counts as collapsed (dataset property).
+    collapse_threshold_cm: float
+    #: Seed the group was sampled with; also seeds anything random inside the episode (planner, Random).
+    seed: int = 0
+
+    @property
+    def episode_id(self) -> str:
+        return f"{self.dataset}-{self.split}-{self.group:03d}"

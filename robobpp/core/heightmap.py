@@ -1,0 +1,57 @@
+"""Heightmap arithmetic on a 1 cm grid.
+
+Cell (i, j) covers [i, i+1) × [j, j+1) cm. A footprint covers every cell its interior overlaps, so a box
+with non-integer size or position is treated conservatively (it rests on the highest cell it touches).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+_EPS = 1e-6
+
+
+def footprint_cells(x: float, y: float, length: float, width: float, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """Cells under the footprint [x, x+length) × [y, y+width), clipped to the grid."""
+    i0 = max(0, math.floor(x + _EPS))
+    j0 = max(0, math.floor(y + _EPS))
+    i1 = min(shape[0], math.ceil(x + length - _EPS))
+    j1 = min(shape[1], math.ceil(y + width - _EPS))
+    return slice(i0, max(i0, i1)), slice(j0, max(j0, j1))
+
+
+def cells_spanned(size: float) -> int:
+    """Cells an integer-aligned footprint of ``size`` cm covers."""
+    return max(1, math.ceil(size - _EPS))
+
+
+def _sliding_max_rows(a: np.ndarray, window: int) -> np.ndarray:
+    """Max over every run of ``window`` consecutive rows (axis 0), in O(n log window).
+
+    Doubling trick: after k rounds m[i] = max(a[i : i + 2**k]); two overlapping power-of-two windows
+    then cover any window size.
+    """
+    n = a.shape[0]
+    if window > n:
+        return np.empty((0, *a.shape[1:]), dtype=a.dtype)
+    out_len = n - window + 1
+    m = a
+    span = 1
+    while span * 2 <= window:
+        m = np.maximum(m[:-span], m[span:])
+        span *= 2
+    return np.maximum(m[:out_len], m[window - span : window - span + out_len])
+
+
+def drop_height_map(heightmap: np.ndarray, length: float, width: float) -> np.ndarray:
+    """Resting height for every integer position (x, y) of a ``length`` × ``width`` footprint.
+
+    Entry [x, y] is the max of the heightmap over the footprint whose min corner is (x, y); only positions
+    where the footprint lies inside the grid are returned, so the shape is (L - l + 1, W - w + 1) (possibly
+    empty when the box is larger than the container).
+    """
+    lc, wc = cells_spanned(length), cells_spanned(width)
+    rows = _sliding_max_rows(heightmap, lc)
+    return _sliding_max_rows(rows.T, wc).T

@@ -1,0 +1,283 @@
+"""The one episode loop: observe → policy → apply → measure.
+
+Every use runs through here: ``robobpp evaluate`` on a laptop, the Gymnasium env (which drives the
+step-wise :class:`Episode` itself) and the server's workers (which hand in a remote policy).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from robobpp import metrics as M
+from robobpp.core import Action, EpisodeInfo, EpisodeSpec, Infeasible, Observation, Placement, check_action
+from robobpp.policies.base import Policy, PolicyError
+from robobpp.sim import Setting, make_setting
+
+#: Termination codes. Feasibility and settings add their own (``out_of_bounds``, ``too_high``, ``collapse``...).
+COMPLETED = "completed"
+NO_FEASIBLE_PLACEMENT = "no_feasible_placement"
+POLICY_ERROR = "policy_error"
+EPISODE_TIMEOUT = "episode_timeout"
+
+TERMINATION_REASONS: dict[str, str] = {
+    COMPLETED: "every box was placed",
+    NO_FEASIBLE_PLACEMENT: "the policy found no feasible placement for the box",
+    "invalid_action": "the action was malformed (non-finite number, wrong type, unknown orientation)",
+    "out_of_bounds": "the footprint lay outside the container",
+    "too_high": "the box top would exceed the container height",
+    "collapse": "a placed box moved beyond the dataset's collapse threshold or fell off",
+    POLICY_ERROR: "the policy raised an error or answered garbage",
+    "policy_timeout": "the policy did not answer within the per-step time limit",
+    "protocol_violation": "the remote policy broke protocol robobpp/1",
+    EPISODE_TIMEOUT: "the episode exceeded its total time budget",
+    "grasp_failed": "the suction gripper could not hold the box",
+}
+
+
+@dataclass(slots=True)
+class StepRecord:
+    """One step of the per-step trace (JSON-friendly)."""
+
+    step: int
+    box: dict[str, float]
+    action: dict[str, float] | None
+    decision_time: float
+    compute_time: float | None = None
+    placement: dict[str, Any] | None = None
+    termination: str | None = None
+    static_stability: float | None = None
+    collapsed: bool = False
+    trajectory_length_m: float | None = None
+    dangerous: bool | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class EpisodeResult:
+    episode_id: str
+    dataset: str
+    split: str
+    group: int
+    setting: str
+    policy: str
+    seed: int
+    boxes_total: int
+    boxes_placed: int
+    termination: str
+    termination_detail: str
+    metrics: dict[str, float | None]
+    counters: dict[str, int]
+    container: dict[str, float]
+    steps: list[StepRecord] = field(default_factory=list)
+    final: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self, trace: bool = True) -> dict[str, Any]:
+        data = asdict(self)
+        if not trace:
+            data.pop("steps")
+            data.pop("final")
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EpisodeResult:
+        data = dict(data)
+        data["steps"] = [StepRecord(**s) for s in data.get("steps", [])]
+        data.setdefault("final", [])
+        return cls(**data)
+
+
+def placement_dict(p: Placement) -> dict[str, Any]:
+    return {
+        "x": p.x, "y": p.y, "z": p.z, "length": p.length, "width": p.width, "height": p.height,
+        "orientation": p.orientation, "index": p.index, "quaternion": p.quaternion,
+    }  # fmt: skip
+
+
+class Episode:
+    """Step-wise episode: call :meth:`observe`, then :meth:`step` with the policy's answer, until done."""
+
+    def __init__(self, spec: EpisodeSpec, setting: Setting | str, *, lookahead: int = 0) -> None:
+        self.spec = spec
+        self.setting = make_setting(setting) if isinstance(setting, str) else setting
+        self.lookahead = lookahead
+        self.setting.reset(spec)
+        self.index = 0
+        self.termination: Infeasible | None = None
+        self.steps: list[StepRecord] = []
+        self.counters = {"placements_attempted": 0, "placements_collapsed": 0, "operations": 0,
+                         "operations_dangerous": 0}  # fmt: skip
+        self._static: list[float] = []
+        self._trajectory: list[float] = []
+        self._decision: list[float] = []
+
+    @property
+    def info(self) -> EpisodeInfo:
+        return EpisodeInfo(self.spec.episode_id, self.spec.dataset, self.setting.name, self.spec.container,
+                           lookahead=self.lookahead)  # fmt: skip
+
+    @property
+    def done(self) -> bool:
+        return self.termination is not None or self.index >= len(self.spec.boxes)
+
+    def observe(self) -> Observation:
+        state = self.setting.state()
+        heightmap = state.heightmap.view()
+        heightmap.flags.writeable = False
+        boxes = self.spec.boxes
+        return Observation(
+            episode_id=self.spec.episode_id,
+            step=self.index,
+            container=self.spec.container,
+            placed=tuple(state.placements),
+            heightmap=heightmap,
+            box=boxes[self.index],
+            lookahead=tuple(boxes[self.index + 1 : self.index + 1 + self.lookahead]),
+        )
+
+    def end(self, reason: str, detail: str) -> None:
+        """End the episode early (policy failure, time budget) with a recorded reason."""
+        if self.termination is None:
+            self.termination = Infeasible(reason, detail)
+
+    def step(self, action: Action | None, decision_time: float) -> StepRecord:
+        """Apply the policy's answer for the current box; ``None`` means "no feasible placement"."""
+        assert not self.done, "episode is over"
+        box = self.spec.boxes[self.index]
+        self._decision.append(decision_time)
+        record = StepRecord(
+            step=self.index,
+            box={"length": box.length, "width": box.width, "height": box.height, "mass": box.mass},
+            action=None,
+            decision_time=decision_time,
+        )
+        self.steps.append(record)
+        if action is None:
+            self.end(NO_FEASIBLE_PLACEMENT, f"no feasible placement for box {self.index} "
+                     f"({box.length:g} × {box.width:g} × {box.height:g} cm)")  # fmt: skip
+            record.termination = NO_FEASIBLE_PLACEMENT
+            return record
+        record.action = {"x": action.x, "y": action.y, "orientation": action.orientation}
+        record.compute_time = action.compute_time
+        refused = check_action(action.x, action.y, action.orientation, box, self.spec.container)
+        if refused is not None:
+            self.termination = refused
+            record.termination = refused.reason
+            return record
+        outcome = self.setting.apply(box, action, self.index)
+        self.counters["placements_attempted"] += 1
+        if outcome.collapsed:
+            self.counters["placements_collapsed"] += 1
+        if outcome.dangerous is not None:
+            self.counters["operations"] += 1
+            self.counters["operations_dangerous"] += int(outcome.dangerous)
+        if outcome.static_stability is not None:
+            self._static.append(outcome.static_stability)
+        if outcome.trajectory_length_m is not None:
+            self._trajectory.append(outcome.trajectory_length_m)
+        record.placement = placement_dict(outcome.placement) if outcome.placement else None
+        record.static_stability = outcome.static_stability
+        record.collapsed = outcome.collapsed
+        record.trajectory_length_m = outcome.trajectory_length_m
+        record.dangerous = outcome.dangerous
+        record.extra = dict(outcome.extra)
+        if outcome.termination is not None:
+            self.termination = outcome.termination
+            record.termination = outcome.termination.reason
+        self.index += 1
+        return record
+
+    def result(self, policy_name: str) -> EpisodeResult:
+        final = self.setting.final_boxes()
+        container = self.spec.container
+        metrics: dict[str, float | None] = {
+            "space_utilization": M.space_utilization(final, container),
+            "occupancy": M.occupancy(final, container),
+            "decision_time": sum(self._decision) / len(self._decision) if self._decision else None,
+        }
+        if self.setting.name in M.PHYSICAL:
+            metrics["local_stability"] = M.local_stability_m(final)
+            metrics["static_stability"] = sum(self._static) / len(self._static) if self._static else None
+        if self.setting.name == "execution":
+            metrics["trajectory_length"] = (
+                sum(self._trajectory) / len(self._trajectory) if self._trajectory else None
+            )
+            c = self.counters
+            metrics["collapsed_placement"] = (
+                c["placements_collapsed"] / c["placements_attempted"] if c["placements_attempted"] else None
+            )
+            metrics["dangerous_operation"] = c["operations_dangerous"] / c["operations"] if c["operations"] else None
+        termination = self.termination or Infeasible(COMPLETED, TERMINATION_REASONS[COMPLETED])
+        return EpisodeResult(
+            episode_id=self.spec.episode_id,
+            dataset=self.spec.dataset,
+            split=self.spec.split,
+            group=self.spec.group,
+            setting=self.setting.name,
+            policy=policy_name,
+            seed=self.spec.seed,
+            boxes_total=len(self.spec.boxes),
+            boxes_placed=len(final),
+            termination=termination.reason,
+            termination_detail=termination.detail,
+            metrics=metrics,
+            counters=dict(self.counters),
+            container={"length": container.length, "width": container.width, "height": container.height},
+            steps=self.steps,
+            final=[{"planned": placement_dict(f.planned), "actual": placement_dict(f.actual),
+                    "in_place": f.in_place} for f in final],  # fmt: skip
+        )
+
+
+def run_episode(
+    spec: EpisodeSpec,
+    policy: Policy,
+    setting: Setting | str,
+    *,
+    lookahead: int = 0,
+    time_budget_s: float | None = None,
+    on_step: Callable[[StepRecord], None] | None = None,
+    clock: Callable[[], float] = time.perf_counter,
+) -> EpisodeResult:
+    """Run one episode to its end. Policy failures end the episode with a reason; nothing escapes."""
+    episode = Episode(spec, setting, lookahead=lookahead)
+    started = clock()
+    try:
+        try:
+            policy.reset(episode.info)
+        except PolicyError as exc:
+            episode.end(exc.reason, exc.detail)
+        except Exception as exc:  # noqa: BLE001 - a user policy may raise anything
+            episode.end(POLICY_ERROR, f"reset raised {type(exc).__name__}: {exc}")
+        while not episode.done:
+            if time_budget_s is not None and clock() - started > time_budget_s:
+                episode.end(EPISODE_TIMEOUT, f"episode exceeded its {time_budget_s:g} s budget")
+                break
+            obs = episode.observe()
+            t0 = clock()
+            try:
+                action = policy.act(obs)
+            except PolicyError as exc:
+                episode.end(exc.reason, exc.detail)
+                break
+            except Exception as exc:  # noqa: BLE001
+                episode.end(POLICY_ERROR, f"act raised {type(exc).__name__}: {exc}")
+                break
+            decision = clock() - t0
+            if action is not None and not isinstance(action, Action):
+                episode.end(POLICY_ERROR, f"act returned {type(action).__name__}, expected Action or None")
+                break
+            record = episode.step(action, decision)
+            if on_step is not None:
+                on_step(record)
+        result = episode.result(getattr(policy, "name", type(policy).__name__))
+    finally:
+        reason = episode.termination.reason if episode.termination else COMPLETED
+        try:
+            policy.close(reason)
+        except Exception:  # noqa: BLE001 - closing must not turn a result into a crash
+            pass
+        episode.setting.close()
+    return result

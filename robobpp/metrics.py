@@ -1,0 +1,94 @@
+"""The eight metrics of BENCHMARK.md §4: definitions, per-episode computation, run aggregation."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+from robobpp.core import ContainerSpec, ContainerState
+from robobpp.sim.base import FinalBox
+
+
+@dataclass(frozen=True, slots=True)
+class MetricDef:
+    key: str
+    label: str
+    better: Literal["up", "down"]
+    unit: str
+    settings: tuple[str, ...]
+
+
+ALL_SETTINGS = ("math", "physics", "execution")
+PHYSICAL = ("physics", "execution")
+
+METRICS: tuple[MetricDef, ...] = (
+    MetricDef("space_utilization", "Space Utilization", "up", "", ALL_SETTINGS),
+    MetricDef("occupancy", "Occupancy", "up", "", ALL_SETTINGS),
+    MetricDef("decision_time", "Decision Time", "down", "s", ALL_SETTINGS),
+    MetricDef("local_stability", "Local Stability", "down", "m", PHYSICAL),
+    MetricDef("static_stability", "Static Stability", "up", "", PHYSICAL),
+    MetricDef("trajectory_length", "Trajectory Length", "down", "m", ("execution",)),
+    MetricDef("collapsed_placement", "Collapsed Placement", "down", "", ("execution",)),
+    MetricDef("dangerous_operation", "Dangerous Operation", "down", "", ("execution",)),
+)
+METRIC_BY_KEY = {m.key: m for m in METRICS}
+
+#: Episode counters pooled over a run (ratios of sums, not means of ratios).
+POOLED = {
+    "collapsed_placement": ("placements_collapsed", "placements_attempted"),
+    "dangerous_operation": ("operations_dangerous", "operations"),
+}
+
+
+def metrics_for(setting: str) -> tuple[MetricDef, ...]:
+    return tuple(m for m in METRICS if setting in m.settings)
+
+
+def static_stability(max_linear_speed: float, max_angular_speed: float) -> float:
+    """R = 0.5·clip(1 − v^0.4, 0, 1) + 0.5·clip(1 − ω^0.3, 0, 1) (v in m/s, ω in rad/s)."""
+    v = max(0.0, max_linear_speed)
+    w = max(0.0, max_angular_speed)
+    return 0.5 * min(1.0, max(0.0, 1.0 - v**0.4)) + 0.5 * min(1.0, max(0.0, 1.0 - w**0.3))
+
+
+def space_utilization(final: Sequence[FinalBox], container: ContainerSpec) -> float:
+    return sum(f.planned.volume for f in final if f.in_place) / container.volume
+
+
+def occupancy(final: Sequence[FinalBox], container: ContainerSpec) -> float:
+    """Placed volume over the volume under the final heightmap (built from actual poses, 1 cm cells)."""
+    state = ContainerState.from_placements(container, (f.actual for f in final))
+    under = state.volume_under_heightmap()
+    return sum(f.planned.volume for f in final) / under if under > 0 else 0.0
+
+
+def local_stability_m(final: Sequence[FinalBox]) -> float | None:
+    """Mean distance between planned and actual box positions, metres."""
+    if not final:
+        return None
+    total = 0.0
+    for f in final:
+        (px, py, pz), (ax, ay, az) = f.planned.center, f.actual.center
+        total += math.dist((px, py, pz), (ax, ay, az)) / 100.0
+    return total / len(final)
+
+
+def _mean(values: Iterable[float | None]) -> float | None:
+    kept = [v for v in values if v is not None]
+    return sum(kept) / len(kept) if kept else None
+
+
+def aggregate(episodes: Sequence[Mapping[str, float | None]], setting: str) -> dict[str, float | None]:
+    """A run's figures: the mean over its episodes, except the pooled ratios (BENCHMARK.md §4)."""
+    out: dict[str, float | None] = {}
+    for m in metrics_for(setting):
+        if m.key in POOLED:
+            num_key, den_key = POOLED[m.key]
+            num = sum(float(e.get(num_key) or 0) for e in episodes)
+            den = sum(float(e.get(den_key) or 0) for e in episodes)
+            out[m.key] = num / den if den else None
+        else:
+            out[m.key] = _mean(e.get(m.key) for e in episodes)
+    return out

@@ -1,0 +1,66 @@
+"""Policies: the paper's baseline heuristics (one module each) and loading of user policies.
+
+A policy is named by a built-in name (``dbl``), a ``module:Class`` path, or an ``http(s)://`` URL of a
+policy server speaking protocol robobpp/1.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from robobpp.policies.base import BasePolicy, Policy, PolicyError
+
+#: Built-in policies: name → "module:Class". Modules load lazily so one slow import never taxes the rest.
+BUILTIN: dict[str, str] = {
+    "dbl": "robobpp.policies.dbl:DBL",
+    "random": "robobpp.policies.random_policy:RandomPolicy",
+}
+
+#: The paper's baselines shown on the leaderboard (a subset of BUILTIN, in the paper's order).
+BASELINES: tuple[str, ...] = tuple(BUILTIN)
+
+
+class PolicyLoadError(ValueError):
+    """The policy name could not be turned into a policy (unknown name, bad import path)."""
+
+
+def _import(path: str) -> type:
+    module_name, _, attr = path.partition(":")
+    if not module_name or not attr:
+        raise PolicyLoadError(f"policy path {path!r} must look like 'package.module:ClassName'")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise PolicyLoadError(f"cannot import module {module_name!r}: {exc}") from exc
+    try:
+        return getattr(module, attr)
+    except AttributeError as exc:
+        raise PolicyLoadError(f"module {module_name!r} has no attribute {attr!r}") from exc
+
+
+def load_policy(name: str, **kwargs: object) -> Policy:
+    """Instantiate a policy from a built-in name, ``module:Class``, or a policy server URL."""
+    if name.startswith(("http://", "https://")):
+        from robobpp.client.remote import RemotePolicy  # lazy: the HTTP stack is optional here
+
+        return RemotePolicy(name, **kwargs)  # type: ignore[arg-type]
+    path = BUILTIN.get(name.lower())
+    if path is None and ":" not in name:
+        known = ", ".join(sorted(BUILTIN))
+        raise PolicyLoadError(f"unknown policy {name!r}; use one of {known}, 'module:Class' or an http(s) URL")
+    factory = _import(path or name)
+    try:
+        policy = factory(**kwargs)
+    except TypeError as exc:
+        raise PolicyLoadError(f"cannot construct policy {name!r}: {exc}") from exc
+    if not callable(getattr(policy, "act", None)):
+        raise PolicyLoadError(f"{name!r} has no act(observation) method")
+    for hook in ("reset", "close"):  # optional for user policies: fill in no-ops
+        if not callable(getattr(policy, hook, None)):
+            setattr(policy, hook, lambda *_a, **_k: None)
+    if not getattr(policy, "name", None):
+        policy.name = name  # type: ignore[attr-defined]
+    return policy  # type: ignore[return-value]
+
+
+__all__ = ["BASELINES", "BUILTIN", "BasePolicy", "Policy", "PolicyError", "PolicyLoadError", "load_policy"]

@@ -1,0 +1,40 @@
+"""Vectorised placement candidates on the heightmap, shared by the heightmap-based policies."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from robobpp.core import Observation, drop_height_map
+from robobpp.core.feasibility import TOLERANCE_CM
+
+
+@dataclass(frozen=True, slots=True)
+class CandidateMap:
+    """For one orientation: resting height and feasibility of every integer position (x, y).
+
+    ``z[x, y]`` is where the box's bottom would rest with its min corner at (x, y) cm; ``feasible`` says the
+    box then stays inside the container (bounds are implied by the map's shape).
+    """
+
+    orientation: int
+    length: float
+    width: float
+    height: float
+    z: np.ndarray
+    feasible: np.ndarray
+
+
+def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
+    """One :class:`CandidateMap` per allowed orientation (skipping ones where the box cannot fit at all)."""
+    limit = obs.container.height + TOLERANCE_CM
+    for orientation in obs.orientations:
+        length, width, height = obs.box.dims(orientation)
+        if length > obs.container.length + TOLERANCE_CM or width > obs.container.width + TOLERANCE_CM:
+            continue
+        z = drop_height_map(obs.heightmap, length, width)
+        if z.size == 0:
+            continue
+        yield CandidateMap(orientation, length, width, height, z, z + height <= limit)

@@ -1,0 +1,63 @@
+"""The interface every test setting (Math, Physics, Execution Pack) offers to the episode loop."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement
+
+
+@dataclass(slots=True)
+class StepOutcome:
+    """What applying one action did.
+
+    ``placement`` is the new box's *actual* pose after the step (None when it was never released);
+    ``termination`` ends the episode (too high, collapse, failed grasp...). The optional figures feed the
+    metrics of the settings that measure them.
+    """
+
+    placement: Placement | None
+    termination: Infeasible | None = None
+    #: Static stability R of this placement (Physics/Execution), BENCHMARK.md §4.
+    static_stability: float | None = None
+    #: Whether this placement caused a collapse (any box displaced beyond the threshold or fallen off).
+    collapsed: bool = False
+    #: Tool-centre-point path length, metres (Execution).
+    trajectory_length_m: float | None = None
+    #: Unsafe grasp-and-place operation (Execution).
+    dangerous: bool | None = None
+    extra: dict[str, object] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class FinalBox:
+    """A placed box at the end of the episode: where it was meant to be and where it is."""
+
+    planned: Placement
+    actual: Placement
+    in_place: bool
+
+
+class Setting(ABC):
+    """A test setting. One instance runs one episode at a time; ``reset`` starts the next."""
+
+    name: str = ""
+
+    @abstractmethod
+    def reset(self, spec: EpisodeSpec) -> None: ...
+
+    @abstractmethod
+    def state(self) -> ContainerState:
+        """The actual container state the policy observes (positions after physics, in cm)."""
+
+    @abstractmethod
+    def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
+        """Execute a bounds-checked action for box number ``index``."""
+
+    @abstractmethod
+    def final_boxes(self) -> list[FinalBox]:
+        """Planned vs actual pose of every placed box, read at the end of the episode."""
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release simulator resources."""

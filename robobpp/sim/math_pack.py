@@ -1,0 +1,37 @@
+"""Math Pack: pure geometry. A box drops onto the heightmap under its footprint and never moves."""
+
+from __future__ import annotations
+
+from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible
+from robobpp.sim.base import FinalBox, Setting, StepOutcome
+
+
+class MathPack(Setting):
+    name = "math"
+
+    def __init__(self) -> None:
+        self._state: ContainerState | None = None
+
+    def reset(self, spec: EpisodeSpec) -> None:
+        self._state = ContainerState(spec.container)
+
+    def state(self) -> ContainerState:
+        assert self._state is not None, "reset() first"
+        return self._state
+
+    def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
+        state = self.state()
+        placement = state.drop(box, action.x, action.y, action.orientation, index)
+        if placement.top > state.spec.height + 1e-6:
+            return StepOutcome(
+                None,
+                Infeasible(
+                    "too_high",
+                    f"box top at {placement.top:g} cm would exceed the container height {state.spec.height:g} cm",
+                ),
+            )
+        state.add(placement)
+        return StepOutcome(placement)
+
+    def final_boxes(self) -> list[FinalBox]:
+        return [FinalBox(p, p, True) for p in self.state().placements]

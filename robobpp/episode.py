@@ -6,6 +6,7 @@ step-wise :class:`Episode` itself) and the server's workers (which hand in a rem
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -208,7 +209,9 @@ class Episode:
             metrics["collapsed_placement"] = (
                 c["placements_collapsed"] / c["placements_attempted"] if c["placements_attempted"] else None
             )
-            metrics["dangerous_operation"] = c["operations_dangerous"] / c["operations"] if c["operations"] else None
+            metrics["dangerous_operation"] = (
+                c["operations_dangerous"] / c["operations"] if c["operations"] else None
+            )
         termination = self.termination or Infeasible(COMPLETED, TERMINATION_REASONS[COMPLETED])
         return EpisodeResult(
             episode_id=self.spec.episode_id,
@@ -226,8 +229,14 @@ class Episode:
             counters=dict(self.counters),
             container={"length": container.length, "width": container.width, "height": container.height},
             steps=self.steps,
-            final=[{"planned": placement_dict(f.planned), "actual": placement_dict(f.actual),
-                    "in_place": f.in_place} for f in final],  # fmt: skip
+            final=[
+                {
+                    "planned": placement_dict(f.planned),
+                    "actual": placement_dict(f.actual),
+                    "in_place": f.in_place,
+                }
+                for f in final
+            ],  # fmt: skip
         )
 
 
@@ -275,9 +284,7 @@ def run_episode(
         result = episode.result(getattr(policy, "name", type(policy).__name__))
     finally:
         reason = episode.termination.reason if episode.termination else COMPLETED
-        try:
+        with contextlib.suppress(Exception):  # closing must not turn a result into a crash
             policy.close(reason)
-        except Exception:  # noqa: BLE001 - closing must not turn a result into a crash
-            pass
         episode.setting.close()
     return result

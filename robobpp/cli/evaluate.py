@@ -1,11 +1,127 @@
-"""Placeholder: commands of this area are registered here."""
+"""``robobpp evaluate``: run a policy over dataset groups in one setting, locally, with a progress bar."""
 
 from __future__ import annotations
 
-import typer
+import json
+from pathlib import Path
+from typing import Annotated
 
-app = typer.Typer(no_args_is_help=True)
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from robobpp.cli.common import fail, parse_choices
+from robobpp.metrics import aggregate, metrics_for
+
+console = Console(stderr=True)
 
 
 def register(root: typer.Typer) -> None:
-    return None
+    root.command("evaluate")(evaluate)
+
+
+def evaluate(
+    policy: Annotated[
+        str, typer.Option(help="Built-in name (dbl, hm, ...), module:Class, or http(s):// URL.")
+    ],
+    dataset: Annotated[
+        str, typer.Option(help="repetitive, diverse, longboard, a comma list, or all.")
+    ] = "all",
+    setting: Annotated[str, typer.Option(help="math, physics, execution, a comma list, or all.")] = "math",
+    groups: Annotated[int, typer.Option(min=1, max=10_000, help="Groups (episodes) per dataset.")] = 30,
+    split: Annotated[str, typer.Option(help="train (public) or test.")] = "train",
+    seed: Annotated[int, typer.Option(help="Sampling seed of the groups.")] = 0,
+    lookahead: Annotated[int, typer.Option(min=0, max=20, help="Next boxes shown to the policy.")] = 0,
+    secret: Annotated[
+        str | None, typer.Option(help="HMAC secret for a remote policy.", envvar="ROBOBPP_POLICY_SECRET")
+    ] = None,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Write summary and per-episode metrics here.")
+    ] = None,
+    trace: Annotated[
+        Path | None, typer.Option(help="Write full per-step traces here (for `robobpp view`).")
+    ] = None,
+) -> None:
+    """Evaluate a policy locally and print a results table."""
+    from robobpp.datasets import DATASETS, SPLITS, episode_specs
+    from robobpp.episode import run_episode
+    from robobpp.policies import PolicyLoadError, load_policy
+    from robobpp.sim import SETTINGS
+
+    datasets = parse_choices(dataset, DATASETS, "dataset")
+    settings = parse_choices(setting, SETTINGS, "setting")
+    if split not in SPLITS:
+        fail(f"unknown split {split!r}; expected one of {', '.join(SPLITS)}")
+    kwargs = {"secret": secret} if policy.startswith(("http://", "https://")) and secret else {}
+    try:
+        agent = load_policy(policy, **kwargs)
+    except PolicyLoadError as exc:
+        fail(str(exc))
+    specs = {name: episode_specs(name, split=split, groups=groups, seed=seed) for name in datasets}
+    total = sum(len(s) for s in specs.values()) * len(settings)
+    runs: dict[tuple[str, str], list] = {}
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=False) as progress:
+        task = progress.add_task(f"{agent.name}", total=total)
+        for name in datasets:
+            for setting_name in settings:
+                progress.update(task, description=f"{agent.name} · {name} · {setting_name}")
+                results = runs.setdefault((name, setting_name), [])
+                for spec in specs[name]:
+                    results.append(run_episode(spec, agent, setting_name, lookahead=lookahead))
+                    progress.advance(task)
+    summary = _summarise(runs)
+    console.print(_table(agent.name, summary))
+    if json_out is not None:
+        payload = {"policy": agent.name, "split": split, "seed": seed, "runs": summary,
+                   "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs]}  # fmt: skip
+        _write_json(json_out, payload)
+    if trace is not None:
+        _write_json(
+            trace, {"policy": agent.name, "episodes": [r.to_dict() for rs in runs.values() for r in rs]}
+        )
+
+
+def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:
+    out = []
+    for (dataset, setting), results in runs.items():
+        terminations: dict[str, int] = {}
+        for r in results:
+            terminations[r.termination] = terminations.get(r.termination, 0) + 1
+        out.append({
+            "dataset": dataset, "setting": setting, "episodes": len(results),
+            "boxes_placed": sum(r.boxes_placed for r in results) / len(results),
+            "metrics": aggregate([{**r.metrics, **r.counters} for r in results], setting),
+            "terminations": terminations,
+        })  # fmt: skip
+    return out
+
+
+def _table(policy: str, summary: list[dict]) -> Table:
+    keys = [m for m in metrics_for("execution") if any(m.key in row["metrics"] for row in summary)]
+    table = Table(title=f"robobpp evaluate · {policy}")
+    table.add_column("dataset")
+    table.add_column("setting")
+    table.add_column("episodes", justify="right")
+    table.add_column("boxes placed", justify="right")
+    for m in keys:
+        arrow = "↑" if m.better == "up" else "↓"
+        table.add_column(f"{m.label} {arrow}" + (f" ({m.unit})" if m.unit else ""), justify="right")
+    table.add_column("terminations")
+    for row in summary:
+        cells = [row["dataset"], row["setting"], str(row["episodes"]), f"{row['boxes_placed']:.1f}"]
+        for m in keys:
+            value = row["metrics"].get(m.key)
+            cells.append("—" if value is None else f"{value:.4f}")
+        cells.append(", ".join(f"{k}: {v}" for k, v in sorted(row["terminations"].items())))
+        table.add_row(*cells)
+    return table
+
+
+def _write_json(path: Path, payload: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False))
+    tmp.replace(path)
+    console.print(f"wrote {path}")

@@ -43,7 +43,9 @@ class ContainerState:
 
     def add(self, placement: Placement) -> None:
         """Record a placement and raise the heightmap under its footprint to its top."""
-        cells = footprint_cells(placement.x, placement.y, placement.length, placement.width, self.heightmap.shape)
+        cells = footprint_cells(
+            placement.x, placement.y, placement.length, placement.width, self.heightmap.shape
+        )
         region = self.heightmap[cells]
         np.maximum(region, placement.top, out=region)
         self.placements.append(placement)

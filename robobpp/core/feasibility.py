@@ -33,7 +33,9 @@ def check_action(
         if not math.isfinite(value):
             return Infeasible("invalid_action", f"{name} is not finite ({value!r})")
     if isinstance(orientation, bool) or not isinstance(orientation, int) or orientation not in ORIENTATIONS:
-        return Infeasible("invalid_action", f"unknown orientation {orientation!r}; expected one of {ORIENTATIONS}")
+        return Infeasible(
+            "invalid_action", f"unknown orientation {orientation!r}; expected one of {ORIENTATIONS}"
+        )
     length, width, height = box.dims(orientation)
     assert isinstance(x, int | float) and isinstance(y, int | float)
     if x < -TOLERANCE_CM or y < -TOLERANCE_CM:
@@ -46,6 +48,7 @@ def check_action(
         )
     if z is not None and z + height > container.height + TOLERANCE_CM:
         return Infeasible(
-            "too_high", f"box top at {z + height:g} cm would exceed the container height {container.height:g} cm"
+            "too_high",
+            f"box top at {z + height:g} cm would exceed the container height {container.height:g} cm",
         )
     return None

@@ -13,7 +13,9 @@ import numpy as np
 _EPS = 1e-6
 
 
-def footprint_cells(x: float, y: float, length: float, width: float, shape: tuple[int, int]) -> tuple[slice, slice]:
+def footprint_cells(
+    x: float, y: float, length: float, width: float, shape: tuple[int, int]
+) -> tuple[slice, slice]:
     """Cells under the footprint [x, x+length) × [y, y+width), clipped to the grid."""
     i0 = max(0, math.floor(x + _EPS))
     j0 = max(0, math.floor(y + _EPS))

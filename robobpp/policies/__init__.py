@@ -47,7 +47,9 @@ def load_policy(name: str, **kwargs: object) -> Policy:
     path = BUILTIN.get(name.lower())
     if path is None and ":" not in name:
         known = ", ".join(sorted(BUILTIN))
-        raise PolicyLoadError(f"unknown policy {name!r}; use one of {known}, 'module:Class' or an http(s) URL")
+        raise PolicyLoadError(
+            f"unknown policy {name!r}; use one of {known}, 'module:Class' or an http(s) URL"
+        )
     factory = _import(path or name)
     try:
         policy = factory(**kwargs)

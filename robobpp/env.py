@@ -1,0 +1,166 @@
+"""Gymnasium env over the same episode loop the evaluator uses.
+
+    import gymnasium as gym
+    import robobpp.env  # registers robobpp/Pack-v0
+    env = gym.make("robobpp/Pack-v0", dataset="repetitive", setting="math")
+
+(or ``gym.make("robobpp.env:robobpp/Pack-v0", ...)`` without the import).
+
+Observation: ``heightmap`` (cm, float32, the container's 1 cm grid), ``box`` (length, width, height, mass of the
+box to place) and ``lookahead`` (the next boxes, zero-padded). Action: ``(x, y, orientation)`` as a
+MultiDiscrete over the grid. ``env.unwrapped.action_mask()`` gives the feasible actions for masked RL.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from robobpp.core import ORIENTATIONS, Action, EpisodeSpec, Observation
+from robobpp.episode import Episode
+from robobpp.policies.candidates import candidate_maps
+
+ENV_ID = "robobpp/Pack-v0"
+#: Largest box dimension or mass the observation space admits (cm / kg); datasets stay far below.
+_MAX_BOX = 1000.0
+
+RewardFn = Callable[[Episode, Any], float]
+
+
+def volume_reward(episode: Episode, record: Any) -> float:
+    """Default reward: the placed box's volume as a fraction of the container (0 when not placed)."""
+    if record.placement is None:
+        return 0.0
+    box = record.box
+    return box["length"] * box["width"] * box["height"] / episode.spec.container.volume
+
+
+def stability_shaped_reward(episode: Episode, record: Any) -> float:
+    """The paper's training reward: 10·volume ratio + 0.01·static stability − mean position offset (m)."""
+    if record.placement is None:
+        return 0.0
+    offsets = [
+        float(np.linalg.norm(np.subtract(f.planned.center, f.actual.center))) / 100.0
+        for f in episode.setting.final_boxes()
+    ]
+    mean_offset = sum(offsets) / len(offsets) if offsets else 0.0
+    return 10.0 * volume_reward(episode, record) + 0.01 * (record.static_stability or 0.0) - mean_offset
+
+
+REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_shaped_reward}
+
+
+class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        dataset: str = "repetitive",
+        setting: str = "math",
+        split: str = "train",
+        groups: int = 100,
+        lookahead: int = 0,
+        reward: str = "volume",
+        specs: Sequence[EpisodeSpec] | None = None,
+        data_seed: int = 0,
+    ) -> None:
+        if reward not in REWARDS:
+            raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)}")
+        if specs is None:
+            from robobpp.datasets import episode_specs
+
+            specs = episode_specs(dataset, split=split, groups=groups, seed=data_seed)
+        if not specs:
+            raise ValueError("the env needs at least one episode spec")
+        self.specs = list(specs)
+        self.setting_name = setting
+        self.lookahead = lookahead
+        self.reward_fn = REWARDS[reward]
+        container = self.specs[0].container
+        if any(s.container != container for s in self.specs):
+            raise ValueError("all episode specs of one env must share a container")
+        self.container = container
+        nx, ny = container.grid_shape
+        self.observation_space = spaces.Dict(
+            {
+                "heightmap": spaces.Box(0.0, float(container.height), (nx, ny), np.float32),
+                "box": spaces.Box(0.0, _MAX_BOX, (4,), np.float32),
+                "lookahead": spaces.Box(0.0, _MAX_BOX, (lookahead, 4), np.float32),
+            }
+        )
+        self.action_space = spaces.MultiDiscrete([nx, ny, len(ORIENTATIONS)])
+        self._episode: Episode | None = None
+        self._obs: Observation | None = None
+
+    def _encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
+        nx, ny = self.container.grid_shape
+        if obs is None:  # terminal: the final heightmap, no box
+            assert self._episode is not None
+            hm = self._episode.setting.state().heightmap
+            return {
+                "heightmap": np.clip(hm, 0, self.container.height).astype(np.float32),
+                "box": np.zeros(4, np.float32),
+                "lookahead": np.zeros((self.lookahead, 4), np.float32),
+            }
+        look = np.zeros((self.lookahead, 4), np.float32)
+        for i, b in enumerate(obs.lookahead):
+            look[i] = (b.length, b.width, b.height, b.mass)
+        return {
+            "heightmap": np.clip(obs.heightmap, 0, self.container.height).astype(np.float32),
+            "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
+            "lookahead": look,
+        }
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        if self._episode is not None:
+            self._episode.setting.close()
+        index = (options or {}).get("group")
+        if index is None:
+            index = int(self.np_random.integers(len(self.specs)))
+        spec = self.specs[int(index)]
+        self._episode = Episode(spec, self.setting_name, lookahead=self.lookahead)
+        self._obs = self._episode.observe()
+        return self._encode(self._obs), {"episode_id": spec.episode_id}
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        assert self._episode is not None and self._obs is not None, "call reset() first"
+        x, y, orientation = (int(v) for v in np.asarray(action).reshape(3))
+        record = self._episode.step(Action(float(x), float(y), orientation), decision_time=0.0)
+        reward = float(self.reward_fn(self._episode, record))
+        terminated = self._episode.done
+        self._obs = None if terminated else self._episode.observe()
+        info: dict[str, Any] = {"placed": record.placement is not None}
+        if terminated:
+            term = self._episode.termination
+            info["termination"] = term.reason if term else "completed"
+        return self._encode(self._obs), reward, terminated, False, info
+
+    def action_mask(self) -> np.ndarray:
+        """Boolean (x, y, orientation) mask of feasible actions for the current box (all False when done)."""
+        nx, ny = self.container.grid_shape
+        mask = np.zeros((nx, ny, len(ORIENTATIONS)), bool)
+        if self._obs is not None:
+            for cand in candidate_maps(self._obs):
+                cx, cy = cand.feasible.shape
+                mask[:cx, :cy, cand.orientation] = cand.feasible
+        return mask
+
+    def close(self) -> None:
+        if self._episode is not None:
+            self._episode.setting.close()
+            self._episode = None
+
+
+def register_envs() -> None:
+    if ENV_ID not in gym.registry:
+        gym.register(ENV_ID, entry_point="robobpp.env:PackEnv", disable_env_checker=False)
+
+
+register_envs()

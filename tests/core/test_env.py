@@ -1,0 +1,48 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import robobpp.env  # noqa: F401 - registers the env
+from tests.conftest import make_spec
+
+
+@pytest.fixture
+def specs():
+    rng = np.random.default_rng(3)
+    return [make_spec([tuple(map(float, d)) for d in rng.integers(5, 25, (20, 3))], (60, 50, 40), group=g) for g in range(4)]
+
+
+def test_check_env_passes(specs):
+    env = gym.make("robobpp/Pack-v0", specs=specs)
+    check_env(env.unwrapped)
+
+
+def test_masked_actions_fill_the_container(specs):
+    env = gym.make("robobpp/Pack-v0", specs=specs, lookahead=2)
+    obs, info = env.reset(seed=0, options={"group": 1})
+    assert obs["lookahead"].shape == (2, 4) and info["episode_id"].endswith("001")
+    total, steps, terminated = 0.0, 0, False
+    while not terminated:
+        mask = env.unwrapped.action_mask()
+        if not mask.any():
+            break
+        x, y, o = np.argwhere(mask)[0]
+        obs, reward, terminated, truncated, info = env.step(np.array([x, y, o]))
+        assert info["placed"] and reward > 0
+        total += reward
+        steps += 1
+    assert steps > 5
+    assert total == pytest.approx(float(env.unwrapped._episode.result("x").metrics["space_utilization"]))
+
+
+def test_infeasible_action_terminates_with_reason(specs):
+    env = gym.make("robobpp/Pack-v0", specs=specs)
+    env.reset(seed=0)
+    _, reward, terminated, _, info = env.step(np.array([59, 49, 0]))
+    assert terminated and reward == 0.0 and info["termination"] == "out_of_bounds"
+
+
+def test_unknown_reward_is_refused(specs):
+    with pytest.raises(ValueError, match="unknown reward"):
+        robobpp.env.PackEnv(specs=specs, reward="bogus")

@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+
+from robobpp.core import Box, ContainerSpec, ContainerState, Placement, drop_height_map, footprint_cells
+
+
+def brute_force_drop(hm: np.ndarray, lc: int, wc: int) -> np.ndarray:
+    nx, ny = hm.shape[0] - lc + 1, hm.shape[1] - wc + 1
+    out = np.zeros((max(nx, 0), max(ny, 0)))
+    for i in range(nx):
+        for j in range(ny):
+            out[i, j] = hm[i : i + lc, j : j + wc].max()
+    return out
+
+
+@pytest.mark.parametrize("size", [(1, 1), (2, 3), (5, 4), (7, 7), (8, 1), (12, 9)])
+def test_drop_height_map_matches_brute_force(size):
+    rng = np.random.default_rng(sum(size))
+    hm = rng.integers(0, 30, size=(12, 9)).astype(float)
+    np.testing.assert_array_equal(drop_height_map(hm, *size), brute_force_drop(hm, *size))
+
+
+def test_box_larger_than_container_has_no_position():
+    assert drop_height_map(np.zeros((10, 10)), 11, 3).size == 0
+
+
+def test_non_integer_footprint_covers_every_touched_cell():
+    # 2.5 cm wide at x = 0.5 touches cells 0, 1, 2
+    assert footprint_cells(0.5, 0.0, 2.5, 1.0, (10, 10)) == (slice(0, 3), slice(0, 1))
+    # exactly 3 cm at x = 2 touches cells 2, 3, 4 only
+    assert footprint_cells(2.0, 0.0, 3.0, 1.0, (10, 10)) == (slice(2, 5), slice(0, 1))
+
+
+def test_drop_rests_on_highest_cell_under_footprint_even_with_overhang():
+    state = ContainerState(ContainerSpec(10, 10, 10))
+    state.add(Placement(0, 0, 0, 4, 10, 3, 0, 0))  # a 3 cm slab on the back 4 cm
+    box = Box(6, 2, 2)
+    half_over = state.drop(box, 2, 0, 0, index=1)  # footprint x 2..8 overhangs the slab
+    assert half_over.z == 3
+    beside = state.drop(box, 4, 0, 0, index=1)  # x 4..10 misses it
+    assert beside.z == 0
+
+
+def test_heightmap_is_max_of_tops_and_volume_under_it():
+    state = ContainerState(ContainerSpec(4, 4, 10))
+    state.add(Placement(0, 0, 0, 2, 2, 5, 0, 0))
+    state.add(Placement(0, 0, 5, 4, 1, 1, 0, 1))  # thin bar on top, overhanging
+    assert state.heightmap[0, 0] == 6 and state.heightmap[3, 0] == 6
+    assert state.heightmap[1, 1] == 5 and state.heightmap[3, 3] == 0
+    # 4 cells in row y=0 at 6, cells (0,1),(1,1) at 5
+    assert state.volume_under_heightmap() == 4 * 6 + 2 * 5
+
+
+def test_rotated_box_swaps_length_and_width():
+    assert Box(3, 2, 1).dims(1) == (2, 3, 1)
+    with pytest.raises(ValueError, match="orientation"):
+        Box(3, 2, 1).dims(2)
+
+
+@pytest.mark.parametrize("bad", [0, -1, float("nan"), float("inf")])
+def test_box_refuses_degenerate_sizes(bad):
+    with pytest.raises(ValueError, match="finite number > 0"):
+        Box(bad, 1, 1)

@@ -15,13 +15,14 @@ app = typer.Typer(
 
 def _register() -> None:
     # Imported here so `robobpp --help` stays fast and each area owns its own module.
-    from robobpp.cli import datasets, evaluate, protocol, server, view
+    from robobpp.cli import datasets, evaluate, protocol, server, view, worker
 
     app.add_typer(datasets.app, name="datasets")
     evaluate.register(app)
     protocol.register(app)
     server.register(app)
     view.register(app)
+    worker.register(app)
 
 
 def main() -> None:

@@ -171,11 +171,14 @@ MESSAGES: dict[str, type[BaseModel]] = {
 }
 
 
-def json_schema() -> dict[str, Any]:
-    """One JSON Schema document with every message of ``robobpp/1`` under ``$defs``."""
+def json_schema(ref_template: str = "#/$defs/{model}") -> dict[str, Any]:
+    """One JSON Schema document with every message of ``robobpp/1`` under ``$defs``.
+
+    ``ref_template`` lets the SDK server place the same definitions under OpenAPI's components.
+    """
     defs: dict[str, Any] = {}
     for name, model in MESSAGES.items():
-        schema = model.model_json_schema(ref_template="#/$defs/{model}")
+        schema = model.model_json_schema(ref_template=ref_template)
         defs.update(schema.pop("$defs", {}))
         defs[name] = schema
     return {

@@ -1,0 +1,31 @@
+"""Client SDK: serve a policy over protocol robobpp/1, and drive a remote one as a local policy.
+
+Imports are lazy so that using :class:`RemotePolicy` never pulls in FastAPI and uvicorn.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from robobpp.client.remote import RemotePolicy
+    from robobpp.client.serve import BackgroundServer, create_policy_app, serve
+
+_LAZY = {
+    "RemotePolicy": "robobpp.client.remote",
+    "BackgroundServer": "robobpp.client.serve",
+    "create_policy_app": "robobpp.client.serve",
+    "serve": "robobpp.client.serve",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'robobpp.client' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(module), name)
+
+
+__all__ = ["BackgroundServer", "RemotePolicy", "create_policy_app", "serve"]

@@ -1,0 +1,229 @@
+"""The SDK's policy server: a participant writes ``act`` (optionally ``reset``/``close``), this does the rest.
+
+Requests arrive as ``robobpp/1`` JSON; the server checks the signature (when a secret is set), validates
+the message strictly, rebuilds the very :class:`~robobpp.core.Observation` the policy would get
+in-process (heightmap from ``placed``) and answers the policy's :class:`~robobpp.core.Action`.
+
+The handlers are ``async`` and call the policy directly, so the policy sees one request at a time, in
+arrival order: a stateful policy needs no locks. (It also means a slow ``act`` delays every other
+request; run one server per concurrent evaluation if that matters.)
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from collections import OrderedDict
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.openapi.utils import get_openapi
+from fastapi.responses import Response
+from pydantic import BaseModel, ValidationError
+
+from robobpp import protocol as P
+from robobpp.client.remote import describe_validation
+from robobpp.core import Action, ContainerSpec
+from robobpp.policies.base import Policy
+
+#: Episodes whose container the server remembers (for callers that omit it from /act).
+_EPISODE_MEMORY = 1024
+
+
+def _json(data: Any, status: int = 200) -> Response:
+    body = json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
+    return Response(body, status_code=status, media_type="application/json")
+
+
+def _error(status: int, error: str, detail: str) -> Response:
+    return _json({"error": error, "detail": detail}, status)
+
+
+def _request_doc(model: type[BaseModel]) -> dict[str, Any]:
+    ref = {"$ref": f"#/components/schemas/{model.__name__}"}
+    return {"requestBody": {"required": True, "content": {"application/json": {"schema": ref}}}}
+
+
+def _responses(model: type[BaseModel]) -> dict[int | str, dict[str, Any]]:
+    return {
+        200: {"model": model, "description": "success"},
+        401: {"model": P.ErrorResponse, "description": "missing, wrong or stale signature"},
+        422: {"model": P.ErrorResponse, "description": "the request breaks robobpp/1"},
+        500: {"model": P.ErrorResponse, "description": "the policy raised an error"},
+    }
+
+
+def create_policy_app(
+    policy: Policy | type,
+    secret: str | None = None,
+    *,
+    name: str | None = None,
+    version: str = "0",
+    replay_window_s: float = P.DEFAULT_REPLAY_WINDOW_S,
+) -> FastAPI:
+    """A FastAPI app serving ``policy`` over ``robobpp/1`` (a class is instantiated without arguments)."""
+    if isinstance(policy, type):
+        policy = policy()
+    if not callable(getattr(policy, "act", None)):
+        raise TypeError(f"{type(policy).__name__} has no act(observation) method")
+    shown_name = (name or getattr(policy, "name", None) or type(policy).__name__)[: P.MAX_TEXT]
+    info = {"protocol": P.PROTOCOL, "name": shown_name, "version": version[: P.MAX_TEXT]}
+    containers: OrderedDict[str, ContainerSpec] = OrderedDict()
+
+    app = FastAPI(
+        title=f"robobpp policy server ({shown_name})",
+        version=version,
+        description=f"Serves a packing policy over protocol {P.PROTOCOL}.",
+    )
+
+    async def read(request: Request, model: type[P.Message]) -> P.Message | Response:
+        body = await request.body()
+        if secret is not None:
+            try:
+                P.verify(secret, request.headers, body, window_s=replay_window_s)
+            except P.SignatureError as exc:
+                return _error(401, "unauthorized", str(exc))
+        if model is P.EmptyResponse:  # GET /info carries no body
+            return P.EmptyResponse()
+        try:
+            return model.model_validate_json(body)
+        except ValidationError as exc:
+            return _error(422, "invalid_request", describe_validation(exc))
+
+    def call_hook(hook: str, *args: object) -> Response | None:
+        method = getattr(policy, hook, None)
+        if not callable(method):
+            return None
+        try:
+            method(*args)
+        except Exception as exc:  # noqa: BLE001 - report the policy's failure to the caller
+            return _error(500, "policy_error", f"{hook} raised {type(exc).__name__}: {exc}")
+        return None
+
+    @app.get("/info", responses=_responses(P.InfoResponse), openapi_extra={})
+    async def get_info(request: Request) -> Response:
+        checked = await read(request, P.EmptyResponse)
+        return checked if isinstance(checked, Response) else _json(info)
+
+    @app.post("/reset", responses=_responses(P.EmptyResponse), openapi_extra=_request_doc(P.ResetRequest))
+    async def reset(request: Request) -> Response:
+        req = await read(request, P.ResetRequest)
+        if isinstance(req, Response):
+            return req
+        assert isinstance(req, P.ResetRequest)
+        episode = P.info_from_reset(req)
+        containers[req.episode_id] = episode.container
+        containers.move_to_end(req.episode_id)
+        while len(containers) > _EPISODE_MEMORY:
+            containers.popitem(last=False)
+        return call_hook("reset", episode) or _json({})
+
+    @app.post("/act", responses=_responses(P.ActResponse), openapi_extra=_request_doc(P.ActRequest))
+    async def act(request: Request) -> Response:
+        req = await read(request, P.ActRequest)
+        if isinstance(req, Response):
+            return req
+        assert isinstance(req, P.ActRequest)
+        try:
+            obs = P.observation_from_act(req, containers.get(req.episode_id))
+        except ValueError as exc:
+            return _error(422, "invalid_request", str(exc))
+        started = time.perf_counter()
+        try:
+            action = policy.act(obs)
+        except Exception as exc:  # noqa: BLE001
+            return _error(500, "policy_error", f"act raised {type(exc).__name__}: {exc}")
+        elapsed = time.perf_counter() - started
+        if action is not None and not isinstance(action, Action):
+            return _error(
+                500, "policy_error", f"act returned {type(action).__name__}, expected Action or None"
+            )
+        try:
+            return _json(P.response_from_action(action, elapsed))
+        except (TypeError, ValueError) as exc:  # NaN or a non-number in the policy's own action
+            return _error(500, "policy_error", f"act returned an action that is not finite numbers: {exc}")
+
+    @app.post("/close", responses=_responses(P.EmptyResponse), openapi_extra=_request_doc(P.CloseRequest))
+    async def close(request: Request) -> Response:
+        req = await read(request, P.CloseRequest)
+        if isinstance(req, Response):
+            return req
+        assert isinstance(req, P.CloseRequest)
+        containers.pop(req.episode_id, None)
+        return call_hook("close", req.reason) or _json({})
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            schema = get_openapi(title=app.title, version=app.version, description=app.description,
+                                 routes=app.routes)  # fmt: skip
+            defs = P.json_schema(ref_template="#/components/schemas/{model}")["$defs"]
+            schema.setdefault("components", {}).setdefault("schemas", {}).update(defs)
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+    return app
+
+
+def serve(
+    policy: Policy | type,
+    host: str = "127.0.0.1",
+    port: int = 9000,
+    secret: str | None = None,
+    *,
+    name: str | None = None,
+    log_level: str = "warning",
+) -> None:
+    """Serve ``policy`` until interrupted (Ctrl-C). Bind ``host="0.0.0.0"`` to accept other machines."""
+    import uvicorn
+
+    app = create_policy_app(policy, secret, name=name)
+    uvicorn.run(app, host=host, port=port, log_level=log_level, access_log=False)
+
+
+class BackgroundServer:
+    """An ASGI app served by uvicorn in a thread on a free loopback port (tests, benchmarks, ``check``).
+
+    Use as a context manager; :attr:`url` is the base URL. Leaving the block stops the server and
+    closes its connections.
+    """
+
+    def __init__(self, app: Any, host: str = "127.0.0.1", port: int = 0) -> None:
+        import uvicorn
+
+        self._sock = socket.socket(
+            socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP
+        )  # asyncio sets TCP_NODELAY only then
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._sock.bind((host, port))
+        self.host, self.port = self._sock.getsockname()[:2]
+        self.url = f"http://{self.host}:{self.port}"
+        config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off",
+                                timeout_graceful_shutdown=2)  # fmt: skip
+        self.server = uvicorn.Server(config)
+        self._thread = threading.Thread(target=self._run, name="robobpp-policy-server", daemon=True)
+
+    def _run(self) -> None:
+        self.server.run(sockets=[self._sock])
+
+    def start(self) -> BackgroundServer:
+        self._thread.start()
+        deadline = time.monotonic() + 10
+        while not self.server.started:
+            if not self._thread.is_alive() or time.monotonic() > deadline:
+                raise RuntimeError("the policy server did not start")
+            time.sleep(0.01)
+        return self
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self._thread.join(timeout=10)
+        self._sock.close()
+
+    def __enter__(self) -> BackgroundServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

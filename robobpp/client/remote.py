@@ -14,6 +14,7 @@ already runs a loop, e.g. a notebook) under one hard deadline; cancelling it clo
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import json
 import socket
@@ -188,12 +189,11 @@ class RemotePolicy:
         try:
             if self._client is not None and self._episode_id is not None:
                 payload = {"episode_id": self._episode_id, "reason": reason[: P.MAX_TEXT]}
-                try:
+                # Best effort: the episode is over either way and its reason is already recorded.
+                with contextlib.suppress(PolicyError):
                     self._call(
                         "POST", "/close", payload, P.EmptyResponse, self.close_timeout_s, use_episode=False
                     )
-                except PolicyError:
-                    pass  # the episode is over either way; its reason is already recorded
         finally:
             self._episode_id = None
             self._shutdown()
@@ -211,10 +211,8 @@ class RemotePolicy:
         self._shutdown()
 
     def __del__(self) -> None:  # last resort: never leave a loop thread behind
-        try:
+        with contextlib.suppress(Exception):  # interpreter teardown
             self._shutdown()
-        except Exception:  # noqa: BLE001 - interpreter teardown
-            pass
 
     # ------------------------------------------------------------------ plumbing
 
@@ -250,10 +248,8 @@ class RemotePolicy:
         if runner is None:
             return
         if client is not None:
-            try:
+            with contextlib.suppress(Exception):  # closing must not raise
                 runner.call(client.aclose(), _GRACE_S)
-            except Exception:  # noqa: BLE001 - closing must not raise
-                pass
         runner.stop()
 
     def _call(

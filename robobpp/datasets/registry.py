@@ -26,6 +26,11 @@ class DatasetSpec:
     #: Density (kg/m³) used when the source has no masses; None when it has them.
     density_kg_m3: float | None
     description: str
+    #: Data file inside the packsim wheel the records come from (BENCHMARK.md §2).
+    source: str = ""
+    #: How the public/private pools are split (the rule is documented in docs/datasets.md).
+    split_rule: str = ""
+    splits: tuple[str, ...] = ("train", "test")
 
 
 DATASETS: dict[str, DatasetSpec] = {
@@ -37,6 +42,8 @@ DATASETS: dict[str, DatasetSpec] = {
         "consecutive",
         None,
         "Time-ordered pick records of an assembly-line warehouse; identical boxes arrive in runs.",
+        "packsim/data/time_series/pg.xlsx (sheet E1_E2)",
+        "test = the earliest 20 % of records (the authors' pg_test.xlsx), train = the rest (pg_train.xlsx)",
     ),
     "diverse": DatasetSpec(
         "diverse",
@@ -46,6 +53,8 @@ DATASETS: dict[str, DatasetSpec] = {
         "weighted",
         250.0,
         "6,801 logistics SKUs drawn in proportion to their shipments; widely varying sizes.",
+        "packsim/data/occupancy/deli.xlsx (sheet 道口物料清单)",
+        "test = SKUs whose sha256('robobpp-diverse:' + code) mod 100 < 20, train = the rest",
     ),
     "longboard": DatasetSpec(
         "longboard",
@@ -55,6 +64,8 @@ DATASETS: dict[str, DatasetSpec] = {
         "uniform",
         400.0,
         "Flat furniture panels up to 2.5 m long; narrow feasible regions.",
+        "packsim/data/flat_long/opai.txt",
+        "the authors' opai_train.txt / opai_test.txt (a partition of opai.txt)",
     ),
 }
 
@@ -63,8 +74,24 @@ class UnknownDatasetError(ValueError):
     pass
 
 
+class UnknownSplitError(ValueError):
+    pass
+
+
+def check_split(dataset: str, split: str) -> DatasetSpec:
+    """The dataset's spec, after checking that ``split`` is one of its splits (clear error otherwise)."""
+    spec = get_dataset(dataset)
+    if split not in spec.splits:
+        raise UnknownSplitError(
+            f"unknown split {split!r} of {dataset}; expected one of {', '.join(spec.splits)}"
+        )
+    return spec
+
+
 def get_dataset(name: str) -> DatasetSpec:
     try:
         return DATASETS[name]
     except KeyError:
-        raise UnknownDatasetError(f"unknown dataset {name!r}; expected one of {', '.join(DATASETS)}") from None
+        raise UnknownDatasetError(
+            f"unknown dataset {name!r}; expected one of {', '.join(DATASETS)}"
+        ) from None

@@ -13,6 +13,13 @@ from robobpp.policies.base import BasePolicy, Policy, PolicyError
 #: Built-in policies: name → "module:Class". Modules load lazily so one slow import never taxes the rest.
 BUILTIN: dict[str, str] = {
     "dbl": "robobpp.policies.dbl:DBL",
+    "hm": "robobpp.policies.hm:HM",
+    "lsah": "robobpp.policies.lsah:LSAH",
+    "onlinebph": "robobpp.policies.onlinebph:OnlineBPH",
+    "br": "robobpp.policies.br:BR",
+    "macs": "robobpp.policies.macs:MACS",
+    "sdfpack": "robobpp.policies.sdfpack:SDFPack",
+    "packe-rules": "robobpp.policies.packe_rules:PackERules",
     "random": "robobpp.policies.random_policy:RandomPolicy",
 }
 

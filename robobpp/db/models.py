@@ -1,0 +1,162 @@
+"""SQLAlchemy 2.0 models. SQL is the record of truth for every submission and episode.
+
+Work unit: one :class:`EpisodeRow` (submission × dataset × setting × group). A :class:`RunRow` holds the
+aggregated raw metrics of one submission on one (dataset, setting) leaderboard, written once, when its
+last episode completes; scores are never stored (they are relative, computed on read).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import JSON, DateTime, ForeignKey, Index, Integer, String, Text, UniqueConstraint
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+from sqlalchemy.types import TypeDecorator
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """Timezone-aware UTC timestamps on every backend (SQLite forgets the zone otherwise)."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            value = value.replace(tzinfo=UTC)
+        return value.astimezone(UTC)
+
+    def process_result_value(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is None:
+            value = value.replace(tzinfo=UTC)
+        return value
+
+
+class Base(DeclarativeBase):
+    type_annotation_map = {datetime: UTCDateTime(), dict[str, Any]: JSON(), list[Any]: JSON()}
+
+
+# Status vocabularies (strings, so reports and SQL read alike).
+SUBMISSION_STATUSES = ("queued", "running", "completed", "failed", "cancelled")
+EPISODE_STATUSES = ("pending", "running", "done", "failed", "cancelled")
+TERMINAL_EPISODE = ("done", "failed", "cancelled")
+
+
+class Participant(Base):
+    __tablename__ = "participants"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True)
+    #: Built-in participants own the baselines; their policies run in-process.
+    is_builtin: Mapped[bool] = mapped_column(default=False)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    tokens: Mapped[list[ApiToken]] = relationship(back_populates="participant", cascade="all, delete-orphan")
+
+
+class ApiToken(Base):
+    """Only the SHA-256 of a token is stored; the token itself is shown once, at creation."""
+
+    __tablename__ = "api_tokens"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participants.id", ondelete="CASCADE"), index=True)
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    #: First characters of the token, to tell tokens apart in listings without revealing them.
+    prefix: Mapped[str] = mapped_column(String(12))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(default=None)
+
+    participant: Mapped[Participant] = relationship(back_populates="tokens")
+
+
+class Submission(Base):
+    __tablename__ = "submissions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participants.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(80))
+    policy_url: Mapped[str] = mapped_column(String(2048))
+    #: HMAC key the workers sign policy requests with. Needed in clear to sign; never served or logged.
+    secret: Mapped[str | None] = mapped_column(String(256), default=None)
+    #: The address the host resolved to when the submission was checked (resolve once, then pin).
+    pinned_ip: Mapped[str | None] = mapped_column(String(64), default=None)
+    #: ``private`` (the leaderboard, test split) or ``public`` (train split, traces kept).
+    track: Mapped[str] = mapped_column(String(16), default="private")
+    datasets: Mapped[list[Any]] = mapped_column()
+    settings: Mapped[list[Any]] = mapped_column()
+    lookahead: Mapped[int] = mapped_column(default=0)
+    status: Mapped[str] = mapped_column(String(16), default="queued", index=True)
+    episodes_total: Mapped[int] = mapped_column(default=0)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
+    finished_at: Mapped[datetime | None] = mapped_column(default=None)
+    error: Mapped[str | None] = mapped_column(Text, default=None)
+
+    participant: Mapped[Participant] = relationship()
+    runs: Mapped[list[RunRow]] = relationship(back_populates="submission", cascade="all, delete-orphan",
+                                              order_by="RunRow.id")  # fmt: skip
+
+
+class RunRow(Base):
+    """One submission on one leaderboard (dataset × setting): progress and aggregated raw metrics."""
+
+    __tablename__ = "runs"
+    __table_args__ = (
+        UniqueConstraint("submission_id", "dataset", "setting", name="uq_run"),
+        Index("ix_runs_board", "dataset", "setting", "status"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    submission_id: Mapped[int] = mapped_column(ForeignKey("submissions.id", ondelete="CASCADE"), index=True)
+    dataset: Mapped[str] = mapped_column(String(32))
+    setting: Mapped[str] = mapped_column(String(16))
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    episodes_total: Mapped[int] = mapped_column(default=0)
+    metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
+    #: Pooled counters and side figures (boxes placed, episodes ended by collapse, PPH).
+    extras: Mapped[dict[str, Any] | None] = mapped_column(default=None)
+    completed_at: Mapped[datetime | None] = mapped_column(default=None)
+
+    submission: Mapped[Submission] = relationship(back_populates="runs")
+
+
+class EpisodeRow(Base):
+    """One unit of work. ``lease_token`` makes completion idempotent: only the current claim may write."""
+
+    __tablename__ = "episodes"
+    __table_args__ = (
+        UniqueConstraint("submission_id", "dataset", "setting", "group", name="uq_episode"),
+        Index("ix_episodes_claim", "status", "lease_expires_at"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    submission_id: Mapped[int] = mapped_column(ForeignKey("submissions.id", ondelete="CASCADE"), index=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    dataset: Mapped[str] = mapped_column(String(32))
+    setting: Mapped[str] = mapped_column(String(16))
+    split: Mapped[str] = mapped_column(String(16))
+    group: Mapped[int] = mapped_column(Integer)
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    attempts: Mapped[int] = mapped_column(default=0)
+    worker: Mapped[str | None] = mapped_column(String(128), default=None)
+    lease_token: Mapped[str | None] = mapped_column(String(64), default=None)
+    lease_expires_at: Mapped[datetime | None] = mapped_column(default=None)
+    started_at: Mapped[datetime | None] = mapped_column(default=None)
+    finished_at: Mapped[datetime | None] = mapped_column(default=None)
+    #: Boxes handled so far in the current attempt (progress display).
+    step: Mapped[int] = mapped_column(default=0)
+    termination: Mapped[str | None] = mapped_column(String(64), default=None)
+    termination_detail: Mapped[str | None] = mapped_column(Text, default=None)
+    boxes_total: Mapped[int | None] = mapped_column(default=None)
+    boxes_placed: Mapped[int | None] = mapped_column(default=None)
+    metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
+    counters: Mapped[dict[str, Any] | None] = mapped_column(default=None)
+    #: Per-step trace; kept for the public track only (private episodes have no replay).
+    trace: Mapped[dict[str, Any] | None] = mapped_column(default=None)
+    error: Mapped[str | None] = mapped_column(Text, default=None)

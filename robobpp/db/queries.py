@@ -1,0 +1,198 @@
+"""Read queries shared by the JSON API and the HTML pages (``robobpp.server.pages``).
+
+For page authors, the entry points are:
+
+* :func:`leaderboard` — one board (dataset × setting): ranked entries with raw metrics and scores;
+* :func:`overall_grid` — every submission's score and rank on each of the 3 × 3 boards;
+* :func:`submission_view` / :func:`submission_progress` — one submission with its runs and progress;
+* :func:`episode_rows` / :func:`get_episode` — per-episode results (traces only on the public track);
+* :func:`list_submissions` — a participant's submissions, newest first.
+
+Each takes an open :class:`~sqlalchemy.orm.Session` (``with app.state.runtime.session() as s``) and
+returns plain dicts ready for JSON or templates.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from datetime import datetime, timedelta
+from typing import Any
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
+from robobpp.metrics import metrics_for
+from robobpp.scoring import score_entries
+
+SETTINGS_ORDER = ("math", "physics", "execution")
+DATASETS_ORDER = ("repetitive", "diverse", "longboard")
+
+
+def hash_token(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def participant_for_token(session: Session, token: str) -> Participant | None:
+    return session.execute(
+        select(Participant)
+        .join(ApiToken, ApiToken.participant_id == Participant.id)
+        .where(ApiToken.token_hash == hash_token(token), ApiToken.revoked_at.is_(None))
+    ).scalar_one_or_none()
+
+
+def episode_status_counts(session: Session) -> dict[str, int]:
+    return dict(session.execute(select(EpisodeRow.status, func.count()).group_by(EpisodeRow.status)).all())
+
+
+def submission_status_counts(session: Session) -> dict[str, int]:
+    return dict(session.execute(select(Submission.status, func.count()).group_by(Submission.status)).all())
+
+
+def quota_usage(session: Session, participant_id: int, now: datetime | None = None) -> tuple[int, int]:
+    """(submissions in the last 24 h, submissions queued or running) of one participant."""
+    now = now or utcnow()
+    day = session.execute(
+        select(func.count())
+        .select_from(Submission)
+        .where(Submission.participant_id == participant_id, Submission.created_at > now - timedelta(days=1))
+    ).scalar_one()
+    active = session.execute(
+        select(func.count())
+        .select_from(Submission)
+        .where(Submission.participant_id == participant_id, Submission.status.in_(("queued", "running")))
+    ).scalar_one()
+    return int(day), int(active)
+
+
+def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> list[Any]:
+    return session.execute(
+        select(
+            RunRow.submission_id,
+            RunRow.metrics,
+            RunRow.extras,
+            RunRow.completed_at,
+            Submission.name,
+            Participant.name,
+            Participant.is_builtin,
+        )  # fmt: skip
+        .join(Submission, Submission.id == RunRow.submission_id)
+        .join(Participant, Participant.id == Submission.participant_id)
+        .where(
+            RunRow.dataset == dataset,
+            RunRow.setting == setting,
+            RunRow.status == "completed",
+            Submission.track == track,
+            Submission.status == "completed",
+        )  # fmt: skip
+        .order_by(RunRow.submission_id)
+    ).all()
+
+
+def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private") -> dict[str, Any]:
+    """One board: completed submissions ranked by the weighted min–max score (computed now)."""
+    rows = _entry_rows(session, dataset, setting, track)
+    scored = score_entries([r.metrics or {} for r in rows], setting)
+    entries = []
+    for r, s in zip(rows, scored, strict=True):
+        entries.append({
+            "rank": s.rank, "score": s.score, "submission_id": r.submission_id, "name": r[4],
+            "participant": r[5], "baseline": bool(r.is_builtin), "metrics": r.metrics or {},
+            "normalized": s.normalized, "extras": r.extras or {}, "completed_at": r.completed_at,
+        })  # fmt: skip
+    entries.sort(key=lambda e: (e["rank"], e["submission_id"]))
+    return {"dataset": dataset, "setting": setting, "track": track,
+            "metrics": [m.key for m in metrics_for(setting)], "entries": entries}  # fmt: skip
+
+
+def overall_grid(
+    session: Session, *, datasets: tuple[str, ...] = DATASETS_ORDER, settings: tuple[str, ...] = SETTINGS_ORDER,
+    track: str = "private",
+) -> dict[str, Any]:  # fmt: skip
+    """The paper's overall table: one row per submission, one (score, rank) cell per board it is on."""
+    rows: dict[int, dict[str, Any]] = {}
+    for setting in settings:
+        for dataset in datasets:
+            board = leaderboard(session, dataset, setting, track=track)
+            for e in board["entries"]:
+                row = rows.setdefault(e["submission_id"], {"submission_id": e["submission_id"], "name": e["name"],
+                                      "participant": e["participant"], "baseline": e["baseline"], "cells": {}})  # fmt: skip
+                row["cells"][f"{setting}/{dataset}"] = {"score": e["score"], "rank": e["rank"],
+                                                        "pph": e["extras"].get("pph")}  # fmt: skip
+    out = sorted(
+        rows.values(), key=lambda r: (-sum(c["score"] for c in r["cells"].values()), r["submission_id"])
+    )
+    return {"datasets": list(datasets), "settings": list(settings), "track": track, "rows": out}
+
+
+def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
+    """Episodes by status and the current phase (the (dataset, setting) being evaluated)."""
+    counts = dict(
+        session.execute(
+            select(EpisodeRow.status, func.count())
+            .where(EpisodeRow.submission_id == submission_id)
+            .group_by(EpisodeRow.status)
+        ).all()
+    )
+    running = session.execute(
+        select(EpisodeRow.dataset, EpisodeRow.setting)
+        .where(EpisodeRow.submission_id == submission_id, EpisodeRow.status.in_(("running", "pending")))
+        .order_by(EpisodeRow.id)
+        .limit(1)
+    ).first()
+    total = sum(counts.values())
+    finished = counts.get("done", 0) + counts.get("failed", 0)
+    return {
+        "episodes_total": total,
+        "episodes_done": finished,
+        "episodes_running": counts.get("running", 0),
+        "episodes_pending": counts.get("pending", 0),
+        "episodes_failed": counts.get("failed", 0),
+        "episodes_cancelled": counts.get("cancelled", 0),
+        "phase": f"{running.setting}/{running.dataset}" if running else None,
+    }
+
+
+def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
+    return {
+        "id": sub.id, "name": sub.name, "participant": sub.participant.name,
+        "baseline": sub.participant.is_builtin, "policy_url": sub.policy_url, "track": sub.track,
+        "datasets": sub.datasets, "settings": sub.settings, "lookahead": sub.lookahead, "status": sub.status,
+        "created_at": sub.created_at, "finished_at": sub.finished_at, "error": sub.error,
+        "progress": submission_progress(session, sub.id),
+        "runs": [{"dataset": r.dataset, "setting": r.setting, "status": r.status,
+                  "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
+                  "completed_at": r.completed_at} for r in sub.runs],
+    }  # fmt: skip
+
+
+def list_submissions(
+    session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0
+) -> list[Submission]:
+    query = select(Submission).order_by(Submission.id.desc()).limit(limit).offset(offset)
+    if participant_id is not None:
+        query = query.where(Submission.participant_id == participant_id)
+    return list(session.execute(query).scalars())
+
+
+def episode_summary(ep: EpisodeRow) -> dict[str, Any]:
+    return {
+        "id": ep.id, "dataset": ep.dataset, "setting": ep.setting, "split": ep.split, "group": ep.group,
+        "status": ep.status, "attempts": ep.attempts, "step": ep.step, "termination": ep.termination,
+        "termination_detail": ep.termination_detail, "boxes_total": ep.boxes_total,
+        "boxes_placed": ep.boxes_placed, "metrics": ep.metrics, "counters": ep.counters,
+        "finished_at": ep.finished_at, "has_trace": ep.trace is not None,
+    }  # fmt: skip
+
+
+def episode_rows(session: Session, submission_id: int) -> list[dict[str, Any]]:
+    rows = session.execute(
+        select(EpisodeRow).where(EpisodeRow.submission_id == submission_id).order_by(EpisodeRow.id)
+    ).scalars()
+    return [episode_summary(ep) for ep in rows]
+
+
+def get_episode(session: Session, submission_id: int, episode_id: int) -> EpisodeRow | None:
+    return session.execute(
+        select(EpisodeRow).where(EpisodeRow.id == episode_id, EpisodeRow.submission_id == submission_id)
+    ).scalar_one_or_none()

@@ -1,0 +1,359 @@
+"""The work queue in SQL: create, claim (lease), heartbeat, complete, fail, cancel.
+
+Every executor (the local process pool, Celery tasks) uses these functions and nothing else to move an
+episode through ``pending → running → done | failed | cancelled``, so the guarantees hold everywhere:
+
+* a claim takes a *lease* (expiry + random token); an expired lease is taken over by the next claimer,
+  up to ``max_attempts`` claims, after which the episode is recorded ``failed`` (``worker_lost``);
+* completion is idempotent: it writes only while the caller's token is the current one and the episode is
+  still running, so a late or repeated completion changes nothing and nothing is counted twice;
+* the run's aggregate is written in the same transaction as its last episode, under a row lock on the run.
+
+Callers own the transaction (``with runtime.session() as s: claim_episode(s, ...)``).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Any
+
+from sqlalchemy import and_, func, or_, select, update
+from sqlalchemy.orm import Session
+
+from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
+from robobpp.metrics import aggregate
+
+#: Extra termination code of an episode whose workers kept dying (not the policy's fault).
+WORKER_LOST = "worker_lost"
+ACTIVE_SUBMISSION = ("queued", "running")
+
+
+@dataclass(frozen=True, slots=True)
+class Claim:
+    """Everything a worker needs to run one episode (plain data: it crosses process boundaries)."""
+
+    episode_id: int
+    token: str
+    attempt: int
+    submission_id: int
+    dataset: str
+    setting: str
+    split: str
+    group: int
+    policy_url: str
+    secret: str | None
+    pinned_ip: str | None
+    lookahead: int
+    keep_trace: bool
+
+
+def create_submission(
+    session: Session,
+    participant: Participant,
+    *,
+    name: str,
+    policy_url: str,
+    datasets: list[str],
+    settings: list[str],
+    groups: int,
+    track: str = "private",
+    secret: str | None = None,
+    pinned_ip: str | None = None,
+    lookahead: int = 0,
+) -> Submission:
+    """The submission with one run per (dataset, setting) and one episode per group, in one transaction."""
+    split = "test" if track == "private" else "train"
+    sub = Submission(participant=participant, name=name, policy_url=policy_url, secret=secret,
+                     pinned_ip=pinned_ip, track=track, datasets=list(datasets), settings=list(settings),
+                     lookahead=lookahead, status="queued", episodes_total=len(datasets) * len(settings) * groups)  # fmt: skip
+    session.add(sub)
+    session.flush()
+    for dataset in datasets:
+        for setting in settings:
+            run = RunRow(submission_id=sub.id, dataset=dataset, setting=setting, episodes_total=groups)
+            session.add(run)
+            session.flush()
+            session.add_all(
+                EpisodeRow(
+                    submission_id=sub.id,
+                    run_id=run.id,
+                    dataset=dataset,
+                    setting=setting,
+                    split=split,
+                    group=g,
+                )
+                for g in range(groups)  # fmt: skip
+            )
+    session.flush()
+    return sub
+
+
+def _expired(now: datetime) -> Any:
+    return and_(EpisodeRow.status == "running", EpisodeRow.lease_expires_at < now)
+
+
+def reap_expired(session: Session, max_attempts: int, now: datetime | None = None) -> int:
+    """Record as ``failed`` the episodes whose last allowed lease expired; finalise their runs."""
+    now = now or utcnow()
+    rows = session.execute(
+        select(EpisodeRow.id, EpisodeRow.run_id)
+        .where(_expired(now), EpisodeRow.attempts >= max_attempts)
+        .with_for_update(skip_locked=True)
+    ).all()
+    for episode_id, run_id in rows:
+        session.execute(
+            update(EpisodeRow)
+            .where(EpisodeRow.id == episode_id, _expired(now))
+            .values(
+                status="failed",
+                termination=WORKER_LOST,
+                finished_at=now,
+                lease_token=None,
+                termination_detail=f"no worker finished the episode in {max_attempts} attempts",
+            )  # fmt: skip
+        )
+        finalize_run(session, run_id)
+    return len(rows)
+
+
+def claim_episode(
+    session: Session,
+    worker: str,
+    *,
+    lease_s: float,
+    max_attempts: int,
+    now: datetime | None = None,
+    episode_id: int | None = None,
+) -> Claim | None:
+    """Lease the oldest runnable episode (pending, or running with an expired lease) to ``worker``.
+
+    ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it)."""
+    now = now or utcnow()
+    reap_expired(session, max_attempts, now)
+    runnable = or_(EpisodeRow.status == "pending", and_(_expired(now), EpisodeRow.attempts < max_attempts))
+    if episode_id is not None:
+        runnable = and_(EpisodeRow.id == episode_id, runnable)
+    for _ in range(
+        5
+    ):  # another claimer may win the row between select and update (SQLite has no SKIP LOCKED)
+        row = session.execute(
+            select(EpisodeRow.id)
+            .join(Submission, Submission.id == EpisodeRow.submission_id)
+            .where(runnable, Submission.status.in_(ACTIVE_SUBMISSION))
+            .order_by(EpisodeRow.id)
+            .limit(1)
+            .with_for_update(skip_locked=True, of=EpisodeRow)
+        ).first()
+        if row is None:
+            return None
+        token = secrets.token_hex(16)
+        claimed = session.execute(
+            update(EpisodeRow)
+            .where(EpisodeRow.id == row.id, runnable)
+            .values(
+                status="running",
+                attempts=EpisodeRow.attempts + 1,
+                worker=worker[:128],
+                lease_token=token,
+                lease_expires_at=now + timedelta(seconds=lease_s),
+                started_at=now,
+                step=0,
+            )  # fmt: skip
+            .execution_options(synchronize_session=False)
+        )
+        if claimed.rowcount == 1:
+            ep = session.get(EpisodeRow, row.id, populate_existing=True)
+            assert ep is not None
+            sub = session.get(Submission, ep.submission_id)
+            assert sub is not None
+            if sub.status == "queued":
+                sub.status = "running"
+            return Claim(ep.id, token, ep.attempts, sub.id, ep.dataset, ep.setting, ep.split, ep.group,
+                         sub.policy_url, sub.secret, sub.pinned_ip, sub.lookahead, sub.track == "public")  # fmt: skip
+    return None
+
+
+def heartbeat(
+    session: Session, episode_id: int, token: str, *, lease_s: float, step: int, now: datetime | None = None
+) -> bool:
+    """Extend the lease and record progress. ``False``: the claim is gone (cancelled, taken over) — stop."""
+    now = now or utcnow()
+    result = session.execute(
+        update(EpisodeRow)
+        .where(EpisodeRow.id == episode_id, EpisodeRow.lease_token == token, EpisodeRow.status == "running")
+        .values(lease_expires_at=now + timedelta(seconds=lease_s), step=step)
+        .execution_options(synchronize_session=False)
+    )
+    return result.rowcount == 1
+
+
+def complete_episode(
+    session: Session, episode_id: int, token: str, result: dict[str, Any], *, keep_trace: bool
+) -> bool:
+    """Record an episode's result under its claim. Returns ``False`` (and writes nothing) otherwise."""
+    values: dict[str, Any] = {
+        "status": "done",
+        "finished_at": utcnow(),
+        "lease_token": None,
+        "termination": result["termination"],
+        "termination_detail": result.get("termination_detail", "")[:4000],
+        "boxes_total": result["boxes_total"],
+        "boxes_placed": result["boxes_placed"],
+        "step": len(result.get("steps", ())) or result["boxes_placed"],
+        "metrics": result["metrics"],
+        "counters": result["counters"],
+        "trace": {
+            "steps": result.get("steps", []),
+            "final": result.get("final", []),
+            "container": result.get("container"),
+        }
+        if keep_trace
+        else None,  # fmt: skip
+    }
+    done = session.execute(
+        update(EpisodeRow)
+        .where(EpisodeRow.id == episode_id, EpisodeRow.lease_token == token, EpisodeRow.status == "running")
+        .values(**values)
+        .execution_options(synchronize_session=False)
+    )
+    if done.rowcount != 1:
+        return False
+    run_id = session.execute(select(EpisodeRow.run_id).where(EpisodeRow.id == episode_id)).scalar_one()
+    finalize_run(session, run_id)
+    return True
+
+
+def release_episode(
+    session: Session, episode_id: int, token: str, error: str, *, max_attempts: int, final: bool = False
+) -> bool:
+    """The worker could not run the episode (infrastructure error): retry it, or record it failed."""
+    ep = session.execute(
+        select(EpisodeRow)
+        .where(EpisodeRow.id == episode_id, EpisodeRow.lease_token == token, EpisodeRow.status == "running")
+        .with_for_update()
+    ).scalar_one_or_none()
+    if ep is None:
+        return False
+    ep.error = error[:4000]
+    ep.lease_token = None
+    if final or ep.attempts >= max_attempts:
+        ep.status = "failed"
+        ep.termination = "evaluation_error"
+        ep.termination_detail = error[:4000]
+        ep.finished_at = utcnow()
+        session.flush()
+        finalize_run(session, ep.run_id)
+    else:
+        ep.status = "pending"
+        ep.lease_expires_at = None
+    return True
+
+
+def release_dead_workers(session: Session, host_prefix: str, alive: set[int]) -> int:
+    """After a restart: hand back the episodes held by this host's dead worker processes right away."""
+    rows = session.execute(
+        select(EpisodeRow).where(EpisodeRow.status == "running", EpisodeRow.worker.like(host_prefix + "%"))
+    ).scalars()
+    n = 0
+    for ep in rows:
+        try:
+            pid = int((ep.worker or "").rsplit(":", 1)[1])
+        except (IndexError, ValueError):
+            continue
+        if pid not in alive or pid == os.getpid():
+            ep.status, ep.lease_token, ep.lease_expires_at = "pending", None, None
+            n += 1
+    return n
+
+
+def finalize_run(session: Session, run_id: int) -> None:
+    """Once every episode of the run is terminal, write its aggregate; then the submission's status."""
+    run = session.execute(select(RunRow).where(RunRow.id == run_id).with_for_update()).scalar_one()
+    if run.status in ("completed", "failed", "cancelled"):
+        return
+    counts = dict(
+        session.execute(
+            select(EpisodeRow.status, func.count())
+            .where(EpisodeRow.run_id == run_id)
+            .group_by(EpisodeRow.status)
+        ).all()
+    )
+    if sum(counts.get(s, 0) for s in TERMINAL_EPISODE) < run.episodes_total:
+        return
+    now = utcnow()
+    if counts.get("failed"):
+        run.status = "failed"
+    elif counts.get("cancelled"):
+        run.status = "cancelled"
+    else:
+        rows = session.execute(
+            select(EpisodeRow.metrics, EpisodeRow.counters, EpisodeRow.termination, EpisodeRow.boxes_placed)
+            .where(EpisodeRow.run_id == run_id)
+        ).all()  # fmt: skip
+        run.metrics, run.extras = run_figures(rows, run.setting)
+        run.status = "completed"
+    run.completed_at = now
+    session.flush()
+    _finalize_submission(session, run.submission_id, now)
+
+
+def run_figures(rows: Any, setting: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A run's raw metrics (BENCHMARK.md §4 aggregation) and its side figures."""
+    merged = [{**(m or {}), **(c or {})} for m, c, _t, _b in rows]
+    metrics = aggregate(merged, setting)
+    terminations: dict[str, int] = {}
+    for _m, _c, termination, _b in rows:
+        terminations[termination] = terminations.get(termination, 0) + 1
+    extras: dict[str, Any] = {
+        "episodes": len(rows),
+        "boxes_placed_mean": sum(b or 0 for *_x, b in rows) / len(rows) if rows else 0.0,
+        "episodes_collapsed": terminations.get("collapse", 0),
+        "terminations": terminations,
+    }
+    if setting == "execution":
+        dt, traj = metrics.get("decision_time"), metrics.get("trajectory_length")
+        extras["pph"] = 3600.0 / (dt + traj / 0.34 + 2.0) if dt is not None and traj is not None else None
+    return metrics, extras
+
+
+def _finalize_submission(session: Session, submission_id: int, now: datetime) -> None:
+    sub = session.execute(
+        select(Submission).where(Submission.id == submission_id).with_for_update()
+    ).scalar_one()
+    if sub.status not in ACTIVE_SUBMISSION:
+        return
+    statuses = (
+        session.execute(select(RunRow.status).where(RunRow.submission_id == submission_id)).scalars().all()
+    )
+    if any(s not in ("completed", "failed", "cancelled") for s in statuses):
+        return
+    sub.status = "failed" if "failed" in statuses else "completed"
+    if sub.status == "failed":
+        sub.error = "some episodes could not be evaluated; see the episode list"
+    sub.finished_at = now
+
+
+def cancel_submission(session: Session, sub: Submission) -> bool:
+    """Stop a submission: unfinished episodes become ``cancelled`` (running workers see it at their next
+    heartbeat and stop). Returns ``False`` when it had already finished."""
+    if sub.status not in ACTIVE_SUBMISSION:
+        return False
+    now = utcnow()
+    session.execute(
+        update(EpisodeRow)
+        .where(EpisodeRow.submission_id == sub.id, EpisodeRow.status.in_(("pending", "running")))
+        .values(status="cancelled", lease_token=None, finished_at=now)
+        .execution_options(synchronize_session=False)
+    )
+    session.execute(
+        update(RunRow)
+        .where(RunRow.submission_id == sub.id, RunRow.status == "pending")
+        .values(status="cancelled", completed_at=now)
+        .execution_options(synchronize_session=False)
+    )
+    sub.status = "cancelled"
+    sub.finished_at = now
+    return True

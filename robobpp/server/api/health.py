@@ -1,0 +1,22 @@
+"""Liveness and readiness: ``/healthz`` answers 200 only when the database answers."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+from fastapi.responses import JSONResponse
+from sqlalchemy import text
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz", summary="Health check (database reachable, workers alive)")
+def healthz(request: Request) -> JSONResponse:
+    runtime = request.app.state.runtime
+    try:
+        with runtime.engine.connect() as connection:
+            connection.execute(text("SELECT 1"))
+    except Exception as exc:  # noqa: BLE001 - any database failure means "not healthy"
+        return JSONResponse({"status": "unavailable", "database": type(exc).__name__}, status_code=503)
+    executor = runtime.executor
+    workers = executor.alive() if executor is not None else 0
+    return JSONResponse({"status": "ok", "database": "ok", "workers": workers})

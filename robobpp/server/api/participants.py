@@ -1,0 +1,66 @@
+"""Participants and API tokens. Tokens are random, shown once, and stored as SHA-256 hashes."""
+
+from __future__ import annotations
+
+import secrets
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Request
+from sqlalchemy import select
+
+from robobpp.db import queries
+from robobpp.db.models import ApiToken, Participant
+from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, SettingsDep
+from robobpp.server.api.schemas import Me, ParticipantCreate, ParticipantPublic, TokenCreated
+from robobpp.server.problems import ProblemError
+
+router = APIRouter(tags=["participants"])
+
+
+def issue_token(session: SessionDep, participant: Participant) -> TokenCreated:
+    token = "rbp_" + secrets.token_urlsafe(32)
+    session.add(
+        ApiToken(participant_id=participant.id, token_hash=queries.hash_token(token), prefix=token[:10])
+    )
+    session.flush()
+    return TokenCreated(participant=ParticipantPublic.model_validate(participant, from_attributes=True),
+                        token=token, prefix=token[:10])  # fmt: skip
+
+
+@router.post("/participants", status_code=201, response_model=TokenCreated,
+             summary="Create a participant and its first API token (admin)")  # fmt: skip
+def create_participant(body: ParticipantCreate, session: SessionDep, _admin: AdminDep) -> TokenCreated:
+    if session.execute(select(Participant.id).where(Participant.name == body.name)).first() is not None:
+        raise ProblemError(409, "conflict", "Name taken", f"a participant named {body.name!r} already exists")
+    participant = Participant(name=body.name)
+    session.add(participant)
+    session.flush()
+    return issue_token(session, participant)
+
+
+@router.post("/participants/{participant_id}/tokens", status_code=201, response_model=TokenCreated,
+             summary="Issue another API token for a participant (admin)")  # fmt: skip
+def create_token(
+    participant_id: Annotated[int, Path(ge=1, le=2**31 - 1)], session: SessionDep, _admin: AdminDep
+) -> TokenCreated:
+    participant = session.get(Participant, participant_id)
+    if participant is None or participant.is_builtin:
+        raise ProblemError(404, "not-found", "Not found", f"no participant {participant_id}")
+    return issue_token(session, participant)
+
+
+@router.get("/me", response_model=Me, summary="Who the token belongs to, and its quota use")
+def me(request: Request, principal: PrincipalDep, session: SessionDep, settings: SettingsDep) -> Me:
+    if principal.participant is None:
+        return Me(admin=principal.admin, participant=None)
+    day, active = queries.quota_usage(session, principal.participant.id)
+    return Me(
+        admin=principal.admin,
+        participant=ParticipantPublic.model_validate(principal.participant, from_attributes=True),
+        quota={
+            "submissions_today": day,
+            "submissions_per_day": settings.quota_submissions_per_day,
+            "active": active,
+            "concurrent": settings.quota_concurrent,
+        },  # fmt: skip
+    )

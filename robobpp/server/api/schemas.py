@@ -1,0 +1,168 @@
+"""API request and response models. Requests forbid unknown fields and bound every number and string."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+
+Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=64,
+                                        pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._\-]*$")]  # fmt: skip
+DatasetName = Literal["repetitive", "diverse", "longboard"]
+SettingName = Literal["math", "physics", "execution"]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ParticipantCreate(Strict):
+    name: Name
+
+
+class ParticipantPublic(BaseModel):
+    id: int
+    name: str
+    is_builtin: bool
+    created_at: datetime
+
+
+class TokenCreated(BaseModel):
+    """The token is shown once; only its hash is stored."""
+
+    participant: ParticipantPublic
+    token: str
+    prefix: str
+
+
+class Me(BaseModel):
+    admin: bool
+    participant: ParticipantPublic | None
+    quota: dict[str, int] | None = None
+
+
+class SubmissionCreate(Strict):
+    name: Name
+    policy_url: Annotated[str, StringConstraints(min_length=1, max_length=2048)] = Field(
+        description="Base URL of a policy server speaking robobpp/1 (http or https)"
+    )
+    secret: Annotated[str, StringConstraints(min_length=8, max_length=256)] | None = Field(
+        default=None, description="HMAC key the workers sign policy requests with (never shown again)"
+    )
+    datasets: list[DatasetName] | None = Field(default=None, min_length=1, max_length=3)
+    settings: list[SettingName] | None = Field(default=None, min_length=1, max_length=3)
+    track: Literal["private", "public"] = "private"
+    lookahead: int = Field(default=0, ge=0, le=10)
+
+
+class Progress(BaseModel):
+    episodes_total: int
+    episodes_done: int
+    episodes_running: int
+    episodes_pending: int
+    episodes_failed: int
+    episodes_cancelled: int
+    phase: str | None
+
+
+class RunPublic(BaseModel):
+    dataset: str
+    setting: str
+    status: str
+    episodes_total: int
+    metrics: dict[str, float | None] | None
+    extras: dict[str, Any] | None
+    completed_at: datetime | None
+
+
+class SubmissionPublic(BaseModel):
+    id: int
+    name: str
+    participant: str
+    baseline: bool
+    policy_url: str
+    track: str
+    datasets: list[str]
+    settings: list[str]
+    lookahead: int
+    status: str
+    created_at: datetime
+    finished_at: datetime | None
+    error: str | None
+    progress: Progress
+    runs: list[RunPublic]
+
+
+class EpisodePublic(BaseModel):
+    id: int
+    dataset: str
+    setting: str
+    split: str
+    group: int
+    status: str
+    attempts: int
+    step: int
+    termination: str | None
+    termination_detail: str | None
+    boxes_total: int | None
+    boxes_placed: int | None
+    metrics: dict[str, float | None] | None
+    counters: dict[str, int] | None
+    finished_at: datetime | None
+    has_trace: bool
+
+
+class EpisodeDetail(EpisodePublic):
+    trace: dict[str, Any] | None = None
+
+
+class LeaderboardEntry(BaseModel):
+    rank: int
+    score: float
+    submission_id: int
+    name: str
+    participant: str
+    baseline: bool
+    metrics: dict[str, float | None]
+    normalized: dict[str, float]
+    extras: dict[str, Any]
+    completed_at: datetime | None
+
+
+class Leaderboard(BaseModel):
+    dataset: str
+    setting: str
+    track: str
+    metrics: list[str]
+    weights: dict[str, float]
+    entries: list[LeaderboardEntry]
+
+
+class GridCell(BaseModel):
+    score: float
+    rank: int
+    pph: float | None = None
+
+
+class GridRow(BaseModel):
+    submission_id: int
+    name: str
+    participant: str
+    baseline: bool
+    cells: dict[str, GridCell]
+
+
+class OverallGrid(BaseModel):
+    datasets: list[str]
+    settings: list[str]
+    track: str
+    rows: list[GridRow]
+
+
+class ServiceInfo(BaseModel):
+    datasets: list[str]
+    settings: list[str]
+    groups: int
+    weights: dict[str, dict[str, float]]
+    termination_reasons: dict[str, str]

@@ -1,0 +1,154 @@
+"""Submissions: create (URL checked, quota checked, rows written in one transaction), status, cancel,
+per-episode results. Another participant's submission answers 404, exactly like a missing one."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Query, Request
+from sqlalchemy import select
+
+from robobpp.db import queries, work
+from robobpp.db.models import Participant, Submission
+from robobpp.policies import BUILTIN
+from robobpp.server.api.deps import PrincipalDep, SessionDep, SettingsDep
+from robobpp.server.api.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
+from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
+from robobpp.server.problems import ProblemError
+from robobpp.server.urlsafety import BUILTIN_SCHEME, UnsafeURLError, check_policy_url, probe_policy
+
+router = APIRouter(tags=["submissions"])
+#: Ids are bounded so a huge number is a 422, not an integer overflow inside the database.
+Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
+
+
+def _unique(values: list[str]) -> list[str]:
+    return list(dict.fromkeys(values))
+
+
+def _visible(session: SessionDep, principal: PrincipalDep, submission_id: int) -> Submission:
+    sub = session.get(Submission, submission_id)
+    if sub is not None and (principal.admin or sub.participant_id == principal.participant_id
+                            or sub.participant.is_builtin):  # fmt: skip
+        return sub
+    raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id} visible to this token")
+
+
+def _check_url(
+    body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
+) -> tuple[str, str | None]:
+    """(policy URL, pinned address). Runs before any row is written; network only here."""
+    url = body.policy_url.strip()
+    if url.startswith(BUILTIN_SCHEME):
+        if not principal.admin:
+            raise ProblemError(422, "policy-url-invalid", "Invalid policy URL",
+                               "built-in policies are submitted by the operator only")  # fmt: skip
+        if url[len(BUILTIN_SCHEME) :] not in BUILTIN:
+            raise ProblemError(
+                422, "policy-url-invalid", "Invalid policy URL", f"unknown built-in policy {url!r}"
+            )
+        return url, None
+    try:
+        checked = check_policy_url(url, allow_private=settings.allow_private_policy_urls)
+        probe_policy(
+            checked, timeout_s=min(5.0, settings.step_timeout_s), cap_bytes=settings.response_cap_bytes
+        )
+    except UnsafeURLError as exc:
+        title = {"policy-url-forbidden": "Policy URL refused", "policy-unreachable": "Policy unreachable"}
+        raise ProblemError(422, exc.kind, title.get(exc.kind, "Invalid policy URL"), exc.detail) from None
+    return checked.url, checked.pinned_ip
+
+
+@router.post("/submissions", status_code=201, response_model=SubmissionPublic,
+             summary="Submit a policy URL for evaluation")  # fmt: skip
+def create_submission(
+    request: Request, body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
+) -> SubmissionPublic:
+    datasets = _unique(body.datasets or list(settings.datasets))
+    setting_names = _unique(body.settings or list(settings.enabled_settings))
+    for d in datasets:
+        if d not in settings.datasets:
+            raise ProblemError(
+                422, "dataset-unavailable", "Dataset unavailable", f"dataset {d!r} is not offered"
+            )
+    for s in setting_names:
+        if s not in settings.enabled_settings:
+            raise ProblemError(422, "setting-unavailable", "Setting unavailable",
+                               f"setting {s!r} is not offered here (offered: {', '.join(settings.enabled_settings)})")  # fmt: skip
+    url, pinned_ip = _check_url(body, principal, settings)
+    with request.app.state.runtime.session() as session:
+        if principal.admin:
+            participant = session.execute(
+                select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
+            ).scalar_one()
+        else:
+            assert principal.participant is not None
+            participant = session.execute(
+                select(Participant).where(Participant.id == principal.participant.id).with_for_update()
+            ).scalar_one()  # the row lock serialises quota checks of one participant
+            day, active = queries.quota_usage(session, participant.id)
+            if day >= settings.quota_submissions_per_day:
+                raise ProblemError(429, "quota-exceeded", "Quota exceeded",
+                                   f"at most {settings.quota_submissions_per_day} submissions per 24 hours")  # fmt: skip
+            if active >= settings.quota_concurrent:
+                raise ProblemError(429, "quota-exceeded", "Quota exceeded",
+                                   f"at most {settings.quota_concurrent} evaluations at a time; wait or cancel one")  # fmt: skip
+        sub = work.create_submission(session, participant, name=body.name, policy_url=url, secret=body.secret,
+                                     pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
+                                     groups=settings.groups, track=body.track, lookahead=body.lookahead)  # fmt: skip
+        session.refresh(sub)
+        return SubmissionPublic.model_validate(queries.submission_view(session, sub))
+
+
+@router.get("/submissions", response_model=list[SubmissionPublic], summary="Your submissions, newest first")
+def list_submissions(
+    session: SessionDep,
+    principal: PrincipalDep,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
+) -> list[SubmissionPublic]:
+    owner = None if principal.admin else principal.participant_id
+    subs = queries.list_submissions(session, owner, limit=limit, offset=offset)
+    return [SubmissionPublic.model_validate(queries.submission_view(session, s)) for s in subs]
+
+
+@router.get("/submissions/{submission_id}", response_model=SubmissionPublic,
+            summary="One submission: status, progress and per-run metrics")  # fmt: skip
+def get_submission(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> SubmissionPublic:
+    return SubmissionPublic.model_validate(queries.submission_view(session, _visible(session, principal,
+                                                                                     submission_id)))  # fmt: skip
+
+
+@router.post("/submissions/{submission_id}/cancel", response_model=SubmissionPublic,
+             summary="Cancel an evaluation; workers stop taking its episodes")  # fmt: skip
+def cancel(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> SubmissionPublic:
+    sub = _visible(session, principal, submission_id)
+    if sub.participant.is_builtin and not principal.admin:
+        raise ProblemError(
+            404, "not-found", "Not found", f"no submission {submission_id} visible to this token"
+        )
+    if not work.cancel_submission(session, sub):
+        raise ProblemError(409, "conflict", "Already finished", f"submission {submission_id} is {sub.status}")
+    session.flush()
+    session.refresh(sub)
+    return SubmissionPublic.model_validate(queries.submission_view(session, sub))
+
+
+@router.get("/submissions/{submission_id}/episodes", response_model=list[EpisodePublic],
+            summary="Per-episode results with termination reasons")  # fmt: skip
+def episodes(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> list[EpisodePublic]:
+    sub = _visible(session, principal, submission_id)
+    return [EpisodePublic.model_validate(e) for e in queries.episode_rows(session, sub.id)]
+
+
+@router.get("/submissions/{submission_id}/episodes/{episode_id}", response_model=EpisodeDetail,
+            summary="One episode; public-track episodes include their replay trace")  # fmt: skip
+def episode(submission_id: Id, episode_id: Id, session: SessionDep, principal: PrincipalDep) -> EpisodeDetail:
+    sub = _visible(session, principal, submission_id)
+    ep = queries.get_episode(session, sub.id, episode_id)
+    if ep is None:
+        raise ProblemError(
+            404, "not-found", "Not found", f"no episode {episode_id} in submission {submission_id}"
+        )
+    trace = ep.trace if sub.track == "public" else None
+    return EpisodeDetail.model_validate({**queries.episode_summary(ep), "trace": trace})

@@ -1,0 +1,97 @@
+"""The FastAPI application factory: JSON API, pages (when present), static files, health and metrics.
+
+``create_app(settings)`` builds an app bound to one database; its lifespan applies migrations, seeds the
+built-in participant and baselines, builds the private split if absent and starts the local worker pool.
+Nothing happens at import time, so tests can build as many apps as they like.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from robobpp.server import problems
+from robobpp.server.config import Settings
+from robobpp.server.limits import BodySizeLimit
+from robobpp.server.metrics import install_metrics
+
+log = logging.getLogger("robobpp.server")
+
+STATIC_DIR = Path(__file__).resolve().parent.parent / "web" / "static"
+
+
+def _include_pages(app: FastAPI) -> None:
+    """The HTML pages live in their own module (another area); include them when they exist."""
+    try:
+        pages = importlib.import_module("robobpp.server.pages")
+    except ModuleNotFoundError as exc:
+        if exc.name != "robobpp.server.pages":
+            raise
+        return
+    router = getattr(pages, "router", None)
+    if router is not None:
+        app.include_router(router)
+
+
+def create_app(settings: Settings | None = None, *, start_workers: bool | None = None) -> FastAPI:
+    """Build the service. ``start_workers=False`` serves the API only (tests, API-only replicas)."""
+    settings = settings or Settings()
+    run_workers = settings.workers > 0 if start_workers is None else start_workers
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        from robobpp.server.bootstrap import bootstrap
+
+        runtime = app.state.runtime
+        await _run_sync(bootstrap, runtime)
+        executor = None
+        if run_workers:
+            from robobpp.worker.local import LocalExecutor
+
+            executor = LocalExecutor(settings.worker_options(), settings.workers)
+            executor.start()
+            runtime.executor = executor
+        try:
+            yield
+        finally:
+            if executor is not None:
+                executor.stop()
+            runtime.dispose()
+
+    app = FastAPI(
+        title="robobpp evaluation service",
+        version="1",
+        summary="Closed-loop evaluation of robotic online 3D bin packing policies (RoboBPP).",
+        lifespan=lifespan,
+        docs_url="/docs",
+        openapi_url="/openapi.json",
+    )
+    from robobpp.server.runtime import Runtime
+
+    app.state.settings = settings
+    app.state.runtime = Runtime(settings)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    problems.install(app)
+    install_metrics(app)
+
+    from robobpp.server.api import router as api_router
+    from robobpp.server.api.health import router as health_router
+
+    app.include_router(health_router)
+    app.include_router(api_router, prefix="/api/v1")
+    _include_pages(app)
+    if STATIC_DIR.is_dir():
+        app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    return app
+
+
+async def _run_sync(fn, *args):  # type: ignore[no-untyped-def]
+    from starlette.concurrency import run_in_threadpool
+
+    return await run_in_threadpool(fn, *args)

@@ -1,0 +1,87 @@
+"""First start: schema, the built-in participant, the private split and the baseline submissions.
+
+Idempotent: every step checks before it writes, so each start of the server runs it.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+from typing import Any
+
+from sqlalchemy import select
+
+from robobpp.db import work
+from robobpp.db.migrate import upgrade
+from robobpp.db.models import Participant, Submission
+
+log = logging.getLogger("robobpp.server")
+
+#: The participant that owns the baselines; its policies (``builtin:NAME``) run inside the workers.
+BUILTIN_PARTICIPANT = "baselines"
+
+
+def ensure_private_split(settings: Any) -> bool:
+    """Build ``datasets_private/`` with a random secret seed if it is absent. ``False`` if impossible."""
+    if settings.spec_provider:
+        return True
+    from robobpp import datasets
+
+    build = getattr(datasets, "build_private", None)
+    has = getattr(datasets, "has_private", None)
+    if build is None:
+        log.warning("robobpp.datasets.build_private is not available; the private track cannot run")
+        return False
+    root = settings.private_dir
+    if has is not None and has(root):
+        return True
+    if has is None and root.is_dir() and any(p.name != "README.md" for p in root.iterdir()):
+        return True
+    seed = secrets.randbits(63)
+    log.warning("building the private split in %s with a fresh secret seed (first start)", root)
+    try:
+        build(root, seed=seed, groups=settings.groups)
+    except TypeError:
+        build(root, seed=seed)
+    return True
+
+
+def ensure_baselines(session: Any, settings: Any) -> int:
+    """One submission per built-in baseline on every offered (dataset, setting), once."""
+    participant = session.execute(
+        select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
+    ).scalar_one()
+    existing = set(session.execute(select(Submission.policy_url).where(
+        Submission.participant_id == participant.id, Submission.track == "private")).scalars())  # fmt: skip
+    created = 0
+    for name in settings.baselines:
+        url = f"builtin:{name}"
+        if url in existing:
+            continue
+        work.create_submission(session, participant, name=name.upper() if len(name) <= 4 else name.title(),
+                               policy_url=url, datasets=list(settings.datasets),
+                               settings=list(settings.enabled_settings), groups=settings.groups)  # fmt: skip
+        created += 1
+    return created
+
+
+def bootstrap(runtime: Any) -> None:
+    settings = runtime.settings
+    upgrade(settings.sqlalchemy_url, engine=runtime.engine)
+    with runtime.session() as session:
+        if (
+            session.execute(select(Participant.id).where(Participant.name == BUILTIN_PARTICIPANT)).first()
+            is None
+        ):
+            session.add(Participant(name=BUILTIN_PARTICIPANT, is_builtin=True))
+            session.flush()
+    _ = settings.effective_admin_token  # dev: generate and store it now, so the operator can read it
+    try:
+        ensure_private_split(settings)
+    except Exception:  # noqa: BLE001 - the API must still come up (e.g. no network for the data)
+        log.exception("could not build the private split; private evaluations will fail until it exists")
+    if settings.evaluate_baselines:
+        with runtime.session() as session:
+            n = ensure_baselines(session, settings)
+        if n:
+            log.warning("queued %d baseline submission(s)", n)

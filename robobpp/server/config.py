@@ -1,0 +1,129 @@
+"""Server settings: one pydantic-settings object, read from ``ROBOBPP_*`` environment variables.
+
+Why one object: every part of the service (API, workers, CLI) sees the same configuration, and the one
+place that refuses unsafe defaults (a missing or weak admin token outside dev) cannot be bypassed.
+"""
+
+from __future__ import annotations
+
+import secrets
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from robobpp.worker.options import WorkerOptions
+
+#: Admin tokens that must never guard a real deployment.
+WEAK_TOKENS = frozenset({"", "changeme", "change-me", "admin", "secret", "password", "token"})
+
+
+class InsecureSettingsError(ValueError):
+    """The settings would run a non-dev server with a default or weak secret."""
+
+
+class Settings(BaseSettings):
+    """Everything the server, its workers and its CLI read from the environment."""
+
+    model_config = SettingsConfigDict(env_prefix="ROBOBPP_", extra="ignore", validate_default=True)
+
+    #: ``dev`` allows a generated admin token; ``prod`` demands a strong one from the environment.
+    env: Literal["dev", "prod"] = "dev"
+    #: SQLAlchemy URL; empty means a SQLite file inside ``data_dir``.
+    database_url: str = ""
+    data_dir: Path = Path("robobpp-data")
+    #: Where the private split lives (built on first start if absent).
+    private_dir: Path = Path("datasets_private")
+    admin_token: SecretStr | None = None
+    #: Policy URLs may point at private/loopback/link-local addresses (local dev, tests, the demo).
+    allow_private_policy_urls: bool = False
+    #: Built-in participants' policies (``builtin:<name>``) may be submitted by the admin only.
+    demo: bool = False
+
+    # evaluation
+    workers: int = Field(default=2, ge=0, le=64)
+    #: Evaluation groups per dataset (30 on the real leaderboard, fewer for the demo).
+    groups: int = Field(default=30, ge=1, le=1000)
+    datasets: tuple[str, ...] = ("repetitive", "diverse", "longboard")
+    #: Settings a submission may ask for; physics/execution join when their modules import.
+    settings: tuple[str, ...] = ()
+    #: ``module:function(dataset, split, group, settings) -> EpisodeSpec`` override (tests, offline demo).
+    spec_provider: str = ""
+    lease_s: float = Field(default=120.0, gt=0)
+    #: Celery executor (scaled deployment): ``redis://…`` or ``amqp://…``; empty = local process pool.
+    broker_url: str = ""
+    #: Broker queue the episode tasks go to (one per deployment; tests use a fresh one per run).
+    celery_queue: str = "robobpp-episodes"
+    max_attempts: int = Field(default=3, ge=1, le=20)
+    poll_interval_s: float = Field(default=0.5, gt=0)
+    step_timeout_s: float = Field(default=10.0, gt=0)
+    episode_timeout_s: float = Field(default=1800.0, gt=0)
+    response_cap_bytes: int = Field(default=64 * 1024, ge=1024)
+    evaluate_baselines: bool = True
+    baselines: tuple[str, ...] = ("dbl", "random")
+
+    # API limits
+    max_body_bytes: int = Field(default=64 * 1024, ge=1024)
+    quota_submissions_per_day: int = Field(default=10, ge=0)
+    quota_concurrent: int = Field(default=2, ge=0)
+
+    @model_validator(mode="after")
+    def _refuse_weak_secrets(self) -> Settings:
+        token = self.admin_token.get_secret_value() if self.admin_token else None
+        if self.env != "dev":
+            if token is None or token.lower() in WEAK_TOKENS or len(token) < 16:
+                raise InsecureSettingsError(
+                    "ROBOBPP_ADMIN_TOKEN must be set to a random string of at least 16 characters "
+                    "when ROBOBPP_ENV is not 'dev'"
+                )
+            if self.allow_private_policy_urls:
+                raise InsecureSettingsError("ROBOBPP_ALLOW_PRIVATE_POLICY_URLS is for dev only")
+        return self
+
+    @cached_property
+    def effective_admin_token(self) -> str:
+        """The admin token: from the environment, or (dev only) a random one stored in the data dir."""
+        if self.admin_token is not None:
+            return self.admin_token.get_secret_value()
+        path = self.data_dir / "admin_token"
+        if path.exists():
+            return path.read_text().strip()
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        token = secrets.token_urlsafe(32)
+        path.write_text(token + "\n")
+        path.chmod(0o600)
+        return token
+
+    @property
+    def sqlalchemy_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'robobpp.sqlite3').resolve()}"
+
+    def worker_options(self) -> WorkerOptions:
+        return WorkerOptions(
+            database_url=self.sqlalchemy_url, groups=self.groups, private_dir=self.private_dir,
+            spec_provider=self.spec_provider, lease_s=self.lease_s, max_attempts=self.max_attempts,
+            poll_interval_s=self.poll_interval_s, step_timeout_s=self.step_timeout_s,
+            episode_timeout_s=self.episode_timeout_s, response_cap_bytes=self.response_cap_bytes,
+        )  # fmt: skip
+
+    @cached_property
+    def enabled_settings(self) -> tuple[str, ...]:
+        """The settings submissions may use: configured, or every one whose simulator imports."""
+        if self.settings:
+            return self.settings
+        found = ["math"]
+        for name, module in (("physics", "robobpp.sim.physics"), ("execution", "robobpp.sim.execution")):
+            try:
+                __import__(module)
+            except Exception:  # noqa: BLE001 - a setting that cannot load is simply not offered
+                continue
+            found.append(name)
+        return tuple(found)
+
+
+def get_settings() -> Settings:
+    return Settings()

@@ -1,0 +1,179 @@
+"""The HTML pages of the service (server-rendered Jinja2; JavaScript only adds sorting, charts and 3D).
+
+Every figure comes from ``robobpp.db.queries`` — the same functions the JSON API serves — so a page can
+never disagree with the API or compute a second leaderboard. Pages are public and read-only: they show
+what a leaderboard shows (names, statuses, metrics, termination reasons), never a policy URL, secret or
+error trace, and replays only for public-track episodes (the private split never leaves the workers).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Path, Request
+from fastapi.responses import HTMLResponse, JSONResponse
+from sqlalchemy.orm import Session
+
+from robobpp.datasets import DATASETS
+from robobpp.db import queries
+from robobpp.db.models import Submission
+from robobpp.episode import TERMINATION_REASONS
+from robobpp.metrics import METRICS
+from robobpp.scoring import WEIGHTS
+from robobpp.server.api.deps import SessionDep, SettingsDep
+from robobpp.web import SETTING_TITLES, environment, tables
+from robobpp.web.trace import TraceError, viewer_payload
+
+router = APIRouter(include_in_schema=False)
+
+Track = Literal["private", "public"]
+DatasetPath = Annotated[str, Path(max_length=32)]
+SettingPath = Annotated[str, Path(max_length=16)]
+#: Termination reasons that are not the policy's fault or are plain endings, for colouring badges.
+NEUTRAL_ENDINGS = {"completed", "no_feasible_placement", "too_high"}
+EXTRA_REASONS = {
+    "worker_lost": "no worker could finish the episode",
+    "evaluation_error": "the service could not run the episode",
+}
+
+
+def _root(request: Request) -> str:
+    return str(request.scope.get("root_path", "")).rstrip("/")
+
+
+def render(request: Request, template: str, status_code: int = 200, **context: Any) -> HTMLResponse:
+    root = _root(request)
+    html = environment().get_template(template).render(
+        root=root, static=f"{root}/static", SETTING_TITLES=SETTING_TITLES, **context
+    )
+    return HTMLResponse(html, status_code=status_code)
+
+
+def not_found(request: Request, what: str) -> HTMLResponse:
+    return render(request, "error.html", 404, title="Not found", nav="", message=what)
+
+
+def _board_names(settings: SettingsDep) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    return tuple(settings.datasets), tuple(settings.enabled_settings)
+
+
+@router.get("/", response_class=HTMLResponse)
+def overall_page(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private"):
+    datasets, setting_names = _board_names(settings)
+    grid = queries.overall_grid(session, datasets=datasets, settings=setting_names, track=track)
+    return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track,
+                  table=tables.grid_table(grid), datasets_info=DATASETS, top=tables.TOP)  # fmt: skip
+
+
+@router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
+def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, session: SessionDep,
+               settings: SettingsDep, track: Track = "private"):  # fmt: skip
+    datasets, setting_names = _board_names(settings)
+    if dataset not in datasets or setting not in setting_names:
+        return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
+    board = queries.leaderboard(session, dataset, setting, track=track)
+    return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
+                  nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track,
+                  table=tables.board_table(board), weights=WEIGHTS[setting], top=tables.TOP,
+                  other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
+
+
+def _submission(session: Session, submission_id: int) -> Submission | None:
+    return session.get(Submission, submission_id)
+
+
+def _public_view(session: Session, sub: Submission) -> dict[str, Any]:
+    """The submission as the API returns it, less what only its owner may see."""
+    view = queries.submission_view(session, sub)
+    view.pop("policy_url", None)
+    view.pop("error", None)
+    return view
+
+
+@router.get("/submissions/{submission_id}", response_class=HTMLResponse)
+def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)],
+                    session: SessionDep):  # fmt: skip
+    sub = _submission(session, submission_id)
+    if sub is None:
+        return not_found(request, f"There is no submission {submission_id}.")
+    view = _public_view(session, sub)
+    episodes = queries.episode_rows(session, sub.id)
+    boards = {
+        (r["dataset"], r["setting"]): queries.leaderboard(session, r["dataset"], r["setting"], track=sub.track)
+        for r in view["runs"] if r["status"] == "completed"
+    }  # fmt: skip
+    ranks = {}
+    for key, board in boards.items():
+        entry = next((e for e in board["entries"] if e["submission_id"] == sub.id), None)
+        if entry is not None:
+            ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": len(board["entries"])}
+    utilisation = [
+        (e["metrics"] or {}).get("space_utilization") for e in episodes if e["status"] == "done" and e["metrics"]
+    ]
+    charts = {
+        "radar": tables.radar_series(view["runs"], boards, sub.id),
+        "utilization": tables.histogram([u for u in utilisation if u is not None]),
+    }
+    return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
+                  episodes=episodes, ranks=ranks, charts=charts, metrics=METRICS, public=sub.track == "public",
+                  reasons={**TERMINATION_REASONS, **EXTRA_REASONS}, neutral=NEUTRAL_ENDINGS)  # fmt: skip
+
+
+@router.get("/submissions/{submission_id}/status.json")
+def submission_status(submission_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep) -> JSONResponse:
+    """What the submission page polls while an evaluation runs (public figures only)."""
+    sub = _submission(session, submission_id)
+    if sub is None:
+        return JSONResponse({"detail": f"no submission {submission_id}"}, status_code=404)
+    view = _public_view(session, sub)
+    runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
+    return JSONResponse({"id": sub.id, "status": view["status"], "progress": view["progress"], "runs": runs},
+                        headers={"Cache-Control": "no-store"})  # fmt: skip
+
+
+@router.get("/submissions/{submission_id}/episodes/{episode_id}/replay", response_class=HTMLResponse)
+def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)],
+                episode_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep):  # fmt: skip
+    sub = _submission(session, submission_id)
+    ep = queries.get_episode(session, submission_id, episode_id) if sub is not None else None
+    if sub is None or ep is None:
+        return not_found(request, f"There is no episode {episode_id} in submission {submission_id}.")
+    if sub.track != "public" or ep.trace is None:
+        return not_found(request, "Only public-track episodes have a replay: the private test split is never shown.")
+    summary = queries.episode_summary(ep)
+    raw = {**ep.trace, **{k: summary[k] for k in ("dataset", "split", "setting", "group", "boxes_total",
+                                                   "boxes_placed", "termination", "termination_detail", "metrics")},
+           "episode_id": str(ep.id), "policy": sub.name}  # fmt: skip
+    try:
+        payload = viewer_payload(raw)
+    except TraceError as exc:
+        return render(request, "error.html", 500, title="Replay unavailable", nav="",
+                      message=f"This episode's trace cannot be drawn: {exc}")  # fmt: skip
+    root = _root(request)
+    heading = f"{sub.name} · {ep.dataset} · {ep.setting} · group {ep.group}"
+    return render(request, "replay.html", title=heading, heading=heading, episodes=[payload], nav="",
+                  crumbs=[("Leaderboard", f"{root}/"), (f"Submission {sub.id}", f"{root}/submissions/{sub.id}")])  # fmt: skip
+
+
+@router.get("/datasets", response_class=HTMLResponse)
+def datasets_page(request: Request):
+    from robobpp.web import dataset_stats as ds
+
+    cards = []
+    for name, spec in DATASETS.items():
+        summary = ds.dataset_summary(name)
+        plot = None
+        if summary is not None:
+            colors = {"length": "#93c5fd", "width": "#86efac", "height": "#fcd34d"}
+            plot = ds.boxplot_svg([(dim.capitalize(), summary["dims"][dim], colors[dim]) for dim in ds.DIMENSIONS], "cm")
+        cards.append({"spec": spec, "summary": summary, "plot": plot})
+    return render(request, "datasets.html", title="Datasets", nav="datasets", cards=cards,
+                  available=ds.data_available(), groups=ds.SAMPLE_GROUPS)  # fmt: skip
+
+
+@router.get("/protocol", response_class=HTMLResponse)
+def protocol_page(request: Request, settings: SettingsDep):
+    return render(request, "protocol.html", title="Take part", nav="protocol", reasons=TERMINATION_REASONS,
+                  datasets=DATASETS, settings_offered=settings.enabled_settings,
+                  quota_day=settings.quota_submissions_per_day, quota_concurrent=settings.quota_concurrent)  # fmt: skip
+

@@ -1,0 +1,140 @@
+"""The Celery application of the scaled deployment (``ROBOBPP_BROKER_URL`` = ``redis://…`` or ``amqp://…``).
+
+Why Celery is configured the way it is — each line below protects one property of the evaluation:
+
+- **acks late + reject on worker lost**: a message is acknowledged only after its episode has been
+  written to SQL, so a worker killed mid-episode leaves the message with the broker (RabbitMQ requeues it
+  when the connection drops; Redis restores it after the visibility timeout).
+- **prefetch 1**: an episode lasts seconds to minutes; a worker that reserved a second one would hold it
+  hostage while a sibling idles.
+- **JSON only**: the broker is a shared network service; pickle would let anyone who can write to it run
+  code in the workers. The only payload is an episode row id.
+- **visibility timeout longer than the longest episode** (Redis): otherwise Redis would hand a running
+  episode to a second worker. It is derived from ``episode_timeout_s`` so the two cannot drift apart.
+- **task id = episode id**: the broker, the logs and the SQL row name the work alike; redelivered or
+  re-enqueued copies of one episode are the same task, and the SQL lease (not the broker) decides which
+  copy may write. SQL stays the record of truth; no result backend is used.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from celery import Celery
+
+#: Queue the episodes go to unless ``ROBOBPP_CELERY_QUEUE`` says otherwise (tests use one per run).
+DEFAULT_QUEUE = "robobpp-episodes"
+#: Name under which workers know the episode task (stable: it is written into broker messages).
+TASK_NAME = "robobpp.run_episode"
+#: Prefix of the Celery task id; the rest is the episode row id, so ids stay unique per database row.
+TASK_ID_PREFIX = "episode-"
+
+SUPPORTED_SCHEMES = ("redis", "rediss", "amqp", "amqps", "pyamqp")
+
+
+class BrokerURLError(ValueError):
+    """The broker URL is not one the scaled deployment supports."""
+
+
+def check_broker_url(url: str) -> str:
+    """Refuse anything but Redis or RabbitMQ, with a message that names what was given."""
+    scheme = url.split("://", 1)[0].lower() if "://" in url else ""
+    if scheme not in SUPPORTED_SCHEMES:
+        shown = url.split("@")[-1] if "@" in url else url  # never echo credentials
+        raise BrokerURLError(
+            f"ROBOBPP_BROKER_URL must be redis://… or amqp://… (got {shown!r}); "
+            "leave it empty to use the local process-pool executor"
+        )
+    return url
+
+
+def task_id(episode_id: int) -> str:
+    return f"{TASK_ID_PREFIX}{int(episode_id)}"
+
+
+def visibility_timeout_s(episode_timeout_s: float, lease_s: float) -> int:
+    """Twice the longest episode plus one lease: a running episode is never handed out again by Redis."""
+    return int(2 * episode_timeout_s + lease_s + 60)
+
+
+def celery_config(broker_url: str, *, queue: str, episode_timeout_s: float, lease_s: float) -> dict[str, Any]:
+    """The Celery settings as a plain dict (tests read it; ``make_celery`` applies it)."""
+    check_broker_url(broker_url)
+    return {
+        "broker_url": broker_url,
+        "broker_connection_retry_on_startup": True,
+        "broker_transport_options": {
+            "visibility_timeout": visibility_timeout_s(episode_timeout_s, lease_s),
+            # Redis: keep the unacked index per queue so two deployments on one Redis do not mix.
+            "unacked_key": f"unacked:{queue}",
+            "unacked_index_key": f"unacked_index:{queue}",
+            "unacked_mutex_key": f"unacked_mutex:{queue}",
+        },
+        "task_default_queue": queue,
+        "task_routes": {TASK_NAME: {"queue": queue}},
+        "task_serializer": "json",
+        "accept_content": ["json"],
+        "result_serializer": "json",
+        "result_accept_content": ["json"],
+        "task_ignore_result": True,
+        "result_backend": None,
+        "task_acks_late": True,
+        "task_reject_on_worker_lost": True,
+        "task_acks_on_failure_or_timeout": True,
+        "worker_prefetch_multiplier": 1,
+        "worker_max_tasks_per_child": 200,  # bounds any slow leak in the simulators
+        "worker_hijack_root_logger": False,
+        "worker_send_task_events": False,
+        "task_send_sent_event": False,
+        # Episodes enforce their own time budget; this is the backstop for a wedged simulator.
+        "task_time_limit": int(episode_timeout_s + lease_s + 60),
+        "enable_utc": True,
+        "timezone": "UTC",
+    }
+
+
+def make_celery(
+    broker_url: str,
+    *,
+    queue: str = DEFAULT_QUEUE,
+    episode_timeout_s: float = 1800.0,
+    lease_s: float = 120.0,
+) -> Celery:
+    app = Celery("robobpp", set_as_current=False)
+    app.conf.update(
+        celery_config(broker_url, queue=queue, episode_timeout_s=episode_timeout_s, lease_s=lease_s)
+    )
+    from robobpp.worker import tasks
+
+    tasks.register(app)
+    return app
+
+
+def app_from_settings(settings: Any) -> Celery:
+    """The app for a :class:`robobpp.server.config.Settings` (server and ``robobpp worker`` alike)."""
+    if not settings.broker_url:
+        raise BrokerURLError("ROBOBPP_BROKER_URL is empty: the Celery executor needs a broker")
+    return make_celery(
+        settings.broker_url,
+        queue=settings.celery_queue or DEFAULT_QUEUE,
+        episode_timeout_s=settings.episode_timeout_s,
+        lease_s=settings.lease_s,
+    )
+
+
+def _app_from_environment() -> Celery:
+    """For ``celery -A robobpp.worker.celery_app worker``: settings from the environment."""
+    from robobpp.server.config import Settings
+
+    settings = Settings()
+    if not settings.broker_url:
+        raise BrokerURLError("set ROBOBPP_BROKER_URL to run a Celery worker")
+    return app_from_settings(settings)
+
+
+def __getattr__(name: str) -> Any:
+    # ``celery -A robobpp.worker.celery_app`` looks for ``app``/``celery``; build it only when asked so
+    # importing this module never needs a broker or a settings object.
+    if name in ("app", "celery"):
+        return _app_from_environment()
+    raise AttributeError(name)

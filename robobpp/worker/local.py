@@ -1,0 +1,123 @@
+"""The local executor: a pool of worker processes on the server's machine (the embedded default).
+
+Processes, not threads: episodes are CPU-bound (geometry, PyBullet) and a crashing simulator must not
+take the server down. A supervisor thread restarts dead workers and hands their episodes back at once
+(the lease would free them anyway, later). SQL stays the only channel between server and workers.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import os
+import signal
+import socket
+import threading
+import time
+from multiprocessing.process import BaseProcess
+from typing import Any
+
+from robobpp.db import work
+from robobpp.db.session import make_engine, make_session_factory
+from robobpp.worker.options import WorkerOptions
+
+log = logging.getLogger("robobpp.worker")
+
+
+def worker_main(options: WorkerOptions, stop: Any) -> None:
+    """Claim-run-record until ``stop`` is set. Runs in a child process."""
+    from robobpp.worker.run import claim_and_run, worker_id
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's; it stops us through ``stop``
+    engine = make_engine(options.database_url)
+    factory = make_session_factory(engine)
+    me = worker_id("local")
+    try:
+        while not stop.is_set():
+            try:
+                outcome = claim_and_run(factory, options, me)
+            except Exception:  # noqa: BLE001 - the database blinked; wait and try again
+                log.warning("worker %s: claim failed", me, exc_info=True)
+                outcome = None
+            if outcome is None:
+                stop.wait(options.poll_interval_s)
+    finally:
+        engine.dispose()
+
+
+def host_prefix() -> str:
+    return f"local:{socket.gethostname()}:"
+
+
+class LocalExecutor:
+    def __init__(self, options: WorkerOptions, workers: int) -> None:
+        self.options = options
+        self.workers = workers
+        self._ctx = mp.get_context("spawn")
+        self._stop = self._ctx.Event()
+        self._procs: list[BaseProcess] = []
+        self._lock = threading.Lock()
+        self._stopping = threading.Event()
+        self._supervisor = threading.Thread(target=self._supervise, name="robobpp-supervisor", daemon=True)
+
+    def _spawn(self) -> BaseProcess:
+        proc = self._ctx.Process(target=worker_main, args=(self.options, self._stop), name="robobpp-worker",
+                                 daemon=True)  # fmt: skip
+        proc.start()
+        return proc
+
+    def _release_dead(self) -> None:
+        alive = {p.pid for p in self._procs if p.pid is not None and p.is_alive()}
+        engine = make_engine(self.options.database_url)
+        try:
+            with make_session_factory(engine)() as s, s.begin():
+                n = work.release_dead_workers(s, host_prefix(), alive | {os.getpid()})
+        finally:
+            engine.dispose()
+        if n:
+            log.warning("handed back %d episode(s) of dead local workers", n)
+
+    def start(self) -> None:
+        self._release_dead()  # a previous server on this host died mid-evaluation
+        with self._lock:
+            self._procs = [self._spawn() for _ in range(self.workers)]
+        self._supervisor.start()
+
+    def _supervise(self) -> None:
+        while not self._stopping.wait(1.0):
+            with self._lock:
+                dead = [p for p in self._procs if not p.is_alive()]
+                if not dead:
+                    continue
+                self._procs = [p for p in self._procs if p.is_alive()]
+                for p in dead:
+                    log.warning("worker process %s exited (code %s); restarting", p.pid, p.exitcode)
+                    self._procs.append(self._spawn())
+            try:
+                self._release_dead()
+            except Exception:  # noqa: BLE001
+                log.warning("could not hand back dead workers' episodes", exc_info=True)
+
+    def alive(self) -> int:
+        with self._lock:
+            return sum(p.is_alive() for p in self._procs)
+
+    def pids(self) -> list[int]:
+        with self._lock:
+            return [p.pid for p in self._procs if p.pid is not None and p.is_alive()]
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Ask workers to finish their current episode; terminate those that do not within the timeout."""
+        self._stopping.set()
+        self._stop.set()
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            procs = list(self._procs)
+        for p in procs:
+            p.join(max(0.0, deadline - time.monotonic()))
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+                p.join(2)
+        if self._supervisor.is_alive():
+            self._supervisor.join(2)

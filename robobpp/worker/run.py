@@ -1,0 +1,131 @@
+"""The episode execution unit shared by every executor (local pool, Celery).
+
+:func:`run_claimed` runs one already-claimed episode and records it; :func:`claim_and_run` claims the next
+one first. A background thread renews the lease while the episode runs, and the loop stops as soon as the
+claim is lost (cancelled, or taken over after this worker was presumed dead): its result is then dropped,
+never written twice.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import traceback
+from typing import Any
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from robobpp.db import work
+from robobpp.db.work import Claim
+from robobpp.episode import StepRecord, run_episode
+from robobpp.policies import load_policy
+from robobpp.worker.options import WorkerOptions
+from robobpp.worker.specs import episode_spec
+
+log = logging.getLogger("robobpp.worker")
+
+
+class ClaimLost(Exception):
+    """The episode is no longer ours (cancelled or re-leased): stop without recording anything."""
+
+
+def worker_id(kind: str = "local") -> str:
+    """``kind:host:pid`` — the host prefix lets a restarted server hand back its dead workers' episodes."""
+    return f"{kind}:{socket.gethostname()}:{os.getpid()}"
+
+
+def make_policy(claim: Claim, settings: WorkerOptions) -> Any:
+    """A built-in policy in-process (``builtin:NAME``), or the participant's server over robobpp/1."""
+    if claim.policy_url.startswith("builtin:"):
+        return load_policy(claim.policy_url.removeprefix("builtin:"))
+    from robobpp.client.remote import RemotePolicy
+
+    return RemotePolicy(
+        claim.policy_url,
+        claim.secret,
+        step_timeout_s=settings.step_timeout_s,
+        episode_timeout_s=settings.episode_timeout_s,
+        max_response_bytes=settings.response_cap_bytes,
+        resolved_ip=claim.pinned_ip,
+        name=f"submission-{claim.submission_id}",
+    )
+
+
+class _Lease(threading.Thread):
+    """Renews the lease every third of its length; flags the claim lost when renewal is refused."""
+
+    def __init__(self, factory: sessionmaker[Session], claim: Claim, lease_s: float) -> None:
+        super().__init__(name=f"lease-{claim.episode_id}", daemon=True)
+        self.factory, self.claim, self.lease_s = factory, claim, lease_s
+        self.step = 0
+        self.lost = threading.Event()
+        self.done = threading.Event()
+
+    def run(self) -> None:
+        interval = max(0.2, min(self.lease_s / 3, 10.0))
+        while not self.done.wait(interval):
+            try:
+                with self.factory() as s, s.begin():
+                    ok = work.heartbeat(s, self.claim.episode_id, self.claim.token, lease_s=self.lease_s,
+                                        step=self.step)  # fmt: skip
+            except Exception:  # noqa: BLE001 - a blip of the database: try again next interval
+                log.warning("lease renewal of episode %s failed", self.claim.episode_id, exc_info=True)
+                continue
+            if not ok:
+                self.lost.set()
+                return
+
+
+def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOptions) -> bool:
+    """Run a claimed episode and record it. Returns whether this call recorded the result."""
+    try:
+        spec = episode_spec(claim.dataset, claim.split, claim.group, groups=settings.groups,
+                            private_dir=settings.private_dir, provider=settings.spec_provider)  # fmt: skip
+        policy = make_policy(claim, settings)
+    except Exception as exc:  # noqa: BLE001 - an evaluation problem, not the policy's: retry, then fail
+        with factory() as s, s.begin():
+            work.release_episode(s, claim.episode_id, claim.token, f"{type(exc).__name__}: {exc}",
+                                 max_attempts=settings.max_attempts)  # fmt: skip
+        log.error("episode %s could not start: %s", claim.episode_id, exc)
+        return False
+    lease = _Lease(factory, claim, settings.lease_s)
+    lease.start()
+
+    def on_step(record: StepRecord) -> None:
+        lease.step = record.step + 1
+        if lease.lost.is_set():
+            raise ClaimLost
+
+    try:
+        result = run_episode(spec, policy, claim.setting, lookahead=claim.lookahead,
+                             time_budget_s=settings.episode_timeout_s, on_step=on_step)  # fmt: skip
+    except ClaimLost:
+        log.info("episode %s: claim lost (cancelled or taken over); result dropped", claim.episode_id)
+        return False
+    except Exception as exc:  # noqa: BLE001 - a crash of the simulator: record it, bounded retries
+        detail = "".join(traceback.format_exception_only(exc)).strip()
+        with factory() as s, s.begin():
+            work.release_episode(s, claim.episode_id, claim.token, detail, max_attempts=settings.max_attempts)
+        log.exception("episode %s crashed", claim.episode_id)
+        return False
+    finally:
+        lease.done.set()
+        lease.join(timeout=5)
+    data = result.to_dict(trace=claim.keep_trace)
+    with factory() as s, s.begin():
+        return work.complete_episode(s, claim.episode_id, claim.token, data, keep_trace=claim.keep_trace)
+
+
+def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worker: str) -> bool | None:
+    """Claim the next episode and run it. ``None`` when there was nothing to do."""
+    with factory() as s, s.begin():
+        claim = work.claim_episode(s, worker, lease_s=settings.lease_s, max_attempts=settings.max_attempts)
+    if claim is None:
+        return None
+    return run_claimed(factory, claim, settings)
+
+
+#: The name other executors (Celery tasks) import.
+run_episode_row = run_claimed

@@ -1,0 +1,62 @@
+"""Where a work item's :class:`EpisodeSpec` comes from.
+
+``test`` split: the private evaluation set built on the server (``datasets_private/``), never served.
+``train`` split: the public groups, drawn with seed 0 (anyone can reproduce them with the SDK).
+``ROBOBPP_SPEC_PROVIDER=module:function`` replaces both (offline tests, synthetic demos).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+
+from robobpp.core import EpisodeSpec
+
+Provider = Callable[[str, str, int, int], EpisodeSpec]
+
+
+class SpecUnavailableError(RuntimeError):
+    """The episode's boxes cannot be loaded (private split missing, data not fetched...)."""
+
+
+@lru_cache(maxsize=8)
+def _provider(path: str) -> Provider:
+    module, _, attr = path.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+@lru_cache(maxsize=16)
+def _private(dataset: str, root: str) -> tuple[EpisodeSpec, ...]:
+    from robobpp import datasets
+
+    load_private = getattr(datasets, "load_private", None)
+    if load_private is None:
+        raise SpecUnavailableError(
+            "this installation cannot load a private split (robobpp.datasets.load_private)"
+        )
+    return tuple(load_private(dataset, Path(root)))
+
+
+@lru_cache(maxsize=16)
+def _public(dataset: str, groups: int) -> tuple[EpisodeSpec, ...]:
+    from robobpp import datasets
+
+    episode_specs = getattr(datasets, "episode_specs", None)
+    if episode_specs is None:
+        from robobpp.datasets import sampling
+
+        episode_specs = sampling.episode_specs
+    return tuple(episode_specs(dataset, "train", groups=groups, seed=0))
+
+
+def episode_spec(
+    dataset: str, split: str, group: int, *, groups: int, private_dir: Path, provider: str = ""
+) -> EpisodeSpec:
+    if provider:
+        return _provider(provider)(dataset, split, group, groups)
+    specs = _private(dataset, str(private_dir)) if split == "test" else _public(dataset, groups)
+    if not 0 <= group < len(specs):
+        raise SpecUnavailableError(f"{dataset}/{split} has {len(specs)} groups; group {group} does not exist")
+    return specs[group]

@@ -184,13 +184,16 @@ class RemotePolicy:
         answer = self._call("POST", "/act", P.act_payload(obs), P.ActResponse, self.step_timeout_s, obs.step)
         return P.action_from_response(answer)
 
-    def close(self, reason: str = "completed") -> None:
-        """Tell the server the episode ended (best effort), then release every connection."""
+    def close(self, reason: str = "completed", *, strict: bool = False) -> None:
+        """Tell the server the episode ended, then release every connection.
+
+        Best effort by default (the episode is over either way and its reason already recorded);
+        ``strict=True`` raises the :class:`PolicyError` of a bad answer, for the conformance check.
+        """
         try:
             if self._client is not None and self._episode_id is not None:
                 payload = {"episode_id": self._episode_id, "reason": reason[: P.MAX_TEXT]}
-                # Best effort: the episode is over either way and its reason is already recorded.
-                with contextlib.suppress(PolicyError):
+                with contextlib.suppress(*(() if strict else (PolicyError,))):
                     self._call(
                         "POST", "/close", payload, P.EmptyResponse, self.close_timeout_s, use_episode=False
                     )

@@ -1,9 +1,96 @@
-"""Placeholder: the `robobpp worker` command (Celery executor) is registered here."""
+"""``robobpp worker``: a Celery worker of the scaled deployment, on any machine that reaches the broker
+and the database.
+
+It reads the same ``ROBOBPP_*`` settings as the server (database, broker, queue, lease, timeouts), runs
+``--concurrency`` episodes at a time, and sweeps expired leases so that episodes of a dead worker are
+sent again even while the server is down.
+"""
 
 from __future__ import annotations
 
+import os
+import socket
+from typing import Annotated, Any
+
 import typer
+
+from robobpp.cli.common import fail
+
+POOLS = ("prefork", "solo", "threads")
 
 
 def register(root: typer.Typer) -> None:
-    return None
+    root.command("worker")(worker)
+
+
+def worker(
+    concurrency: Annotated[
+        int, typer.Option("--concurrency", "-c", min=1, max=256, help="Episodes run at once (processes).")
+    ] = 2,
+    pool: Annotated[
+        str, typer.Option(help="prefork (default: one process per episode), solo (in-process) or threads.")
+    ] = "prefork",
+    loglevel: Annotated[str, typer.Option(help="debug, info, warning or error.")] = "info",
+    hostname: Annotated[
+        str | None, typer.Option(help="Celery node name; default robobpp-PID@HOST (unique per process).")
+    ] = None,
+) -> None:
+    """Run episodes from the broker queue (needs ROBOBPP_BROKER_URL and ROBOBPP_DATABASE_URL)."""
+    from pydantic import ValidationError
+
+    from robobpp.server.config import Settings
+    from robobpp.worker.celery_app import BrokerURLError, app_from_settings, check_broker_url
+
+    if pool not in POOLS:
+        fail(f"unknown pool {pool!r}; expected one of {', '.join(POOLS)}")
+    if loglevel.lower() not in ("debug", "info", "warning", "error"):
+        fail(f"unknown log level {loglevel!r}")
+    try:
+        settings = Settings()
+    except (ValidationError, ValueError) as exc:
+        fail(f"invalid settings: {exc}")
+    if not settings.broker_url:
+        fail(
+            "ROBOBPP_BROKER_URL is not set; `robobpp worker` serves the Celery executor (redis:// or amqp://)"
+        )
+    if not settings.database_url:
+        fail("ROBOBPP_DATABASE_URL is not set; workers on a shared broker need the shared database")
+    try:
+        check_broker_url(settings.broker_url)
+        app = app_from_settings(settings)
+    except BrokerURLError as exc:
+        fail(str(exc))
+    if pool == "solo" and concurrency != 1:
+        fail("--pool solo runs one episode at a time; use --concurrency 1 or the prefork pool")
+    _run(app, concurrency=concurrency, pool=pool, loglevel=loglevel.upper(),
+         hostname=hostname or f"robobpp-{os.getpid()}@{socket.gethostname()}")  # fmt: skip
+
+
+def _run(app: Any, *, concurrency: int, pool: str, loglevel: str, hostname: str) -> None:
+    from celery.signals import worker_ready, worker_shutdown
+
+    from robobpp.worker.celery_app import queue_of
+    from robobpp.worker.celery_executor import LeaseSweeper
+
+    sweeper = LeaseSweeper(app)
+
+    # Started once the pool has forked its children, so no child inherits the sweeper's thread.
+    def _start(**_kw: Any) -> None:
+        sweeper.start()
+
+    def _stop(**_kw: Any) -> None:
+        sweeper.stop()
+
+    worker_ready.connect(_start, weak=False)
+    worker_shutdown.connect(_stop, weak=False)
+    node = app.Worker(
+        concurrency=concurrency,
+        pool_cls=pool,
+        loglevel=loglevel,
+        hostname=hostname,
+        queues=[queue_of(app)],
+        without_gossip=True,
+        without_mingle=True,
+    )
+    node.start()
+    raise typer.Exit(node.exitcode or 0)

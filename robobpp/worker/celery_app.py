@@ -22,6 +22,8 @@ from typing import Any
 
 from celery import Celery
 
+from robobpp.worker.options import WorkerOptions
+
 #: Queue the episodes go to unless ``ROBOBPP_CELERY_QUEUE`` says otherwise (tests use one per run).
 DEFAULT_QUEUE = "robobpp-episodes"
 #: Name under which workers know the episode task (stable: it is written into broker messages).
@@ -95,46 +97,45 @@ def celery_config(broker_url: str, *, queue: str, episode_timeout_s: float, leas
 
 def make_celery(
     broker_url: str,
+    options: WorkerOptions,
     *,
     queue: str = DEFAULT_QUEUE,
-    episode_timeout_s: float = 1800.0,
-    lease_s: float = 120.0,
 ) -> Celery:
+    """The app: broker settings above, the episode task, and the worker options the task runs with.
+
+    The options travel inside the app object (prefork children inherit it), so a task never reads the
+    server's settings: the one-way imports (worker ← server) hold and a worker needs only its environment.
+    """
     app = Celery("robobpp", set_as_current=False)
     app.conf.update(
-        celery_config(broker_url, queue=queue, episode_timeout_s=episode_timeout_s, lease_s=lease_s)
+        celery_config(
+            broker_url, queue=queue, episode_timeout_s=options.episode_timeout_s, lease_s=options.lease_s
+        )
     )
+    app.conf.robobpp_options = options
+    app.conf.robobpp_queue = queue
     from robobpp.worker import tasks
 
     tasks.register(app)
     return app
 
 
+def options_of(app: Celery) -> WorkerOptions:
+    options = app.conf.get("robobpp_options")
+    if not isinstance(options, WorkerOptions):
+        raise RuntimeError("this Celery app was not built by robobpp.worker.celery_app.make_celery")
+    return options
+
+
+def queue_of(app: Celery) -> str:
+    return str(app.conf.get("robobpp_queue") or DEFAULT_QUEUE)
+
+
 def app_from_settings(settings: Any) -> Celery:
-    """The app for a :class:`robobpp.server.config.Settings` (server and ``robobpp worker`` alike)."""
+    """The app for a settings object with ``broker_url``, ``celery_queue`` and ``worker_options()``
+    (:class:`robobpp.server.config.Settings`; duck-typed so this module never imports the server)."""
     if not settings.broker_url:
         raise BrokerURLError("ROBOBPP_BROKER_URL is empty: the Celery executor needs a broker")
     return make_celery(
-        settings.broker_url,
-        queue=settings.celery_queue or DEFAULT_QUEUE,
-        episode_timeout_s=settings.episode_timeout_s,
-        lease_s=settings.lease_s,
+        settings.broker_url, settings.worker_options(), queue=settings.celery_queue or DEFAULT_QUEUE
     )
-
-
-def _app_from_environment() -> Celery:
-    """For ``celery -A robobpp.worker.celery_app worker``: settings from the environment."""
-    from robobpp.server.config import Settings
-
-    settings = Settings()
-    if not settings.broker_url:
-        raise BrokerURLError("set ROBOBPP_BROKER_URL to run a Celery worker")
-    return app_from_settings(settings)
-
-
-def __getattr__(name: str) -> Any:
-    # ``celery -A robobpp.worker.celery_app`` looks for ``app``/``celery``; build it only when asked so
-    # importing this module never needs a broker or a settings object.
-    if name in ("app", "celery"):
-        return _app_from_environment()
-    raise AttributeError(name)

@@ -1,0 +1,204 @@
+"""The Celery executor: what the server runs instead of the local pool when ``ROBOBPP_BROKER_URL`` is set.
+
+The server does not run episodes; it *dispatches* them. One background thread:
+
+1. sends a message for every pending episode it has not sent yet (new submissions, the baselines, and —
+   after a server restart, when its memory is empty — everything still pending: queued work resumes);
+2. sweeps expired leases: a running episode whose worker died (``kill -9``, a lost machine) is put back to
+   ``pending`` and sent again, in one transaction, so exactly one sweeper re-sends it even when many run.
+
+Broker redelivery (acks late) is the fast path; the sweep is the path that always works, whatever the
+broker does with an unacknowledged message (RabbitMQ requeues at once, Redis only after its visibility
+timeout). ``robobpp worker`` runs the same sweep, so a fleet heals even while the server is down.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from datetime import datetime
+
+from celery import Celery
+from sqlalchemy import create_engine, select, update
+from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import NullPool
+
+from robobpp.db import work
+from robobpp.db.models import EpisodeRow, Submission, utcnow
+from robobpp.db.session import make_engine, make_session_factory
+from robobpp.worker.celery_app import options_of
+from robobpp.worker.tasks import enqueue
+
+log = logging.getLogger("robobpp.worker.celery")
+
+
+def requeue_expired(
+    session: Session, app: Celery, max_attempts: int, now: datetime | None = None
+) -> list[int]:
+    """Expired leases → ``pending`` + a new message each (the last allowed attempt → ``failed``).
+
+    The send happens inside the caller's transaction: if the broker is down the rows stay ``running`` and
+    the next sweep tries again; a commit that fails after a send leaves a duplicate message, which the
+    claim turns into a no-op.
+    """
+    now = now or utcnow()
+    work.reap_expired(session, max_attempts, now)
+    ids = list(
+        session.execute(
+            update(EpisodeRow)
+            .where(
+                EpisodeRow.status == "running",
+                EpisodeRow.lease_expires_at < now,
+                EpisodeRow.attempts < max_attempts,
+            )  # fmt: skip
+            .values(status="pending", lease_token=None, lease_expires_at=None)
+            .returning(EpisodeRow.id)
+            .execution_options(synchronize_session=False)
+        ).scalars()
+    )
+    if ids:
+        enqueue(app, ids)
+        log.warning("re-sent %d episode(s) whose worker stopped renewing its lease: %s", len(ids), ids[:20])
+    return ids
+
+
+def active_episode_ids(session: Session) -> tuple[set[int], set[int]]:
+    """(pending, running) episode ids of submissions still being evaluated."""
+    rows = session.execute(
+        select(EpisodeRow.id, EpisodeRow.status)
+        .join(Submission, Submission.id == EpisodeRow.submission_id)
+        .where(EpisodeRow.status.in_(("pending", "running")), Submission.status.in_(work.ACTIVE_SUBMISSION))
+    ).all()
+    pending = {i for i, s in rows if s == "pending"}
+    return pending, {i for i, s in rows if s == "running"}
+
+
+class _Loop(threading.Thread):
+    """A daemon thread calling ``tick`` every ``interval`` seconds until stopped; errors are logged."""
+
+    def __init__(self, name: str, interval: float) -> None:
+        super().__init__(name=name, daemon=True)
+        self.interval = interval
+        self.stopping = threading.Event()
+
+    def tick(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def run(self) -> None:
+        while not self.stopping.is_set():
+            try:
+                self.tick()
+            except Exception:  # noqa: BLE001 - the database or broker blinked: try again next round
+                log.warning("%s: round failed", self.name, exc_info=True)
+            self.stopping.wait(self.interval)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self.stopping.set()
+        if self.is_alive():
+            self.join(timeout)
+
+
+def _own_factory(database_url: str) -> sessionmaker[Session]:
+    # NullPool: no pooled socket can be inherited by a child forked while this thread is idle.
+    if database_url.startswith("sqlite"):
+        return make_session_factory(make_engine(database_url))
+    return make_session_factory(create_engine(database_url, poolclass=NullPool))
+
+
+class LeaseSweeper(_Loop):
+    """The expired-lease sweep alone (runs in every ``robobpp worker``)."""
+
+    def __init__(self, app: Celery, interval: float | None = None) -> None:
+        options = options_of(app)
+        super().__init__("robobpp-lease-sweeper", interval or max(1.0, options.lease_s / 2))
+        self.app = app
+        self.options = options
+        self.factory = _own_factory(options.database_url)
+
+    def tick(self) -> None:
+        with self.factory() as s, s.begin():
+            requeue_expired(s, self.app, self.options.max_attempts)
+
+
+class CeleryExecutor(_Loop):
+    """Server side of the scaled deployment: dispatch pending episodes, sweep leases, count workers.
+
+    Same surface as :class:`robobpp.worker.local.LocalExecutor` (``start``, ``stop``, ``alive``) plus
+    ``submit(episode_ids)`` for callers that want a new submission sent before the next round.
+    """
+
+    def __init__(self, app: Celery, *, ping_every_s: float = 15.0) -> None:
+        options = options_of(app)
+        super().__init__("robobpp-dispatcher", options.poll_interval_s)
+        self.app = app
+        self.options = options
+        self.factory = _own_factory(options.database_url)
+        self._sent: set[int] = set()
+        self._sent_lock = threading.Lock()
+        self._workers = 0
+        self._ping_every_s = ping_every_s
+        self._last_ping = 0.0
+        self._last_sweep = 0.0
+
+    def submit(self, episode_ids: list[int]) -> int:
+        with self._sent_lock:
+            new = [i for i in episode_ids if i not in self._sent]
+            enqueue(self.app, new)
+            self._sent.update(new)
+        return len(new)
+
+    def dispatch(self) -> int:
+        """Send what is pending and unsent; forget what finished (keeps memory bounded by active work)."""
+        with self.factory() as s:
+            pending, running = active_episode_ids(s)
+        with self._sent_lock:
+            new = sorted(pending - self._sent)
+            enqueue(self.app, new)
+            self._sent = (self._sent & (pending | running)) | set(new)
+        return len(new)
+
+    def sweep(self) -> list[int]:
+        with self.factory() as s, s.begin():
+            ids = requeue_expired(s, self.app, self.options.max_attempts)
+        with self._sent_lock:
+            self._sent.update(ids)
+        return ids
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        if now - self._last_sweep >= max(1.0, self.options.lease_s / 2):
+            self._last_sweep = now
+            self.sweep()
+        self.dispatch()
+        if now - self._last_ping >= self._ping_every_s:
+            self._last_ping = now
+            self._workers = count_workers(self.app)
+
+    def alive(self) -> int:
+        """Celery workers that answered the last ping (health page; refreshed every ``ping_every_s``)."""
+        return self._workers
+
+
+def count_workers(app: Celery, timeout: float = 1.0) -> int:
+    try:
+        replies = app.control.ping(timeout=timeout) or []
+    except Exception:  # noqa: BLE001 - an unreachable broker means no reachable workers
+        return 0
+    return len(replies)
+
+
+def executor_from_settings(settings: object) -> CeleryExecutor:
+    """The server's hook: ``Settings`` with a broker URL → a started-on-demand executor."""
+    from robobpp.worker.celery_app import app_from_settings
+
+    return CeleryExecutor(app_from_settings(settings))
+
+
+__all__ = [
+    "CeleryExecutor",
+    "LeaseSweeper",
+    "active_episode_ids",
+    "executor_from_settings",
+    "requeue_expired",
+]

@@ -1,0 +1,113 @@
+"""The Celery task: one message = one episode row id, run by the shared execution unit.
+
+The task adds no evaluation logic of its own. It claims *that* episode through the same SQL lease as the
+local executor (:func:`robobpp.db.work.claim_episode`), runs it with the same unit
+(:func:`robobpp.worker.run.run_claimed`) and lets that unit record the result under the lease. So a copy
+of a message — redelivered by the broker after a worker died, or re-enqueued by a sweeper — finds the
+episode done, or leased by a live worker, and acknowledges itself without touching anything.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from typing import Any
+
+from celery import Celery
+from sqlalchemy import Engine, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from robobpp.db import work
+from robobpp.db.models import EpisodeRow
+from robobpp.db.session import make_engine, make_session_factory
+
+log = logging.getLogger("robobpp.worker.celery")
+
+#: Seconds before an episode that the unit handed back for a retry (infrastructure error) is sent again.
+RETRY_DELAY_S = 5
+
+# One engine per (process, database): prefork children must never share the parent's sockets.
+_engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session]]] = {}
+_engines_lock = threading.Lock()
+
+
+def session_factory(database_url: str) -> sessionmaker[Session]:
+    key = (os.getpid(), database_url)
+    with _engines_lock:
+        if key not in _engines:
+            engine = make_engine(database_url)
+            _engines[key] = (engine, make_session_factory(engine))
+        return _engines[key][1]
+
+
+def forget_inherited_engines() -> None:
+    """In a freshly forked child: drop the parent's engines without closing the parent's connections."""
+    with _engines_lock:
+        for (pid, url), (engine, _f) in list(_engines.items()):
+            if pid != os.getpid():
+                engine.dispose(close=False)
+                del _engines[(pid, url)]
+
+
+def parse_episode_id(value: Any) -> int:
+    """Messages come from a shared broker: accept a positive integer id and nothing else."""
+    if isinstance(value, bool) or not isinstance(value, int | str):
+        raise ValueError(f"episode id must be an integer, got {type(value).__name__}")
+    text = str(value).strip()
+    if not text.isdigit() or len(text) > 12 or int(text) < 1:
+        raise ValueError(f"episode id must be a positive integer, got {str(value)[:40]!r}")
+    return int(text)
+
+
+def enqueue(app: Celery, episode_ids: list[int], *, countdown: float | None = None) -> int:
+    """Send one message per episode, its task id derived from the episode id. Returns how many were sent."""
+    from robobpp.worker.celery_app import TASK_NAME, queue_of, task_id
+
+    queue = queue_of(app)
+    for episode_id in episode_ids:
+        app.send_task(TASK_NAME, args=[int(episode_id)], task_id=task_id(episode_id), queue=queue,
+                      countdown=countdown)  # fmt: skip
+    return len(episode_ids)
+
+
+def execute(app: Celery, episode_id: int, worker: str | None = None) -> str:
+    """Claim and run one episode. Returns what happened: ``recorded``, ``dropped`` or ``skipped``."""
+    from robobpp.worker.celery_app import options_of
+    from robobpp.worker.run import run_claimed, worker_id
+
+    options = options_of(app)
+    factory = session_factory(options.database_url)
+    me = worker or worker_id("celery")
+    with factory() as s, s.begin():
+        claim = work.claim_episode(s, me, lease_s=options.lease_s, max_attempts=options.max_attempts,
+                                   episode_id=episode_id)  # fmt: skip
+    if claim is None:
+        # Done, cancelled, failed, unknown, or leased by a live worker. In the last case the sweeper sends
+        # the episode again if that lease ever expires; nothing is waiting on this copy.
+        log.info("episode %s: nothing to do here (finished or held by another worker)", episode_id)
+        return "skipped"
+    log.info("episode %s: attempt %s on %s", episode_id, claim.attempt, me)
+    if run_claimed(factory, claim, options):
+        return "recorded"
+    with factory() as s:
+        status = s.execute(select(EpisodeRow.status).where(EpisodeRow.id == episode_id)).scalar_one_or_none()
+    if status == "pending":  # the unit handed it back for another attempt: it needs a new message
+        enqueue(app, [episode_id], countdown=RETRY_DELAY_S)
+    return "dropped"
+
+
+def _on_process_init(**_kw: Any) -> None:
+    forget_inherited_engines()
+
+
+def register(app: Celery) -> None:
+    from robobpp.worker.celery_app import TASK_NAME
+
+    @app.task(name=TASK_NAME, ignore_result=True)
+    def run_episode_task(episode_id: Any) -> str:
+        return execute(app, parse_episode_id(episode_id))
+
+    from celery.signals import worker_process_init
+
+    worker_process_init.connect(_on_process_init, weak=False, dispatch_uid="robobpp-forget-engines")

@@ -19,7 +19,6 @@ scratch. Coordinates are 1 cm cells (integers); ``z0`` is a float.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,29 +144,35 @@ def height_rectangles(
     cols = np.flatnonzero(valid.any(axis=0))
     i_lo, i_hi, j_lo, j_hi = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     sub = np.where(valid[i_lo:i_hi, j_lo:j_hi], hm[i_lo:i_hi, j_lo:j_hi], np.nan)
-    # run starts: first column, or value changes (NaN-aware)
-    prev = sub[:, :-1]
-    nxt = sub[:, 1:]
+    # runs along y: a run starts at the first column or where the value changes (NaN-aware)
+    prev, nxt = sub[:, :-1], sub[:, 1:]
     changed = ~((prev == nxt) | (np.isnan(prev) & np.isnan(nxt)))
     starts = np.concatenate([np.ones((sub.shape[0], 1), dtype=bool), changed], axis=1)
-    out: list[tuple[int, int, int, int, float]] = []
-    open_runs: dict[tuple[int, int, float], int] = {}
-    width = sub.shape[1]
-    for i in range(sub.shape[0] + 1):
-        runs: set[tuple[int, int, float]] = set()
-        if i < sub.shape[0]:
-            s = np.flatnonzero(starts[i])
-            e = np.append(s[1:], width)
-            vals = sub[i, s]
-            for j0, j1, v in zip(s.tolist(), e.tolist(), vals.tolist(), strict=True):
-                if not math.isnan(v):
-                    runs.add((j0, j1, v))
-        for key in [k for k in open_runs if k not in runs]:
-            j0, j1, v = key
-            out.append((i_lo + open_runs.pop(key), j_lo + j0, i_lo + i, j_lo + j1, v))
-        for key in runs:
-            open_runs.setdefault(key, i)
-    return out
+    row, j0 = np.nonzero(starts)
+    flat = row * sub.shape[1] + j0
+    j1 = np.append(flat[1:], sub.size) - row * sub.shape[1]
+    j1 = np.minimum(j1, sub.shape[1])
+    value = sub[row, j0]
+    solid = ~np.isnan(value)
+    row, j0, j1, value = row[solid], j0[solid], j1[solid], value[solid]
+    if row.size == 0:
+        return []
+    # merge identical runs of consecutive rows: sort by (j0, j1, value, row), cut where the chain breaks
+    order = np.lexsort((row, value, j1, j0))
+    row, j0, j1, value = row[order], j0[order], j1[order], value[order]
+    same = (j0[1:] == j0[:-1]) & (j1[1:] == j1[:-1]) & (value[1:] == value[:-1]) & (row[1:] == row[:-1] + 1)
+    first = np.flatnonzero(np.concatenate([[True], ~same]))
+    last = np.append(first[1:], row.size) - 1
+    return list(
+        zip(
+            (i_lo + row[first]).tolist(),
+            (j_lo + j0[first]).tolist(),
+            (i_lo + row[last] + 1).tolist(),
+            (j_lo + j1[first]).tolist(),
+            value[first].tolist(),
+            strict=True,
+        )
+    )
 
 
 def ems_from_heightmap(heightmap: np.ndarray, height: float) -> EmsSet:
@@ -197,7 +202,7 @@ class EmsTracker:
         if prev is None or ems is None or prev.shape != hm.shape or ems.height != height:
             ems = self._rebuild(hm, height)
         else:
-            changed = np.abs(hm - prev) > HEIGHT_EPS
+            changed = hm != prev
             if changed.any():
                 if (hm[changed] < prev[changed]).any():  # something moved down or away: start over
                     ems = self._rebuild(hm, height)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from robobpp.policies.ems import EmsTracker, ems_from_heightmap, empty_container, height_rectangles
+from robobpp.policies.ems import EmsTracker, empty_container, ems_from_heightmap, height_rectangles
 
 
 def brute_force_ems(hm: np.ndarray, height: float) -> list[tuple[int, int, int, int, float]]:

@@ -1,0 +1,91 @@
+"""Baseline policies: decision time per policy per dataset, and the Math Pack table of all baselines.
+
+    python bench/bench_policies.py time  [--groups 1]    # decision time median / p95 (ms), one core
+    python bench/bench_policies.py table [--groups 30]   # Space Utilization, Occupancy, Decision Time
+
+Both run every baseline through the one episode loop (``run_episode``, Math Pack) on train-split groups of
+each dataset; decision time is the loop's own wall-clock measurement around ``policy.act``. Progress goes
+to stderr, the Markdown table to stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+
+from _common import machine, median, percentile
+
+from robobpp.datasets import DATASETS, episode_specs
+from robobpp.episode import run_episode
+from robobpp.policies import BASELINES, load_policy
+
+#: Targets of BENCHMARK.md §7 (ms per decision).
+TARGET_MS = {"macs": 50.0, "sdfpack": 50.0}
+DEFAULT_TARGET_MS = 5.0
+#: The paper's decision times (s per box), where it reports them, as the reference.
+PAPER_S = {"dbl": "0.4–0.7", "hm": "0.3–1.0", "macs": "1–12", "sdfpack": "4–14"}
+
+
+def run(policy_name: str, specs: list, progress: str) -> list:
+    results = []
+    for k, spec in enumerate(specs, 1):
+        results.append(run_episode(spec, load_policy(policy_name), "math"))
+        print(f"\r{progress} {k}/{len(specs)}", end="", file=sys.stderr, flush=True)
+    return results
+
+
+def time_mode(groups: int, policies: list[str]) -> None:
+    print(f"machine: {machine()}; Math Pack, {groups} train group(s) of 80 boxes per dataset\n")
+    print("| policy | dataset | decisions | median (ms) | p95 (ms) | target (ms) | paper (s) |")
+    print("|---|---|---|---|---|---|---|")
+    for name in policies:
+        for dataset in DATASETS:
+            specs = episode_specs(dataset, split="train", groups=groups)
+            times = [s.decision_time for r in run(name, specs, f"{name} {dataset}") for s in r.steps]
+            target = TARGET_MS.get(name, DEFAULT_TARGET_MS)
+            print(
+                f"\r| {name} | {dataset} | {len(times)} | {median(times) * 1e3:.2f} | "
+                f"{percentile(times, 95) * 1e3:.2f} | ≤ {target:g} | {PAPER_S.get(name, '–')} |",
+                flush=True,
+            )
+
+
+def table_mode(groups: int, policies: list[str]) -> None:
+    started = time.perf_counter()
+    print(f"machine: {machine()}; Math Pack, train split, {groups} groups of 80 boxes per dataset\n")
+    print("| dataset | policy | Space Utilization ↑ | Occupancy ↑ | Decision Time (ms) ↓ | boxes placed |")
+    print("|---|---|---|---|---|---|")
+    for dataset in DATASETS:
+        specs = episode_specs(dataset, split="train", groups=groups)
+        for name in policies:
+            results = run(name, specs, f"{dataset} {name}")
+            util = statistics.mean(r.metrics["space_utilization"] for r in results)
+            occ = statistics.mean(r.metrics["occupancy"] or 0.0 for r in results)
+            dec = statistics.mean(r.metrics["decision_time"] or 0.0 for r in results)
+            placed = statistics.mean(r.boxes_placed for r in results)
+            print(
+                f"\r| {dataset} | {name} | {util:.3f} | {occ:.3f} | {dec * 1e3:.2f} | {placed:.1f} |",
+                flush=True,
+            )
+    print(f"\nwall time {time.perf_counter() - started:.0f} s", file=sys.stderr)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("mode", choices=["time", "table"])
+    parser.add_argument("--groups", type=int, default=None, help="groups per dataset (time: 1, table: 30)")
+    parser.add_argument("--policies", default=",".join(BASELINES), help="comma-separated policy names")
+    args = parser.parse_args()
+    policies = [p for p in args.policies.split(",") if p]
+    if args.mode == "time":
+        time_mode(args.groups or 1, policies)
+    else:
+        table_mode(args.groups or 30, policies)
+
+
+if __name__ == "__main__":
+    main()

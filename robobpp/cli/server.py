@@ -1,11 +1,85 @@
-"""Placeholder: commands of this area are registered here."""
+"""``robobpp serve`` (the evaluation service) and ``robobpp db upgrade`` (apply migrations)."""
 
 from __future__ import annotations
 
+import logging
+from pathlib import Path
+from typing import Annotated, Any
+
 import typer
 
-app = typer.Typer(no_args_is_help=True)
+db_app = typer.Typer(no_args_is_help=True, help="Database schema (Alembic migrations).")
+
+DEMO_GROUPS = 2
+
+
+def demo_overrides(data_dir: Path) -> dict[str, Any]:
+    """Few groups, Math (+ Physics when it is installed), private URLs allowed: fills within minutes."""
+    from robobpp.server.config import Settings
+
+    available = Settings(settings=()).enabled_settings
+    return {
+        "demo": True,
+        "groups": DEMO_GROUPS,
+        "settings": tuple(s for s in ("math", "physics") if s in available),
+        "allow_private_policy_urls": True,
+        "private_dir": data_dir / "private-demo",
+    }
+
+
+def serve(
+    demo: Annotated[
+        bool, typer.Option("--demo", help="Few groups so the leaderboard fills within minutes")
+    ] = False,
+    host: Annotated[str, typer.Option(help="Interface to bind (0.0.0.0 for other machines)")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port")] = 8000,
+    workers: Annotated[
+        int | None, typer.Option(help="Local worker processes (default: ROBOBPP_WORKERS or 2)")
+    ] = None,
+    data_dir: Annotated[
+        Path | None, typer.Option(help="Where the SQLite file lives (ROBOBPP_DATA_DIR)")
+    ] = None,
+) -> None:
+    """Run the evaluation service: API, pages, migrations at start, baselines, local workers."""
+    import uvicorn
+
+    from robobpp.server.app import create_app
+    from robobpp.server.config import Settings
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    overrides: dict[str, Any] = {}
+    if data_dir is not None:
+        overrides["data_dir"] = data_dir
+    if workers is not None:
+        overrides["workers"] = workers
+    base = Settings(**overrides)
+    if demo:
+        overrides.update(demo_overrides(base.data_dir))
+    settings = Settings(**overrides)
+    app = create_app(settings)
+    where = "ROBOBPP_ADMIN_TOKEN" if settings.admin_token else str(settings.data_dir / "admin_token")
+    typer.echo(f"robobpp: serving on http://{host}:{port} (API docs /docs); admin token: {where}")
+    uvicorn.run(app, host=host, port=port, log_level="info", access_log=False)
+
+
+@db_app.command("upgrade")
+def db_upgrade(revision: Annotated[str, typer.Argument(help="Target revision")] = "head") -> None:
+    """Apply migrations to ROBOBPP_DATABASE_URL (or the embedded SQLite file)."""
+    from robobpp.db.migrate import upgrade
+    from robobpp.db.session import make_engine
+    from robobpp.server.config import Settings
+
+    settings = Settings()
+    if not settings.database_url:
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.sqlalchemy_url)
+    try:
+        upgrade(settings.sqlalchemy_url, revision, engine=engine)
+    finally:
+        engine.dispose()
+    typer.echo(f"database at {engine.url.render_as_string(hide_password=True)} is at revision {revision}")
 
 
 def register(root: typer.Typer) -> None:
-    return None
+    root.command("serve")(serve)
+    root.add_typer(db_app, name="db")

@@ -42,7 +42,8 @@ def _include_pages(app: FastAPI) -> None:
 def create_app(settings: Settings | None = None, *, start_workers: bool | None = None) -> FastAPI:
     """Build the service. ``start_workers=False`` serves the API only (tests, API-only replicas)."""
     settings = settings or Settings()
-    run_workers = settings.workers > 0 if start_workers is None else start_workers
+    # With a broker the server dispatches episodes to Celery workers (no local pool); see worker/celery_*.py.
+    run_workers = (settings.workers > 0 or bool(settings.broker_url)) if start_workers is None else start_workers
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -51,7 +52,13 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         runtime = app.state.runtime
         await _run_sync(bootstrap, runtime)
         executor = None
-        if run_workers:
+        if run_workers and settings.broker_url:
+            from robobpp.worker.celery_executor import executor_from_settings
+
+            executor = executor_from_settings(settings)
+            executor.start()
+            runtime.executor = executor
+        elif run_workers:
             from robobpp.worker.local import LocalExecutor
 
             executor = LocalExecutor(settings.worker_options(), settings.workers)

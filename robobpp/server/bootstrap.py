@@ -22,27 +22,20 @@ BUILTIN_PARTICIPANT = "baselines"
 
 
 def ensure_private_split(settings: Any) -> bool:
-    """Build ``datasets_private/`` with a random secret seed if it is absent. ``False`` if impossible."""
+    """Build the private split with a random secret seed if it is absent. ``False`` if impossible."""
     if settings.spec_provider:
         return True
     from robobpp import datasets
 
     build = getattr(datasets, "build_private", None)
-    has = getattr(datasets, "has_private", None)
     if build is None:
         log.warning("robobpp.datasets.build_private is not available; the private track cannot run")
         return False
     root = settings.private_dir
-    if has is not None and has(root):
+    if (root / "manifest.json").is_file():
         return True
-    if has is None and root.is_dir() and any(p.name != "README.md" for p in root.iterdir()):
-        return True
-    seed = secrets.randbits(63)
     log.warning("building the private split in %s with a fresh secret seed (first start)", root)
-    try:
-        build(root, seed=seed, groups=settings.groups)
-    except TypeError:
-        build(root, seed=seed)
+    build(root, seed=secrets.randbits(63), groups=settings.groups, datasets=list(settings.datasets))
     return True
 
 

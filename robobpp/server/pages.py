@@ -43,8 +43,10 @@ def _root(request: Request) -> str:
 
 def render(request: Request, template: str, status_code: int = 200, **context: Any) -> HTMLResponse:
     root = _root(request)
-    html = environment().get_template(template).render(
-        root=root, static=f"{root}/static", SETTING_TITLES=SETTING_TITLES, **context
+    html = (
+        environment()
+        .get_template(template)
+        .render(root=root, static=f"{root}/static", SETTING_TITLES=SETTING_TITLES, **context)
     )
     return HTMLResponse(html, status_code=status_code)
 
@@ -108,19 +110,25 @@ def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, l
         if entry is not None:
             ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": len(board["entries"])}
     utilisation = [
-        (e["metrics"] or {}).get("space_utilization") for e in episodes if e["status"] == "done" and e["metrics"]
+        (e["metrics"] or {}).get("space_utilization")
+        for e in episodes
+        if e["status"] == "done" and e["metrics"]
     ]
     charts = {
-        "radar": tables.radar_series(view["runs"], boards, sub.id),
+        "radar": tables.radar_groups(view["runs"], boards, sub.id),
         "utilization": tables.histogram([u for u in utilisation if u is not None]),
     }
+    ran = {r["setting"] for r in view["runs"]}
+    columns = [m for m in METRICS if ran & set(m.settings)]
     return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
-                  episodes=episodes, ranks=ranks, charts=charts, metrics=METRICS, public=sub.track == "public",
+                  episodes=episodes, ranks=ranks, charts=charts, metrics=columns, public=sub.track == "public",
                   reasons={**TERMINATION_REASONS, **EXTRA_REASONS}, neutral=NEUTRAL_ENDINGS)  # fmt: skip
 
 
 @router.get("/submissions/{submission_id}/status.json")
-def submission_status(submission_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep) -> JSONResponse:
+def submission_status(
+    submission_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep
+) -> JSONResponse:
     """What the submission page polls while an evaluation runs (public figures only)."""
     sub = _submission(session, submission_id)
     if sub is None:
@@ -139,7 +147,9 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
     if sub is None or ep is None:
         return not_found(request, f"There is no episode {episode_id} in submission {submission_id}.")
     if sub.track != "public" or ep.trace is None:
-        return not_found(request, "Only public-track episodes have a replay: the private test split is never shown.")
+        return not_found(
+            request, "Only public-track episodes have a replay: the private test split is never shown."
+        )
     summary = queries.episode_summary(ep)
     raw = {**ep.trace, **{k: summary[k] for k in ("dataset", "split", "setting", "group", "boxes_total",
                                                    "boxes_placed", "termination", "termination_detail", "metrics")},
@@ -165,7 +175,9 @@ def datasets_page(request: Request):
         plot = None
         if summary is not None:
             colors = {"length": "#93c5fd", "width": "#86efac", "height": "#fcd34d"}
-            plot = ds.boxplot_svg([(dim.capitalize(), summary["dims"][dim], colors[dim]) for dim in ds.DIMENSIONS], "cm")
+            plot = ds.boxplot_svg(
+                [(dim.capitalize(), summary["dims"][dim], colors[dim]) for dim in ds.DIMENSIONS], "cm"
+            )
         cards.append({"spec": spec, "summary": summary, "plot": plot})
     return render(request, "datasets.html", title="Datasets", nav="datasets", cards=cards,
                   available=ds.data_available(), groups=ds.SAMPLE_GROUPS)  # fmt: skip
@@ -176,4 +188,3 @@ def protocol_page(request: Request, settings: SettingsDep):
     return render(request, "protocol.html", title="Take part", nav="protocol", reasons=TERMINATION_REASONS,
                   datasets=DATASETS, settings_offered=settings.enabled_settings,
                   quota_day=settings.quota_submissions_per_day, quota_concurrent=settings.quota_concurrent)  # fmt: skip
-

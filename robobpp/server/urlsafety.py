@@ -119,14 +119,19 @@ class PinnedTransport(httpx.HTTPTransport):
 
 
 def probe_policy(
-    checked: CheckedURL, *, timeout_s: float = 5.0, cap_bytes: int = 64 * 1024
+    checked: CheckedURL, *, secret: str | None = None, timeout_s: float = 5.0, cap_bytes: int = 64 * 1024
 ) -> dict[str, object]:
-    """``GET {url}/info`` through the pinned address, no redirects, capped body; raise if unusable."""
+    """Signed ``GET {url}/info`` through the pinned address, no redirects, capped body; raise if unusable."""
+    from robobpp.protocol import signed_headers
+
+    headers = {"Host": _host_header(checked)}
+    if secret is not None:
+        headers.update(signed_headers(secret, b""))
     transport = PinnedTransport(checked.pinned_ip, checked.host)
     try:
         with (
             httpx.Client(transport=transport, timeout=timeout_s, follow_redirects=False) as client,
-            client.stream("GET", checked.url + "/info", headers={"Host": _host_header(checked)}) as r,
+            client.stream("GET", checked.url + "/info", headers=headers) as r,
         ):
             body = b""
             for chunk in r.iter_bytes():
@@ -136,6 +141,9 @@ def probe_policy(
     except httpx.HTTPError as exc:
         raise UnsafeURLError("policy-unreachable",
                              f"the policy at {checked.url} did not answer GET /info: {type(exc).__name__}") from None  # fmt: skip
+    if r.status_code == 401:
+        raise UnsafeURLError("policy-unreachable", "the policy refused our signed GET /info (HTTP 401): "
+                             "is the submission's secret the one the policy server checks?")  # fmt: skip
     if r.status_code != 200:
         raise UnsafeURLError("policy-unreachable", f"the policy's GET /info answered HTTP {r.status_code}")
     try:

@@ -32,8 +32,9 @@ def worker_main(options: WorkerOptions, stop: Any) -> None:
     engine = make_engine(options.database_url)
     factory = make_session_factory(engine)
     me = worker_id("local")
+    parent = os.getppid()
     try:
-        while not stop.is_set():
+        while not stop.is_set() and os.getppid() == parent:  # an orphan (server killed) stops claiming
             try:
                 outcome = claim_and_run(factory, options, me)
             except Exception:  # noqa: BLE001 - the database blinked; wait and try again

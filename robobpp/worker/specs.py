@@ -60,3 +60,30 @@ def episode_spec(
     if not 0 <= group < len(specs):
         raise SpecUnavailableError(f"{dataset}/{split} has {len(specs)} groups; group {group} does not exist")
     return specs[group]
+
+
+#: Boxes per episode of :func:`offline_spec` (small on purpose: tests and offline demos).
+OFFLINE_BOXES = 12
+
+
+def offline_spec(dataset: str, split: str, group: int, groups: int) -> EpisodeSpec:
+    """A deterministic synthetic episode in the dataset's real container (no data download needed).
+
+    Use with ``ROBOBPP_SPEC_PROVIDER=robobpp.worker.specs:offline_spec`` for tests and offline demos;
+    the leaderboard of a real deployment never uses it.
+    """
+    import zlib
+
+    import numpy as np
+
+    from robobpp.core import Box
+    from robobpp.datasets import get_dataset
+
+    ds = get_dataset(dataset)
+    seed = zlib.crc32(f"{dataset}/{split}/{group}".encode())
+    rng = np.random.default_rng(seed)
+    c = ds.container
+    dims = rng.uniform(0.15, 0.45, size=(OFFLINE_BOXES, 3)) * np.array([c.length, c.width, c.height * 0.5])
+    boxes = tuple(Box(float(round(a)), float(round(b)), float(round(h)), float(round(rng.uniform(1, 8), 2)))
+                  for a, b, h in dims)  # fmt: skip
+    return EpisodeSpec(dataset, split, group, boxes, c, ds.collapse_threshold_cm, seed)

@@ -51,7 +51,10 @@ def _check_url(
     try:
         checked = check_policy_url(url, allow_private=settings.allow_private_policy_urls)
         probe_policy(
-            checked, timeout_s=min(5.0, settings.step_timeout_s), cap_bytes=settings.response_cap_bytes
+            checked,
+            secret=body.secret,
+            timeout_s=min(5.0, settings.step_timeout_s),
+            cap_bytes=settings.response_cap_bytes,
         )
     except UnsafeURLError as exc:
         title = {"policy-url-forbidden": "Policy URL refused", "policy-unreachable": "Policy unreachable"}

@@ -1,0 +1,181 @@
+"""Server test fixtures: fresh databases (SQLite file, or a new PostgreSQL database per test), a real
+``robobpp serve`` subprocess, and policy servers built with the SDK."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from robobpp.core import Action, Observation
+from robobpp.policies.dbl import DBL
+
+PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
+ADMIN_TOKEN = "test-admin-token-0123456789abcdef"
+OFFLINE = "robobpp.worker.specs:offline_spec"
+
+
+def _pg_available() -> bool:
+    try:
+        import psycopg
+
+        with psycopg.connect(PG_ADMIN_URL, connect_timeout=3):
+            return True
+    except Exception:  # noqa: BLE001
+        return False
+
+
+@pytest.fixture
+def pg_url() -> Iterator[str]:
+    """A brand-new PostgreSQL database, dropped afterwards (tests never see each other's rows)."""
+    import psycopg
+
+    if not _pg_available():
+        pytest.skip("PostgreSQL is not reachable at 127.0.0.1:5432")
+    name = f"robobpp_t_{uuid.uuid4().hex[:12]}"
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    base = PG_ADMIN_URL.rsplit("/", 1)[0].replace("postgresql://", "postgresql+psycopg://")
+    yield f"{base}/{name}"
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(params=["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
+def db_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'robobpp.sqlite3'}"
+    return request.getfixturevalue("pg_url")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class ServerProcess:
+    """``robobpp serve`` in a subprocess (real uvicorn, real worker processes)."""
+
+    def __init__(self, env: dict[str, str], data_dir: Path) -> None:
+        self.env = env
+        self.data_dir = data_dir
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.log = data_dir / "server.log"
+
+    def start(self) -> ServerProcess:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        cmd = [
+            sys.executable,
+            "-c",
+            "from robobpp.cli import main; main()",
+            "serve",
+            "--port",
+            str(self.port),
+        ]
+        out = self.log.open("ab")
+        self.proc = subprocess.Popen(
+            cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT, cwd=self.data_dir
+        )
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited: {self.log.read_text()[-3000:]}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=2).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.3)
+        raise RuntimeError(f"server did not start: {self.log.read_text()[-3000:]}")
+
+    def stop(self, sig: int = signal.SIGTERM) -> None:
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.send_signal(sig)
+        try:
+            self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def client(self, token: str = ADMIN_TOKEN) -> httpx.Client:
+        return httpx.Client(base_url=self.url + "/api/v1", headers={"Authorization": f"Bearer {token}"},
+                            timeout=30)  # fmt: skip
+
+
+@pytest.fixture
+def make_server(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
+    started: list[ServerProcess] = []
+
+    def factory(db: str, **extra: str) -> ServerProcess:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
+        env.update({
+            "ROBOBPP_DATA_DIR": str(tmp_path), "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
+            "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1", "ROBOBPP_SPEC_PROVIDER": OFFLINE, "ROBOBPP_GROUPS": "2",
+            "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_WORKERS": "2", "ROBOBPP_LEASE_S": "4",
+            "ROBOBPP_POLL_INTERVAL_S": "0.2", "ROBOBPP_BASELINES": '["dbl"]',
+        })  # fmt: skip
+        env.update(extra)
+        server = ServerProcess(env, tmp_path)
+        started.append(server)
+        return server.start()
+
+    yield factory
+    for s in started:
+        s.stop(signal.SIGKILL)
+
+
+class SlowDBL(DBL):
+    """DBL that thinks for a while, so a test can act while an episode runs."""
+
+    delay_s = 0.4
+
+    def act(self, obs: Observation) -> Action | None:
+        time.sleep(self.delay_s)
+        return super().act(obs)
+
+
+@pytest.fixture
+def policy_server() -> Iterator[Callable[..., Any]]:
+    from robobpp.client.serve import BackgroundServer, create_policy_app
+
+    servers: list[Any] = []
+
+    def factory(policy: Any = DBL, secret: str | None = "policy-secret-123") -> Any:
+        srv = BackgroundServer(create_policy_app(policy, secret)).start()
+        servers.append(srv)
+        return srv
+
+    yield factory
+    for s in servers:
+        s.stop()
+
+
+def wait_for(predicate: Callable[[], Any], timeout_s: float = 120, every_s: float = 0.3) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(every_s)
+    raise AssertionError("condition not reached in time")
+
+
+def new_participant(client: httpx.Client, name: str = "alice") -> str:
+    r = client.post("/participants", json={"name": name})
+    assert r.status_code == 201, r.text
+    return r.json()["token"]

@@ -51,7 +51,7 @@ class BR(EmsPolicy):
     def act(self, obs: Observation) -> Action | None:
         ems = self.spaces(obs)
         typical = self._typical(obs)
-        cands = ems_candidates(obs, ems, corners=4)
+        cands = ems_candidates(obs, ems, corners=4, dedupe=False)
         if len(cands) == 0:
             return None
         r = ems.rects[cands.ems]

@@ -178,7 +178,9 @@ def height_rectangles(
 def ems_from_heightmap(heightmap: np.ndarray, height: float) -> EmsSet:
     """All EMS of a container of ``height`` whose terrain is ``heightmap`` (from scratch)."""
     ems = empty_container(heightmap.shape, height)
-    for rect in sorted(height_rectangles(heightmap), key=lambda r: r[4]):
+    # tallest first: each later, lower column then cuts few spaces (7 ms instead of 49 ms for a full
+    # 80-box Repetitive container; the result is the same in any order)
+    for rect in sorted(height_rectangles(heightmap), key=lambda r: -r[4]):
         ems = cut(ems, rect)
     return ems
 
@@ -246,9 +248,11 @@ def _resting_heights(heightmap: np.ndarray, xs: np.ndarray, ys: np.ndarray, lc: 
     return drop_height_map(heightmap, lc, wc)[xs, ys]
 
 
-def ems_candidates(obs: Observation, ems: EmsSet, corners: int = 1) -> Candidates:
+def ems_candidates(obs: Observation, ems: EmsSet, corners: int = 1, dedupe: bool = True) -> Candidates:
     """Every (EMS, orientation) where the box fits, placed at the EMS's min corner (``corners=1``) or at its
-    four bottom corners (``corners=4``), with the resting height from the heightmap; duplicates removed.
+    four bottom corners (``corners=4``), with the resting height from the heightmap. With ``dedupe`` a
+    position reached from several spaces is kept once (from the first of them); without, once per space —
+    for scores that depend on the space the box goes into.
     """
     container = obs.container
     hm = obs.heightmap
@@ -274,7 +278,7 @@ def ems_candidates(obs: Observation, ems: EmsSet, corners: int = 1) -> Candidate
             ys + width <= container.width + TOLERANCE_CM
         )
         xs, ys, src = xs[inside], ys[inside], src[inside]
-        key = xs * (grid_y + 1) + ys
+        key = (xs * (grid_y + 1) + ys) * (len(ems) + 1) + (0 if dedupe else src)
         _, first = np.unique(key, return_index=True)
         first.sort()
         xs, ys, src = xs[first], ys[first], src[first]

@@ -12,7 +12,7 @@ from robobpp.policies.ems import EmsPolicy
 
 class OnlineBPH(EmsPolicy):
     """First fit over EMS in deep-bottom-left order: sort the spaces by floor height (lowest first), then
-    back (x0), then left (y0); take the first space the box fits in, with the first orientation (0, then 1)
+    back (x0), then left (y0) (spaces sharing that corner: the larger first); take the first space the box fits in, with the first orientation (0, then 1)
     that fits, at the space's back-left-bottom corner.
 
     Ha et al. evaluate bins × items × EMS × rotations over several open bins; here there is one bin and one
@@ -25,7 +25,7 @@ class OnlineBPH(EmsPolicy):
 
     def act(self, obs: Observation) -> Action | None:
         ems = self.spaces(obs)
-        order = np.lexsort((ems.rects[:, 1], ems.rects[:, 0], ems.z0))
+        order = np.lexsort((-ems.dy, -ems.dx, ems.rects[:, 1], ems.rects[:, 0], ems.z0))
         fits = []
         for orientation in obs.orientations:
             length, width, height = obs.box.dims(orientation)

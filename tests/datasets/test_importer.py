@@ -55,7 +55,9 @@ def test_cache_is_complete_and_has_no_leftovers(real_data: Path) -> None:
     assert set(manifest["files"]) == {"repetitive.npz", "diverse.npz", "longboard.npz"}
     assert manifest["source"]["sha256"] == "767e2d1704e5f0117ccdf5c52952733ed421cad24b8e0af95b5f2876fcab76be"
     assert not [p.name for p in real_data.iterdir() if p.name.startswith(".packsim")]
-    assert sorted(p.name for p in converted_dir(real_data).iterdir()) == sorted([MANIFEST, *manifest["files"]])
+    assert sorted(p.name for p in converted_dir(real_data).iterdir()) == sorted(
+        [MANIFEST, *manifest["files"]]
+    )
 
 
 def test_repetitive_split_is_time_ordered_earliest_fifth_for_test(real_data: Path) -> None:
@@ -99,7 +101,9 @@ def test_dims_convention_length_is_the_longer_side(real_data: Path) -> None:
         np.testing.assert_array_equal(rec["length"], np.maximum(rec["raw_length"], rec["raw_width"]))
     diverse = load_records("diverse")
     # Facts of the source: the W column is the longest side in ~96 % of SKUs.
-    assert _manifest(real_data)["datasets"]["diverse"]["w_column_longest_share"] == pytest.approx(0.959, abs=0.002)
+    assert _manifest(real_data)["datasets"]["diverse"]["w_column_longest_share"] == pytest.approx(
+        0.959, abs=0.002
+    )
     assert (diverse["raw_width"] == diverse["length"]).mean() > 0.99
 
 

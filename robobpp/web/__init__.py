@@ -1,0 +1,70 @@
+"""Templates, static files and view helpers of the web pages (the server's pages and ``robobpp view``).
+
+One Jinja2 environment serves both, with autoescape on for every template: participant names, policy
+names and termination details are user text and must reach the page as text.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import jinja2
+
+WEB_DIR = Path(__file__).resolve().parent
+TEMPLATES_DIR = WEB_DIR / "templates"
+STATIC_DIR = WEB_DIR / "static"
+
+SETTING_TITLES = {"math": "Math Pack", "physics": "Physics Pack", "execution": "Execution Pack"}
+
+
+def fmt_num(value: Any, digits: int = 3) -> str:
+    """A metric value for a table cell; a dash where there is none."""
+    if value is None or isinstance(value, bool):
+        return "—"
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return "—"
+    if not math.isfinite(number):
+        return "—"
+    if number != 0 and abs(number) < 10 ** (-digits):
+        return f"{number:.{digits}g}"
+    return f"{number:.{digits}f}"
+
+
+def fmt_pct(value: Any, digits: int = 1) -> str:
+    if value is None or isinstance(value, bool):
+        return "—"
+    try:
+        number = float(value) * 100
+    except (TypeError, ValueError):
+        return "—"
+    return f"{number:.{digits}f}%" if math.isfinite(number) else "—"
+
+
+def fmt_metric(value: Any, key: str) -> str:
+    """Ratios as percentages (how the paper prints them), times and lengths as plain numbers."""
+    if key in {"space_utilization", "occupancy", "collapsed_placement", "dangerous_operation"}:
+        return fmt_pct(value)
+    if key == "decision_time":
+        return fmt_num(value, 4)
+    return fmt_num(value, 3)
+
+
+@lru_cache(maxsize=1)
+def environment() -> jinja2.Environment:
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(TEMPLATES_DIR),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters["num"] = fmt_num
+    env.filters["pct"] = fmt_pct
+    env.filters["metric"] = fmt_metric
+    env.globals["SETTING_TITLES"] = SETTING_TITLES
+    return env

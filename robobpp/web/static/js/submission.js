@@ -1,0 +1,74 @@
+// Submission page: live progress while the evaluation runs, and the two charts (Chart.js, vendored).
+(function () {
+  const data = JSON.parse(document.getElementById("submission-data").textContent);
+  const PALETTE = ["#2563eb", "#16a34a", "#f59e0b", "#dc2626", "#7c3aed", "#0891b2", "#db2777", "#65a30d", "#ea580c"];
+
+  function charts() {
+    if (typeof Chart === "undefined") return;
+    Chart.defaults.font.family = getComputedStyle(document.body).fontFamily;
+    document.querySelectorAll("canvas[data-radar]").forEach((canvas) => {
+      const group = data.radar[Number(canvas.dataset.radar)];
+      new Chart(canvas, {
+        type: "radar",
+        data: {
+          labels: group.labels,
+          datasets: group.series.map((s, i) => ({
+            label: s.label, data: s.values, borderColor: PALETTE[i % PALETTE.length],
+            backgroundColor: PALETTE[i % PALETTE.length] + "22", pointRadius: 3, borderWidth: 2,
+          })),
+        },
+        options: { maintainAspectRatio: false, animation: false,
+          scales: { r: { min: 0, max: 1, ticks: { stepSize: 0.2, backdropColor: "transparent" },
+                         pointLabels: { font: { size: 12 } } } },
+          plugins: { legend: { position: "bottom" } } },
+      });
+    });
+    const util = document.getElementById("util-chart");
+    if (util) {
+      new Chart(util, {
+        type: "bar",
+        data: { labels: data.utilization.labels,
+          datasets: [{ label: "episodes", data: data.utilization.counts, backgroundColor: "#60a5fa", borderColor: "#2563eb", borderWidth: 1 }] },
+        options: { maintainAspectRatio: false, animation: false, plugins: { legend: { display: false } },
+          scales: { x: { title: { display: true, text: "space utilisation" } },
+                    y: { beginAtZero: true, ticks: { precision: 0 }, title: { display: true, text: "episodes" } } } },
+      });
+    }
+  }
+
+  function follow() {
+    if (!data.active) return;
+    const text = document.querySelector('[data-role="progress-text"]');
+    const bar = document.querySelector('[data-role="progress-bar"]');
+    const badge = document.querySelector('[data-role="status"]');
+    const live = document.querySelector('[data-role="live"]');
+    async function poll() {
+      try {
+        const response = await fetch(data.status_url, { headers: { Accept: "application/json" }, cache: "no-store" });
+        if (!response.ok) throw new Error(`HTTP ${response.status}`);
+        const s = await response.json();
+        const p = s.progress;
+        let line = `${p.episodes_done} of ${p.episodes_total} episodes finished`;
+        if (p.episodes_running) line += ` · ${p.episodes_running} running`;
+        if (p.episodes_failed) line += ` · ${p.episodes_failed} failed`;
+        if (p.phase) line += ` · now: ${p.phase}`;
+        text.textContent = line;
+        bar.style.width = `${p.episodes_total ? (100 * p.episodes_done) / p.episodes_total : 0}%`;
+        badge.textContent = s.status;
+        badge.className = `badge status-${s.status}`;
+        if (s.status !== "queued" && s.status !== "running") {
+          live.textContent = "Finished — loading the results…";
+          window.setTimeout(() => window.location.reload(), 600);
+          return;
+        }
+      } catch (err) {
+        if (live) live.textContent = `Lost contact with the server (${err.message}); retrying…`;
+      }
+      window.setTimeout(poll, 2000);
+    }
+    window.setTimeout(poll, 1000);
+  }
+
+  charts();
+  follow();
+})();

@@ -1,0 +1,224 @@
+"""Trace files → the compact payload the 3D replay viewer draws.
+
+A trace is what ``EpisodeResult.to_dict()`` produces (one episode) or what ``robobpp evaluate --trace``
+writes (``{"episodes": [...]}``). The viewer never sees the raw dicts: this module checks them (a trace file
+is user input — it may be truncated, hand-edited or hostile) and keeps only what is drawn, so the page stays
+small and the JavaScript can trust every number it gets.
+
+Optional per-step fields the viewer understands (settings may add them to ``steps[*].extra``):
+
+- ``poses``: the actual placement of every box placed so far, after this step settled (Physics/Execution);
+  without it a box is drawn where it landed when placed, and the final frame uses ``final[*].actual``.
+- ``tool_path_cm``: the tool-centre-point path of this placement, a list of ``[x, y, z]`` in the container
+  frame, cm; ``tool_path_m`` is the same in metres (Execution Pack).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+#: Bounds on what one trace may hold; a bigger file is refused with a clear message, not drawn slowly.
+MAX_EPISODES = 500
+MAX_STEPS = 5_000
+MAX_PATH_POINTS = 2_000
+MAX_FILE_BYTES = 200 * 1024 * 1024
+#: Coordinates beyond this (cm) are nonsense for any container of the benchmark.
+MAX_COORD_CM = 100_000.0
+
+
+class TraceError(ValueError):
+    """The trace file cannot be drawn; the message says why."""
+
+
+def read_trace(path: Path) -> list[dict[str, Any]]:
+    """Read a trace file and return its episodes (checked, compact)."""
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise TraceError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if size > MAX_FILE_BYTES:
+        raise TraceError(
+            f"{path} is {size / 1e6:.0f} MB; the viewer reads at most {MAX_FILE_BYTES // 10**6} MB"
+        )
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise TraceError(f"{path} is not UTF-8 text") from None
+    except json.JSONDecodeError as exc:
+        raise TraceError(
+            f"{path} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
+        ) from None
+    return episodes_from(data)
+
+
+def episodes_from(data: Any) -> list[dict[str, Any]]:
+    """Accept one episode dict or ``{"episodes": [...]}`` and return viewer payloads."""
+    if isinstance(data, Mapping) and "episodes" in data:
+        raw = data["episodes"]
+        if not isinstance(raw, list):
+            raise TraceError('"episodes" must be a list of episode objects')
+    elif isinstance(data, Mapping):
+        raw = [data]
+    else:
+        raise TraceError('a trace is an episode object or an object with a list under "episodes"')
+    if not raw:
+        raise TraceError("the trace holds no episode")
+    if len(raw) > MAX_EPISODES:
+        raise TraceError(f"the trace holds {len(raw)} episodes; the viewer shows at most {MAX_EPISODES}")
+    return [viewer_payload(ep, where=f"episode {i}") for i, ep in enumerate(raw)]
+
+
+def viewer_payload(episode: Any, *, where: str = "episode") -> dict[str, Any]:
+    """Check one ``EpisodeResult.to_dict()`` and keep what the viewer draws."""
+    ep = _mapping(episode, where)
+    container = _mapping(ep.get("container"), f"{where}.container")
+    dims = {
+        k: _num(container.get(k), f"{where}.container.{k}", positive=True)
+        for k in ("length", "width", "height")
+    }
+    steps_raw = ep.get("steps", [])
+    if not isinstance(steps_raw, list):
+        raise TraceError(f"{where}.steps must be a list")
+    if len(steps_raw) > MAX_STEPS:
+        raise TraceError(f"{where} has {len(steps_raw)} steps; the viewer shows at most {MAX_STEPS}")
+    steps = [_step(s, f"{where}.steps[{i}]") for i, s in enumerate(steps_raw)]
+    final_raw = ep.get("final", [])
+    if not isinstance(final_raw, list):
+        raise TraceError(f"{where}.final must be a list")
+    final = []
+    for i, f in enumerate(final_raw):
+        fm = _mapping(f, f"{where}.final[{i}]")
+        final.append({
+            "planned": _placement(fm.get("planned"), f"{where}.final[{i}].planned"),
+            "actual": _placement(fm.get("actual"), f"{where}.final[{i}].actual"),
+            "in_place": bool(fm.get("in_place", True)),
+        })  # fmt: skip
+    metrics_raw = ep.get("metrics") or {}
+    metrics = {
+        str(k): (float(v) if isinstance(v, int | float) and math.isfinite(v) else None)
+        for k, v in _mapping(metrics_raw, f"{where}.metrics").items()
+    }
+    return {
+        "episode_id": _text(ep.get("episode_id", "")),
+        "dataset": _text(ep.get("dataset", "")),
+        "split": _text(ep.get("split", "")),
+        "setting": _text(ep.get("setting", "")),
+        "policy": _text(ep.get("policy", "")),
+        "group": _int_or_none(ep.get("group")),
+        "boxes_total": _int_or_none(ep.get("boxes_total")),
+        "boxes_placed": _int_or_none(ep.get("boxes_placed")),
+        "termination": _text(ep.get("termination", "")),
+        "termination_detail": _text(ep.get("termination_detail", ""), limit=500),
+        "container": dims,
+        "metrics": metrics,
+        "steps": steps,
+        "final": final,
+    }
+
+
+def _step(raw: Any, where: str) -> dict[str, Any]:
+    s = _mapping(raw, where)
+    box = _mapping(s.get("box"), f"{where}.box")
+    out: dict[str, Any] = {
+        "step": _int_or_none(s.get("step")),
+        "box": {k: _num(box.get(k), f"{where}.box.{k}") for k in ("length", "width", "height")},
+        "action": _action(s.get("action"), f"{where}.action"),
+        "placement": None if s.get("placement") is None else _placement(s["placement"], f"{where}.placement"),
+        "collapsed": bool(s.get("collapsed", False)),
+        "termination": None if s.get("termination") is None else _text(s["termination"]),
+        "decision_time": _num_or_none(s.get("decision_time")),
+        "static_stability": _num_or_none(s.get("static_stability")),
+        "trajectory_length_m": _num_or_none(s.get("trajectory_length_m")),
+        "dangerous": None if s.get("dangerous") is None else bool(s["dangerous"]),
+    }
+    extra = s.get("extra") or {}
+    if isinstance(extra, Mapping):
+        if isinstance(extra.get("poses"), list):
+            out["poses"] = [_placement(p, f"{where}.extra.poses[{j}]") for j, p in enumerate(extra["poses"])]
+        if extra.get("tool_path_cm") is not None:
+            out["tool_path"] = _path(extra["tool_path_cm"], 1.0, f"{where}.extra.tool_path_cm")
+        elif extra.get("tool_path_m") is not None:
+            out["tool_path"] = _path(extra["tool_path_m"], 100.0, f"{where}.extra.tool_path_m")
+    return out
+
+
+def _placement(raw: Any, where: str) -> dict[str, Any]:
+    p = _mapping(raw, where)
+    out: dict[str, Any] = {k: _num(p.get(k), f"{where}.{k}") for k in ("x", "y", "z")}
+    out.update({k: _num(p.get(k), f"{where}.{k}", positive=True) for k in ("length", "width", "height")})
+    out["orientation"] = _int_or_none(p.get("orientation")) or 0
+    out["index"] = _int_or_none(p.get("index"))
+    q = p.get("quaternion")
+    if q is not None:
+        if not isinstance(q, list | tuple) or len(q) != 4:
+            raise TraceError(f"{where}.quaternion must be [x, y, z, w]")
+        quat = [_num(v, f"{where}.quaternion") for v in q]
+        norm = math.sqrt(sum(v * v for v in quat))
+        if norm < 1e-9:
+            raise TraceError(f"{where}.quaternion has zero length")
+        out["quaternion"] = [v / norm for v in quat]
+    return out
+
+
+def _action(raw: Any, where: str) -> dict[str, float] | None:
+    if raw is None:
+        return None
+    a = _mapping(raw, where)
+    return {"x": _num(a.get("x"), f"{where}.x"), "y": _num(a.get("y"), f"{where}.y"),
+            "orientation": _int_or_none(a.get("orientation")) or 0}  # fmt: skip
+
+
+def _path(raw: Any, scale: float, where: str) -> list[list[float]]:
+    if not isinstance(raw, list):
+        raise TraceError(f"{where} must be a list of [x, y, z] points")
+    points = []
+    for j, pt in enumerate(raw):
+        if not isinstance(pt, list | tuple) or len(pt) != 3:
+            raise TraceError(f"{where}[{j}] must be [x, y, z]")
+        points.append([_num(v, f"{where}[{j}]") * scale for v in pt])
+    return _thin(points, MAX_PATH_POINTS)
+
+
+def _thin(points: list[list[float]], limit: int) -> list[list[float]]:
+    """Keep at most ``limit`` points, always the first and the last (a path's ends matter most)."""
+    if len(points) <= limit:
+        return points
+    stride = (len(points) - 1) / (limit - 1)
+    return [points[round(i * stride)] for i in range(limit)]
+
+
+def _mapping(raw: Any, where: str) -> Mapping[str, Any]:
+    if not isinstance(raw, Mapping):
+        raise TraceError(f"{where} must be an object, got {type(raw).__name__}")
+    return raw
+
+
+def _num(raw: Any, where: str, *, positive: bool = False) -> float:
+    if isinstance(raw, bool) or not isinstance(raw, int | float):
+        raise TraceError(f"{where} must be a number, got {type(raw).__name__}")
+    value = float(raw)
+    if not math.isfinite(value) or abs(value) > MAX_COORD_CM:
+        raise TraceError(f"{where} = {raw!r} is out of range")
+    if positive and value <= 0:
+        raise TraceError(f"{where} must be positive, got {raw!r}")
+    return value
+
+
+def _num_or_none(raw: Any) -> float | None:
+    if isinstance(raw, bool) or not isinstance(raw, int | float) or not math.isfinite(raw):
+        return None
+    return float(raw)
+
+
+def _int_or_none(raw: Any) -> int | None:
+    if isinstance(raw, bool) or not isinstance(raw, int):
+        return None
+    return raw
+
+
+def _text(raw: Any, *, limit: int = 200) -> str:
+    return str(raw)[:limit]

@@ -5,29 +5,25 @@ NaN. Every such failure becomes a :class:`~robobpp.policies.base.PolicyError` wh
 termination code (``policy_timeout``, ``policy_error``, ``protocol_violation``, ``episode_timeout``) and
 whose ``detail`` says in plain words what happened, so the episode ends with a recorded reason.
 
-Why asyncio under a synchronous API: httpx's timeouts bound each socket operation, not the whole
-exchange, so a server that drips one byte per second would never trip them. Each exchange therefore
-runs as a coroutine on a private event loop (in a daemon thread, so it also works where the caller
-already runs a loop, e.g. a notebook) under one hard deadline; cancelling it closes the connection.
+Each exchange runs under one hard deadline over a single keep-alive connection
+(:mod:`robobpp.client.wire`); any failure closes that connection, and :meth:`RemotePolicy.close`
+always leaves no socket open.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import ipaddress
 import json
-import socket
-import threading
 import time
-from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
-import httpx
 from pydantic import BaseModel, ValidationError
 
+from robobpp import __version__
 from robobpp import protocol as P
+from robobpp.client import wire
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.policies.base import PolicyError
 
@@ -38,40 +34,7 @@ EPISODE_TIMEOUT = "episode_timeout"
 
 #: An answer is a few hundred bytes; this leaves room for verbose error bodies and nothing more.
 DEFAULT_MAX_RESPONSE_BYTES = 64 * 1024
-#: Extra seconds the calling thread waits for the loop beyond the exchange's own deadline.
-_GRACE_S = 5.0
-
 M = TypeVar("M", bound=BaseModel)
-T = TypeVar("T")
-
-
-class _LoopThread:
-    """A private asyncio loop in a daemon thread; :meth:`call` runs one coroutine to completion."""
-
-    def __init__(self) -> None:
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self._run, name="robobpp-remote-policy", daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_forever()
-
-    def call(self, coro: Coroutine[Any, Any, T], wait_s: float) -> T:
-        future = asyncio.run_coroutine_threadsafe(coro, self.loop)
-        try:
-            return future.result(timeout=wait_s)
-        except TimeoutError:
-            future.cancel()
-            raise
-
-    def stop(self) -> None:
-        if self.loop.is_closed():
-            return
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(timeout=_GRACE_S)
-        if not self.thread.is_alive():
-            self.loop.close()
 
 
 def _short(value: object, limit: int = 80) -> str:
@@ -102,14 +65,14 @@ def describe_validation(exc: ValidationError) -> str:
 class RemotePolicy:
     """A policy behind an HTTP(S) URL, driven through protocol ``robobpp/1``.
 
-    Only ``url`` is required (``load_policy(url)`` relies on that). The server's workers add the pinned
-    address they resolved and vetted once (``resolved_ip``), so DNS cannot change under a running
-    evaluation; redirects are never followed. ``transport_factory`` replaces the HTTP transport
-    entirely (one is made each time connections are opened).
+    Only ``url`` is required (``load_policy(url)`` relies on that). The server's workers add the
+    address they resolved and vetted once (``resolved_ip``): the connection goes there while Host and
+    the TLS server name stay the URL's, so DNS cannot change under a running evaluation. Redirects are
+    never followed and no proxy from the environment is used.
 
     The caller measures decision time around :meth:`act`; the policy's self-reported ``compute_time``
-    lands in :attr:`Action.compute_time`. :meth:`close` ends the episode on the server side and releases
-    every connection; the object can then be reset for another episode.
+    lands in :attr:`Action.compute_time`. :meth:`close` ends the episode on the server side and closes
+    the connection; the object can then be reset for another episode.
     """
 
     def __init__(
@@ -124,7 +87,6 @@ class RemotePolicy:
         episode_timeout_s: float | None = None,
         max_response_bytes: int = DEFAULT_MAX_RESPONSE_BYTES,
         resolved_ip: str | None = None,
-        transport_factory: Callable[[], httpx.AsyncBaseTransport] | None = None,
         verify_tls: bool = True,
         check_info: bool = True,
         name: str | None = None,
@@ -132,13 +94,19 @@ class RemotePolicy:
         parts = urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
             raise ValueError(f"policy URL must be http(s)://host[:port][/path], got {url!r}")
-        if parts.query or parts.fragment:
-            raise ValueError(f"policy URL must not carry a query or fragment, got {url!r}")
+        if parts.query or parts.fragment or parts.username or parts.password:
+            raise ValueError(f"policy URL must not carry a query, fragment or credentials, got {url!r}")
+        try:
+            port = parts.port or (443 if parts.scheme == "https" else 80)
+        except ValueError:
+            raise ValueError(f"policy URL has an invalid port: {url!r}") from None
         for label, value in (("step_timeout_s", step_timeout_s), ("connect_timeout_s", connect_timeout_s)):
             if not value > 0:
                 raise ValueError(f"{label} must be > 0, got {value!r}")
         if max_response_bytes < 16:
             raise ValueError(f"max_response_bytes must be at least 16, got {max_response_bytes!r}")
+        if resolved_ip is not None:
+            resolved_ip = str(ipaddress.ip_address(resolved_ip))  # ValueError on anything but an address
         self.url = url.rstrip("/")
         self.name = name or self.url
         self.secret = secret
@@ -148,29 +116,25 @@ class RemotePolicy:
         self.close_timeout_s = float(close_timeout_s)
         self.episode_timeout_s = episode_timeout_s
         self.max_response_bytes = int(max_response_bytes)
-        self.verify_tls = verify_tls
         self.check_info = check_info
-        self.transport_factory = transport_factory
         self.info: P.InfoResponse | None = None
-        self._host_header: str | None = None
-        self._sni: str | None = None
-        self._base = self.url
-        if resolved_ip is not None:
-            ip = ipaddress.ip_address(resolved_ip)  # ValueError on anything but a literal address
-            host = f"[{ip}]" if ip.version == 6 else str(ip)
-            port = f":{parts.port}" if parts.port else ""
-            self._base = f"{parts.scheme}://{host}{port}{parts.path}".rstrip("/")
-            self._host_header = parts.netloc.rpartition("@")[2]
-            self._sni = parts.hostname
-        self._runner: _LoopThread | None = None
-        self._client: httpx.AsyncClient | None = None
+        self._path = parts.path.rstrip("/")
+        self._connection = wire.Connection(
+            parts.hostname,
+            port,
+            connect_to=resolved_ip,
+            tls=parts.scheme == "https",
+            verify_tls=verify_tls,
+            connect_timeout_s=self.connect_timeout_s,
+        )
+        self._headers = [("Accept", "application/json"), ("Accept-Encoding", "identity"),
+                         ("User-Agent", f"robobpp/{__version__}"), (P.PROTOCOL_HEADER, P.PROTOCOL)]  # fmt: skip
         self._episode_id: str | None = None
         self._episode_deadline: float | None = None
 
     # ------------------------------------------------------------------ Policy interface
 
     def reset(self, info: EpisodeInfo) -> None:
-        self._open()
         self._episode_id = info.episode_id
         self._episode_deadline = (
             time.monotonic() + self.episode_timeout_s if self.episode_timeout_s is not None else None
@@ -180,18 +144,17 @@ class RemotePolicy:
         self._call("POST", "/reset", P.reset_payload(info), P.EmptyResponse, self.reset_timeout_s)
 
     def act(self, obs: Observation) -> Action | None:
-        self._open()
         answer = self._call("POST", "/act", P.act_payload(obs), P.ActResponse, self.step_timeout_s, obs.step)
         return P.action_from_response(answer)
 
     def close(self, reason: str = "completed", *, strict: bool = False) -> None:
-        """Tell the server the episode ended, then release every connection.
+        """Tell the server the episode ended, then close the connection.
 
         Best effort by default (the episode is over either way and its reason already recorded);
         ``strict=True`` raises the :class:`PolicyError` of a bad answer, for the conformance check.
         """
         try:
-            if self._client is not None and self._episode_id is not None:
+            if self._episode_id is not None:
                 payload = {"episode_id": self._episode_id, "reason": reason[: P.MAX_TEXT]}
                 with contextlib.suppress(*(() if strict else (PolicyError,))):
                     self._call(
@@ -199,61 +162,25 @@ class RemotePolicy:
                     )
         finally:
             self._episode_id = None
-            self._shutdown()
+            self._connection.close()
 
     def fetch_info(self) -> P.InfoResponse:
         """``GET /info``; checks the server speaks ``robobpp/1``."""
-        self._open()
         self.info = self._call("GET", "/info", None, P.InfoResponse, self.reset_timeout_s, use_episode=False)
         return self.info
+
+    @property
+    def connected(self) -> bool:
+        """Whether a connection is open (kept alive between the steps of an episode)."""
+        return self._connection._sock is not None
 
     def __enter__(self) -> RemotePolicy:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._shutdown()
-
-    def __del__(self) -> None:  # last resort: never leave a loop thread behind
-        with contextlib.suppress(Exception):  # interpreter teardown
-            self._shutdown()
+        self._connection.close()
 
     # ------------------------------------------------------------------ plumbing
-
-    def _open(self) -> None:
-        if self._runner is not None:
-            return
-        self._runner = _LoopThread()
-        self._runner.call(self._make_client(), _GRACE_S)
-
-    async def _make_client(self) -> None:
-        transport = self.transport_factory() if self.transport_factory else None
-        if transport is None:
-            # Without TCP_NODELAY, Nagle's algorithm and delayed ACKs add ~40 ms to every small request.
-            nodelay = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
-            transport = httpx.AsyncHTTPTransport(verify=self.verify_tls, socket_options=nodelay, retries=0)
-        self._client = httpx.AsyncClient(
-            transport=transport,
-            follow_redirects=False,
-            verify=self.verify_tls,
-            trust_env=False,  # a proxy from the environment would defeat the pinned address
-            timeout=httpx.Timeout(self.step_timeout_s, connect=self.connect_timeout_s),
-            limits=httpx.Limits(max_connections=2, max_keepalive_connections=1, keepalive_expiry=60.0),
-            headers={
-                "Accept": "application/json",
-                "Accept-Encoding": "identity",
-                P.PROTOCOL_HEADER: P.PROTOCOL,
-            },
-        )
-
-    def _shutdown(self) -> None:
-        runner, client = self._runner, self._client
-        self._runner = self._client = None
-        if runner is None:
-            return
-        if client is not None:
-            with contextlib.suppress(Exception):  # closing must not raise
-                runner.call(client.aclose(), _GRACE_S)
-        runner.stop()
 
     def _call(
         self,
@@ -267,25 +194,34 @@ class RemotePolicy:
         use_episode: bool = True,
     ) -> M:
         what = f"{method} {path}" + (f" (step {step})" if step is not None else "")
-        reason_on_timeout = POLICY_TIMEOUT
+        started = time.monotonic()
+        deadline, by_episode = started + timeout_s, False
         if use_episode and self._episode_deadline is not None:
-            remaining = self._episode_deadline - time.monotonic()
-            if remaining <= 0:
+            if self._episode_deadline <= started:
                 raise PolicyError(
                     EPISODE_TIMEOUT, f"the policy used up its {self.episode_timeout_s:g} s episode time"
                 )
-            if remaining < timeout_s:
-                timeout_s, reason_on_timeout = remaining, EPISODE_TIMEOUT
+            if self._episode_deadline < deadline:
+                deadline, by_episode = self._episode_deadline, True
         body = (
             b"" if payload is None else json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
         )
-        assert self._runner is not None
+        headers = list(self._headers)
+        if payload is not None:
+            headers.append(("Content-Type", "application/json"))
+        if self.secret is not None:
+            headers.extend(P.signed_headers(self.secret, body).items())
         try:
-            status, headers, content = self._runner.call(
-                self._exchange(method, path, body, timeout_s), timeout_s + _GRACE_S
+            answer = self._connection.request(
+                method, self._path + path, headers, body, deadline, self.max_response_bytes
             )
-        except TimeoutError:
-            if reason_on_timeout == EPISODE_TIMEOUT:
+        except wire.ConnectTimedOut:
+            raise PolicyError(
+                POLICY_TIMEOUT,
+                f"could not connect to {self.url} within {self.connect_timeout_s:g} s ({what})",
+            ) from None
+        except wire.DeadlineExceeded:
+            if by_episode:
                 raise PolicyError(
                     EPISODE_TIMEOUT,
                     f"no answer to {what} before the {self.episode_timeout_s:g} s episode limit",
@@ -293,32 +229,19 @@ class RemotePolicy:
             raise PolicyError(
                 POLICY_TIMEOUT, f"no complete answer to {what} within {timeout_s:g} s"
             ) from None
-        except httpx.ConnectTimeout:
-            raise PolicyError(
-                POLICY_TIMEOUT,
-                f"could not connect to {self.url} within {self.connect_timeout_s:g} s ({what})",
-            ) from None
-        except httpx.TimeoutException as exc:
-            raise PolicyError(POLICY_TIMEOUT, f"{what} timed out: {type(exc).__name__}") from None
-        except httpx.ConnectError as exc:
+        except wire.ConnectFailed as exc:
             raise PolicyError(POLICY_ERROR, f"cannot connect to {self.url} ({what}): {exc}") from None
-        except httpx.RemoteProtocolError as exc:
-            raise PolicyError(
-                POLICY_ERROR,
-                f"the connection broke during {what}: {exc or 'server closed it without an answer'}",
-            ) from None
-        except httpx.TransportError as exc:
-            raise PolicyError(
-                POLICY_ERROR, f"network error during {what}: {type(exc).__name__}: {exc}"
-            ) from None
-        except _TooLarge as exc:
+        except wire.ConnectionBroke as exc:
+            raise PolicyError(POLICY_ERROR, f"the connection broke during {what}: {exc}") from None
+        except wire.TooLarge as exc:
             raise PolicyError(
                 PROTOCOL_VIOLATION,
                 f"the answer to {what} is larger than the {self.max_response_bytes}-byte cap ({exc})",
             ) from None
-        return self._parse(what, status, headers, content, model)
+        return self._parse(what, answer, model)
 
-    def _parse(self, what: str, status: int, headers: httpx.Headers, content: bytes, model: type[M]) -> M:
+    def _parse(self, what: str, answer: wire.Answer, model: type[M]) -> M:
+        status, headers, content = answer.status, answer.headers, answer.body
         if 300 <= status < 400:
             location = headers.get("location", "?")
             raise PolicyError(
@@ -349,38 +272,3 @@ class RemotePolicy:
             raise PolicyError(
                 PROTOCOL_VIOLATION, f"bad answer to {what}: {describe_validation(exc)}"
             ) from None
-
-    async def _exchange(
-        self, method: str, path: str, body: bytes, timeout_s: float
-    ) -> tuple[int, httpx.Headers, bytes]:
-        """One request under a hard deadline; the body is read in chunks and cut off past the cap."""
-        assert self._client is not None
-        headers = {"Content-Type": "application/json"} if method == "POST" else {}
-        if self.secret is not None:
-            headers.update(P.signed_headers(self.secret, body))
-        if self._host_header is not None:
-            headers["Host"] = self._host_header
-        extensions = {"sni_hostname": self._sni} if self._sni is not None else None
-        request = self._client.build_request(
-            method, self._base + path, content=body or None, headers=headers, extensions=extensions
-        )
-        async with asyncio.timeout(timeout_s):
-            response = await self._client.send(request, stream=True)
-            try:
-                declared = response.headers.get("content-length")
-                if declared is not None and declared.isdigit() and int(declared) > self.max_response_bytes:
-                    raise _TooLarge(f"Content-Length {declared}")
-                chunks: list[bytes] = []
-                size = 0
-                async for chunk in response.aiter_raw():
-                    size += len(chunk)
-                    if size > self.max_response_bytes:
-                        raise _TooLarge(f"more than {size} bytes sent")
-                    chunks.append(chunk)
-                return response.status_code, response.headers, b"".join(chunks)
-            finally:
-                await response.aclose()
-
-
-class _TooLarge(Exception):
-    """The answer passed the response size cap; reading stopped there."""

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import threading
-
 import pytest
 
 from robobpp.client.remote import RemotePolicy
@@ -44,10 +42,6 @@ CASES: dict[str, tuple[str, str]] = {
 }
 
 
-def _threads() -> set[str]:
-    return {t.name for t in threading.enumerate() if t.name == "robobpp-remote-policy"}
-
-
 @pytest.mark.parametrize("mode", sorted(CASES))
 def test_hostile_server_ends_episode_with_precise_reason(
     mode: str, hostile: HostileServer, small_spec: EpisodeSpec
@@ -58,9 +52,8 @@ def test_hostile_server_ends_episode_with_precise_reason(
     assert result.termination == reason, result.termination_detail
     assert words in result.termination_detail
     assert result.boxes_placed == 0
-    # The caller released everything: no loop thread, no client, and the server sees every socket closed.
-    assert policy._client is None and policy._runner is None
-    assert not _threads()
+    # The caller released everything: the server sees every socket closed.
+    assert not policy.connected
     assert hostile.wait_all_closed(), f"{hostile.open_connections} connection(s) still open"
 
 
@@ -98,7 +91,7 @@ def test_policy_is_reusable_across_episodes(hostile: HostileServer, small_spec: 
     first = run_episode(small_spec, policy, "math")
     second = run_episode(small_spec, policy, "math")
     assert first.termination == second.termination == "completed"
-    assert not _threads()
+    assert not policy.connected
 
 
 def test_pinned_address_reaches_the_vetted_ip_without_dns(

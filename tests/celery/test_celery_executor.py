@@ -1,0 +1,156 @@
+"""The Celery executor against the machine's real Redis / RabbitMQ and PostgreSQL, with real worker
+processes (``robobpp worker``): draining, surviving ``kill -9``, and agreeing with the local executor."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+from sqlalchemy import select
+
+from robobpp.db import queries
+from robobpp.db.models import EpisodeRow, RunRow
+from robobpp.episode import run_episode
+from robobpp.policies import load_policy
+from robobpp.worker.celery_app import make_celery
+from robobpp.worker.celery_executor import CeleryExecutor, count_workers
+from robobpp.worker.options import WorkerOptions
+from tests.celery.conftest import LEASE_S, Fleet, episodes, new_submission, submission_status, wait_for
+from tests.celery.helpers import spec
+
+pytestmark = [pytest.mark.postgres, pytest.mark.redis, pytest.mark.rabbitmq]
+GEOMETRY = ("space_utilization", "occupancy")  # wall clock never decides these
+
+
+def _app(fleet: Fleet) -> Any:
+    env = fleet.env
+    options = WorkerOptions(database_url=env["ROBOBPP_DATABASE_URL"], groups=4, lease_s=LEASE_S,
+                            spec_provider=env["ROBOBPP_SPEC_PROVIDER"], poll_interval_s=0.3)  # fmt: skip
+    return make_celery(env["ROBOBPP_BROKER_URL"], options, queue=env["ROBOBPP_CELERY_QUEUE"])
+
+
+def _start(fleet: Fleet, workers: int) -> tuple[Any, CeleryExecutor]:
+    """Workers first (and answering), then the server-side dispatcher, so every worker competes."""
+    fleet.start(workers)
+    app = _app(fleet)
+    wait_for(
+        lambda: count_workers(app, timeout=0.5) >= workers, 90, f"{workers} workers to answer", fleet.logs
+    )
+    executor = CeleryExecutor(app)
+    executor.start()
+    return app, executor
+
+
+def _expected(dataset: str, group: int, policy: str) -> dict[str, Any]:
+    """The episode run directly through the one episode loop, in this process."""
+    return run_episode(spec(dataset, "train", group, 4), load_policy(policy), "math").to_dict(trace=False)
+
+
+def test_two_workers_drain_a_submission(fleet: Fleet, factory: Any) -> None:
+    sub = new_submission(factory, policy="tests.celery.helpers:PacedDBL", datasets=["repetitive", "diverse"],
+                         groups=3, name=f"drain-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    _app_, executor = _start(fleet, 2)
+    try:
+        wait_for(lambda: submission_status(factory, sub) == "completed", 120, "the submission", fleet.logs)
+    finally:
+        executor.stop()
+    rows = episodes(factory, sub)
+    assert len(rows) == 6
+    assert all(r.status == "done" and r.attempts == 1 for r in rows), [(r.status, r.attempts) for r in rows]
+    processes = {r.worker for r in rows}
+    assert len(processes) == 2, f"both workers should have run episodes: {processes}"
+    for r in rows:
+        want = _expected(r.dataset, r.group, "tests.celery.helpers:PacedDBL")
+        assert r.termination == want["termination"]
+        assert r.boxes_placed == want["boxes_placed"]
+        for key in GEOMETRY:
+            assert r.metrics[key] == pytest.approx(want["metrics"][key], abs=1e-12)
+
+
+def test_kill_9_mid_episode_completes_once_on_the_other_worker(fleet: Fleet, factory: Any) -> None:
+    sub = new_submission(factory, policy="tests.celery.helpers:SlowDBL", datasets=["repetitive"], groups=1,
+                         name=f"kill-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    app, executor = _start(fleet, 2)
+    try:
+
+        def running() -> EpisodeRow | None:
+            (row,) = episodes(factory, sub)
+            return row if row.status == "running" and row.step >= 2 else None
+
+        row = wait_for(running, 90, "the episode to be mid-way", fleet.logs)
+        victim_pid = int(row.worker.rsplit(":", 1)[1])
+        import os
+
+        victim_group = os.getpgid(victim_pid)
+        victim = next(p for p in fleet.procs if p.pid == victim_group)
+        fleet.kill(victim)  # kill -9 of the whole worker: main process and its pool child
+        wait_for(
+            lambda: submission_status(factory, sub) == "completed", 120, "the retried episode", fleet.logs
+        )
+        (done,) = episodes(factory, sub)
+        assert done.status == "done"
+        assert done.attempts == 2
+        assert done.worker != row.worker
+        want = _expected("repetitive", 0, "tests.celery.helpers:SlowDBL")
+        assert done.termination == want["termination"]
+        assert done.boxes_placed == want["boxes_placed"] == len(done.trace["steps"])
+        for key in GEOMETRY:
+            assert done.metrics[key] == pytest.approx(want["metrics"][key], abs=1e-12)
+        with factory() as s:
+            (run,) = s.execute(select(RunRow).where(RunRow.submission_id == sub)).scalars()
+        assert run.status == "completed" and run.extras["episodes"] == 1
+
+        # A redelivered copy of the message (what Redis does after its visibility timeout) changes nothing.
+        from robobpp.worker.tasks import execute
+
+        assert execute(app, done.id, worker="celery:redelivery:1") == "skipped"
+        (again,) = episodes(factory, sub)
+        assert (again.finished_at, again.attempts, again.worker, again.metrics) == (
+            done.finished_at, done.attempts, done.worker, done.metrics)  # fmt: skip
+    finally:
+        executor.stop()
+
+
+@pytest.mark.parametrize("broker", ["redis"], indirect=True)
+def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_path: Path) -> None:
+    from robobpp.db.migrate import upgrade
+    from robobpp.db.session import make_engine, make_session_factory
+    from robobpp.worker.local import LocalExecutor
+
+    policies = ("tests.celery.helpers:PacedDBL", "random")
+    tag = fleet.env["ROBOBPP_CELERY_QUEUE"]
+    celery_subs = [new_submission(factory, policy=p, datasets=["repetitive"], groups=3, name=f"{tag}-{i}")
+                   for i, p in enumerate(policies)]  # fmt: skip
+    _app_, executor = _start(fleet, 2)
+    try:
+        for sub in celery_subs:
+            wait_for(
+                lambda s=sub: submission_status(factory, s) == "completed", 120, "celery run", fleet.logs
+            )
+    finally:
+        executor.stop()
+
+    local_url = f"sqlite:///{tmp_path / 'local.sqlite3'}"
+    upgrade(local_url)
+    local = make_session_factory(make_engine(local_url))
+    local_subs = [new_submission(local, policy=p, datasets=["repetitive"], groups=3, name=f"{tag}-{i}")
+                  for i, p in enumerate(policies)]  # fmt: skip
+    pool = LocalExecutor(WorkerOptions(database_url=local_url, groups=4, lease_s=LEASE_S, poll_interval_s=0.2,
+                                       spec_provider="tests.celery.helpers:spec"), 2)  # fmt: skip
+    pool.start()
+    try:
+        for sub in local_subs:
+            wait_for(lambda s=sub: submission_status(local, s) == "completed", 120, "local run", lambda: "")
+    finally:
+        pool.stop()
+
+    def board(f: Any, subs: list[int]) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+        with f() as s:
+            entries = queries.leaderboard(s, "repetitive", "math", track="public")["entries"]
+        mine = [e for e in entries if e["submission_id"] in subs]
+        assert len(mine) == len(subs)
+        return [(e["name"], {k: v for k, v in e["metrics"].items() if k != "decision_time"}, e["extras"])
+                for e in mine]  # fmt: skip
+
+    assert board(factory, celery_subs) == board(local, local_subs)

@@ -33,6 +33,7 @@ def run(policy_name: str, specs: list, progress: str) -> list:
     for k, spec in enumerate(specs, 1):
         results.append(run_episode(spec, load_policy(policy_name), "math"))
         print(f"\r{progress} {k}/{len(specs)}", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
     return results
 
 
@@ -57,6 +58,7 @@ def decision_times(policy_name: str, specs: list, progress: str) -> tuple[list[f
             cpu.append(c1 - c0)
             episode.step(action, t1 - t0)
         print(f"\r{progress} {k}/{len(specs)}", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
     return wall, cpu
 
 
@@ -73,7 +75,7 @@ def time_mode(groups: int, policies: list[str]) -> None:
             wall, cpu = decision_times(name, specs, f"{name} {dataset}")
             target = TARGET_MS.get(name, DEFAULT_TARGET_MS)
             print(
-                f"\r| {name} | {dataset} | {len(wall)} | {median(cpu) * 1e3:.2f} | {percentile(cpu, 95) * 1e3:.2f} "
+                f"| {name} | {dataset} | {len(wall)} | {median(cpu) * 1e3:.2f} | {percentile(cpu, 95) * 1e3:.2f} "
                 f"| {median(wall) * 1e3:.2f} | {percentile(wall, 95) * 1e3:.2f} | ≤ {target:g} "
                 f"| {PAPER_S.get(name, '–')} |",
                 flush=True,
@@ -94,7 +96,7 @@ def table_mode(groups: int, policies: list[str]) -> None:
             dec = statistics.mean(r.metrics["decision_time"] or 0.0 for r in results)
             placed = statistics.mean(r.boxes_placed for r in results)
             print(
-                f"\r| {dataset} | {name} | {util:.3f} | {occ:.3f} | {dec * 1e3:.2f} | {placed:.1f} |",
+                f"| {dataset} | {name} | {util:.3f} | {occ:.3f} | {dec * 1e3:.2f} | {placed:.1f} |",
                 flush=True,
             )
     print(f"\nwall time {time.perf_counter() - started:.0f} s", file=sys.stderr)

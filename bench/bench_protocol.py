@@ -60,6 +60,16 @@ def start_server(port: int, secret: str | None) -> subprocess.Popen[bytes]:
     raise RuntimeError("policy server did not start")
 
 
+def server_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of the server process (Linux /proc), None elsewhere."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) * 1000.0
 
@@ -83,9 +93,15 @@ def main() -> None:
         remote_t: list[float] = []
         local_t: list[float] = []
         compute: list[float] = []
+        cpu_remote = cpu_local = 0.0
+        server_before = server_cpu_s(server.pid)
         for spec in episodes:
+            c0 = time.process_time()
             r = run_episode(spec, remote, "math")
+            c1 = time.process_time()
             loc = run_episode(spec, DBL(), "math")
+            cpu_remote += c1 - c0
+            cpu_local += time.process_time() - c1
             assert r.final == loc.final, "remote and in-process DBL diverged"
             for rs, ls in zip(r.steps, loc.steps, strict=True):
                 overhead.append(rs.decision_time - ls.decision_time)
@@ -93,11 +109,19 @@ def main() -> None:
                 local_t.append(ls.decision_time)
                 if rs.compute_time is not None:
                     compute.append(rs.compute_time)
+        server_after = server_cpu_s(server.pid)
     finally:
         server.terminate()
         server.wait(timeout=10)
+    steps = len(overhead)
+    # CPU spent on the protocol per step, both processes, excluding the policy's own compute: a figure
+    # that a busy machine's scheduling delays do not inflate (the wall-clock ones above they do).
+    cpu_overhead = None
+    if server_before is not None and server_after is not None:
+        spent = (cpu_remote - cpu_local) + (server_after - server_before) - sum(compute)
+        cpu_overhead = spent / steps * 1000.0
     figures = {
-        "steps": len(overhead),
+        "steps": steps,
         "signed": bool(args.secret),
         "overhead_p50_ms": pct(overhead, 50),
         "overhead_p95_ms": pct(overhead, 95),
@@ -106,6 +130,7 @@ def main() -> None:
         "in_process_p50_ms": pct(local_t, 50),
         "in_process_p95_ms": pct(local_t, 95),
         "server_compute_p50_ms": pct(compute, 50) if compute else None,
+        "cpu_overhead_mean_ms": cpu_overhead,
         "cpu_count": os.cpu_count(),
         "python": sys.version.split()[0],
     }

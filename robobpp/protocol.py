@@ -252,10 +252,15 @@ def _placement(p: PlacedModel, position: int) -> Placement:
     return Placement(p.x, p.y, p.z, p.length, p.width, p.height, p.orientation, index, quaternion)
 
 
-def observation_from_act(req: ActRequest, container: ContainerSpec | None = None) -> Observation:
+def observation_from_act(
+    req: ActRequest, container: ContainerSpec | None = None, previous: Observation | None = None
+) -> Observation:
     """The same :class:`Observation` the policy would get in-process; the heightmap is rebuilt from ``placed``.
 
     ``container`` comes from the request or, for callers that omit it, from the episode's ``/reset``.
+    ``previous`` (the episode's last observation) makes the rebuild incremental when the earlier boxes
+    have not moved, which is every step of Math Pack: only the new boxes are added to a copy of its
+    heightmap, so the cost no longer grows with the number of boxes already placed.
     """
     if req.container is not None:
         c = req.container
@@ -263,7 +268,20 @@ def observation_from_act(req: ActRequest, container: ContainerSpec | None = None
     if container is None:
         raise ValueError(f"no container known for episode {req.episode_id!r}: send /reset first")
     placements = [_placement(p, i) for i, p in enumerate(req.placed)]
-    state = ContainerState.from_placements(container, placements)
+    known = len(previous.placed) if previous is not None else 0
+    if (
+        previous is not None
+        and previous.container == container
+        and known <= len(placements)
+        and tuple(placements[:known]) == previous.placed
+    ):
+        state = ContainerState(container)
+        state.heightmap = previous.heightmap.copy()
+        state.placements = placements[:known]
+        for placement in placements[known:]:
+            state.add(placement)
+    else:
+        state = ContainerState.from_placements(container, placements)
     heightmap = state.heightmap
     heightmap.flags.writeable = False
     return Observation(

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ValidationError
 
 from robobpp import protocol as P
 from robobpp.client.remote import describe_validation
-from robobpp.core import Action, ContainerSpec
+from robobpp.core import Action, ContainerSpec, Observation
 from robobpp.policies.base import Policy
 
 #: Episodes whose container the server remembers (for callers that omit it from /act).
@@ -70,7 +70,14 @@ def create_policy_app(
         raise TypeError(f"{type(policy).__name__} has no act(observation) method")
     shown_name = (name or getattr(policy, "name", None) or type(policy).__name__)[: P.MAX_TEXT]
     info = {"protocol": P.PROTOCOL, "name": shown_name, "version": version[: P.MAX_TEXT]}
-    containers: OrderedDict[str, ContainerSpec] = OrderedDict()
+    # Per episode: its container (from /reset) and its last observation (for the incremental heightmap).
+    episodes: OrderedDict[str, tuple[ContainerSpec, Observation | None]] = OrderedDict()
+
+    def remember(episode_id: str, container: ContainerSpec, obs: Observation | None) -> None:
+        episodes[episode_id] = (container, obs)
+        episodes.move_to_end(episode_id)
+        while len(episodes) > _EPISODE_MEMORY:
+            episodes.popitem(last=False)
 
     app = FastAPI(
         title=f"robobpp policy server ({shown_name})",
@@ -114,10 +121,7 @@ def create_policy_app(
             return req
         assert isinstance(req, P.ResetRequest)
         episode = P.info_from_reset(req)
-        containers[req.episode_id] = episode.container
-        containers.move_to_end(req.episode_id)
-        while len(containers) > _EPISODE_MEMORY:
-            containers.popitem(last=False)
+        remember(req.episode_id, episode.container, None)
         return call_hook("reset", episode) or _json({})
 
     @app.post("/act", responses=_responses(P.ActResponse), openapi_extra=_request_doc(P.ActRequest))
@@ -126,10 +130,12 @@ def create_policy_app(
         if isinstance(req, Response):
             return req
         assert isinstance(req, P.ActRequest)
+        container, previous = episodes.get(req.episode_id, (None, None))
         try:
-            obs = P.observation_from_act(req, containers.get(req.episode_id))
+            obs = P.observation_from_act(req, container, previous)
         except ValueError as exc:
             return _error(422, "invalid_request", str(exc))
+        remember(req.episode_id, obs.container, obs)
         started = time.perf_counter()
         try:
             action = policy.act(obs)
@@ -151,7 +157,7 @@ def create_policy_app(
         if isinstance(req, Response):
             return req
         assert isinstance(req, P.CloseRequest)
-        containers.pop(req.episode_id, None)
+        episodes.pop(req.episode_id, None)
         return call_hook("close", req.reason) or _json({})
 
     def openapi() -> dict[str, Any]:

@@ -7,7 +7,6 @@ one entry per usable SKU with its shipment proportion as weight; for ``longboard
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,7 +39,6 @@ def ensure_cache(root: Path | None = None, notify: Notify | None = None) -> Path
         say = notify or _rich_notify()
         say(f"RoboBPP data not found in {root}; fetching it once (packsim 0.0.4 wheel, ~42 MB)")
         fetch(root, notify=say)
-        print("", end="", file=sys.stderr)
     return directory
 
 

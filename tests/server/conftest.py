@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -87,9 +88,9 @@ class ServerProcess:
             str(self.port),
         ]
         out = self.log.open("ab")
-        self.proc = subprocess.Popen(
-            cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT, cwd=self.data_dir
-        )
+        # Own session: a crash test can kill the server and its worker processes at once (killpg).
+        self.proc = subprocess.Popen(cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT, cwd=self.data_dir,
+                                     start_new_session=True)  # fmt: skip
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -102,8 +103,18 @@ class ServerProcess:
             time.sleep(0.3)
         raise RuntimeError(f"server did not start: {self.log.read_text()[-3000:]}")
 
+    def crash(self) -> None:
+        """SIGKILL the server and every worker process it started, mid-whatever."""
+        assert self.proc is not None
+        with contextlib.suppress(ProcessLookupError):  # already gone
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(10)
+
     def stop(self, sig: int = signal.SIGTERM) -> None:
         if self.proc is None or self.proc.poll() is not None:
+            return
+        if sig == signal.SIGKILL:
+            self.crash()
             return
         self.proc.send_signal(sig)
         try:
@@ -173,6 +184,18 @@ def wait_for(predicate: Callable[[], Any], timeout_s: float = 120, every_s: floa
             return value
         time.sleep(every_s)
     raise AssertionError("condition not reached in time")
+
+
+def db_rows(url: str, sql: str, **params: Any) -> list[Any]:
+    """Read the record of truth directly (what the API does not show: worker ids, leases)."""
+    from sqlalchemy import create_engine, text
+
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            return list(conn.execute(text(sql), params).all())
+    finally:
+        engine.dispose()
 
 
 def new_participant(client: httpx.Client, name: str = "alice") -> str:

@@ -1,11 +1,19 @@
-"""Shared fixtures: small hand-built episode specs that need no downloaded data."""
+"""Shared fixtures: hand-built episode specs (no data needed) and the real-data cache (network on first use).
+
+Set ``ROBOBPP_TEST_DATA_DIR`` to reuse one verified cache across runs; otherwise the wheel is downloaded and
+converted once per test session into a temporary cache.
+"""
 
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from robobpp.core import Box, ContainerSpec, EpisodeSpec
+from robobpp.datasets.importer import fetch
 
 
 def make_spec(
@@ -26,3 +34,19 @@ def random_spec() -> EpisodeSpec:
     rng = np.random.default_rng(7)
     dims = rng.integers(15, 55, size=(80, 3))
     return make_spec([tuple(map(float, d)) for d in dims], container=(134, 125, 100), dataset="synthetic")
+
+
+@pytest.fixture(scope="session")
+def real_data_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A verified, converted data cache (network on first use: pip download of packsim==0.0.4)."""
+    shared = os.environ.get("ROBOBPP_TEST_DATA_DIR")
+    root = Path(shared) if shared else tmp_path_factory.mktemp("robobpp-data")
+    fetch(root)
+    return root
+
+
+@pytest.fixture
+def real_data(real_data_root: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Point the library at the session cache for one test."""
+    monkeypatch.setenv("ROBOBPP_DATA_DIR", str(real_data_root))
+    return real_data_root

@@ -44,7 +44,7 @@ def evaluate(
     ] = None,
 ) -> None:
     """Evaluate a policy locally and print a results table."""
-    from robobpp.datasets import DATASETS, SPLITS, episode_specs
+    from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
     from robobpp.episode import run_episode
     from robobpp.policies import PolicyLoadError, load_policy
     from robobpp.sim import SETTINGS
@@ -58,7 +58,10 @@ def evaluate(
         agent = load_policy(policy, **kwargs)
     except PolicyLoadError as exc:
         fail(str(exc))
-    specs = {name: episode_specs(name, split=split, groups=groups, seed=seed) for name in datasets}
+    try:
+        specs = {name: episode_specs(name, split=split, groups=groups, seed=seed) for name in datasets}
+    except DatasetError as exc:
+        fail(str(exc))
     total = sum(len(s) for s in specs.values()) * len(settings)
     runs: dict[tuple[str, str], list] = {}
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
@@ -72,7 +75,8 @@ def evaluate(
                     results.append(run_episode(spec, agent, setting_name, lookahead=lookahead))
                     progress.advance(task)
     summary = _summarise(runs)
-    console.print(_table(agent.name, summary))
+    out = Console(width=None if Console().is_terminal else 160)  # files and pipes get the whole table
+    out.print(_table(agent.name, summary))
     if json_out is not None:
         payload = {"policy": agent.name, "split": split, "seed": seed, "runs": summary,
                    "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs]}  # fmt: skip

@@ -1,0 +1,3 @@
+from robobpp.cli import main
+
+main()

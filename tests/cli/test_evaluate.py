@@ -1,0 +1,58 @@
+"""`robobpp evaluate` end to end, in a subprocess like a user runs it."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from robobpp.datasets import episode_specs
+from robobpp.episode import run_episode
+from robobpp.policies import load_policy
+
+
+def robobpp(*args: str, env_extra: dict | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, **(env_extra or {})}
+    return subprocess.run(
+        [sys.executable, "-m", "robobpp.cli", *args], capture_output=True, text=True, env=env, timeout=300
+    )
+
+
+@pytest.mark.network
+def test_evaluate_writes_results_matching_the_loop(real_data, tmp_path):
+    out = tmp_path / "out.json"
+    trace = tmp_path / "trace.json"
+    proc = robobpp("evaluate", "--policy", "dbl", "--dataset", "repetitive", "--setting", "math",
+                   "--groups", "2", "--json", str(out), "--trace", str(trace),
+                   env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "Space Utilization" in proc.stdout and "repetitive" in proc.stdout
+    payload = json.loads(out.read_text())
+    assert [e["episode_id"] for e in payload["episodes"]] == ["repetitive-train-000", "repetitive-train-001"]
+    local = [run_episode(s, load_policy("dbl"), "math") for s in episode_specs("repetitive", groups=2)]
+    for got, want in zip(payload["episodes"], local, strict=True):
+        assert got["metrics"]["space_utilization"] == pytest.approx(want.metrics["space_utilization"])
+        assert got["boxes_placed"] == want.boxes_placed and got["termination"] == want.termination
+    mean = sum(r.metrics["occupancy"] for r in local) / 2
+    assert payload["runs"][0]["metrics"]["occupancy"] == pytest.approx(mean)
+    steps = json.loads(trace.read_text())["episodes"][0]["steps"]
+    assert len(steps) == local[0].boxes_total and steps[0]["placement"]["z"] == 0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--policy", "nope"], "unknown policy"),
+        (["--policy", "dbl", "--dataset", "moon"], "unknown dataset"),
+        (["--policy", "dbl", "--setting", "space"], "unknown setting"),
+        (["--policy", "dbl", "--split", "secret"], "unknown split"),
+        (["--policy", "dbl", "--groups", "0"], "--groups"),
+        (["--policy", "no_such_mod:X"], "cannot import"),
+    ],
+)
+def test_bad_arguments_exit_nonzero_with_a_clear_message(args, message):
+    proc = robobpp("evaluate", *args)
+    assert proc.returncode != 0
+    assert message in proc.stderr + proc.stdout
+    assert "Traceback" not in proc.stderr

@@ -20,6 +20,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from robobpp import metrics as M
 from robobpp.core import ORIENTATIONS, Action, EpisodeSpec, Observation
 from robobpp.episode import Episode
 from robobpp.policies.candidates import candidate_maps
@@ -40,15 +41,11 @@ def volume_reward(episode: Episode, record: Any) -> float:
 
 
 def stability_shaped_reward(episode: Episode, record: Any) -> float:
-    """The paper's training reward: 10·volume ratio + 0.01·static stability − mean position offset (m)."""
-    if record.placement is None:
-        return 0.0
-    offsets = [
-        float(np.linalg.norm(np.subtract(f.planned.center, f.actual.center))) / 100.0
-        for f in episode.setting.final_boxes()
-    ]
-    mean_offset = sum(offsets) / len(offsets) if offsets else 0.0
-    return 10.0 * volume_reward(episode, record) + 0.01 * (record.static_stability or 0.0) - mean_offset
+    """The paper's training reward (Physics/Execution): 10·volume ratio + 0.01·static stability − mean offset."""
+    from robobpp.sim.physics.reward import stability_reward  # the one definition, beside the simulator
+
+    offsets = (M.local_stability_m(episode.setting.final_boxes()) or 0.0,)
+    return stability_reward(volume_reward(episode, record), record.static_stability, offsets)
 
 
 REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_shaped_reward}

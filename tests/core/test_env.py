@@ -46,3 +46,20 @@ def test_infeasible_action_terminates_with_reason(specs):
 def test_unknown_reward_is_refused(specs):
     with pytest.raises(ValueError, match="unknown reward"):
         robobpp.env.PackEnv(specs=specs, reward="bogus")
+
+
+@pytest.mark.slow
+def test_stability_reward_in_physics_setting(specs):
+    env = gym.make("robobpp/Pack-v0", specs=specs[:1], setting="physics", reward="stability")
+    env.reset(seed=0)
+    rewards = []
+    for _ in range(3):
+        x, y, o = np.argwhere(env.unwrapped.action_mask())[0]
+        _, reward, terminated, _, info = env.step(np.array([x, y, o]))
+        rewards.append(reward)
+        if terminated:
+            break
+    volume_ratio = np.prod(specs[0].boxes[0].dims(0)) / specs[0].container.volume
+    # 10 × volume ratio + a small stability bonus (≤ 0.01) − a small offset of a resting box
+    assert 10 * volume_ratio - 0.01 < rewards[0] <= 10 * volume_ratio + 0.01
+    env.close()

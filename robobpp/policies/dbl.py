@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from robobpp.core import Action, Observation
 from robobpp.policies.base import BasePolicy
-from robobpp.policies.candidates import candidate_maps
+from robobpp.policies.candidates import argmin_placement
 
 
 class DBL(BasePolicy):
@@ -19,16 +17,4 @@ class DBL(BasePolicy):
     name = "dbl"
 
     def act(self, obs: Observation) -> Action | None:
-        best: tuple[float, int, int, int] | None = None
-        for cand in candidate_maps(obs):
-            nx, ny = cand.z.shape
-            cost = 100.0 * cand.z + np.arange(nx)[:, None] + np.arange(ny)[None, :]
-            cost = np.where(cand.feasible, cost, np.inf)
-            flat = int(np.argmin(cost))
-            value = float(cost.flat[flat])
-            if np.isfinite(value) and (best is None or value < best[0]):
-                x, y = divmod(flat, ny)
-                best = (value, x, y, cand.orientation)
-        if best is None:
-            return None
-        return Action(float(best[1]), float(best[2]), best[3])
+        return argmin_placement(obs, lambda cand, xs, ys: 100.0 * cand.z + xs + ys)

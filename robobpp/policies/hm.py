@@ -7,7 +7,7 @@ import numpy as np
 from robobpp.core import Action, Observation
 from robobpp.core.heightmap import cells_spanned
 from robobpp.policies.base import BasePolicy
-from robobpp.policies.candidates import candidate_maps
+from robobpp.policies.candidates import CandidateMap, argmin_placement
 
 
 def window_sums(grid: np.ndarray, lc: int, wc: int) -> np.ndarray:
@@ -31,18 +31,9 @@ class HM(BasePolicy):
     name = "hm"
 
     def act(self, obs: Observation) -> Action | None:
-        best: tuple[float, int, int, int] | None = None
-        for cand in candidate_maps(obs):
+        def score(cand: CandidateMap, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
             lc, wc = cells_spanned(cand.length), cells_spanned(cand.width)
-            nx, ny = cand.z.shape
             added = lc * wc * (cand.z + cand.height) - window_sums(obs.heightmap, lc, wc)
-            cost = 100.0 * added + np.arange(nx)[:, None] + np.arange(ny)[None, :]
-            cost = np.where(cand.feasible, cost, np.inf)
-            flat = int(np.argmin(cost))
-            value = float(cost.flat[flat])
-            if np.isfinite(value) and (best is None or value < best[0]):
-                x, y = divmod(flat, ny)
-                best = (value, x, y, cand.orientation)
-        if best is None:
-            return None
-        return Action(float(best[1]), float(best[2]), best[3])
+            return 100.0 * added + xs + ys
+
+        return argmin_placement(obs, score)

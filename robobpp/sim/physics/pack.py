@@ -1,0 +1,141 @@
+"""Physics Pack (BENCHMARK.md §3): the box is released at rest just above where the *physical* pile lets it
+rest, the world settles, and the policy sees where everything actually ended up."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement
+from robobpp.core.feasibility import TOLERANCE_CM
+from robobpp.sim.base import FinalBox, Setting, StepOutcome
+from robobpp.sim.physics.config import PhysicsConfig
+from robobpp.sim.physics.geometry import heightmap_from_boxes, surface_height
+from robobpp.sim.physics.settle import Settler, detect_collapse
+from robobpp.sim.physics.world import PhysicsWorld, WorldBox
+
+
+class PhysicsPack(Setting):
+    """One fresh pybullet client per episode, so the same episode always gives the same figures.
+
+    Options are :class:`PhysicsConfig` fields (``PhysicsPack(mode="full")``) or a whole ``config``.
+    """
+
+    name = "physics"
+
+    def __init__(self, config: PhysicsConfig | None = None, **options: object) -> None:
+        self.config = replace(config or PhysicsConfig(), **options)  # type: ignore[arg-type]
+        self.world: PhysicsWorld | None = None
+        self.spec: EpisodeSpec | None = None
+        self._boxes: list[WorldBox] = []
+        self._planned: list[Placement] = []
+        self._state: ContainerState | None = None
+
+    # -- Setting -------------------------------------------------------------------------------------
+    def reset(self, spec: EpisodeSpec) -> None:
+        self.close()
+        self.spec = spec
+        self.world = PhysicsWorld(self.config)
+        self.world.add_pallet(spec.container)
+        self._settler = Settler(self.world)
+        self._boxes = []
+        self._planned = []
+        self._state = None
+
+    def close(self) -> None:
+        if self.world is not None:
+            self.world.close()
+            self.world = None
+
+    def _world(self) -> PhysicsWorld:
+        if self.world is None or self.spec is None:
+            raise RuntimeError("PhysicsPack: reset(spec) first")
+        return self.world
+
+    def resting_height(self, x: float, y: float, length: float, width: float) -> float:
+        """Where a footprint released from above meets the pile as it physically is now, cm."""
+        world = self._world()
+        centers, quats, halves = world.poses_cm(self._boxes)
+        return surface_height(
+            centers, quats, halves, x, y, x + length, y + width, self.config.edge_tolerance_cm
+        )
+
+    def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
+        world = self._world()
+        spec = self.spec
+        assert spec is not None
+        length, width, height = box.dims(action.orientation)
+        z = self.resting_height(action.x, action.y, length, width)
+        if z + height > spec.container.height + TOLERANCE_CM:
+            detail = (f"box top at {z + height:g} cm would exceed the container height "
+                      f"{spec.container.height:g} cm")  # fmt: skip
+            return StepOutcome(None, Infeasible("too_high", detail))
+        planned = Placement(action.x, action.y, z, length, width, height, action.orientation, index)
+        cx, cy, cz = planned.center
+        new = world.add_box((cx, cy, cz + self.config.release_gap_cm), (length, width, height), box.mass)
+        self._boxes.append(new)
+        self._planned.append(planned)
+        self._state = None
+        report = self._settler.run([new])
+        targets = np.array([p.center for p in self._planned])
+        moved = detect_collapse(world, self._boxes, targets, [p.index for p in self._planned],
+                                spec.collapse_threshold_cm)  # fmt: skip
+        actual = self._actual(len(self._boxes) - 1)
+        extra: dict[str, object] = {"sim_steps": report.steps, "at_rest": report.at_rest,
+                                    "simulated_boxes": report.simulated_boxes,
+                                    "max_linear_speed": report.max_linear, "max_angular_speed": report.max_angular}  # fmt: skip
+        termination = None
+        if moved:
+            worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))
+            termination = Infeasible(
+                "collapse",
+                f"{worst.describe()} (threshold {spec.collapse_threshold_cm:g} cm); "
+                f"{len(moved)} box(es) beyond it after placing box {index}",
+            )
+            extra["collapsed_boxes"] = [d.index for d in moved]
+        return StepOutcome(actual, termination, static_stability=report.static_stability, collapsed=bool(moved),
+                           extra=extra)  # fmt: skip
+
+    def _actual(self, i: int) -> Placement:
+        centre, quat = self._world().pose_cm(self._boxes[i])
+        planned = self._planned[i]
+        return Placement(
+            centre[0] - planned.length / 2,
+            centre[1] - planned.width / 2,
+            centre[2] - planned.height / 2,
+            planned.length,
+            planned.width,
+            planned.height,
+            planned.orientation,
+            planned.index,
+            quat,
+        )
+
+    def state(self) -> ContainerState:
+        """Actual poses (centre-based min corner + quaternion) and the heightmap of their actual bounds."""
+        world = self._world()
+        if self._state is None:
+            assert self.spec is not None
+            state = ContainerState(self.spec.container)
+            state.placements = [self._actual(i) for i in range(len(self._boxes))]
+            centers, quats, halves = world.poses_cm(self._boxes)
+            hm = heightmap_from_boxes(
+                state.heightmap.shape, centers, quats, halves, self.config.edge_tolerance_cm
+            )
+            res = self.config.heightmap_resolution_cm
+            state.heightmap = np.round(hm / res) * res if res > 0 else hm
+            self._state = state
+        return self._state
+
+    def final_boxes(self) -> list[FinalBox]:
+        """Planned vs actual pose; ``in_place`` = within the collapse threshold and still on the pallet."""
+        world = self._world()
+        assert self.spec is not None
+        targets = np.array([p.center for p in self._planned]).reshape(-1, 3)
+        moved = {d.index for d in detect_collapse(world, self._boxes, targets, [p.index for p in self._planned],
+                                                  self.spec.collapse_threshold_cm)}  # fmt: skip
+        return [
+            FinalBox(planned, self._actual(i), planned.index not in moved)
+            for i, planned in enumerate(self._planned)
+        ]

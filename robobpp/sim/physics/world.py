@@ -1,0 +1,191 @@
+"""A PyBullet world for the pallet and the boxes: one DIRECT client per world, never the global one.
+
+The world frame is the container frame in metres (origin at the pallet's top corner, x along the length,
+y along the width, z up), so the Execution Pack can put its robot and conveyor into the same world. Box
+methods speak centimetres like the rest of robobpp and convert at this boundary.
+
+Friction: Bullet multiplies the two bodies' coefficients for a contact, so every body gets
+``sqrt(lateral_friction)`` and each box–box and box–pallet pair then has exactly ``lateral_friction``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import TracebackType
+
+import numpy as np
+import pybullet as p
+
+from robobpp.core import ContainerSpec
+from robobpp.sim.physics.config import PhysicsConfig
+
+CM = 0.01
+#: Pallet deck thickness and the height of its top above the ground, m. Boxes that fall off the pallet
+#: land on the ground and stay in the simulation (a fall is then seen as z below the deck).
+PALLET_THICKNESS_M = 0.05
+PALLET_HEIGHT_M = 0.15
+WALL_THICKNESS_M = 0.02
+
+
+@dataclass(slots=True)
+class WorldBox:
+    """A box body and what the world needs to know about it (extents along its own axes, cm)."""
+
+    body: int
+    half_extents_cm: tuple[float, float, float]
+    mass: float
+    frozen: bool = False
+
+
+class PhysicsWorld:
+    """Owns a pybullet DIRECT client; several worlds coexist in one process without sharing state."""
+
+    def __init__(self, config: PhysicsConfig | None = None) -> None:
+        self.config = config or PhysicsConfig()
+        self.client: int = p.connect(p.DIRECT)
+        if self.client < 0:
+            raise RuntimeError("pybullet could not open a DIRECT client")
+        cid = self.client
+        p.resetSimulation(physicsClientId=cid)
+        p.setGravity(0, 0, -self.config.gravity, physicsClientId=cid)
+        p.setTimeStep(self.config.dt, physicsClientId=cid)
+        p.setPhysicsEngineParameter(
+            numSolverIterations=self.config.solver_iterations,
+            deterministicOverlappingPairs=1,
+            physicsClientId=cid,
+        )
+        self.boxes: list[WorldBox] = []
+        self.static_bodies: list[int] = []
+        self.container: ContainerSpec | None = None
+        self._shapes: dict[tuple[float, float, float], int] = {}
+        self._body_friction = math.sqrt(self.config.lateral_friction)
+        self._body_restitution = math.sqrt(self.config.restitution)
+
+    # -- lifecycle -----------------------------------------------------------------------------------
+    def close(self) -> None:
+        if self.client >= 0:
+            try:
+                p.disconnect(physicsClientId=self.client)
+            except p.error:  # already gone
+                pass
+            self.client = -1
+
+    def __enter__(self) -> PhysicsWorld:
+        return self
+
+    def __exit__(self, *exc: type[BaseException] | BaseException | TracebackType | None) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # a forgotten world must not leak its client
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
+    # -- static scene --------------------------------------------------------------------------------
+    def _surface(self, body: int) -> None:
+        p.changeDynamics(body, -1, lateralFriction=self._body_friction, restitution=self._body_restitution,
+                         physicsClientId=self.client)  # fmt: skip
+
+    def _static_box(self, half_m: tuple[float, float, float], center_m: tuple[float, float, float]) -> int:
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half_m, physicsClientId=self.client)
+        body = p.createMultiBody(0, shape, -1, center_m, physicsClientId=self.client)
+        self._surface(body)
+        self.static_bodies.append(body)
+        return body
+
+    def add_pallet(self, container: ContainerSpec, walls: bool | None = None) -> None:
+        """The pallet deck (top at z = 0, the container's footprint), the ground, and optional walls."""
+        if self.container is not None:
+            raise RuntimeError("this world already has a pallet")
+        self.container = container
+        length, width, height = container.length * CM, container.width * CM, container.height * CM
+        plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=self.client)
+        ground = p.createMultiBody(0, plane, -1, (0, 0, -PALLET_HEIGHT_M), physicsClientId=self.client)
+        self._surface(ground)
+        self.static_bodies.append(ground)
+        t = PALLET_THICKNESS_M
+        self._static_box((length / 2, width / 2, t / 2), (length / 2, width / 2, -t / 2))
+        if walls if walls is not None else self.config.walls:
+            w = WALL_THICKNESS_M
+            self._static_box((w / 2, width / 2 + w, height / 2), (-w / 2, width / 2, height / 2))
+            self._static_box((w / 2, width / 2 + w, height / 2), (length + w / 2, width / 2, height / 2))
+            self._static_box((length / 2, w / 2, height / 2), (length / 2, -w / 2, height / 2))
+            self._static_box((length / 2, w / 2, height / 2), (length / 2, width + w / 2, height / 2))
+
+    # -- boxes ---------------------------------------------------------------------------------------
+    def add_box(
+        self,
+        center_cm: tuple[float, float, float],
+        extents_cm: tuple[float, float, float],
+        mass: float,
+        quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0),
+    ) -> WorldBox:
+        """A dynamic box primitive of ``extents_cm`` (along its own x, y, z) with its centre at ``center_cm``."""
+        half = tuple(e * CM / 2 for e in extents_cm)
+        shape = self._shapes.get(half)  # type: ignore[arg-type]
+        if shape is None:
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
+            self._shapes[half] = shape  # type: ignore[index]
+        body = p.createMultiBody(mass, shape, -1, tuple(c * CM for c in center_cm), quaternion,
+                                 physicsClientId=self.client)  # fmt: skip
+        self._surface(body)
+        p.changeDynamics(body, -1, linearDamping=self.config.linear_damping,
+                         angularDamping=self.config.angular_damping, physicsClientId=self.client)  # fmt: skip
+        box = WorldBox(body, (extents_cm[0] / 2, extents_cm[1] / 2, extents_cm[2] / 2), mass)
+        self.boxes.append(box)
+        return box
+
+    def freeze(self, box: WorldBox) -> None:
+        """Make the box static where it stands (zero mass); it still collides but no longer moves."""
+        if not box.frozen:
+            p.changeDynamics(box.body, -1, mass=0.0, physicsClientId=self.client)
+            p.resetBaseVelocity(box.body, (0, 0, 0), (0, 0, 0), physicsClientId=self.client)
+            box.frozen = True
+
+    def unfreeze(self, box: WorldBox) -> None:
+        """Give the box its mass back (at rest) so it takes part in the dynamics again."""
+        if box.frozen:
+            p.changeDynamics(box.body, -1, mass=box.mass, physicsClientId=self.client)
+            p.resetBaseVelocity(box.body, (0, 0, 0), (0, 0, 0), physicsClientId=self.client)
+            p.changeDynamics(
+                box.body, -1, activationState=p.ACTIVATION_STATE_WAKE_UP, physicsClientId=self.client
+            )
+            box.frozen = False
+
+    # -- stepping and reading ------------------------------------------------------------------------
+    def step(self, n: int = 1) -> None:
+        for _ in range(n):
+            p.stepSimulation(physicsClientId=self.client)
+
+    def pose_cm(self, box: WorldBox) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """Centre (cm) and quaternion (x, y, z, w) of one box."""
+        pos, orn = p.getBasePositionAndOrientation(box.body, physicsClientId=self.client)
+        return (pos[0] / CM, pos[1] / CM, pos[2] / CM), (orn[0], orn[1], orn[2], orn[3])
+
+    def poses_cm(self, boxes: list[WorldBox] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Centres (N, 3) cm, quaternions (N, 4) and half extents (N, 3) cm of ``boxes`` (default: all)."""
+        boxes = self.boxes if boxes is None else boxes
+        centers = np.zeros((len(boxes), 3))
+        quats = np.zeros((len(boxes), 4))
+        halves = np.zeros((len(boxes), 3))
+        cid = self.client
+        for i, box in enumerate(boxes):
+            pos, orn = p.getBasePositionAndOrientation(box.body, physicsClientId=cid)
+            centers[i] = pos
+            quats[i] = orn
+            halves[i] = box.half_extents_cm
+        return centers / CM, quats, halves
+
+    def speeds(self, boxes: list[WorldBox]) -> tuple[float, float]:
+        """Largest linear (m/s) and angular (rad/s) speed among ``boxes``."""
+        v_max = w_max = 0.0
+        cid = self.client
+        for box in boxes:
+            (vx, vy, vz), (wx, wy, wz) = p.getBaseVelocity(box.body, physicsClientId=cid)
+            v = vx * vx + vy * vy + vz * vz
+            w = wx * wx + wy * wy + wz * wz
+            v_max = v if v > v_max else v_max
+            w_max = w if w > w_max else w_max
+        return math.sqrt(v_max), math.sqrt(w_max)

@@ -1,0 +1,103 @@
+"""The PyBullet world: documented defaults, friction as specified, isolated clients, optional walls."""
+
+from __future__ import annotations
+
+import math
+
+import pybullet as p
+import pytest
+
+from robobpp.core import ContainerSpec
+from robobpp.sim.physics import PhysicsConfig, PhysicsWorld
+
+PALLET = ContainerSpec(134, 125, 100)
+
+
+def test_defaults_are_the_benchmarks() -> None:
+    cfg = PhysicsConfig()
+    assert cfg.dt == pytest.approx(1 / 240)
+    assert cfg.gravity == pytest.approx(9.81)
+    assert cfg.lateral_friction == pytest.approx(0.5)
+    assert cfg.restitution == 0.0
+    assert cfg.walls is False
+    assert cfg.stability_steps == 200
+    with PhysicsWorld() as world:
+        params = p.getPhysicsEngineParameters(physicsClientId=world.client)
+        assert params["fixedTimeStep"] == pytest.approx(1 / 240)
+        assert params["gravityAccelerationZ"] == pytest.approx(-9.81)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [dict(dt=0.0), dict(gravity=-1.0), dict(lateral_friction=-0.1), dict(restitution=2.0),
+     dict(release_gap_cm=float("nan")), dict(mode="turbo"), dict(max_steps=0)],  # fmt: skip
+)
+def test_bad_config_is_refused(bad: dict[str, object]) -> None:
+    with pytest.raises(ValueError):
+        PhysicsConfig(**bad)  # type: ignore[arg-type]
+
+
+def test_box_comes_to_rest_on_the_pallet() -> None:
+    with PhysicsWorld() as world:
+        world.add_pallet(PALLET)
+        box = world.add_box((20, 20, 8), (30, 20, 10), 5.0)
+        world.step(240)
+        (x, y, z), quat = world.pose_cm(box)
+        assert (x, y) == pytest.approx((20, 20), abs=0.05)
+        assert z == pytest.approx(5.0, abs=0.05)  # fell the 3 cm and sits on the deck
+        assert world.speeds([box])[0] < 1e-3
+
+
+@pytest.mark.parametrize(("slope", "slides"), [(0.45, False), (0.55, True)])
+def test_pair_friction_is_one_half(slope: float, slides: bool) -> None:
+    """Tilting gravity by atan(slope): a box sticks below μ = 0.5 and slides above it (Bullet multiplies)."""
+    with PhysicsWorld() as world:
+        world.add_pallet(PALLET)
+        box = world.add_box((60, 60, 5), (30, 20, 10), 5.0)
+        theta = math.atan(slope)
+        p.setGravity(9.81 * math.sin(theta), 0, -9.81 * math.cos(theta), physicsClientId=world.client)
+        world.step(240)
+        moved = world.pose_cm(box)[0][0] - 60
+        assert (moved > 5) is slides, moved
+
+
+def test_worlds_do_not_share_state() -> None:
+    a, b = PhysicsWorld(), PhysicsWorld()
+    try:
+        assert a.client != b.client
+        a.add_pallet(PALLET)
+        b.add_pallet(PALLET)
+        box_a = a.add_box((20, 20, 50), (10, 10, 10), 1.0)
+        box_b = b.add_box((20, 20, 50), (10, 10, 10), 1.0)
+        a.step(60)
+        assert a.pose_cm(box_a)[0][2] < 45  # falling in a
+        assert b.pose_cm(box_b)[0][2] == pytest.approx(50)  # untouched in b
+        a.close()
+        b.step(60)
+        assert b.pose_cm(box_b)[0][2] < 45
+    finally:
+        a.close()
+        b.close()
+
+
+@pytest.mark.parametrize("walls", [False, True])
+def test_walls_are_optional(walls: bool) -> None:
+    with PhysicsWorld(PhysicsConfig(walls=walls)) as world:
+        world.add_pallet(ContainerSpec(60, 60, 50))
+        box = world.add_box((50, 30, 5.01), (10, 10, 10), 1.0)
+        p.resetBaseVelocity(box.body, (3.0, 0, 0), (0, 0, 0), physicsClientId=world.client)
+        world.step(240)
+        x = world.pose_cm(box)[0][0]
+        assert (x <= 55.5) is walls, x
+
+
+def test_frozen_box_holds_still_and_wakes_up() -> None:
+    with PhysicsWorld() as world:
+        world.add_pallet(PALLET)
+        box = world.add_box((20, 20, 40), (10, 10, 10), 1.0)
+        world.freeze(box)
+        world.step(60)
+        assert world.pose_cm(box)[0][2] == pytest.approx(40)
+        world.unfreeze(box)
+        world.step(120)
+        assert world.pose_cm(box)[0][2] == pytest.approx(5, abs=0.05)

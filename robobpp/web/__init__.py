@@ -49,7 +49,7 @@ def fmt_metric(value: Any, key: str) -> str:
     """Ratios as percentages (how the paper prints them), times and lengths as plain numbers."""
     if key in {"space_utilization", "occupancy", "collapsed_placement", "dangerous_operation"}:
         return fmt_pct(value)
-    if key == "decision_time":
+    if key in {"decision_time", "local_stability"}:
         return fmt_num(value, 4)
     return fmt_num(value, 3)
 

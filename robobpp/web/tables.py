@@ -122,9 +122,10 @@ def radar_groups(runs: Sequence[Mapping[str, Any]], boards: Mapping[tuple[str, s
         if entry is None:
             continue
         keys = [m.key for m in metrics_for(run["setting"])]
-        group = groups.setdefault(run["setting"], {"setting": run["setting"], "series": [],
+        group = groups.setdefault(run["setting"], {"setting": run["setting"], "series": [], "single": True,
                                                    "labels": [METRIC_BY_KEY[k].label for k in keys]})  # fmt: skip
         normalized = entry.get("normalized") or {}
+        group["single"] = group["single"] and len(board.get("entries", [])) < 2
         group["series"].append({
             "label": f"{run['dataset']} (rank {entry.get('rank')} of {len(board.get('entries', []))})",
             "values": [round(float(normalized.get(k, 0.0)), 4) for k in keys],

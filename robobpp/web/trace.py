@@ -7,6 +7,8 @@ small and the JavaScript can trust every number it gets.
 
 Optional per-step fields the viewer understands (settings may add them to ``steps[*].extra``):
 
+- ``collapsed_boxes``: indices of the boxes a collapse moved beyond the threshold (Physics Pack sets it);
+  they are drawn red at that step.
 - ``poses``: the actual placement of every box placed so far, after this step settled (Physics/Execution);
   without it a box is drawn where it landed when placed, and the final frame uses ``final[*].actual``.
 - ``tool_path_cm``: the tool-centre-point path of this placement, a list of ``[x, y, z]`` in the container
@@ -137,6 +139,9 @@ def _step(raw: Any, where: str) -> dict[str, Any]:
     }
     extra = s.get("extra") or {}
     if isinstance(extra, Mapping):
+        moved = extra.get("collapsed_boxes")
+        if isinstance(moved, list):
+            out["collapsed_boxes"] = [v for v in moved[:MAX_STEPS] if _int_or_none(v) is not None]
         if isinstance(extra.get("poses"), list):
             out["poses"] = [_placement(p, f"{where}.extra.poses[{j}]") for j, p in enumerate(extra["poses"])]
         if extra.get("tool_path_cm") is not None:

@@ -83,7 +83,7 @@ def _seed_hostile(database_url: str) -> int:
             session.add(participant)
             session.flush()
             sub = work.create_submission(session, participant, name=HOSTILE_SUBMISSION, policy_url="builtin:onlinebph",
-                                         datasets=["repetitive", "diverse", "longboard"], settings=["math"],
+                                         datasets=["repetitive", "diverse", "longboard"], settings=["math", "physics"],
                                          groups=2)  # fmt: skip
             session.flush()
             return sub.id

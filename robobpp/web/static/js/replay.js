@@ -206,13 +206,17 @@ class Replay {
       return step.poses.map((p) => {
         const placedAt = this.indexOf.has(p.index) ? ep.steps[this.indexOf.get(p.index)].placement : null;
         const moved = placedAt ? center(p).distanceTo(center(placedAt)) > limit : false;
-        return { p, index: p.index, collapsed: moved };
+        return { p, index: p.index, collapsed: moved || (step.collapsed_boxes || []).includes(p.index) };
       });
     }
+    const moved = new Set(step.collapsed_boxes || []);
     const out = [];
     for (let i = 0; i < frame; i += 1) {
       const s = ep.steps[i];
-      if (s.placement) out.push({ p: s.placement, index: s.placement.index ?? i, collapsed: s.collapsed && i === frame - 1 });
+      if (!s.placement) continue;
+      const index = s.placement.index ?? i;
+      const collapsed = moved.has(index) || (step.collapsed && i === frame - 1 && !moved.size);
+      out.push({ p: s.placement, index, collapsed });
     }
     return out;
   }

@@ -1,0 +1,245 @@
+"""The leaderboard pages in a real Chromium against a real server: load cleanly, sort, escape, follow live."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import pytest
+
+from robobpp.core import Action, Observation
+from robobpp.policies.dbl import DBL
+from tests.web.conftest import HOSTILE_PARTICIPANT, HOSTILE_SUBMISSION, PageProbe, Server
+
+pytestmark = pytest.mark.browser
+
+
+def _column_values(probe: PageProbe, table: str, key: str) -> list[float]:
+    """The raw numbers of a board column (its cells' data-value), top to bottom."""
+    return probe.page.evaluate(
+        """([table, key]) => {
+            const t = document.querySelector(table);
+            const heads = Array.from(t.tHead.rows[t.tHead.rows.length - 1].cells);
+            const i = heads.findIndex((th) => th.dataset.key === key);
+            return Array.from(t.tBodies[0].rows).map((r) => Number(r.cells[i].dataset.value));
+        }""",
+        [table, key],
+    )
+
+
+def test_overall_grid_highlights_top_four_and_links_boards(server: Server, probe: PageProbe) -> None:
+    probe.page.goto(server.url + "/")
+    table = probe.page.locator("#overall")
+    # 5 baselines + DBL public is on the public track only + the hostile participant's submission.
+    assert table.locator("tbody tr").count() == 6
+    # In every board column the highlighted cells (top four places, ties shared) outscore all the others.
+    columns = probe.page.evaluate(
+        """() => {
+            const rows = Array.from(document.querySelectorAll('#overall tbody tr'));
+            const out = [];
+            for (let c = 1; c <= 6; c += 1) {
+                out.push(rows.map((r) => [r.cells[c].className, parseFloat(r.cells[c].textContent)]));
+            }
+            return out;
+        }"""
+    )
+    for cells in columns:
+        top = [v for cls, v in cells if cls.startswith("rank-")]
+        rest = [v for cls, v in cells if not cls.startswith("rank-") and v == v]
+        assert any(cls == "rank-1" for cls, _ in cells)
+        assert len(top) >= min(4, len({v for _, v in cells})) and min(top) > max(rest, default=-1.0)
+    first = table.locator("thead a").first
+    href = first.get_attribute("href")
+    assert href == "/boards/repetitive/math"
+    probe.shot("overall")
+    first.click()
+    probe.page.wait_for_url("**/boards/repetitive/math")
+    assert "Repetitive · Math Pack" in probe.page.locator("h1").inner_text()
+    probe.assert_clean()
+
+
+def test_board_columns_sort_and_show_arrows(server: Server, probe: PageProbe) -> None:
+    probe.page.goto(server.url + "/boards/repetitive/physics")
+    heads = probe.page.locator("#board thead th")
+    text = " | ".join(heads.all_inner_texts())
+    for label in (
+        "Space Utilization ↑",
+        "Occupancy ↑",
+        "Decision Time ↓",
+        "Local Stability ↓",
+        "Static Stability ↑",
+    ):
+        assert label in text, text
+    assert probe.page.locator("#board .badge.baseline").count() >= 5
+    assert probe.page.locator("#board .badge.participant").count() == 1
+    before = _column_values(probe, "#board", "occupancy")
+    assert len(before) == 6
+    head = probe.page.locator('#board th[data-key="occupancy"] button')
+    head.click()
+    ascending = _column_values(probe, "#board", "occupancy")
+    assert ascending == sorted(before)
+    assert probe.page.locator('#board th[data-key="occupancy"]').get_attribute("aria-sort") == "ascending"
+    head.click()
+    descending = _column_values(probe, "#board", "occupancy")
+    assert descending == sorted(before, reverse=True)
+    assert ascending != before or descending != before  # the rows really moved
+    probe.shot("board")
+    probe.assert_clean()
+
+
+def test_board_reads_without_javascript(server: Server, browser: Any) -> None:
+    context = browser.new_context(java_script_enabled=False)
+    page = context.new_page()
+    try:
+        page.goto(server.url + "/boards/diverse/math")
+        ranks = [int(v) for v in page.locator("#board tbody tr td:first-child").all_inner_texts()]
+        assert ranks == sorted(ranks) and ranks[0] == 1
+        assert page.locator("#board thead button").count() == 0  # no dead sort buttons without JS
+        assert "%" in page.locator("#board tbody tr").first.inner_text()
+    finally:
+        context.close()
+
+
+def test_hostile_names_show_as_text(server: Server, probe: PageProbe) -> None:
+    sid = server.ids["hostile"]
+    for path in ("/", "/boards/longboard/math", f"/submissions/{sid}"):
+        probe.page.goto(server.url + path)
+        body = probe.page.locator("body").inner_text()
+        assert HOSTILE_PARTICIPANT in body, path
+        assert HOSTILE_SUBMISSION in body, path
+        html = probe.page.content()
+        assert "&lt;script&gt;alert(1)&lt;/script&gt;" in html
+        assert probe.page.locator("img").count() == 0, "the submission name became an element"
+        assert probe.page.evaluate("() => document.querySelectorAll('script:not([src])').length") <= 1
+    probe.assert_clean()  # no alert() dialog ever opened
+
+
+def test_submission_page_shows_results_charts_and_episodes(server: Server, probe: PageProbe) -> None:
+    sid = server.ids["public"]
+    probe.page.goto(f"{server.url}/submissions/{sid}")
+    assert probe.page.locator("[data-role=status]").inner_text() == "completed"
+    assert probe.page.locator("#runs tbody tr").count() == 6  # 3 datasets × math, physics
+    assert probe.page.locator("#episodes tbody tr").count() == 12
+    assert "completed" in probe.page.locator("#episodes tbody").inner_text()
+    radars = probe.page.locator("canvas[data-radar]")
+    assert radars.count() == 2  # one per setting
+    probe.page.wait_for_function(
+        "() => window.Chart && Chart.getChart(document.getElementById('util-chart'))"
+    )
+    counts = probe.page.evaluate(
+        "() => Chart.getChart(document.getElementById('util-chart')).data.datasets[0].data"
+    )
+    assert sum(counts) == 12
+    replay_links = probe.page.locator("#episodes a", has_text="3D replay")
+    assert replay_links.count() == 12
+    assert "policy_url" not in probe.page.content() and "builtin:" not in probe.page.content()
+    assert "min–max normalisation needs at least two entries" in probe.page.locator("main").inner_text()
+    probe.assert_clean()
+
+
+def test_submission_page_of_a_ranked_baseline(server: Server, probe: PageProbe) -> None:
+    probe.page.goto(f"{server.url}/submissions/1")  # the first baseline, on boards with 6 entries
+    ranks = probe.page.locator("#runs tbody tr td:nth-child(4)").all_inner_texts()
+    assert ranks and all(r.endswith("of 6") for r in ranks), ranks
+    probe.page.wait_for_function(
+        "() => document.querySelectorAll('canvas[data-radar]').length === 2"
+        " && Array.from(document.querySelectorAll('canvas[data-radar]')).every((c) => Chart.getChart(c))"
+    )
+    values = probe.page.evaluate(
+        "() => Array.from(document.querySelectorAll('canvas[data-radar]'))"
+        ".flatMap((c) => Chart.getChart(c).data.datasets.flatMap((d) => d.data))"
+    )
+    assert values and all(0.0 <= v <= 1.0 for v in values) and max(values) > 0
+    assert probe.page.locator("#episodes a", has_text="3D replay").count() == 0  # private: no replays
+    probe.shot("submission")
+    probe.assert_clean()
+
+
+class GatedPolicy(DBL):
+    """DBL that waits at its first decision until the test opens the gate (to watch a running evaluation)."""
+
+    def __init__(self, gate: threading.Event) -> None:
+        super().__init__()
+        self.gate = gate
+
+    def act(self, obs: Observation) -> Action | None:
+        self.gate.wait(timeout=120)
+        return super().act(obs)
+
+
+def test_submission_page_follows_a_running_evaluation(server: Server, probe: PageProbe) -> None:
+    from robobpp.client.serve import BackgroundServer, create_policy_app
+
+    gate = threading.Event()
+    with BackgroundServer(create_policy_app(GatedPolicy(gate), None, name="gated")) as policy:
+        r = server.client.post("/api/v1/submissions", json={
+            "name": "gated-dbl", "policy_url": policy.url, "datasets": ["repetitive"], "settings": ["math"],
+            "track": "public",  # keeps the private boards the other tests count unchanged
+        })  # fmt: skip
+        assert r.status_code == 201, r.text
+        sid = r.json()["id"]
+        try:
+            server.wait_until(
+                lambda: server.submission(sid)["status"] == "running", "the evaluation starting"
+            )
+            probe.page.goto(f"{server.url}/submissions/{sid}")
+            assert probe.page.locator("[data-role=status]").inner_text() == "running"
+            assert probe.page.locator("[data-role=live]").is_visible()
+            assert "0 of 2 episodes finished" in probe.page.locator("[data-role=progress-text]").inner_text()
+            # The page polls the status JSON: after the gate opens it sees completion and reloads with results.
+            probe.page.wait_for_function(
+                "() => document.querySelector('[data-role=progress-text]').textContent.includes('running')"
+            )
+            gate.set()
+            probe.page.wait_for_function(
+                "() => document.querySelector('[data-role=status]').textContent === 'completed'"
+                " && !document.querySelector('[data-role=live]')",
+                timeout=120_000,
+            )
+            assert "2 of 2 episodes finished" in probe.page.locator("[data-role=progress-text]").inner_text()
+            assert probe.page.locator("#episodes tbody tr").count() == 2
+        finally:
+            gate.set()
+            server.wait_until(lambda: server.submission(sid)["status"] not in ("queued", "running"), "finish")
+    probe.assert_clean()
+
+
+def test_datasets_page_shows_public_split_distributions(server: Server, probe: PageProbe) -> None:
+    from robobpp.web.dataset_stats import data_available
+
+    probe.page.goto(server.url + "/datasets")
+    assert probe.page.locator("section.card").count() == 3
+    if data_available():
+        assert probe.page.locator("figure.boxplot").count() == 3
+        assert probe.page.locator("figure.boxplot rect.box").count() == 9  # length, width, height each
+        assert "repeat rate" in probe.page.locator("#repetitive").inner_text()
+    else:
+        assert "not been fetched" in probe.page.locator(".notice").inner_text()
+    probe.shot("datasets")
+    probe.assert_clean()
+
+
+def test_protocol_page(server: Server, probe: PageProbe) -> None:
+    probe.page.goto(server.url + "/protocol")
+    text = probe.page.locator("main").inner_text()
+    assert "POST /act" in text and "robobpp evaluate" in text and "X-Robobpp-Signature" in text
+    probe.shot("protocol")
+    probe.assert_clean()
+
+
+def test_missing_things_answer_404_pages(server: Server) -> None:
+    for path in ("/submissions/999999", "/boards/nope/math", "/boards/repetitive/quantum",
+                 "/submissions/1/episodes/999999/replay"):  # fmt: skip
+        r = server.get(path)
+        assert r.status_code == 404, path
+        assert r.headers["content-type"].startswith("text/html")
+    r = server.get("/boards/%3Cscript%3E/math")
+    assert r.status_code == 404 and "<script>" not in r.text
+
+
+def test_private_episodes_have_no_replay(server: Server) -> None:
+    private = server.get("/api/v1/submissions/1/episodes").json()
+    assert private and not any(e["has_trace"] for e in private)
+    r = server.get(f"/submissions/1/episodes/{private[0]['id']}/replay")
+    assert r.status_code == 404
+    assert "private test split is never shown" in r.text

@@ -1,0 +1,244 @@
+"""The web layer's pure parts: trace checking, table models, dataset statistics, escaping, the docs example."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robobpp.core import Box, ContainerSpec, EpisodeSpec
+from robobpp.episode import run_episode
+from robobpp.policies import load_policy
+from robobpp.web import TEMPLATES_DIR, environment, fmt_metric, fmt_num, fmt_pct
+from robobpp.web.dataset_stats import (
+    boxplot_svg,
+    five_numbers,
+    nice_ticks,
+    repeat_stats,
+    summarise,
+    weighted_quantiles,
+)
+from robobpp.web.tables import board_table, dense_top, grid_table, histogram, radar_groups
+from robobpp.web.trace import TraceError, episodes_from, read_trace, viewer_payload
+from robobpp.web.viewer import render_standalone
+
+
+def _episode(n: int = 15, seed: int = 1) -> dict:
+    rng = np.random.default_rng(seed)
+    boxes = tuple(Box(*map(float, rng.integers(20, 60, 3)), 2.0) for _ in range(n))
+    spec = EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0)
+    return run_episode(spec, load_policy("dbl"), "math").to_dict()
+
+
+# ---- traces ------------------------------------------------------------------------------------------
+
+
+def test_trace_accepts_one_episode_or_a_list() -> None:
+    ep = _episode()
+    single = episodes_from(ep)
+    many = episodes_from({"policy": "dbl", "episodes": [ep, ep]})
+    assert len(single) == 1 and len(many) == 2
+    payload = single[0]
+    assert payload["container"] == {"length": 134.0, "width": 125.0, "height": 100.0}
+    assert len(payload["steps"]) == len(ep["steps"])
+    assert len(payload["final"]) == ep["boxes_placed"]
+    placed = [s for s in payload["steps"] if s["placement"]]
+    assert placed[0]["placement"]["index"] == 0 and placed[0]["action"]["orientation"] in (0, 1)
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (lambda e: e.update(container={"length": float("nan"), "width": 1, "height": 1}), "container.length"),
+        (lambda e: e.update(container={"length": -5, "width": 1, "height": 1}), "must be positive"),
+        (lambda e: e.update(container=None), "container must be an object"),
+        (lambda e: e.update(steps="many"), "steps must be a list"),
+        (
+            lambda e: e["steps"][0].update(box={"length": "1", "width": 1, "height": 1}),
+            "box.length must be a number",
+        ),
+        (lambda e: e["steps"][0]["placement"].update(x=1e12), "is out of range"),
+        (lambda e: e["steps"][0]["placement"].update(quaternion=[0, 0, 0, 0]), "zero length"),
+        (lambda e: e["steps"][0].update(extra={"tool_path_cm": [[1, 2]]}), "must be [x, y, z]"),
+        (lambda e: e["final"][0].update(actual=[1, 2, 3]), "final[0].actual must be an object"),
+    ],
+)
+def test_trace_refuses_hostile_fields_with_a_clear_message(mutate, message: str) -> None:
+    ep = json.loads(json.dumps(_episode()))
+    mutate(ep)
+    with pytest.raises(TraceError, match=re.escape(message)):
+        viewer_payload(ep)
+
+
+def test_trace_file_errors(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(TraceError, match="not valid JSON"):
+        read_trace(bad)
+    with pytest.raises(TraceError, match="cannot read"):
+        read_trace(tmp_path / "missing.json")
+    for data, message in (
+        ([1, 2], "episode object"),
+        ({"episodes": []}, "no episode"),
+        ({"episodes": 3}, "list"),
+    ):
+        with pytest.raises(TraceError, match=message):
+            episodes_from(data)
+
+
+def test_trace_keeps_tool_path_and_collapse_extras() -> None:
+    ep = _episode()
+    ep["steps"][1]["extra"] = {"tool_path_m": [[0, 0, 2], [0.5, 0.5, 1.5]], "collapsed_boxes": [0, "x", 1]}
+    ep["steps"][2]["extra"] = {"tool_path_cm": [[float(i), 0.0, 50.0] for i in range(5000)]}
+    payload = viewer_payload(ep)
+    assert payload["steps"][1]["tool_path"] == [[0.0, 0.0, 200.0], [50.0, 50.0, 150.0]]
+    assert payload["steps"][1]["collapsed_boxes"] == [0, 1]
+    thinned = payload["steps"][2]["tool_path"]
+    assert len(thinned) == 2000 and thinned[0][0] == 0.0 and thinned[-1][0] == 4999.0
+
+
+def test_standalone_viewer_escapes_trace_text() -> None:
+    ep = _episode(5)
+    ep["policy"] = "</script><script>alert(1)</script>"
+    html = render_standalone(episodes_from(ep), source="<b>x</b>.json")
+    assert "</script><script>alert(1)" not in html
+    assert "<b>x</b>" not in html and "&lt;b&gt;x&lt;/b&gt;.json" in html
+    assert "data:text/javascript;base64," in html  # three.js inlined: opens from disk
+
+
+# ---- tables -------------------------------------------------------------------------------------------
+
+
+def test_dense_top_shares_places_and_skips_missing() -> None:
+    assert dense_top([0.5, 0.9, None, 0.9, 0.1, 0.3, 0.2], "up") == [2, 1, None, 1, None, 3, 4]
+    assert dense_top([3.0, 1.0, 2.0], "down") == [3, 1, 2]
+    assert dense_top([float("nan"), 1.0], "up") == [None, 1]
+
+
+def _board() -> dict:
+    entries = [
+        {"rank": 1, "score": 0.9, "submission_id": 1, "name": "a", "participant": "p", "baseline": True,
+         "metrics": {"space_utilization": 0.5, "occupancy": 0.8, "decision_time": 0.01},
+         "normalized": {"space_utilization": 1.0, "occupancy": 1.0, "decision_time": 0.0}, "extras": {}},
+        {"rank": 2, "score": 0.2, "submission_id": 2, "name": "<b>", "participant": "q", "baseline": False,
+         "metrics": {"space_utilization": 0.4, "occupancy": 0.6, "decision_time": 0.001},
+         "normalized": {"space_utilization": 0.0, "occupancy": 0.0, "decision_time": 1.0}, "extras": {}},
+    ]  # fmt: skip
+    return {"dataset": "diverse", "setting": "math", "entries": entries}
+
+
+def test_board_table_columns_and_places() -> None:
+    table = board_table(_board())
+    assert [c.key for c in table["columns"]] == ["space_utilization", "occupancy", "decision_time"]
+    assert [c.arrow for c in table["columns"]] == ["↑", "↑", "↓"]
+    first, second = table["rows"]
+    assert first["cells"][0]["place"] == 1 and second["cells"][0]["place"] == 2
+    assert first["cells"][2]["place"] == 2 and second["cells"][2]["place"] == 1  # lower time is better
+    assert not table["has_pph"]
+
+
+def test_grid_table_and_radar() -> None:
+    grid = {"settings": ["math"], "datasets": ["diverse", "longboard"], "rows": [
+        {"submission_id": 1, "name": "a", "participant": "p", "baseline": True,
+         "cells": {"math/diverse": {"score": 0.9, "rank": 1}}},
+        {"submission_id": 2, "name": "b", "participant": "q", "baseline": False,
+         "cells": {"math/diverse": {"score": 0.2, "rank": 2}, "math/longboard": {"score": 1.0, "rank": 1}}},
+    ]}  # fmt: skip
+    table = grid_table(grid)
+    assert table["keys"] == ["math/diverse", "math/longboard"]
+    a, b = table["rows"]
+    assert a["cells"][1]["score"] is None and a["mean"] == 0.9
+    assert b["cells"][1]["place"] == 1 and math.isclose(b["mean"], 0.6)
+    runs = [{"dataset": "diverse", "setting": "math"}, {"dataset": "longboard", "setting": "math"}]
+    groups = radar_groups(runs, {("diverse", "math"): _board()}, 2)
+    assert len(groups) == 1 and groups[0]["labels"][0] == "Space Utilization"
+    assert groups[0]["series"][0]["values"] == [0.0, 0.0, 1.0] and not groups[0]["single"]
+
+
+def test_histogram_bins() -> None:
+    h = histogram([0.0, 0.05, 0.5, 0.99, 1.0, float("nan")], bins=10)
+    assert h["counts"] == [2, 0, 0, 0, 0, 1, 0, 0, 0, 2]
+    assert h["labels"][0] == "0–10%"
+
+
+def test_formatting() -> None:
+    assert fmt_num(None) == "—" and fmt_num(float("inf")) == "—" and fmt_num(0.12345) == "0.123"
+    assert fmt_pct(0.1234) == "12.3%" and fmt_metric(0.5, "occupancy") == "50.0%"
+    assert fmt_metric(0.00012, "decision_time") == "0.0001"
+
+
+# ---- datasets ------------------------------------------------------------------------------------------
+
+
+def test_weighted_quantiles_follow_the_weights() -> None:
+    values = np.array([1.0, 2.0, 3.0])
+    assert weighted_quantiles(values, [0.5], None) == [2.0]
+    assert weighted_quantiles(values, [0.5], np.array([0.1, 0.1, 0.8])) == [3.0]
+    f = five_numbers(np.arange(101, dtype=float))
+    assert (f.low, f.q1, f.median, f.q3, f.high) == (5.0, 25.0, 50.0, 75.0, 95.0)
+
+
+def test_repeat_stats_and_summary() -> None:
+    runs = np.array([[2, 2, 2], [2, 2, 2], [3, 3, 3], [3, 3, 3]], dtype=float)
+    stats = repeat_stats([runs, runs[:1]])
+    assert stats["repeat_rate"] == pytest.approx(2 / 3) and stats["distinct_per_group"] == 1.5
+    summary = summarise(runs, None, [runs])
+    assert summary["dims"]["length"].median == 2.5 and summary["entries"] == 4
+
+
+def test_boxplot_geometry_is_ordered() -> None:
+    plot = boxplot_svg([("L", five_numbers(np.arange(1.0, 80.0)), "#fff")], "cm")
+    g = plot["glyphs"][0]
+    assert plot["left"] <= g.low <= g.q1 <= g.median <= g.q3 <= g.high <= plot["right"]
+    assert nice_ticks(47.4)[-1] >= 47.4 and nice_ticks(0) == [0.0, 1.0]
+
+
+# ---- templates -----------------------------------------------------------------------------------------
+
+
+def test_every_template_autoescapes() -> None:
+    env = environment()
+    for path in TEMPLATES_DIR.glob("*.html"):
+        assert "|safe" not in path.read_text().replace(" ", ""), f"{path.name} marks data safe"
+    html = env.get_template("board.html").render(
+        root="", static="/static", title="t", nav="", dataset=__import__("robobpp.datasets").datasets.DATASETS["diverse"],
+        setting="math", track="private", table=board_table(_board()), weights={"a": 1.0}, top=4, other_boards=[],
+        SETTING_TITLES={"math": "Math Pack"},
+    )  # fmt: skip
+    assert "<b>" not in html.split("<main>")[1] and "&lt;b&gt;" in html
+
+
+def test_protocol_page_example_policy_really_packs() -> None:
+    html = (TEMPLATES_DIR / "protocol.html").read_text()
+    code = re.search(r"<pre><code>(from robobpp\.core.*?)</code></pre>", html, re.S).group(1)
+    code = code.replace("&gt;", ">").replace("&lt;", "<").replace("&amp;", "&")
+    namespace: dict = {}
+    exec(compile(code, "protocol-example", "exec"), namespace)  # noqa: S102 - our own docs' example
+    policy = namespace["LowestFirst"]()
+    rng = np.random.default_rng(5)
+    boxes = tuple(Box(*map(float, rng.integers(20, 50, 3)), 2.0) for _ in range(20))
+    result = run_episode(EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0),
+                         policy, "math")  # fmt: skip
+    assert result.boxes_placed >= 5 and result.metrics["space_utilization"] > 0.1
+
+
+def test_view_cli_single_episode_and_bad_file(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from robobpp.cli import _register, app
+
+    _register()
+    one = tmp_path / "one.json"
+    one.write_text(json.dumps(_episode(8)))
+    out = tmp_path / "one.html"
+    ok = CliRunner().invoke(app, ["view", str(one), "-o", str(out), "--no-open"])
+    assert ok.exit_code == 0 and "1 episode(s)" in ok.output and out.stat().st_size > 100_000
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"episodes": [{"container": {"length": "NaN"}}]}')
+    refused = CliRunner().invoke(app, ["view", str(bad), "-o", str(out), "--no-open"])
+    assert refused.exit_code == 2
+    assert "episode 0.container.length must be a number" in refused.output

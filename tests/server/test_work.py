@@ -1,0 +1,134 @@
+"""The SQL work queue: leases, bounded retries, idempotent completion, cancel, concurrent claimers."""
+
+from __future__ import annotations
+
+import threading
+from datetime import timedelta
+
+import pytest
+from sqlalchemy import select
+
+from robobpp.db import work
+from robobpp.db.migrate import upgrade
+from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
+from robobpp.db.session import make_engine, make_session_factory, transaction
+
+
+@pytest.fixture
+def factory(db_url: str):  # type: ignore[no-untyped-def]
+    engine = make_engine(db_url)
+    upgrade(db_url, engine=engine)
+    yield make_session_factory(engine)
+    engine.dispose()
+
+
+def _submission(factory, groups: int = 2, datasets=("diverse",)) -> int:  # type: ignore[no-untyped-def]
+    with transaction(factory) as s:
+        p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
+        if p is None:
+            p = Participant(name="p")
+            s.add(p)
+            s.flush()
+        return work.create_submission(s, p, name="x", policy_url="builtin:dbl", datasets=list(datasets),
+                                      settings=["math"], groups=groups).id  # fmt: skip
+
+
+def _claim(factory, worker="w", now=None, max_attempts=3):  # type: ignore[no-untyped-def]
+    with transaction(factory) as s:
+        return work.claim_episode(s, worker, lease_s=10, max_attempts=max_attempts, now=now)
+
+
+RESULT = {"termination": "completed", "termination_detail": "", "boxes_total": 3, "boxes_placed": 3,
+          "metrics": {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01},
+          "counters": {"placements_attempted": 3}, "steps": []}  # fmt: skip
+
+
+def _complete(factory, claim) -> bool:  # type: ignore[no-untyped-def]
+    with transaction(factory) as s:
+        return work.complete_episode(s, claim.episode_id, claim.token, RESULT, keep_trace=False)
+
+
+def test_expired_lease_is_taken_over_and_the_old_claim_cannot_complete(factory) -> None:
+    _submission(factory, groups=1)
+    first = _claim(factory, "a")
+    assert first is not None and _claim(factory, "b") is None  # leased
+    later = utcnow() + timedelta(seconds=11)
+    second = _claim(factory, "b", now=later)
+    assert second is not None and second.episode_id == first.episode_id and second.attempt == 2
+    assert not _complete(factory, first)  # stale claim: nothing written
+    assert _complete(factory, second)
+    assert not _complete(factory, second)  # idempotent: a repeat changes nothing
+    with transaction(factory) as s:
+        ep = s.get(EpisodeRow, second.episode_id)
+        run = s.get(RunRow, ep.run_id)
+        sub = s.get(Submission, ep.submission_id)
+        assert (ep.status, ep.attempts, ep.worker) == ("done", 2, "b")
+        assert run.status == "completed" and run.metrics["space_utilization"] == 0.5
+        assert run.extras["episodes"] == 1 and sub.status == "completed"
+
+
+def test_attempts_are_bounded_then_the_episode_is_recorded_failed(factory) -> None:
+    sid = _submission(factory, groups=1)
+    now = utcnow()
+    for attempt in range(2):
+        claim = _claim(factory, f"w{attempt}", now=now + timedelta(seconds=11 * attempt), max_attempts=2)
+        assert claim is not None and claim.attempt == attempt + 1
+    assert _claim(factory, "w9", now=now + timedelta(seconds=40), max_attempts=2) is None
+    with transaction(factory) as s:
+        ep = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sid)).scalar_one()
+        assert (ep.status, ep.termination) == ("failed", work.WORKER_LOST)
+        assert s.get(Submission, sid).status == "failed"
+
+
+def test_release_retries_infrastructure_errors_then_fails(factory) -> None:
+    _submission(factory, groups=1)
+    claim = _claim(factory, max_attempts=2)
+    with transaction(factory) as s:
+        assert work.release_episode(s, claim.episode_id, claim.token, "boom", max_attempts=2)
+    again = _claim(factory, max_attempts=2)
+    assert again.attempt == 2
+    with transaction(factory) as s:
+        assert work.release_episode(s, again.episode_id, again.token, "boom", max_attempts=2)
+        assert s.get(EpisodeRow, again.episode_id).status == "failed"
+
+
+def test_cancel_stops_claims_and_voids_running_claims(factory) -> None:
+    sid = _submission(factory, groups=3)
+    running = _claim(factory)
+    with transaction(factory) as s:
+        assert work.cancel_submission(s, s.get(Submission, sid))
+    assert _claim(factory) is None
+    with transaction(factory) as s:
+        assert not work.heartbeat(s, running.episode_id, running.token, lease_s=10, step=1)
+    assert not _complete(factory, running)
+    with transaction(factory) as s:
+        statuses = s.execute(select(EpisodeRow.status).where(EpisodeRow.submission_id == sid)).scalars().all()
+        assert statuses == ["cancelled"] * 3
+        assert not work.cancel_submission(s, s.get(Submission, sid))
+
+
+def test_concurrent_claimers_never_share_an_episode(factory) -> None:
+    _submission(factory, groups=10, datasets=("diverse", "longboard"))
+    claimed: list[int] = []
+    lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def worker(name: str) -> None:
+        try:
+            while (c := _claim(factory, name)) is not None:
+                with lock:
+                    claimed.append(c.episode_id)
+                assert _complete(factory, c)
+        except BaseException as exc:  # noqa: BLE001
+            errors.append(exc)
+
+    threads = [threading.Thread(target=worker, args=(f"t{i}",)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert not errors
+    assert sorted(claimed) == sorted(set(claimed)) and len(claimed) == 20
+    with transaction(factory) as s:
+        runs = s.execute(select(RunRow)).scalars().all()
+        assert all(r.status == "completed" and r.extras["episodes"] == 10 for r in runs)

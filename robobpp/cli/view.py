@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import threading
 import webbrowser
 from pathlib import Path
 from typing import Annotated
@@ -66,5 +67,6 @@ def _serve(episodes: list[dict], source: str, host: str, port: int, open_browser
     url = f"http://{host}:{port}/"
     typer.echo(f"serving {len(episodes)} episode(s) from {source} at {url} (Ctrl+C to stop)")
     if open_browser:
-        webbrowser.open(url)
+        # Opened a moment later, from a thread: uvicorn.run blocks, and the page needs the server up.
+        threading.Timer(0.8, webbrowser.open, args=(url,)).start()
     uvicorn.run(view_app(episodes, source), host=host, port=port, log_level="warning")

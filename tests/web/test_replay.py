@@ -12,8 +12,8 @@ from robobpp.client.serve import BackgroundServer
 from robobpp.core import Box, ContainerSpec, EpisodeSpec
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
-from robobpp.web.trace import read_trace
-from robobpp.web.viewer import view_app
+from robobpp.web.trace import episodes_from, read_trace
+from robobpp.web.viewer import render_standalone, view_app
 from tests.web.conftest import PageProbe, Server
 
 pytestmark = pytest.mark.browser
@@ -152,4 +152,34 @@ def test_robobpp_view_served_page(trace_file: Path, probe: PageProbe) -> None:
     with BackgroundServer(view_app(episodes, trace_file.name)) as srv:
         probe.page.goto(srv.url + "/")
         check_viewer(probe, len(episodes[0]["steps"]))
+    probe.assert_clean()
+
+
+def test_collapse_and_tool_path_are_drawn(trace_file: Path, tmp_path: Path, probe: PageProbe) -> None:
+    """An Execution Pack-shaped trace: a tool path per placement and a collapse at the last step."""
+    episode = json.loads(trace_file.read_text())["episodes"][0]
+    episode["setting"] = "execution"
+    placed = [s for s in episode["steps"] if s["placement"]]
+    for s in placed:
+        p = s["placement"]
+        top = [p["x"] + p["length"] / 2, p["y"] + p["width"] / 2, p["z"] + p["height"]]
+        s["extra"] = {"tool_path_cm": [[-80.0, 60.0, 120.0], [top[0], top[1], 150.0], top]}
+        s["trajectory_length_m"] = 2.5
+    last = placed[-1]
+    last["collapsed"] = True
+    last["extra"]["collapsed_boxes"] = [0, 1, last["placement"]["index"]]
+    n = episode["steps"].index(last) + 1
+    page_file = tmp_path / "exec.html"
+    page_file.write_text(render_standalone(episodes_from(episode), source="exec.json"))
+    probe.page.goto(page_file.as_uri())
+    root = probe.page.locator("[data-replay]")
+    probe.page.locator("[data-role=slider]").fill(str(n - 1))
+    assert root.get_attribute("data-tool-path") == "3" and root.get_attribute("data-collapsed") == "0"
+    before = canvas_image(probe)
+    probe.page.locator("[data-role=slider]").fill(str(n))
+    assert root.get_attribute("data-collapsed") == "3"
+    assert "collapse" in probe.page.locator("[data-role=overlay]").inner_text()
+    assert "Collapse" in probe.page.locator("[data-role=step-info]").inner_text()
+    assert changed_fraction(probe, before, canvas_image(probe)) > 0.002
+    probe.shot("replay-execution")
     probe.assert_clean()

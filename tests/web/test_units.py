@@ -242,3 +242,36 @@ def test_view_cli_single_episode_and_bad_file(tmp_path: Path) -> None:
     refused = CliRunner().invoke(app, ["view", str(bad), "-o", str(out), "--no-open"])
     assert refused.exit_code == 2
     assert "episode 0.container.length must be a number" in refused.output
+
+
+def test_view_cli_serves_the_viewer(tmp_path: Path) -> None:
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    import httpx
+
+    trace = tmp_path / "out.json"
+    trace.write_text(json.dumps({"episodes": [_episode(6)]}))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code = "from robobpp.cli import main; main()"
+    proc = subprocess.Popen([sys.executable, "-c", code, "view", str(trace), "--no-open", "--port", str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                page = httpx.get(f"http://127.0.0.1:{port}/", timeout=5)
+                break
+            except httpx.TransportError:
+                assert proc.poll() is None and time.monotonic() < deadline, "robobpp view did not start"
+                time.sleep(0.2)
+        assert page.status_code == 200 and 'id="trace-data"' in page.text
+        assert httpx.get(f"http://127.0.0.1:{port}/static/js/replay.js", timeout=5).status_code == 200
+    finally:
+        proc.terminate()
+        out = proc.communicate(timeout=20)[0].decode()
+    assert f"http://127.0.0.1:{port}/" in out

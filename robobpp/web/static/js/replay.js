@@ -176,9 +176,13 @@ class Replay {
     const axes = new THREE.AxesHelper(Math.min(L, W) * 0.25);
     axes.position.set(0, 0, 0.2);
     this.staticGroup.add(axes);
-    const span = Math.max(L, W, H);
-    this.camera.position.set(L / 2 - 1.0 * span, W / 2 - 1.3 * span, H + 0.85 * span);
-    this.controls.target.set(L / 2, W / 2, H * 0.3);
+    // Frame the container's bounding sphere from the front-left, a little above.
+    const radius = 0.5 * Math.hypot(L, W, H);
+    const distance = (1.08 * radius) / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    const direction = new THREE.Vector3(-0.55, -0.8, 0.62).normalize();
+    const target = new THREE.Vector3(L / 2, W / 2, H * 0.42);
+    this.camera.position.copy(target).addScaledVector(direction, distance);
+    this.controls.target.copy(target);
     this.controls.update();
     this.resize();
   }
@@ -243,7 +247,11 @@ class Replay {
       this.boxGroup.add(holder);
     }
     if (current && !current.placement && current.action) this.drawRejected(current, boxes);
-    if (current && current.tool_path && current.tool_path.length > 1) this.drawPath(current.tool_path);
+    const path = current && current.tool_path && current.tool_path.length > 1;
+    if (path) this.drawPath(current.tool_path);
+    // Read by tests and handy in the console: what this frame shows.
+    this.root.dataset.collapsed = String(boxes.filter((b) => b.collapsed).length);
+    this.root.dataset.toolPath = path ? String(current.tool_path.length) : "0";
     return boxes.length;
   }
 

@@ -154,3 +154,46 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
                 for e in mine]  # fmt: skip
 
     assert board(factory, celery_subs) == board(local, local_subs)
+
+
+@pytest.mark.parametrize("broker", ["redis"], indirect=True)
+def test_the_server_dispatches_to_celery_when_a_broker_is_set(fleet: Fleet, tmp_path: Path) -> None:
+    """End to end: baselines queued at first start and a submission made through the API both run on the
+    Celery workers; the server itself runs no local pool."""
+    from fastapi.testclient import TestClient
+
+    from robobpp.server.app import create_app
+    from robobpp.server.config import Settings
+    from robobpp.worker.celery_executor import CeleryExecutor as Dispatcher
+
+    env = fleet.env
+    settings = Settings(
+        database_url=env["ROBOBPP_DATABASE_URL"], broker_url=env["ROBOBPP_BROKER_URL"],
+        celery_queue=env["ROBOBPP_CELERY_QUEUE"], spec_provider=env["ROBOBPP_SPEC_PROVIDER"],
+        data_dir=tmp_path / "server", datasets=("repetitive",), settings=("math",), groups=2,
+        baselines=("dbl",), lease_s=LEASE_S, poll_interval_s=0.3, admin_token="a-strong-admin-token-0123",
+    )  # fmt: skip
+    fleet.start(2)
+    with TestClient(create_app(settings)) as client:
+        assert isinstance(client.app.state.runtime.executor, Dispatcher)  # type: ignore[attr-defined]
+        auth = {"Authorization": "Bearer a-strong-admin-token-0123"}
+        made = client.post("/api/v1/submissions", headers=auth, json={
+            "name": "random-run", "policy_url": "builtin:random", "track": "public"})  # fmt: skip
+        assert made.status_code == 201, made.text
+
+        def finished() -> bool:
+            subs = client.get("/api/v1/submissions", headers=auth).json()
+            return bool(subs) and all(s["status"] == "completed" for s in subs) and len(subs) >= 2
+
+        wait_for(finished, 120, "baseline and submission on the workers", fleet.logs)
+        health = client.get("/healthz").json()
+        assert health["status"] == "ok"
+    from robobpp.db.session import make_engine, make_session_factory
+
+    engine = make_engine(env["ROBOBPP_DATABASE_URL"])
+    try:
+        with make_session_factory(engine)() as s:
+            ran_by = s.execute(select(EpisodeRow.worker).where(EpisodeRow.status == "done")).scalars().all()
+    finally:
+        engine.dispose()
+    assert len(ran_by) >= 4 and all(w.startswith("celery:") for w in ran_by), ran_by

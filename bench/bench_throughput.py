@@ -48,6 +48,7 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
     engine = make_engine(url)
     procs: list[subprocess.Popen[bytes]] = []
     executor = None
+    log = tempfile.TemporaryFile()  # noqa: SIM115 - the workers write to it until the finally block
     try:
         upgrade(url)
         factory = make_session_factory(engine)
@@ -60,7 +61,6 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
         env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
         env.update(ROBOBPP_DATABASE_URL=url, ROBOBPP_BROKER_URL=broker, ROBOBPP_CELERY_QUEUE=queue,
                    ROBOBPP_GROUPS=str(episodes), ROBOBPP_ENV="dev")  # fmt: skip
-        log = tempfile.TemporaryFile()  # noqa: SIM115 - outlives this block: the workers write to it
         for i in range(workers):
             cmd = [sys.executable, "-c", "from robobpp.cli import main; main()", "worker", "--concurrency", "1",
                    "--loglevel", "warning", "--hostname", f"bench{i}-{queue}@local"]  # fmt: skip
@@ -101,6 +101,7 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
         engine.dispose()
+        log.close()
         with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
         from kombu import Connection

@@ -9,6 +9,7 @@ sent again even while the server is down.
 from __future__ import annotations
 
 import os
+import secrets
 import socket
 from typing import Annotated, Any
 
@@ -21,6 +22,21 @@ POOLS = ("prefork", "solo", "threads")
 
 def register(root: typer.Typer) -> None:
     root.command("worker")(worker)
+
+
+def worker_settings() -> Any:
+    """The settings a worker runs with: the server's, from the same environment variables.
+
+    A worker serves no API and never reads the admin token, so a worker machine need not hold it: when
+    ``ROBOBPP_ADMIN_TOKEN`` is absent a throwaway random one satisfies the production check (every other
+    check, e.g. no private policy URLs in production, still applies).
+    """
+    from robobpp.server.config import Settings
+
+    overrides: dict[str, Any] = {}
+    if not os.environ.get("ROBOBPP_ADMIN_TOKEN"):
+        overrides["admin_token"] = secrets.token_urlsafe(32)
+    return Settings(**overrides)
 
 
 def worker(
@@ -38,7 +54,6 @@ def worker(
     """Run episodes from the broker queue (needs ROBOBPP_BROKER_URL and ROBOBPP_DATABASE_URL)."""
     from pydantic import ValidationError
 
-    from robobpp.server.config import Settings
     from robobpp.worker.celery_app import BrokerURLError, app_from_settings, check_broker_url
 
     if pool not in POOLS:
@@ -46,7 +61,7 @@ def worker(
     if loglevel.lower() not in ("debug", "info", "warning", "error"):
         fail(f"unknown log level {loglevel!r}")
     try:
-        settings = Settings()
+        settings = worker_settings()
     except (ValidationError, ValueError) as exc:
         fail(f"invalid settings: {exc}")
     if not settings.broker_url:

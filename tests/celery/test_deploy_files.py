@@ -110,7 +110,9 @@ def test_service_environment_validates_as_production_settings(
             monkeypatch.delenv(key)
     for key, value in _env(compose["services"][service]).items():
         monkeypatch.setenv(key, value)
-    settings = Settings()
+    from robobpp.cli.worker import worker_settings
+
+    settings = Settings() if service == "server" else worker_settings()
     assert settings.env == "prod"
     assert not settings.allow_private_policy_urls
     url = make_url(settings.database_url)
@@ -122,6 +124,11 @@ def test_service_environment_validates_as_production_settings(
     assert str(settings.private_dir) in {
         str(m).split(":")[1] for m in compose["services"][service]["volumes"]
     }, "the private split directory must be a volume"
+
+
+def test_only_the_server_holds_the_admin_token(compose: dict[str, Any]) -> None:
+    assert "ROBOBPP_ADMIN_TOKEN" in _env(compose["services"]["server"])
+    assert "ROBOBPP_ADMIN_TOKEN" not in _env(compose["services"]["worker"])
 
 
 def test_server_runs_no_local_workers_when_a_broker_is_set(compose: dict[str, Any]) -> None:

@@ -31,7 +31,7 @@ def fmt_num(value: Any, digits: int = 3) -> str:
     if not math.isfinite(number):
         return "—"
     if number != 0 and abs(number) < 10 ** (-digits):
-        return f"{number:.{digits}g}"
+        return f"{number:.{max(1, digits - 1)}g}"
     return f"{number:.{digits}f}"
 
 

@@ -45,6 +45,7 @@ class Server:
         self.client = httpx.Client(base_url=url, timeout=30.0,
                                    headers={"Authorization": f"Bearer {ADMIN_TOKEN}"})  # fmt: skip
         self.ids: dict[str, int] = {}
+        self.datasets_visible = False
 
     def get(self, path: str, **kw: Any) -> httpx.Response:
         return self.client.get(path, **kw)
@@ -93,13 +94,20 @@ def _seed_hostile(database_url: str) -> int:
 
 @pytest.fixture(scope="session")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    from robobpp.datasets.cache import data_dir as datasets_cache
+    from robobpp.web.dataset_stats import data_available
+
     data_dir = tmp_path_factory.mktemp("server")
     port = _free_port()
+    cache = datasets_cache()
+    cache_env = {"XDG_CACHE_HOME": str(cache.parent)} if cache.name == "robobpp" else {}
     env = {
         **{k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")},
         "ROBOBPP_ENV": "dev",
         # The server keeps its SQLite file under ./robobpp-data (cwd = the temp dir). ROBOBPP_DATA_DIR is not
-        # set: the datasets cache reads the same variable, and the datasets page should see the real cache.
+        # passed on: the server's settings and the datasets cache both read it. The cache is pointed at
+        # through XDG_CACHE_HOME instead, so the datasets page sees the data this test process sees.
+        **cache_env,
         "ROBOBPP_DATABASE_URL": "",
         "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
         "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
@@ -116,6 +124,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         env=env, stdout=log, stderr=subprocess.STDOUT, cwd=data_dir,
     )  # fmt: skip
     srv = Server(f"http://127.0.0.1:{port}", data_dir)
+    srv.datasets_visible = bool(cache_env) and data_available()
     try:
 
         def healthy() -> bool:

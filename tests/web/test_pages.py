@@ -205,11 +205,9 @@ def test_submission_page_follows_a_running_evaluation(server: Server, probe: Pag
 
 
 def test_datasets_page_shows_public_split_distributions(server: Server, probe: PageProbe) -> None:
-    from robobpp.web.dataset_stats import data_available
-
     probe.page.goto(server.url + "/datasets")
     assert probe.page.locator("section.card").count() == 3
-    if data_available():
+    if server.datasets_visible:
         assert probe.page.locator("figure.boxplot").count() == 3
         assert probe.page.locator("figure.boxplot rect.box").count() == 9  # length, width, height each
         assert "repeat rate" in probe.page.locator("#repetitive").inner_text()

@@ -7,7 +7,7 @@
 from robobpp.sim.physics.config import PhysicsConfig
 from robobpp.sim.physics.pack import PhysicsPack
 from robobpp.sim.physics.reward import stability_reward
-from robobpp.sim.physics.settle import Displacement, SettleReport, Settler, detect_collapse
+from robobpp.sim.physics.settle import Displacement, Settler, SettleReport, detect_collapse
 from robobpp.sim.physics.world import PhysicsWorld, WorldBox
 
 __all__ = [

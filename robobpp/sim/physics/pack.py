@@ -12,7 +12,7 @@ from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
 from robobpp.sim.physics.geometry import heightmap_from_boxes, surface_height
-from robobpp.sim.physics.settle import Settler, detect_collapse
+from robobpp.sim.physics.settle import Displacement, Settler, detect_collapse
 from robobpp.sim.physics.world import PhysicsWorld, WorldBox
 
 
@@ -78,13 +78,15 @@ class PhysicsPack(Setting):
         self._planned.append(planned)
         self._state = None
         report = self._settler.run([new])
-        targets = np.array([p.center for p in self._planned])
-        moved = detect_collapse(world, self._boxes, targets, [p.index for p in self._planned],
-                                spec.collapse_threshold_cm)  # fmt: skip
+        moved = self._displaced()
         actual = self._actual(len(self._boxes) - 1)
-        extra: dict[str, object] = {"sim_steps": report.steps, "at_rest": report.at_rest,
-                                    "simulated_boxes": report.simulated_boxes,
-                                    "max_linear_speed": report.max_linear, "max_angular_speed": report.max_angular}  # fmt: skip
+        extra: dict[str, object] = {
+            "sim_steps": report.steps,
+            "at_rest": report.at_rest,
+            "simulated_boxes": report.simulated_boxes,
+            "max_linear_speed": report.max_linear,
+            "max_angular_speed": report.max_angular,
+        }
         termination = None
         if moved:
             worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))
@@ -94,8 +96,15 @@ class PhysicsPack(Setting):
                 f"{len(moved)} box(es) beyond it after placing box {index}",
             )
             extra["collapsed_boxes"] = [d.index for d in moved]
-        return StepOutcome(actual, termination, static_stability=report.static_stability, collapsed=bool(moved),
-                           extra=extra)  # fmt: skip
+        return StepOutcome(
+            actual, termination, static_stability=report.static_stability, collapsed=bool(moved), extra=extra
+        )
+
+    def _displaced(self) -> list[Displacement]:
+        assert self.spec is not None
+        targets = np.array([p.center for p in self._planned]).reshape(-1, 3)
+        indices = [p.index for p in self._planned]
+        return detect_collapse(self._world(), self._boxes, targets, indices, self.spec.collapse_threshold_cm)
 
     def _actual(self, i: int) -> Placement:
         centre, quat = self._world().pose_cm(self._boxes[i])
@@ -130,11 +139,7 @@ class PhysicsPack(Setting):
 
     def final_boxes(self) -> list[FinalBox]:
         """Planned vs actual pose; ``in_place`` = within the collapse threshold and still on the pallet."""
-        world = self._world()
-        assert self.spec is not None
-        targets = np.array([p.center for p in self._planned]).reshape(-1, 3)
-        moved = {d.index for d in detect_collapse(world, self._boxes, targets, [p.index for p in self._planned],
-                                                  self.spec.collapse_threshold_cm)}  # fmt: skip
+        moved = {d.index for d in self._displaced()}
         return [
             FinalBox(planned, self._actual(i), planned.index not in moved)
             for i, planned in enumerate(self._planned)

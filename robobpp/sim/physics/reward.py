@@ -1,4 +1,4 @@
-"""The paper's stability-shaped training reward (its appendix, "Reward with Stability and Local Stability")."""
+"""The paper's stability-shaped training reward (appendix: "Reward with Stability and Local Stability")."""
 
 from __future__ import annotations
 

@@ -10,6 +10,7 @@ Friction: Bullet multiplies the two bodies' coefficients for a contact, so every
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from types import TracebackType
@@ -65,10 +66,8 @@ class PhysicsWorld:
     # -- lifecycle -----------------------------------------------------------------------------------
     def close(self) -> None:
         if self.client >= 0:
-            try:
+            with contextlib.suppress(p.error):  # already gone
                 p.disconnect(physicsClientId=self.client)
-            except p.error:  # already gone
-                pass
             self.client = -1
 
     def __enter__(self) -> PhysicsWorld:
@@ -78,10 +77,8 @@ class PhysicsWorld:
         self.close()
 
     def __del__(self) -> None:  # a forgotten world must not leak its client
-        try:
+        with contextlib.suppress(Exception):  # interpreter shutdown
             self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown
-            pass
 
     # -- static scene --------------------------------------------------------------------------------
     def _surface(self, body: int) -> None:
@@ -122,7 +119,7 @@ class PhysicsWorld:
         mass: float,
         quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0),
     ) -> WorldBox:
-        """A dynamic box primitive of ``extents_cm`` (along its own x, y, z) with its centre at ``center_cm``."""
+        """A dynamic box primitive of ``extents_cm`` (along its own x, y, z), centred at ``center_cm``."""
         half = tuple(e * CM / 2 for e in extents_cm)
         shape = self._shapes.get(half)  # type: ignore[arg-type]
         if shape is None:

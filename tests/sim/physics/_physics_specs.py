@@ -8,7 +8,9 @@ from robobpp.core import Box, ContainerSpec, EpisodeSpec
 from robobpp.datasets import get_dataset
 
 
-def spec_of(boxes: list[Box], dataset: str = "repetitive", threshold: float | None = None, group: int = 0) -> EpisodeSpec:
+def spec_of(
+    boxes: list[Box], dataset: str = "repetitive", threshold: float | None = None, group: int = 0
+) -> EpisodeSpec:
     """An episode over ``boxes`` in the dataset's container with its collapse threshold (or ``threshold``)."""
     ds = get_dataset(dataset)
     limit = ds.collapse_threshold_cm if threshold is None else threshold
@@ -25,4 +27,6 @@ def repetitive_like(group: int, n: int = 80, container: ContainerSpec | None = N
         boxes += [rng.choice(types)] * rng.randint(1, 6)
     ds = get_dataset("repetitive")
     threshold = (4.0, 7.0)[group % 2]
-    return EpisodeSpec("synthetic", "train", group, tuple(boxes[:n]), container or ds.container, threshold, group)
+    return EpisodeSpec(
+        "synthetic", "train", group, tuple(boxes[:n]), container or ds.container, threshold, group
+    )

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import pytest
+from _physics_specs import spec_of
 
 from robobpp.core import Action, Box
 from robobpp.sim import make_setting
 from robobpp.sim.physics import PhysicsPack, PhysicsWorld, detect_collapse, stability_reward
-
-from _physics_specs import spec_of
 
 
 def _pack(boxes: list[Box], **kw: object) -> PhysicsPack:
@@ -32,7 +31,10 @@ def test_well_supported_stack_stays() -> None:
         assert 0.3 < (out.static_stability or 0) <= 1
     final = pack.final_boxes()
     assert all(f.in_place for f in final)
-    offsets = [sum((a - b) ** 2 for a, b in zip(f.planned.center, f.actual.center, strict=True)) ** 0.5 for f in final]
+    offsets = [
+        sum((a - b) ** 2 for a, b in zip(f.planned.center, f.actual.center, strict=True)) ** 0.5
+        for f in final
+    ]
     assert max(offsets) < 0.2  # cm: a well-supported stack stays where it was put
     state = pack.state()
     assert state.heightmap[10:50, 10:40].min() == pytest.approx(80, abs=0.1)
@@ -111,7 +113,10 @@ def test_fall_off_the_pallet_is_collapse() -> None:
 
     with PhysicsWorld() as world:
         world.add_pallet(ContainerSpec(100, 100, 100))
-        on, off = world.add_box((50, 50, 5), (10, 10, 10), 1.0), world.add_box((105, 50, 5), (30, 10, 10), 1.0)
+        on, off = (
+            world.add_box((50, 50, 5), (10, 10, 10), 1.0),
+            world.add_box((105, 50, 5), (30, 10, 10), 1.0),
+        )
         world.step(480)
         moved = detect_collapse(world, [on, off], [(50, 50, 5), (105, 50, 5)], [0, 1], threshold_cm=1000)
         assert [(d.index, d.fell) for d in moved] == [(1, True)]

@@ -29,8 +29,15 @@ def test_defaults_are_the_benchmarks() -> None:
 
 @pytest.mark.parametrize(
     "bad",
-    [dict(dt=0.0), dict(gravity=-1.0), dict(lateral_friction=-0.1), dict(restitution=2.0),
-     dict(release_gap_cm=float("nan")), dict(mode="turbo"), dict(max_steps=0)],  # fmt: skip
+    [
+        dict(dt=0.0),
+        dict(gravity=-1.0),
+        dict(lateral_friction=-0.1),
+        dict(restitution=2.0),
+        dict(release_gap_cm=float("nan")),
+        dict(mode="turbo"),
+        dict(max_steps=0),
+    ],  # fmt: skip
 )
 def test_bad_config_is_refused(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):

@@ -108,6 +108,11 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
 
         with Connection(broker) as conn:
             conn.default_channel.queue_delete(queue)
+            conn.default_channel.exchange_delete(queue)
+            if broker.startswith("redis"):
+                conn.default_channel.client.delete(
+                    f"_kombu.binding.{queue}", f"_kombu.binding_permanent.{queue}"
+                )
 
 
 def main() -> None:

@@ -75,9 +75,12 @@ def _drop_queue(url: str, queue: str) -> None:
     with Connection(url) as conn:
         with contextlib.suppress(Exception):  # already gone
             conn.default_channel.queue_delete(queue)
+        with contextlib.suppress(Exception):
+            conn.default_channel.exchange_delete(queue)
         if url.startswith("redis"):
             client = conn.default_channel.client
-            client.delete(queue, f"unacked:{queue}", f"unacked_index:{queue}", f"unacked_mutex:{queue}")
+            client.delete(queue, f"unacked:{queue}", f"unacked_index:{queue}", f"unacked_mutex:{queue}",
+                          f"_kombu.binding.{queue}", f"_kombu.binding_permanent.{queue}")  # fmt: skip
 
 
 class Fleet:

@@ -68,6 +68,16 @@ def normalize(values: Sequence[float | None], better: str) -> list[float]:
     return out
 
 
+def competition_ranks(scores: Sequence[float]) -> list[int]:
+    """1 + the number of strictly better scores ("1, 2, 2, 4"), in O(n log n)."""
+    order = sorted(range(len(scores)), key=lambda i: -scores[i])
+    ranks = [0] * len(scores)
+    for position, i in enumerate(order):
+        tied = position > 0 and scores[order[position - 1]] == scores[i]
+        ranks[i] = ranks[order[position - 1]] if tied else position + 1
+    return ranks
+
+
 def score_entries(entries: Sequence[Mapping[str, object]], setting: str) -> list[Scored]:
     """Score the entries of one leaderboard (one dataset × setting); results follow the input order."""
     try:
@@ -83,5 +93,5 @@ def score_entries(entries: Sequence[Mapping[str, object]], setting: str) -> list
             normalized[i][key] = value
             scores[i] += weight * value
     scores = [round(s, 12) for s in scores]  # ties must tie despite float summation order
-    ranks = [1 + sum(1 for other in scores if other > s) for s in scores]  # competition ranking: 1, 2, 2, 4
+    ranks = competition_ranks(scores)
     return [Scored(normalized[i], scores[i], ranks[i]) for i in range(n)]

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import and_, func, or_, select, update
+from sqlalchemy import and_, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
@@ -76,17 +76,10 @@ def create_submission(
             run = RunRow(submission_id=sub.id, dataset=dataset, setting=setting, episodes_total=groups)
             session.add(run)
             session.flush()
-            session.add_all(
-                EpisodeRow(
-                    submission_id=sub.id,
-                    run_id=run.id,
-                    dataset=dataset,
-                    setting=setting,
-                    split=split,
-                    group=g,
-                )
-                for g in range(groups)  # fmt: skip
-            )
+            session.execute(insert(EpisodeRow), [  # one bulk INSERT: submitting stays cheap
+                {"submission_id": sub.id, "run_id": run.id, "dataset": dataset, "setting": setting, "split": split,
+                 "group": g, "status": "pending", "attempts": 0, "step": 0} for g in range(groups)
+            ])  # fmt: skip
     session.flush()
     return sub
 

@@ -43,7 +43,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
     """Build the service. ``start_workers=False`` serves the API only (tests, API-only replicas)."""
     settings = settings or Settings()
     # With a broker the server dispatches episodes to Celery workers (no local pool); see worker/celery_*.py.
-    run_workers = (settings.workers > 0 or bool(settings.broker_url)) if start_workers is None else start_workers
+    run_workers = (
+        (settings.workers > 0 or bool(settings.broker_url)) if start_workers is None else start_workers
+    )
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

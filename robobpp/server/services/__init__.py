@@ -1,0 +1,1 @@
+"""Server-side services built on the query functions of :mod:`robobpp.db.queries`."""

@@ -3,7 +3,7 @@ rest, the world settles, and the policy sees where everything actually ended up.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 
@@ -25,6 +25,12 @@ class PhysicsPack(Setting):
     name = "physics"
 
     def __init__(self, config: PhysicsConfig | None = None, **options: object) -> None:
+        known = {f.name for f in fields(PhysicsConfig)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ValueError(
+                f"unknown physics option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+            )
         self.config = replace(config or PhysicsConfig(), **options)  # type: ignore[arg-type]
         self.world: PhysicsWorld | None = None
         self.spec: EpisodeSpec | None = None
@@ -67,7 +73,9 @@ class PhysicsPack(Setting):
         assert spec is not None
         length, width, height = box.dims(action.orientation)
         z = self.resting_height(action.x, action.y, length, width)
-        if z + height > spec.container.height + TOLERANCE_CM:
+        # Within the observed heightmap's rounding a policy cannot tell, so that much is allowed.
+        slack = max(TOLERANCE_CM, self.config.heightmap_resolution_cm / 2)
+        if z + height > spec.container.height + slack:
             detail = (f"box top at {z + height:g} cm would exceed the container height "
                       f"{spec.container.height:g} cm")  # fmt: skip
             return StepOutcome(None, Infeasible("too_high", detail))

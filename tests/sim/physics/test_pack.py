@@ -21,6 +21,13 @@ def test_make_setting_builds_it() -> None:
     assert isinstance(setting, PhysicsPack) and setting.name == "physics" and setting.config.mode == "full"
 
 
+def test_unknown_option_is_refused() -> None:
+    with pytest.raises(ValueError, match="unknown physics option"):
+        make_setting("physics", gravitee=9.81)
+    with pytest.raises(ValueError):
+        PhysicsPack(dt=-1.0)
+
+
 def test_well_supported_stack_stays() -> None:
     box = Box(40, 30, 20, 8.0)
     pack = _pack([box] * 4)

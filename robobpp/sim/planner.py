@@ -14,6 +14,7 @@ budget. Every returned path is re-checked densely (joint step ≤ ``check_step_r
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -58,13 +59,13 @@ class PlannerConfig:
 @dataclass(slots=True)
 class PlanResult:
     path: np.ndarray  # (n, 6) waypoints, start first, goal last
-    status: str  # "direct" | "planned" | "failed" | "start_invalid" | "goal_invalid"
+    status: str  # "direct" | "via" | "planned" | "failed" | "start_invalid" | "goal_invalid"
     checks: int
     seconds: float  # wall time, reported only (never decides anything)
 
     @property
     def ok(self) -> bool:
-        return self.status in ("direct", "planned")
+        return self.status in ("direct", "via", "planned")
 
 
 class _Budget(Exception):
@@ -102,17 +103,13 @@ class PlanningWorld:
 
     def close(self) -> None:
         if self.client >= 0:
-            try:
+            with contextlib.suppress(p.error):
                 p.disconnect(physicsClientId=self.client)
-            except p.error:
-                pass
             self.client = -1
 
     def __del__(self) -> None:
-        try:
+        with contextlib.suppress(Exception):  # interpreter shutdown
             self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown
-            pass
 
     # -- scene -------------------------------------------------------------------------------------
     def _shape(self, half: tuple[float, float, float]) -> int:
@@ -195,9 +192,8 @@ class PlanningWorld:
         for contact in p.getContactPoints(bodyA=self.robot, physicsClientId=cid):
             if contact[3] < 0:  # the base never moves; its floor contact is no collision
                 continue
-            if contact[2] == self.carried:
-                if contact[3] in _GRIP_LINKS:
-                    continue
+            if contact[2] == self.carried and contact[3] in _GRIP_LINKS:
+                continue
             if contact[8] < -self.config.arm_clearance_m:
                 return True
         if self.carried is not None:
@@ -261,8 +257,14 @@ class MotionPlanner:
         self.world = world
         self.config = world.config
 
-    def plan(self, start: np.ndarray, goal: np.ndarray, seed: int) -> PlanResult:
-        """A collision-free path ``start → goal`` or the failure status; deterministic in ``seed``."""
+    def plan(
+        self, start: np.ndarray, goal: np.ndarray, seed: int, candidates: Sequence[np.ndarray] = ()
+    ) -> PlanResult:
+        """A collision-free path ``start → goal`` or the failure status; deterministic in ``seed``.
+
+        ``candidates`` are waypoint paths (start first, goal last) worth trying before a search, such
+        as the palletiser's lift-over-the-pile-and-descend move; the first collision-free one wins.
+        """
         world, cfg = self.world, self.config
         t0 = perf_counter()
         world.checks = 0
@@ -275,7 +277,15 @@ class MotionPlanner:
                 return PlanResult(np.stack([start, goal]), "goal_invalid", world.checks, perf_counter() - t0)
             if world.segment_free(start, goal):
                 return PlanResult(np.stack([start, goal]), "direct", world.checks, perf_counter() - t0)
-            path = self._rrt(start, goal, seed)
+            for candidate in candidates:
+                candidate = np.asarray(candidate, dtype=float)
+                if all(world.segment_free(a, b) for a, b in zip(candidate[:-1], candidate[1:], strict=True)):
+                    return PlanResult(candidate, "via", world.checks, perf_counter() - t0)
+            path = None
+            attempt = 0
+            while path is None and world.checks < cfg.max_checks - cfg.simplify_checks:
+                path = self._rrt(start, goal, seed + attempt)
+                attempt += 1
         except _Budget:
             path = None
         finally:
@@ -336,7 +346,6 @@ class MotionPlanner:
         states = np.array([[path.getState(i)[j] for j in range(6)] for i in range(path.getStateCount())])
         states[0], states[-1] = start, goal
         # Dense re-check of what OMPL checked at the coarser search resolution.
-        world._limit = 0
         for a, b in zip(states[:-1], states[1:], strict=True):
             if not world.segment_free(a, b):
                 return None

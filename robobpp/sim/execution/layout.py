@@ -1,9 +1,10 @@
 """Where the robot, the pallet and the conveyor stand, and the grasp/place poses that follow.
 
 World frame = the container frame in metres (origin at the inner bottom corner, x along the container
-length, z up), so the Physics Pack's world needs no transform. The robot stands on the floor in front
-of the container's long side (x), its own x axis pointing across the container (+y); the conveyor's
-pick station is 90° to the robot's right, clear of the pallet even for 2.5 m panels. The standoff is
+length, z up), so the Physics Pack's world needs no transform. The robot stands on the floor beyond the
+container's long side at y = W, its own x axis pointing across the container (−y): bottom-left-first
+policies then fill the far side first, as a palletiser is usually taught. The conveyor's pick station
+is 90° to the robot's right, clear of the pallet even for 2.5 m panels. The standoff is
 chosen so every top-down placement inside all three dataset containers is reachable (tested by
 sampling the container volume).
 """
@@ -23,15 +24,15 @@ from robobpp.sim.robot.kinematics import rot, top_down_rotation
 @dataclass(frozen=True, slots=True)
 class Layout:
     container: ContainerSpec
-    #: Robot J1 axis to the container's near long edge (m).
+    #: Robot J1 axis to the container's long edge at y = W (m).
     standoff: float = 0.95
     #: Height of the floor the robot and the conveyor stand on (m); the pallet deck top is z = 0.
     floor_z: float = -0.15
     #: The robot stands on a pedestal this high (m), as palletising robots usually do: it lifts the
     #: far top corners of the 1.7 m Diverse stack into reach.
-    pedestal: float = 0.2
+    pedestal: float = 0.3
     #: Pick station (box top-face centre, horizontally) in the robot frame (m).
-    pick_xy: tuple[float, float] = (0.0, -1.9)
+    pick_xy: tuple[float, float] = (0.0, -2.0)
     #: Conveyor belt top surface height above the pallet deck (m) and its footprint (m, along robot x,
     #: along robot y).
     conveyor_height: float = 0.5
@@ -43,11 +44,17 @@ class Layout:
 
     @property
     def base_position(self) -> np.ndarray:
-        return np.array([self.container.length / 200.0, -self.standoff, self.floor_z + self.pedestal])
+        return np.array(
+            [
+                self.container.length / 200.0,
+                self.container.width / 100.0 + self.standoff,
+                self.floor_z + self.pedestal,
+            ]
+        )
 
     @property
     def base_yaw(self) -> float:
-        return math.pi / 2
+        return -math.pi / 2
 
     @property
     def base_rotation(self) -> np.ndarray:

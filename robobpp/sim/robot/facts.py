@@ -71,7 +71,7 @@ class ToolFact:
     The tool centre point (TCP) is the face of the suction cup: ``length`` beyond the flange.
     """
 
-    length: float = 0.25
+    length: float = 0.40
     radius: float = 0.045
     mass: float = 15.0
     #: Suction capacity, kg per m² of grasped top area (paper, after Zhao et al. 2025).

@@ -1,0 +1,405 @@
+"""Execution Pack (BENCHMARK.md §3): the Physics Pack with an IRB 6700 doing every placement.
+
+Per box: suction grasp from the top at the conveyor (capacity check), vertical lift, a transfer planned
+with OMPL in a separate planning world (static copies of the placed boxes, the carried box attached),
+vertical descent, release, the Physics Pack's settle and collapse check, retreat. The arm (kinematic:
+zero mass, driven along the time-parameterised trajectory) and the carried box (kinematic too) move
+through the physical world, so a bad path pushes placed boxes. Boxes the motion touches are woken and
+simulated; while nothing is near, the arm just moves (resting boxes that nothing touches cannot move).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import numpy as np
+import pybullet as p
+
+from robobpp.core import Action, Box, EpisodeSpec, Infeasible, Placement
+from robobpp.core.feasibility import TOLERANCE_CM
+from robobpp.sim.base import StepOutcome
+from robobpp.sim.execution import motion
+from robobpp.sim.execution.layout import Layout
+from robobpp.sim.physics import PhysicsConfig, PhysicsPack, detect_collapse
+from robobpp.sim.physics.world import CM, PALLET_HEIGHT_M, WorldBox
+from robobpp.sim.planner import MotionPlanner, PlannerConfig, PlanningWorld, quaternion
+from robobpp.sim.robot.facts import TOOL
+from robobpp.sim.robot.kinematics import joint_frames, rot, tcp_pose
+from robobpp.sim.robot.urdf import LINK_NAMES, urdf_path
+
+
+@dataclass(frozen=True, slots=True)
+class ExecutionConfig:
+    """Robot-side parameters; recorded with the run like :class:`PhysicsConfig`."""
+
+    #: A pick-to-place operation whose time-parameterised execution takes longer than this is unsafe.
+    safe_time_s: float = 3.0
+    #: TCP speed cap on the Cartesian segments (lift, descent), m/s.
+    cartesian_speed: float = 0.5
+    #: Suction capacity, kg per m² of grasped top area.
+    capacity_kg_m2: float = TOOL.capacity_kg_m2
+    #: Ends the episode on a failed grasp; by default it only counts as dangerous (a policy can change
+    #: neither a box's mass nor its top area, so it should not lose the episode for it).
+    end_on_failed_grasp: bool = False
+    #: Added to the episode seed for the planner's RNG (recorded per placement).
+    seed: int = 0
+    #: Horizontal margin (m) around a robot link or the carried box within which resting boxes are
+    #: woken and the world is stepped during the motion.
+    wake_margin_m: float = 0.05
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("safe_time_s", "cartesian_speed", "capacity_kg_m2"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0:
+                raise ValueError(f"execution {name} must be finite and > 0, got {value!r}")
+
+    def to_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+def _split_options(options: dict[str, object]) -> tuple[dict[str, object], dict[str, object]]:
+    physics_names = {f.name for f in fields(PhysicsConfig)}
+    execution_names = {f.name for f in fields(ExecutionConfig)}
+    physics, execution = {}, {}
+    for key, value in options.items():
+        if key in physics_names:
+            physics[key] = value
+        elif key in execution_names:
+            execution[key] = value
+        else:
+            raise TypeError(f"unknown Execution Pack option {key!r}")
+    return physics, execution
+
+
+@dataclass(slots=True)
+class Operation:
+    """What the robot did for one box."""
+
+    trajectory: motion.Trajectory | None
+    tcp_length_m: float
+    execution_time_s: float
+    failed_grasp: bool
+    reasons: list[str]
+    plan_status: str
+    plan_checks: int
+    plan_seconds: float
+    seed: int
+
+    @property
+    def dangerous(self) -> bool:
+        return bool(self.reasons)
+
+
+class ExecutionPack(PhysicsPack):
+    """Physics Pack + robot. Options: :class:`PhysicsConfig` and :class:`ExecutionConfig` field names."""
+
+    name = "execution"
+
+    def __init__(
+        self,
+        config: PhysicsConfig | None = None,
+        execution: ExecutionConfig | None = None,
+        layout: Layout | None = None,
+        **options: object,
+    ) -> None:
+        physics, robot = _split_options(options)
+        super().__init__(config, **physics)
+        self.execution = replace(execution or ExecutionConfig(), **robot)  # type: ignore[arg-type]
+        self._layout_override = layout
+        self.layout: Layout | None = None
+        self.planning: PlanningWorld | None = None
+        self.planner: MotionPlanner | None = None
+        self.robot = -1
+        self.q = np.zeros(6)
+        self.last_operation: Operation | None = None
+
+    # -- lifecycle -----------------------------------------------------------------------------------
+    def reset(self, spec: EpisodeSpec) -> None:
+        super().reset(spec)
+        layout = self._layout_override or Layout(spec.container, floor_z=-PALLET_HEIGHT_M)
+        if layout.container != spec.container:
+            raise ValueError("the layout was made for another container")
+        self.layout = layout
+        world = self._world()
+        cid = world.client
+        base_quat = p.getQuaternionFromEuler((0, 0, layout.base_yaw))
+        self.robot = p.loadURDF(urdf_path(), layout.base_position.tolist(), base_quat, useFixedBase=True,
+                                physicsClientId=cid)  # fmt: skip
+        for link in range(-1, len(LINK_NAMES)):  # kinematic: pushes boxes, is never pushed
+            p.changeDynamics(self.robot, link, mass=0.0, physicsClientId=cid)
+        conveyor_centre, conveyor_half = layout.conveyor_box()
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=conveyor_half.tolist(), physicsClientId=cid)
+        p.createMultiBody(0, shape, -1, conveyor_centre.tolist(), physicsClientId=cid)
+        length, width = spec.container.length * CM, spec.container.width * CM
+        ground_half = 6.0
+        statics = [
+            (conveyor_centre, conveyor_half),
+            # pallet (deck and its support, floor to deck top)
+            ((length / 2, width / 2, layout.floor_z / 2), (length / 2, width / 2, -layout.floor_z / 2)),
+            ((length / 2, width / 2, layout.floor_z - 0.05), (ground_half, ground_half, 0.05)),
+        ]
+        self.planning = PlanningWorld(layout.base_position, layout.base_yaw, statics, self.execution.planner)
+        self.planner = MotionPlanner(self.planning)
+        self.q = layout.home
+        self._set_arm(self.q)
+
+    def close(self) -> None:
+        if self.planning is not None:
+            self.planning.close()
+            self.planning = None
+        super().close()
+
+    # -- helpers -------------------------------------------------------------------------------------
+    def _set_arm(self, q: np.ndarray, velocity: np.ndarray | None = None) -> None:
+        cid = self._world().client
+        for j in range(6):
+            v = 0.0 if velocity is None else float(velocity[j])
+            p.resetJointState(self.robot, j, float(q[j]), targetVelocity=v, physicsClientId=cid)
+
+    def _seed(self, index: int) -> int:
+        assert self.spec is not None
+        key = f"{self.spec.episode_id}:{self.spec.seed}:{self.execution.seed}:{index}".encode()
+        return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") % (2**31 - 2) + 1
+
+    # -- the operation -------------------------------------------------------------------------------
+    def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
+        world = self._world()
+        spec = self.spec
+        assert spec is not None and self.layout is not None
+        length, width, height = box.dims(action.orientation)
+        z = self.resting_height(action.x, action.y, length, width)
+        if z + height > spec.container.height + TOLERANCE_CM:
+            detail = (f"box top at {z + height:g} cm would exceed the container height "
+                      f"{spec.container.height:g} cm")  # fmt: skip
+            return StepOutcome(None, Infeasible("too_high", detail))
+        planned = Placement(action.x, action.y, z, length, width, height, action.orientation, index)
+        operation, carried, disturbed = self._operate(box, planned)
+        self.last_operation = operation
+        if operation.failed_grasp and self.execution.end_on_failed_grasp:
+            if carried is not None:
+                p.removeBody(carried, physicsClientId=world.client)
+            detail = f"box of {box.mass:g} kg exceeds the suction capacity of its {length:g}×{width:g} cm top"
+            return StepOutcome(None, Infeasible("failed_grasp", detail), dangerous=True,
+                               trajectory_length_m=0.0)  # fmt: skip
+        # Release: the kinematic carried box becomes the dynamic one, exactly at the release pose.
+        if carried is not None:
+            p.removeBody(carried, physicsClientId=world.client)
+        cx, cy, cz = planned.center
+        new = world.add_box((cx, cy, cz + self.config.release_gap_cm), (length, width, height), box.mass)
+        self._boxes.append(new)
+        self._planned.append(planned)
+        self._state = None
+        report = self._settler.run([new, *disturbed])
+        # Retreat: straight up, away from the released box (cannot touch it), then wait above the pick.
+        if operation.trajectory is not None:
+            self.q = operation.trajectory.waypoints[-1]
+        self.q = self.layout.home
+        self._set_arm(self.q)
+        targets = np.array([pl.center for pl in self._planned])
+        moved = detect_collapse(world, self._boxes, targets, [pl.index for pl in self._planned],
+                                spec.collapse_threshold_cm)  # fmt: skip
+        actual = self._actual(len(self._boxes) - 1)
+        extra: dict[str, object] = {
+            "sim_steps": report.steps, "at_rest": report.at_rest, "simulated_boxes": report.simulated_boxes,
+            "max_linear_speed": report.max_linear, "max_angular_speed": report.max_angular,
+            "execution_time_s": operation.execution_time_s, "plan_status": operation.plan_status,
+            "plan_checks": operation.plan_checks, "planning_time_s": operation.plan_seconds,
+            "planner_seed": operation.seed, "dangerous_reasons": list(operation.reasons),
+            "failed_grasp": operation.failed_grasp, "disturbed_boxes": len(disturbed),
+        }  # fmt: skip
+        termination = None
+        if moved:
+            worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))
+            termination = Infeasible(
+                "collapse",
+                f"{worst.describe()} (threshold {spec.collapse_threshold_cm:g} cm); "
+                f"{len(moved)} box(es) beyond it after placing box {index}",
+            )
+            extra["collapsed_boxes"] = [d.index for d in moved]
+        return StepOutcome(actual, termination, static_stability=report.static_stability, collapsed=bool(moved),
+                           trajectory_length_m=operation.tcp_length_m, dangerous=operation.dangerous,
+                           extra=extra)  # fmt: skip
+
+    def plan_operation(self, box: Box, planned: Placement) -> Operation:
+        """Grasp check, IK and planning for one box, without touching the physical world."""
+        layout, planning, planner = self.layout, self.planning, self.planner
+        assert layout is not None and planning is not None and planner is not None
+        cfg = self.execution
+        seed = self._seed(planned.index)
+        reasons: list[str] = []
+        failed_grasp = box.mass > cfg.capacity_kg_m2 * (box.length * box.width * CM * CM)
+        if failed_grasp:
+            reasons.append("failed_grasp")
+        # Pick: grasp the top-face centre, box length along the tool's y axis.
+        centre, yaw = layout.pick_box_pose(box)
+        tcp_pick = centre + np.array([0.0, 0.0, box.height * CM / 2])
+        r_pick = layout.tool_rotation(yaw)
+        q_grasp = layout.ik(tcp_pick, r_pick, self.q)
+        cx, cy, cz = planned.center
+        release_centre = np.array([cx, cy, cz + self.config.release_gap_cm]) * CM
+        tcp_release = release_centre + np.array([0.0, 0.0, planned.height * CM / 2])
+        tcp_pre = tcp_release + np.array([0.0, 0.0, layout.approach])
+        tcp_lift = tcp_pick + np.array([0.0, 0.0, layout.lift])
+        lift = None if q_grasp is None else motion.cartesian_line(layout, q_grasp, tcp_lift)
+        place = None if lift is None else layout.place_ik(tcp_pre, planned.orientation, lift[-1])
+        descent = None if place is None else motion.cartesian_line(layout, place[0], tcp_release, 0.01)
+        straight = float(
+            np.linalg.norm(tcp_release - tcp_pick) + layout.lift + layout.approach
+        )  # used when the robot cannot even reach: a lower bound of the path it would need
+        if q_grasp is None or lift is None or place is None or descent is None:
+            reasons.append("unreachable")
+            return Operation(None, straight, math.inf, failed_grasp, reasons, "unreachable", 0, 0.0, seed)
+        # Planning world: static copies of the placed boxes at their actual poses; the box on the tool.
+        centers, quats, halves = self._world().poses_cm(self._boxes)
+        planning.set_obstacles(list(zip(centers * CM, quats, halves * CM, strict=True)))
+        r_box = rot("z", yaw)
+        offset = r_pick.T @ (centre - tcp_pick)
+        planning.attach(np.array([box.length, box.width, box.height]) * CM / 2, offset, r_pick.T @ r_box)
+        candidates = self._over_the_pile(box, tcp_lift, tcp_pre, lift[-1], place[0])
+        result = planner.plan(lift[-1], place[0], seed, candidates)
+        path = result.path
+        if not result.ok:
+            # The robot then moves unchecked, like the reference: along its default palletiser move.
+            reasons.append(f"no_path:{result.status}")
+            if candidates:
+                path = candidates[0]
+        elif not planning.segment_free(descent[0], descent[-1]) or any(
+            planning.in_collision(q) for q in descent[1:]
+        ):
+            reasons.append("descent_blocked")
+        planning.detach()
+        trajectory = motion.build([(lift, True), (path, False), (descent, True)], cfg.cartesian_speed)
+        duration = trajectory.duration
+        if duration > cfg.safe_time_s:
+            reasons.append("slow")
+        return Operation(trajectory, trajectory.tcp_length(), duration, failed_grasp, reasons, result.status,
+                         result.checks, result.seconds, seed)  # fmt: skip
+
+    def _over_the_pile(
+        self, box: Box, tcp_lift: np.ndarray, tcp_pre: np.ndarray, q_lift: np.ndarray, q_pre: np.ndarray
+    ) -> list[np.ndarray]:
+        """Palletiser moves to try before a search: rise until the carried box clears the pile, swing
+        over, go down to the approach pose (joint-interpolated legs)."""
+        layout = self.layout
+        assert layout is not None
+        top = max((pl.top for pl in self.state().placements), default=0.0) * CM
+        z_high = max(top, layout.conveyor_height) + box.height * CM + 0.10
+        out: list[np.ndarray] = []
+        r_lift = layout.base_rotation @ tcp_pose(q_lift)[1]
+        r_pre = layout.base_rotation @ tcp_pose(q_pre)[1]
+        up_pick = layout.ik(np.array([tcp_lift[0], tcp_lift[1], max(z_high, tcp_lift[2])]), r_lift, q_lift)
+        up_place = layout.ik(np.array([tcp_pre[0], tcp_pre[1], max(z_high, tcp_pre[2])]), r_pre, q_pre)
+        if up_place is None:
+            return out
+        # Vertical legs as Cartesian lines, so the carried box does not swing into its neighbours.
+        down = motion.cartesian_line(layout, up_place, tcp_pre, 0.05)
+        if down is None or motion.joint_time(down[-1], q_pre) > 1e-3:
+            return out
+        down[-1] = q_pre
+        if up_pick is not None:
+            rise = motion.cartesian_line(layout, q_lift, layout.to_world(tcp_pose(up_pick)[0]), 0.05)
+            if rise is not None and motion.joint_time(rise[-1], up_pick) < 1e-3:
+                rise[-1] = up_pick
+                out.append(np.concatenate([rise, down]))
+        out.append(np.concatenate([q_lift[None, :], down]))
+        return out
+
+    def _operate(self, box: Box, planned: Placement) -> tuple[Operation, int | None, list[WorldBox]]:
+        """Plan, then drive the arm and the carried box through the physical world."""
+        operation = self.plan_operation(box, planned)
+        if operation.trajectory is None:
+            return operation, None, []
+        world = self._world()
+        cid = world.client
+        layout = self.layout
+        assert layout is not None
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[box.length * CM / 2, box.width * CM / 2,
+                                       box.height * CM / 2], physicsClientId=cid)  # fmt: skip
+        carried = p.createMultiBody(0, shape, -1, [0, 0, -5], physicsClientId=cid)
+        centre, yaw = layout.pick_box_pose(box)
+        q_grasp = operation.trajectory.waypoints[0]
+        p_tcp, r_tcp = tcp_pose(q_grasp)
+        r_world = layout.base_rotation @ r_tcp
+        offset = r_world.T @ (centre - layout.to_world(p_tcp))
+        r_local = r_world.T @ rot("z", yaw)
+        disturbed = self._drive(operation.trajectory, carried, offset, r_local)
+        return operation, carried, disturbed
+
+    def _drive(
+        self, trajectory: motion.Trajectory, carried: int, offset: np.ndarray, r_local: np.ndarray
+    ) -> list[WorldBox]:
+        """Move arm and carried box along the trajectory at the world's time step; wake and simulate
+        resting boxes only when something comes within the margin of them."""
+        world = self._world()
+        cid = world.client
+        layout = self.layout
+        assert layout is not None
+        dt = self.config.dt
+        samples = trajectory.samples(dt)
+        positions, rotations = joint_frames(samples)
+        tcp_world = layout.to_world(positions[:, 6, :])
+        r_world = np.einsum("ij,njk->nik", layout.base_rotation, rotations[:, 6])
+        frames_world = layout.to_world(positions)
+        box_centres = tcp_world + np.einsum("nij,j->ni", r_world, offset)
+        box_reach = float(
+            np.linalg.norm(np.asarray(p.getCollisionShapeData(carried, -1, physicsClientId=cid)[0][3]) / 2)
+        )
+        by_body = {b.body: b for b in self._boxes}
+        container = self.spec.container if self.spec else None
+        assert container is not None
+        top = max((self._planned[i].top for i in range(len(self._planned))), default=0.0) * CM + 0.3
+        lo = np.array([-0.5, -0.5, -1.0])
+        hi = np.array([container.length * CM + 0.5, container.width * CM + 0.5, top])
+        margin = self.execution.wake_margin_m
+        awake: list[WorldBox] = []
+        velocity_scale = 1.0 / dt
+        last = samples[0]
+        for k in range(len(samples)):
+            q = samples[k]
+            near_pile = bool(
+                np.all(box_centres[k] + box_reach >= lo) and np.all(box_centres[k] - box_reach <= hi)
+            ) or bool(np.any(np.all((frames_world[k] >= lo) & (frames_world[k] <= hi), axis=1)))
+            if not near_pile and not awake:
+                last = q
+                continue
+            self._set_arm(q, (q - last) * velocity_scale)
+            last = q
+            quat = quaternion(r_world[k] @ r_local)
+            p.resetBasePositionAndOrientation(carried, box_centres[k].tolist(), quat, physicsClientId=cid)
+            for body_id, _link in self._overlaps(carried, margin):
+                box = by_body.get(body_id)
+                if box is not None and box.frozen:
+                    world.unfreeze(box)
+                    awake.append(box)
+            if awake:
+                for box in list(awake):
+                    (vx, vy, vz), _ = p.getBaseVelocity(box.body, physicsClientId=cid)
+                    if vx * vx + vy * vy + vz * vz > self.config.wake_speed**2:
+                        for body_id, _link in self._aabb_overlaps(
+                            box.body, -1, self.config.wake_margin_cm * CM
+                        ):
+                            other = by_body.get(body_id)
+                            if other is not None and other.frozen:
+                                world.unfreeze(other)
+                                awake.append(other)
+                p.stepSimulation(physicsClientId=cid)
+        self._set_arm(samples[-1])
+        self.q = samples[-1]
+        return awake
+
+    def _aabb_overlaps(self, body: int, link: int, margin: float) -> list[tuple[int, int]]:
+        cid = self._world().client
+        lo, hi = p.getAABB(body, link, physicsClientId=cid)
+        found = p.getOverlappingObjects(
+            [c - margin for c in lo], [c + margin for c in hi], physicsClientId=cid
+        )
+        return list(found or [])
+
+    def _overlaps(self, carried: int, margin: float) -> list[tuple[int, int]]:
+        out = self._aabb_overlaps(carried, -1, margin)
+        for link in range(len(LINK_NAMES) - 1):
+            out.extend(self._aabb_overlaps(self.robot, link, margin))
+        return out

@@ -1,0 +1,139 @@
+"""The Execution Pack end to end: the robot places boxes, and unsafe operations are flagged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from robobpp.core import Action, Box, ContainerSpec, EpisodeSpec
+from robobpp.sim import make_setting
+from robobpp.sim.execution import ExecutionPack, Layout
+from robobpp.sim.physics.world import PALLET_HEIGHT_M
+
+CONTAINER = ContainerSpec(134, 125, 100)
+
+
+def _spec(boxes: list[Box], seed: int = 0) -> EpisodeSpec:
+    return EpisodeSpec("handmade", "train", 0, tuple(boxes), CONTAINER, 7.0, seed)
+
+
+def _run(pack: ExecutionPack, boxes: list[Box], actions: list[Action], seed: int = 0) -> list:
+    pack.reset(_spec(boxes, seed))
+    return [pack.apply(box, action, i) for i, (box, action) in enumerate(zip(boxes, actions, strict=True))]
+
+
+def test_open_path_places_the_box_within_a_centimetre() -> None:
+    pack = ExecutionPack()
+    try:
+        (outcome,) = _run(pack, [Box(40, 30, 20, 5.0)], [Action(50, 40, 1)])
+        assert outcome.termination is None and outcome.placement is not None
+        placed = outcome.placement
+        assert abs(placed.x - 50) < 1 and abs(placed.y - 40) < 1 and abs(placed.z) < 1
+        assert (placed.length, placed.width) == (30, 40)  # orientation 1 turns the box
+        assert outcome.dangerous is False
+        assert outcome.extra["plan_status"] in ("direct", "via", "planned")
+        assert 1.0 < outcome.trajectory_length_m < 6.0
+        assert 0 < outcome.extra["execution_time_s"] < pack.execution.safe_time_s
+        assert outcome.static_stability is not None
+    finally:
+        pack.close()
+
+
+def test_a_wall_of_boxes_forces_a_longer_path() -> None:
+    far = (Box(30, 30, 20, 3.0), Action(52, 5, 0))
+    wall = [Box(134, 20, 90, 20.0)]
+    pack = ExecutionPack()
+    try:
+        (alone,) = _run(pack, [far[0]], [far[1]])
+        *_, behind = _run(pack, [*wall, far[0]], [Action(0, 100, 0), far[1]])
+    finally:
+        pack.close()
+    assert behind.termination is None and behind.dangerous is False
+    assert behind.trajectory_length_m > alone.trajectory_length_m + 0.3
+    assert behind.extra["execution_time_s"] > alone.extra["execution_time_s"]
+
+
+def test_enclosed_goal_is_dangerous() -> None:
+    # A slot on the floor behind a 95 cm wall: the wrist cannot come down into it.
+    boxes = [Box(134, 50, 95, 30.0), Box(20, 15, 10, 1.0)]
+    pack = ExecutionPack()
+    try:
+        _, outcome = _run(pack, boxes, [Action(0, 75, 0), Action(57, 58, 0)])
+    finally:
+        pack.close()
+    assert outcome.dangerous is True
+    reasons = outcome.extra["dangerous_reasons"]
+    assert any(r.startswith("no_path") or r == "descent_blocked" for r in reasons), reasons
+
+
+def test_unreachable_goal_is_dangerous_and_the_box_still_lands() -> None:
+    layout = Layout(CONTAINER, floor_z=-PALLET_HEIGHT_M, standoff=3.0)  # pallet out of the arm's reach
+    pack = ExecutionPack(layout=layout)
+    try:
+        (outcome,) = _run(pack, [Box(30, 30, 20, 3.0)], [Action(10, 10, 0)])
+    finally:
+        pack.close()
+    assert outcome.dangerous is True and "unreachable" in outcome.extra["dangerous_reasons"]
+    assert outcome.placement is not None and outcome.trajectory_length_m > 0
+
+
+def test_box_over_suction_capacity_is_a_failed_grasp() -> None:
+    heavy = Box(20, 20, 10, 12.0)  # 260 kg/m² × 0.04 m² = 10.4 kg
+    light = Box(20, 20, 10, 10.0)
+    pack = ExecutionPack()
+    try:
+        over, under = _run(pack, [heavy, light], [Action(0, 0, 0), Action(40, 0, 0)])
+    finally:
+        pack.close()
+    assert over.dangerous is True and over.extra["failed_grasp"] is True
+    assert "failed_grasp" in over.extra["dangerous_reasons"]
+    assert under.extra["failed_grasp"] is False
+    strict = ExecutionPack(end_on_failed_grasp=True)
+    try:
+        (ended,) = _run(strict, [heavy], [Action(0, 0, 0)])
+    finally:
+        strict.close()
+    assert ended.termination is not None and ended.termination.reason == "failed_grasp"
+    assert ended.placement is None and ended.dangerous is True
+
+
+def test_same_seed_same_trajectory() -> None:
+    boxes = [Box(40, 30, 20, 5.0), Box(30, 30, 30, 4.0), Box(50, 20, 25, 6.0)]
+    actions = [Action(0, 0, 0), Action(40, 0, 0), Action(0, 30, 1)]
+    runs = []
+    for _ in range(2):
+        pack = ExecutionPack()
+        try:
+            outcomes = _run(pack, boxes, actions, seed=11)
+            runs.append(
+                [
+                    (o.trajectory_length_m, o.extra["execution_time_s"], o.extra["planner_seed"], o.placement)
+                    for o in outcomes
+                ]  # fmt: skip
+            )
+            trajectory = pack.last_operation.trajectory  # type: ignore[union-attr]
+            runs[-1].append(trajectory.waypoints.tobytes())  # type: ignore[union-attr]
+        finally:
+            pack.close()
+    assert runs[0] == runs[1]
+
+
+def test_make_setting_and_option_checks() -> None:
+    pack = make_setting("execution", safe_time_s=5.0, mode="full")
+    try:
+        assert isinstance(pack, ExecutionPack) and pack.execution.safe_time_s == 5.0
+        assert pack.config.mode == "full"
+    finally:
+        pack.close()
+    with pytest.raises(TypeError, match="unknown Execution Pack option"):
+        ExecutionPack(speed_of_light=1.0)
+    with pytest.raises(ValueError, match="safe_time_s"):
+        ExecutionPack(safe_time_s=float("nan"))
+    with pytest.raises(ValueError, match="another container"):
+        ExecutionPack(layout=Layout(ContainerSpec(10, 10, 10))).reset(_spec([Box(1, 1, 1)]))
+
+
+def test_apply_before_reset_is_refused() -> None:
+    with pytest.raises(RuntimeError, match="reset"):
+        ExecutionPack().apply(Box(10, 10, 10), Action(0, 0, 0), 0)
+    assert np.isfinite(Layout(CONTAINER).home).all()

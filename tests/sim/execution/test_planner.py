@@ -1,0 +1,97 @@
+"""OMPL planning in the private planning world: walls force detours, seeds reproduce paths."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from robobpp.core import ContainerSpec
+from robobpp.sim.execution import Layout
+from robobpp.sim.physics.world import PALLET_HEIGHT_M
+from robobpp.sim.planner import MotionPlanner, PlannerConfig, PlanningWorld, densify
+from robobpp.sim.robot import path_length, tcp_pose
+
+LAYOUT = Layout(ContainerSpec(134, 125, 100), floor_z=-PALLET_HEIGHT_M)
+WALL = ((-0.15, 1.2, 0.45), (0.05, 0.9, 0.6))  # between the pick station and the pallet, 1.05 m tall
+
+
+def _endpoints() -> tuple[np.ndarray, np.ndarray]:
+    home = LAYOUT.home
+    pick = LAYOUT.ik(np.array([LAYOUT.base_position[0] - 2.0, LAYOUT.base_position[1], 0.75]),
+                     LAYOUT.tool_rotation(LAYOUT.box_yaw_at_pick), home)  # fmt: skip
+    place = LAYOUT.place_ik(np.array([0.67, 0.62, 0.35]), 0, home)
+    assert pick is not None and place is not None
+    return pick, place[0]
+
+
+def _world(wall: bool, **config: object) -> PlanningWorld:
+    statics = [WALL] if wall else []
+    world = PlanningWorld(LAYOUT.base_position, LAYOUT.base_yaw, statics, PlannerConfig(**config))  # type: ignore[arg-type]
+    world.attach(np.array([0.2, 0.15, 0.1]), np.array([0.0, 0.0, -0.1]), np.eye(3))
+    return world
+
+
+def _tcp_length(path: np.ndarray) -> float:
+    return path_length(tcp_pose(densify(path, 0.01, 0.01))[0])
+
+
+def test_open_scene_moves_straight() -> None:
+    start, goal = _endpoints()
+    world = _world(wall=False)
+    try:
+        result = MotionPlanner(world).plan(start, goal, seed=1)
+    finally:
+        world.close()
+    assert result.status == "direct" and len(result.path) == 2
+
+
+def test_a_wall_forces_a_longer_collision_free_path() -> None:
+    start, goal = _endpoints()
+    open_world, walled = _world(wall=False), _world(wall=True)
+    try:
+        straight = MotionPlanner(open_world).plan(start, goal, seed=3)
+        around = MotionPlanner(walled).plan(start, goal, seed=3)
+        assert around.status == "planned", around.status
+        assert _tcp_length(around.path) > _tcp_length(straight.path) + 0.05
+        walled._limit = 0
+        assert not any(walled.in_collision(q) for q in densify(around.path, 0.01, 0.01))
+        assert np.allclose(around.path[0], start) and np.allclose(around.path[-1], goal)
+    finally:
+        open_world.close()
+        walled.close()
+
+
+def test_same_seed_same_path_other_seed_may_differ() -> None:
+    start, goal = _endpoints()
+    paths = []
+    for seed in (5, 5):
+        world = _world(wall=True)
+        try:
+            paths.append(MotionPlanner(world).plan(start, goal, seed=seed).path)
+        finally:
+            world.close()
+    assert paths[0].shape == paths[1].shape and np.array_equal(paths[0], paths[1])
+
+
+def test_enclosed_goal_fails_within_the_budget() -> None:
+    start, goal = _endpoints()
+    goal_tcp = LAYOUT.to_world(tcp_pose(goal)[0])
+    box = (tuple(goal_tcp - [0, 0, 0.1]), (0.3, 0.3, 0.3))  # the goal pose lies inside a solid block
+    world = PlanningWorld(LAYOUT.base_position, LAYOUT.base_yaw, [box], PlannerConfig(max_checks=800))
+    try:
+        world.attach(np.array([0.2, 0.15, 0.1]), np.array([0.0, 0.0, -0.1]), np.eye(3))
+        result = MotionPlanner(world).plan(start, goal, seed=1)
+    finally:
+        world.close()
+    assert result.status == "goal_invalid" and not result.ok
+
+
+@pytest.mark.parametrize("budget", [50, 300])
+def test_budget_is_a_check_count_not_a_clock(budget: int) -> None:
+    start, goal = _endpoints()
+    world = _world(wall=True, max_checks=budget, simplify_checks=10)
+    try:
+        result = MotionPlanner(world).plan(start, goal, seed=2)
+    finally:
+        world.close()
+    assert result.status == "failed" and result.checks <= budget + 1

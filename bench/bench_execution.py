@@ -1,0 +1,95 @@
+"""Execution Pack: seconds per box (planning included) and planning time per placement, DBL, 80-box groups.
+
+One group per dataset (train split, or ``--synthetic`` groups in each dataset's container when offline),
+CPU seconds per box of the whole step (observe + DBL + robot operation + settle), planning time median and
+p95 per placement, plus the Execution metrics so a speed change that changes outcomes shows.
+
+    python bench/bench_execution.py [--groups 1] [--synthetic] [--datasets repetitive,diverse,longboard]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections import Counter
+from typing import Any
+
+from _common import machine, percentile
+
+
+def _specs(dataset: str, groups: int, synthetic: bool) -> list[Any]:
+    if synthetic:
+        from robobpp.datasets.synthetic import synthetic_episode_specs
+
+        return synthetic_episode_specs(groups, seed=0, container=dataset)
+    from robobpp.datasets import episode_specs
+
+    return episode_specs(dataset, split="train", groups=groups)
+
+
+def run(dataset: str, groups: int, synthetic: bool) -> dict[str, Any]:
+    from robobpp.episode import Episode
+    from robobpp.policies import load_policy
+    from robobpp.sim.execution import ExecutionPack
+
+    per_box: list[float] = []
+    planning: list[float] = []
+    statuses: Counter[str] = Counter()
+    results = []
+    for spec in _specs(dataset, groups, synthetic):
+        policy = load_policy("dbl")
+        pack = ExecutionPack()
+        episode = Episode(spec, pack)
+        policy.reset(episode.info)
+        while not episode.done:
+            t0 = time.process_time()
+            action = policy.act(episode.observe())
+            episode.step(action, 0.0)
+            per_box.append(time.process_time() - t0)
+            op = pack.last_operation
+            if op is not None:
+                planning.append(op.plan_seconds)
+                statuses[op.plan_status] += 1
+                pack.last_operation = None
+        results.append(episode.result("dbl"))
+        pack.close()
+    metrics = [r.metrics for r in results]
+    return {
+        "boxes": len(per_box),
+        "cpu_per_box": statistics.mean(per_box) if per_box else float("nan"),
+        "cpu_median": statistics.median(per_box) if per_box else float("nan"),
+        "plan_median": statistics.median(planning) if planning else float("nan"),
+        "plan_p95": percentile(planning, 95),
+        "statuses": dict(statuses),
+        "placed": sum(r.boxes_placed for r in results),
+        "terminations": [r.termination for r in results],
+        "traj": statistics.mean(m.get("trajectory_length") or 0.0 for m in metrics),
+        "danger": statistics.mean(m.get("dangerous_operation") or 0.0 for m in metrics),
+        "util": statistics.mean(m["space_utilization"] for m in metrics),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--groups", type=int, default=1)
+    parser.add_argument("--synthetic", action="store_true")
+    parser.add_argument("--datasets", default="repetitive,diverse,longboard")
+    args = parser.parse_args()
+    print(f"machine: {machine()}")
+    print("| dataset | boxes placed | CPU s/box (mean / median) | vs reference 5.8 | planning p50 / p95 (s) "
+          "| plan status | traj. length (m) | dangerous | utilization | termination |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for dataset in args.datasets.split(","):
+        r = run(dataset, args.groups, args.synthetic)
+        print(
+            f"| {dataset} | {r['placed']} | {r['cpu_per_box']:.3f} / {r['cpu_median']:.3f} | "
+            f"{5.8 / r['cpu_per_box']:.0f}× faster | {r['plan_median']:.4f} / {r['plan_p95']:.4f} | "
+            f"{r['statuses']} | {r['traj']:.2f} | {r['danger']:.3f} | {r['util']:.3f} | "
+            f"{', '.join(str(t) for t in r['terminations'])} |",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -7,7 +7,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from robobpp.core import ContainerSpec, ContainerState
+from robobpp.core import ContainerSpec, ContainerState, Placement
 from robobpp.sim.base import FinalBox
 
 
@@ -57,11 +57,21 @@ def space_utilization(final: Sequence[FinalBox], container: ContainerSpec) -> fl
     return sum(f.planned.volume for f in final if f.in_place) / container.volume
 
 
+def on_pallet(p: Placement, container: ContainerSpec) -> bool:
+    """Whether a box's actual centre is over the container footprint and not below its floor."""
+    cx, cy, _ = p.center
+    return 0.0 <= cx <= container.length and 0.0 <= cy <= container.width and p.z > -1.0
+
+
 def occupancy(final: Sequence[FinalBox], container: ContainerSpec) -> float:
-    """Placed volume over the volume under the final heightmap (built from actual poses, 1 cm cells)."""
-    state = ContainerState.from_placements(container, (f.actual for f in final))
+    """Placed volume over the volume under the final heightmap (built from actual poses, 1 cm cells).
+
+    Boxes that fell off the pallet count in neither term: they are not in the container any more.
+    """
+    kept = [f for f in final if on_pallet(f.actual, container)]
+    state = ContainerState.from_placements(container, (f.actual for f in kept))
     under = state.volume_under_heightmap()
-    return sum(f.planned.volume for f in final) / under if under > 0 else 0.0
+    return sum(f.planned.volume for f in kept) / under if under > 0 else 0.0
 
 
 def local_stability_m(final: Sequence[FinalBox]) -> float | None:

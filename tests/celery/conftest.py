@@ -28,7 +28,8 @@ from robobpp.db.session import make_engine, make_session_factory
 ROOT = Path(__file__).resolve().parents[2]
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 BROKERS = {"redis": "redis://127.0.0.1:6379/0", "rabbitmq": "amqp://guest:guest@127.0.0.1:5672//"}
-LEASE_S = 3.0
+#: Short enough to retry quickly, long enough that a heartbeat (every third of it) survives a loaded machine.
+LEASE_S = 5.0
 
 
 def _reachable(host: str, port: int) -> bool:

@@ -59,7 +59,7 @@ def test_two_workers_drain_a_submission(fleet: Fleet, factory: Any) -> None:
     assert len(rows) == 6
     assert all(r.status == "done" and r.attempts == 1 for r in rows), [(r.status, r.attempts) for r in rows]
     processes = {r.worker for r in rows}
-    assert len(processes) == 2, f"both workers should have run episodes: {processes}"
+    assert len(processes) == 2, f"both workers should have run episodes: {processes}\n{fleet.logs()}"
     for r in rows:
         want = _expected(r.dataset, r.group, "tests.celery.helpers:PacedDBL")
         assert r.termination == want["termination"]
@@ -89,8 +89,9 @@ def test_kill_9_mid_episode_completes_once_on_the_other_worker(fleet: Fleet, fac
             lambda: submission_status(factory, sub) == "completed", 120, "the retried episode", fleet.logs
         )
         (done,) = episodes(factory, sub)
-        assert done.status == "done"
-        assert done.attempts == 2
+        seen = (done.status, done.attempts, done.worker, row.worker)
+        assert done.status == "done", f"{seen}\n{fleet.logs()}"
+        assert done.attempts == 2, f"{seen}\n{fleet.logs()}"
         assert done.worker != row.worker
         want = _expected("repetitive", 0, "tests.celery.helpers:SlowDBL")
         assert done.termination == want["termination"]

@@ -25,23 +25,30 @@ log = logging.getLogger("robobpp.worker")
 
 
 def worker_main(options: WorkerOptions, stop: Any) -> None:
-    """Claim-run-record until ``stop`` is set. Runs in a child process."""
+    """Claim-run-record until ``stop.value`` is set (or SIGTERM). Runs in a child process.
+
+    ``stop`` is a lock-free shared byte on purpose: a ``multiprocessing.Event`` deadlocks its ``set()`` when
+    a process dies while waiting on it (e.g. SIGTERM sent to the whole process group by ``timeout`` or
+    systemd), and the server would then never finish shutting down.
+    """
     from robobpp.worker.run import claim_and_run, worker_id
 
+    leaving = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's; it stops us through ``stop``
+    signal.signal(signal.SIGTERM, lambda *_: leaving.set())  # finish the current episode, then leave
     engine = make_engine(options.database_url)
     factory = make_session_factory(engine)
     me = worker_id("local")
     parent = os.getppid()
     try:
-        while not stop.is_set() and os.getppid() == parent:  # an orphan (server killed) stops claiming
+        while not stop.value and not leaving.is_set() and os.getppid() == parent:  # orphans stop claiming
             try:
                 outcome = claim_and_run(factory, options, me)
             except Exception:  # noqa: BLE001 - the database blinked; wait and try again
                 log.warning("worker %s: claim failed", me, exc_info=True)
                 outcome = None
             if outcome is None:
-                stop.wait(options.poll_interval_s)
+                leaving.wait(options.poll_interval_s)
     finally:
         engine.dispose()
 
@@ -55,7 +62,7 @@ class LocalExecutor:
         self.options = options
         self.workers = workers
         self._ctx = mp.get_context("spawn")
-        self._stop = self._ctx.Event()
+        self._stop = self._ctx.RawValue("b", 0)
         self._procs: list[BaseProcess] = []
         self._lock = threading.Lock()
         self._stopping = threading.Event()
@@ -110,7 +117,7 @@ class LocalExecutor:
     def stop(self, timeout_s: float = 10.0) -> None:
         """Ask workers to finish their current episode; terminate those that do not within the timeout."""
         self._stopping.set()
-        self._stop.set()
+        self._stop.value = 1
         deadline = time.monotonic() + timeout_s
         with self._lock:
             procs = list(self._procs)

@@ -85,3 +85,15 @@ def test_cancel_stops_workers_taking_its_episodes(make_server, policy_server, tm
     # the worker is free again: a new submission is evaluated
     sid2 = _submit(client, policy_server(), ["diverse"])
     wait_for(lambda: client.get(f"/submissions/{sid2}").json()["status"] == "completed", timeout_s=120)
+
+
+def test_sigterm_to_the_whole_process_group_shuts_down_cleanly(make_server, policy_server, tmp_path) -> None:
+    """``timeout`` and systemd signal every process of the group: workers and server must all exit."""
+    db_url = f"sqlite:///{tmp_path / 'term.sqlite3'}"
+    server = make_server(db_url, ROBOBPP_EVALUATE_BASELINES="0")
+    policy = policy_server(SlowDBL)
+    sid = _submit(server.client(new_participant(server.client())), policy, ["diverse"])
+    wait_for(lambda: _running(db_url, sid, 1))
+    os.killpg(server.proc.pid, signal.SIGTERM)
+    server.proc.wait(40)  # uvicorn re-raises SIGTERM after its graceful shutdown: the code is -15
+    assert "Application shutdown complete" in server.log.read_text()

@@ -22,7 +22,7 @@ from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.sim.base import StepOutcome
 from robobpp.sim.execution import motion
 from robobpp.sim.execution.layout import Layout
-from robobpp.sim.physics import PhysicsConfig, PhysicsPack, detect_collapse
+from robobpp.sim.physics import PhysicsConfig, PhysicsPack
 from robobpp.sim.physics.world import CM, PALLET_HEIGHT_M, WorldBox
 from robobpp.sim.planner import MotionPlanner, PlannerConfig, PlanningWorld, quaternion
 from robobpp.sim.robot.facts import TOOL
@@ -165,63 +165,37 @@ class ExecutionPack(PhysicsPack):
         return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") % (2**31 - 2) + 1
 
     # -- the operation -------------------------------------------------------------------------------
+    def _too_high_slack(self) -> float:
+        return TOLERANCE_CM
+
     def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
         world = self._world()
-        spec = self.spec
-        assert spec is not None and self.layout is not None
-        length, width, height = box.dims(action.orientation)
-        z = self.resting_height(action.x, action.y, length, width)
-        if z + height > spec.container.height + TOLERANCE_CM:
-            detail = (f"box top at {z + height:g} cm would exceed the container height "
-                      f"{spec.container.height:g} cm")  # fmt: skip
-            return StepOutcome(None, Infeasible("too_high", detail))
-        planned = Placement(action.x, action.y, z, length, width, height, action.orientation, index)
+        assert self.layout is not None
+        planned = self.target_placement(box, action, index)
+        if isinstance(planned, Infeasible):
+            return StepOutcome(None, planned)
         operation, carried, disturbed = self._operate(box, planned)
         self.last_operation = operation
-        if operation.failed_grasp and self.execution.end_on_failed_grasp:
-            if carried is not None:
-                p.removeBody(carried, physicsClientId=world.client)
-            detail = f"box of {box.mass:g} kg exceeds the suction capacity of its {length:g}×{width:g} cm top"
-            return StepOutcome(None, Infeasible("failed_grasp", detail), dangerous=True,
-                               trajectory_length_m=0.0)  # fmt: skip
-        # Release: the kinematic carried box becomes the dynamic one, exactly at the release pose.
+        # Release: the kinematic carried box gives way to the dynamic one, exactly at the release pose.
         if carried is not None:
             p.removeBody(carried, physicsClientId=world.client)
-        cx, cy, cz = planned.center
-        new = world.add_box((cx, cy, cz + self.config.release_gap_cm), (length, width, height), box.mass)
-        self._boxes.append(new)
-        self._planned.append(planned)
-        self._state = None
-        report = self._settler.run([new, *disturbed])
+        if operation.failed_grasp and self.execution.end_on_failed_grasp:
+            detail = (f"box of {box.mass:g} kg exceeds the suction capacity of its "
+                      f"{planned.length:g}×{planned.width:g} cm top")  # fmt: skip
+            return StepOutcome(None, Infeasible("failed_grasp", detail), dangerous=True,
+                               trajectory_length_m=0.0)  # fmt: skip
+        report = self.release_and_settle(planned, box.mass, disturbed)
         # Retreat: straight up, away from the released box (cannot touch it), then wait above the pick.
-        if operation.trajectory is not None:
-            self.q = operation.trajectory.waypoints[-1]
         self.q = self.layout.home
         self._set_arm(self.q)
-        targets = np.array([pl.center for pl in self._planned])
-        moved = detect_collapse(world, self._boxes, targets, [pl.index for pl in self._planned],
-                                spec.collapse_threshold_cm)  # fmt: skip
-        actual = self._actual(len(self._boxes) - 1)
         extra: dict[str, object] = {
-            "sim_steps": report.steps, "at_rest": report.at_rest, "simulated_boxes": report.simulated_boxes,
-            "max_linear_speed": report.max_linear, "max_angular_speed": report.max_angular,
             "execution_time_s": operation.execution_time_s, "plan_status": operation.plan_status,
             "plan_checks": operation.plan_checks, "planning_time_s": operation.plan_seconds,
             "planner_seed": operation.seed, "dangerous_reasons": list(operation.reasons),
             "failed_grasp": operation.failed_grasp, "disturbed_boxes": len(disturbed),
         }  # fmt: skip
-        termination = None
-        if moved:
-            worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))
-            termination = Infeasible(
-                "collapse",
-                f"{worst.describe()} (threshold {spec.collapse_threshold_cm:g} cm); "
-                f"{len(moved)} box(es) beyond it after placing box {index}",
-            )
-            extra["collapsed_boxes"] = [d.index for d in moved]
-        return StepOutcome(actual, termination, static_stability=report.static_stability, collapsed=bool(moved),
-                           trajectory_length_m=operation.tcp_length_m, dangerous=operation.dangerous,
-                           extra=extra)  # fmt: skip
+        return self.finish_placement(report, trajectory_length_m=operation.tcp_length_m,
+                                     dangerous=operation.dangerous, extra=extra)  # fmt: skip
 
     def plan_operation(self, box: Box, planned: Placement) -> Operation:
         """Grasp check, IK and planning for one box, without touching the physical world."""
@@ -253,7 +227,7 @@ class ExecutionPack(PhysicsPack):
             reasons.append("unreachable")
             return Operation(None, straight, math.inf, failed_grasp, reasons, "unreachable", 0, 0.0, seed)
         # Planning world: static copies of the placed boxes at their actual poses; the box on the tool.
-        centers, quats, halves = self._world().poses_cm(self._boxes)
+        centers, quats, halves = self._world().poses_cm(list(self.boxes))
         planning.set_obstacles(list(zip(centers * CM, quats, halves * CM, strict=True)))
         r_box = rot("z", yaw)
         offset = r_pick.T @ (centre - tcp_pick)
@@ -347,10 +321,10 @@ class ExecutionPack(PhysicsPack):
         box_reach = float(
             np.linalg.norm(np.asarray(p.getCollisionShapeData(carried, -1, physicsClientId=cid)[0][3]) / 2)
         )
-        by_body = {b.body: b for b in self._boxes}
+        by_body = {b.body: b for b in self.boxes}
         container = self.spec.container if self.spec else None
         assert container is not None
-        top = max((self._planned[i].top for i in range(len(self._planned))), default=0.0) * CM + 0.3
+        top = max((pl.top for pl in self.planned), default=0.0) * CM + 0.3
         lo = np.array([-0.5, -0.5, -1.0])
         hi = np.array([container.length * CM + 0.5, container.width * CM + 0.5, top])
         margin = self.execution.wake_margin_m

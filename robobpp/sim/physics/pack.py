@@ -3,6 +3,7 @@ rest, the world settles, and the policy sees where everything actually ended up.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import fields, replace
 
 import numpy as np
@@ -12,7 +13,7 @@ from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
 from robobpp.sim.physics.geometry import heightmap_from_boxes, surface_height
-from robobpp.sim.physics.settle import Displacement, Settler, detect_collapse
+from robobpp.sim.physics.settle import Displacement, Settler, SettleReport, detect_collapse
 from robobpp.sim.physics.world import PhysicsWorld, WorldBox
 
 
@@ -68,33 +69,83 @@ class PhysicsPack(Setting):
         )
 
     def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
-        world = self._world()
+        target = self.target_placement(box, action, index)
+        if isinstance(target, Infeasible):
+            return StepOutcome(None, target)
+        report = self.release_and_settle(target, box.mass)
+        return self.finish_placement(report)
+
+    # -- the placement procedure, shared with the Execution Pack -------------------------------------
+    # A subclass that moves the box there some other way (a robot) calls these three in order, so the
+    # release, the settle, the collapse check and the outcome are built in one place only.
+    @property
+    def boxes(self) -> tuple[WorldBox, ...]:
+        """The released boxes' bodies, in placement order (read-only view)."""
+        return tuple(self._boxes)
+
+    @property
+    def planned(self) -> tuple[Placement, ...]:
+        """Where each released box was meant to rest, in placement order (read-only view)."""
+        return tuple(self._planned)
+
+    def _too_high_slack(self) -> float:
+        # Within the observed heightmap's rounding a policy cannot tell, so that much is allowed.
+        return max(TOLERANCE_CM, self.config.heightmap_resolution_cm / 2)
+
+    def target_placement(self, box: Box, action: Action, index: int) -> Placement | Infeasible:
+        """The planned placement: the action's (x, y) at the resting height the *physical* pile offers,
+        or ``Infeasible("too_high")`` when the box's top would then stand above the container."""
         spec = self.spec
+        self._world()
         assert spec is not None
         length, width, height = box.dims(action.orientation)
         z = self.resting_height(action.x, action.y, length, width)
-        # Within the observed heightmap's rounding a policy cannot tell, so that much is allowed.
-        slack = max(TOLERANCE_CM, self.config.heightmap_resolution_cm / 2)
-        if z + height > spec.container.height + slack:
+        if z + height > spec.container.height + self._too_high_slack():
             detail = (f"box top at {z + height:g} cm would exceed the container height "
                       f"{spec.container.height:g} cm")  # fmt: skip
-            return StepOutcome(None, Infeasible("too_high", detail))
-        planned = Placement(action.x, action.y, z, length, width, height, action.orientation, index)
+            return Infeasible("too_high", detail)
+        return Placement(action.x, action.y, z, length, width, height, action.orientation, index)
+
+    def release_and_settle(
+        self, planned: Placement, mass: float, disturbed: Sequence[WorldBox] = ()
+    ) -> SettleReport:
+        """Let go of the box at rest ``release_gap_cm`` above ``planned`` and settle the world.
+
+        ``disturbed``: boxes something else already set moving (the robot's arm); they are simulated
+        from the start like the new box.
+        """
+        world = self._world()
         cx, cy, cz = planned.center
-        new = world.add_box((cx, cy, cz + self.config.release_gap_cm), (length, width, height), box.mass)
+        extents = (planned.length, planned.width, planned.height)
+        new = world.add_box((cx, cy, cz + self.config.release_gap_cm), extents, mass)
         self._boxes.append(new)
         self._planned.append(planned)
         self._state = None
-        report = self._settler.run([new])
+        return self._settler.run([new, *disturbed])
+
+    def finish_placement(
+        self,
+        report: SettleReport,
+        *,
+        trajectory_length_m: float | None = None,
+        dangerous: bool | None = None,
+        extra: Mapping[str, object] | None = None,
+    ) -> StepOutcome:
+        """Collapse check after the last release and the step's outcome (settle figures in ``extra``,
+        then the caller's ``extra``)."""
+        spec = self.spec
+        assert spec is not None and self._planned
+        index = self._planned[-1].index
         moved = self._displaced()
         actual = self._actual(len(self._boxes) - 1)
-        extra: dict[str, object] = {
+        info: dict[str, object] = {
             "sim_steps": report.steps,
             "at_rest": report.at_rest,
             "simulated_boxes": report.simulated_boxes,
             "max_linear_speed": report.max_linear,
             "max_angular_speed": report.max_angular,
         }
+        info.update(extra or {})
         termination = None
         if moved:
             worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))
@@ -103,9 +154,15 @@ class PhysicsPack(Setting):
                 f"{worst.describe()} (threshold {spec.collapse_threshold_cm:g} cm); "
                 f"{len(moved)} box(es) beyond it after placing box {index}",
             )
-            extra["collapsed_boxes"] = [d.index for d in moved]
+            info["collapsed_boxes"] = [d.index for d in moved]
         return StepOutcome(
-            actual, termination, static_stability=report.static_stability, collapsed=bool(moved), extra=extra
+            actual,
+            termination,
+            static_stability=report.static_stability,
+            collapsed=bool(moved),
+            trajectory_length_m=trajectory_length_m,
+            dangerous=dangerous,
+            extra=info,
         )
 
     def _displaced(self) -> list[Displacement]:

@@ -11,6 +11,9 @@ Optional per-step fields the viewer understands (settings may add them to ``step
   they are drawn red at that step.
 - ``poses``: the actual placement of every box placed so far, after this step settled (Physics/Execution);
   without it a box is drawn where it landed when placed, and the final frame uses ``final[*].actual``.
+  Either placement objects, or the Physics/Execution Packs' compact form ``[[x, y, z, qx, qy, qz, qw], ...]``
+  (the box's *centre* in cm and its attitude, item i = box index i), expanded here with the extents of the
+  step that placed each box, so the viewer always gets placement objects.
 - ``tool_path_cm``: the tool-centre-point path of this placement, a list of ``[x, y, z]`` in the container
   frame, cm; ``tool_path_m`` is the same in metres (Execution Pack).
 """
@@ -88,6 +91,7 @@ def viewer_payload(episode: Any, *, where: str = "episode") -> dict[str, Any]:
     if len(steps_raw) > MAX_STEPS:
         raise TraceError(f"{where} has {len(steps_raw)} steps; the viewer shows at most {MAX_STEPS}")
     steps = [_step(s, f"{where}.steps[{i}]") for i, s in enumerate(steps_raw)]
+    _expand_compact_poses(steps, where)
     final_raw = ep.get("final", [])
     if not isinstance(final_raw, list):
         raise TraceError(f"{where}.final must be a list")
@@ -142,8 +146,16 @@ def _step(raw: Any, where: str) -> dict[str, Any]:
         moved = extra.get("collapsed_boxes")
         if isinstance(moved, list):
             out["collapsed_boxes"] = [v for v in moved[:MAX_STEPS] if _int_or_none(v) is not None]
-        if isinstance(extra.get("poses"), list):
-            out["poses"] = [_placement(p, f"{where}.extra.poses[{j}]") for j, p in enumerate(extra["poses"])]
+        poses = extra.get("poses")
+        if isinstance(poses, list):
+            if len(poses) > MAX_STEPS:
+                raise TraceError(f"{where}.extra.poses holds {len(poses)} boxes; at most {MAX_STEPS}")
+            out["poses"] = [
+                _compact_pose(p, f"{where}.extra.poses[{j}]")
+                if isinstance(p, list | tuple)
+                else _placement(p, f"{where}.extra.poses[{j}]")
+                for j, p in enumerate(poses)
+            ]
         if extra.get("tool_path_cm") is not None:
             out["tool_path"] = _path(extra["tool_path_cm"], 1.0, f"{where}.extra.tool_path_cm")
         elif extra.get("tool_path_m") is not None:
@@ -167,6 +179,43 @@ def _placement(raw: Any, where: str) -> dict[str, Any]:
             raise TraceError(f"{where}.quaternion has zero length")
         out["quaternion"] = [v / norm for v in quat]
     return out
+
+
+def _compact_pose(raw: Any, where: str) -> list[float]:
+    if len(raw) != 7:
+        raise TraceError(f"{where} must be [x, y, z, qx, qy, qz, qw]")
+    return [_num(v, where) for v in raw]
+
+
+def _expand_compact_poses(steps: list[dict[str, Any]], where: str) -> None:
+    """Compact poses (centre + quaternion, item i = box i) → placement objects with box i's extents."""
+    extents: dict[int, dict[str, Any]] = {}
+    for i, step in enumerate(steps):
+        placed = step["placement"]
+        if placed is not None and placed["index"] is not None:
+            extents[placed["index"]] = placed
+        poses = step.get("poses")
+        if not poses:
+            continue
+        out = []
+        for j, pose in enumerate(poses):
+            if isinstance(pose, dict):
+                out.append(pose)
+                continue
+            box = extents.get(j)
+            if box is None:
+                raise TraceError(f"{where}.steps[{i}].extra.poses[{j}]: box {j} was not placed by then")
+            length, width, height = box["length"], box["width"], box["height"]
+            q = pose[3:]
+            norm = math.sqrt(sum(v * v for v in q))
+            if norm < 1e-9:
+                raise TraceError(f"{where}.steps[{i}].extra.poses[{j}] has a zero quaternion")
+            out.append({
+                "x": pose[0] - length / 2, "y": pose[1] - width / 2, "z": pose[2] - height / 2,
+                "length": length, "width": width, "height": height, "orientation": box["orientation"],
+                "index": j, "quaternion": [v / norm for v in q],
+            })  # fmt: skip
+        step["poses"] = out
 
 
 def _action(raw: Any, where: str) -> dict[str, float] | None:

@@ -89,3 +89,18 @@ def build(segments: list[tuple[np.ndarray, bool]], cartesian_speed: float) -> Tr
             points.append(waypoints[i])
             durations.append(t)
     return Trajectory(np.stack(points), np.array(durations))
+
+
+def tool_path_cm(trajectory: Trajectory, layout: Layout, max_points: int = 60) -> list[list[float]]:
+    """The TCP path in the container frame (cm, rounded to 0.1 mm) for the replay trace: the densified
+    path resampled at equal arc length to at most ``max_points`` points, both ends kept exactly."""
+    from robobpp.sim.planner import densify
+
+    points = layout.to_world(tcp_pose(densify(trajectory.waypoints, 0.01, 0.01))[0]) * 100.0
+    if len(points) > max_points:
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        wanted = np.linspace(0.0, arc[-1], max_points)
+        picks = np.unique(np.clip(np.searchsorted(arc, wanted), 0, len(points) - 1))
+        picks[0], picks[-1] = 0, len(points) - 1
+        points = points[np.unique(picks)]
+    return [[round(float(v), 2) for v in point] for point in points]

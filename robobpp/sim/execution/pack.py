@@ -194,6 +194,8 @@ class ExecutionPack(PhysicsPack):
             "planner_seed": operation.seed, "dangerous_reasons": list(operation.reasons),
             "failed_grasp": operation.failed_grasp, "disturbed_boxes": len(disturbed),
         }  # fmt: skip
+        if operation.trajectory is not None:
+            extra["tool_path_cm"] = motion.tool_path_cm(operation.trajectory, self.layout)
         return self.finish_placement(report, trajectory_length_m=operation.tcp_length_m,
                                      dangerous=operation.dangerous, extra=extra)  # fmt: skip
 

@@ -16,6 +16,11 @@ from robobpp.sim.physics.geometry import heightmap_from_boxes, surface_height
 from robobpp.sim.physics.settle import Displacement, Settler, SettleReport, detect_collapse
 from robobpp.sim.physics.world import PhysicsWorld, WorldBox
 
+#: Rounding of the per-step ``extra["poses"]``: 0.01 cm (0.1 mm) and 1e-5 for quaternion components. The
+#: trace is for replay; the metrics read the unrounded poses.
+POSE_CM_DIGITS = 2
+POSE_QUAT_DIGITS = 5
+
 
 class PhysicsPack(Setting):
     """One fresh pybullet client per episode, so the same episode always gives the same figures.
@@ -146,6 +151,7 @@ class PhysicsPack(Setting):
             "max_angular_speed": report.max_angular,
         }
         info.update(extra or {})
+        info["poses"] = self.compact_poses()
         termination = None
         if moved:
             worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))
@@ -164,6 +170,16 @@ class PhysicsPack(Setting):
             dangerous=dangerous,
             extra=info,
         )
+
+    def compact_poses(self) -> list[list[float]]:
+        """Every released box's actual pose now, for the replay trace: ``[x, y, z, qx, qy, qz, qw]`` per box
+        in placement order (= box index), the *centre* in cm rounded to 0.1 mm and the attitude relative
+        to how it was placed rounded to 1e-5. Plain floats, so the trace stays JSON."""
+        centers, quats, _ = self._world().poses_cm(self._boxes)
+        return [
+            [round(float(v), POSE_CM_DIGITS) for v in c] + [round(float(v), POSE_QUAT_DIGITS) for v in q]
+            for c, q in zip(centers, quats, strict=True)
+        ]
 
     def _displaced(self) -> list[Displacement]:
         assert self.spec is not None

@@ -35,6 +35,13 @@ def test_open_path_places_the_box_within_a_centimetre() -> None:
         assert 1.0 < outcome.trajectory_length_m < 6.0
         assert 0 < outcome.extra["execution_time_s"] < pack.execution.safe_time_s
         assert outcome.static_stability is not None
+        # Replay data: the TCP path in the container frame (cm), pick to release, at most 60 points.
+        path = outcome.extra["tool_path_cm"]
+        assert 10 <= len(path) <= 60 and all(len(pt) == 3 and type(pt[0]) is float for pt in path)
+        pick = pack.layout.pick_box_pose(Box(40, 30, 20, 5.0))[0] * 100  # type: ignore[union-attr]
+        assert np.allclose(path[0], pick + [0, 0, 10], atol=0.05)  # the grasp: top-face centre
+        assert np.allclose(path[-1], [65, 60, 20 + pack.config.release_gap_cm], atol=0.05)  # turned box
+        assert outcome.extra["poses"] and len(outcome.extra["poses"][0]) == 7
     finally:
         pack.close()
 

@@ -1,0 +1,72 @@
+"""Replay data: every Physics step records every box's actual pose, so a collapse is seen happening."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+from _physics_specs import spec_of
+
+from robobpp.core import Action, Box
+from robobpp.episode import Episode, EpisodeResult
+from robobpp.sim.physics import PhysicsPack
+from robobpp.web.trace import TraceError, viewer_payload
+
+
+def _toppled_post() -> EpisodeResult:
+    """A heavy slab on a thin 50 cm post: the post (box 0) falls over and the slab with it."""
+    post, slab = Box(8, 30, 50, 1.0), Box(30, 30, 10, 20.0)
+    episode = Episode(spec_of([post, slab]), PhysicsPack())
+    for action in (Action(60, 60, 0), Action(53, 60, 0)):
+        episode.step(action, 0.0)
+    result = episode.result("scripted")
+    episode.setting.close()
+    return result
+
+
+def test_each_step_records_every_box_pose_compactly() -> None:
+    result = _toppled_post()
+    assert result.termination == "collapse"
+    first, second = (s.extra["poses"] for s in result.steps)
+    assert len(first) == 1 and len(second) == 2  # item i is box i, every box placed so far
+    for pose in (*first, *second):
+        assert len(pose) == 7 and all(type(v) is float for v in pose)  # plain floats, not numpy
+        assert all(round(v, 2) == v for v in pose[:3]) and all(round(v, 5) == v for v in pose[3:])
+        assert math.isclose(math.hypot(*pose[3:]), 1.0, abs_tol=1e-4)
+    # Box 0 stood upright at its target after step 0 and lies 30 cm away after the collapse.
+    assert math.dist(first[0][:2], (64.0, 75.0)) < 0.1 and abs(first[0][2] - 25.0) < 0.1
+    assert math.dist(second[0][:2], first[0][:2]) > 20 and second[0][2] < 10
+    assert 0 in result.steps[1].extra["collapsed_boxes"]
+    # The new box's pose is its reported placement's centre.
+    placed = result.steps[1].placement
+    assert placed is not None
+    centre = (
+        placed["x"] + placed["length"] / 2,
+        placed["y"] + placed["width"] / 2,
+        placed["z"] + placed["height"] / 2,
+    )
+    assert math.dist(second[1][:3], centre) < 0.01
+
+
+def test_the_replay_reader_expands_compact_poses() -> None:
+    data = json.loads(json.dumps(_toppled_post().to_dict()))  # the trace is JSON as it is
+    payload = viewer_payload(data)
+    poses = payload["steps"][1]["poses"]
+    assert [p["index"] for p in poses] == [0, 1]
+    post = poses[0]
+    assert (post["length"], post["width"], post["height"]) == (8, 30, 50)
+    raw = data["steps"][1]["extra"]["poses"][0]
+    assert math.isclose(post["x"] + 4, raw[0]) and math.isclose(post["z"] + 25, raw[2])
+    assert len(post["quaternion"]) == 4
+
+
+def test_a_compact_pose_of_a_box_not_yet_placed_is_refused() -> None:
+    data = json.loads(json.dumps(_toppled_post().to_dict()))
+    data["steps"][0]["extra"]["poses"].append([1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0])  # box 1 comes later
+    with pytest.raises(TraceError, match="box 1 was not placed"):
+        viewer_payload(data)
+    data = json.loads(json.dumps(_toppled_post().to_dict()))
+    data["steps"][1]["extra"]["poses"][0] = [1.0, 2.0, 3.0]
+    with pytest.raises(TraceError, match="qx, qy, qz, qw"):
+        viewer_payload(data)

@@ -26,8 +26,10 @@ RUN pip install . \
  && chown -R robobpp:robobpp /app/datasets_private /data
 
 USER robobpp
-# Data cache (fetched RoboBPP files, SQLite in single-machine mode) and the private split live on volumes.
-ENV ROBOBPP_DATA_DIR=/data \
+# Server state (SQLite in single-machine mode), the data cache (fetched RoboBPP files) and the private split
+# live on volumes.
+ENV ROBOBPP_STATE_DIR=/data \
+    ROBOBPP_DATA_DIR=/data/datasets-cache \
     ROBOBPP_PRIVATE_DIR=/app/datasets_private
 VOLUME ["/data", "/app/datasets_private"]
 

@@ -107,7 +107,7 @@ def main() -> None:
 
     tmp = Path(tempfile.mkdtemp(prefix="robobpp-bench-"))
     url = args.database_url or f"sqlite:///{tmp / 'bench.sqlite3'}"
-    settings = Settings(database_url=url, data_dir=tmp, admin_token=ADMIN, workers=0, evaluate_baselines=False,
+    settings = Settings(database_url=url, state_dir=tmp, admin_token=ADMIN, workers=0, evaluate_baselines=False,
                         settings=SETTINGS, groups=30, allow_private_policy_urls=True, quota_concurrent=10**6,
                         quota_submissions_per_day=10**6, spec_provider="robobpp.worker.specs:offline_spec")  # fmt: skip
     app = create_app(settings, start_workers=False)

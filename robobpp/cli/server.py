@@ -13,17 +13,17 @@ db_app = typer.Typer(no_args_is_help=True, help="Database schema (Alembic migrat
 DEMO_GROUPS = 2
 
 
-def demo_overrides(data_dir: Path) -> dict[str, Any]:
-    """Few groups, Math (+ Physics when it is installed), private URLs allowed: fills within minutes."""
+def demo_overrides(state_dir: Path) -> dict[str, Any]:
+    """Few groups, every setting whose simulator imports, private URLs allowed: fills within minutes."""
     from robobpp.server.config import Settings
 
     available = Settings(settings=()).enabled_settings
     return {
         "demo": True,
         "groups": DEMO_GROUPS,
-        "settings": tuple(s for s in ("math", "physics") if s in available),
+        "settings": available,
         "allow_private_policy_urls": True,
-        "private_dir": data_dir / "private-demo",
+        "private_dir": state_dir / "private-demo",
     }
 
 
@@ -36,8 +36,8 @@ def serve(
     workers: Annotated[
         int | None, typer.Option(help="Local worker processes (default: ROBOBPP_WORKERS or 2)")
     ] = None,
-    data_dir: Annotated[
-        Path | None, typer.Option(help="Where the SQLite file lives (ROBOBPP_DATA_DIR)")
+    state_dir: Annotated[
+        Path | None, typer.Option(help="Where the SQLite file lives (ROBOBPP_STATE_DIR)")
     ] = None,
 ) -> None:
     """Run the evaluation service: API, pages, migrations at start, baselines, local workers."""
@@ -48,16 +48,16 @@ def serve(
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     overrides: dict[str, Any] = {}
-    if data_dir is not None:
-        overrides["data_dir"] = data_dir
+    if state_dir is not None:
+        overrides["state_dir"] = state_dir
     if workers is not None:
         overrides["workers"] = workers
     base = Settings(**overrides)
     if demo:
-        overrides.update(demo_overrides(base.data_dir))
+        overrides.update(demo_overrides(base.state_dir))
     settings = Settings(**overrides)
     app = create_app(settings)
-    where = "ROBOBPP_ADMIN_TOKEN" if settings.admin_token else str(settings.data_dir / "admin_token")
+    where = "ROBOBPP_ADMIN_TOKEN" if settings.admin_token else str(settings.state_dir / "admin_token")
     typer.echo(f"robobpp: serving on http://{host}:{port} (API docs /docs); admin token: {where}")
     uvicorn.run(app, host=host, port=port, log_level="info", access_log=False)
 
@@ -71,7 +71,7 @@ def db_upgrade(revision: Annotated[str, typer.Argument(help="Target revision")] 
 
     settings = Settings()
     if not settings.database_url:
-        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        settings.state_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.sqlalchemy_url)
     try:
         upgrade(settings.sqlalchemy_url, revision, engine=engine)

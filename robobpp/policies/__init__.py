@@ -26,6 +26,12 @@ BUILTIN: dict[str, str] = {
 #: The paper's baselines shown on the leaderboard (a subset of BUILTIN, in the paper's order).
 BASELINES: tuple[str, ...] = tuple(BUILTIN)
 
+#: Display names, spelled as in the paper.
+TITLES: dict[str, str] = {
+    "dbl": "DBL", "hm": "HM", "lsah": "LSAH", "onlinebph": "OnlineBPH", "br": "BR", "macs": "MACS",
+    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random",
+}  # fmt: skip
+
 
 class PolicyLoadError(ValueError):
     """The policy name could not be turned into a policy (unknown name, bad import path)."""
@@ -72,4 +78,13 @@ def load_policy(name: str, **kwargs: object) -> Policy:
     return policy  # type: ignore[return-value]
 
 
-__all__ = ["BASELINES", "BUILTIN", "BasePolicy", "Policy", "PolicyError", "PolicyLoadError", "load_policy"]
+__all__ = [
+    "BASELINES",
+    "BUILTIN",
+    "TITLES",
+    "BasePolicy",
+    "Policy",
+    "PolicyError",
+    "PolicyLoadError",
+    "load_policy",
+]

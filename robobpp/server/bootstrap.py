@@ -14,6 +14,7 @@ from sqlalchemy import select
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, Submission
+from robobpp.policies import TITLES
 
 log = logging.getLogger("robobpp.server")
 
@@ -51,7 +52,7 @@ def ensure_baselines(session: Any, settings: Any) -> int:
         url = f"builtin:{name}"
         if url in existing:
             continue
-        work.create_submission(session, participant, name=name.upper() if len(name) <= 4 else name.title(),
+        work.create_submission(session, participant, name=TITLES.get(name, name),
                                policy_url=url, datasets=list(settings.datasets),
                                settings=list(settings.enabled_settings), groups=settings.groups)  # fmt: skip
         created += 1

@@ -14,6 +14,7 @@ from typing import Literal
 from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from robobpp.policies import BASELINES
 from robobpp.worker.options import WorkerOptions
 
 #: Admin tokens that must never guard a real deployment.
@@ -31,9 +32,9 @@ class Settings(BaseSettings):
 
     #: ``dev`` allows a generated admin token; ``prod`` demands a strong one from the environment.
     env: Literal["dev", "prod"] = "dev"
-    #: SQLAlchemy URL; empty means a SQLite file inside ``data_dir``.
+    #: SQLAlchemy URL; empty means a SQLite file inside ``state_dir``.
     database_url: str = ""
-    data_dir: Path = Path("robobpp-data")
+    state_dir: Path = Path("robobpp-data")
     #: Where the private split lives (built on first start if absent).
     private_dir: Path = Path("datasets_private")
     admin_token: SecretStr | None = None
@@ -62,7 +63,7 @@ class Settings(BaseSettings):
     episode_timeout_s: float = Field(default=1800.0, gt=0)
     response_cap_bytes: int = Field(default=64 * 1024, ge=1024)
     evaluate_baselines: bool = True
-    baselines: tuple[str, ...] = ("dbl", "random")
+    baselines: tuple[str, ...] = BASELINES
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)
@@ -87,10 +88,10 @@ class Settings(BaseSettings):
         """The admin token: from the environment, or (dev only) a random one stored in the data dir."""
         if self.admin_token is not None:
             return self.admin_token.get_secret_value()
-        path = self.data_dir / "admin_token"
+        path = self.state_dir / "admin_token"
         if path.exists():
             return path.read_text().strip()
-        self.data_dir.mkdir(parents=True, exist_ok=True)
+        self.state_dir.mkdir(parents=True, exist_ok=True)
         token = secrets.token_urlsafe(32)
         path.write_text(token + "\n")
         path.chmod(0o600)
@@ -100,7 +101,7 @@ class Settings(BaseSettings):
     def sqlalchemy_url(self) -> str:
         if self.database_url:
             return self.database_url
-        return f"sqlite:///{(self.data_dir / 'robobpp.sqlite3').resolve()}"
+        return f"sqlite:///{(self.state_dir / 'robobpp.sqlite3').resolve()}"
 
     def worker_options(self) -> WorkerOptions:
         return WorkerOptions(

@@ -22,7 +22,7 @@ class Runtime:
     @cached_property
     def engine(self) -> Engine:
         if not self.settings.database_url:
-            self.settings.data_dir.mkdir(parents=True, exist_ok=True)
+            self.settings.state_dir.mkdir(parents=True, exist_ok=True)
         return make_engine(self.settings.sqlalchemy_url)
 
     @cached_property

@@ -92,7 +92,7 @@ class Fleet:
             **{k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")},
             "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
             "ROBOBPP_ENV": "dev",
-            "ROBOBPP_DATA_DIR": str(tmp / "data"),
+            "ROBOBPP_STATE_DIR": str(tmp / "data"),
             "ROBOBPP_DATABASE_URL": pg_url,
             "ROBOBPP_BROKER_URL": broker_url,
             "ROBOBPP_CELERY_QUEUE": queue,

@@ -171,7 +171,7 @@ def test_the_server_dispatches_to_celery_when_a_broker_is_set(fleet: Fleet, tmp_
     settings = Settings(
         database_url=env["ROBOBPP_DATABASE_URL"], broker_url=env["ROBOBPP_BROKER_URL"],
         celery_queue=env["ROBOBPP_CELERY_QUEUE"], spec_provider=env["ROBOBPP_SPEC_PROVIDER"],
-        data_dir=tmp_path / "server", datasets=("repetitive",), settings=("math",), groups=2,
+        state_dir=tmp_path / "server", datasets=("repetitive",), settings=("math",), groups=2,
         baselines=("dbl",), lease_s=LEASE_S, poll_interval_s=0.3, admin_token="a-strong-admin-token-0123",
     )  # fmt: skip
     fleet.start(2)

@@ -69,7 +69,8 @@ def _env(service: dict[str, Any]) -> dict[str, str]:
 
 
 def _settings_fields() -> set[str]:
-    return {f"ROBOBPP_{name.upper()}" for name in Settings.model_fields}
+    # ROBOBPP_DATA_DIR is the datasets cache (robobpp.datasets.cache), read outside the server settings.
+    return {f"ROBOBPP_{name.upper()}" for name in Settings.model_fields} | {"ROBOBPP_DATA_DIR"}
 
 
 @pytest.fixture(scope="module")

@@ -17,6 +17,14 @@ from robobpp.datasets.sources import WHEEL_NAME
 runner = CliRunner()
 
 
+@pytest.fixture(autouse=True)
+def _restore_data_dir(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`--data-dir` sets ROBOBPP_DATA_DIR in this process (CliRunner runs in-process): undo it after each test."""
+    monkeypatch.setenv("ROBOBPP_DATA_DIR", os.environ.get("ROBOBPP_DATA_DIR", ""))
+    if not os.environ["ROBOBPP_DATA_DIR"]:
+        monkeypatch.delenv("ROBOBPP_DATA_DIR")
+
+
 def test_unknown_dataset_is_a_clear_error() -> None:
     result = runner.invoke(app, ["info", "--dataset", "nope"])
     assert result.exit_code != 0

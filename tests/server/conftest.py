@@ -135,7 +135,7 @@ def make_server(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
     def factory(db: str, **extra: str) -> ServerProcess:
         env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
         env.update({
-            "ROBOBPP_DATA_DIR": str(tmp_path), "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
+            "ROBOBPP_STATE_DIR": str(tmp_path), "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
             "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1", "ROBOBPP_SPEC_PROVIDER": OFFLINE, "ROBOBPP_GROUPS": "2",
             "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_WORKERS": "2", "ROBOBPP_LEASE_S": "4",
             "ROBOBPP_POLL_INTERVAL_S": "0.2", "ROBOBPP_BASELINES": '["dbl"]',

@@ -17,7 +17,7 @@ ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 
 def make_settings(db_url: str, tmp_path, **kw) -> Settings:  # type: ignore[no-untyped-def]
-    base = {"database_url": db_url, "data_dir": tmp_path, "admin_token": ADMIN_TOKEN, "workers": 0,
+    base = {"database_url": db_url, "state_dir": tmp_path, "admin_token": ADMIN_TOKEN, "workers": 0,
             "spec_provider": OFFLINE, "groups": 2, "settings": ("math",), "evaluate_baselines": False,
             "allow_private_policy_urls": True, "quota_concurrent": 2, "quota_submissions_per_day": 3}  # fmt: skip
     return Settings(**{**base, **kw})
@@ -153,9 +153,9 @@ def test_health_metrics_docs_and_boards(api: TestClient) -> None:
 def test_settings_refuse_default_secrets_outside_dev(tmp_path) -> None:  # type: ignore[no-untyped-def]
     for token in (None, "changeme", "short"):
         with pytest.raises(ValueError, match="ROBOBPP_ADMIN_TOKEN"):
-            Settings(env="prod", admin_token=token, data_dir=tmp_path)
+            Settings(env="prod", admin_token=token, state_dir=tmp_path)
     with pytest.raises(ValueError, match="dev only"):
         Settings(env="prod", admin_token="x" * 32, allow_private_policy_urls=True)
     assert Settings(env="prod", admin_token="x" * 32).env == "prod"
-    dev = Settings(data_dir=tmp_path)
+    dev = Settings(state_dir=tmp_path)
     assert len(dev.effective_admin_token) >= 32 and (tmp_path / "admin_token").stat().st_mode & 0o077 == 0

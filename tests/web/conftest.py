@@ -100,14 +100,12 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     data_dir = tmp_path_factory.mktemp("server")
     port = _free_port()
     cache = datasets_cache()
-    cache_env = {"XDG_CACHE_HOME": str(cache.parent)} if cache.name == "robobpp" else {}
     env = {
         **{k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")},
         "ROBOBPP_ENV": "dev",
-        # The server keeps its SQLite file under ./robobpp-data (cwd = the temp dir). ROBOBPP_DATA_DIR is not
-        # passed on: the server's settings and the datasets cache both read it. The cache is pointed at
-        # through XDG_CACHE_HOME instead, so the datasets page sees the data this test process sees.
-        **cache_env,
+        # The server keeps its state under ./robobpp-data (cwd = the temp dir) and reads the datasets cache
+        # this test process reads, so the datasets page sees the same data.
+        "ROBOBPP_DATA_DIR": str(cache),
         "ROBOBPP_DATABASE_URL": "",
         "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
         "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
@@ -124,7 +122,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         env=env, stdout=log, stderr=subprocess.STDOUT, cwd=data_dir,
     )  # fmt: skip
     srv = Server(f"http://127.0.0.1:{port}", data_dir)
-    srv.datasets_visible = bool(cache_env) and data_available()
+    srv.datasets_visible = data_available()
     try:
 
         def healthy() -> bool:

@@ -10,7 +10,10 @@ from tests.conftest import make_spec
 @pytest.fixture
 def specs():
     rng = np.random.default_rng(3)
-    return [make_spec([tuple(map(float, d)) for d in rng.integers(5, 25, (20, 3))], (60, 50, 40), group=g) for g in range(4)]
+    return [
+        make_spec([tuple(map(float, d)) for d in rng.integers(5, 25, (20, 3))], (60, 50, 40), group=g)
+        for g in range(4)
+    ]
 
 
 def test_check_env_passes(specs):

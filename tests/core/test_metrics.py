@@ -36,7 +36,9 @@ def test_occupancy_uses_actual_positions():
 def test_occupancy_ignores_boxes_that_fell_off_the_pallet():
     box = Placement(0, 0, 0, 2, 2, 2, 0, 0)
     fell = Placement(12, 3, -15, 2, 2, 2, 0, 1)  # planned inside, now on the ground beside the pallet
-    assert M.occupancy([final(box), final(Placement(4, 4, 0, 2, 2, 2, 0, 1), fell, False)], C) == pytest.approx(1.0)
+    assert M.occupancy(
+        [final(box), final(Placement(4, 4, 0, 2, 2, 2, 0, 1), fell, False)], C
+    ) == pytest.approx(1.0)
 
 
 def test_local_stability_is_mean_displacement_in_metres():

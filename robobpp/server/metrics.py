@@ -6,7 +6,8 @@ Each app has its own registry so several apps (tests) never clash over global co
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 from fastapi import FastAPI, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
@@ -37,6 +38,25 @@ class _QueueCollector(Collector):
         yield submissions
 
 
+def route_template(scope: Mapping[str, Any]) -> str:
+    """The matched route's full path template (``/api/v1/submissions/{submission_id}``), or ``unmatched``.
+
+    The template, not the URL, keeps the label set small whatever ids clients send. Recent FastAPI keeps
+    included routers lazily: ``scope["route"]`` is then the route as declared in its router, *without*
+    the ``/api/v1`` prefix, and the full template lives in the per-request effective route context. We
+    read that context when it is there and fall back to the route's own path (older FastAPI, where the
+    included route already carries the prefix); tests/server/test_tokens.py pins the result.
+    """
+    fastapi_scope = scope.get("fastapi")
+    context = fastapi_scope.get("effective_route_context") if isinstance(fastapi_scope, dict) else None
+    template = getattr(context, "path_format", None) or getattr(context, "path", None)
+    if isinstance(template, str) and template:
+        return template
+    route = scope.get("route")
+    path = getattr(route, "path_format", None) or getattr(route, "path", None)
+    return path if isinstance(path, str) and path else "unmatched"
+
+
 def install_metrics(app: FastAPI) -> None:
     registry = CollectorRegistry()
     requests = Counter(
@@ -51,8 +71,7 @@ def install_metrics(app: FastAPI) -> None:
     async def _count(request: Request, call_next):  # type: ignore[no-untyped-def]
         started = time.perf_counter()
         response = await call_next(request)
-        route = request.scope.get("route")
-        path = getattr(route, "path", "unmatched")
+        path = route_template(request.scope)
         requests.labels(request.method, path, str(response.status_code)).inc()
         latency.labels(request.method, path).observe(time.perf_counter() - started)
         return response

@@ -1,12 +1,38 @@
-"""The JSON API under ``/api/v1``."""
+"""The JSON API under ``/api/v1``.
+
+The router is built on first access (module ``__getattr__``), so importing only the schemas
+(``robobpp.server.api.schemas``, used by the API client) does not pull in the routes, the database
+layer and the policies — that import alone costs about two seconds on a busy machine.
+"""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from typing import TYPE_CHECKING, Any
 
-from robobpp.server.api import leaderboards, participants, submissions
+if TYPE_CHECKING:
+    from fastapi import APIRouter
 
-router = APIRouter()
-router.include_router(participants.router)
-router.include_router(submissions.router)
-router.include_router(leaderboards.router)
+    router: APIRouter
+
+_router: Any = None
+
+
+def _build() -> Any:
+    from fastapi import APIRouter
+
+    from robobpp.server.api import leaderboards, participants, submissions
+
+    built = APIRouter()
+    built.include_router(participants.router)
+    built.include_router(submissions.router)
+    built.include_router(leaderboards.router)
+    return built
+
+
+def __getattr__(name: str) -> Any:
+    global _router
+    if name != "router":
+        raise AttributeError(f"module 'robobpp.server.api' has no attribute {name!r}")
+    if _router is None:
+        _router = _build()
+    return _router

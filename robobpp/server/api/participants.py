@@ -5,26 +5,26 @@ from __future__ import annotations
 import secrets
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Request
+from fastapi import APIRouter, Path, Query, Request
 from sqlalchemy import select
 
 from robobpp.db import queries
-from robobpp.db.models import ApiToken, Participant
+from robobpp.db.models import ApiToken, Participant, utcnow
 from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, SettingsDep
-from robobpp.server.api.schemas import Me, ParticipantCreate, ParticipantPublic, TokenCreated
+from robobpp.server.api.schemas import Me, ParticipantCreate, ParticipantPublic, TokenCreated, TokenPublic
 from robobpp.server.problems import ProblemError
 
 router = APIRouter(tags=["participants"])
+Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 
 
 def issue_token(session: SessionDep, participant: Participant) -> TokenCreated:
     token = "rbp_" + secrets.token_urlsafe(32)
-    session.add(
-        ApiToken(participant_id=participant.id, token_hash=queries.hash_token(token), prefix=token[:10])
-    )
+    row = ApiToken(participant_id=participant.id, token_hash=queries.hash_token(token), prefix=token[:10])
+    session.add(row)
     session.flush()
     return TokenCreated(participant=ParticipantPublic.model_validate(participant, from_attributes=True),
-                        token=token, prefix=token[:10])  # fmt: skip
+                        token=token, prefix=token[:10], id=row.id)  # fmt: skip
 
 
 @router.post("/participants", status_code=201, response_model=TokenCreated,
@@ -40,9 +40,7 @@ def create_participant(body: ParticipantCreate, session: SessionDep, _admin: Adm
 
 @router.post("/participants/{participant_id}/tokens", status_code=201, response_model=TokenCreated,
              summary="Issue another API token for a participant (admin)")  # fmt: skip
-def create_token(
-    participant_id: Annotated[int, Path(ge=1, le=2**31 - 1)], session: SessionDep, _admin: AdminDep
-) -> TokenCreated:
+def create_token(participant_id: Id, session: SessionDep, _admin: AdminDep) -> TokenCreated:
     participant = session.get(Participant, participant_id)
     if participant is None or participant.is_builtin:
         raise ProblemError(404, "not-found", "Not found", f"no participant {participant_id}")
@@ -64,3 +62,36 @@ def me(request: Request, principal: PrincipalDep, session: SessionDep, settings:
             "concurrent": settings.quota_concurrent,
         },  # fmt: skip
     )
+
+
+@router.get("/tokens", response_model=list[TokenPublic],
+            summary="Your API tokens (admin: every participant's, or one participant's)")  # fmt: skip
+def list_tokens(
+    session: SessionDep,
+    principal: PrincipalDep,
+    participant_id: Annotated[int | None, Query(ge=1, le=2**31 - 1)] = None,
+) -> list[TokenPublic]:
+    query = select(ApiToken).order_by(ApiToken.id)
+    owner = participant_id if principal.admin else principal.participant_id
+    if owner is not None:
+        query = query.where(ApiToken.participant_id == owner)
+    return [TokenPublic.model_validate(t, from_attributes=True) for t in session.execute(query).scalars()]
+
+
+@router.delete("/tokens/{token_id}", response_model=TokenPublic,
+               summary="Revoke an API token (its owner or the admin); it stops working at once")  # fmt: skip
+def revoke_token(token_id: Id, session: SessionDep, principal: PrincipalDep) -> TokenPublic:
+    """Idempotent: revoking a revoked token answers it unchanged (its first ``revoked_at`` is kept).
+
+    Another participant's token answers 404 like a missing one, so ids reveal nothing. The row stays
+    (with ``revoked_at``): it records that the token existed, and its hash can never authenticate again.
+    """
+    row = session.execute(
+        select(ApiToken).where(ApiToken.id == token_id).with_for_update()
+    ).scalar_one_or_none()
+    if row is None or not (principal.admin or row.participant_id == principal.participant_id):
+        raise ProblemError(404, "not-found", "Not found", f"no API token {token_id} visible to this token")
+    if row.revoked_at is None:
+        row.revoked_at = utcnow()
+        session.flush()
+    return TokenPublic.model_validate(row, from_attributes=True)

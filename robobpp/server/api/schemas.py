@@ -29,11 +29,22 @@ class ParticipantPublic(BaseModel):
 
 
 class TokenCreated(BaseModel):
-    """The token is shown once; only its hash is stored."""
+    """The token is shown once; only its hash is stored. ``id`` names it for revocation."""
 
     participant: ParticipantPublic
     token: str
     prefix: str
+    id: int
+
+
+class TokenPublic(BaseModel):
+    """A token as listings show it: never the token itself, only its first characters."""
+
+    id: int
+    participant_id: int
+    prefix: str
+    created_at: datetime
+    revoked_at: datetime | None
 
 
 class Me(BaseModel):

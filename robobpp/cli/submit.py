@@ -1,9 +1,349 @@
-"""Placeholder: `robobpp submit` / `robobpp submissions` (API client of the evaluation server) go here."""
+"""`robobpp submit`, `submissions` and `leaderboard`: the evaluation server from a shell.
+
+Thin layers over :class:`robobpp.client.api.ServerClient`. Every server failure ends in one line
+(``error: 401: Unauthorized: ...``) and exit code 1; argument mistakes exit 2 (typer's convention).
+Tables go to stdout, progress and notes to stderr, so ``--json`` output and tables pipe cleanly.
+"""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
+
 import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+if TYPE_CHECKING:
+    from robobpp.client.api import ServerClient, Standing
+    from robobpp.server.api.schemas import EpisodePublic, Leaderboard, OverallGrid, SubmissionPublic
+
+err = Console(stderr=True)
+DATASETS = ("repetitive", "diverse", "longboard")
+SETTINGS = ("math", "physics", "execution")
+
+ServerOpt = Annotated[
+    str, typer.Option("--server", envvar="ROBOBPP_SERVER", help="Evaluation server root URL.")
+]
+TokenOpt = Annotated[
+    str | None,
+    typer.Option("--token", envvar="ROBOBPP_TOKEN", help="API token (shown once when it was created)."),
+]
+TrackOpt = Annotated[str, typer.Option("--track", help="private (test split) or public (train split).")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print the API's JSON instead of a table.")]
+IdArg = Annotated[int, typer.Argument(min=1, max=2**31 - 1, help="Submission id.")]
+
+submissions_app = typer.Typer(no_args_is_help=True, help="Your submissions on the evaluation server.")
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """One line on stderr, never wrapped (scripts grep it), then exit ``code``; ``message`` is markup."""
+    err.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+    raise typer.Exit(code)
 
 
 def register(root: typer.Typer) -> None:
-    return None
+    root.command("submit")(submit)
+    root.command("leaderboard")(leaderboard)
+    root.add_typer(submissions_app, name="submissions")
+
+
+def _out() -> Console:
+    # Files and pipes get whole tables, not ones cut to an 80-column guess.
+    probe = Console()
+    return Console(width=None if probe.is_terminal else 200)
+
+
+@contextlib.contextmanager
+def _client(server: str, token: str | None, *, need_token: bool = True) -> Iterator[ServerClient]:
+    """A client whose every failure becomes one line and exit code 1 (no tracebacks)."""
+    from robobpp.client.api import ServerClient, ServerError
+
+    if need_token and not (token or "").strip():
+        fail("no API token: pass --token or set ROBOBPP_TOKEN", code=2)
+    try:
+        with ServerClient(server, token) as client:
+            yield client
+    except ServerError as exc:
+        fail(escape(str(exc)), code=1)
+
+
+def _track(value: str) -> Any:
+    if value not in ("private", "public"):
+        fail(f"unknown track {value!r}; expected private or public")
+    return value
+
+
+def _names(values: list[str] | None, allowed: tuple[str, ...], what: str) -> list[str] | None:
+    """Repeated options and comma lists both work: ``--dataset diverse,longboard`` or twice ``--dataset``."""
+    if not values:
+        return None
+    names = [n.strip().lower() for v in values for n in v.split(",") if n.strip()]
+    if any(n == "all" for n in names):
+        return None  # the server's own list
+    unknown = [n for n in names if n not in allowed]
+    if unknown or not names:
+        fail(f"unknown {what} {', '.join(unknown) or repr(values)}; expected {', '.join(allowed)} or all")
+    return list(dict.fromkeys(names))
+
+
+def _fmt(value: float | None, digits: int = 4) -> str:
+    return "—" if value is None else f"{value:.{digits}g}" if abs(value) >= 1000 else f"{value:.{digits}f}"
+
+
+def _label(key: str) -> str:
+    from robobpp.metrics import METRIC_BY_KEY
+
+    metric = METRIC_BY_KEY.get(key)
+    return metric.label if metric else key
+
+
+# -- submit -------------------------------------------------------------------------------------------
+def submit(
+    policy_url: Annotated[str, typer.Argument(help="Base URL of your policy server (robobpp/1).")],
+    secret: Annotated[
+        str | None,
+        typer.Option(envvar="ROBOBPP_POLICY_SECRET", help="HMAC secret the workers sign requests with."),
+    ] = None,
+    name: Annotated[str | None, typer.Option(help="Name on the leaderboard (default: from the URL).")] = None,
+    dataset: Annotated[
+        list[str] | None, typer.Option("--dataset", help="repetitive, diverse, longboard (repeat or comma).")
+    ] = None,
+    setting: Annotated[
+        list[str] | None, typer.Option("--setting", help="math, physics, execution (repeat or comma).")
+    ] = None,
+    track: TrackOpt = "private",
+    lookahead: Annotated[int, typer.Option(min=0, max=10, help="Next boxes shown to the policy.")] = 0,
+    wait: Annotated[
+        bool, typer.Option("--wait", help="Follow the evaluation, then print the results.")
+    ] = False,
+    poll: Annotated[float, typer.Option(min=0.1, max=600, help="Seconds between polls with --wait.")] = 2.0,
+    server: ServerOpt = "http://127.0.0.1:8000",
+    token: TokenOpt = None,
+) -> None:
+    """Submit a policy server for evaluation (the server checks it answers /info first)."""
+    datasets = _names(dataset, DATASETS, "dataset")
+    settings = _names(setting, SETTINGS, "setting")
+    with _client(server, token) as client:
+        sub = client.submit(policy_url, secret=secret, name=name, datasets=datasets, settings=settings,
+                            track=_track(track), lookahead=lookahead)  # fmt: skip
+        boards = len(sub.runs)
+        err.print(f"submitted [bold]#{sub.id}[/] {escape(sub.name)}: {sub.progress.episodes_total} episodes "
+                  f"on {boards} board{'s' * (boards != 1)} ({sub.track} track)")  # fmt: skip
+        if not wait:
+            print(sub.id)
+            return
+        final = _follow(client, sub, poll)
+        _out().print(_standings_table(final, client.standings(final)))
+    _finish(final)
+
+
+def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> SubmissionPublic:
+    """Poll with a progress bar (episodes finished / total, current phase) until the submission ends."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=err, transient=False) as progress:
+        task = progress.add_task(f"#{sub.id} queued", total=sub.progress.episodes_total or None)
+
+        def show(s: SubmissionPublic) -> None:
+            p = s.progress
+            phase = p.phase or ("—" if s.status in ("completed", "failed", "cancelled") else "waiting")
+            failed = f" · {p.episodes_failed} failed" if p.episodes_failed else ""
+            progress.update(task, total=p.episodes_total or None, completed=p.episodes_done,
+                            description=f"#{s.id} {s.status} · {phase}{failed}")  # fmt: skip
+
+        try:
+            return client.wait(sub.id, on_progress=show, poll_s=poll_s)
+        except KeyboardInterrupt:
+            progress.stop()
+            err.print(f"stopped waiting; the evaluation goes on (robobpp submissions show {sub.id})")
+            raise typer.Exit(130) from None
+
+
+def _finish(sub: SubmissionPublic) -> None:
+    """Exit 0 only for a completed evaluation: scripts and CI can gate on ``submit --wait``."""
+    if sub.status == "completed":
+        return
+    why = f": {sub.error}" if sub.error else ""
+    fail(escape(f"submission {sub.id} {sub.status}{why}"), code=1)
+
+
+def _standings_table(sub: SubmissionPublic, standings: list[Standing]) -> Table:
+    keys: list[str] = []
+    for s in standings:
+        keys += [k for k in s.metric_keys or list(s.metrics) if k not in keys]
+    table = Table(title=f"#{sub.id} {escape(sub.name)} · {sub.status} · {sub.track} track")
+    for col in ("board", "status"):
+        table.add_column(col)
+    for k in keys:
+        table.add_column(_label(k), justify="right")
+    table.add_column("score", justify="right")
+    table.add_column("rank", justify="right")
+    for s in standings:
+        rank = f"{s.rank} / {s.entries}" if s.rank is not None else "—"
+        style = "bold green" if s.rank == 1 else None
+        table.add_row(s.board, s.status, *(_fmt(s.metrics.get(k)) if k in s.metrics else "" for k in keys),
+                      _fmt(s.score, 3), rank, style=style)  # fmt: skip
+    return table
+
+
+# -- submissions --------------------------------------------------------------------------------------
+@submissions_app.command("list")
+def list_command(
+    limit: Annotated[int, typer.Option(min=1, max=200, help="How many, newest first.")] = 20,
+    as_json: JsonOpt = False,
+    server: ServerOpt = "http://127.0.0.1:8000",
+    token: TokenOpt = None,
+) -> None:
+    """Your submissions, newest first."""
+    with _client(server, token) as client:
+        subs = client.submissions(limit=limit)
+    if as_json:
+        print("[" + ",".join(s.model_dump_json() for s in subs) + "]")
+        return
+    table = Table(title="submissions")
+    for col, justify in (("id", "right"), ("name", "left"), ("status", "left"), ("track", "left"),
+                         ("boards", "left"), ("episodes", "right"), ("created", "left")):  # fmt: skip
+        table.add_column(col, justify=justify)  # type: ignore[arg-type]
+    for s in subs:
+        boards = ", ".join(f"{r.setting}/{r.dataset}" for r in s.runs)
+        done = f"{s.progress.episodes_done} / {s.progress.episodes_total}"
+        table.add_row(
+            str(s.id), escape(s.name), s.status, s.track, boards, done, f"{s.created_at:%Y-%m-%d %H:%M}"
+        )
+    _out().print(table if subs else "no submissions yet")
+
+
+@submissions_app.command("show")
+def show_command(
+    submission_id: IdArg, as_json: JsonOpt = False, server: ServerOpt = "http://127.0.0.1:8000",
+    token: TokenOpt = None,
+) -> None:  # fmt: skip
+    """One submission: status, progress, and each board's metrics, score and rank."""
+    with _client(server, token) as client:
+        sub = client.submission(submission_id)
+        if as_json:
+            print(sub.model_dump_json(indent=2))
+            return
+        standings = client.standings(sub)
+    p = sub.progress
+    err.print(f"#{sub.id} {escape(sub.name)} · {sub.status} · {p.episodes_done} / {p.episodes_total} episodes"
+              + (f" · phase {p.phase}" if p.phase else "") + f" · {escape(sub.policy_url)}")  # fmt: skip
+    if sub.error:
+        err.print(f"[red]{escape(sub.error)}[/]")
+    _out().print(_standings_table(sub, standings))
+
+
+@submissions_app.command("cancel")
+def cancel_command(
+    submission_id: IdArg, server: ServerOpt = "http://127.0.0.1:8000", token: TokenOpt = None
+) -> None:
+    """Cancel an evaluation: its unfinished episodes are dropped."""
+    with _client(server, token) as client:
+        sub = client.cancel(submission_id)
+    print(f"submission {sub.id} {sub.status} ({sub.progress.episodes_cancelled} episodes cancelled)")
+
+
+@submissions_app.command("episodes")
+def episodes_command(
+    submission_id: IdArg, as_json: JsonOpt = False, server: ServerOpt = "http://127.0.0.1:8000",
+    token: TokenOpt = None,
+) -> None:  # fmt: skip
+    """Per-episode results and termination reasons."""
+    with _client(server, token) as client:
+        rows = client.episodes(submission_id)
+    if as_json:
+        print("[" + ",".join(e.model_dump_json() for e in rows) + "]")
+        return
+    _out().print(_episodes_table(submission_id, rows))
+
+
+def _episodes_table(submission_id: int, rows: list[EpisodePublic]) -> Table:
+    table = Table(title=f"episodes of #{submission_id}")
+    for col in ("id", "board", "group", "status", "boxes", "Space Utilization", "termination", "detail"):
+        table.add_column(
+            col, justify="right" if col in ("id", "group", "boxes", "Space Utilization") else "left"
+        )
+    for e in rows:
+        boxes = f"{e.boxes_placed} / {e.boxes_total}" if e.boxes_total is not None else "—"
+        su = (e.metrics or {}).get("space_utilization")
+        detail = escape((e.termination_detail or "")[:80])
+        table.add_row(str(e.id), f"{e.setting}/{e.dataset}", str(e.group), e.status, boxes, _fmt(su),
+                      e.termination or "—", detail)  # fmt: skip
+    return table
+
+
+# -- leaderboard --------------------------------------------------------------------------------------
+def leaderboard(
+    dataset: Annotated[
+        str | None, typer.Option(help="repetitive, diverse or longboard (with --setting).")
+    ] = None,
+    setting: Annotated[str | None, typer.Option(help="math, physics or execution (with --dataset).")] = None,
+    track: TrackOpt = "private",
+    as_json: JsonOpt = False,
+    server: ServerOpt = "http://127.0.0.1:8000",
+    token: TokenOpt = None,
+) -> None:
+    """One leaderboard (metrics, score, rank), or the overall grid when no board is given."""
+    if (dataset is None) != (setting is None):
+        fail("give both --dataset and --setting for one board, or neither for the overall grid")
+    if dataset is not None and dataset not in DATASETS:
+        fail(f"unknown dataset {dataset!r}; expected one of {', '.join(DATASETS)}")
+    if setting is not None and setting not in SETTINGS:
+        fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")
+    with _client(server, token, need_token=False) as client:
+        data = (client.leaderboard(dataset, setting, _track(track)) if dataset and setting
+                else client.grid(_track(track)))  # fmt: skip
+    if as_json:
+        print(data.model_dump_json(indent=2))
+        return
+    from robobpp.server.api.schemas import Leaderboard
+
+    _out().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))
+
+
+def _who(name: str, participant: str, baseline: bool) -> str:
+    return f"{escape(name)} [dim]({escape(participant)}{', baseline' if baseline else ''})[/]"
+
+
+def _board_table(board: Leaderboard) -> Table:
+    table = Table(title=f"{board.setting}/{board.dataset} · {board.track} track")
+    table.add_column("rank", justify="right")
+    table.add_column("submission")
+    for k in board.metrics:
+        table.add_column(f"{_label(k)} ({board.weights.get(k, 0):g})", justify="right")
+    pph = any("pph" in e.extras for e in board.entries)
+    if pph:
+        table.add_column("PPH", justify="right")
+    table.add_column("score", justify="right")
+    for e in board.entries:
+        cells = [_fmt(e.metrics.get(k)) for k in board.metrics]
+        if pph:
+            cells.append(_fmt(e.extras.get("pph"), 1))
+        table.add_row(str(e.rank), f"#{e.submission_id} " + _who(e.name, e.participant, e.baseline), *cells,
+                      _fmt(e.score, 3), style="bold green" if e.rank == 1 else None)  # fmt: skip
+    if not board.entries:
+        table.caption = "no completed submissions on this board yet"
+    return table
+
+
+def _grid_table(grid: OverallGrid) -> Table:
+    """Score (rank) per board; the top four of each board stand out, as in the paper's overall table."""
+    table = Table(title=f"overall · {grid.track} track")
+    table.add_column("submission")
+    boards = [f"{s}/{d}" for s in grid.settings for d in grid.datasets]
+    for b in boards:
+        table.add_column(b, justify="right")
+    for row in grid.rows:
+        cells = []
+        for b in boards:
+            c = row.cells.get(b)
+            text = "—" if c is None else f"{c.score:.3f} ({c.rank})"
+            cells.append(f"[bold]{text}[/]" if c is not None and c.rank <= 4 else text)
+        table.add_row(f"#{row.submission_id} " + _who(row.name, row.participant, row.baseline), *cells)
+    if not grid.rows:
+        table.caption = "no completed submissions yet"
+    return table

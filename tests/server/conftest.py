@@ -128,20 +128,26 @@ class ServerProcess:
                             timeout=30)  # fmt: skip
 
 
+def server_env(state_dir: Path, db: str, **extra: str) -> dict[str, str]:
+    """The environment of a test server: offline episodes, 2 groups, Math only, short leases, loopback
+    policy URLs allowed, nothing inherited from the caller's ``ROBOBPP_*`` (also used by tests/client)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
+    env.update({
+        "ROBOBPP_STATE_DIR": str(state_dir), "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
+        "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1", "ROBOBPP_SPEC_PROVIDER": OFFLINE, "ROBOBPP_GROUPS": "2",
+        "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_WORKERS": "2", "ROBOBPP_LEASE_S": "4",
+        "ROBOBPP_POLL_INTERVAL_S": "0.2", "ROBOBPP_BASELINES": '["dbl"]',
+    })  # fmt: skip
+    env.update(extra)
+    return env
+
+
 @pytest.fixture
 def make_server(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
     started: list[ServerProcess] = []
 
     def factory(db: str, **extra: str) -> ServerProcess:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
-        env.update({
-            "ROBOBPP_STATE_DIR": str(tmp_path), "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
-            "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1", "ROBOBPP_SPEC_PROVIDER": OFFLINE, "ROBOBPP_GROUPS": "2",
-            "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_WORKERS": "2", "ROBOBPP_LEASE_S": "4",
-            "ROBOBPP_POLL_INTERVAL_S": "0.2", "ROBOBPP_BASELINES": '["dbl"]',
-        })  # fmt: skip
-        env.update(extra)
-        server = ServerProcess(env, tmp_path)
+        server = ServerProcess(server_env(tmp_path, db, **extra), tmp_path)
         started.append(server)
         return server.start()
 

@@ -1,0 +1,311 @@
+"""A typed client for the evaluation server's JSON API (``/api/v1``).
+
+Participants submit a policy URL, follow the evaluation and read the leaderboards with it instead of
+curl; ``robobpp submit`` and ``robobpp submissions`` are thin layers over it. Answers are parsed into
+the server's own pydantic models (``robobpp.server.api.schemas``, which import nothing but pydantic),
+so the client and the server cannot drift apart silently. Every failure — an RFC 9457 problem, a
+server that is not there, an answer that is not the API's — becomes one :class:`ServerError` whose
+text is a single plain line fit to show a person.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar
+from urllib.parse import urlsplit
+
+import httpx
+from pydantic import BaseModel, TypeAdapter, ValidationError
+
+from robobpp.server.api.schemas import (
+    EpisodeDetail,
+    EpisodePublic,
+    Leaderboard,
+    LeaderboardEntry,
+    Me,
+    OverallGrid,
+    ServiceInfo,
+    SubmissionPublic,
+    TokenPublic,
+)
+
+API_PREFIX = "/api/v1"
+DEFAULT_SERVER = "http://127.0.0.1:8000"
+#: Submission statuses after which nothing changes any more.
+FINISHED = frozenset({"completed", "failed", "cancelled"})
+Track = Literal["private", "public"]
+M = TypeVar("M")
+
+
+class ServerError(Exception):
+    """The server refused, failed, or could not be reached.
+
+    ``status`` is the HTTP status (``None`` when no answer came back), ``title`` and ``detail`` the
+    problem document's words, ``kind`` its type's last segment (``not-found``, ``quota-exceeded``…) for
+    programs to branch on, ``errors`` the field errors of a validation problem.
+    """
+
+    def __init__(
+        self,
+        status: int | None,
+        title: str,
+        detail: str = "",
+        *,
+        kind: str | None = None,
+        errors: list[dict[str, Any]] | None = None,
+    ) -> None:
+        self.status = status
+        self.title = title
+        self.detail = detail
+        self.kind = kind
+        self.errors = errors or []
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        words = f"{self.title}: {self.detail}" if self.detail and self.detail != self.title else self.title
+        return f"{self.status}: {words}" if self.status is not None else words
+
+
+@dataclass(frozen=True, slots=True)
+class Standing:
+    """Where one run of a submission stands on its board (dataset × setting × track)."""
+
+    dataset: str
+    setting: str
+    status: str
+    metrics: dict[str, float | None]
+    metric_keys: list[str]
+    rank: int | None
+    score: float | None
+    entries: int
+
+    @property
+    def board(self) -> str:
+        return f"{self.setting}/{self.dataset}"
+
+
+def _one_line(text: str, limit: int = 200) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def problem_from_response(response: httpx.Response) -> ServerError:
+    """Turn an error answer into a :class:`ServerError`: RFC 9457 problems keep their own words; anything
+    else (a proxy's HTML page, a server of another kind) gets its status and the start of its body."""
+    status = response.status_code
+    body: Any = None
+    with contextlib.suppress(ValueError):
+        body = response.json()
+    if isinstance(body, dict) and isinstance(body.get("title"), str):
+        kind = body.get("type")
+        kind = kind.rstrip("/").rsplit("/", 1)[-1] if isinstance(kind, str) else None
+        errors = body.get("errors") if isinstance(body.get("errors"), list) else None
+        detail = body.get("detail") if isinstance(body.get("detail"), str) else ""
+        return ServerError(status, _one_line(body["title"], 100), _one_line(detail), kind=kind, errors=errors)
+    reason = response.reason_phrase or "HTTP error"
+    text = _one_line(response.text, 120) if response.text.strip() else ""
+    detail = f"not an API answer ({text!r})" if text else "not an API answer (empty body)"
+    return ServerError(status, reason, detail)
+
+
+def default_name(policy_url: str) -> str:
+    """A submission name from the URL (``host-port-path``), within the server's name rules."""
+    parts = urlsplit(policy_url.strip())
+    raw = "-".join(p for p in (parts.hostname or "", str(parts.port or ""), parts.path.strip("/")) if p)
+    name = re.sub(r"[^A-Za-z0-9._-]+", "-", raw).strip("-._")[:64]
+    return name or "policy"
+
+
+class ServerClient:
+    """One evaluation server, one API token (``None`` is enough for the public leaderboards).
+
+    ``base_url`` is the server's root (``http://host:8000``); a trailing ``/api/v1`` is accepted too.
+    Use as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(
+        self, base_url: str = DEFAULT_SERVER, token: str | None = None, *, timeout: float = 30.0
+    ) -> None:
+        base = base_url.strip().rstrip("/")
+        if base.endswith(API_PREFIX):
+            base = base[: -len(API_PREFIX)]
+        parts = urlsplit(base)
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise ServerError(None, "Invalid server URL", f"{base_url!r} is not an http(s):// URL")
+        self.base_url = base
+        headers = {"Accept": "application/json, application/problem+json"}
+        token = (token or "").strip()
+        if token:
+            if not token.isascii() or not token.isprintable():
+                raise ServerError(None, "Invalid API token", "it contains characters a header cannot carry")
+            headers["Authorization"] = f"Bearer {token}"
+        self._http = httpx.Client(base_url=base + API_PREFIX, headers=headers, timeout=timeout,
+                                  follow_redirects=False)  # fmt: skip
+
+    # -- plumbing ---------------------------------------------------------------------------------
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> ServerClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+        try:
+            response = self._http.request(method, path, **kwargs)
+        except httpx.TimeoutException:
+            raise ServerError(None, f"no answer from {self.base_url} in time",
+                              f"{method} {API_PREFIX}{path} timed out") from None  # fmt: skip
+        except httpx.TransportError as exc:
+            reason = _one_line(str(exc) or type(exc).__name__, 120)
+            raise ServerError(None, f"cannot reach the server at {self.base_url}", reason) from None
+        if response.is_redirect:
+            where = response.headers.get("location", "?")
+            detail = f"the server sends {API_PREFIX}{path} to {where}; use that address as the server"
+            raise ServerError(response.status_code, "Redirected", detail)
+        if response.is_error:
+            raise problem_from_response(response)
+        try:
+            return response.json()
+        except ValueError:
+            detail = f"{method} {API_PREFIX}{path} did not answer JSON; is {self.base_url} a robobpp server?"
+            raise ServerError(response.status_code, "Unexpected answer", detail) from None
+
+    def _get(self, path: str, model: type[M] | Any, **kwargs: Any) -> M:
+        return self._parse(self._request("GET", path, **kwargs), model, path)
+
+    @staticmethod
+    def _parse(data: Any, model: Any, path: str) -> Any:
+        try:
+            if isinstance(model, type) and issubclass(model, BaseModel):
+                return model.model_validate(data)
+            return TypeAdapter(model).validate_python(data)
+        except ValidationError as exc:
+            first = exc.errors()[0] if exc.errors() else {}
+            where = ".".join(str(p) for p in first.get("loc", ())) or "body"
+            detail = f"{API_PREFIX}{path} does not match this client ({where}: {first.get('msg', 'invalid')})"
+            raise ServerError(None, "Unexpected answer", detail) from None
+
+    # -- the API ----------------------------------------------------------------------------------
+    def info(self) -> ServiceInfo:
+        """What the server evaluates: datasets, settings, groups, weights, termination reasons."""
+        return self._get("/info", ServiceInfo)
+
+    def me(self) -> Me:
+        """Who the token belongs to, and how much of the quota is used."""
+        return self._get("/me", Me)
+
+    def submit(
+        self,
+        policy_url: str,
+        secret: str | None = None,
+        name: str | None = None,
+        datasets: list[str] | None = None,
+        settings: list[str] | None = None,
+        track: Track = "private",
+        *,
+        lookahead: int = 0,
+    ) -> SubmissionPublic:
+        """Submit a policy server for evaluation. The server probes ``/info`` before writing anything, so
+        a wrong secret or an unreachable URL fails here, not halfway through the evaluation."""
+        body: dict[str, Any] = {"name": name or default_name(policy_url), "policy_url": policy_url,
+                                "track": track, "lookahead": lookahead}  # fmt: skip
+        if secret:
+            body["secret"] = secret
+        if datasets:
+            body["datasets"] = list(datasets)
+        if settings:
+            body["settings"] = list(settings)
+        return self._parse(self._request("POST", "/submissions", json=body), SubmissionPublic, "/submissions")
+
+    def submissions(self, *, limit: int = 50, offset: int = 0) -> list[SubmissionPublic]:
+        """This token's submissions, newest first (the admin token sees every one)."""
+        params = {"limit": limit, "offset": offset}
+        return self._get("/submissions", list[SubmissionPublic], params=params)
+
+    def submission(self, submission_id: int) -> SubmissionPublic:
+        return self._get(f"/submissions/{int(submission_id)}", SubmissionPublic)
+
+    def cancel(self, submission_id: int) -> SubmissionPublic:
+        """Stop an evaluation: its unfinished episodes become ``cancelled`` (409 once it has finished)."""
+        path = f"/submissions/{int(submission_id)}/cancel"
+        return self._parse(self._request("POST", path), SubmissionPublic, path)
+
+    def episodes(self, submission_id: int) -> list[EpisodePublic]:
+        """Per-episode results with their termination reasons."""
+        return self._get(f"/submissions/{int(submission_id)}/episodes", list[EpisodePublic])
+
+    def episode(self, submission_id: int, episode_id: int) -> EpisodeDetail:
+        """One episode; on the public track it carries its replay trace."""
+        return self._get(f"/submissions/{int(submission_id)}/episodes/{int(episode_id)}", EpisodeDetail)
+
+    def leaderboard(self, dataset: str, setting: str, track: Track = "private") -> Leaderboard:
+        return self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params={"track": track})
+
+    def grid(self, track: Track = "private") -> OverallGrid:
+        """The overall grid: one row per submission, a score and rank per ``setting/dataset`` board."""
+        return self._get("/leaderboards", OverallGrid, params={"track": track})
+
+    def tokens(self) -> list[TokenPublic]:
+        return self._get("/tokens", list[TokenPublic])
+
+    def revoke_token(self, token_id: int) -> TokenPublic:
+        path = f"/tokens/{int(token_id)}"
+        return self._parse(self._request("DELETE", path), TokenPublic, path)
+
+    # -- conveniences -----------------------------------------------------------------------------
+    def wait(
+        self,
+        submission_id: int,
+        on_progress: Callable[[SubmissionPublic], None] | None = None,
+        poll_s: float = 2.0,
+        *,
+        timeout_s: float | None = None,
+        patience_s: float = 60.0,
+    ) -> SubmissionPublic:
+        """Poll until the submission has finished (completed, failed or cancelled) and return it.
+
+        ``on_progress`` sees every polled state, the last one included. A server that cannot be reached
+        for less than ``patience_s`` (a restart: queued work resumes) is waited for; HTTP errors
+        (401, 404…) are raised at once. ``timeout_s`` bounds the whole wait (``ServerError`` after it).
+        """
+        started = last_ok = time.monotonic()
+        while True:
+            try:
+                sub = self.submission(submission_id)
+            except ServerError as exc:
+                if exc.status is not None or time.monotonic() - last_ok > patience_s:
+                    raise
+            else:
+                last_ok = time.monotonic()
+                if on_progress is not None:
+                    on_progress(sub)
+                if sub.status in FINISHED:
+                    return sub
+            if timeout_s is not None and time.monotonic() - started > timeout_s:
+                raise ServerError(
+                    None, "Still running", f"submission {submission_id} did not finish within {timeout_s:g} s"
+                )
+            time.sleep(poll_s)
+
+    def standings(self, submission: SubmissionPublic) -> list[Standing]:
+        """Each run of ``submission`` with its rank and score on its board (``None`` while not ranked)."""
+        out = []
+        for run in submission.runs:
+            track: Track = "public" if submission.track == "public" else "private"
+            board = self.leaderboard(run.dataset, run.setting, track=track)
+            entry: LeaderboardEntry | None = next(
+                (e for e in board.entries if e.submission_id == submission.id), None
+            )
+            metrics = dict(entry.metrics if entry else run.metrics or {})
+            rank, score = (entry.rank, entry.score) if entry else (None, None)
+            out.append(Standing(dataset=run.dataset, setting=run.setting, status=run.status, metrics=metrics,
+                                metric_keys=list(board.metrics), rank=rank, score=score,
+                                entries=len(board.entries)))  # fmt: skip
+        return out

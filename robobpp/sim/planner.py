@@ -50,9 +50,10 @@ class PlannerConfig:
     check_step_rad: float = 0.01
     check_step_m: float = 0.01
     #: Penetration (m) tolerated between the carried box and placed boxes: neighbours packed flush
-    #: touch the descent column, and settling leaves boxes up to about a centimetre off their cells
-    #: (the observed heightmap ignores overlaps under 5 mm, a slight yaw adds a few more).
-    box_tolerance_m: float = 0.01
+    #: touch the descent column, and settling leaves boxes a few millimetres off their cells. The
+    #: Execution Pack's carried box is already 5 mm smaller per side (``carried_margin_cm``), so a
+    #: full-size overlap of up to 1 cm passes.
+    box_tolerance_m: float = 0.005
     #: Clearance (m) the arm keeps from everything.
     arm_clearance_m: float = 0.0
 
@@ -183,26 +184,42 @@ class PlanningWorld:
             p.resetBasePositionAndOrientation(self.carried, centre.tolist(), quat, physicsClientId=cid)
 
     def in_collision(self, q: Sequence[float]) -> bool:
-        """Arm or carried box touching anything (beyond the tolerances) at ``q``. Counts against the budget."""
+        """Arm or carried box touching anything (beyond the tolerances) at ``q``. Counts against the budget.
+
+        ``getContactPoints`` after ``performCollisionDetection`` reads Bullet's *persistent* contact
+        manifolds: a point found at an earlier query stays while the bodies only slide along its normal's
+        plane, and its depth is re-projected along that old normal. A carried box lowered beside a
+        neighbour it overlaps by 4 mm sideways was thus reported 13 mm deep along z (the point from when
+        its bottom first touched the neighbour's top edge), and the planner refused valid descents into
+        DBL's tight slots. The manifolds still name every pair that may penetrate (the fresh, deepest
+        point is always kept), so each pair reported beyond the tolerance is measured afresh with
+        ``getClosestPoints`` before it counts.
+        """
         self.checks += 1
         if self._limit and self.checks > self._limit:
             raise _Budget
         self.set_config(q)
         cid = self.client
         p.performCollisionDetection(physicsClientId=cid)
+        suspects: set[tuple[int, int, int, int, float]] = set()
         for contact in p.getContactPoints(bodyA=self.robot, physicsClientId=cid):
             if contact[3] < 0:  # the base never moves; its floor contact is no collision
                 continue
             if contact[2] == self.carried and contact[3] in _GRIP_LINKS:
                 continue
             if contact[8] < -self.config.arm_clearance_m:
-                return True
+                suspects.add((self.robot, contact[3], contact[2], contact[4], self.config.arm_clearance_m))
         if self.carried is not None:
             for contact in p.getContactPoints(bodyA=self.carried, physicsClientId=cid):
                 if contact[2] == self.robot:
                     continue
                 if contact[8] < -self.config.box_tolerance_m:
-                    return True
+                    suspects.add((self.carried, -1, contact[2], contact[4], self.config.box_tolerance_m))
+        for body_a, link_a, body_b, link_b, tolerance in sorted(suspects):
+            fresh = p.getClosestPoints(body_a, body_b, 0.0, linkIndexA=link_a, linkIndexB=link_b,
+                                       physicsClientId=cid)  # fmt: skip
+            if any(point[8] < -tolerance for point in fresh or ()):
+                return True
         return False
 
     def segment_free(self, qa: np.ndarray, qb: np.ndarray) -> bool:

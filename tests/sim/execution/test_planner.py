@@ -95,3 +95,39 @@ def test_budget_is_a_check_count_not_a_clock(budget: int) -> None:
     finally:
         world.close()
     assert result.status == "failed" and result.checks <= budget + 1
+
+
+def _lowering(overlap_m: float) -> tuple[PlanningWorld, list[np.ndarray]]:
+    """A 30.6 × 15.8 × 27.7 cm box lowered to the deck beside a 21.5 cm tall neighbour it overlaps
+    sideways by ``overlap_m`` (DBL's 1 cm grid beside a 17.4 cm box), as the descent's states."""
+    neighbour = ((0.6, 0.5, 0.1075), (0.1455, 0.087, 0.1075))  # y 0.413 … 0.587
+    world = PlanningWorld(LAYOUT.base_position, LAYOUT.base_yaw, [], PlannerConfig())
+    world.set_obstacles([(neighbour[0], (0.0, 0.0, 0.0, 1.0), neighbour[1])])
+    half = np.array([0.153, 0.079, 0.1385])
+    rotation = LAYOUT.tool_rotation(0.0)
+    world.attach(half, rotation.T @ np.array([0.0, 0.0, -half[2]]), rotation.T)
+    y = 0.587 - overlap_m + half[1]
+    states, q = [], LAYOUT.home
+    for bottom in np.arange(0.30, 0.0, -0.005):
+        q = LAYOUT.ik(np.array([0.6, y, bottom + 2 * half[2]]), rotation, q)
+        assert q is not None
+        states.append(q)
+    return world, states
+
+
+def test_a_small_sideways_overlap_passes_in_any_order_and_a_large_one_collides() -> None:
+    """The check measures the penetration of the current state, whatever was queried before (lowering
+    and raising give the same answers); the pack's test on DBL's slot holds the case where Bullet's
+    persistent manifolds once reported a 4 mm sideways overlap as 13 mm deep."""
+    world, states = _lowering(0.004)
+    try:
+        assert not any(world.in_collision(q) for q in states)  # 4 mm: within the tolerance all the way
+        assert [world.in_collision(q) for q in states[::-1]] == [False] * len(states)
+    finally:
+        world.close()
+    world, states = _lowering(0.02)
+    try:
+        hits = [world.in_collision(q) for q in states]
+        assert not hits[0] and all(hits[-20:])  # 2 cm into the neighbour is still a collision
+    finally:
+        world.close()

@@ -18,7 +18,6 @@ import numpy as np
 import pybullet as p
 
 from robobpp.core import Action, Box, EpisodeSpec, Infeasible, Placement
-from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.sim.base import StepOutcome
 from robobpp.sim.execution import motion
 from robobpp.sim.execution.layout import Layout
@@ -183,9 +182,6 @@ class ExecutionPack(PhysicsPack):
         return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") % (2**31 - 2) + 1
 
     # -- the operation -------------------------------------------------------------------------------
-    def _too_high_slack(self) -> float:
-        return TOLERANCE_CM
-
     def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
         world = self._world()
         assert self.layout is not None

@@ -10,6 +10,8 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
+from robobpp.core.feasibility import TOLERANCE_CM
+
 #: ``full``: every placed box is dynamic and each placement runs at least the 200-step stability window
 #: (the reference the fidelity test compares against). ``fast``: boxes far from the new one are frozen
 #: (made static) and woken only when something moving comes near them, and the window stops early once
@@ -80,6 +82,13 @@ class PhysicsConfig:
             raise ValueError("solver iterations and step counts must be >= 1")
         if self.mode not in ("full", "fast"):
             raise ValueError(f"physics mode must be 'full' or 'fast', got {self.mode!r}")
+
+    @property
+    def too_high_slack_cm(self) -> float:
+        """How far (cm) a box's top may stand above the container height before the placement is refused
+        as too_high: half the observed heightmap's rounding, which a policy cannot see through (a top
+        computed from the rounded heightmap may be up to that much low). Both packs use it."""
+        return max(TOLERANCE_CM, self.heightmap_resolution_cm / 2)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -9,7 +9,6 @@ from dataclasses import fields, replace
 import numpy as np
 
 from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement
-from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
 from robobpp.sim.physics.geometry import heightmap_from_boxes, surface_height
@@ -93,10 +92,6 @@ class PhysicsPack(Setting):
         """Where each released box was meant to rest, in placement order (read-only view)."""
         return tuple(self._planned)
 
-    def _too_high_slack(self) -> float:
-        # Within the observed heightmap's rounding a policy cannot tell, so that much is allowed.
-        return max(TOLERANCE_CM, self.config.heightmap_resolution_cm / 2)
-
     def target_placement(self, box: Box, action: Action, index: int) -> Placement | Infeasible:
         """The planned placement: the action's (x, y) at the resting height the *physical* pile offers,
         or ``Infeasible("too_high")`` when the box's top would then stand above the container."""
@@ -105,7 +100,7 @@ class PhysicsPack(Setting):
         assert spec is not None
         length, width, height = box.dims(action.orientation)
         z = self.resting_height(action.x, action.y, length, width)
-        if z + height > spec.container.height + self._too_high_slack():
+        if z + height > spec.container.height + self.config.too_high_slack_cm:
             detail = (f"box top at {z + height:g} cm would exceed the container height "
                       f"{spec.container.height:g} cm")  # fmt: skip
             return Infeasible("too_high", detail)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from robobpp.core import Action, Box, ContainerSpec, EpisodeSpec
+from robobpp.core import Action, Box, ContainerSpec, EpisodeSpec, Placement
 from robobpp.sim import make_setting
 from robobpp.sim.execution import ExecutionPack, Layout
 from robobpp.sim.physics.world import PALLET_HEIGHT_M
@@ -189,3 +189,18 @@ def test_the_arm_has_left_before_the_released_box_settles() -> None:
     finally:
         pack.close()
     assert outcome.collapsed and outcome.placement is not None and outcome.placement.z < 10
+
+
+@pytest.mark.parametrize("setting", ["physics", "execution"])
+def test_too_high_allows_the_heightmap_rounding_in_both_packs(setting: str) -> None:
+    """The observed heightmap is rounded to 1 mm, so a top up to 0.5 mm over the container passes."""
+    fits, over = Box(30, 30, 100.04, 2.0), Box(30, 30, 100.1, 2.0)
+    pack = make_setting(setting)
+    try:
+        pack.reset(_spec([fits, over]))
+        assert pack.config.too_high_slack_cm == pytest.approx(0.05)  # type: ignore[attr-defined]
+        assert isinstance(pack.target_placement(fits, Action(0, 0, 0), 0), Placement)  # type: ignore[attr-defined]
+        refused = pack.target_placement(over, Action(0, 0, 0), 0)  # type: ignore[attr-defined]
+        assert refused.reason == "too_high"
+    finally:
+        pack.close()

@@ -1,0 +1,232 @@
+"""The participant's side, end to end: a real ``robobpp serve`` subprocess (offline episodes), policies served
+with the SDK, and the API client and ``robobpp submit`` / ``submissions`` / ``leaderboard`` against them."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+
+import pytest
+from typer.testing import CliRunner
+
+from robobpp.client.api import ServerClient, ServerError, default_name
+from robobpp.client.serve import BackgroundServer, create_policy_app
+from robobpp.policies.dbl import DBL
+from tests.server.conftest import ServerProcess, SlowDBL, free_port, new_participant, server_env, wait_for
+
+SECRET = "policy-secret-123"
+RANK = re.compile(r"math/diverse\s.*\scompleted\s.*\s(\d+) / (\d+)")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    """One server for the module (starting one costs seconds): Math only, 2 groups, DBL baseline."""
+    state = tmp_path_factory.mktemp("server")
+    env = server_env(state, f"sqlite:///{state / 'api.sqlite3'}", ROBOBPP_QUOTA_CONCURRENT="10",
+                     ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY="50")  # fmt: skip
+    proc = ServerProcess(env, state).start()
+    yield proc
+    proc.crash()
+
+
+@pytest.fixture(scope="module")
+def fast() -> Iterator[BackgroundServer]:
+    with BackgroundServer(create_policy_app(DBL, SECRET)) as srv:
+        yield srv
+
+
+@pytest.fixture(scope="module")
+def slow() -> Iterator[BackgroundServer]:
+    with BackgroundServer(create_policy_app(SlowDBL, SECRET)) as srv:
+        yield srv
+
+
+@pytest.fixture(scope="module")
+def token(server: ServerProcess) -> str:
+    with server.client() as admin:
+        return new_participant(admin, "alice")
+
+
+@pytest.fixture
+def api(server: ServerProcess, token: str) -> Iterator[ServerClient]:
+    with ServerClient(server.url, token, timeout=30) as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
+def cli() -> CliRunner:
+    from robobpp.cli import _register
+
+    _register()
+    return CliRunner()
+
+
+def run_cli(cli: CliRunner, server: ServerProcess | str, token: str | None, *args: str):  # type: ignore[no-untyped-def]
+    """``robobpp ARGS`` in-process (fast); the server is still the real subprocess, over HTTP."""
+    from robobpp.cli import app
+
+    url = server if isinstance(server, str) else server.url
+    env = {"ROBOBPP_SERVER": url, "ROBOBPP_TOKEN": token or "", "ROBOBPP_POLICY_SECRET": ""}
+    return cli.invoke(app, list(args), env=env)
+
+
+def cli_env(server: ServerProcess, token: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
+    return {**env, "ROBOBPP_SERVER": server.url, "ROBOBPP_TOKEN": token, "COLUMNS": "200"}
+
+
+def robobpp(*args: str) -> list[str]:
+    """The real command line (entry point, exit code), not an in-process call."""
+    return [sys.executable, "-m", "robobpp.cli", *args]
+
+
+def test_submit_wait_prints_the_results_with_rank_per_board(server, fast, token, api) -> None:  # type: ignore[no-untyped-def]
+    done = subprocess.run(robobpp("submit", fast.url, "--secret", SECRET, "--name", "cli dbl", "--dataset",
+                                  "diverse", "--wait", "--poll", "0.3"),
+                          env=cli_env(server, token), capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr + done.stdout
+    assert "Traceback" not in done.stderr
+    sub = next(s for s in api.submissions() if s.name == "cli dbl")
+    assert sub.status == "completed" and sub.progress.episodes_done == sub.progress.episodes_total == 2
+    assert f"submitted #{sub.id} cli dbl: 2 episodes on 1 board" in done.stderr
+    assert "2/2" in done.stderr  # the progress bar reached the end
+    match = RANK.search(done.stdout)
+    assert match, done.stdout
+    (standing,) = api.standings(sub)
+    assert standing.board == "math/diverse" and standing.rank is not None
+    assert (int(match[1]), int(match[2])) == (standing.rank, standing.entries)
+    assert f"{standing.metrics['space_utilization']:.4f}" in done.stdout
+    # the DBL baseline ran in-process on the same episodes: same geometry as the remote DBL
+    baseline = wait_for(
+        lambda: next((e for e in api.leaderboard("diverse", "math").entries if e.baseline), None)
+    )
+    assert baseline.metrics["space_utilization"] == pytest.approx(standing.metrics["space_utilization"])
+
+
+def test_client_submit_wait_episodes_boards_and_grid(api: ServerClient, fast: BackgroundServer) -> None:
+    me = api.me()
+    assert me.participant is not None and me.participant.name == "alice" and not me.admin
+    sub = api.submit(fast.url, SECRET, None, ["longboard"], ["math"], "public")
+    assert sub.name == default_name(fast.url) and sub.status == "queued" and sub.track == "public"
+    seen: list[tuple[str, int, int]] = []
+    final = api.wait(sub.id, on_progress=lambda s: seen.append((s.status, s.progress.episodes_done,
+                                                                s.progress.episodes_total)), poll_s=0.2)  # fmt: skip
+    assert final.status == "completed" and seen[-1] == ("completed", 2, 2)
+    assert [d for _, d, _ in seen] == sorted(d for _, d, _ in seen)  # progress never goes back
+    episodes = api.episodes(sub.id)
+    assert [e.status for e in episodes] == ["done", "done"] and all(e.termination for e in episodes)
+    assert api.episode(sub.id, episodes[0].id).trace is not None  # public track keeps the replay
+    board = api.leaderboard("longboard", "math", track="public")
+    entry = next(e for e in board.entries if e.submission_id == sub.id)
+    assert entry.metrics["space_utilization"] == final.runs[0].metrics["space_utilization"]  # type: ignore[index]
+    assert sub.id in {row.submission_id for row in api.grid("public").rows}
+    assert sub.id not in {row.submission_id for row in api.grid("private").rows}
+    assert sub.id in [s.id for s in api.submissions()]
+
+
+def test_cancel_list_and_episodes_through_the_cli(server, slow, token, api, cli) -> None:  # type: ignore[no-untyped-def]
+    """A waiting ``submit --wait`` exits non-zero when its submission ends other than completed."""
+    waiting = subprocess.Popen(robobpp("submit", slow.url, "--secret", SECRET, "--name", "slow one", "--dataset",
+                                       "repetitive,diverse", "--wait", "--poll", "0.3"),
+                               env=cli_env(server, token), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)  # fmt: skip
+    try:
+        sub = wait_for(lambda: next((s for s in api.submissions() if s.name == "slow one"), None), 60)
+        wait_for(lambda: api.submission(sub.id).progress.episodes_running, 60)
+        r = run_cli(cli, server, token, "submissions", "cancel", str(sub.id))
+        assert r.exit_code == 0, r.output
+        assert f"submission {sub.id} cancelled (4 episodes cancelled)" in r.stdout
+        out, errs = waiting.communicate(timeout=60)
+    finally:
+        waiting.kill()
+    assert waiting.returncode == 1, errs
+    assert f"error: submission {sub.id} cancelled" in errs and "Traceback" not in errs
+    assert "cancelled" in out  # the final table was still printed
+
+    listed = run_cli(cli, server, token, "submissions", "list")
+    assert listed.exit_code == 0 and re.search(rf"\b{sub.id}\b.*slow one.*cancelled", listed.stdout)
+    episodes = run_cli(cli, server, token, "submissions", "episodes", str(sub.id))
+    assert episodes.exit_code == 0 and episodes.stdout.count("cancelled") == 4
+    again = run_cli(cli, server, token, "submissions", "cancel", str(sub.id))
+    assert again.exit_code == 1 and again.stderr.startswith("error: 409: Already finished:")
+
+
+def test_leaderboard_command_shows_boards_and_the_grid(server, fast, token, api, cli) -> None:  # type: ignore[no-untyped-def]
+    sub = api.wait(api.submit(fast.url, SECRET, "for board", ["diverse"]).id, poll_s=0.2)
+    board = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse", "--setting", "math")
+    assert board.exit_code == 0, board.output
+    assert "Space Utilization (0.6)" in board.stdout and f"#{sub.id} for board" in board.stdout
+    grid = run_cli(cli, server, None, "leaderboard")
+    assert grid.exit_code == 0 and "math/diverse" in grid.stdout and f"#{sub.id} for board" in grid.stdout
+    as_json = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse", "--setting", "math", "--json")
+    assert '"entries"' in as_json.stdout
+    shown = run_cli(cli, server, token, "submissions", "show", str(sub.id))
+    assert shown.exit_code == 0 and re.search(r"math/diverse.*completed.*\d+ / \d+", shown.stdout)
+    bad = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse")
+    assert bad.exit_code == 2 and "both --dataset and --setting" in bad.stderr
+
+
+def test_errors_are_one_line_with_the_status(server, fast, token, cli) -> None:  # type: ignore[no-untyped-def]
+    cases = [
+        ((None, "submissions", "list"), 2, "error: no API token: pass --token or set ROBOBPP_TOKEN"),
+        (("nope", "submissions", "list"), 1, "error: 401: Unauthorized: the API token is not valid"),
+        ((token, "submissions", "show", "999999"), 1, "error: 404: Not found: no submission 999999"),
+        ((token, "submit", f"http://127.0.0.1:{free_port()}"), 1, "error: 422: Policy unreachable:"),
+        ((token, "submit", fast.url, "--secret", "not-the-secret"), 1, "error: 422: Policy unreachable:"),
+        ((token, "submit", fast.url, "--dataset", "moon"), 2, "error: unknown dataset moon"),
+        ((token, "submit", fast.url, "--track", "secret"), 2, "error: unknown track 'secret'"),
+    ]
+    for (tok, *args), code, start in cases:
+        r = run_cli(cli, server, tok, *args)
+        assert r.exit_code == code, (args, r.output)
+        assert r.stderr.startswith(start), (args, r.stderr)
+        assert r.stderr.count("\n") == 1 and "Traceback" not in r.output, (args, r.stderr)
+    down = f"http://127.0.0.1:{free_port()}"
+    r = run_cli(cli, down, token, "submissions", "list")
+    assert r.exit_code == 1 and r.stderr.startswith(f"error: cannot reach the server at {down}")
+
+
+def test_client_errors_carry_status_kind_and_plain_words(server, fast, token) -> None:  # type: ignore[no-untyped-def]
+    with ServerClient(server.url + "/api/v1/", "wrong") as bad:
+        with pytest.raises(ServerError) as info:
+            bad.me()
+        assert (info.value.status, info.value.kind) == (401, "unauthorized")
+        assert str(info.value).startswith("401: Unauthorized: ")
+        assert bad.leaderboard("diverse", "math").dataset == "diverse"  # boards are public
+    with ServerClient(server.url, token) as api:
+        with pytest.raises(ServerError) as info:
+            api.submit(fast.url, "short", "x")  # secrets have at least 8 characters
+        assert info.value.status == 422 and info.value.kind == "validation-error"
+        assert "secret" in info.value.detail and info.value.errors
+        with pytest.raises(ServerError, match="^422: "):
+            api.leaderboard("moon", "math")
+    # a server that is not the evaluation service: status and the start of its body, in one line
+    with ServerClient(fast.url, token) as wrong, pytest.raises(ServerError) as info:
+        wrong.me()
+    assert info.value.status == 404 and "not an API answer" in str(info.value) and "\n" not in str(info.value)
+    with pytest.raises(ServerError, match="not an http"):
+        ServerClient("ftp://example.org", token)
+
+
+def test_revoked_token_stops_working_for_the_client(server: ServerProcess) -> None:
+    with server.client() as admin:
+        fresh = new_participant(admin, "revoker")
+    with ServerClient(server.url, fresh) as api:
+        (mine,) = api.tokens()
+        assert fresh.startswith(mine.prefix) and mine.revoked_at is None
+        assert api.revoke_token(mine.id).revoked_at is not None
+        with pytest.raises(ServerError, match=r"^401: .*revoked"):
+            api.me()
+
+
+def test_wait_gives_up_on_an_unreachable_server_after_its_patience() -> None:
+    """``wait`` keeps polling while the server cannot be reached (a restart), but not for ever."""
+    with ServerClient(f"http://127.0.0.1:{free_port()}", "t") as api:
+        started = time.monotonic()
+        with pytest.raises(ServerError, match="cannot reach"):
+            api.wait(1, poll_s=0.05, patience_s=0.3)
+        assert time.monotonic() - started >= 0.3

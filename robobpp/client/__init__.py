@@ -1,4 +1,5 @@
-"""Client SDK: serve a policy over protocol robobpp/1, and drive a remote one as a local policy.
+"""Client SDK: serve a policy over protocol robobpp/1, drive a remote one as a local policy, and talk to an
+evaluation server (:class:`ServerClient`).
 
 Imports are lazy so that using :class:`RemotePolicy` never pulls in FastAPI and uvicorn.
 """
@@ -8,6 +9,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from robobpp.client.api import ServerClient, ServerError
     from robobpp.client.remote import RemotePolicy
     from robobpp.client.serve import BackgroundServer, create_policy_app, serve
 
@@ -16,6 +18,8 @@ _LAZY = {
     "BackgroundServer": "robobpp.client.serve",
     "create_policy_app": "robobpp.client.serve",
     "serve": "robobpp.client.serve",
+    "ServerClient": "robobpp.client.api",
+    "ServerError": "robobpp.client.api",
 }
 
 
@@ -28,4 +32,4 @@ def __getattr__(name: str) -> Any:
     return getattr(importlib.import_module(module), name)
 
 
-__all__ = ["BackgroundServer", "RemotePolicy", "create_policy_app", "serve"]
+__all__ = ["BackgroundServer", "RemotePolicy", "ServerClient", "ServerError", "create_policy_app", "serve"]

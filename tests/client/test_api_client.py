@@ -11,11 +11,12 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from robobpp.client.api import ServerClient, ServerError, default_name
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.policies.dbl import DBL
+from robobpp.server.api.schemas import SubmissionPublic
 from tests.server.conftest import ServerProcess, SlowDBL, free_port, new_participant, server_env, wait_for
 
 SECRET = "policy-secret-123"
@@ -65,7 +66,7 @@ def cli() -> CliRunner:
     return CliRunner()
 
 
-def run_cli(cli: CliRunner, server: ServerProcess | str, token: str | None, *args: str):  # type: ignore[no-untyped-def]
+def run_cli(cli: CliRunner, server: ServerProcess | str, token: str | None, *args: str) -> Result:
     """``robobpp ARGS`` in-process (fast); the server is still the real subprocess, over HTTP."""
     from robobpp.cli import app
 
@@ -84,10 +85,14 @@ def robobpp(*args: str) -> list[str]:
     return [sys.executable, "-m", "robobpp.cli", *args]
 
 
-def test_submit_wait_prints_the_results_with_rank_per_board(server, fast, token, api) -> None:  # type: ignore[no-untyped-def]
-    done = subprocess.run(robobpp("submit", fast.url, "--secret", SECRET, "--name", "cli dbl", "--dataset",
-                                  "diverse", "--wait", "--poll", "0.3"),
-                          env=cli_env(server, token), capture_output=True, text=True, timeout=120)  # fmt: skip
+def test_submit_wait_prints_the_results_with_rank_per_board(
+    server: ServerProcess, fast: BackgroundServer, token: str, api: ServerClient
+) -> None:
+    args = robobpp(
+        "submit", fast.url, "--secret", SECRET, "--name", "cli dbl", "--dataset", "diverse", "--wait"
+    )
+    env = cli_env(server, token)
+    done = subprocess.run([*args, "--poll", "0.3"], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr + done.stdout
     assert "Traceback" not in done.stderr
     sub = next(s for s in api.submissions() if s.name == "cli dbl")
@@ -113,8 +118,11 @@ def test_client_submit_wait_episodes_boards_and_grid(api: ServerClient, fast: Ba
     sub = api.submit(fast.url, SECRET, None, ["longboard"], ["math"], "public")
     assert sub.name == default_name(fast.url) and sub.status == "queued" and sub.track == "public"
     seen: list[tuple[str, int, int]] = []
-    final = api.wait(sub.id, on_progress=lambda s: seen.append((s.status, s.progress.episodes_done,
-                                                                s.progress.episodes_total)), poll_s=0.2)  # fmt: skip
+
+    def note(s: SubmissionPublic) -> None:
+        seen.append((s.status, s.progress.episodes_done, s.progress.episodes_total))
+
+    final = api.wait(sub.id, on_progress=note, poll_s=0.2)
     assert final.status == "completed" and seen[-1] == ("completed", 2, 2)
     assert [d for _, d, _ in seen] == sorted(d for _, d, _ in seen)  # progress never goes back
     episodes = api.episodes(sub.id)
@@ -122,18 +130,22 @@ def test_client_submit_wait_episodes_boards_and_grid(api: ServerClient, fast: Ba
     assert api.episode(sub.id, episodes[0].id).trace is not None  # public track keeps the replay
     board = api.leaderboard("longboard", "math", track="public")
     entry = next(e for e in board.entries if e.submission_id == sub.id)
-    assert entry.metrics["space_utilization"] == final.runs[0].metrics["space_utilization"]  # type: ignore[index]
+    assert final.runs[0].metrics is not None
+    assert entry.metrics["space_utilization"] == final.runs[0].metrics["space_utilization"]
     assert sub.id in {row.submission_id for row in api.grid("public").rows}
     assert sub.id not in {row.submission_id for row in api.grid("private").rows}
     assert sub.id in [s.id for s in api.submissions()]
 
 
-def test_cancel_list_and_episodes_through_the_cli(server, slow, token, api, cli) -> None:  # type: ignore[no-untyped-def]
+def test_cancel_list_and_episodes_through_the_cli(
+    server: ServerProcess, slow: BackgroundServer, token: str, api: ServerClient, cli: CliRunner
+) -> None:
     """A waiting ``submit --wait`` exits non-zero when its submission ends other than completed."""
-    waiting = subprocess.Popen(robobpp("submit", slow.url, "--secret", SECRET, "--name", "slow one", "--dataset",
-                                       "repetitive,diverse", "--wait", "--poll", "0.3"),
-                               env=cli_env(server, token), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True)  # fmt: skip
+    args = robobpp(
+        "submit", slow.url, "--secret", SECRET, "--name", "slow one", "--dataset", "repetitive,diverse"
+    )
+    waiting = subprocess.Popen([*args, "--wait", "--poll", "0.3"], env=cli_env(server, token),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
         sub = wait_for(lambda: next((s for s in api.submissions() if s.name == "slow one"), None), 60)
         wait_for(lambda: api.submission(sub.id).progress.episodes_running, 60)
@@ -155,7 +167,9 @@ def test_cancel_list_and_episodes_through_the_cli(server, slow, token, api, cli)
     assert again.exit_code == 1 and again.stderr.startswith("error: 409: Already finished:")
 
 
-def test_leaderboard_command_shows_boards_and_the_grid(server, fast, token, api, cli) -> None:  # type: ignore[no-untyped-def]
+def test_leaderboard_command_shows_boards_and_the_grid(
+    server: ServerProcess, fast: BackgroundServer, token: str, api: ServerClient, cli: CliRunner
+) -> None:
     sub = api.wait(api.submit(fast.url, SECRET, "for board", ["diverse"]).id, poll_s=0.2)
     board = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse", "--setting", "math")
     assert board.exit_code == 0, board.output
@@ -170,7 +184,9 @@ def test_leaderboard_command_shows_boards_and_the_grid(server, fast, token, api,
     assert bad.exit_code == 2 and "both --dataset and --setting" in bad.stderr
 
 
-def test_errors_are_one_line_with_the_status(server, fast, token, cli) -> None:  # type: ignore[no-untyped-def]
+def test_errors_are_one_line_with_the_status(
+    server: ServerProcess, fast: BackgroundServer, token: str, cli: CliRunner
+) -> None:
     cases = [
         ((None, "submissions", "list"), 2, "error: no API token: pass --token or set ROBOBPP_TOKEN"),
         (("nope", "submissions", "list"), 1, "error: 401: Unauthorized: the API token is not valid"),
@@ -190,7 +206,9 @@ def test_errors_are_one_line_with_the_status(server, fast, token, cli) -> None: 
     assert r.exit_code == 1 and r.stderr.startswith(f"error: cannot reach the server at {down}")
 
 
-def test_client_errors_carry_status_kind_and_plain_words(server, fast, token) -> None:  # type: ignore[no-untyped-def]
+def test_client_errors_carry_status_kind_and_plain_words(
+    server: ServerProcess, fast: BackgroundServer, token: str
+) -> None:
     with ServerClient(server.url + "/api/v1/", "wrong") as bad:
         with pytest.raises(ServerError) as info:
             bad.me()

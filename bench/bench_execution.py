@@ -5,6 +5,10 @@ CPU seconds per box of the whole step (observe + DBL + robot operation + settle)
 p95 per placement, plus the Execution metrics so a speed change that changes outcomes shows.
 
     python bench/bench_execution.py [--groups 1] [--synthetic] [--datasets repetitive,diverse,longboard]
+                                    [--compare-physics]
+
+``--compare-physics`` also runs DBL in the Physics Pack on the same groups and prints the boxes placed per
+episode in both settings (the robot should not end episodes much earlier than physics alone does).
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ def run(dataset: str, groups: int, synthetic: bool) -> dict[str, Any]:
         "plan_p95": percentile(planning, 95),
         "statuses": dict(statuses),
         "placed": sum(r.boxes_placed for r in results),
+        "placed_each": [r.boxes_placed for r in results],
         "terminations": [r.termination for r in results],
         "traj": statistics.mean(m.get("trajectory_length") or 0.0 for m in metrics),
         "danger": statistics.mean(m.get("dangerous_operation") or 0.0 for m in metrics),
@@ -70,12 +75,24 @@ def run(dataset: str, groups: int, synthetic: bool) -> dict[str, Any]:
     }
 
 
+def physics_placed(dataset: str, groups: int, synthetic: bool) -> list[int]:
+    from robobpp.episode import run_episode
+    from robobpp.policies import load_policy
+
+    return [
+        run_episode(spec, load_policy("dbl"), "physics").boxes_placed
+        for spec in _specs(dataset, groups, synthetic)
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--groups", type=int, default=1)
     parser.add_argument("--synthetic", action="store_true")
     parser.add_argument("--datasets", default="repetitive,diverse,longboard")
+    parser.add_argument("--compare-physics", action="store_true")
     args = parser.parse_args()
+    compare: list[str] = []
     print(f"machine: {machine()}")
     print("| dataset | boxes placed | CPU s/box (mean / median) | vs reference 5.8 | planning p50 / p95 (s) "
           "| plan status | traj. length (m) | dangerous | utilization | termination |")  # fmt: skip
@@ -89,6 +106,14 @@ def main() -> None:
             f"{', '.join(str(t) for t in r['terminations'])} |",
             flush=True,
         )
+        if args.compare_physics:
+            physics = physics_placed(dataset, args.groups, args.synthetic)
+            execution = r["placed_each"]
+            compare.append(f"| {dataset} | {statistics.mean(physics):.1f} ({', '.join(map(str, physics))}) | "
+                           f"{statistics.mean(execution):.1f} ({', '.join(map(str, execution))}) |")  # fmt: skip
+    if compare:
+        print("\nDBL boxes placed per episode\n\n| dataset | Physics Pack | Execution Pack |\n|---|---|---|")
+        print("\n".join(compare))
 
 
 if __name__ == "__main__":

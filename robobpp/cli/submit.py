@@ -63,11 +63,32 @@ def _client(server: str, token: str | None, *, need_token: bool = True) -> Itera
 
     if need_token and not (token or "").strip():
         fail("no API token: pass --token or set ROBOBPP_TOKEN", code=2)
+    if (token or "").strip() and _plain_http_elsewhere(server):
+        err.print(
+            "[yellow]warning:[/] the API token goes over plain http to another machine; use https",
+            soft_wrap=True,
+        )
     try:
         with ServerClient(server, token) as client:
             yield client
     except ServerError as exc:
         fail(escape(str(exc)), code=1)
+
+
+def _plain_http_elsewhere(server: str) -> bool:
+    """Whether the token would cross a network unencrypted (loopback is fine: dev servers, tests)."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(server.strip())
+    if parts.scheme != "http" or not parts.hostname:
+        return False
+    if parts.hostname == "localhost":
+        return False
+    try:
+        return not ipaddress.ip_address(parts.hostname).is_loopback
+    except ValueError:
+        return True
 
 
 def _track(value: str) -> Any:

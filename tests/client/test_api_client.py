@@ -248,3 +248,14 @@ def test_wait_gives_up_on_an_unreachable_server_after_its_patience() -> None:
         with pytest.raises(ServerError, match="cannot reach"):
             api.wait(1, poll_s=0.05, patience_s=0.3)
         assert time.monotonic() - started >= 0.3
+
+
+@pytest.mark.parametrize(
+    ("url", "warn"),
+    [("http://127.0.0.1:8000", False), ("http://localhost:8000", False), ("http://[::1]:8000", False),
+     ("https://bench.example.org", False), ("http://bench.example.org", True), ("http://10.0.0.5:80", True)],
+)  # fmt: skip
+def test_plain_http_to_another_machine_is_flagged(url: str, warn: bool) -> None:
+    from robobpp.cli.submit import _plain_http_elsewhere
+
+    assert _plain_http_elsewhere(url) is warn

@@ -171,10 +171,10 @@ def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> Submi
 
         def show(s: SubmissionPublic) -> None:
             p = s.progress
-            phase = p.phase or ("—" if s.status in ("completed", "failed", "cancelled") else "waiting")
+            phase = f" · {p.phase}" if p.phase and s.status == "running" else ""
             failed = f" · {p.episodes_failed} failed" if p.episodes_failed else ""
             progress.update(task, total=p.episodes_total or None, completed=p.episodes_done,
-                            description=f"#{s.id} {s.status} · {phase}{failed}")  # fmt: skip
+                            description=f"#{s.id} {s.status}{phase}{failed}")  # fmt: skip
 
         try:
             return client.wait(sub.id, on_progress=show, poll_s=poll_s)

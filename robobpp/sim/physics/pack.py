@@ -95,8 +95,8 @@ class PhysicsPack(Setting):
     def target_placement(self, box: Box, action: Action, index: int) -> Placement | Infeasible:
         """The planned placement: the action's (x, y) at the resting height the *physical* pile offers,
         or ``Infeasible("too_high")`` when the box's top would then stand above the container."""
+        self._world()  # refuses before reset
         spec = self.spec
-        self._world()
         assert spec is not None
         length, width, height = box.dims(action.orientation)
         z = self.resting_height(action.x, action.y, length, width)

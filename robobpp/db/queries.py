@@ -15,6 +15,7 @@ returns plain dicts ready for JSON or templates.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -107,14 +108,17 @@ def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "p
 
 def overall_grid(
     session: Session, *, datasets: tuple[str, ...] = DATASETS_ORDER, settings: tuple[str, ...] = SETTINGS_ORDER,
-    track: str = "private",
+    track: str = "private", board: Callable[[str, str], dict[str, Any]] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """The paper's overall table: one row per submission, one (score, rank) cell per board it is on."""
+    """The paper's overall table: one row per submission, one (score, rank) cell per board it is on.
+
+    ``board(dataset, setting)`` supplies each board (the server passes its cache); default: computed here.
+    """
+    get_board = board or (lambda dataset, setting: leaderboard(session, dataset, setting, track=track))
     rows: dict[int, dict[str, Any]] = {}
     for setting in settings:
         for dataset in datasets:
-            board = leaderboard(session, dataset, setting, track=track)
-            for e in board["entries"]:
+            for e in get_board(dataset, setting)["entries"]:
                 row = rows.setdefault(e["submission_id"], {"submission_id": e["submission_id"], "name": e["name"],
                                       "participant": e["participant"], "baseline": e["baseline"], "cells": {}})  # fmt: skip
                 row["cells"][f"{setting}/{dataset}"] = {"score": e["score"], "rank": e["rank"],

@@ -75,16 +75,5 @@ class BoardCache:
 def overall_grid(cache: BoardCache, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
                  track: str = "private") -> dict[str, Any]:  # fmt: skip
     """The 3 × 3 grid from (cached) boards: one row per submission, a (score, rank) cell per board."""
-    rows: dict[int, dict[str, Any]] = {}
-    for setting in settings:
-        for dataset in datasets:
-            board, _ = cache.get(session, dataset, setting, track)
-            for e in board["entries"]:
-                row = rows.setdefault(e["submission_id"], {"submission_id": e["submission_id"], "name": e["name"],
-                                      "participant": e["participant"], "baseline": e["baseline"], "cells": {}})  # fmt: skip
-                row["cells"][f"{setting}/{dataset}"] = {"score": e["score"], "rank": e["rank"],
-                                                        "pph": e["extras"].get("pph")}  # fmt: skip
-    ordered = sorted(
-        rows.values(), key=lambda r: (-sum(c["score"] for c in r["cells"].values()), r["submission_id"])
-    )
-    return {"datasets": list(datasets), "settings": list(settings), "track": track, "rows": ordered}
+    return queries.overall_grid(session, datasets=datasets, settings=settings, track=track,
+                                board=lambda dataset, setting: cache.get(session, dataset, setting, track)[0])  # fmt: skip

@@ -6,6 +6,8 @@ Imports are lazy so that using :class:`RemotePolicy` never pulls in FastAPI and 
 
 from __future__ import annotations
 
+import sys
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -31,5 +33,22 @@ def __getattr__(name: str) -> Any:
 
     return getattr(importlib.import_module(module), name)
 
+
+class _ClientPackage(ModuleType):
+    """Keeps ``robobpp.client.serve`` the function although a submodule bears the same name.
+
+    Importing ``robobpp.client.serve`` (the module) makes Python bind it as the package attribute
+    ``serve``, so ``from robobpp.client import serve`` would hand participants a module that cannot be
+    called. The package refuses that binding; the module stays reachable through ``sys.modules`` and
+    ``from robobpp.client.serve import ...``.
+    """
+
+    def __setattr__(self, name: str, value: object) -> None:
+        if name == "serve" and isinstance(value, ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _ClientPackage
 
 __all__ = ["BackgroundServer", "RemotePolicy", "ServerClient", "ServerError", "create_policy_app", "serve"]

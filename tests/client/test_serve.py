@@ -205,3 +205,19 @@ def test_openapi_and_json_schema_come_from_the_protocol_models(signed: Backgroun
     ):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate(bad, response_schema)
+
+
+def test_sdk_serve_is_the_function_even_after_its_module_was_imported() -> None:
+    """``from robobpp.client import serve`` (docs, examples) must give the function, not the submodule."""
+    import inspect
+    import subprocess
+    import sys
+
+    from robobpp.client import serve
+    from robobpp.client.serve import serve as serve_function
+
+    assert serve is serve_function  # this file imported robobpp.client.serve (the module) first
+    fresh = "from robobpp.client import serve; import robobpp.client.serve; print(callable(serve))"
+    out = subprocess.run([sys.executable, "-c", fresh], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True"
+    assert inspect.isfunction(serve)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Iterable
 from typing import NoReturn
 
@@ -29,3 +31,15 @@ def parse_choices(value: str, allowed: Iterable[str], what: str) -> list[str]:
             f"unknown {what} {', '.join(unknown) or repr(value)}; expected one of {', '.join(allowed)} or all"
         )
     return names
+
+
+def import_from_cwd(policy: str) -> None:
+    """Let a ``module:Class`` policy name a module in the current directory, as ``python -m`` does.
+
+    The ``robobpp`` console script puts only its own directory on ``sys.path``, so a participant's
+    ``mypolicy.py`` in the working directory was "No module named 'mypolicy'".
+    """
+    if ":" in policy and not policy.startswith(("http://", "https://")):
+        cwd = os.getcwd()
+        if cwd not in sys.path and "" not in sys.path:
+            sys.path.insert(0, cwd)

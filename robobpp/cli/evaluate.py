@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from robobpp.cli.common import fail, parse_choices
+from robobpp.cli.common import fail, import_from_cwd, parse_choices
 from robobpp.metrics import aggregate, metrics_for
 
 console = Console(stderr=True)
@@ -54,6 +54,7 @@ def evaluate(
     if split not in SPLITS:
         fail(f"unknown split {split!r}; expected one of {', '.join(SPLITS)}")
     kwargs = {"secret": secret} if policy.startswith(("http://", "https://")) and secret else {}
+    import_from_cwd(policy)
     try:
         agent = load_policy(policy, **kwargs)
     except PolicyLoadError as exc:

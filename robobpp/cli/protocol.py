@@ -11,7 +11,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from robobpp.cli.common import fail
+from robobpp.cli.common import fail, import_from_cwd
 
 policy_app = typer.Typer(no_args_is_help=True, help="Serve a packing policy over protocol robobpp/1.")
 protocol_app = typer.Typer(no_args_is_help=True, help="Step protocol robobpp/1: conformance check, schema.")
@@ -43,6 +43,7 @@ def serve_command(
 
     if policy.startswith(("http://", "https://")):
         fail("give the policy as module:Class (or a built-in name), not a URL")
+    import_from_cwd(policy)
     try:
         agent = load_policy(policy)
     except PolicyLoadError as exc:

@@ -56,3 +56,16 @@ def test_bad_arguments_exit_nonzero_with_a_clear_message(args, message):
     assert proc.returncode != 0
     assert message in proc.stderr + proc.stdout
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("command", [["evaluate", "--policy"], ["policy", "serve"]])
+def test_module_class_policy_is_found_in_the_working_directory(tmp_path, command):
+    """Like `python -m`, a participant's `mypolicy.py` beside them is importable as `mypolicy:Class`."""
+    (tmp_path / "mypolicy_cwd_probe.py").write_text("class Mine:\n    pass\n")
+    # -P: do not prepend the working directory, as the `robobpp` console script does not.
+    proc = subprocess.run(
+        [sys.executable, "-P", "-m", "robobpp.cli", *command, "mypolicy_cwd_probe:Missing"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode != 0
+    assert "has no attribute 'Missing'" in proc.stderr, proc.stderr  # imported, unlike "cannot import"

@@ -221,6 +221,7 @@ def test_protocol_page(server: Server, probe: PageProbe) -> None:
     probe.page.goto(server.url + "/protocol")
     text = probe.page.locator("main").inner_text()
     assert "POST /act" in text and "robobpp evaluate" in text and "X-Robobpp-Signature" in text
+    assert "robobpp submit" in text and "robobpp policy serve" in text  # the shortest way in
     probe.shot("protocol")
     probe.assert_clean()
 

@@ -31,7 +31,7 @@ def serve_command(
         str, typer.Argument(help="module:Class of your policy, or a built-in name (dbl, ...).")
     ],
     host: Annotated[str, typer.Option(help="Address to bind; 0.0.0.0 accepts other machines.")] = "127.0.0.1",
-    port: Annotated[int, typer.Option(min=1, max=65535)] = 9000,
+    port: Annotated[int, typer.Option(min=1, max=65535, help="TCP port to listen on.")] = 9000,
     secret: Annotated[
         str | None, typer.Option(help="Refuse requests not signed with this secret.", envvar=_SECRET_ENV)
     ] = None,

@@ -50,7 +50,7 @@ class Settings(BaseSettings):
     datasets: tuple[str, ...] = ("repetitive", "diverse", "longboard")
     #: Settings a submission may ask for; physics/execution join when their modules import.
     settings: tuple[str, ...] = ()
-    #: ``module:function(dataset, split, group, settings) -> EpisodeSpec`` override (tests, offline demo).
+    #: ``module:function(dataset, split, group, groups) -> EpisodeSpec`` override (tests, offline demo).
     spec_provider: str = ""
     lease_s: float = Field(default=120.0, gt=0)
     #: Celery executor (scaled deployment): ``redis://…`` or ``amqp://…``; empty = local process pool.

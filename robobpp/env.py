@@ -128,7 +128,13 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         assert self._episode is not None and self._obs is not None, "call reset() first"
-        x, y, orientation = (int(v) for v in np.asarray(action).reshape(3))
+        flat = np.asarray(action).reshape(-1)
+        if flat.size != 3:  # a flat index into the mask is the usual slip; say what is expected
+            raise ValueError(
+                f"action must be (x, y, orientation), e.g. np.array([x, y, o]) from "
+                f"np.argwhere(env.unwrapped.action_mask()); got {flat.size} value(s)"
+            )
+        x, y, orientation = (int(v) for v in flat)
         record = self._episode.step(Action(float(x), float(y), orientation), decision_time=0.0)
         reward = float(self.reward_fn(self._episode, record))
         terminated = self._episode.done

@@ -66,3 +66,10 @@ def test_stability_reward_in_physics_setting(specs):
     # 10 × volume ratio + a small stability bonus (≤ 0.01) − a small offset of a resting box
     assert 10 * volume_ratio - 0.01 < rewards[0] <= 10 * volume_ratio + 0.01
     env.close()
+
+
+def test_malformed_action_says_what_an_action_is(specs):
+    env = gym.make("robobpp/Pack-v0", specs=specs).unwrapped
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"\(x, y, orientation\)"):
+        env.step(np.int64(17))  # a flat index into the mask

@@ -43,3 +43,21 @@ def import_from_cwd(policy: str) -> None:
         cwd = os.getcwd()
         if cwd not in sys.path and "" not in sys.path:
             sys.path.insert(0, cwd)
+
+
+def settings_problem(exc: Exception) -> str:
+    """One line per invalid setting, named by its environment variable.
+
+    pydantic's own text adds the input it was given, the whole settings dict, which can hold the admin
+    token or database password; this keeps only what is wrong.
+    """
+    from pydantic import ValidationError
+
+    if not isinstance(exc, ValidationError):
+        return str(exc)
+    parts = []
+    for error in exc.errors(include_input=False, include_url=False, include_context=False):
+        message = str(error["msg"]).removeprefix("Value error, ")
+        where = ".".join(str(part) for part in error["loc"])
+        parts.append(f"ROBOBPP_{where.upper()}: {message}" if where else message)
+    return "; ".join(parts)

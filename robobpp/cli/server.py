@@ -42,7 +42,9 @@ def serve(
 ) -> None:
     """Run the evaluation service: API, pages, migrations at start, baselines, local workers."""
     import uvicorn
+    from pydantic import ValidationError
 
+    from robobpp.cli.common import fail, settings_problem
     from robobpp.server.app import create_app
     from robobpp.server.config import Settings
 
@@ -52,10 +54,13 @@ def serve(
         overrides["state_dir"] = state_dir
     if workers is not None:
         overrides["workers"] = workers
-    base = Settings(**overrides)
-    if demo:
-        overrides.update(demo_overrides(base.state_dir))
-    settings = Settings(**overrides)
+    try:
+        base = Settings(**overrides)
+        if demo:
+            overrides.update(demo_overrides(base.state_dir))
+        settings = Settings(**overrides)
+    except (ValidationError, ValueError) as exc:
+        fail(f"invalid settings: {settings_problem(exc)}")
     app = create_app(settings)
     where = "ROBOBPP_ADMIN_TOKEN" if settings.admin_token else str(settings.state_dir / "admin_token")
     typer.echo(f"robobpp: serving on http://{host}:{port} (API docs /docs); admin token: {where}")
@@ -65,11 +70,17 @@ def serve(
 @db_app.command("upgrade")
 def db_upgrade(revision: Annotated[str, typer.Argument(help="Target revision")] = "head") -> None:
     """Apply migrations to ROBOBPP_DATABASE_URL (or the embedded SQLite file)."""
+    from pydantic import ValidationError
+
+    from robobpp.cli.common import fail, settings_problem
     from robobpp.db.migrate import upgrade
     from robobpp.db.session import make_engine
     from robobpp.server.config import Settings
 
-    settings = Settings()
+    try:
+        settings = Settings()
+    except (ValidationError, ValueError) as exc:
+        fail(f"invalid settings: {settings_problem(exc)}")
     if not settings.database_url:
         settings.state_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.sqlalchemy_url)

@@ -15,7 +15,7 @@ from typing import Annotated, Any
 
 import typer
 
-from robobpp.cli.common import fail
+from robobpp.cli.common import fail, settings_problem
 
 POOLS = ("prefork", "solo", "threads")
 
@@ -63,7 +63,7 @@ def worker(
     try:
         settings = worker_settings()
     except (ValidationError, ValueError) as exc:
-        fail(f"invalid settings: {exc}")
+        fail(f"invalid settings: {settings_problem(exc)}")
     if not settings.broker_url:
         fail(
             "ROBOBPP_BROKER_URL is not set; `robobpp worker` serves the Celery executor (redis:// or amqp://)"

@@ -3,6 +3,7 @@ the SDK, a submission, and the leaderboard entry compared with the same episodes
 
 from __future__ import annotations
 
+import httpx
 import pytest
 
 from robobpp.episode import run_episode
@@ -62,6 +63,12 @@ def test_submit_remote_policy_and_read_the_leaderboard(db_url, make_server, poli
 
     grid = alice.get("/leaderboards").json()
     assert any(row["submission_id"] == sub["id"] and "math/diverse" in row["cells"] for row in grid["rows"])
+
+    # The policy secret never leaves the server: not in any answer, not in the log, not on the pages.
+    answers = [alice.get(f"/submissions/{sub['id']}"), alice.get(f"/submissions/{sub['id']}/episodes"),
+               httpx.get(f"{server.url}/submissions/{sub['id']}"), httpx.get(f"{server.url}/")]  # fmt: skip
+    assert all(a.status_code == 200 and "policy-secret-123" not in a.text for a in answers)
+    assert "policy-secret-123" not in server.log.read_text()
 
 
 def test_public_track_keeps_traces(make_server, policy_server, tmp_path) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -78,6 +78,8 @@ def evaluate(
     summary = _summarise(runs)
     out = Console(width=None if Console().is_terminal else 160)  # files and pipes get the whole table
     out.print(_table(agent.name, summary))
+    for note in failure_notes(runs):
+        console.print(note, markup=False, highlight=False)
     if json_out is not None:
         payload = {"policy": agent.name, "split": split, "seed": seed, "runs": summary,
                    "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs]}  # fmt: skip
@@ -86,6 +88,24 @@ def evaluate(
         _write_json(
             trace, {"policy": agent.name, "episodes": [r.to_dict() for rs in runs.values() for r in rs]}
         )
+
+
+#: Terminations caused by the policy (not the packing): the table's count alone does not say what went wrong.
+POLICY_FAILURES = ("policy_error", "policy_timeout", "protocol_violation", "episode_timeout")
+
+
+def failure_notes(runs: dict[tuple[str, str], list]) -> list[str]:
+    """One line per policy failure reason with its first episode's detail (e.g. a wrong secret)."""
+    first: dict[str, tuple[int, Any]] = {}
+    for results in runs.values():
+        for r in results:
+            if r.termination in POLICY_FAILURES:
+                count, example = first.get(r.termination, (0, r))
+                first[r.termination] = (count + 1, example)
+    return [
+        f"{reason} in {count} episode(s), e.g. {example.episode_id}: {example.termination_detail}"
+        for reason, (count, example) in first.items()
+    ]
 
 
 def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:

@@ -69,3 +69,23 @@ def test_module_class_policy_is_found_in_the_working_directory(tmp_path, command
     )  # fmt: skip
     assert proc.returncode != 0
     assert "has no attribute 'Missing'" in proc.stderr, proc.stderr  # imported, unlike "cannot import"
+
+
+def test_policy_failures_are_explained_under_the_table():
+    """A table that says only `policy_error: 1` leaves a newcomer guessing; the first detail says why."""
+    from types import SimpleNamespace
+
+    from robobpp.cli.evaluate import failure_notes
+
+    def result(eid: str, reason: str, detail: str) -> SimpleNamespace:
+        return SimpleNamespace(episode_id=eid, termination=reason, termination_detail=detail)
+
+    runs = {("diverse", "math"): [
+        result("diverse-train-000", "policy_error", "refused GET /info (HTTP 401): check the shared secret"),
+        result("diverse-train-001", "policy_error", "refused GET /info (HTTP 401): check the shared secret"),
+        result("diverse-train-002", "no_feasible_placement", "no feasible placement for box 9"),
+    ]}  # fmt: skip
+    notes = failure_notes(runs)
+    assert notes == [
+        "policy_error in 2 episode(s), e.g. diverse-train-000: refused GET /info (HTTP 401): check the shared secret"
+    ]

@@ -15,10 +15,11 @@ app = typer.Typer(
 
 def _register() -> None:
     # Imported here so `robobpp --help` stays fast and each area owns its own module.
-    from robobpp.cli import datasets, evaluate, protocol, server, submit, view, worker
+    from robobpp.cli import compare, datasets, evaluate, protocol, server, submit, view, worker
 
     app.add_typer(datasets.app, name="datasets")
     evaluate.register(app)
+    compare.register(app)
     protocol.register(app)
     server.register(app)
     submit.register(app)

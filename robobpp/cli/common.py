@@ -15,7 +15,7 @@ _err = Console(stderr=True)
 
 def fail(message: str, code: int = 2) -> NoReturn:
     """Print a one-line error and exit non-zero (no traceback for user mistakes)."""
-    _err.print(f"[bold red]error:[/] {message}")
+    _err.print(f"[bold red]error:[/] {message}", soft_wrap=True)  # one line: greppable, copyable
     raise typer.Exit(code)
 
 

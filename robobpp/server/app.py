@@ -78,7 +78,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         version="1",
         summary="Closed-loop evaluation of robotic online 3D bin packing policies (RoboBPP).",
         lifespan=lifespan,
-        docs_url="/docs",
+        docs_url=None,  # served below from the vendored Swagger UI: /docs works with no internet access
         openapi_url="/openapi.json",
     )
     from robobpp.server.runtime import Runtime
@@ -97,7 +97,24 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
     _include_pages(app)
     if STATIC_DIR.is_dir():
         app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    _include_docs(app)
     return app
+
+
+def _include_docs(app: FastAPI) -> None:
+    """Swagger UI at /docs from ``web/static/vendor/swagger-ui`` instead of FastAPI's default CDN."""
+    from fastapi.openapi.docs import get_swagger_ui_html
+    from fastapi.responses import HTMLResponse
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title=f"{app.title} — API",
+            swagger_js_url="/static/vendor/swagger-ui/swagger-ui-bundle.js",
+            swagger_css_url="/static/vendor/swagger-ui/swagger-ui.css",
+            swagger_favicon_url="/static/vendor/swagger-ui/favicon-32x32.png",
+        )
 
 
 async def _run_sync(fn, *args):  # type: ignore[no-untyped-def]

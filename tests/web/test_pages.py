@@ -242,3 +242,24 @@ def test_private_episodes_have_no_replay(server: Server) -> None:
     r = server.get(f"/submissions/1/episodes/{private[0]['id']}/replay")
     assert r.status_code == 404
     assert "private test split is never shown" in r.text
+
+
+def test_api_docs_render_offline(server: Server, probe: PageProbe) -> None:
+    """Swagger UI comes from robobpp itself: with every non-local request refused, /docs still lists the API."""
+    blocked: list[str] = []
+
+    def only_local(route: Any) -> None:
+        if route.request.url.startswith(server.url):
+            route.continue_()
+        else:
+            blocked.append(route.request.url)
+            route.abort()
+
+    probe.page.route("**/*", only_local)
+    probe.page.goto(server.url + "/docs")
+    probe.page.wait_for_selector(".opblock-summary-path", timeout=15_000)
+    paths = probe.page.locator(".opblock-summary-path").all_inner_texts()
+    assert "/api/v1/submissions" in paths and "/api/v1/leaderboards/{dataset}/{setting}" in paths
+    assert not blocked, f"/docs reached outside the server: {blocked}"
+    probe.assert_clean()
+    probe.shot("api-docs")

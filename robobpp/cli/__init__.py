@@ -15,7 +15,7 @@ app = typer.Typer(
 
 def _register() -> None:
     # Imported here so `robobpp --help` stays fast and each area owns its own module.
-    from robobpp.cli import compare, datasets, evaluate, protocol, server, submit, view, worker
+    from robobpp.cli import accounts, compare, datasets, evaluate, protocol, server, submit, view, worker
 
     app.add_typer(datasets.app, name="datasets")
     evaluate.register(app)
@@ -23,6 +23,7 @@ def _register() -> None:
     protocol.register(app)
     server.register(app)
     submit.register(app)
+    accounts.register(app)
     view.register(app)
     worker.register(app)
 

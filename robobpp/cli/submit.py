@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Annotated, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+
+from robobpp.cli.common import fail
 
 if TYPE_CHECKING:
     from robobpp.client.api import ServerClient, Standing
@@ -36,12 +38,6 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Print the API's JSON inst
 IdArg = Annotated[int, typer.Argument(min=1, max=2**31 - 1, help="Submission id.")]
 
 submissions_app = typer.Typer(no_args_is_help=True, help="Your submissions on the evaluation server.")
-
-
-def fail(message: str, code: int = 2) -> NoReturn:
-    """One line on stderr, never wrapped (scripts grep it), then exit ``code``; ``message`` is markup."""
-    err.print(f"[bold red]error:[/] {message}", soft_wrap=True)
-    raise typer.Exit(code)
 
 
 def register(root: typer.Typer) -> None:

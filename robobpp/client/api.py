@@ -30,6 +30,7 @@ from robobpp.server.api.schemas import (
     OverallGrid,
     ServiceInfo,
     SubmissionPublic,
+    TokenCreated,
     TokenPublic,
 )
 
@@ -251,6 +252,17 @@ class ServerClient:
     def grid(self, track: Track = "private") -> OverallGrid:
         """The overall grid: one row per submission, a score and rank per ``setting/dataset`` board."""
         return self._get("/leaderboards", OverallGrid, params={"track": track})
+
+    def create_participant(self, name: str) -> TokenCreated:
+        """(Admin) A new participant and its first API token — the only time the token is shown."""
+        return self._parse(
+            self._request("POST", "/participants", json={"name": name}), TokenCreated, "/participants"
+        )
+
+    def issue_token(self, participant_id: int) -> TokenCreated:
+        """(Admin) Another API token for a participant (e.g. after revoking a leaked one)."""
+        path = f"/participants/{int(participant_id)}/tokens"
+        return self._parse(self._request("POST", path), TokenCreated, path)
 
     def tokens(self) -> list[TokenPublic]:
         return self._get("/tokens", list[TokenPublic])

@@ -17,7 +17,15 @@ from robobpp.client.api import ServerClient, ServerError, default_name
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.policies.dbl import DBL
 from robobpp.server.api.schemas import SubmissionPublic
-from tests.server.conftest import ServerProcess, SlowDBL, free_port, new_participant, server_env, wait_for
+from tests.server.conftest import (
+    ADMIN_TOKEN,
+    ServerProcess,
+    SlowDBL,
+    free_port,
+    new_participant,
+    server_env,
+    wait_for,
+)
 
 SECRET = "policy-secret-123"
 RANK = re.compile(r"math/diverse\s.*\scompleted\s.*\s(\d+) / (\d+)")
@@ -239,6 +247,26 @@ def test_revoked_token_stops_working_for_the_client(server: ServerProcess) -> No
         assert api.revoke_token(mine.id).revoked_at is not None
         with pytest.raises(ServerError, match=r"^401: .*revoked"):
             api.me()
+
+
+def test_operator_creates_a_participant_whose_token_submits_and_can_be_revoked(
+    server: ServerProcess, cli: CliRunner, fast: BackgroundServer
+) -> None:
+    created = run_cli(cli, server, ADMIN_TOKEN, "participants", "create", "carol")
+    assert created.exit_code == 0, created.output
+    new = created.stdout.strip().splitlines()[-1]  # the token alone on its line, for `$(...)`
+    with ServerClient(server.url, new) as api:
+        assert api.me().participant.name == "carol"
+        api.submit(fast.url, SECRET, name="carol dbl", datasets=["diverse"], settings=["math"])
+    listed = run_cli(cli, server, new, "tokens", "list")
+    assert listed.exit_code == 0 and new[:10] in listed.stdout
+    (mine,) = ServerClient(server.url, new).tokens()
+    assert run_cli(cli, server, new, "tokens", "revoke", str(mine.id)).exit_code == 0
+    assert run_cli(cli, server, new, "tokens", "list").exit_code == 1  # revoked: 401
+    taken = run_cli(cli, server, ADMIN_TOKEN, "participants", "create", "carol")
+    assert taken.exit_code == 1 and "409" in taken.output
+    not_admin = run_cli(cli, server, new, "participants", "new-token", "1")
+    assert not_admin.exit_code == 1 and "401" in not_admin.output
 
 
 def test_wait_gives_up_on_an_unreachable_server_after_its_patience() -> None:

@@ -78,7 +78,7 @@ def fetch(
 
 def _quartiles(values: np.ndarray) -> str:
     q1, q2, q3 = np.percentile(values, [25, 50, 75])
-    return f"{q1:.4g} / {q2:.4g} / {q3:.4g}"
+    return f"{q1:.1f} / {q2:.1f} / {q3:.1f}"
 
 
 def _out() -> Console:

@@ -133,7 +133,7 @@ def _table(policy: str, summary: list[dict]) -> Table:
     for m in keys:
         arrow = "↑" if m.better == "up" else "↓"
         table.add_column(f"{m.label} {arrow}" + (f" ({m.unit})" if m.unit else ""), justify="right")
-    table.add_column("terminations")
+    table.add_column("terminations", min_width=28)
     for row in summary:
         cells = [row["dataset"], row["setting"], str(row["episodes"]), f"{row['boxes_placed']:.1f}"]
         for m in keys:

@@ -12,7 +12,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from robobpp.cli.submit import JsonOpt, ServerOpt, TokenOpt, _client, _out, err
+from robobpp.cli.common import table_console
+from robobpp.cli.submit import JsonOpt, ServerOpt, TokenOpt, _client, err
 
 participants_app = typer.Typer(no_args_is_help=True, help="Participants of the evaluation server (admin).")
 tokens_app = typer.Typer(no_args_is_help=True, help="API tokens: list and revoke.")
@@ -76,7 +77,7 @@ def list_command(as_json: JsonOpt = False, server: ServerOpt = SERVER, token: To
         table.add_row(
             str(r.id), str(r.participant_id), f"{r.prefix}…", f"{r.created_at:%Y-%m-%d %H:%M}", revoked
         )
-    _out().print(table)
+    table_console().print(table)
 
 
 @tokens_app.command("revoke")

@@ -19,6 +19,12 @@ def fail(message: str, code: int = 2) -> NoReturn:
     raise typer.Exit(code)
 
 
+def table_console() -> Console:
+    """Stdout console for tables: a terminal's own width; files and pipes get whole tables, not 80 columns."""
+    probe = Console()
+    return probe if probe.is_terminal else Console(width=240)
+
+
 def parse_choices(value: str, allowed: Iterable[str], what: str) -> list[str]:
     """``a,b`` or ``all`` → a list of known names; unknown names fail with the allowed list."""
     allowed = list(allowed)

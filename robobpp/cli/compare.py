@@ -11,11 +11,10 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from robobpp.cli.common import fail
+from robobpp.cli.common import fail, table_console
 from robobpp.metrics import metrics_for
 from robobpp.scoring import score_entries
 
@@ -71,7 +70,7 @@ def compare(
     if len(results) < 2:
         fail("give at least two result files: scores are relative to the other entries")
     boards = score_boards(load_entries(results))
-    out = Console(width=None if Console().is_terminal else 160)
+    out = table_console()
     for (dataset, setting), rows in boards.items():
         table = Table(title=f"{dataset} · {setting}")
         table.add_column("rank", justify="right")

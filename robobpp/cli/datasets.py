@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from robobpp.cli.common import fail, parse_choices
+from robobpp.cli.common import fail, parse_choices, table_console
 
 app = typer.Typer(no_args_is_help=True, help="RoboBPP datasets: fetch, describe, build the private split.")
 console = Console(stderr=True)
@@ -73,18 +73,12 @@ def fetch(
         usable = facts.get("usable", facts["records"])
         table.add_row(name, f"{facts['records']:,}", f"{usable:,}", f"{facts['train']:,}", f"{facts['test']:,}",
                       "; ".join(notes))  # fmt: skip
-    _out().print(table)
+    table_console().print(table)
 
 
 def _quartiles(values: np.ndarray) -> str:
     q1, q2, q3 = np.percentile(values, [25, 50, 75])
     return f"{q1:.1f} / {q2:.1f} / {q3:.1f}"
-
-
-def _out() -> Console:
-    """Stdout console; when piped (logs, tests) use a wide line so tables are not squeezed to 80 columns."""
-    out = Console()
-    return out if out.is_terminal else Console(width=160)
 
 
 @app.command()
@@ -127,7 +121,7 @@ def info(
                 )  # fmt: skip
     except DatasetError as exc:
         _fail(exc)
-    _out().print(table)
+    table_console().print(table)
 
 
 @app.command("build-private")

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from robobpp.cli.common import fail, import_from_cwd, parse_choices
+from robobpp.cli.common import fail, import_from_cwd, parse_choices, table_console
 from robobpp.metrics import aggregate, metrics_for
 
 console = Console(stderr=True)
@@ -42,6 +42,9 @@ def evaluate(
     trace: Annotated[
         Path | None, typer.Option(help="Write full per-step traces here (for `robobpp view`).")
     ] = None,
+    jobs: Annotated[
+        int, typer.Option(min=1, max=256, help="Worker processes running episodes side by side.")
+    ] = 1,
 ) -> None:
     """Evaluate a policy locally and print a results table."""
     from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
@@ -63,20 +66,27 @@ def evaluate(
         specs = {name: episode_specs(name, split=split, groups=groups, seed=seed) for name in datasets}
     except DatasetError as exc:
         fail(str(exc))
-    total = sum(len(s) for s in specs.values()) * len(settings)
+    tasks = [(spec, setting_name) for name in datasets for setting_name in settings for spec in specs[name]]
     runs: dict[tuple[str, str], list] = {}
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=False) as progress:
-        task = progress.add_task(f"{agent.name}", total=total)
-        for name in datasets:
-            for setting_name in settings:
-                progress.update(task, description=f"{agent.name} · {name} · {setting_name}")
-                results = runs.setdefault((name, setting_name), [])
-                for spec in specs[name]:
-                    results.append(run_episode(spec, agent, setting_name, lookahead=lookahead))
-                    progress.advance(task)
+        bar = progress.add_task(agent.name, total=len(tasks))
+        if jobs == 1:
+            results = []
+            for spec, setting_name in tasks:
+                progress.update(bar, description=f"{agent.name} · {spec.dataset} · {setting_name}")
+                results.append(run_episode(spec, agent, setting_name, lookahead=lookahead))
+                progress.advance(bar)
+        else:
+            from robobpp.cli.parallel import run_parallel
+
+            progress.update(bar, description=f"{agent.name} · {jobs} processes")
+            results = list(run_parallel(policy, kwargs, tasks, jobs=jobs, lookahead=lookahead,
+                                        on_done=lambda _i: progress.advance(bar)))  # fmt: skip
+    for (spec, setting_name), result in zip(tasks, results, strict=True):
+        runs.setdefault((spec.dataset, setting_name), []).append(result)
     summary = _summarise(runs)
-    out = Console(width=None if Console().is_terminal else 160)  # files and pipes get the whole table
+    out = table_console()
     out.print(_table(agent.name, summary))
     for note in failure_notes(runs):
         console.print(note, markup=False, highlight=False)

@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from robobpp.cli.common import fail
+from robobpp.cli.common import fail, table_console
 
 if TYPE_CHECKING:
     from robobpp.client.api import ServerClient, Standing
@@ -44,12 +44,6 @@ def register(root: typer.Typer) -> None:
     root.command("submit")(submit)
     root.command("leaderboard")(leaderboard)
     root.add_typer(submissions_app, name="submissions")
-
-
-def _out() -> Console:
-    # Files and pipes get whole tables, not ones cut to an 80-column guess.
-    probe = Console()
-    return Console(width=None if probe.is_terminal else 200)
 
 
 @contextlib.contextmanager
@@ -153,7 +147,7 @@ def submit(
             print(sub.id)
             return
         final = _follow(client, sub, poll)
-        _out().print(_standings_table(final, client.standings(final)))
+        table_console().print(_standings_table(final, client.standings(final)))
     _finish(final)
 
 
@@ -231,7 +225,7 @@ def list_command(
         table.add_row(
             str(s.id), escape(s.name), s.status, s.track, boards, done, f"{s.created_at:%Y-%m-%d %H:%M}"
         )
-    _out().print(table if subs else "no submissions yet")
+    table_console().print(table if subs else "no submissions yet")
 
 
 @submissions_app.command("show")
@@ -251,7 +245,7 @@ def show_command(
               + (f" · phase {p.phase}" if p.phase else "") + f" · {escape(sub.policy_url)}")  # fmt: skip
     if sub.error:
         err.print(f"[red]{escape(sub.error)}[/]")
-    _out().print(_standings_table(sub, standings))
+    table_console().print(_standings_table(sub, standings))
 
 
 @submissions_app.command("cancel")
@@ -275,7 +269,7 @@ def episodes_command(
     if as_json:
         print("[" + ",".join(e.model_dump_json() for e in rows) + "]")
         return
-    _out().print(_episodes_table(submission_id, rows))
+    table_console().print(_episodes_table(submission_id, rows))
 
 
 def _episodes_table(submission_id: int, rows: list[EpisodePublic]) -> Table:
@@ -319,7 +313,7 @@ def leaderboard(
         return
     from robobpp.server.api.schemas import Leaderboard
 
-    _out().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))
+    table_console().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))
 
 
 def _who(name: str, participant: str, baseline: bool) -> str:

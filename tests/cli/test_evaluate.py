@@ -89,3 +89,22 @@ def test_policy_failures_are_explained_under_the_table():
     assert notes == [
         "policy_error in 2 episode(s), e.g. diverse-train-000: refused GET /info (HTTP 401): check the shared secret"
     ]
+
+
+@pytest.mark.network
+def test_jobs_give_the_same_results_in_the_same_order(real_data, tmp_path):
+    env = {"ROBOBPP_DATA_DIR": str(real_data)}
+    outputs = []
+    for jobs in ("1", "2"):
+        out = tmp_path / f"jobs{jobs}.json"
+        proc = robobpp("evaluate", "--policy", "hm", "--dataset", "diverse,longboard", "--setting", "math,physics",
+                       "--groups", "2", "--jobs", jobs, "--json", str(out), env_extra=env)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        outputs.append(json.loads(out.read_text()))
+
+    def figures(payload):
+        return [(e["episode_id"], e["setting"], e["boxes_placed"], e["termination"],
+                 {k: v for k, v in e["metrics"].items() if k != "decision_time"}) for e in payload["episodes"]]  # fmt: skip
+
+    assert len(outputs[0]["episodes"]) == 8
+    assert figures(outputs[0]) == figures(outputs[1])

@@ -73,3 +73,20 @@ def test_malformed_action_says_what_an_action_is(specs):
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"\(x, y, orientation\)"):
         env.step(np.int64(17))  # a flat index into the mask
+
+
+@pytest.mark.network
+def test_gym_rollout_example_runs(real_data):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "gym_rollout.py"
+    proc = subprocess.run([sys.executable, str(example), "--episodes", "2", "--groups", "3"], capture_output=True,
+                          text=True, timeout=300, env={**os.environ, "ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 2 and all(
+        line.startswith("repetitive-train-") and " boxes, return " in line for line in lines
+    )

@@ -5,12 +5,15 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Iterable
-from typing import NoReturn
+from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
 
 _err = Console(stderr=True)
+
+#: ``--dataset`` of every command that takes datasets.
+DatasetOpt = Annotated[str, typer.Option(help="repetitive, diverse, longboard, a comma list, or all.")]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:

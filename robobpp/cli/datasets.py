@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from robobpp.cli.common import fail, parse_choices, table_console
+from robobpp.cli.common import DatasetOpt, fail, parse_choices, table_console
 
 app = typer.Typer(no_args_is_help=True, help="RoboBPP datasets: fetch, describe, build the private split.")
 console = Console(stderr=True)
@@ -83,9 +83,7 @@ def _quartiles(values: np.ndarray) -> str:
 
 @app.command()
 def info(
-    dataset: Annotated[
-        str, typer.Option(help="repetitive, diverse, longboard, a comma list, or all.")
-    ] = "all",
+    dataset: DatasetOpt = "all",
     data_dir: DataDir = None,
 ) -> None:
     """Per dataset and split: records, boxes, distinct sizes and dimension quartiles (cm)."""
@@ -133,9 +131,7 @@ def build_private(
         int | None, typer.Option(min=0, help="Sampling seed (default: a fresh secret one; keep it secret).")
     ] = None,
     groups: Annotated[int, typer.Option(min=1, max=10_000, help="Groups per dataset.")] = 30,
-    dataset: Annotated[
-        str, typer.Option(help="repetitive, diverse, longboard, a comma list, or all.")
-    ] = "all",
+    dataset: DatasetOpt = "all",
     data_dir: DataDir = None,
 ) -> None:
     """Draw the evaluation groups of each dataset from its test pool and write them under ROOT."""

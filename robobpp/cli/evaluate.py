@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from robobpp.cli.common import fail, import_from_cwd, parse_choices, table_console
+from robobpp.cli.common import DatasetOpt, fail, import_from_cwd, parse_choices, table_console
 from robobpp.metrics import aggregate, metrics_for
 
 console = Console(stderr=True)
@@ -25,9 +25,7 @@ def evaluate(
     policy: Annotated[
         str, typer.Option(help="Built-in name (dbl, hm, ...), module:Class, or http(s):// URL.")
     ],
-    dataset: Annotated[
-        str, typer.Option(help="repetitive, diverse, longboard, a comma list, or all.")
-    ] = "all",
+    dataset: DatasetOpt = "all",
     setting: Annotated[str, typer.Option(help="math, physics, execution, a comma list, or all.")] = "math",
     groups: Annotated[int, typer.Option(min=1, max=10_000, help="Groups (episodes) per dataset.")] = 30,
     split: Annotated[str, typer.Option(help="train (public) or test.")] = "train",

@@ -126,6 +126,3 @@ def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worke
         return None
     return run_claimed(factory, claim, settings)
 
-
-#: The name other executors (Celery tasks) import.
-run_episode_row = run_claimed

@@ -19,12 +19,13 @@ from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import exists, func, select, true
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
-from robobpp.metrics import metrics_for
+from robobpp.metrics import PHYSICAL, metrics_for
 from robobpp.scoring import score_entries
+from robobpp.sim.physics.config import PHYSICS_VERSION
 
 SETTINGS_ORDER = ("math", "physics", "execution")
 DATASETS_ORDER = ("repetitive", "diverse", "longboard")
@@ -67,6 +68,11 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
 
 
 def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> list[Any]:
+    # A physical setting's board shows only runs whose every episode ran the current physics version.
+    other_physics = exists().where(
+        EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
+    )
+    current = ~other_physics if setting in PHYSICAL else true()
     return session.execute(
         select(
             RunRow.submission_id,
@@ -85,6 +91,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
             RunRow.status == "completed",
             Submission.track == track,
             Submission.status == "completed",
+            current,
         )  # fmt: skip
         .order_by(RunRow.submission_id)
     ).all()

@@ -21,6 +21,7 @@ BUILTIN: dict[str, str] = {
     "sdfpack": "robobpp.policies.sdfpack:SDFPack",
     "packe-rules": "robobpp.policies.packe_rules:PackERules",
     "random": "robobpp.policies.random_policy:RandomPolicy",
+    "pct": "robobpp.policies.pct:PCT",  # learned: the authors' trained weights (policies/pct/)
 }
 
 #: The paper's baselines shown on the leaderboard (a subset of BUILTIN, in the paper's order).
@@ -29,7 +30,7 @@ BASELINES: tuple[str, ...] = tuple(BUILTIN)
 #: Display names, spelled as in the paper.
 TITLES: dict[str, str] = {
     "dbl": "DBL", "hm": "HM", "lsah": "LSAH", "onlinebph": "OnlineBPH", "br": "BR", "macs": "MACS",
-    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random",
+    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random", "pct": "PCT",
 }  # fmt: skip
 
 

@@ -1,7 +1,8 @@
 """Policies: the paper's baseline heuristics (one module each) and loading of user policies.
 
-A policy is named by a built-in name (``dbl``), a ``module:Class`` path, or an ``http(s)://`` URL of a
-policy server speaking protocol robobpp/1.
+A policy is named by a built-in name (``dbl``) or a ``module:Class`` path. The URL of a policy server
+is the client's business (:func:`robobpp.client.loading.load_policy`): this package is below the client
+and imports nothing from it.
 """
 
 from __future__ import annotations
@@ -53,11 +54,11 @@ def _import(path: str) -> type:
 
 
 def load_policy(name: str, **kwargs: object) -> Policy:
-    """Instantiate a policy from a built-in name, ``module:Class``, or a policy server URL."""
+    """Instantiate a policy from a built-in name or ``module:Class``."""
     if name.startswith(("http://", "https://")):
-        from robobpp.client.remote import RemotePolicy  # lazy: the HTTP stack is optional here
-
-        return RemotePolicy(name, **kwargs)  # type: ignore[arg-type]
+        raise PolicyLoadError(
+            f"{name!r} is a policy server URL: load it with robobpp.client.loading.load_policy"
+        )
     path = BUILTIN.get(name.lower())
     if path is None and ":" not in name:
         known = ", ".join(sorted(BUILTIN))

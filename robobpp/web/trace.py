@@ -41,7 +41,8 @@ MAX_COORD_CM = 100_000.0
 #: One step's robot waypoints and box samples; a step's time line (ms).
 MAX_WAYPOINTS = 5_000
 MAX_TRACK_SAMPLES = 2_000
-MAX_STEP_MS = 600_000
+#: A step's time line: at most 10 minutes, in ticks of at least 0.1 ms.
+MAX_STEP_TICKS = 6_000_000
 #: Quantised joint angles (10⁻⁴ rad) beyond two turns, positions (mm) and quaternions (10⁻⁴) beyond these
 #: are nonsense.
 MAX_Q_INT = 130_000
@@ -204,24 +205,35 @@ def _ints(raw: Any, where: str, *, limit: int, bound: int, count: int | None = N
     return raw
 
 
-def _times(raw: Any, where: str, limit: int) -> list[int]:
-    t = _ints(raw, where, limit=limit, bound=MAX_STEP_MS)
+def _tick(raw: Any, where: str) -> float:
+    tick = _num(raw, f"{where}.tick_s", positive=True)
+    if not 1e-4 <= tick <= 0.1:
+        raise TraceError(f"{where}.tick_s must be a simulation time step (0.1 ms to 0.1 s)")
+    return tick
+
+
+def _times(raw: Any, where: str, limit: int, tick: float) -> list[float]:
+    """Times in ticks → ms for the viewer (checked: non-negative, in order)."""
+    t = _ints(raw, where, limit=limit, bound=MAX_STEP_TICKS)
     if not t or t[0] < 0 or any(b < a for a, b in zip(t, t[1:], strict=False)):
-        raise TraceError(f"{where} must be non-negative times in ms, in order")
-    return t
+        raise TraceError(f"{where} must be non-negative times, in order")
+    if t[-1] * tick > 600:
+        raise TraceError(f"{where} runs longer than 10 minutes")
+    return [round(v * tick * 1000, 3) for v in t]
 
 
 def _motion(raw: Any, where: str) -> dict[str, Any]:
     """The arm's joint time line of one operation (robobpp.sim.execution.recording)."""
     m = _mapping(raw, where)
-    t = _times(m.get("t"), f"{where}.t", MAX_WAYPOINTS)
+    tick = _tick(m.get("tick_s"), where)
+    t = _times(m.get("t"), f"{where}.t", MAX_WAYPOINTS, tick)
     q = _ints(m.get("q"), f"{where}.q", limit=6 * MAX_WAYPOINTS, bound=MAX_Q_INT, count=6 * len(t))
     phases = []
     for j, ph in enumerate(m.get("phases") or []):
         if not (isinstance(ph, list) and len(ph) == 3 and ph[0] in MOTION_PHASES):
             raise TraceError(f"{where}.phases[{j}] must be [{' | '.join(MOTION_PHASES)}, start ms, end ms]")
-        phases.append([ph[0], *_times(ph[1:], f"{where}.phases[{j}]", 2)])
-    grip = _times(m.get("grip"), f"{where}.grip", 2)
+        phases.append([ph[0], *_times(ph[1:], f"{where}.phases[{j}]", 2, tick)])
+    grip = _times(m.get("grip"), f"{where}.grip", 2, tick)
     carry = m.get("carry")
     if not isinstance(carry, list) or len(carry) != 7:
         raise TraceError(f"{where}.carry must be [x, y, z, qx, qy, qz, qw]")
@@ -234,7 +246,7 @@ def _motion(raw: Any, where: str) -> dict[str, Any]:
 def _track(raw: Any, where: str) -> dict[str, Any]:
     """Box poses sampled during one step (robobpp.sim.physics.recording)."""
     tr = _mapping(raw, where)
-    t = _times(tr.get("t"), f"{where}.t", MAX_TRACK_SAMPLES)
+    t = _times(tr.get("t"), f"{where}.t", MAX_TRACK_SAMPLES, _tick(tr.get("tick_s"), where))
     rows = tr.get("boxes")
     if not isinstance(rows, list) or len(rows) > MAX_STEPS:
         raise TraceError(f"{where}.boxes must be a list of at most {MAX_STEPS} box tracks")

@@ -211,7 +211,7 @@ class ExecutionPack(PhysicsPack):
         self.q = self.layout.home
         self._set_arm(self.q)
         if self.recorder is not None and self.motion_record is not None:
-            self.recorder.begin(self.motion_record["grip"][1] / 1000)  # type: ignore[index]
+            self.recorder.begin(self.motion_record["grip"][1])  # type: ignore[index]
         report = self.release_and_settle(planned, box.mass, disturbed)
         extra: dict[str, object] = {
             "execution_time_s": operation.execution_time_s, "plan_status": operation.plan_status,
@@ -335,7 +335,7 @@ class ExecutionPack(PhysicsPack):
         if self.recorder is not None:
             self.motion_record = recording.motion_record(operation.trajectory, layout, self.config.dt,
                                                          self.execution.cartesian_speed, (offset, r_local))  # fmt: skip
-            self.recorder.begin(self.motion_record["grip"][0] / 1000)
+            self.recorder.begin(self.motion_record["grip"][0])
         disturbed = self._drive(operation.trajectory, carried, offset, r_local)
         return operation, carried, disturbed
 

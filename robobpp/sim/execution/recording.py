@@ -8,9 +8,10 @@ Two records, both plain JSON:
   arm's forward kinematics from it, so the page never holds a second copy of the robot.
 - ``extra["motion"]`` (every operation): the arm's joint angles over the operation's time line::
 
-      {"t": [ms, ...], "q": [j1, ..., j6, j1, ...],   # waypoints: time from the step's start, angles × 10⁴
+      {"tick_s": dt,                                  # times count ticks of the physical world (1/240 s)
+       "t": [tick, ...], "q": [j1, ..., j6, j1, ...], # waypoints: time from the step's start, angles × 10⁴
        "phases": [["pick", t0, t1], ["transfer", t1, t2], ["retreat", t2, t3]],
-       "grip": [t_on, t_off],                          # suction on (ms)
+       "grip": [t_on, t_off],                          # suction on (ticks)
        "carry": [x, y, z, qx, qy, qz, qw]}             # the carried box in the TCP frame (m, quaternion)
 
   The arm moves joint-linearly between waypoints, as the simulator drives it. *transfer* is the
@@ -77,39 +78,37 @@ def motion_record(
     (m) and rotation matrix in the TCP frame."""
     home = layout.home
     q_grasp = trajectory.waypoints[0]
+    # Times in ticks of the world (``dt``): the transfer exactly as driven, pick and retreat to the tick.
     # Pick: straight down from the waiting pose (above the pick station) onto the box's top face.
     pick = _line_or_joint(layout, home, layout.to_world(tcp_pose(q_grasp)[0]), q_grasp)
-    pick_t = _times(motion.build([(pick, True)], cartesian_speed))
-    t_pick = pick_t[-1]
+    pick_t = _ticks(motion.build([(pick, True)], cartesian_speed), dt)
     # Transfer: at the ticks of the world that drove it.
-    transfer_t = t_pick + np.cumsum(trajectory.sample_counts(dt)) * dt
-    t_release = transfer_t[-1]
+    transfer_t = pick_t[-1] + np.cumsum(trajectory.sample_counts(dt))
+    release = int(transfer_t[-1])
     # Retreat: back out along the transfer to the top of the lift, then up to the waiting pose.
     lift_end = trajectory.segment_ends[0] - 1 if trajectory.segment_ends else 0
     back = trajectory.waypoints[lift_end:][::-1]
-    back_t = t_release + (transfer_t[-1] - transfer_t[lift_end:][::-1])
+    back_t = release + (release - transfer_t[lift_end:][::-1])
     up = _line_or_joint(layout, back[-1], layout.to_world(tcp_pose(home)[0]), home)
-    up_t = back_t[-1] + _times(motion.build([(up, True)], cartesian_speed))
+    up_t = back_t[-1] + _ticks(motion.build([(up, True)], cartesian_speed), dt)
     q = np.concatenate([pick, trajectory.waypoints[1:], back[1:], up[1:]])
     t = np.concatenate([pick_t, transfer_t[1:], back_t[1:], up_t[1:]])
-    keep = _simplify(t, q, tolerance_rad)
-    ms = lambda v: int(round(float(v) * 1000))  # noqa: E731
+    keep = _simplify(t.astype(float), q, tolerance_rad)
     offset, rotation = carry
+    grasp, end = int(pick_t[-1]), int(up_t[-1])
     return {
-        "t": [ms(v) for v in t[keep]],
+        "tick_s": dt,
+        "t": t[keep].astype(int).tolist(),
         "q": np.round(q[keep] * Q_SCALE).astype(np.int64).reshape(-1).tolist(),
-        "phases": [
-            ["pick", 0, ms(t_pick)],
-            ["transfer", ms(t_pick), ms(t_release)],
-            ["retreat", ms(t_release), ms(up_t[-1])],
-        ],  # fmt: skip
-        "grip": [ms(t_pick), ms(t_release)],
+        "phases": [["pick", 0, grasp], ["transfer", grasp, release], ["retreat", release, end]],
+        "grip": [grasp, release],
         "carry": [round(float(v), 5) for v in offset] + [round(float(v), 6) for v in quaternion(rotation)],
     }
 
 
-def _times(trajectory: motion.Trajectory) -> np.ndarray:
-    return np.cumsum(trajectory.durations)
+def _ticks(trajectory: motion.Trajectory, dt: float) -> np.ndarray:
+    """Waypoint times of a replay-only move, in whole ticks (at least one per segment)."""
+    return np.cumsum(trajectory.sample_counts(dt))
 
 
 def _line_or_joint(layout: Layout, q_from: np.ndarray, tcp_to: np.ndarray, q_to: np.ndarray) -> np.ndarray:

@@ -9,13 +9,13 @@ A :class:`PoseRecorder` is handed to the code that steps the world (the settle, 
 drive). It samples the boxes it is shown every ``every`` simulation steps, and :meth:`take` returns the
 step's *track*, stored in ``extra["track"]``::
 
-    {"t": [ms, ...],                       # sample times from the start of the step, ascending
+    {"tick_s": dt, "t": [tick, ...],       # sample times from the start of the step, in world ticks
      "boxes": [[index, first, x, y, z, qx, qy, qz, qw, x, y, ...], ...]}
 
 Per box: its index (= placement order), the first sample it appears in, then 7 integers per sample
-from there on — the centre in mm (container frame) and the attitude quaternion × 10⁴. Boxes whose track
-never leaves their last pose by more than a quantum (1 mm, 10⁻³ rad or so) are dropped: they are drawn
-at their step poses anyway.
+from there on — the centre in mm (container frame) and the attitude quaternion × 10⁴. A box is kept only
+from just before its first move to its last, and only if it strays visibly (:data:`VISIBLE_MM`,
+:data:`VISIBLE_QUAT`) from where the step leaves it; otherwise it is drawn at its step poses.
 """
 
 from __future__ import annotations
@@ -32,6 +32,10 @@ TRACK_POS_PER_CM = 10
 TRACK_QUAT_SCALE = 10_000
 #: Default sampling: every 8th step of the 240 Hz world = 30 samples per simulated second.
 TRACK_EVERY = 8
+#: A box is tracked when it strays further than this from where the step leaves it: 3 mm, or a quaternion
+#: component 0.003 (about 0.3°). Less is invisible at the scale of the cell.
+VISIBLE_MM = 3
+VISIBLE_QUAT = 30
 
 
 class PoseRecorder:
@@ -42,21 +46,21 @@ class PoseRecorder:
             raise ValueError("the recorder samples every >= 1 steps")
         self.world = world
         self.every = every
-        self._t0 = 0.0
-        self._times: list[float] = []
+        self._t0 = 0
+        self._times: list[int] = []
         #: body id -> (first sample number, [quantised pose per sample from then on])
         self._poses: dict[int, tuple[int, list[np.ndarray]]] = {}
 
-    def begin(self, t0_s: float) -> None:
-        """A stretch of simulation (a settle, a drive) starts at ``t0_s`` seconds into the step."""
-        self._t0 = t0_s
+    def begin(self, t0: int) -> None:
+        """A stretch of simulation (a settle, a drive) starts ``t0`` world ticks into the step."""
+        self._t0 = t0
 
     def sample(self, k: int, boxes: Sequence[WorldBox], *, force: bool = False) -> None:
         """After ``k`` steps of the current stretch: record ``boxes`` if ``k`` is on the sampling grid."""
         if not force and k % self.every:
             return
-        t = self._t0 + k * self.world.config.dt
-        if self._times and t <= self._times[-1] + 1e-9:
+        t = self._t0 + k
+        if self._times and t <= self._times[-1]:
             return  # the forced last sample fell on the grid, or a stretch restarted at the same time
         self._times.append(t)
         n = len(self._times) - 1
@@ -71,7 +75,7 @@ class PoseRecorder:
 
     def discard(self) -> None:
         """Forget what was sampled (a step that ended before its settle) and start again at t = 0."""
-        self._times, self._poses, self._t0 = [], {}, 0.0
+        self._times, self._poses, self._t0 = [], {}, 0
 
     def take(self, boxes: Sequence[WorldBox]) -> dict[str, Any] | None:
         """The step's track (``boxes`` in placement order give the indices) and a fresh start; None when
@@ -79,16 +83,25 @@ class PoseRecorder:
         index = {b.body: i for i, b in enumerate(boxes)}
         out = []
         for body, (first, rows) in self._poses.items():
-            if body not in index or len(rows) < 2:
+            if body not in index:
                 continue
             track = np.stack(rows)
-            spread = np.abs(track - track[-1]).max()
-            if spread <= 1:
+            # Samples where the box stands still add nothing: before its first move it stands where the
+            # last step left it, after its last move where this step leaves it (the step's poses).
+            moving = np.flatnonzero(np.abs(np.diff(track, axis=0)).max(axis=1) > 1)
+            if len(moving) == 0 or not _visible(track):
                 continue
-            out.append([index[body], first, *track.reshape(-1).tolist()])
-        times = [round(t * 1000) for t in self._times]
+            start, stop = int(moving[0]), int(moving[-1]) + 2
+            out.append([index[body], first + start, *track[start:stop].reshape(-1).tolist()])
+        times = list(self._times)
         self.discard()
         if not out:
             return None
         out.sort(key=lambda row: row[0])
-        return {"t": times, "boxes": out}
+        return {"tick_s": self.world.config.dt, "t": times, "boxes": out}
+
+
+def _visible(track: np.ndarray) -> bool:
+    """Whether a box's samples leave its final pose by more than :data:`VISIBLE_MM` or :data:`VISIBLE_QUAT`."""
+    spread = np.abs(track - track[-1]).max(axis=0)
+    return bool(spread[:3].max() > VISIBLE_MM or spread[3:].max() > VISIBLE_QUAT)

@@ -9,7 +9,9 @@ opens ``robobpp view``'s self-contained page in Debian's Chromium (headless, sof
 - the browser: navigation to the replay drawn at step 0 (``data-frame`` set), median of ``--loads``;
 - scrubbing: the time to show one position mid-operation (arm, carried box, boxes), median over 200.
 
-    python bench/bench_replay.py [--trace replay80.json] [--group 3] [--loads 5]
+- ``--overhead``: the episode once more with recording off and on: CPU per box, same outcome or not.
+
+    python bench/bench_replay.py [--trace replay80.json] [--group 3] [--loads 5] [--overhead]
 """
 
 from __future__ import annotations
@@ -28,17 +30,36 @@ from _common import machine
 CHROMIUM = "/usr/bin/chromium"
 
 
-def make_trace(path: Path, dataset: str, group: int) -> dict[str, Any]:
+def run(dataset: str, group: int, record: bool) -> tuple[dict[str, Any], float]:
+    """The episode's result and its CPU seconds, recording the replay's motion and tracks or not."""
     from robobpp.datasets import episode_specs
     from robobpp.episode import run_episode
     from robobpp.policies import load_policy
+    from robobpp.sim.execution import ExecutionPack
 
     spec = episode_specs(dataset, split="train", groups=group + 1)[group]
+    pack = ExecutionPack()
+    pack.record_tracks = record
     t0 = time.process_time()
-    result = run_episode(spec, load_policy("dbl"), "execution").to_dict()
-    print(f"episode: {result['boxes_placed']} boxes placed, {time.process_time() - t0:.1f} CPU s")
+    result = run_episode(spec, load_policy("dbl"), pack).to_dict()
+    return result, time.process_time() - t0
+
+
+def make_trace(path: Path, dataset: str, group: int) -> None:
+    result, cpu = run(dataset, group, True)
+    print(f"episode: {result['boxes_placed']} boxes placed, {cpu:.1f} CPU s")
     path.write_text(json.dumps({"policy": "dbl", "episodes": [result]}))
-    return result
+
+
+def overhead(dataset: str, group: int) -> None:
+    """CPU per box with and without recording, and that the outcome is the same."""
+    (off, cpu_off), (on, cpu_on) = run(dataset, group, False), run(dataset, group, True)
+    same = off["metrics"] == on["metrics"] and off["final"] == on["final"]
+    n = max(1, on["boxes_placed"])
+    print(
+        f"recording: {1000 * cpu_off / n:.0f} ms/box without, {1000 * cpu_on / n:.0f} ms/box with "
+        f"({100 * (cpu_on / cpu_off - 1):+.1f} %); same metrics and final poses: {same}"
+    )
 
 
 def sizes(data: dict[str, Any]) -> dict[str, int]:
@@ -88,7 +109,10 @@ def main() -> None:
     ap.add_argument("--dataset", default="repetitive")
     ap.add_argument("--group", type=int, default=3)
     ap.add_argument("--loads", type=int, default=5)
+    ap.add_argument("--overhead", action="store_true", help="also run the episode without recording")
     args = ap.parse_args()
+    if args.overhead:
+        overhead(args.dataset, args.group)
     if not args.trace.exists():
         make_trace(args.trace, args.dataset, args.group)
     data = json.loads(args.trace.read_text())
@@ -107,15 +131,19 @@ def main() -> None:
     html = render_standalone(episodes, source=args.trace.name)
     t2 = time.perf_counter()
     payload = len(json.dumps({"episodes": episodes}))
-    print(f"python: read+check {1000 * (t1 - t0):.0f} ms, render page {1000 * (t2 - t1):.0f} ms; "
-          f"page {len(html) / 1e6:.2f} MB (viewer payload {payload / 1e3:.0f} kB)")
+    print(
+        f"python: read+check {1000 * (t1 - t0):.0f} ms, render page {1000 * (t2 - t1):.0f} ms; "
+        f"page {len(html) / 1e6:.2f} MB (viewer payload {payload / 1e3:.0f} kB)"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         page_file = Path(tmp) / "replay.html"
         page_file.write_text(html)
         opened, scrub = browser_times(page_file, args.loads)
-    print(f"browser: open to step 0 drawn, median of {len(opened)}: {statistics.median(opened):.2f} s "
-          f"(min {min(opened):.2f}, max {max(opened):.2f}); one scrub position: median "
-          f"{1000 * statistics.median(scrub):.1f} ms, p95 {1000 * sorted(scrub)[int(0.95 * len(scrub))]:.1f} ms")
+    print(
+        f"browser: open to step 0 drawn, median of {len(opened)}: {statistics.median(opened):.2f} s "
+        f"(min {min(opened):.2f}, max {max(opened):.2f}); one scrub position: median "
+        f"{1000 * statistics.median(scrub):.1f} ms, p95 {1000 * sorted(scrub)[int(0.95 * len(scrub))]:.1f} ms"
+    )
 
 
 if __name__ == "__main__":

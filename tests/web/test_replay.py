@@ -89,6 +89,7 @@ def test_server_replay_page(server: Server, probe: PageProbe) -> None:
     check_viewer(probe, physics["boxes_placed"])
     info = probe.page.locator("[data-role=episode-info]").inner_text()
     assert "physics" in info and "Static stability" in info
+    probe.page.locator("[data-role=last]").click()
     probe.shot("replay")
     probe.assert_clean()
 

@@ -625,11 +625,12 @@ class Replay {
     this.playing = true;
     this.el("play").textContent = "Pause";
     let last = performance.now();
+    // The play position runs continuously; an episode with nothing timed shows it a whole step at a time.
+    let u = this.u;
     const tick = (now) => {
       if (!this.playing) return;
       let left = ((now - last) / 1000) * this.speed;
       last = now;
-      let u = this.u;
       // Advance through as many steps as the elapsed time covers, each at its own duration.
       while (left > 0 && u < this.frames) {
         const k = Math.floor(u + 1e-9) + 1;
@@ -637,8 +638,8 @@ class Replay {
         const rest = (k - u) * seconds;
         if (left < rest) { u += left / seconds; left = 0; } else { u = k; left -= rest; }
       }
-      if (!this.timed) u = Math.floor(u + 1e-9);
-      if (u !== this.u) this.show(u);
+      const shown = this.timed ? u : Math.floor(u + 1e-9);
+      if (shown !== this.u) this.show(shown);
       if (u >= this.frames) this.stop(); else this.raf = requestAnimationFrame(tick);
     };
     this.raf = requestAnimationFrame(tick);

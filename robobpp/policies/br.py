@@ -6,6 +6,7 @@ import numpy as np
 
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.core.heightmap import cells_spanned
+from robobpp.policies.candidates import first_supported
 from robobpp.policies.ems import EmsPolicy, ems_candidates
 
 #: How many distinct recent box sizes stand for "typical items".
@@ -77,7 +78,5 @@ class BR(EmsPolicy):
         fits = (upright | turned) & (t[..., 2] <= s[..., 2] + 1e-6)  # (C, 5, T)
         still_fit = fits.any(axis=1).mean(axis=1)
         utility = self.w_fit * fit + self.w_count * still_fit - self.w_height * top / height
-        k = int(
-            np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, -np.round(utility, 9)))[0]
-        )
-        return Action(float(cands.x[k]), float(cands.y[k]), int(cands.orientation[k]))
+        order = np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, -np.round(utility, 9)))
+        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from robobpp.core import Action, Observation
+from robobpp.policies.candidates import first_supported
 from robobpp.policies.ems import HEIGHT_EPS, EmsPolicy, ems_candidates
 
 
@@ -34,5 +35,5 @@ class LSAH(EmsPolicy):
         big_y = np.maximum(by, cands.y + cands.wc)
         big_z = np.maximum(bz, cands.z + cands.h)
         area = 2.0 * (big_x * big_y + big_x * big_z + big_y * big_z)
-        k = int(np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, area))[0])
-        return Action(float(cands.x[k]), float(cands.y[k]), int(cands.orientation[k]))
+        order = np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, area))
+        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from robobpp.core import Action, Observation
+from robobpp.policies.candidates import first_supported
 from robobpp.policies.ems import HEIGHT_EPS, EmsPolicy, ems_candidates
 
 
@@ -56,5 +57,5 @@ class MACS(EmsPolicy):
         overlap = np.clip(ends[None, :] - np.maximum(levels[None, :], top), 0, None)
         seg = (ends - levels)[None, :]
         score = ((seg - overlap) * best + overlap * np.maximum(best, above)).sum(axis=1)
-        k = int(np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, -np.round(score, 6)))[0])
-        return Action(float(cands.x[k]), float(cands.y[k]), int(cands.orientation[k]))
+        order = np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, -np.round(score, 6)))
+        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)

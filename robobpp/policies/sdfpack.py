@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from robobpp.core import Action, Observation
+from robobpp.policies.candidates import first_supported
 from robobpp.policies.ems import Candidates, EmsPolicy, ems_candidates
 
 
@@ -84,5 +85,5 @@ class SDFPack(EmsPolicy):
             + self.w_height * (cands.z + cands.h) / obs.container.height
             + self.w_rot * (cands.orientation != 0)
         )
-        k = int(np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, np.round(cost, 9)))[0])
-        return Action(float(cands.x[k]), float(cands.y[k]), int(cands.orientation[k]))
+        order = np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, np.round(cost, 9)))
+        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)

@@ -64,6 +64,8 @@ class Settings(BaseSettings):
     response_cap_bytes: int = Field(default=64 * 1024, ge=1024)
     evaluate_baselines: bool = True
     baselines: tuple[str, ...] = BASELINES
+    #: Also evaluate the baselines on the public track, so a debug run there is compared with something.
+    public_baselines: bool = True
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)

@@ -14,7 +14,7 @@ from sqlalchemy import select
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, Submission
-from robobpp.policies import TITLES
+from robobpp.policies import BASELINES, LEARNED, TITLES
 
 log = logging.getLogger("robobpp.server")
 
@@ -47,10 +47,11 @@ def ensure_baselines(session: Any, settings: Any) -> int:
         select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
     ).scalar_one()
     created = 0
+    names = (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines
     for track in ("private", "public") if settings.public_baselines else ("private",):
         existing = set(session.execute(select(Submission.policy_url).where(
             Submission.participant_id == participant.id, Submission.track == track)).scalars())  # fmt: skip
-        for name in settings.baselines:
+        for name in names:
             url = f"builtin:{name}"
             if url in existing:
                 continue

@@ -9,9 +9,9 @@ from fastapi import APIRouter, Query, Request, Response
 
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.leaderboard import board_view, grid_view
+from robobpp.schemas import DatasetName, Leaderboard, OverallGrid, ServiceInfo, SettingName
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep
-from robobpp.server.api.schemas import DatasetName, Leaderboard, OverallGrid, ServiceInfo, SettingName
 from robobpp.server.services.boards import BoardCache, to_json
 
 router = APIRouter(tags=["leaderboards"])

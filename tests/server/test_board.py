@@ -18,6 +18,7 @@ from robobpp.db.models import Participant, Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
+from robobpp.worker.options import worker_options
 from robobpp.worker.run import claim_and_run
 
 GROUPS = 4
@@ -65,7 +66,7 @@ def submit(app: Any, participant: str, url: str, *, datasets: tuple[str, ...] = 
 def drain(app: Any) -> None:
     runtime = app.state.runtime
     while (
-        claim_and_run(runtime.session_factory, runtime.settings.worker_options(), "test:host:1") is not None
+        claim_and_run(runtime.session_factory, worker_options(runtime.settings), "test:host:1") is not None
     ):
         pass
 
@@ -180,11 +181,12 @@ def test_public_track_carries_the_baselines(board_app) -> None:
     from robobpp.server.bootstrap import ensure_baselines
 
     app, _client = board_app
+    baselines = ("dbl", "random")
+    settings = app.state.runtime.settings.model_copy(update={"baselines": baselines})
     with app.state.runtime.session() as s:
-        created = ensure_baselines(s, app.state.runtime.settings)
-        again = ensure_baselines(s, app.state.runtime.settings)  # idempotent
+        created = ensure_baselines(s, settings)
+        again = ensure_baselines(s, settings)  # idempotent
         tracks = s.execute(select(Submission.track, Submission.policy_url)).all()
-    baselines = app.state.runtime.settings.baselines
     assert created == 2 * len(baselines) and again == 0
     assert (
         {u for t, u in tracks if t == "public"}

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, Request
+from fastapi import APIRouter, Depends, Path, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 from sqlalchemy.orm import Session
 
@@ -25,11 +25,11 @@ from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root
-from robobpp.server.site.session import Viewer, viewer
+from robobpp.server.site.session import Viewer, load_viewer, viewer
 from robobpp.web import SETTING_TITLES, tables
 from robobpp.web.trace import TraceError, viewer_payload
 
-router = APIRouter(include_in_schema=False)
+router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 router.include_router(account.router)
 router.include_router(operator.router)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Form, Path, Request
+from fastapi import APIRouter, Depends, Form, Path, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
 
@@ -22,9 +22,9 @@ from robobpp.server.api.schemas import SubmissionCreate
 from robobpp.server.problems import ProblemError
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import not_found, redirect, refused, render
-from robobpp.server.site.session import Viewer, viewer
+from robobpp.server.site.session import Viewer, load_viewer, viewer
 
-router = APIRouter(include_in_schema=False)
+router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 #: Form fields are read with generous caps; the API's own models then apply the real limits.
 Text = Annotated[str, Form(max_length=4096)]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Request
+from fastapi import APIRouter, Depends, Path, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
 from sqlalchemy import func, select
@@ -22,9 +22,9 @@ from robobpp.server.problems import ProblemError
 from robobpp.server.site import session as web_session
 from robobpp.server.site.account import BAD_CSRF, Text, problem_text
 from robobpp.server.site.render import not_found, redirect, refused, render
-from robobpp.server.site.session import viewer
+from robobpp.server.site.session import load_viewer, viewer
 
-router = APIRouter(include_in_schema=False)
+router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 ADMIN = Principal(None, admin=True)
 

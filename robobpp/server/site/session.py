@@ -82,6 +82,12 @@ def viewer(request: Request) -> Viewer:
     return found
 
 
+def load_viewer(request: Request) -> Viewer:
+    """Router dependency: resolve the viewer before a handler opens its own transaction (on SQLite a
+    second, nested transaction would wait for the first one's write lock)."""
+    return viewer(request)
+
+
 def start(request: Request, response: Response, *, token_id: int | None = None, admin: bool = False) -> None:
     """Sign in: a fresh session (new nonce, so a nonce seen before sign-in is worth nothing after)."""
     data: dict[str, Any] = {"n": secrets.token_urlsafe(24)}

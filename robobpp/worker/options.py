@@ -1,10 +1,11 @@
 """What a worker needs to know, as plain data (it crosses process boundaries and the server's settings
-stay on the server side of the one-way imports: ``Settings.worker_options()`` builds it)."""
+stay on the server side of the one-way imports: :func:`worker_options` reads them duck-typed)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 
 @dataclass(frozen=True, slots=True)
@@ -19,3 +20,13 @@ class WorkerOptions:
     step_timeout_s: float = 10.0
     episode_timeout_s: float = 1800.0
     response_cap_bytes: int = 64 * 1024
+
+
+def worker_options(settings: Any) -> WorkerOptions:
+    """The options of a :class:`robobpp.server.config.Settings` (duck-typed: no import of the server)."""
+    return WorkerOptions(
+        database_url=settings.sqlalchemy_url, groups=settings.groups, private_dir=settings.private_dir,
+        spec_provider=settings.spec_provider, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
+        poll_interval_s=settings.poll_interval_s, step_timeout_s=settings.step_timeout_s,
+        episode_timeout_s=settings.episode_timeout_s, response_cap_bytes=settings.response_cap_bytes,
+    )  # fmt: skip

@@ -11,8 +11,8 @@ from sqlalchemy import select
 from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
+from robobpp.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
 from robobpp.server.api.deps import PrincipalDep, SessionDep, SettingsDep
-from robobpp.server.api.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.problems import ProblemError
 from robobpp.server.urlsafety import BUILTIN_SCHEME, UnsafeURLError, check_policy_url, probe_policy

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import runpy
 import shlex
 import subprocess
 import sys
@@ -24,13 +25,11 @@ import httpx
 import pytest
 import typer
 
-from robobpp.server.api.schemas import SubmissionCreate
-from tests.web.conftest import Server
+# Recent Typer ships its own copy of click: the CLI's errors are that copy's.
+from typer._click.exceptions import ClickException  # type: ignore[import-not-found]
 
-try:  # recent Typer ships its own copy of click; the CLI's errors are that copy's
-    from typer._click.exceptions import ClickException  # type: ignore[import-not-found]
-except ImportError:  # pragma: no cover - older Typer on the real click
-    from click import ClickException  # type: ignore[no-redef]
+from robobpp.schemas import SubmissionCreate
+from tests.web.conftest import Server
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", ROOT / "docs" / "protocol.md"]
@@ -238,11 +237,7 @@ def test_server_client_snippet_runs_against_a_server(server: Server) -> None:
     r = server.client.post("/api/v1/participants", json={"name": "snippet-runner"})
     assert r.status_code == 201, r.text
     token = r.json()["token"]
-    sys.path.insert(0, str(ROOT / "examples"))
-    try:
-        from policy_server import LowestFirst  # type: ignore[import-not-found]
-    finally:
-        sys.path.pop(0)
+    LowestFirst = runpy.run_path(str(ROOT / "examples" / "policy_server.py"))["LowestFirst"]  # noqa: N806
     secret = re.search(r'secret="([^"]+)"', snippet.code).group(1)
     with BackgroundServer(create_policy_app(LowestFirst(), secret)) as policy:
         code = snippet.code.replace("http://127.0.0.1:8000", server.url).replace(

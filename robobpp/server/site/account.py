@@ -15,10 +15,10 @@ from pydantic import ValidationError
 from robobpp.datasets import DATASETS
 from robobpp.db import queries
 from robobpp.db.models import Participant
+from robobpp.schemas import SubmissionCreate
 from robobpp.server.api import participants as api_participants
 from robobpp.server.api import submissions as api_submissions
 from robobpp.server.api.deps import Principal, principal_for_token
-from robobpp.server.api.schemas import SubmissionCreate
 from robobpp.server.problems import ProblemError
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import not_found, redirect, refused, render

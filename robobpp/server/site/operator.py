@@ -15,9 +15,9 @@ from sqlalchemy import func, select
 
 from robobpp.db import queries
 from robobpp.db.models import ApiToken, Participant, Submission
+from robobpp.schemas import ParticipantCreate, SubmissionPublic, TokenCreated
 from robobpp.server.api import participants as api_participants
 from robobpp.server.api.deps import Principal
-from robobpp.server.api.schemas import ParticipantCreate, SubmissionPublic, TokenCreated
 from robobpp.server.problems import ProblemError
 from robobpp.server.site import session as web_session
 from robobpp.server.site.account import BAD_CSRF, Text, problem_text

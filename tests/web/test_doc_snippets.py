@@ -10,6 +10,7 @@ comment under it) and the ``ServerClient`` example (against the tests' evaluatio
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
@@ -20,6 +21,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -103,12 +105,17 @@ def _commands(code: str) -> list[list[str]]:
     return out
 
 
-def _parse_cli(args: list[str]) -> None:
-    """Parse (never run) a command line with robobpp's own CLI: raises click's error on a bad line."""
+@functools.cache
+def _cli() -> Any:
     from robobpp.cli import _register, app
 
     _register()
-    command = typer.main.get_command(app)
+    return typer.main.get_command(app)
+
+
+def _parse_cli(args: list[str]) -> None:
+    """Parse (never run) a command line with robobpp's own CLI: raises click's error on a bad line."""
+    command = _cli()
     ctx = command.context_class(command, info_name="robobpp")
     rest = list(args)
     while hasattr(command, "get_command"):  # a group (ours take no options): walk down to the command

@@ -53,6 +53,9 @@ EPISODE_COLUMNS = ("id", "submission_id", "run_id", "dataset", "setting", "split
                    "finished_at")  # fmt: skip
 
 
+QUOTED = ", ".join(f'"{c}"' for c in EPISODE_COLUMNS)  # "group" is an SQL keyword
+
+
 def episode_figures(
     rng: random.Random, quality: float, setting: str
 ) -> tuple[dict[str, float], dict[str, int]]:
@@ -155,7 +158,7 @@ def write_episodes(engine: Any, rows: list[tuple[Any, ...]], postgres: bool) -> 
         try:
             with (
                 raw.cursor() as cur,
-                cur.copy(f"COPY episodes ({', '.join(EPISODE_COLUMNS)}) FROM STDIN") as copy,
+                cur.copy(f"COPY episodes ({QUOTED}) FROM STDIN") as copy,
             ):
                 copy.write(buf.getvalue())
             raw.commit()

@@ -11,7 +11,7 @@ from sqlalchemy import select
 from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
-from robobpp.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
+from robobpp.schemas import PULL_URL, EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
 from robobpp.server.api.deps import PrincipalDep, SessionDep, SettingsDep
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.problems import ProblemError
@@ -38,6 +38,9 @@ def _check_url(
     body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
 ) -> tuple[str, str | None]:
     """(policy URL, pinned address). Runs before any row is written; network only here."""
+    if body.mode == "pull":  # nothing to reach: the participant's client connects to us
+        return PULL_URL, None
+    assert body.policy_url is not None  # the schema demands it in push mode
     url = body.policy_url.strip()
     if url.startswith(BUILTIN_SCHEME):
         if not principal.admin:
@@ -98,7 +101,8 @@ def create_submission(
                                    f"at most {settings.quota_concurrent} evaluations at a time; wait or cancel one")  # fmt: skip
         sub = work.create_submission(session, participant, name=body.name, policy_url=url, secret=body.secret,
                                      pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
-                                     groups=settings.groups, track=body.track, lookahead=body.lookahead)  # fmt: skip
+                                     groups=settings.groups, track=body.track, lookahead=body.lookahead,
+                                     mode=body.mode)  # fmt: skip
         session.refresh(sub)
         return SubmissionPublic.model_validate(queries.submission_view(session, sub))
 

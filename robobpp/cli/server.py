@@ -59,6 +59,8 @@ def serve(
         base = Settings(**overrides)
         if demo:
             overrides.update(demo_overrides(base.state_dir))
+        if not base.pull_relay_url:  # the local workers reach the pull relay on this very server
+            overrides["pull_relay_url"] = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::', '') else host}:{port}"
         settings = Settings(**overrides)
     except (ValidationError, ValueError) as exc:
         fail(f"invalid settings: {settings_problem(exc)}")

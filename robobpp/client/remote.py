@@ -210,7 +210,12 @@ class RemotePolicy:
             deadline = min(deadline, self._episode_deadline)
         try:
             self._connection.request(
-                "POST", self._path + "/echo", self.request_headers(body), body, deadline, self.max_response_bytes
+                "POST",
+                self._path + "/echo",
+                self.request_headers(body),
+                body,
+                deadline,
+                self.max_response_bytes,
             )
         except (wire.DeadlineExceeded, wire.ConnectFailed, wire.ConnectionBroke, wire.TooLarge, ValueError):
             return  # the act that follows meets the same connection and reports what is wrong with it

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hmac
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -56,13 +56,17 @@ def get_principal(
 ) -> Principal:
     if credentials is None or not credentials.credentials:
         raise _unauthorized("send an API token as 'Authorization: Bearer <token>'")
-    token = credentials.credentials
+    return principal_for_token(request.app.state.runtime, settings, credentials.credentials)
+
+
+def principal_for_token(runtime: Any, settings: Settings, token: str) -> Principal:
+    """The caller a bearer token names (also for WebSocket routes, which have no ``Request``)."""
     if len(token) > 256:
         raise _unauthorized("the API token is not valid")
     if hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
         return Principal(None, admin=True)
     # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
-    with request.app.state.runtime.session() as session:
+    with runtime.session() as session:
         participant = queries.participant_for_token(session, token)
     if participant is None:
         raise _unauthorized("the API token is not valid (unknown or revoked)")

@@ -79,7 +79,9 @@ def test_a_policy_connected_in_pull_mode_is_evaluated_and_ranked(make_server, tm
     assert mine["rank"] >= 1 and mine["metrics"]["space_utilization"] > 0
 
 
-def test_a_dropped_client_resumes_its_episode_without_loss_or_double_count(make_server, tmp_path: Path) -> None:
+def test_a_dropped_client_resumes_its_episode_without_loss_or_double_count(
+    make_server, tmp_path: Path
+) -> None:
     server = make_server(f"sqlite:///{tmp_path / 'drop.sqlite3'}", ROBOBPP_EVALUATE_BASELINES="0",
                          ROBOBPP_GROUPS="1", ROBOBPP_PULL_RECONNECT_S="20")  # fmt: skip
     token = new_participant(server.client(), "flaky")
@@ -96,7 +98,9 @@ def test_a_dropped_client_resumes_its_episode_without_loss_or_double_count(make_
     api = server.client(token)
     sub_id = wait_for(lambda: next((s["id"] for s in api.get("/submissions").json()), None), timeout_s=30)
     # Wait until an episode is under way (a few steps done), then cut every socket of this client.
-    wait_for(lambda: any(e["step"] >= 3 for e in api.get(f"/submissions/{sub_id}/episodes").json()), timeout_s=60)
+    wait_for(
+        lambda: any(e["step"] >= 3 for e in api.get(f"/submissions/{sub_id}/episodes").json()), timeout_s=60
+    )
     cut = _cut_client_sockets(server.port)
     assert cut > 0
     thread.join(timeout=120)

@@ -10,7 +10,7 @@ import pytest
 from robobpp.client.connect import connect
 from robobpp.policies.dbl import DBL
 from tests.celery.conftest import Fleet
-from tests.server.conftest import ADMIN_TOKEN, ServerProcess, new_participant, wait_for
+from tests.server.conftest import ADMIN_TOKEN, ServerProcess, new_participant
 
 
 @pytest.mark.parametrize("broker", ["redis"], indirect=True)

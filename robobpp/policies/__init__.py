@@ -22,15 +22,18 @@ BUILTIN: dict[str, str] = {
     "sdfpack": "robobpp.policies.sdfpack:SDFPack",
     "packe-rules": "robobpp.policies.packe_rules:PackERules",
     "random": "robobpp.policies.random_policy:RandomPolicy",
+    "pct": "robobpp.policies.pct:PCT",  # learned: the authors' trained weights (policies/pct/)
 }
 
+#: Learned policies with published weights; on the leaderboard beside the baselines (docs/baselines.md, "PCT").
+LEARNED: tuple[str, ...] = ("pct",)
 #: The paper's baselines shown on the leaderboard (a subset of BUILTIN, in the paper's order).
-BASELINES: tuple[str, ...] = tuple(BUILTIN)
+BASELINES: tuple[str, ...] = tuple(name for name in BUILTIN if name not in LEARNED)
 
 #: Display names, spelled as in the paper.
 TITLES: dict[str, str] = {
     "dbl": "DBL", "hm": "HM", "lsah": "LSAH", "onlinebph": "OnlineBPH", "br": "BR", "macs": "MACS",
-    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random",
+    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random", "pct": "PCT",
 }  # fmt: skip
 
 
@@ -82,6 +85,7 @@ def load_policy(name: str, **kwargs: object) -> Policy:
 __all__ = [
     "BASELINES",
     "BUILTIN",
+    "LEARNED",
     "TITLES",
     "BasePolicy",
     "Policy",

@@ -16,6 +16,7 @@ counted twice because the result is still written once, under the lease.
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
 from collections.abc import Callable
@@ -95,7 +96,8 @@ class PullTransport:
             )  # fmt: skip
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
             raise wire.ConnectFailed(f"cannot reach the pull relay at {self.url}: {exc}") from None
-        ws.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        with contextlib.suppress(OSError):  # already closed by the relay: recv below says why
+            ws.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         try:
             hello = ws.recv(timeout=wait_s + self.connect_timeout_s)
         except TimeoutError:

@@ -26,6 +26,7 @@ from robobpp.db.queries import SHOWN_TEXT_LIMIT
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
 from robobpp.server.app import create_app
+from robobpp.server.site.account import PULL_OFFERED
 from tests.server.conftest import ADMIN_TOKEN
 from tests.server.test_api import make_settings
 
@@ -316,3 +317,23 @@ def test_revoking_the_token_ends_its_browser_session(world: World) -> None:
         r = browser.get("/account", follow_redirects=False)
         assert r.status_code == 303 and r.headers["location"] == "/sign-in"
         assert browser.get("/submit", follow_redirects=False).status_code == 303
+
+
+@pytest.mark.skipif(not PULL_OFFERED, reason="the API's submission model has no pull mode yet")
+def test_submit_form_creates_a_pull_submission(world: World) -> None:
+    app = world.clients["owner"].app
+    r = world.clients["anonymous"].post(
+        "/api/v1/participants", json={"name": "puller"}, headers=world.bearer["operator"]
+    )
+    with TestClient(app) as browser:
+        sign_in(browser, r.json()["token"])
+        form = browser.get("/submit")
+        assert 'name="mode" value="pull"' in form.text
+        r = browser.post("/submit", data={"name": "pulled", "mode": "pull", "policy_url": "", "datasets": ["diverse"],
+                                          "settings": ["math"], "csrf": _csrf(form.text)}, follow_redirects=False)  # fmt: skip
+        assert r.status_code == 303, r.text
+        page = browser.get(r.headers["location"])
+        assert (
+            "robobpp connect" in page.text
+            and f"--submission {r.headers['location'].rsplit('/', 1)[1]}" in page.text
+        )

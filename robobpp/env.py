@@ -62,6 +62,28 @@ def stability_shaped_reward(episode: Episode, record: Any) -> float:
 REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_shaped_reward}
 
 
+def encode_observation(obs: Observation, lookahead: int) -> dict[str, np.ndarray]:
+    """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays)."""
+    look = np.zeros((lookahead, 4), np.float32)
+    for i, b in enumerate(obs.lookahead[:lookahead]):
+        look[i] = (b.length, b.width, b.height, b.mass)
+    return {
+        "heightmap": np.clip(obs.heightmap, 0, obs.container.height).astype(np.float32),
+        "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
+        "lookahead": look,
+    }
+
+
+def feasible_mask(obs: Observation) -> np.ndarray:
+    """Boolean (x, y, orientation) grid of the feasible actions for the observation's box."""
+    nx, ny = obs.container.grid_shape
+    mask = np.zeros((nx, ny, len(ORIENTATIONS)), bool)
+    for cand in candidate_maps(obs):
+        cx, cy = cand.feasible.shape
+        mask[:cx, :cy, cand.orientation] = cand.feasible
+    return mask
+
+
 class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     metadata = {"render_modes": []}
 
@@ -115,22 +137,15 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._mask = np.zeros(self.grid_shape, bool)
 
     def _encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
-        nx, ny = self.container.grid_shape
-        if obs is None:  # terminal: the final heightmap, no box
-            assert self._episode is not None
-            hm = self._episode.setting.state().heightmap
-            return {
-                "heightmap": np.clip(hm, 0, self.container.height).astype(np.float32),
-                "box": np.zeros(4, np.float32),
-                "lookahead": np.zeros((self.lookahead, 4), np.float32),
-            }
-        look = np.zeros((self.lookahead, 4), np.float32)
-        for i, b in enumerate(obs.lookahead):
-            look[i] = (b.length, b.width, b.height, b.mass)
+        if obs is not None:
+            return encode_observation(obs, self.lookahead)
+        assert self._episode is not None  # terminal: the final heightmap, no box
         return {
-            "heightmap": np.clip(obs.heightmap, 0, self.container.height).astype(np.float32),
-            "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
-            "lookahead": look,
+            "heightmap": np.clip(self._episode.setting.state().heightmap, 0, self.container.height).astype(
+                np.float32
+            ),
+            "box": np.zeros(4, np.float32),
+            "lookahead": np.zeros((self.lookahead, 4), np.float32),
         }
 
     def reset(
@@ -151,11 +166,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         """The next box's observation and its feasible actions (computed once, read by every mask call)."""
         assert self._episode is not None
         self._obs = None if self._episode.done else self._episode.observe()
-        self._mask = np.zeros(self.grid_shape, bool)
-        if self._obs is not None:
-            for cand in candidate_maps(self._obs):
-                cx, cy = cand.feasible.shape
-                self._mask[:cx, :cy, cand.orientation] = cand.feasible
+        self._mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
 
     def _grid_action(self, action: Any) -> tuple[int, int, int]:
         values = np.asarray(action).reshape(-1)

@@ -141,3 +141,28 @@ def test_registered_on_import_robobpp_with_a_step_limit():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.split() == ["robobpp.env:PackEnv", str(robobpp.GYM_MAX_EPISODE_STEPS)]
+
+
+@pytest.mark.network
+def test_train_ppo_example_trains_plots_and_evaluates(real_data, tmp_path):
+    """A few hundred MaskablePPO steps end to end: model, learning curve, `robobpp evaluate` of the agent."""
+    pytest.importorskip("sb3_contrib", reason="needs the learn extra: pip install -e '.[learn]'")
+    import csv
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
+    cmd = [sys.executable, str(example), "--steps", "256", "--n-steps", "128", "--groups", "2",
+           "--eval-groups", "1", "--no-baselines", "--out", str(tmp_path)]  # fmt: skip
+    env = {**os.environ, "ROBOBPP_DATA_DIR": str(real_data), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = list(csv.DictReader((tmp_path / "curve.csv").open()))
+    assert len(rows) >= 2 and all(0 < float(r["space_utilization"]) <= 1 for r in rows)
+    assert (tmp_path / "model.zip").stat().st_size > 0
+    assert (tmp_path / "learning_curve.png").read_bytes()[:4] == b"\x89PNG"
+    result = json.loads((tmp_path / "eval-ppopolicy.json").read_text())
+    assert result["policy"] == "ppo" and result["episodes"][0]["boxes_placed"] >= 1

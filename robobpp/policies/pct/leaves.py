@@ -107,14 +107,12 @@ def _maximal(spaces: np.ndarray) -> np.ndarray:
     return spaces[~inside.any(axis=1)]
 
 
-def _hull(points: np.ndarray) -> np.ndarray:
+def _hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
     """Convex hull, counter-clockwise, of 2-D points (Andrew's monotone chain)."""
-    pts = sorted(set(map(tuple, points.tolist())))
-    if len(pts) < 3:
-        return np.array(pts)
+    pts = sorted(set(points))
 
-    def half(seq: list) -> list:
-        out: list = []
+    def half(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        out: list[tuple[float, float]] = []
         for p in seq:
             while len(out) >= 2 and (
                 (out[-1][0] - out[-2][0]) * (p[1] - out[-2][1])
@@ -125,33 +123,56 @@ def _hull(points: np.ndarray) -> np.ndarray:
             out.append(p)
         return out
 
-    lower, upper = half(pts), half(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1])
+    return half(pts)[:-1] + half(pts[::-1])[:-1]
+
+
+def _inside_shrunk_hull(contacts: np.ndarray, cx: float, cy: float) -> bool:
+    """Whether (cx, cy) lies strictly inside the hull of the contact rectangles shrunk by ``SHRINK``."""
+    if (
+        len(contacts) == 1
+    ):  # one rectangle: its hull's vertex mean is its centre, shrinking keeps it a rectangle
+        x0, y0, x1, y1 = contacts[0]
+        half_x, half_y = (1 - SHRINK) * (x1 - x0) / 2, (1 - SHRINK) * (y1 - y0) / 2
+        return abs(cx - (x0 + x1) / 2) < half_x and abs(cy - (y0 + y1) / 2) < half_y
+    corners = [(x, y) for x0, y0, x1, y1 in contacts.tolist() for x in (x0, x1) for y in (y0, y1)]
+    hull = np.array(_hull(corners))
+    hull = hull - SHRINK * (hull - hull.mean(axis=0))
+    edge = np.roll(hull, -1, axis=0) - hull
+    to_point = np.array([cx, cy]) - hull
+    return bool(np.all(edge[:, 0] * to_point[:, 1] - edge[:, 1] * to_point[:, 0] > 0))
+
+
+def _contacts(
+    x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray, z: np.ndarray, tops: np.ndarray
+):
+    """For each footprint resting at ``z``: its overlap rectangles with the boxes whose tops are at ``z``.
+
+    Returns (rects (n, b, 4), touching (n, b) bool). ``tops`` is (b, 5): x0, y0, x1, y1, top.
+    """
+    level = np.abs(tops[None, :, 4] - z[:, None]) <= LEVEL_TOLERANCE
+    rects = np.stack(
+        [
+            np.maximum(tops[None, :, 0], x0[:, None]),
+            np.maximum(tops[None, :, 1], y0[:, None]),
+            np.minimum(tops[None, :, 2], x1[:, None]),
+            np.minimum(tops[None, :, 3], y1[:, None]),
+        ],
+        axis=2,
+    )
+    touching = level & (rects[..., 2] > rects[..., 0]) & (rects[..., 3] > rects[..., 1])
+    return rects, touching
 
 
 def supported(x0: float, y0: float, sx: float, sy: float, z: float, tops: np.ndarray) -> bool:
-    """The reference's support rule for a box resting at ``z`` (see the module docstring).
+    """The reference's support rule for one box resting at ``z`` (see the module docstring).
 
-    ``tops`` is (n, 5): x0, y0, x1, y1, top of the placed boxes (whole-cell footprints).
+    ``tops`` is (b, 5): x0, y0, x1, y1, top of the placed boxes (whole-cell footprints).
     """
     if z <= TOLERANCE_CM:
         return True
-    level = tops[np.abs(tops[:, 4] - z) <= LEVEL_TOLERANCE]
-    lo = np.maximum(level[:, :2], (x0, y0))
-    hi = np.minimum(level[:, 2:4], (x0 + sx, y0 + sy))
-    ok = np.all(hi > lo, axis=1)
-    if not ok.any():
-        return False
-    lo, hi = lo[ok], hi[ok]
-    corners = np.concatenate([lo, hi, np.c_[lo[:, 0], hi[:, 1]], np.c_[hi[:, 0], lo[:, 1]]])
-    hull = _hull(corners)
-    if len(hull) < 3:
-        return False
-    hull = hull - SHRINK * (hull - hull.mean(axis=0))
-    centre = np.array([x0 + sx / 2, y0 + sy / 2])
-    edge = np.roll(hull, -1, axis=0) - hull
-    to_point = centre - hull
-    return bool(np.all(edge[:, 0] * to_point[:, 1] - edge[:, 1] * to_point[:, 0] > 0))
+    one = np.array
+    rects, touching = _contacts(one([x0]), one([y0]), one([x0 + sx]), one([y0 + sy]), one([z]), tops)
+    return bool(touching[0].any()) and _inside_shrunk_hull(rects[0, touching[0]], x0 + sx / 2, y0 + sy / 2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,15 +190,15 @@ class Nodes:
 def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) -> Nodes:
     """The PCT nodes for the observation's box, given the current empty maximal spaces."""
     container = obs.container
-    placed = obs.placed[-INTERNAL_HOLDER:]
+    extents = np.array([box_extent(p) for p in obs.placed]).reshape(-1, 6)
     internal = np.zeros((INTERNAL_HOLDER, 6))
     internal_valid = np.zeros(INTERNAL_HOLDER, bool)
     internal_valid[0] = True  # the reference marks the first (all-zero) node valid before any box is placed
-    extents = np.array([box_extent(p) for p in placed]).reshape(-1, 6)
-    internal[: len(extents)] = extents
-    internal_valid[: len(extents)] = True
+    recent = extents[-INTERNAL_HOLDER:]  # the reference holds 80 boxes; a longer episode shows the latest
+    internal[: len(recent)] = recent
+    internal_valid[: len(recent)] = True
 
-    candidates: dict[tuple[float, float, float, int], int] = {}  # (x0, y0, z_space, orientation) -> order
+    corners = []  # (x0, y0, z_space, orientation) of the box in each floor corner of each space it fits
     heights: dict[int, tuple[int, int, float, np.ndarray]] = {}
     for orientation in obs.orientations:
         length, width, height = obs.box.dims(orientation)
@@ -187,26 +208,38 @@ def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) 
         if sx > container.length + TOLERANCE_CM or sy > container.width + TOLERANCE_CM:
             continue
         heights[orientation] = (sx, sy, height, drop_height_map(obs.heightmap, length, width))
-        fits = np.all(spaces[:, 3:] - spaces[:, :3] >= (sx, sy, height - 1e-9), axis=1)
-        for x1, y1, z1, x2, y2, _ in spaces[fits]:
-            for x, y in ((x1, y1), (x2 - sx, y1), (x1, y2 - sy), (x2 - sx, y2 - sy)):
-                candidates.setdefault((x, y, z1, orientation), len(candidates))
+        fit = spaces[np.all(spaces[:, 3:] - spaces[:, :3] >= (sx, sy, height - 1e-9), axis=1)]
+        for x, y in ((fit[:, 0], fit[:, 1]), (fit[:, 3] - sx, fit[:, 1]), (fit[:, 0], fit[:, 4] - sy),
+                     (fit[:, 3] - sx, fit[:, 4] - sy)):  # fmt: skip
+            corners.append(np.stack([x, y, fit[:, 2], np.full(len(fit), orientation)], axis=1))
 
-    order = list(candidates)
-    rng.shuffle(order)  # type: ignore[arg-type]
-    tops = extents[:, [0, 1, 3, 4, 5]]
+    # Check every candidate as a drop at once (in the reference's shuffled order), then keep the first 50.
+    order = np.unique(np.concatenate(corners), axis=0) if corners else np.zeros((0, 4))
+    rng.shuffle(order)
+    xs, ys, orient = order[:, 0].astype(int), order[:, 1].astype(int), order[:, 3].astype(int)
+    size = np.array([heights[o][:3] for o in orient]).reshape(-1, 3)
+    z = np.full(len(order), np.inf)
+    for o, (_, _, _, z_map) in heights.items():
+        pick = (orient == o) & (xs >= 0) & (ys >= 0) & (xs < z_map.shape[0]) & (ys < z_map.shape[1])
+        z[pick] = z_map[xs[pick], ys[pick]]
+    fits = z + size[:, 2] <= container.height + TOLERANCE_CM
+    raised = fits & (z > TOLERANCE_CM)
+    rects, touching = _contacts(xs[raised], ys[raised], xs[raised] + size[raised, 0],
+                                ys[raised] + size[raised, 1], z[raised], extents[:, [0, 1, 3, 4, 5]])  # fmt: skip
+    contact = np.zeros((len(order), *rects.shape[1:]))
+    touches = np.zeros((len(order), len(extents)), bool)
+    contact[raised], touches[raised] = rects, touching
+    fits &= ~raised | touches.any(axis=1)
     leaves = np.zeros((LEAF_HOLDER, 8))
     actions: list[tuple[int, int, int]] = []
-    for x, y, z_space, orientation in order:
-        sx, sy, height, z_map = heights[orientation]
-        ix, iy = int(x), int(y)
-        if not (0 <= ix < z_map.shape[0] and 0 <= iy < z_map.shape[1]):
+    for i in np.flatnonzero(fits):
+        if raised[i] and not _inside_shrunk_hull(
+            contact[i, touches[i]], xs[i] + size[i, 0] / 2, ys[i] + size[i, 1] / 2
+        ):
             continue
-        z = float(z_map[ix, iy])
-        if z + height > container.height + TOLERANCE_CM or not supported(ix, iy, sx, sy, z, tops):
-            continue
-        leaves[len(actions)] = (ix, iy, z_space, ix + sx, iy + sy, container.height, 0, 0)
-        actions.append((ix, iy, orientation))
+        sx, sy = size[i, :2]
+        leaves[len(actions)] = (xs[i], ys[i], order[i, 2], xs[i] + sx, ys[i] + sy, container.height, 0, 0)
+        actions.append((int(xs[i]), int(ys[i]), int(orient[i])))
         if len(actions) == LEAF_HOLDER:
             break
     leaf_valid = np.zeros(LEAF_HOLDER, bool)

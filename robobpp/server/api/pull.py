@@ -116,9 +116,13 @@ def hub_of(ws: WebSocket) -> PullHub:
     return hub
 
 
-def _client_submission(runtime: Any, settings: Any, token: str, submission_id: int) -> int:
-    principal = principal_for_token(runtime, settings, token)
-    with runtime.session() as session:
+def _client_submission(ws: WebSocket, token: str, submission_id: int) -> int:
+    principal = principal_for_token(ws, token)  # type: ignore[arg-type]  # a WebSocket has .app like a Request
+    if principal is None:
+        raise ProblemError(
+            401, "unauthorized", "Unauthorized", "the API token is not valid (unknown or revoked)"
+        )
+    with ws.app.state.runtime.session() as session:
         sub = session.get(Submission, submission_id)
         if sub is None or not (principal.admin or sub.participant_id == principal.participant_id):
             raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id} of yours")
@@ -154,9 +158,7 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
     try:
         if not token:
             raise ProblemError(401, "unauthorized", "Unauthorized", "send 'Authorization: Bearer <token>'")
-        submission_id = await run_in_threadpool(
-            _client_submission, ws.app.state.runtime, ws.app.state.settings, token, submission
-        )
+        submission_id = await run_in_threadpool(_client_submission, ws, token, submission)
     except ProblemError as exc:
         await ws.close(FINISHED if exc.status == 410 else REFUSED, f"{exc.title}: {exc.detail}"[:120])
         return

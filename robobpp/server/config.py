@@ -67,6 +67,11 @@ class Settings(BaseSettings):
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)
+    #: Submit-time ``GET /info`` checks: deadline on the whole exchange, at most this many at once overall
+    #: and per participant (server/probes.py).
+    probe_timeout_s: float = Field(default=5.0, gt=0, le=60)
+    probe_concurrency: int = Field(default=8, ge=1, le=256)
+    probe_per_participant: int = Field(default=1, ge=1, le=64)
     quota_submissions_per_day: int = Field(default=10, ge=0)
     quota_concurrent: int = Field(default=2, ge=0)
 

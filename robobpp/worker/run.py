@@ -125,4 +125,3 @@ def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worke
     if claim is None:
         return None
     return run_claimed(factory, claim, settings)
-

@@ -84,6 +84,63 @@ def create_submission(
     return sub
 
 
+def take_unsent(
+    session: Session,
+    *,
+    stale_after_s: float,
+    ids: list[int] | None = None,
+    now: datetime | None = None,
+    limit: int = 1000,
+) -> list[int]:
+    """Pending episodes of active submissions with no broker message out, marked as sent now.
+
+    The caller sends their messages inside the same transaction: if the broker refuses, the marks roll
+    back and the next round tries again; a commit that fails after the send leaves a duplicate message,
+    which the claim turns into a no-op. The conditional UPDATE makes concurrent dispatchers (server
+    replicas, worker sweepers) send each episode once. A message older than ``stale_after_s`` (longer than
+    the broker keeps an unacknowledged one) is presumed lost and sent again.
+    """
+    now = now or utcnow()
+    unsent = and_(
+        EpisodeRow.status == "pending",
+        or_(
+            EpisodeRow.enqueued_at.is_(None), EpisodeRow.enqueued_at < now - timedelta(seconds=stale_after_s)
+        ),
+    )
+    query = (
+        select(EpisodeRow.id)
+        .join(Submission, Submission.id == EpisodeRow.submission_id)
+        .where(unsent, Submission.status.in_(ACTIVE_SUBMISSION))
+        .order_by(EpisodeRow.id)
+        .limit(limit)
+    )
+    if ids is not None:
+        query = query.where(EpisodeRow.id.in_(ids))
+    candidates = list(session.execute(query).scalars())
+    if not candidates:
+        return []
+    return sorted(
+        session.execute(
+            update(EpisodeRow)
+            .where(EpisodeRow.id.in_(candidates), unsent)
+            .values(enqueued_at=now)
+            .returning(EpisodeRow.id)
+            .execution_options(synchronize_session=False)
+        ).scalars()
+    )
+
+
+def _busy_participants(max_running: int) -> Any:
+    """Participants with ``max_running`` remote episodes running: the claim skips their other episodes."""
+    return (
+        select(Submission.participant_id)
+        .join(EpisodeRow, EpisodeRow.submission_id == Submission.id)
+        .where(EpisodeRow.status == "running", ~Submission.policy_url.startswith("builtin:"))
+        .group_by(Submission.participant_id)
+        .having(func.count() >= max_running)
+    )
+
+
 def _expired(now: datetime) -> Any:
     return and_(EpisodeRow.status == "running", EpisodeRow.lease_expires_at < now)
 
@@ -120,22 +177,29 @@ def claim_episode(
     max_attempts: int,
     now: datetime | None = None,
     episode_id: int | None = None,
+    max_running_per_participant: int | None = None,
 ) -> Claim | None:
     """Lease the oldest runnable episode (pending, or running with an expired lease) to ``worker``.
 
-    ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it)."""
+    ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it).
+    ``max_running_per_participant`` bounds how many episodes of one participant's remote policies run at
+    once (outbound calls to one participant's server), whatever the number of workers."""
     now = now or utcnow()
     reap_expired(session, max_attempts, now)
     runnable = or_(EpisodeRow.status == "pending", and_(_expired(now), EpisodeRow.attempts < max_attempts))
     if episode_id is not None:
         runnable = and_(EpisodeRow.id == episode_id, runnable)
+    eligible = runnable
+    if max_running_per_participant is not None:  # checked at select time: two racing claims may pass it both
+        eligible = and_(runnable, or_(Submission.policy_url.startswith("builtin:"),
+                                      Submission.participant_id.not_in(_busy_participants(max_running_per_participant))))  # fmt: skip
     for _ in range(
         5
     ):  # another claimer may win the row between select and update (SQLite has no SKIP LOCKED)
         row = session.execute(
             select(EpisodeRow.id)
             .join(Submission, Submission.id == EpisodeRow.submission_id)
-            .where(runnable, Submission.status.in_(ACTIVE_SUBMISSION))
+            .where(eligible, Submission.status.in_(ACTIVE_SUBMISSION))
             .order_by(EpisodeRow.id)
             .limit(1)
             .with_for_update(skip_locked=True, of=EpisodeRow)
@@ -242,6 +306,7 @@ def release_episode(
     else:
         ep.status = "pending"
         ep.lease_expires_at = None
+        ep.enqueued_at = None  # no message is out for it now: a dispatcher sends one
     return True
 
 

@@ -52,7 +52,11 @@ class Settings(BaseSettings):
     settings: tuple[str, ...] = ()
     #: ``module:function(dataset, split, group, groups) -> EpisodeSpec`` override (tests, offline demo).
     spec_provider: str = ""
-    lease_s: float = Field(default=120.0, gt=0)
+    #: Worker lease; renewed every quarter lease (heartbeat), swept every quarter lease: a dead worker's
+    #: episode is back in the queue within 1.25 leases (25 s with the default).
+    lease_s: float = Field(default=20.0, gt=0)
+    #: Episodes of one participant's remote policies running at once, whatever the number of workers.
+    participant_max_running: int = Field(default=4, ge=1, le=1000)
     #: Celery executor (scaled deployment): ``redis://…`` or ``amqp://…``; empty = local process pool.
     broker_url: str = ""
     #: Broker queue the episode tasks go to (one per deployment; tests use a fresh one per run).
@@ -114,6 +118,7 @@ class Settings(BaseSettings):
             spec_provider=self.spec_provider, lease_s=self.lease_s, max_attempts=self.max_attempts,
             poll_interval_s=self.poll_interval_s, step_timeout_s=self.step_timeout_s,
             episode_timeout_s=self.episode_timeout_s, response_cap_bytes=self.response_cap_bytes,
+            max_running_per_participant=self.participant_max_running,
         )  # fmt: skip
 
     @cached_property

@@ -29,6 +29,9 @@ from robobpp.metrics import aggregate
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
 WORKER_LOST = "worker_lost"
 ACTIVE_SUBMISSION = ("queued", "running")
+#: Which groups a track plays: the private split, the public train groups, or the private pool's hold-out
+#: draw (verifications only; docs/server.md, threat model).
+SPLIT_OF_TRACK = {"private": "test", "public": "train", "verify": "holdout"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,7 +68,7 @@ def create_submission(
     lookahead: int = 0,
 ) -> Submission:
     """The submission with one run per (dataset, setting) and one episode per group, in one transaction."""
-    split = "test" if track == "private" else "train"
+    split = SPLIT_OF_TRACK[track]
     sub = Submission(participant=participant, name=name, policy_url=policy_url, secret=secret,
                      pinned_ip=pinned_ip, track=track, datasets=list(datasets), settings=list(settings),
                      lookahead=lookahead, status="queued", episodes_total=len(datasets) * len(settings) * groups)  # fmt: skip
@@ -392,6 +395,10 @@ def _finalize_submission(session: Session, submission_id: int, now: datetime) ->
     if sub.status == "failed":
         sub.error = "some episodes could not be evaluated; see the episode list"
     sub.finished_at = now
+    if sub.verifies_id is not None:  # a verification: its verdict goes onto the verified submission
+        from robobpp.db.verification import record_verdict
+
+        record_verdict(session, sub)
 
 
 def cancel_submission(session: Session, sub: Submission) -> bool:
@@ -414,4 +421,8 @@ def cancel_submission(session: Session, sub: Submission) -> bool:
     )
     sub.status = "cancelled"
     sub.finished_at = now
+    if sub.verifies_id is not None:
+        original = session.get(Submission, sub.verifies_id)
+        if original is not None and (original.verification or {}).get("submission_id") == sub.id:
+            original.verification = {"status": "cancelled", "submission_id": sub.id}
     return True

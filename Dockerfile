@@ -21,7 +21,7 @@ COPY pyproject.toml README.md ./
 COPY robobpp ./robobpp
 COPY migrations ./migrations
 COPY alembic.ini ./
-RUN pip install . \
+RUN pip install ".[all]" \
  && mkdir -p /app/datasets_private /data \
  && chown -R robobpp:robobpp /app/datasets_private /data
 

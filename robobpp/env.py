@@ -1,14 +1,24 @@
 """Gymnasium env over the same episode loop the evaluator uses.
 
     import gymnasium as gym
-    import robobpp.env  # registers robobpp/Pack-v0
+    import robobpp  # any robobpp import registers robobpp/Pack-v0
     env = gym.make("robobpp/Pack-v0", dataset="repetitive", setting="math")
 
-(or ``gym.make("robobpp.env:robobpp/Pack-v0", ...)`` without the import).
+(or ``gym.make("robobpp.env:robobpp/Pack-v0", ...)`` with no import at all).
 
 Observation: ``heightmap`` (cm, float32, the container's 1 cm grid), ``box`` (length, width, height, mass of the
 box to place) and ``lookahead`` (the next boxes, zero-padded). Action: ``(x, y, orientation)`` as a
-MultiDiscrete over the grid. ``env.unwrapped.action_mask()`` gives the feasible actions for masked RL.
+MultiDiscrete over the grid, or with ``actions="flat"`` one Discrete index ``(x * ny + y) * 2 + orientation``.
+
+Masks, for masked RL: ``action_mask()`` is the boolean (x, y, orientation) grid of feasible actions;
+``action_masks()`` is the same in the action space's layout (what sb3-contrib's MaskablePPO calls): the
+flattened grid for ``actions="flat"``, and for the MultiDiscrete space the per-dimension masks MaskablePPO
+takes there (x, then y, then orientation values that occur in some feasible action — a superset, since one
+mask per dimension cannot say which combinations are feasible; use ``actions="flat"`` to mask exactly).
+``info["action_mask"]`` carries ``action_masks()`` after every reset and step.
+
+When no placement is feasible for the next box the episode ends there: ``terminated=True`` and
+``info["termination"] == "no_feasible_placement"``, recorded like a policy's "no feasible placement".
 """
 
 from __future__ import annotations
@@ -20,12 +30,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from robobpp import GYM_ENV_ID
 from robobpp import metrics as M
 from robobpp.core import ORIENTATIONS, Action, EpisodeSpec, Observation
 from robobpp.episode import Episode
 from robobpp.policies.candidates import candidate_maps
 
-ENV_ID = "robobpp/Pack-v0"
+ENV_ID = GYM_ENV_ID
 #: Largest box dimension or mass the observation space admits (cm / kg); datasets stay far below.
 _MAX_BOX = 1000.0
 
@@ -51,6 +62,28 @@ def stability_shaped_reward(episode: Episode, record: Any) -> float:
 REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_shaped_reward}
 
 
+def encode_observation(obs: Observation, lookahead: int) -> dict[str, np.ndarray]:
+    """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays)."""
+    look = np.zeros((lookahead, 4), np.float32)
+    for i, b in enumerate(obs.lookahead[:lookahead]):
+        look[i] = (b.length, b.width, b.height, b.mass)
+    return {
+        "heightmap": np.clip(obs.heightmap, 0, obs.container.height).astype(np.float32),
+        "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
+        "lookahead": look,
+    }
+
+
+def feasible_mask(obs: Observation) -> np.ndarray:
+    """Boolean (x, y, orientation) grid of the feasible actions for the observation's box."""
+    nx, ny = obs.container.grid_shape
+    mask = np.zeros((nx, ny, len(ORIENTATIONS)), bool)
+    for cand in candidate_maps(obs):
+        cx, cy = cand.feasible.shape
+        mask[:cx, :cy, cand.orientation] = cand.feasible
+    return mask
+
+
 class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     metadata = {"render_modes": []}
 
@@ -64,9 +97,12 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         reward: str = "volume",
         specs: Sequence[EpisodeSpec] | None = None,
         data_seed: int = 0,
+        actions: str = "grid",
     ) -> None:
         if reward not in REWARDS:
             raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)}")
+        if actions not in ("grid", "flat"):
+            raise ValueError(f"unknown actions {actions!r}; expected 'grid' (x, y, orientation) or 'flat'")
         if specs is None:
             from robobpp.datasets import episode_specs
 
@@ -89,27 +125,27 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 "lookahead": spaces.Box(0.0, _MAX_BOX, (lookahead, 4), np.float32),
             }
         )
-        self.action_space = spaces.MultiDiscrete([nx, ny, len(ORIENTATIONS)])
+        self.grid_shape = (nx, ny, len(ORIENTATIONS))
+        self.flat_actions = actions == "flat"
+        self.action_space: spaces.Space[Any] = (
+            spaces.Discrete(nx * ny * len(ORIENTATIONS))
+            if self.flat_actions
+            else spaces.MultiDiscrete(self.grid_shape)
+        )
         self._episode: Episode | None = None
         self._obs: Observation | None = None
+        self._mask = np.zeros(self.grid_shape, bool)
 
     def _encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
-        nx, ny = self.container.grid_shape
-        if obs is None:  # terminal: the final heightmap, no box
-            assert self._episode is not None
-            hm = self._episode.setting.state().heightmap
-            return {
-                "heightmap": np.clip(hm, 0, self.container.height).astype(np.float32),
-                "box": np.zeros(4, np.float32),
-                "lookahead": np.zeros((self.lookahead, 4), np.float32),
-            }
-        look = np.zeros((self.lookahead, 4), np.float32)
-        for i, b in enumerate(obs.lookahead):
-            look[i] = (b.length, b.width, b.height, b.mass)
+        if obs is not None:
+            return encode_observation(obs, self.lookahead)
+        assert self._episode is not None  # terminal: the final heightmap, no box
         return {
-            "heightmap": np.clip(obs.heightmap, 0, self.container.height).astype(np.float32),
-            "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
-            "lookahead": look,
+            "heightmap": np.clip(self._episode.setting.state().heightmap, 0, self.container.height).astype(
+                np.float32
+            ),
+            "box": np.zeros(4, np.float32),
+            "lookahead": np.zeros((self.lookahead, 4), np.float32),
         }
 
     def reset(
@@ -123,37 +159,63 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             index = int(self.np_random.integers(len(self.specs)))
         spec = self.specs[int(index)]
         self._episode = Episode(spec, self.setting_name, lookahead=self.lookahead)
-        self._obs = self._episode.observe()
-        return self._encode(self._obs), {"episode_id": spec.episode_id}
+        self._observe()
+        return self._encode(self._obs), {"episode_id": spec.episode_id, "action_mask": self.action_masks()}
 
-    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        assert self._episode is not None and self._obs is not None, "call reset() first"
-        flat = np.asarray(action).reshape(-1)
-        if flat.size != 3:  # a flat index into the mask is the usual slip; say what is expected
+    def _observe(self) -> None:
+        """The next box's observation and its feasible actions (computed once, read by every mask call)."""
+        assert self._episode is not None
+        self._obs = None if self._episode.done else self._episode.observe()
+        self._mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
+
+    def _grid_action(self, action: Any) -> tuple[int, int, int]:
+        values = np.asarray(action).reshape(-1)
+        if self.flat_actions:
+            if values.size != 1:
+                raise ValueError(
+                    f"action must be one index into the flat action space; got {values.size} values"
+                )
+            return tuple(int(v) for v in np.unravel_index(int(values[0]), self.grid_shape))  # type: ignore[return-value]
+        if values.size != 3:  # a flat index into the mask is the usual slip; say what is expected
             raise ValueError(
                 f"action must be (x, y, orientation), e.g. np.array([x, y, o]) from "
-                f"np.argwhere(env.unwrapped.action_mask()); got {flat.size} value(s)"
+                f"np.argwhere(env.unwrapped.action_mask()); got {values.size} value(s)"
             )
-        x, y, orientation = (int(v) for v in flat)
-        record = self._episode.step(Action(float(x), float(y), orientation), decision_time=0.0)
-        reward = float(self.reward_fn(self._episode, record))
+        x, y, orientation = (int(v) for v in values)
+        return x, y, orientation
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        assert self._episode is not None and self._obs is not None, "call reset() first"
+        x, y, orientation = self._grid_action(action)
+        reward = 0.0
+        info: dict[str, Any] = {"placed": False}
+        if self._mask.any():
+            record = self._episode.step(Action(float(x), float(y), orientation), decision_time=0.0)
+            reward = float(self.reward_fn(self._episode, record))
+            info["placed"] = record.placement is not None
+            self._observe()
+        if not self._episode.done and not self._mask.any():
+            # Nothing fits the next box: end here as the evaluator does when a policy answers None.
+            self._episode.step(None, decision_time=0.0)
+            self._obs = None
         terminated = self._episode.done
-        self._obs = None if terminated else self._episode.observe()
-        info: dict[str, Any] = {"placed": record.placement is not None}
         if terminated:
             term = self._episode.termination
             info["termination"] = term.reason if term else "completed"
+        info["action_mask"] = self.action_masks()
         return self._encode(self._obs), reward, terminated, False, info
 
     def action_mask(self) -> np.ndarray:
         """Boolean (x, y, orientation) mask of feasible actions for the current box (all False when done)."""
-        nx, ny = self.container.grid_shape
-        mask = np.zeros((nx, ny, len(ORIENTATIONS)), bool)
-        if self._obs is not None:
-            for cand in candidate_maps(self._obs):
-                cx, cy = cand.feasible.shape
-                mask[:cx, :cy, cand.orientation] = cand.feasible
-        return mask
+        return self._mask.copy()
+
+    def action_masks(self) -> np.ndarray:
+        """The mask in the action space's layout, as sb3-contrib's MaskablePPO expects it (module docstring)."""
+        if self.flat_actions:
+            return self._mask.reshape(-1).copy()
+        return np.concatenate(
+            [self._mask.any(axis=(1, 2)), self._mask.any(axis=(0, 2)), self._mask.any(axis=(0, 1))]
+        )
 
     def close(self) -> None:
         if self._episode is not None:
@@ -162,8 +224,10 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
 
 def register_envs() -> None:
-    if ENV_ID not in gym.registry:
-        gym.register(ENV_ID, entry_point="robobpp.env:PackEnv", disable_env_checker=False)
+    """Register ``robobpp/Pack-v0`` (idempotent; ``import robobpp`` already does it)."""
+    from robobpp import register_gym_envs
+
+    register_gym_envs()
 
 
 register_envs()

@@ -29,5 +29,17 @@ def _register() -> None:
 
 
 def main() -> None:
+    from robobpp.extras import MissingExtraError, missing_extra
+
     _register()
-    app()
+    try:
+        app()
+    except MissingExtraError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise SystemExit(2) from None
+    except ModuleNotFoundError as exc:  # a command reached a package only an extra installs
+        known = missing_extra(exc)
+        if known is None:
+            raise
+        typer.echo(f"error: {known}", err=True)
+        raise SystemExit(2) from None

@@ -26,7 +26,7 @@ def register(root: typer.Typer) -> None:
 
 
 def _show_new_token(created: object, as_json: bool) -> None:
-    from robobpp.server.api.schemas import TokenCreated
+    from robobpp.schemas import TokenCreated
 
     assert isinstance(created, TokenCreated)
     if as_json:

@@ -45,13 +45,15 @@ def evaluate(
     ] = 1,
 ) -> None:
     """Evaluate a policy locally and print a results table."""
+    from robobpp.client.loading import PolicyLoadError, load_policy
     from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
     from robobpp.episode import run_episode
-    from robobpp.policies import PolicyLoadError, load_policy
-    from robobpp.sim import SETTINGS
+    from robobpp.sim import SETTINGS, require_setting
 
     datasets = parse_choices(dataset, DATASETS, "dataset")
     settings = parse_choices(setting, SETTINGS, "setting")
+    for name in settings:
+        require_setting(name)  # before any work: a missing extra is one line naming the pip install
     if split not in SPLITS:
         fail(f"unknown split {split!r}; expected one of {', '.join(SPLITS)}")
     kwargs = {"secret": secret} if policy.startswith(("http://", "https://")) and secret else {}

@@ -21,7 +21,7 @@ _policy: Any = None
 def _load(name: str, kwargs: dict[str, Any]) -> None:
     global _policy
     from robobpp.cli.common import import_from_cwd
-    from robobpp.policies import load_policy
+    from robobpp.client.loading import load_policy
 
     import_from_cwd(name)
     _policy = load_policy(name, **kwargs)

@@ -38,8 +38,8 @@ def serve_command(
     name: Annotated[str | None, typer.Option(help="Name shown by /info.")] = None,
 ) -> None:
     """Serve a policy so that `robobpp evaluate --policy http://HOST:PORT` or the server can drive it."""
+    from robobpp.client.loading import PolicyLoadError, load_policy
     from robobpp.client.serve import serve
-    from robobpp.policies import PolicyLoadError, load_policy
 
     if policy.startswith(("http://", "https://")):
         fail("give the policy as module:Class (or a built-in name), not a URL")

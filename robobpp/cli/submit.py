@@ -20,7 +20,7 @@ from robobpp.cli.common import fail, table_console
 
 if TYPE_CHECKING:
     from robobpp.client.api import ServerClient, Standing
-    from robobpp.server.api.schemas import EpisodePublic, Leaderboard, OverallGrid, SubmissionPublic
+    from robobpp.schemas import EpisodePublic, Leaderboard, OverallGrid, SubmissionPublic
 
 err = Console(stderr=True)
 DATASETS = ("repetitive", "diverse", "longboard")
@@ -311,7 +311,7 @@ def leaderboard(
     if as_json:
         print(data.model_dump_json(indent=2))
         return
-    from robobpp.server.api.schemas import Leaderboard
+    from robobpp.schemas import Leaderboard
 
     table_console().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))
 

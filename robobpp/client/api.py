@@ -2,7 +2,7 @@
 
 Participants submit a policy URL, follow the evaluation and read the leaderboards with it instead of
 curl; ``robobpp submit`` and ``robobpp submissions`` are thin layers over it. Answers are parsed into
-the server's own pydantic models (``robobpp.server.api.schemas``, which import nothing but pydantic),
+the server's own pydantic models (``robobpp.schemas``, which import nothing but pydantic),
 so the client and the server cannot drift apart silently. Every failure — an RFC 9457 problem, a
 server that is not there, an answer that is not the API's — becomes one :class:`ServerError` whose
 text is a single plain line fit to show a person.
@@ -21,7 +21,7 @@ from urllib.parse import urlsplit
 import httpx
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from robobpp.server.api.schemas import (
+from robobpp.schemas import (
     EpisodeDetail,
     EpisodePublic,
     Leaderboard,

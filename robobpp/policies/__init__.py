@@ -1,7 +1,8 @@
 """Policies: the paper's baseline heuristics (one module each) and loading of user policies.
 
-A policy is named by a built-in name (``dbl``), a ``module:Class`` path, or an ``http(s)://`` URL of a
-policy server speaking protocol robobpp/1.
+A policy is named by a built-in name (``dbl``) or a ``module:Class`` path. The URL of a policy server
+is the client's business (:func:`robobpp.client.loading.load_policy`): this package is below the client
+and imports nothing from it.
 """
 
 from __future__ import annotations
@@ -21,15 +22,18 @@ BUILTIN: dict[str, str] = {
     "sdfpack": "robobpp.policies.sdfpack:SDFPack",
     "packe-rules": "robobpp.policies.packe_rules:PackERules",
     "random": "robobpp.policies.random_policy:RandomPolicy",
+    "pct": "robobpp.policies.pct:PCT",  # learned: the authors' trained weights (policies/pct/)
 }
 
+#: Learned policies with published weights; on the leaderboard beside the baselines (docs/baselines.md, "PCT").
+LEARNED: tuple[str, ...] = ("pct",)
 #: The paper's baselines shown on the leaderboard (a subset of BUILTIN, in the paper's order).
-BASELINES: tuple[str, ...] = tuple(BUILTIN)
+BASELINES: tuple[str, ...] = tuple(name for name in BUILTIN if name not in LEARNED)
 
 #: Display names, spelled as in the paper.
 TITLES: dict[str, str] = {
     "dbl": "DBL", "hm": "HM", "lsah": "LSAH", "onlinebph": "OnlineBPH", "br": "BR", "macs": "MACS",
-    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random",
+    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random", "pct": "PCT",
 }  # fmt: skip
 
 
@@ -52,11 +56,11 @@ def _import(path: str) -> type:
 
 
 def load_policy(name: str, **kwargs: object) -> Policy:
-    """Instantiate a policy from a built-in name, ``module:Class``, or a policy server URL."""
+    """Instantiate a policy from a built-in name or ``module:Class``."""
     if name.startswith(("http://", "https://")):
-        from robobpp.client.remote import RemotePolicy  # lazy: the HTTP stack is optional here
-
-        return RemotePolicy(name, **kwargs)  # type: ignore[arg-type]
+        raise PolicyLoadError(
+            f"{name!r} is a policy server URL: load it with robobpp.client.loading.load_policy"
+        )
     path = BUILTIN.get(name.lower())
     if path is None and ":" not in name:
         known = ", ".join(sorted(BUILTIN))
@@ -81,6 +85,7 @@ def load_policy(name: str, **kwargs: object) -> Policy:
 __all__ = [
     "BASELINES",
     "BUILTIN",
+    "LEARNED",
     "TITLES",
     "BasePolicy",
     "Policy",

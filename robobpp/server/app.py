@@ -62,8 +62,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
             runtime.executor = executor
         elif run_workers:
             from robobpp.worker.local import LocalExecutor
+            from robobpp.worker.options import worker_options
 
-            executor = LocalExecutor(settings.worker_options(), settings.workers)
+            executor = LocalExecutor(worker_options(settings), settings.workers)
             executor.start()
             runtime.executor = executor
         try:

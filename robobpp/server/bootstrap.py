@@ -14,7 +14,7 @@ from sqlalchemy import select
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, Submission
-from robobpp.policies import TITLES
+from robobpp.policies import BASELINES, LEARNED, TITLES
 
 log = logging.getLogger("robobpp.server")
 
@@ -51,7 +51,7 @@ def ensure_baselines(session: Any, settings: Any) -> int:
     existing = set(session.execute(select(Submission.policy_url).where(
         Submission.participant_id == participant.id, Submission.track == "private")).scalars())  # fmt: skip
     created = 0
-    for name in settings.baselines:
+    for name in (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines:
         url = f"builtin:{name}"
         if url in existing:
             continue

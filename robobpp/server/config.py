@@ -1,5 +1,9 @@
 """Server settings: one pydantic-settings object, read from ``ROBOBPP_*`` environment variables.
 
+This module imports nothing else of robobpp: ``robobpp worker`` reads it too, and a worker must not pull
+in the server, nor the server's settings the worker (``robobpp.worker.options.worker_options`` turns
+them into the worker's plain options).
+
 Why one object: every part of the service (API, workers, CLI) sees the same configuration, and the one
 place that refuses unsafe defaults (a missing or weak admin token outside dev) cannot be bypassed.
 """
@@ -13,9 +17,6 @@ from typing import Literal
 
 from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
-
-from robobpp.policies import BASELINES
-from robobpp.worker.options import WorkerOptions
 
 #: Admin tokens that must never guard a real deployment.
 WEAK_TOKENS = frozenset({"", "changeme", "change-me", "admin", "secret", "password", "token"})
@@ -67,7 +68,8 @@ class Settings(BaseSettings):
     episode_timeout_s: float = Field(default=1800.0, gt=0)
     response_cap_bytes: int = Field(default=64 * 1024, ge=1024)
     evaluate_baselines: bool = True
-    baselines: tuple[str, ...] = BASELINES
+    #: Built-in baselines evaluated on first start; ``None`` means every one (``robobpp.policies.BASELINES``).
+    baselines: tuple[str, ...] | None = None
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)
@@ -111,15 +113,6 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.state_dir / 'robobpp.sqlite3').resolve()}"
-
-    def worker_options(self) -> WorkerOptions:
-        return WorkerOptions(
-            database_url=self.sqlalchemy_url, groups=self.groups, private_dir=self.private_dir,
-            spec_provider=self.spec_provider, lease_s=self.lease_s, max_attempts=self.max_attempts,
-            poll_interval_s=self.poll_interval_s, step_timeout_s=self.step_timeout_s,
-            episode_timeout_s=self.episode_timeout_s, response_cap_bytes=self.response_cap_bytes,
-            max_running_per_participant=self.participant_max_running,
-        )  # fmt: skip
 
     @cached_property
     def enabled_settings(self) -> tuple[str, ...]:

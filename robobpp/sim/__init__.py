@@ -6,9 +6,25 @@ users never load pybullet.
 
 from __future__ import annotations
 
+from robobpp.extras import require
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 
 SETTINGS: tuple[str, ...] = ("math", "physics", "execution")
+
+
+#: The packages each setting needs beyond the SDK, and the extra that brings them.
+NEEDS: dict[str, tuple[tuple[str, ...], str, str]] = {
+    "math": ((), "", "Math Pack"),
+    "physics": (("pybullet",), "physics", "Physics Pack"),
+    "execution": (("pybullet", "ompl"), "execution", "Execution Pack"),
+}
+
+
+def require_setting(name: str) -> None:
+    """Raise :class:`~robobpp.extras.MissingExtraError` (naming the pip install) if ``name`` cannot run here."""
+    packages, extra, title = NEEDS.get(name, ((), "", name))
+    for package in packages:
+        require(package, extra, title)
 
 
 def make_setting(name: str, **options: object) -> Setting:
@@ -18,14 +34,16 @@ def make_setting(name: str, **options: object) -> Setting:
 
         return MathPack(**options)  # type: ignore[arg-type]
     if name == "physics":
+        require_setting(name)
         from robobpp.sim.physics import PhysicsPack  # type: ignore[attr-defined]
 
         return PhysicsPack(**options)
     if name == "execution":
+        require_setting(name)
         from robobpp.sim.execution import ExecutionPack  # type: ignore[attr-defined]
 
         return ExecutionPack(**options)
     raise ValueError(f"unknown setting {name!r}; expected one of {', '.join(SETTINGS)}")
 
 
-__all__ = ["SETTINGS", "FinalBox", "Setting", "StepOutcome", "make_setting"]
+__all__ = ["SETTINGS", "FinalBox", "Setting", "StepOutcome", "make_setting", "require_setting"]

@@ -16,6 +16,11 @@ Optional per-step fields the viewer understands (settings may add them to ``step
   step that placed each box, so the viewer always gets placement objects.
 - ``tool_path_cm``: the tool-centre-point path of this placement, a list of ``[x, y, z]`` in the container
   frame, cm; ``tool_path_m`` is the same in metres (Execution Pack).
+- ``track``: how boxes moved during the step (settling, a collapse, a shove), sampled over time
+  (:mod:`robobpp.sim.physics.recording`); kept as the compact integers, the viewer scales them.
+- ``motion`` and, on the first operation, ``cell``: the robot's joint angles over the operation and the
+  robot cell they move in (:mod:`robobpp.sim.execution.recording`); ``cell`` becomes the payload's
+  ``cell`` and the viewer draws the arm from it.
 """
 
 from __future__ import annotations
@@ -33,6 +38,16 @@ MAX_PATH_POINTS = 2_000
 MAX_FILE_BYTES = 200 * 1024 * 1024
 #: Coordinates beyond this (cm) are nonsense for any container of the benchmark.
 MAX_COORD_CM = 100_000.0
+#: One step's robot waypoints and box samples; a step's time line (ms).
+MAX_WAYPOINTS = 5_000
+MAX_TRACK_SAMPLES = 2_000
+#: A step's time line: at most 10 minutes, in ticks of at least 0.1 ms.
+MAX_STEP_TICKS = 6_000_000
+#: Quantised joint angles (10⁻⁴ rad) beyond two turns, positions (mm) and quaternions (10⁻⁴) beyond these
+#: are nonsense.
+MAX_Q_INT = 130_000
+MAX_TRACK_MM = 1_000_000
+MOTION_PHASES = ("pick", "transfer", "retreat")
 
 
 class TraceError(ValueError):
@@ -92,6 +107,16 @@ def viewer_payload(episode: Any, *, where: str = "episode") -> dict[str, Any]:
         raise TraceError(f"{where} has {len(steps_raw)} steps; the viewer shows at most {MAX_STEPS}")
     steps = [_step(s, f"{where}.steps[{i}]") for i, s in enumerate(steps_raw)]
     _expand_compact_poses(steps, where)
+    cell = None
+    for i, s in enumerate(steps_raw):
+        extra = s.get("extra") if isinstance(s, Mapping) else None
+        if isinstance(extra, Mapping) and extra.get("cell") is not None:
+            cell = _cell(extra["cell"], f"{where}.steps[{i}].extra.cell")
+            break
+    for i, step in enumerate(steps):
+        track = step.get("track")
+        if track and any(row[0] > i for row in track["boxes"]):
+            raise TraceError(f"{where}.steps[{i}].extra.track moves a box placed later")
     final_raw = ep.get("final", [])
     if not isinstance(final_raw, list):
         raise TraceError(f"{where}.final must be a list")
@@ -123,6 +148,7 @@ def viewer_payload(episode: Any, *, where: str = "episode") -> dict[str, Any]:
         "metrics": metrics,
         "steps": steps,
         "final": final,
+        "cell": cell,
     }
 
 
@@ -160,7 +186,128 @@ def _step(raw: Any, where: str) -> dict[str, Any]:
             out["tool_path"] = _path(extra["tool_path_cm"], 1.0, f"{where}.extra.tool_path_cm")
         elif extra.get("tool_path_m") is not None:
             out["tool_path"] = _path(extra["tool_path_m"], 100.0, f"{where}.extra.tool_path_m")
+        if extra.get("motion") is not None:
+            out["motion"] = _motion(extra["motion"], f"{where}.extra.motion")
+        if extra.get("track") is not None:
+            out["track"] = _track(extra["track"], f"{where}.extra.track")
     return out
+
+
+def _ints(raw: Any, where: str, *, limit: int, bound: int, count: int | None = None) -> list[int]:
+    if not isinstance(raw, list) or not all(type(v) is int for v in raw):
+        raise TraceError(f"{where} must be a list of integers")
+    if len(raw) > limit or (count is not None and len(raw) != count):
+        raise TraceError(
+            f"{where} holds {len(raw)} numbers; expected {count if count is not None else f'at most {limit}'}"
+        )
+    if raw and max(abs(min(raw)), abs(max(raw))) > bound:
+        raise TraceError(f"{where} holds a value beyond {bound}")
+    return raw
+
+
+def _tick(raw: Any, where: str) -> float:
+    tick = _num(raw, f"{where}.tick_s", positive=True)
+    if not 1e-4 <= tick <= 0.1:
+        raise TraceError(f"{where}.tick_s must be a simulation time step (0.1 ms to 0.1 s)")
+    return tick
+
+
+def _times(raw: Any, where: str, limit: int, tick: float) -> list[float]:
+    """Times in ticks → ms for the viewer (checked: non-negative, in order)."""
+    t = _ints(raw, where, limit=limit, bound=MAX_STEP_TICKS)
+    if not t or t[0] < 0 or any(b < a for a, b in zip(t, t[1:], strict=False)):
+        raise TraceError(f"{where} must be non-negative times, in order")
+    if t[-1] * tick > 600:
+        raise TraceError(f"{where} runs longer than 10 minutes")
+    return [round(v * tick * 1000, 3) for v in t]
+
+
+def _motion(raw: Any, where: str) -> dict[str, Any]:
+    """The arm's joint time line of one operation (robobpp.sim.execution.recording)."""
+    m = _mapping(raw, where)
+    tick = _tick(m.get("tick_s"), where)
+    t = _times(m.get("t"), f"{where}.t", MAX_WAYPOINTS, tick)
+    q = _ints(m.get("q"), f"{where}.q", limit=6 * MAX_WAYPOINTS, bound=MAX_Q_INT, count=6 * len(t))
+    phases = []
+    for j, ph in enumerate(m.get("phases") or []):
+        if not (isinstance(ph, list) and len(ph) == 3 and ph[0] in MOTION_PHASES):
+            raise TraceError(f"{where}.phases[{j}] must be [{' | '.join(MOTION_PHASES)}, start ms, end ms]")
+        phases.append([ph[0], *_times(ph[1:], f"{where}.phases[{j}]", 2, tick)])
+    grip = _times(m.get("grip"), f"{where}.grip", 2, tick)
+    carry = m.get("carry")
+    if not isinstance(carry, list) or len(carry) != 7:
+        raise TraceError(f"{where}.carry must be [x, y, z, qx, qy, qz, qw]")
+    carry = [_num(v, f"{where}.carry") for v in carry]
+    if len(grip) != 2 or math.hypot(*carry[3:]) < 1e-6:
+        raise TraceError(f"{where}: grip must be [on ms, off ms] and carry a unit quaternion")
+    return {"t": t, "q": q, "phases": phases, "grip": grip, "carry": carry}
+
+
+def _track(raw: Any, where: str) -> dict[str, Any]:
+    """Box poses sampled during one step (robobpp.sim.physics.recording)."""
+    tr = _mapping(raw, where)
+    t = _times(tr.get("t"), f"{where}.t", MAX_TRACK_SAMPLES, _tick(tr.get("tick_s"), where))
+    rows = tr.get("boxes")
+    if not isinstance(rows, list) or len(rows) > MAX_STEPS:
+        raise TraceError(f"{where}.boxes must be a list of at most {MAX_STEPS} box tracks")
+    boxes = []
+    for j, row in enumerate(rows):
+        row = _ints(row, f"{where}.boxes[{j}]", limit=2 + 7 * len(t), bound=MAX_TRACK_MM)
+        if (
+            len(row) < 9
+            or (len(row) - 2) % 7
+            or row[0] < 0
+            or row[1] < 0
+            or row[1] + (len(row) - 2) // 7 > len(t)
+        ):
+            raise TraceError(f"{where}.boxes[{j}] must be [box, first sample, 7 integers per sample]")
+        boxes.append(row)
+    return {"t": t, "boxes": boxes}
+
+
+def _cell(raw: Any, where: str) -> dict[str, Any]:
+    """The robot cell (robobpp.sim.execution.recording.cell): metres and radians."""
+    c = _mapping(raw, where)
+
+    def nums(value: Any, name: str, n: int) -> list[float]:
+        if not isinstance(value, list) or len(value) != n:
+            raise TraceError(f"{where}.{name} must be a list of {n} numbers")
+        return [_num(v, f"{where}.{name}") for v in value]
+
+    joints = c.get("joints")
+    if not isinstance(joints, list) or len(joints) != 6:
+        raise TraceError(f"{where}.joints must list the 6 joints")
+    table = []
+    for j, joint in enumerate(joints):
+        if not isinstance(joint, list) or len(joint) != 6 or joint[0] not in ("x", "y", "z"):
+            raise TraceError(f"{where}.joints[{j}] must be [axis, x, y, z, lower, upper]")
+        table.append([joint[0], *nums(joint[1:], f"joints[{j}]", 5)])
+    shapes = c.get("shapes")
+    if not isinstance(shapes, list) or len(shapes) != 8:
+        raise TraceError(f"{where}.shapes must hold the shapes of the base, six links and the tool")
+    frames = []
+    for j, frame in enumerate(shapes):
+        if not isinstance(frame, list) or len(frame) > 8:
+            raise TraceError(f"{where}.shapes[{j}] must be a list of shapes")
+        out = []
+        for k, shape in enumerate(frame):
+            name = f"shapes[{j}][{k}]"
+            if not (isinstance(shape, list) and len(shape) == 4 and shape[0] in ("box", "cylinder")):
+                raise TraceError(f"{where}.{name} must be [box | cylinder, size, xyz, rpy]")
+            size = nums(shape[1], f"{name}.size", 3 if shape[0] == "box" else 2)
+            if min(size) <= 0:
+                raise TraceError(f"{where}.{name}.size must be positive")
+            out.append([shape[0], size, nums(shape[2], f"{name}.xyz", 3), nums(shape[3], f"{name}.rpy", 3)])
+        frames.append(out)
+    tool = nums(c.get("tool"), "tool", 2)
+    conveyor = nums(c.get("conveyor"), "conveyor", 6)
+    if min(tool) <= 0 or min(conveyor[3:]) <= 0:
+        raise TraceError(f"{where}: tool and conveyor sizes must be positive")
+    return {
+        "base": nums(c.get("base"), "base", 4), "floor_z": _num(c.get("floor_z"), f"{where}.floor_z"),
+        "joints": table, "tool": tool, "shapes": frames, "conveyor": conveyor,
+        "pick": nums(c.get("pick"), "pick", 3), "home": nums(c.get("home"), "home", 6),
+    }  # fmt: skip
 
 
 def _placement(raw: Any, where: str) -> dict[str, Any]:

@@ -22,14 +22,16 @@ from typing import Any
 
 from celery import Celery
 
-from robobpp.worker.options import WorkerOptions
-
-#: Queue the episodes go to unless ``ROBOBPP_CELERY_QUEUE`` says otherwise (tests use one per run).
-DEFAULT_QUEUE = "robobpp-episodes"
-#: Name under which workers know the episode task (stable: it is written into broker messages).
-TASK_NAME = "robobpp.run_episode"
-#: Prefix of the Celery task id; the rest is the episode row id, so ids stay unique per database row.
-TASK_ID_PREFIX = "episode-"
+from robobpp.worker import tasks
+from robobpp.worker.celery_names import (
+    DEFAULT_QUEUE,
+    TASK_ID_PREFIX,
+    TASK_NAME,
+    options_of,
+    queue_of,
+    task_id,
+)
+from robobpp.worker.options import WorkerOptions, worker_options
 
 SUPPORTED_SCHEMES = ("redis", "rediss", "amqp", "amqps", "pyamqp")
 
@@ -48,10 +50,6 @@ def check_broker_url(url: str) -> str:
             "leave it empty to use the local process-pool executor"
         )
     return url
-
-
-def task_id(episode_id: int) -> str:
-    return f"{TASK_ID_PREFIX}{int(episode_id)}"
 
 
 def visibility_timeout_s(episode_timeout_s: float, lease_s: float) -> int:
@@ -114,28 +112,22 @@ def make_celery(
     )
     app.conf.robobpp_options = options
     app.conf.robobpp_queue = queue
-    from robobpp.worker import tasks
-
     tasks.register(app)
     return app
 
 
-def options_of(app: Celery) -> WorkerOptions:
-    options = app.conf.get("robobpp_options")
-    if not isinstance(options, WorkerOptions):
-        raise RuntimeError("this Celery app was not built by robobpp.worker.celery_app.make_celery")
-    return options
-
-
-def queue_of(app: Celery) -> str:
-    return str(app.conf.get("robobpp_queue") or DEFAULT_QUEUE)
-
-
 def app_from_settings(settings: Any) -> Celery:
-    """The app for a settings object with ``broker_url``, ``celery_queue`` and ``worker_options()``
+    """The app for a settings object with ``broker_url``, ``celery_queue`` and the worker's options
     (:class:`robobpp.server.config.Settings`; duck-typed so this module never imports the server)."""
     if not settings.broker_url:
         raise BrokerURLError("ROBOBPP_BROKER_URL is empty: the Celery executor needs a broker")
     return make_celery(
-        settings.broker_url, settings.worker_options(), queue=settings.celery_queue or DEFAULT_QUEUE
+        settings.broker_url, worker_options(settings), queue=settings.celery_queue or DEFAULT_QUEUE
     )
+
+
+__all__ = [
+    "DEFAULT_QUEUE", "SUPPORTED_SCHEMES", "TASK_ID_PREFIX", "TASK_NAME", "BrokerURLError", "app_from_settings",
+    "celery_config", "check_broker_url", "make_celery", "options_of", "queue_of", "task_id",
+    "visibility_timeout_s",
+]  # fmt: skip

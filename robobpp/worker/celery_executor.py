@@ -28,7 +28,7 @@ from sqlalchemy.pool import NullPool
 from robobpp.db import work
 from robobpp.db.models import EpisodeRow, utcnow
 from robobpp.db.session import make_engine, make_session_factory
-from robobpp.worker.celery_app import options_of
+from robobpp.worker.celery_names import options_of
 from robobpp.worker.outage import OutageLog
 from robobpp.worker.tasks import enqueue
 

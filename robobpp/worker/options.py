@@ -1,10 +1,11 @@
 """What a worker needs to know, as plain data (it crosses process boundaries and the server's settings
-stay on the server side of the one-way imports: ``Settings.worker_options()`` builds it)."""
+stay on the server side of the one-way imports: :func:`worker_options` reads them duck-typed)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 
 @dataclass(frozen=True, slots=True)
@@ -22,3 +23,14 @@ class WorkerOptions:
     response_cap_bytes: int = 64 * 1024
     #: Episodes of one participant's remote policies running at once (outbound calls to one server).
     max_running_per_participant: int = 4
+
+
+def worker_options(settings: Any) -> WorkerOptions:
+    """The options of a :class:`robobpp.server.config.Settings` (duck-typed: no import of the server)."""
+    return WorkerOptions(
+        database_url=settings.sqlalchemy_url, groups=settings.groups, private_dir=settings.private_dir,
+        spec_provider=settings.spec_provider, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
+        poll_interval_s=settings.poll_interval_s, step_timeout_s=settings.step_timeout_s,
+        episode_timeout_s=settings.episode_timeout_s, response_cap_bytes=settings.response_cap_bytes,
+        max_running_per_participant=settings.participant_max_running,
+    )  # fmt: skip

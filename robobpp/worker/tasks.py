@@ -21,6 +21,8 @@ from sqlalchemy.orm import Session, sessionmaker
 from robobpp.db import work
 from robobpp.db.models import EpisodeRow
 from robobpp.db.session import make_engine, make_session_factory
+from robobpp.worker.celery_names import TASK_NAME, options_of, queue_of, task_id
+from robobpp.worker.run import run_claimed, worker_id
 
 log = logging.getLogger("robobpp.worker.celery")
 
@@ -62,8 +64,6 @@ def parse_episode_id(value: Any) -> int:
 
 def enqueue(app: Celery, episode_ids: list[int], *, countdown: float | None = None) -> int:
     """Send one message per episode, its task id derived from the episode id. Returns how many were sent."""
-    from robobpp.worker.celery_app import TASK_NAME, queue_of, task_id
-
     queue = queue_of(app)
     for episode_id in episode_ids:
         app.send_task(TASK_NAME, args=[int(episode_id)], task_id=task_id(episode_id), queue=queue,
@@ -73,9 +73,6 @@ def enqueue(app: Celery, episode_ids: list[int], *, countdown: float | None = No
 
 def execute(app: Celery, episode_id: int, worker: str | None = None) -> str:
     """Claim and run one episode. Returns what happened: ``recorded``, ``dropped`` or ``skipped``."""
-    from robobpp.worker.celery_app import options_of
-    from robobpp.worker.run import run_claimed, worker_id
-
     options = options_of(app)
     factory = session_factory(options.database_url)
     me = worker or worker_id("celery")
@@ -108,8 +105,6 @@ def _on_process_init(**_kw: Any) -> None:
 
 
 def register(app: Celery) -> None:
-    from robobpp.worker.celery_app import TASK_NAME
-
     @app.task(name=TASK_NAME, ignore_result=True)
     def run_episode_task(episode_id: Any) -> str:
         return execute(app, parse_episode_id(episode_id))

@@ -77,9 +77,10 @@ def start_server(env: dict[str, str], tmp: Path) -> tuple[subprocess.Popen[bytes
 
 
 def queued(fleet: Fleet) -> int:
-    import redis
+    from kombu import Connection
 
-    return int(redis.Redis.from_url(fleet.env["ROBOBPP_BROKER_URL"]).llen(fleet.env["ROBOBPP_CELERY_QUEUE"]))
+    with Connection(fleet.env["ROBOBPP_BROKER_URL"]) as conn:  # kombu's Redis client: the queue is a list
+        return int(conn.default_channel.client.llen(fleet.env["ROBOBPP_CELERY_QUEUE"]))
 
 
 @pytest.mark.parametrize("broker", ["redis"], indirect=True)

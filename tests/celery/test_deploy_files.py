@@ -185,7 +185,8 @@ def test_dockerfile_copies_paths_that_exist_and_installs_the_package() -> None:
         if instr == "COPY" and not arg.startswith("--from"):
             for src in shlex.split(arg)[:-1]:
                 assert (ROOT / src).exists(), f"COPY source {src} does not exist"
-    assert any(instr == "RUN" and "pip install ." in arg for instr, arg in steps)
+    # the whole service: the image runs the server and the workers, every setting
+    assert any(instr == "RUN" and 'pip install ".[all]"' in arg for instr, arg in steps)
 
 
 def test_dockerfile_runs_unprivileged_and_its_command_exists() -> None:

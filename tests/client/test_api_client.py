@@ -16,7 +16,7 @@ from typer.testing import CliRunner, Result
 from robobpp.client.api import ServerClient, ServerError, default_name
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.policies.dbl import DBL
-from robobpp.server.api.schemas import SubmissionPublic
+from robobpp.schemas import SubmissionPublic
 from tests.server.conftest import (
     ADMIN_TOKEN,
     ServerProcess,

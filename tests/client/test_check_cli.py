@@ -10,10 +10,10 @@ from typer.testing import CliRunner
 
 from robobpp.cli import _register, app
 from robobpp.client.check import check_policy_server
+from robobpp.client.loading import load_policy
 from robobpp.client.remote import RemotePolicy
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.episode import run_episode
-from robobpp.policies import load_policy
 from robobpp.policies.dbl import DBL
 from tests.client.hostile import HostileServer
 

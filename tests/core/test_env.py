@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import robobpp.env  # noqa: F401 - registers the env
+import robobpp
+import robobpp.env
 from tests.conftest import make_spec
 
 
@@ -28,14 +29,13 @@ def test_masked_actions_fill_the_container(specs):
     total, steps, terminated = 0.0, 0, False
     while not terminated:
         mask = env.unwrapped.action_mask()
-        if not mask.any():
-            break
+        assert mask.any()  # an episode with nothing feasible has already ended
         x, y, o = np.argwhere(mask)[0]
         obs, reward, terminated, truncated, info = env.step(np.array([x, y, o]))
         assert info["placed"] and reward > 0
         total += reward
         steps += 1
-    assert steps > 5
+    assert steps > 5 and info["termination"] in ("completed", "no_feasible_placement")
     assert total == pytest.approx(float(env.unwrapped._episode.result("x").metrics["space_utilization"]))
 
 
@@ -90,3 +90,79 @@ def test_gym_rollout_example_runs(real_data):
     assert len(lines) == 2 and all(
         line.startswith("repetitive-train-") and " boxes, return " in line for line in lines
     )
+
+
+def test_no_feasible_placement_ends_the_episode():
+    specs = [make_spec([(10, 10, 6), (10, 10, 6), (1, 1, 1)], (10, 10, 10))]
+    env = gym.make("robobpp/Pack-v0", specs=specs)
+    _, info = env.reset(seed=0)
+    assert info["action_mask"].any()
+    _, reward, terminated, truncated, info = env.step(np.array([0, 0, 0]))
+    # the second box (6 cm on 6 cm) exceeds the 10 cm height everywhere: the episode ends with the placement
+    assert terminated and not truncated and reward == pytest.approx(0.6)
+    assert info["placed"] and info["termination"] == "no_feasible_placement"
+    assert not info["action_mask"].any() and not env.unwrapped.action_masks().any()
+    result = env.unwrapped._episode.result("x")
+    assert result.termination == "no_feasible_placement" and result.boxes_placed == 1
+
+
+def test_flat_actions_and_masks_follow_the_action_space(specs):
+    flat = gym.make("robobpp/Pack-v0", specs=specs, actions="flat")
+    grid = gym.make("robobpp/Pack-v0", specs=specs)
+    check_env(flat.unwrapped)
+    _, info = flat.reset(seed=0, options={"group": 2})
+    grid.reset(seed=0, options={"group": 2})
+    joint = grid.unwrapped.action_mask()
+    assert flat.action_space.n == joint.size
+    np.testing.assert_array_equal(info["action_mask"], joint.reshape(-1))
+    np.testing.assert_array_equal(flat.unwrapped.action_masks(), joint.reshape(-1))
+    per_dim = grid.unwrapped.action_masks()  # MultiDiscrete: one mask per dimension, concatenated
+    assert per_dim.shape == (sum(grid.action_space.nvec),)
+    np.testing.assert_array_equal(per_dim[:60], joint.any(axis=(1, 2)))
+    x, y, o = np.argwhere(joint)[-1]
+    index = int(np.ravel_multi_index((x, y, o), joint.shape))
+    _, r_flat, *_ = flat.step(index)
+    _, r_grid, *_ = grid.step(np.array([x, y, o]))
+    assert r_flat == r_grid > 0
+    np.testing.assert_array_equal(flat.unwrapped.action_mask(), grid.unwrapped.action_mask())
+    with pytest.raises(ValueError, match="one index"):
+        flat.step(np.array([1, 2, 0]))
+
+
+def test_registered_on_import_robobpp_with_a_step_limit():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, gymnasium as gym, robobpp\n"
+        "assert 'robobpp.env' not in sys.modules\n"
+        "spec = gym.spec('robobpp/Pack-v0')\n"
+        "print(spec.entry_point, spec.max_episode_steps)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.split() == ["robobpp.env:PackEnv", str(robobpp.GYM_MAX_EPISODE_STEPS)]
+
+
+@pytest.mark.network
+def test_train_ppo_example_trains_plots_and_evaluates(real_data, tmp_path):
+    """A few hundred MaskablePPO steps end to end: model, learning curve, `robobpp evaluate` of the agent."""
+    pytest.importorskip("sb3_contrib", reason="needs the learn extra: pip install -e '.[learn]'")
+    import csv
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
+    cmd = [sys.executable, str(example), "--steps", "256", "--n-steps", "128", "--groups", "2",
+           "--eval-groups", "1", "--no-baselines", "--out", str(tmp_path)]  # fmt: skip
+    env = {**os.environ, "ROBOBPP_DATA_DIR": str(real_data), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = list(csv.DictReader((tmp_path / "curve.csv").open()))
+    assert len(rows) >= 2 and all(0 < float(r["space_utilization"]) <= 1 for r in rows)
+    assert (tmp_path / "model.zip").stat().st_size > 0
+    assert (tmp_path / "learning_curve.png").read_bytes()[:4] == b"\x89PNG"
+    result = json.loads((tmp_path / "eval-ppopolicy.json").read_text())
+    assert result["policy"] == "ppo" and result["episodes"][0]["boxes_placed"] >= 1

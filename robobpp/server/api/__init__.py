@@ -1,8 +1,7 @@
 """The JSON API under ``/api/v1``.
 
-The router is built on first access (module ``__getattr__``), so importing only the schemas
-(``robobpp.server.api.schemas``, used by the API client) does not pull in the routes, the database
-layer and the policies — that import alone costs about two seconds on a busy machine.
+The router is built on first access (module ``__getattr__``), so importing the package alone does
+not pull in the routes, the database layer and the policies — that import alone costs about two seconds on a busy machine.
 """
 
 from __future__ import annotations

@@ -7,9 +7,9 @@ from typing import Literal
 from fastapi import APIRouter, Request, Response
 
 from robobpp.episode import TERMINATION_REASONS
+from robobpp.schemas import DatasetName, Leaderboard, OverallGrid, ServiceInfo, SettingName
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep
-from robobpp.server.api.schemas import DatasetName, Leaderboard, OverallGrid, ServiceInfo, SettingName
 from robobpp.server.services import boards
 from robobpp.server.services.boards import BoardCache
 

@@ -10,8 +10,8 @@ from sqlalchemy import select
 
 from robobpp.db import queries
 from robobpp.db.models import ApiToken, Participant, utcnow
+from robobpp.schemas import Me, ParticipantCreate, ParticipantPublic, TokenCreated, TokenPublic
 from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, SettingsDep
-from robobpp.server.api.schemas import Me, ParticipantCreate, ParticipantPublic, TokenCreated, TokenPublic
 from robobpp.server.problems import ProblemError
 
 router = APIRouter(tags=["participants"])

@@ -14,8 +14,8 @@ from starlette.concurrency import run_in_threadpool
 from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
+from robobpp.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
 from robobpp.server.api.deps import Principal, PrincipalDep, SessionDep, SettingsDep
-from robobpp.server.api.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate

@@ -24,6 +24,8 @@ class Trajectory:
 
     waypoints: np.ndarray  # (n, 6)
     durations: np.ndarray  # (n,)
+    #: Index one past the last waypoint of each segment :func:`build` joined (lift, transfer, descent).
+    segment_ends: tuple[int, ...] = ()
 
     @property
     def duration(self) -> float:
@@ -35,11 +37,16 @@ class Trajectory:
 
         return path_length(tcp_pose(densify(self.waypoints, 0.01, 0.01))[0])
 
+    def sample_counts(self, dt: float) -> np.ndarray:
+        """How many ``dt`` ticks each segment takes when driven (``[0, n1, n2, ...]``, at least one)."""
+        counts = np.maximum(1, np.ceil(self.durations / dt - 1e-9)).astype(int)
+        counts[0] = 0
+        return counts
+
     def samples(self, dt: float) -> np.ndarray:
         """Configurations at every ``dt`` of execution, ending exactly on the last waypoint."""
         out = [self.waypoints[:1]]
-        for i in range(1, len(self.waypoints)):
-            n = max(1, math.ceil(self.durations[i] / dt - 1e-9))
+        for i, n in enumerate(self.sample_counts(dt)[1:], start=1):
             t = np.arange(1, n + 1)[:, None] / n
             out.append(self.waypoints[i - 1] + t * (self.waypoints[i] - self.waypoints[i - 1]))
         return np.concatenate(out)
@@ -74,6 +81,7 @@ def build(segments: list[tuple[np.ndarray, bool]], cartesian_speed: float) -> Tr
     """Join ``(waypoints, is_cartesian)`` segments (each starting where the last ended) and time them."""
     points: list[np.ndarray] = []
     durations: list[float] = []
+    ends: list[int] = []
     for waypoints, cartesian in segments:
         start = 0 if not points else 1
         if points:
@@ -88,7 +96,8 @@ def build(segments: list[tuple[np.ndarray, bool]], cartesian_speed: float) -> Tr
                 t = max(t, float(np.linalg.norm(tcp[i] - tcp[i - 1])) / cartesian_speed)
             points.append(waypoints[i])
             durations.append(t)
-    return Trajectory(np.stack(points), np.array(durations))
+        ends.append(len(points))
+    return Trajectory(np.stack(points), np.array(durations), tuple(ends))
 
 
 def tool_path_cm(trajectory: Trajectory, layout: Layout, max_points: int = 60) -> list[list[float]]:

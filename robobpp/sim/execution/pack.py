@@ -19,7 +19,7 @@ import pybullet as p
 
 from robobpp.core import Action, Box, EpisodeSpec, Infeasible, Placement
 from robobpp.sim.base import StepOutcome
-from robobpp.sim.execution import motion
+from robobpp.sim.execution import motion, recording
 from robobpp.sim.execution.layout import Layout
 from robobpp.sim.physics import PhysicsConfig, PhysicsPack
 from robobpp.sim.physics.world import CM, PALLET_HEIGHT_M, WorldBox
@@ -126,6 +126,9 @@ class ExecutionPack(PhysicsPack):
         self.robot = -1
         self.q = np.zeros(6)
         self.last_operation: Operation | None = None
+        #: The replay's record of the current operation (``extra["motion"]``), when recording.
+        self.motion_record: dict[str, object] | None = None
+        self._cell_recorded = False
 
     # -- lifecycle -----------------------------------------------------------------------------------
     def reset(self, spec: EpisodeSpec) -> None:
@@ -134,6 +137,7 @@ class ExecutionPack(PhysicsPack):
         if layout.container != spec.container:
             raise ValueError("the layout was made for another container")
         self.layout = layout
+        self._cell_recorded = False
         world = self._world()
         cid = world.client
         base_quat = p.getQuaternionFromEuler((0, 0, layout.base_yaw))
@@ -188,6 +192,9 @@ class ExecutionPack(PhysicsPack):
         planned = self.target_placement(box, action, index)
         if isinstance(planned, Infeasible):
             return StepOutcome(None, planned)
+        self.motion_record = None
+        if self.recorder is not None:
+            self.recorder.discard()
         operation, carried, disturbed = self._operate(box, planned)
         self.last_operation = operation
         # Release: the kinematic carried box gives way to the dynamic one, exactly at the release pose.
@@ -203,6 +210,8 @@ class ExecutionPack(PhysicsPack):
         # are then exactly the Physics Pack's, plus the boxes the motion set moving.
         self.q = self.layout.home
         self._set_arm(self.q)
+        if self.recorder is not None and self.motion_record is not None:
+            self.recorder.begin(self.motion_record["grip"][1])  # type: ignore[index]
         report = self.release_and_settle(planned, box.mass, disturbed)
         extra: dict[str, object] = {
             "execution_time_s": operation.execution_time_s, "plan_status": operation.plan_status,
@@ -212,6 +221,12 @@ class ExecutionPack(PhysicsPack):
         }  # fmt: skip
         if operation.trajectory is not None:
             extra["tool_path_cm"] = motion.tool_path_cm(operation.trajectory, self.layout)
+        if self.record_tracks:
+            if not self._cell_recorded:
+                extra["cell"] = recording.cell(self.layout)
+                self._cell_recorded = True
+            if self.motion_record is not None:
+                extra["motion"] = self.motion_record
         return self.finish_placement(report, trajectory_length_m=operation.tcp_length_m,
                                      dangerous=operation.dangerous, extra=extra)  # fmt: skip
 
@@ -317,6 +332,10 @@ class ExecutionPack(PhysicsPack):
         r_world = layout.base_rotation @ r_tcp
         offset = r_world.T @ (centre - layout.to_world(p_tcp))
         r_local = r_world.T @ rot("z", yaw)
+        if self.recorder is not None:
+            self.motion_record = recording.motion_record(operation.trajectory, layout, self.config.dt,
+                                                         self.execution.cartesian_speed, (offset, r_local))  # fmt: skip
+            self.recorder.begin(self.motion_record["grip"][0])
         disturbed = self._drive(operation.trajectory, carried, offset, r_local)
         return operation, carried, disturbed
 
@@ -378,6 +397,10 @@ class ExecutionPack(PhysicsPack):
                                 world.unfreeze(other)
                                 awake.append(other)
                 p.stepSimulation(physicsClientId=cid)
+                if self.recorder is not None:
+                    self.recorder.sample(k, awake)
+        if self.recorder is not None and awake:
+            self.recorder.sample(len(samples) - 1, awake, force=True)
         self._set_arm(samples[-1])
         self.q = samples[-1]
         return awake

@@ -12,6 +12,7 @@ from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, P
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
 from robobpp.sim.physics.geometry import heightmap_from_boxes, surface_height
+from robobpp.sim.physics.recording import PoseRecorder
 from robobpp.sim.physics.settle import Displacement, Settler, SettleReport, detect_collapse
 from robobpp.sim.physics.world import PhysicsWorld, WorldBox
 
@@ -28,6 +29,9 @@ class PhysicsPack(Setting):
     """
 
     name = "physics"
+    #: Record how boxes move during each step (``extra["track"]``) for the replay; reading poses only,
+    #: it changes no outcome. Off saves the samples' small cost where no trace is kept.
+    record_tracks: bool = True
 
     def __init__(self, config: PhysicsConfig | None = None, **options: object) -> None:
         known = {f.name for f in fields(PhysicsConfig)}
@@ -42,6 +46,7 @@ class PhysicsPack(Setting):
         self._boxes: list[WorldBox] = []
         self._planned: list[Placement] = []
         self._state: ContainerState | None = None
+        self.recorder: PoseRecorder | None = None
 
     # -- Setting -------------------------------------------------------------------------------------
     def reset(self, spec: EpisodeSpec) -> None:
@@ -50,6 +55,7 @@ class PhysicsPack(Setting):
         self.world = PhysicsWorld(self.config)
         self.world.add_pallet(spec.container)
         self._settler = Settler(self.world)
+        self.recorder = PoseRecorder(self.world) if self.record_tracks else None
         self._boxes = []
         self._planned = []
         self._state = None
@@ -121,7 +127,7 @@ class PhysicsPack(Setting):
         self._boxes.append(new)
         self._planned.append(planned)
         self._state = None
-        return self._settler.run([new, *disturbed])
+        return self._settler.run([new, *disturbed], self.recorder)
 
     def finish_placement(
         self,
@@ -147,6 +153,9 @@ class PhysicsPack(Setting):
         }
         info.update(extra or {})
         info["poses"] = self.compact_poses()
+        track = None if self.recorder is None else self.recorder.take(self._boxes)
+        if track is not None:
+            info["track"] = track
         termination = None
         if moved:
             worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))

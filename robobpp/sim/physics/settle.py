@@ -25,6 +25,7 @@ import pybullet as p
 
 from robobpp.metrics import static_stability
 from robobpp.sim.physics.geometry import aabbs
+from robobpp.sim.physics.recording import PoseRecorder
 from robobpp.sim.physics.world import CM, PhysicsWorld, WorldBox
 
 
@@ -88,8 +89,10 @@ class Settler:
         below = olo[None, :, 2] <= hi[:, None, 2] + m
         return ((sep <= m) & below).any(axis=0)
 
-    def run(self, seeds: Sequence[WorldBox]) -> SettleReport:
-        """Simulate after the ``seeds`` were released; returns speeds and whether rest was reached."""
+    def run(self, seeds: Sequence[WorldBox], recorder: PoseRecorder | None = None) -> SettleReport:
+        """Simulate after the ``seeds`` were released; returns speeds and whether rest was reached.
+
+        ``recorder`` (optional, for the replay) samples the simulated boxes' poses; it only reads them."""
         world, cfg = self.world, self.config
         fast = cfg.mode == "fast"
         if fast:
@@ -111,9 +114,13 @@ class Settler:
         at_rest = False
         cid = world.client
         min_steps = 0 if fast else cfg.stability_steps
+        if recorder is not None:
+            recorder.sample(0, active)
         while steps < cfg.max_steps:
             p.stepSimulation(physicsClientId=cid)
             steps += 1
+            if recorder is not None:
+                recorder.sample(steps, active)
             step_v = step_w = 0.0
             moving: list[WorldBox] = []
             for box in active:
@@ -142,6 +149,8 @@ class Settler:
                 at_rest = True
                 break
         simulated = len(active)
+        if recorder is not None:
+            recorder.sample(steps, active, force=True)
         if fast:
             for box in world.boxes:
                 world.freeze(box)

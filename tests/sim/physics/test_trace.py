@@ -70,3 +70,65 @@ def test_a_compact_pose_of_a_box_not_yet_placed_is_refused() -> None:
     data["steps"][1]["extra"]["poses"][0] = [1.0, 2.0, 3.0]
     with pytest.raises(TraceError, match="qx, qy, qz, qw"):
         viewer_payload(data)
+
+
+def test_a_collapse_is_recorded_over_time() -> None:
+    """Step 1's track shows the post falling: sampled from the release on, ending where the step ends."""
+    result = _toppled_post()
+    track = result.steps[1].extra["track"]
+    times = track["t"]
+    assert track["tick_s"] == 1 / 240
+    assert times[0] == 0 and times == sorted(times) and times[-1] > 60  # a fall takes a while
+    assert all(b - a <= 8 for a, b in zip(times, times[1:], strict=False))  # 30 samples per second
+    rows = {row[0]: row for row in track["boxes"]}
+    assert set(rows) == {0, 1}
+    before, after = result.steps[0].extra["poses"][0], result.steps[1].extra["poses"][0]
+    post = rows[0]
+    first, samples = post[1], [post[2 + 7 * k : 9 + 7 * k] for k in range((len(post) - 2) // 7)]
+    # Kept from just before it starts to move until it lies still: mm and 10⁻⁴, the first sample the post
+    # standing as step 0 left it, the last where it lies now.
+    assert 0 <= first < 4 and first + len(samples) <= len(times) and len(samples) > 8
+    assert math.dist([v / 10 for v in samples[0][:3]], before[:3]) < 0.1
+    assert math.dist([v / 10 for v in samples[-1][:3]], after[:3]) < 0.1
+    heights = [s[2] for s in samples]
+    assert heights[0] > 240 and heights[-1] < 100
+
+
+def test_recording_changes_nothing_and_quiet_steps_record_nothing() -> None:
+    def run(record: bool) -> EpisodeResult:
+        pack = PhysicsPack()
+        pack.record_tracks = record
+        boxes = [Box(30, 30, 20, 5.0), Box(30, 30, 20, 5.0), Box(8, 30, 50, 1.0), Box(30, 30, 10, 20.0)]
+        episode = Episode(spec_of(boxes), pack)
+        for action in (Action(0, 0, 0), Action(30, 0, 0), Action(60, 60, 0), Action(53, 60, 0)):
+            episode.step(action, 0.0)
+        result = episode.result("scripted")
+        pack.close()
+        return result
+
+    on, off = run(True), run(False)
+    assert [s.extra["poses"] for s in on.steps] == [s.extra["poses"] for s in off.steps]
+    assert not any("track" in s.extra for s in off.steps)
+    # A box released 2 mm above a flat floor drops 2 mm, too little to see: no track.
+    assert "track" not in on.steps[0].extra and "track" not in on.steps[1].extra
+    assert on.steps[3].collapsed and 0 < len(on.steps[3].extra["track"]["boxes"]) <= 4
+
+
+def test_the_replay_reader_checks_tracks() -> None:
+    data = json.loads(json.dumps(_toppled_post().to_dict()))
+    payload = viewer_payload(data)
+    track = data["steps"][1]["extra"]["track"]
+    assert payload["steps"][1]["track"]["boxes"] == track["boxes"]
+    assert payload["steps"][1]["track"]["t"] == [round(t / 0.24, 3) for t in track["t"]]  # ms
+    bad = json.loads(json.dumps(data))
+    bad["steps"][0]["extra"]["track"] = track  # step 0 cannot move box 1, placed at step 1
+    with pytest.raises(TraceError, match="moves a box placed later"):
+        viewer_payload(bad)
+    bad = json.loads(json.dumps(data))
+    bad["steps"][1]["extra"]["track"]["boxes"][0].pop()  # not 7 numbers per sample
+    with pytest.raises(TraceError, match="7 integers per sample"):
+        viewer_payload(bad)
+    bad = json.loads(json.dumps(data))
+    bad["steps"][1]["extra"]["track"]["t"][1] = -3
+    with pytest.raises(TraceError, match="in order"):
+        viewer_payload(bad)

@@ -1,8 +1,12 @@
-// robobpp episode replay: a three.js view of a trace, step by step.
+// robobpp episode replay: a three.js view of a trace over time.
 //
 // The page holds the markup (templates/_replay.html) and the trace as JSON in <script id="trace-data">
-// (already checked and trimmed by robobpp/web/trace.py). Frame k shows the container after k steps:
-// frame 0 is empty, the last frame is the final state (actual poses, boxes out of place in red).
+// (already checked and trimmed by robobpp/web/trace.py). The time line runs from 0 to the number of steps:
+// position k is the state after k steps (0 = empty container, the last = the final settled state), and
+// between k-1 and k step k happens — the robot's pick, transfer and retreat (Execution Pack) and the boxes
+// settling or falling (Physics and Execution Packs), from the step's recorded motion and box track.
+// The robot is drawn from the trace's `cell`: the simulator's own joint table and link shapes, so the
+// forward kinematics here is the scene graph of that table and nothing robot-specific is written twice.
 // The same file runs on the server's replay page and in `robobpp view`'s offline page.
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
@@ -11,9 +15,18 @@ import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 const VIRIDIS = ["#3b528b", "#2c728e", "#21918c", "#27ad81", "#5ec962", "#aadc32", "#fde725"]
   .map((hex) => { const c = new THREE.Color(hex); return [c.r, c.g, c.b]; });
 const COLLAPSE_COLOR = new THREE.Color("#e11d48");
-const PATH_COLOR = new THREE.Color("#f97316");
+const PATH_COLOR = new THREE.Color("#8b5cf6");
+const ARM_COLOR = 0xf26a0f; // the robot's links; the tests look for this hue
+const JOINT_COLOR = 0x374151;
 // Collapse thresholds of BENCHMARK.md §2 (cm): a box displaced further than this is drawn as collapsed.
 const THRESHOLDS = { repetitive: 7, diverse: 4, longboard: 7 };
+// Units of the compact trace arrays (robobpp/sim/execution/recording.py, robobpp/sim/physics/recording.py).
+const Q_UNIT = 1e-4; // rad
+const TRACK_CM = 0.1; // mm -> cm
+const TRACK_QUAT = 1e-4;
+// A step with nothing timed (or a very short one) still takes this long at 1×, so every box is seen.
+const MIN_STEP_S = 0.4;
+const SPEEDS = [0.25, 0.5, 1, 2, 4, 8, 16];
 const TERMINATION_TEXT = {
   completed: "every box was placed",
   no_feasible_placement: "no feasible placement",
@@ -27,6 +40,7 @@ const TERMINATION_TEXT = {
   grasp_failed: "suction grasp failed",
   invalid_action: "invalid action",
 };
+const PHASE_TEXT = { pick: "pick", transfer: "transfer", retreat: "retreat" };
 
 function viridis(t) {
   const x = Math.min(1, Math.max(0, t)) * (VIRIDIS.length - 1);
@@ -73,6 +87,89 @@ function center(p) {
   return new THREE.Vector3(p.x + p.length / 2, p.y + p.width / 2, p.z + p.height / 2);
 }
 
+// Index of the last entry of the ascending `times` that is <= t (0 when t precedes them all).
+function bracket(times, t) {
+  let lo = 0;
+  let hi = times.length - 1;
+  while (lo < hi) {
+    const mid = (lo + hi + 1) >> 1;
+    if (times[mid] <= t) lo = mid; else hi = mid - 1;
+  }
+  return lo;
+}
+
+// Joint angles (rad) of a step's motion at `ms` into the step: joint-linear between waypoints, as driven.
+function jointsAt(motion, ms) {
+  const { t, q } = motion;
+  const i = bracket(t, ms);
+  const j = Math.min(i + 1, t.length - 1);
+  const f = j > i && t[j] > t[i] ? Math.min(1, Math.max(0, (ms - t[i]) / (t[j] - t[i]))) : 0;
+  const out = new Array(6);
+  for (let k = 0; k < 6; k += 1) out[k] = (q[6 * i + k] + f * (q[6 * j + k] - q[6 * i + k])) * Q_UNIT;
+  return out;
+}
+
+// The arm, built from the cell's joint table: one Object3D per joint frame, each turning about its axis.
+class Robot {
+  constructor(cell) {
+    this.cell = cell;
+    this.root = new THREE.Group();
+    const [bx, by, bz, yaw] = cell.base;
+    this.root.position.set(bx * 100, by * 100, bz * 100);
+    this.root.rotation.z = yaw;
+    this.root.scale.setScalar(100); // the cell is in metres, the scene in cm
+    const arm = new THREE.MeshStandardMaterial({ color: ARM_COLOR, roughness: 0.5, metalness: 0.1 });
+    const dark = new THREE.MeshStandardMaterial({ color: JOINT_COLOR, roughness: 0.6, metalness: 0.2 });
+    const axes = { x: new THREE.Vector3(1, 0, 0), y: new THREE.Vector3(0, 1, 0), z: new THREE.Vector3(0, 0, 1) };
+    Robot.addShapes(this.root, cell.shapes[0], dark);
+    let parent = this.root;
+    this.joints = cell.joints.map(([axis, x, y, z], i) => {
+      const node = new THREE.Object3D();
+      node.position.set(x, y, z);
+      node.userData.axis = axes[axis];
+      parent.add(node);
+      Robot.addShapes(node, cell.shapes[i + 1], i >= 4 ? dark : arm);
+      parent = node;
+      return node;
+    });
+    const flange = this.joints[5];
+    Robot.addShapes(flange, cell.shapes[7], dark);
+    const [toolLength, toolRadius] = cell.tool;
+    const cup = new THREE.Mesh(new THREE.CylinderGeometry(toolRadius * 1.6, toolRadius * 1.6, 0.02, 24).rotateZ(Math.PI / 2), dark);
+    cup.position.set(toolLength - 0.01, 0, 0);
+    flange.add(cup);
+    this.tcp = new THREE.Object3D();
+    this.tcp.position.set(toolLength, 0, 0);
+    flange.add(this.tcp);
+    // The carried box rides on the TCP at the pose the trace gives (box frame in the TCP frame, metres).
+    this.carried = new THREE.Group();
+    this.tcp.add(this.carried);
+    this.setJoints(cell.home);
+  }
+
+  static addShapes(node, shapes, material) {
+    for (const [kind, size, xyz, rpy] of shapes) {
+      const geometry = kind === "box"
+        ? new THREE.BoxGeometry(size[0], size[1], size[2])
+        // URDF cylinders lie along z, three.js's along y.
+        : new THREE.CylinderGeometry(size[0], size[0], size[1], 28).rotateX(Math.PI / 2);
+      const mesh = new THREE.Mesh(geometry, material);
+      mesh.position.set(xyz[0], xyz[1], xyz[2]);
+      mesh.rotation.set(rpy[0], rpy[1], rpy[2], "ZYX"); // URDF rpy: Rz(yaw) Ry(pitch) Rx(roll)
+      node.add(mesh);
+    }
+  }
+
+  setJoints(q) {
+    this.joints.forEach((node, i) => node.quaternion.setFromAxisAngle(node.userData.axis, q[i]));
+    this.root.updateMatrixWorld(true);
+  }
+
+  tcpWorld() {
+    return new THREE.Vector3().setFromMatrixPosition(this.tcp.matrixWorld);
+  }
+}
+
 class Replay {
   constructor(root, episodes) {
     this.root = root;
@@ -81,12 +178,14 @@ class Replay {
     this.canvas = this.el("canvas");
     this.overlay = this.el("overlay");
     this.slider = this.el("slider");
-    this.frame = 0;
-    this.timer = null;
+    this.u = 0;
+    this.playing = false;
+    this.speed = 1;
     this.unitBox = new THREE.BoxGeometry(1, 1, 1);
     this.unitEdges = new THREE.EdgesGeometry(this.unitBox);
     this.edgeMaterial = new THREE.LineBasicMaterial({ color: 0x1e293b, transparent: true, opacity: 0.55 });
     this.currentEdgeMaterial = new THREE.LineBasicMaterial({ color: 0x000000 });
+    this.collapseMaterial = new THREE.MeshStandardMaterial({ color: COLLAPSE_COLOR, emissive: 0x5b0a1c, roughness: 0.55 });
     this.initRenderer();
     this.bindControls();
     const select = this.el("episode");
@@ -103,7 +202,7 @@ class Replay {
 
   initRenderer() {
     try {
-      this.renderer = new THREE.WebGLRenderer({ canvas: this.canvas, antialias: true, alpha: true });
+      this.renderer = new THREE.WebGLRenderer({ canvas: this.canvas, antialias: true, alpha: true, preserveDrawingBuffer: true });
     } catch (err) {
       this.renderer = null;
       this.overlay.textContent = "This browser offers no WebGL: the 3D view is off, the step figures still work.";
@@ -115,76 +214,174 @@ class Replay {
     const sun = new THREE.DirectionalLight(0xffffff, 1.9);
     sun.position.set(-0.6, -1.0, 1.6);
     this.scene.add(sun);
-    this.camera = new THREE.PerspectiveCamera(38, 1, 1, 20000);
+    this.camera = new THREE.PerspectiveCamera(38, 1, 1, 50000);
     this.camera.up.set(0, 0, 1);
     this.controls = new OrbitControls(this.camera, this.canvas);
     this.controls.enableDamping = false;
     this.controls.addEventListener("change", () => this.render());
     this.staticGroup = new THREE.Group();
     this.boxGroup = new THREE.Group();
-    this.scene.add(this.staticGroup, this.boxGroup);
+    this.extraGroup = new THREE.Group();
+    this.scene.add(this.staticGroup, this.boxGroup, this.extraGroup);
     new ResizeObserver(() => this.resize()).observe(this.canvas);
   }
 
   bindControls() {
-    this.el("first").addEventListener("click", () => this.setFrame(0));
-    this.el("last").addEventListener("click", () => this.setFrame(this.frames));
-    this.el("prev").addEventListener("click", () => this.setFrame(this.frame - 1));
-    this.el("next").addEventListener("click", () => this.setFrame(this.frame + 1));
+    this.el("first").addEventListener("click", () => { this.stop(); this.show(0); });
+    this.el("last").addEventListener("click", () => { this.stop(); this.show(this.frames); });
+    this.el("prev").addEventListener("click", () => this.stepBy(-1));
+    this.el("next").addEventListener("click", () => this.stepBy(1));
     this.el("play").addEventListener("click", () => this.togglePlay());
-    this.slider.addEventListener("input", () => { this.stop(); this.setFrame(Number(this.slider.value)); });
+    const speed = this.el("speed");
+    if (speed) {
+      for (const s of SPEEDS) {
+        const option = document.createElement("option");
+        option.value = String(s);
+        option.textContent = `${s}×`;
+        speed.append(option);
+      }
+      speed.value = "1";
+      speed.addEventListener("change", () => { this.speed = Number(speed.value) || 1; });
+    }
+    this.slider.addEventListener("input", () => { this.stop(); this.show(Number(this.slider.value)); });
     document.addEventListener("keydown", (event) => {
       const tag = event.target && event.target.tagName;
       if (tag === "SELECT" || tag === "TEXTAREA" || (tag === "INPUT" && event.target !== this.slider)) return;
-      if (event.key === "ArrowRight") { this.setFrame(this.frame + 1); event.preventDefault(); }
-      else if (event.key === "ArrowLeft") { this.setFrame(this.frame - 1); event.preventDefault(); }
+      if (event.key === "ArrowRight") { this.stepBy(1); event.preventDefault(); }
+      else if (event.key === "ArrowLeft") { this.stepBy(-1); event.preventDefault(); }
       else if (event.key === " " && event.target === document.body) { this.togglePlay(); event.preventDefault(); }
     });
   }
 
+  // -- the episode ------------------------------------------------------------------------------------
   load(index) {
     this.stop();
     this.episode = this.episodes[index];
-    this.frames = this.episode.steps.length;
-    this.slider.max = String(this.frames);
+    const ep = this.episode;
+    this.frames = ep.steps.length;
     this.indexOf = new Map();
-    this.episode.steps.forEach((s, i) => {
+    ep.steps.forEach((s, i) => {
       if (s.placement && s.placement.index !== null && s.placement.index !== undefined) this.indexOf.set(s.placement.index, i);
     });
     this.total = Math.max(1, this.frames);
+    // Seconds each step's recorded content lasts (motion, box track); 0 when nothing is timed.
+    this.durations = ep.steps.map((s) => {
+      let ms = 0;
+      if (s.motion) ms = Math.max(ms, s.motion.t[s.motion.t.length - 1], ...s.motion.phases.map((p) => p[2]));
+      if (s.track) ms = Math.max(ms, s.track.t[s.track.t.length - 1]);
+      return ms / 1000;
+    });
+    this.timed = this.durations.some((d) => d > 0);
+    this.slider.max = String(this.frames);
+    this.slider.step = this.timed ? "any" : "1";
+    this.buildTimeline();
     this.showEpisodeInfo();
-    if (this.renderer) this.buildStatic();
-    this.setFrame(this.frames);
+    this.boxes = new Map();
+    this.pathKey = null;
+    if (this.renderer) {
+      this.boxGroup.clear();
+      this.buildStatic();
+    }
+    this.show(0);
+  }
+
+  // Marks on the time line under the slider: collapses, dangerous operations, the step that ended it.
+  buildTimeline() {
+    const line = this.el("timeline");
+    if (!line) return;
+    line.replaceChildren();
+    this.episode.steps.forEach((s, i) => {
+      const kinds = [];
+      if (s.collapsed) kinds.push(["collapse", "collapse"]);
+      if (s.dangerous) kinds.push(["dangerous", "dangerous operation"]);
+      if (s.termination && s.termination !== "completed" && !s.collapsed) kinds.push(["ended", TERMINATION_TEXT[s.termination] || s.termination]);
+      for (const [kind, text] of kinds) {
+        const mark = document.createElement("button");
+        mark.type = "button";
+        mark.className = `mark ${kind}`;
+        mark.style.left = `${((i + 0.5) / this.total) * 100}%`;
+        mark.title = `step ${i + 1}: ${text}`;
+        mark.setAttribute("aria-label", mark.title);
+        mark.addEventListener("click", () => { this.stop(); this.show(i + 1); });
+        line.append(mark);
+      }
+    });
   }
 
   buildStatic() {
-    const { length: L, width: W, height: H } = this.episode.container;
+    const ep = this.episode;
+    const { length: L, width: W, height: H } = ep.container;
     this.staticGroup.clear();
-    const pallet = new THREE.Mesh(new THREE.BoxGeometry(L, W, 3), new THREE.MeshStandardMaterial({ color: 0xc9a57b, roughness: 0.9 }));
-    pallet.position.set(L / 2, W / 2, -1.5);
+    this.extraGroup.clear();
+    const cell = ep.cell;
+    const floor = cell ? cell.floor_z * 100 : -3;
+    const pallet = new THREE.Mesh(new THREE.BoxGeometry(L, W, -floor), new THREE.MeshStandardMaterial({ color: 0xc9a57b, roughness: 0.9 }));
+    pallet.position.set(L / 2, W / 2, floor / 2);
     this.staticGroup.add(pallet);
     const outline = new THREE.LineSegments(new THREE.EdgesGeometry(new THREE.BoxGeometry(L, W, H)),
       new THREE.LineDashedMaterial({ color: 0x64748b, dashSize: 4, gapSize: 3 }));
     outline.position.set(L / 2, W / 2, H / 2);
     outline.computeLineDistances();
     this.staticGroup.add(outline);
-    const size = Math.max(L, W) * 3;
-    const grid = new THREE.GridHelper(size, 30, 0xb8c2cf, 0xd5dce4);
-    grid.rotation.x = Math.PI / 2;
-    grid.position.set(L / 2, W / 2, -3.05);
-    this.staticGroup.add(grid);
     const axes = new THREE.AxesHelper(Math.min(L, W) * 0.25);
     axes.position.set(0, 0, 0.2);
     this.staticGroup.add(axes);
-    // Frame the container's bounding sphere from the front-left, a little above.
-    const radius = 0.5 * Math.hypot(L, W, H);
-    const distance = (1.08 * radius) / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    this.robot = null;
+    if (cell) this.buildCell(cell);
+    const bounds = new THREE.Box3().setFromObject(this.staticGroup);
+    if (this.robot) bounds.union(new THREE.Box3().setFromObject(this.robot.root));
+    const size = bounds.getSize(new THREE.Vector3());
+    const grid = new THREE.GridHelper(Math.max(size.x, size.y) * 1.6, 30, 0xb8c2cf, 0xd5dce4);
+    grid.rotation.x = Math.PI / 2;
+    const mid = bounds.getCenter(new THREE.Vector3());
+    grid.position.set(mid.x, mid.y, floor - 0.05);
+    this.staticGroup.add(grid);
+    // Frame the whole cell (container, robot, conveyor) from the front-left, a little above.
+    const radius = 0.5 * size.length();
+    const distance = (1.02 * radius) / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2));
     const direction = new THREE.Vector3(-0.55, -0.8, 0.62).normalize();
-    const target = new THREE.Vector3(L / 2, W / 2, H * 0.42);
+    const target = cell ? mid.clone().setZ(Math.max(H * 0.42, mid.z * 0.8)) : new THREE.Vector3(L / 2, W / 2, H * 0.42);
     this.camera.position.copy(target).addScaledVector(direction, distance);
+    this.camera.far = distance * 10;
     this.controls.target.copy(target);
     this.controls.update();
     this.resize();
+  }
+
+  // The robot cell: pedestal, conveyor with its pick point, and the arm.
+  buildCell(cell) {
+    const [bx, by, bz] = cell.base;
+    const floor = cell.floor_z * 100;
+    const concrete = new THREE.MeshStandardMaterial({ color: 0x9ca3af, roughness: 0.9 });
+    const pedestal = new THREE.Mesh(new THREE.BoxGeometry(100, 100, bz * 100 - floor), concrete);
+    pedestal.position.set(bx * 100, by * 100, (bz * 100 + floor) / 2);
+    this.staticGroup.add(pedestal);
+    const [cx, cy, cz, hx, hy, hz] = cell.conveyor.map((v) => v * 100);
+    const conveyor = new THREE.Mesh(new THREE.BoxGeometry(2 * hx, 2 * hy, 2 * hz), new THREE.MeshStandardMaterial({ color: 0x4b5563, roughness: 0.8 }));
+    conveyor.position.set(cx, cy, cz);
+    this.staticGroup.add(conveyor);
+    const belt = new THREE.Mesh(new THREE.BoxGeometry(2 * hx * 0.92, 2 * hy * 0.98, 0.6), new THREE.MeshStandardMaterial({ color: 0x1f2937, roughness: 0.95 }));
+    belt.position.set(cx, cy, cz + hz + 0.3);
+    this.staticGroup.add(belt);
+    const [px, py, pz] = cell.pick.map((v) => v * 100);
+    const ring = new THREE.Mesh(new THREE.RingGeometry(12, 16, 40), new THREE.MeshBasicMaterial({ color: 0x22d3ee, side: THREE.DoubleSide }));
+    ring.position.set(px, py, pz + 0.7);
+    this.staticGroup.add(ring);
+    this.robot = new Robot(cell);
+    this.extraGroup.add(this.robot.root);
+    this.carriedMesh = this.makeBox();
+    this.robot.carried.add(this.carriedMesh);
+  }
+
+  makeBox() {
+    const holder = new THREE.Group();
+    holder.add(new THREE.Mesh(this.unitBox, new THREE.MeshStandardMaterial({ roughness: 0.55, metalness: 0.05 })),
+      new THREE.LineSegments(this.unitEdges, this.edgeMaterial));
+    return holder;
+  }
+
+  colorOf(index) {
+    return viridis((index ?? 0) / Math.max(1, this.total - 1));
   }
 
   resize() {
@@ -197,6 +394,7 @@ class Replay {
     this.render();
   }
 
+  // -- what is where ---------------------------------------------------------------------------------
   // The boxes standing in the container after `frame` steps, each {p, index, collapsed}.
   boxesAt(frame) {
     const ep = this.episode;
@@ -225,34 +423,150 @@ class Replay {
     return out;
   }
 
-  drawBoxes(frame) {
-    this.boxGroup.clear();
-    const boxes = this.boxesAt(frame);
-    const current = frame > 0 ? this.episode.steps[frame - 1] : null;
-    const currentIndex = current && current.placement ? current.placement.index : null;
+  // A box's pose from its track at `ms` into the step, or null before its first sample.
+  trackPose(row, times, ms) {
+    const first = row[1];
+    const n = (row.length - 2) / 7;
+    if (ms < times[first]) return null;
+    const i = Math.min(bracket(times, ms), first + n - 1) - first;
+    const j = Math.min(i + 1, n - 1);
+    const ti = times[first + i];
+    const tj = times[first + j];
+    const f = j > i && tj > ti ? Math.min(1, Math.max(0, (ms - ti) / (tj - ti))) : 0;
+    const at = (k, c) => row[2 + 7 * k + c];
+    const pos = new THREE.Vector3(...[0, 1, 2].map((c) => (at(i, c) + f * (at(j, c) - at(i, c))) * TRACK_CM));
+    const qa = new THREE.Quaternion(...[3, 4, 5, 6].map((c) => at(i, c) * TRACK_QUAT)).normalize();
+    const qb = new THREE.Quaternion(...[3, 4, 5, 6].map((c) => at(j, c) * TRACK_QUAT)).normalize();
+    return { pos, quat: qa.slerp(qb, f) };
+  }
+
+  stepSeconds(k) {
+    return Math.max(MIN_STEP_S, this.durations[k - 1] || 0);
+  }
+
+  // Show position `u` of the time line (see the header comment).
+  show(u) {
+    const N = this.frames;
+    u = Math.max(0, Math.min(N, Number.isFinite(u) ? u : 0));
+    if (!this.timed) u = Math.round(u);
+    this.u = u;
+    const k = u <= 1e-9 ? 0 : Math.ceil(u - 1e-9);
+    const f = k === 0 ? 1 : u - (k - 1);
+    const step = k > 0 ? this.episode.steps[k - 1] : null;
+    const during = step !== null && f < 1 - 1e-9 && this.durations[k - 1] > 0;
+    const ms = during ? f * this.stepSeconds(k) * 1000 : null;
+    this.slider.value = String(u);
+    let phase = "";
+    if (during && step.motion) {
+      const current = step.motion.phases.find((p) => ms >= p[1] && ms < p[2]);
+      phase = current ? current[0] : "";
+    } else if (during && step.track) phase = "settle";
+    this.root.dataset.frame = String(k);
+    this.root.dataset.phase = phase;
+    this.root.dataset.time = ms === null ? "" : String(Math.round(ms));
+    this.el("label").textContent = `Step ${k} / ${N}`;
+    let drawn = 0;
+    if (this.renderer) drawn = this.draw(k, step, ms);
+    this.root.dataset.boxes = String(drawn);
+    this.showStepInfo(k, phase, ms);
+    this.render();
+  }
+
+  draw(k, step, ms) {
+    const during = ms !== null;
+    const boxes = this.boxesAt(during ? k - 1 : k);
+    const placing = step && step.placement ? step.placement.index : null;
+    const motion = during && step.motion ? step.motion : null;
+    const released = !motion || ms >= motion.grip[1];
+    if (during && placing !== null && released && !boxes.some((b) => b.index === placing)) {
+      const after = this.boxesAt(k).find((b) => b.index === placing);
+      if (after) boxes.push({ ...after, collapsed: false });
+    }
+    const track = during && step.track ? step.track : null;
+    const moving = new Map();
+    if (track) for (const row of track.boxes) moving.set(row[0], row);
+    const seen = new Set();
     for (const b of boxes) {
-      const color = b.collapsed ? COLLAPSE_COLOR : viridis((b.index ?? 0) / Math.max(1, this.total - 1));
-      const material = new THREE.MeshStandardMaterial({ color, roughness: 0.55, metalness: 0.05 });
-      if (b.collapsed) material.emissive = new THREE.Color(0x5b0a1c);
-      const mesh = new THREE.Mesh(this.unitBox, material);
-      const isCurrent = frame < this.frames && b.index === currentIndex;
-      const edges = new THREE.LineSegments(this.unitEdges, isCurrent ? this.currentEdgeMaterial : this.edgeMaterial);
-      const holder = new THREE.Group();
-      holder.add(mesh, edges);
-      holder.position.copy(center(b.p));
+      let holder = this.boxes.get(b.index);
+      if (!holder) {
+        holder = this.makeBox();
+        holder.userData.material = holder.children[0].material;
+        holder.userData.material.color.copy(this.colorOf(b.index));
+        this.boxes.set(b.index, holder);
+        this.boxGroup.add(holder);
+      }
+      seen.add(b.index);
+      holder.visible = true;
+      holder.children[0].material = b.collapsed ? this.collapseMaterial : holder.userData.material;
+      holder.children[1].material = !during && k < this.frames && b.index === placing ? this.currentEdgeMaterial : this.edgeMaterial;
       const rotation = boxRotation(b.p);
-      if (rotation) holder.quaternion.copy(rotation);
+      const pose = moving.has(b.index) ? this.trackPose(moving.get(b.index), track.t, ms) : null;
+      if (pose) {
+        holder.position.copy(pose.pos);
+        holder.quaternion.copy(boxRotation({ ...b.p, quaternion: pose.quat.toArray() }) || pose.quat);
+      } else {
+        holder.position.copy(center(b.p));
+        holder.quaternion.copy(rotation || new THREE.Quaternion());
+      }
       // Shrink by a hair so touching faces do not flicker.
       holder.scale.set(Math.max(0.1, b.p.length - 0.15), Math.max(0.1, b.p.width - 0.15), Math.max(0.1, b.p.height - 0.15));
-      this.boxGroup.add(holder);
     }
-    if (current && !current.placement && current.action) this.drawRejected(current, boxes);
-    const path = current && current.tool_path && current.tool_path.length > 1;
-    if (path) this.drawPath(current.tool_path);
+    for (const [index, holder] of this.boxes) if (!seen.has(index)) holder.visible = false;
+    this.extraGroup.children.filter((c) => c !== (this.robot && this.robot.root)).forEach((c) => this.extraGroup.remove(c));
+    this.drawRobot(k, step, ms);
+    if (step && !step.placement && step.action) this.drawRejected(step, boxes);
+    const path = step && step.tool_path && step.tool_path.length > 1;
+    if (path) this.drawPath(step.tool_path);
     // Read by tests and handy in the console: what this frame shows.
     this.root.dataset.collapsed = String(boxes.filter((b) => b.collapsed).length);
-    this.root.dataset.toolPath = path ? String(current.tool_path.length) : "0";
+    this.root.dataset.toolPath = path ? String(step.tool_path.length) : "0";
     return boxes.length;
+  }
+
+  // The arm: at its waiting pose between steps (the next box waiting on the conveyor), else along the
+  // step's motion with the box on the cup while the suction is on.
+  drawRobot(k, step, ms) {
+    const robot = this.robot;
+    if (!robot) return;
+    const motion = ms !== null && step && step.motion ? step.motion : null;
+    const upcoming = ms === null ? this.episode.steps[k] : null; // the next step's box waits at the pick
+    const shown = motion ? step : upcoming && upcoming.motion ? upcoming : null;
+    const carried = this.carriedMesh;
+    carried.visible = false;
+    this.root.dataset.suction = "off";
+    if (shown) {
+      const m = shown.motion;
+      const [x, y, z, qx, qy, qz, qw] = m.carry;
+      const box = shown.box;
+      carried.position.set(x, y, z);
+      carried.quaternion.set(qx, qy, qz, qw).normalize();
+      carried.scale.set(Math.max(0.001, box.length - 0.15) / 100, Math.max(0.001, box.width - 0.15) / 100, Math.max(0.001, box.height - 0.15) / 100);
+      const index = shown.placement ? shown.placement.index : this.episode.steps.indexOf(shown);
+      carried.children[0].material.color.copy(this.colorOf(index));
+      if (!motion || ms < m.grip[0]) {
+        // Not yet grasped: the box sits on the conveyor where the cup will meet it.
+        robot.setJoints(jointsAt(m, m.grip[0]));
+        const world = carried.matrixWorld.clone();
+        robot.setJoints(motion ? jointsAt(m, ms) : this.episode.cell.home);
+        this.drawWaiting(world);
+      } else if (ms < m.grip[1]) {
+        robot.setJoints(jointsAt(m, ms));
+        carried.visible = true;
+        this.root.dataset.suction = "on";
+      } else {
+        robot.setJoints(jointsAt(m, ms));
+      }
+    } else {
+      robot.setJoints(this.episode.cell.home);
+    }
+  }
+
+  drawWaiting(matrix) {
+    const copy = this.carriedMesh.clone();
+    copy.visible = true;
+    copy.matrixAutoUpdate = false;
+    copy.matrix.copy(matrix);
+    this.extraGroup.add(copy);
   }
 
   // A refused action (out of bounds, too high...): a red wireframe where the policy wanted the box.
@@ -268,61 +582,78 @@ class Replay {
     const ghost = new THREE.LineSegments(this.unitEdges, new THREE.LineBasicMaterial({ color: COLLAPSE_COLOR }));
     ghost.position.set(a.x + l / 2, a.y + w / 2, z + step.box.height / 2);
     ghost.scale.set(l, w, step.box.height);
-    this.boxGroup.add(ghost);
+    this.extraGroup.add(ghost);
   }
 
   drawPath(points) {
-    const vectors = points.map(([x, y, z]) => new THREE.Vector3(x, y, z));
-    const path = new THREE.CurvePath();
-    for (let i = 1; i < vectors.length; i += 1) {
-      if (vectors[i].distanceTo(vectors[i - 1]) > 1e-6) path.add(new THREE.LineCurve3(vectors[i - 1], vectors[i]));
+    const key = points;
+    if (this.pathKey !== key) {
+      this.pathKey = key;
+      this.pathMesh = new THREE.Group();
+      const vectors = points.map(([x, y, z]) => new THREE.Vector3(x, y, z));
+      const path = new THREE.CurvePath();
+      for (let i = 1; i < vectors.length; i += 1) {
+        if (vectors[i].distanceTo(vectors[i - 1]) > 1e-6) path.add(new THREE.LineCurve3(vectors[i - 1], vectors[i]));
+      }
+      if (path.curves.length) {
+        const segments = Math.min(600, Math.max(16, path.curves.length * 4));
+        this.pathMesh.add(new THREE.Mesh(new THREE.TubeGeometry(path, segments, 0.8, 6, false),
+          new THREE.MeshStandardMaterial({ color: PATH_COLOR, emissive: 0x3b0764, transparent: true, opacity: 0.8 })));
+        for (const end of [vectors[0], vectors[vectors.length - 1]]) {
+          const dot = new THREE.Mesh(new THREE.SphereGeometry(2.2, 16, 12), new THREE.MeshStandardMaterial({ color: PATH_COLOR }));
+          dot.position.copy(end);
+          this.pathMesh.add(dot);
+        }
+      }
     }
-    if (!path.curves.length) return;
-    const segments = Math.min(600, Math.max(16, path.curves.length * 4));
-    const tube = new THREE.Mesh(new THREE.TubeGeometry(path, segments, 1.2, 6, false),
-      new THREE.MeshStandardMaterial({ color: PATH_COLOR, emissive: 0x7c2d12 }));
-    this.boxGroup.add(tube);
-    for (const end of [vectors[0], vectors[vectors.length - 1]]) {
-      const dot = new THREE.Mesh(new THREE.SphereGeometry(3, 16, 12), new THREE.MeshStandardMaterial({ color: PATH_COLOR }));
-      dot.position.copy(end);
-      this.boxGroup.add(dot);
-    }
-  }
-
-  setFrame(frame) {
-    const f = Math.max(0, Math.min(this.frames, Math.round(frame)));
-    this.frame = f;
-    this.slider.value = String(f);
-    this.el("label").textContent = `Step ${f} / ${this.frames}`;
-    let drawn = 0;
-    if (this.renderer) drawn = this.drawBoxes(f);
-    this.root.dataset.frame = String(f);
-    this.root.dataset.boxes = String(drawn);
-    this.showStepInfo(f);
-    this.render();
+    this.extraGroup.add(this.pathMesh);
   }
 
   render() {
     if (this.renderer) this.renderer.render(this.scene, this.camera);
   }
 
+  // -- playing -----------------------------------------------------------------------------------------
+  stepBy(delta) {
+    this.stop();
+    this.show(delta > 0 ? Math.floor(this.u + 1e-9) + 1 : Math.ceil(this.u - 1e-9) - 1);
+  }
+
   togglePlay() {
-    if (this.timer) { this.stop(); return; }
-    if (this.frame >= this.frames) this.setFrame(0);
+    if (this.playing) { this.stop(); return; }
+    if (this.u >= this.frames) this.show(0);
+    this.playing = true;
     this.el("play").textContent = "Pause";
-    this.timer = window.setInterval(() => {
-      if (this.frame >= this.frames) { this.stop(); return; }
-      this.setFrame(this.frame + 1);
-    }, 220);
+    let last = performance.now();
+    // The play position runs continuously; an episode with nothing timed shows it a whole step at a time.
+    let u = this.u;
+    const tick = (now) => {
+      if (!this.playing) return;
+      let left = ((now - last) / 1000) * this.speed;
+      last = now;
+      // Advance through as many steps as the elapsed time covers, each at its own duration.
+      while (left > 0 && u < this.frames) {
+        const k = Math.floor(u + 1e-9) + 1;
+        const seconds = this.stepSeconds(k);
+        const rest = (k - u) * seconds;
+        if (left < rest) { u += left / seconds; left = 0; } else { u = k; left -= rest; }
+      }
+      const shown = this.timed ? u : Math.floor(u + 1e-9);
+      if (shown !== this.u) this.show(shown);
+      if (u >= this.frames) this.stop(); else this.raf = requestAnimationFrame(tick);
+    };
+    this.raf = requestAnimationFrame(tick);
   }
 
   stop() {
-    if (this.timer) window.clearInterval(this.timer);
-    this.timer = null;
+    this.playing = false;
+    if (this.raf) cancelAnimationFrame(this.raf);
+    this.raf = null;
     this.el("play").textContent = "Play";
   }
 
-  showStepInfo(frame) {
+  // -- figures beside the view -------------------------------------------------------------------------
+  showStepInfo(frame, phase, ms) {
     const dl = this.el("step-info");
     const ep = this.episode;
     this.overlay.classList.remove("collapse");
@@ -342,14 +673,19 @@ class Replay {
     ];
     if (s.static_stability !== null) rows.push(["Static stability", fmt(s.static_stability, 3)]);
     if (s.trajectory_length_m !== null) rows.push(["Tool path", fmt(s.trajectory_length_m, 2, " m")]);
+    if (s.motion) rows.push(["Operation", `${fmt((s.motion.grip[1] - s.motion.grip[0]) / 1000, 2, " s")} grasp to release`]);
     if (s.dangerous !== null) rows.push(["Dangerous", s.dangerous ? "yes" : "no", s.dangerous ? "bad" : ""]);
     if (s.collapsed) rows.push(["Collapse", "yes — a box moved beyond the threshold", "bad"]);
     if (s.termination) rows.push(["Ended", TERMINATION_TEXT[s.termination] || s.termination, "bad"]);
     setKV(dl, rows);
     let text = `Step ${frame} / ${this.frames}`;
-    if (frame === this.frames) text += ` — final state: ${TERMINATION_TEXT[ep.termination] || ep.termination}`;
-    if (s.collapsed) { text += " — collapse!"; this.overlay.classList.add("collapse"); }
-    else if (s.termination && s.termination !== "completed") this.overlay.classList.add("collapse");
+    if (ms !== null && phase) {
+      const suction = this.root.dataset.suction === "on" ? " · suction on" : "";
+      text += ` — ${PHASE_TEXT[phase] || phase}${suction} · ${fmt(ms / 1000, 2, " s")}`;
+    } else if (frame === this.frames) text += ` — final state: ${TERMINATION_TEXT[ep.termination] || ep.termination}`;
+    if (s.dangerous) text += " — dangerous operation";
+    if (s.collapsed && (ms === null || phase === "settle" || phase === "retreat")) { text += " — collapse!"; this.overlay.classList.add("collapse"); }
+    else if (s.dangerous || (s.termination && s.termination !== "completed" && ms === null)) this.overlay.classList.add("collapse");
     this.overlay.textContent = text;
   }
 
@@ -371,6 +707,11 @@ class Replay {
     if ("static_stability" in m) rows.push(["Static stability", fmt(m.static_stability, 3)]);
     if ("trajectory_length" in m) rows.push(["Trajectory", fmt(m.trajectory_length, 2, " m")]);
     setKV(this.el("episode-info"), rows);
+  }
+
+  // For tests and the console: the TCP in the container frame (cm), or null without a robot.
+  tcpWorld() {
+    return this.robot ? this.robot.tcpWorld().toArray() : null;
   }
 }
 

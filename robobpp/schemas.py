@@ -1,4 +1,10 @@
-"""API request and response models. Requests forbid unknown fields and bound every number and string."""
+"""The evaluation server's JSON API (``/api/v1``): request and response models.
+
+They live on the SDK side of the package because both ends use them: the server's routes validate and
+answer with them, and the SDK's API client (:mod:`robobpp.client.api`) parses every answer into them, so
+the two cannot drift apart. Only pydantic is imported here. Requests forbid unknown fields and bound
+every number and string.
+"""
 
 from __future__ import annotations
 

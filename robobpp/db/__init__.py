@@ -1,0 +1,1 @@
+"""SQL record of truth: SQLAlchemy models, migrations runner, queries, the work queue (extra ``robobpp[server]``)."""

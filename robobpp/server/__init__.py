@@ -1,0 +1,1 @@
+"""The evaluation service: FastAPI app, JSON API, pages, settings (extra ``robobpp[server]``)."""

@@ -56,12 +56,14 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
     day = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.created_at > now - timedelta(days=1))
+        .where(Submission.participant_id == participant_id, Submission.created_at > now - timedelta(days=1),
+               Submission.track != "verify")  # the operator's verifications use no quota
     ).scalar_one()
     active = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.status.in_(("queued", "running")))
+        .where(Submission.participant_id == participant_id, Submission.status.in_(("queued", "running")),
+               Submission.track != "verify")
     ).scalar_one()
     return int(day), int(active)
 
@@ -76,6 +78,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
             Submission.name,
             Participant.name,
             Participant.is_builtin,
+            Submission.verification,
         )  # fmt: skip
         .join(Submission, Submission.id == RunRow.submission_id)
         .join(Participant, Participant.id == Submission.participant_id)
@@ -90,6 +93,12 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
     ).all()
 
 
+def _verdict(verification: dict[str, Any] | None) -> str | None:
+    """What a board shows of a verification: only a finished verdict."""
+    status = (verification or {}).get("status")
+    return status if status in ("verified", "disagrees", "failed") else None
+
+
 def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private") -> dict[str, Any]:
     """One board: completed submissions ranked by the weighted min–max score (computed now)."""
     rows = _entry_rows(session, dataset, setting, track)
@@ -100,6 +109,7 @@ def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "p
             "rank": s.rank, "score": s.score, "submission_id": r.submission_id, "name": r[4],
             "participant": r[5], "baseline": bool(r.is_builtin), "metrics": r.metrics or {},
             "normalized": s.normalized, "extras": r.extras or {}, "completed_at": r.completed_at,
+            "verification": _verdict(r.verification),
         })  # fmt: skip
     entries.sort(key=lambda e: (e["rank"], e["submission_id"]))
     return {"dataset": dataset, "setting": setting, "track": track,
@@ -167,6 +177,7 @@ def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
         "runs": [{"dataset": r.dataset, "setting": r.setting, "status": r.status,
                   "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
                   "completed_at": r.completed_at} for r in sub.runs],
+        "verification": sub.verification,
     }  # fmt: skip
 
 

@@ -15,7 +15,7 @@ from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
 from robobpp.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
-from robobpp.server.api.deps import Principal, PrincipalDep, SessionDep, SettingsDep
+from robobpp.server.api.deps import AdminDep, Principal, PrincipalDep, SessionDep, SettingsDep
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate
@@ -189,3 +189,25 @@ def episode(submission_id: Id, episode_id: Id, session: SessionDep, principal: P
         )
     trace = ep.trace if sub.track == "public" else None
     return EpisodeDetail.model_validate({**queries.episode_summary(ep), "trace": trace})
+
+
+@router.post("/submissions/{submission_id}/verify", status_code=201, response_model=SubmissionPublic,
+             summary="(operator) Re-evaluate a completed private-track submission on the hold-out draw")  # fmt: skip
+def verify(
+    submission_id: Id, session: SessionDep, principal: AdminDep, settings: SettingsDep
+) -> SubmissionPublic:
+    """Answers the verification submission (track ``verify``); the original's ``verification`` follows it."""
+    from robobpp.db.verification import start_verification
+
+    original = session.get(Submission, submission_id)
+    if original is None:
+        raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id}")
+    if original.track != "private" or original.status != "completed":
+        raise ProblemError(409, "conflict", "Cannot verify",
+                           f"only completed private-track submissions are verified (this one: {original.track}, {original.status})")  # fmt: skip
+    if (original.verification or {}).get("status") == "running":
+        raise ProblemError(409, "conflict", "Already verifying",
+                           f"verification #{original.verification['submission_id']} is still running")  # fmt: skip
+    checked = start_verification(session, original, settings.groups)
+    session.refresh(checked)
+    return SubmissionPublic.model_validate(queries.submission_view(session, checked))

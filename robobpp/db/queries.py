@@ -56,14 +56,20 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
     day = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.created_at > now - timedelta(days=1),
-               Submission.track != "verify")  # the operator's verifications use no quota
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.created_at > now - timedelta(days=1),
+            Submission.track != "verify",
+        )  # the operator's verifications use no quota
     ).scalar_one()
     active = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.status.in_(("queued", "running")),
-               Submission.track != "verify")
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.status.in_(("queued", "running")),
+            Submission.track != "verify",
+        )
     ).scalar_one()
     return int(day), int(active)
 

@@ -31,16 +31,25 @@ T = TypeVar("T")
 class ProbeGate:
     """Bounded, deadline-guarded execution of outbound checks, keyed by participant.
 
-    Used from one event loop (the app's): the counters need no lock, and waiting for a slot holds no thread.
+    Used from the app's event loop: the counters need no lock, and waiting for a slot holds no thread. The
+    pool and the semaphore are made on first use (and again for a new loop: test clients start one each).
     """
 
     def __init__(self, concurrency: int, per_participant: int, deadline_s: float) -> None:
         self.concurrency = concurrency
         self.per_participant = per_participant
         self.deadline_s = deadline_s
-        self._pool = ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="robobpp-probe")
-        self._slots = asyncio.Semaphore(concurrency)
+        self._pool: ThreadPoolExecutor | None = None
+        self._slots: tuple[asyncio.AbstractEventLoop, asyncio.Semaphore] | None = None
         self._in_flight: Counter[str] = Counter()
+
+    def _resources(self) -> tuple[ThreadPoolExecutor, asyncio.Semaphore]:
+        loop = asyncio.get_running_loop()
+        if self._slots is None or self._slots[0] is not loop:
+            self._slots = (loop, asyncio.Semaphore(self.concurrency))
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=self.concurrency, thread_name_prefix="robobpp-probe")
+        return self._pool, self._slots[1]
 
     def _busy(self, detail: str) -> ProblemError:
         return ProblemError(429, "probe-busy", "Too many policy checks", detail,
@@ -52,20 +61,21 @@ class ProbeGate:
             raise self._busy(f"at most {self.per_participant} policy check(s) at a time per participant; "
                              "wait for the answer to the previous submission")  # fmt: skip
         self._in_flight[key] += 1
+        pool, slots = self._resources()
         try:
             try:
-                await asyncio.wait_for(self._slots.acquire(), self.deadline_s)
+                await asyncio.wait_for(slots.acquire(), self.deadline_s)
             except TimeoutError:
                 raise self._busy("the service is checking many policies right now; retry shortly") from None
             try:
                 # The check keeps its own deadline on the exchange; this bounds what it cannot (DNS lookup).
-                future = asyncio.get_running_loop().run_in_executor(self._pool, fn)
+                future = asyncio.get_running_loop().run_in_executor(pool, fn)
                 return await asyncio.wait_for(future, 2 * self.deadline_s + 1)
             except TimeoutError:
                 raise ProblemError(422, "policy-unreachable", "Policy unreachable",
                                    f"the policy URL could not be checked within {2 * self.deadline_s + 1:g} s") from None  # fmt: skip
             finally:
-                self._slots.release()
+                slots.release()
         finally:
             self._in_flight[key] -= 1
             if self._in_flight[key] <= 0:
@@ -75,4 +85,6 @@ class ProbeGate:
         return sum(self._in_flight.values())
 
     def shutdown(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)

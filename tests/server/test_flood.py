@@ -105,8 +105,9 @@ def test_slow_drip_flood_keeps_health_and_leaderboard_responsive(
     assert stats["max_open"] <= CONCURRENCY, (
         stats
     )  # ... never more than the overall bound at once  # ... never more than the overall bound at once
-    # No submission waited on the drip beyond the probe deadline plus the wait for a slot.
-    assert max(t for *_x, t in answers) < 3 * PROBE_TIMEOUT_S
+    # Every submission was answered within a few probe deadlines (slot wait + probe), not after the drip's
+    # 8 hours or the client's timeout: generous, the machine may be loaded.
+    assert max(t for *_x, t in answers) < 10 * PROBE_TIMEOUT_S
     # The API kept its usual latency (generous bound): a blocked request pool would take a probe deadline.
     assert len(during) >= 10
     assert statistics.median(during) <= 10 * statistics.median(baseline), (baseline, during)

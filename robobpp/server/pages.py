@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, Request
+from fastapi import APIRouter, Path, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 from sqlalchemy.orm import Session
 
@@ -18,9 +18,11 @@ from robobpp.datasets import DATASETS
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
+from robobpp.leaderboard import board_view, grid_view
 from robobpp.metrics import METRICS
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep
+from robobpp.server.api.leaderboards import board_cache
 from robobpp.web import SETTING_TITLES, environment, tables
 from robobpp.web.trace import TraceError, viewer_payload
 
@@ -59,24 +61,33 @@ def _board_names(settings: SettingsDep) -> tuple[tuple[str, ...], tuple[str, ...
     return tuple(settings.datasets), tuple(settings.enabled_settings)
 
 
+View = Literal["best", "all"]
+Page = Annotated[int, Query(ge=1, le=10**5)]
+
+
 @router.get("/", response_class=HTMLResponse)
-def overall_page(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private"):
+def overall_page(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private",
+                 view: View = "best", page: Page = 1):  # fmt: skip
     datasets, setting_names = _board_names(settings)
-    grid = queries.overall_grid(session, datasets=datasets, settings=setting_names, track=track)
-    return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track,
-                  table=tables.grid_table(grid), datasets_info=DATASETS, top=tables.TOP)  # fmt: skip
+    grid = board_cache(request).grid(session, datasets, setting_names, track)
+    shown = grid_view(grid, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
+    return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
+                  table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
+                  pages=tables.pages(shown, page))  # fmt: skip
 
 
 @router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
 def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, session: SessionDep,
-               settings: SettingsDep, track: Track = "private"):  # fmt: skip
+               settings: SettingsDep, track: Track = "private", view: View = "best", page: Page = 1):  # fmt: skip
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
-    board = queries.leaderboard(session, dataset, setting, track=track)
+    board = board_cache(request).board(session, dataset, setting, track)
+    shown = board_view(board, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
     return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
-                  nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track,
-                  table=tables.board_table(board), weights=WEIGHTS[setting], top=tables.TOP,
+                  nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track, view=view,
+                  table=tables.board_table(shown), weights=WEIGHTS[setting], top=tables.TOP,
+                  pages=tables.pages(shown, page), board=shown,
                   other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
 
 
@@ -100,8 +111,9 @@ def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, l
         return not_found(request, f"There is no submission {submission_id}.")
     view = _public_view(session, sub)
     episodes = queries.episode_rows(session, sub.id)
+    cache = board_cache(request)
     boards = {
-        (r["dataset"], r["setting"]): queries.leaderboard(session, r["dataset"], r["setting"], track=sub.track)
+        (r["dataset"], r["setting"]): cache.board(session, r["dataset"], r["setting"], sub.track)
         for r in view["runs"] if r["status"] == "completed"
     }  # fmt: skip
     ranks = {}

@@ -112,6 +112,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         "ROBOBPP_GROUPS": "2",
         "ROBOBPP_SETTINGS": json.dumps(["math", "physics"]),
         "ROBOBPP_BASELINES": json.dumps(["dbl", "hm", "lsah", "onlinebph", "random"]),
+        "ROBOBPP_PUBLIC_BASELINES": "false",  # CI time; the public-track DBL stays alone on its boards
         "ROBOBPP_WORKERS": "1",
         "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "true",
     }

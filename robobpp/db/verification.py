@@ -9,9 +9,10 @@ with track ``verify`` (never on a board) pointing at the original (``verifies_id
 API (and the pages) show it: ``verified`` when every board's result agrees within the two intervals,
 ``disagrees`` when one does not — the signature of a policy tuned to the played groups.
 
-The interval is a normal-approximation 95 % interval of the mean per-episode space utilisation (the
-geometric metric every setting has); small on purpose, to be replaced by the scoring code's bootstrap
-intervals once they exist.
+The compared figure is the run's space utilisation (the geometric metric every setting has) with the
+board's own 95 % interval: the seeded bootstrap over groups of :mod:`robobpp.stats`, applied to each run
+on its own (the two runs played different groups, so the resamples are not paired). Runs recorded before
+per-group figures existed fall back to a normal-approximation interval of the per-episode values.
 """
 
 from __future__ import annotations
@@ -21,10 +22,12 @@ import statistics
 from datetime import UTC, datetime
 from typing import Any
 
+import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from robobpp.db.models import EpisodeRow, Submission
+from robobpp import stats
+from robobpp.db.models import EpisodeRow, RunRow, Submission
 
 #: Per-episode metric compared between the played groups and the hold-out draw.
 METRIC = "space_utilization"
@@ -58,6 +61,26 @@ def start_verification(session: Session, original: Submission, groups: int) -> S
     return verify
 
 
+def run_interval(session: Session, submission_id: int, dataset: str, setting: str) -> dict[str, Any] | None:
+    """The run's :data:`METRIC` with its 95 % interval, or ``None`` when the run did not complete."""
+    run = session.execute(
+        select(RunRow).where(RunRow.submission_id == submission_id, RunRow.dataset == dataset,
+                             RunRow.setting == setting, RunRow.status == "completed")
+    ).scalar_one_or_none()  # fmt: skip
+    if run is None:
+        return None
+    figures = run.figures or {}
+    mean = (run.metrics or {}).get(METRIC)
+    if figures.get("ids") and mean is not None:
+        samples = stats.metric_samples([figures], METRIC, stats.resample_counts(len(figures["ids"])))
+        low, high = stats.interval(samples)
+        if np.isfinite(low[0]) and np.isfinite(high[0]):
+            return {"mean": float(mean), "low": float(low[0]), "high": float(high[0]), "n": len(figures["ids"]),
+                    "method": "bootstrap"}  # fmt: skip
+    values = _values(session, submission_id, dataset, setting)
+    return {**interval(values), "method": "normal"} if values else None
+
+
 def _values(session: Session, submission_id: int, dataset: str, setting: str) -> list[float]:
     rows = session.execute(
         select(EpisodeRow.metrics).where(
@@ -78,12 +101,11 @@ def record_verdict(session: Session, verify: Submission) -> dict[str, Any] | Non
     runs = []
     for dataset in verify.datasets:
         for setting in verify.settings:
-            played = _values(session, original.id, dataset, setting)
-            holdout = _values(session, verify.id, dataset, setting)
-            if not played or not holdout:
+            a = run_interval(session, original.id, dataset, setting)
+            b = run_interval(session, verify.id, dataset, setting)
+            if a is None or b is None:
                 runs.append({"dataset": dataset, "setting": setting, "agree": None})
                 continue
-            a, b = interval(played), interval(holdout)
             runs.append({"dataset": dataset, "setting": setting, "metric": METRIC, "played": a, "holdout": b,
                          "agree": agree(a, b)})  # fmt: skip
     if verify.status != "completed" or any(r["agree"] is None for r in runs):

@@ -88,6 +88,7 @@ def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, pol
     assert verdicts[baseline]["status"] == "verified", verdicts[baseline]
     (run,) = verdicts[tuned]["runs"]
     assert run["played"]["n"] == run["holdout"]["n"] == GROUPS
+    assert run["played"]["method"] == run["holdout"]["method"] == "bootstrap"  # the board's own intervals
     assert run["holdout"]["high"] < run["played"]["low"]  # tuned: good where it was tuned, not elsewhere
     # The hold-out groups are other boxes under the same episode ids, and no verification is on a board.
     played = db_rows(url, "SELECT split, metrics FROM episodes WHERE submission_id = :s", s=tuned)

@@ -108,10 +108,13 @@ def test_slow_drip_flood_keeps_health_and_leaderboard_responsive(
     # Every submission was answered within a few probe deadlines (slot wait + probe), not after the drip's
     # 8 hours or the client's timeout: generous, the machine may be loaded.
     assert max(t for *_x, t in answers) < 10 * PROBE_TIMEOUT_S
-    # The API kept its usual latency (generous bound): a blocked request pool would take a probe deadline.
+    # The API kept its usual latency (generous bound): its median stays within 10x the baseline's, and at
+    # most one call in 20 takes as long as one probe deadline (a request pool blocked behind the probes
+    # would make nearly every call wait that long; a single spike on a loaded machine is tolerated).
     assert len(during) >= 10
     assert statistics.median(during) <= 10 * statistics.median(baseline), (baseline, during)
-    assert max(during) < PROBE_TIMEOUT_S, (max(baseline), max(during))
+    slow = sum(t >= PROBE_TIMEOUT_S for t in during)
+    assert slow <= len(during) / 20, (max(baseline), sorted(during)[-5:])
 
 
 def test_over_quota_participant_causes_no_outbound_call(make_server, drip_server: str, tmp_path) -> None:

@@ -25,6 +25,7 @@ from robobpp.db.models import EpisodeRow, Participant, Submission, utcnow
 from robobpp.db.queries import SHOWN_TEXT_LIMIT
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
+from robobpp.server import pages
 from robobpp.server.app import create_app
 from robobpp.server.site.account import PULL_OFFERED
 from tests.server.conftest import ADMIN_TOKEN
@@ -337,3 +338,33 @@ def test_submit_form_creates_a_pull_submission(world: World) -> None:
             "robobpp connect" in page.text
             and f"--submission {r.headers['location'].rsplit('/', 1)[1]}" in page.text
         )
+
+
+def test_every_form_post_needs_the_csrf_token(world: World) -> None:
+    """Each POST route of the pages, as the signed-in operator (who may do everything) without the form's
+    token: refused with 403, nothing changed. A new form route without the check fails here."""
+    operator = world.clients["operator"]
+    app = operator.app
+    with app.state.runtime.session() as s:  # type: ignore[attr-defined]
+        alice = s.execute(select(Participant).where(Participant.name == "alice")).scalar_one()
+        sid = work.create_submission(s, alice, name="alice-csrf", policy_url=POLICY_URL, datasets=["diverse"],
+                                     settings=["math"], groups=1).id  # fmt: skip
+        token_id = alice.tokens[0].id
+    ids = {"submission_id": sid, "participant_id": world.participants["owner"], "token_id": token_id}
+
+    def routes(router: Any) -> Iterator[Any]:  # FastAPI may keep an included router as one lazy entry
+        for r in router.routes:
+            inner = getattr(r, "original_router", None)
+            yield from routes(inner) if inner is not None else [r]
+
+    posts = [r.path for r in routes(pages.router) if "POST" in getattr(r, "methods", ())]
+    assert len(posts) >= 7, posts
+    before = operator.get(f"/operator/participants/{ids['participant_id']}").text.count("Revoke")
+    for path in posts:
+        r = operator.post(path.format(**ids), data={"csrf": "not-the-token", "name": "csrf-victim"},
+                          follow_redirects=False)  # fmt: skip
+        assert r.status_code == 403, (path, r.status_code)
+    assert _status(world, sid) == "queued"
+    assert operator.get("/account").status_code == 200  # still signed in
+    page = operator.get(f"/operator/participants/{ids['participant_id']}").text
+    assert page.count("Revoke") == before and "csrf-victim" not in operator.get("/operator").text

@@ -117,7 +117,9 @@ def test_slow_drip_flood_keeps_health_and_leaderboard_responsive(
     assert slow <= len(during) / 20, (max(baseline), sorted(during)[-5:])
 
 
-def test_over_quota_participant_causes_no_outbound_call(make_server, drip_server: str, tmp_path) -> None:
+def test_over_quota_causes_no_outbound_call_and_info_is_strict(
+    make_server, drip_server: str, tmp_path
+) -> None:
     server = make_server(f"sqlite:///{tmp_path / 'quota.sqlite3'}", ROBOBPP_WORKERS="0",
                          ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY="0")  # fmt: skip
     with server.client(ADMIN_TOKEN) as admin:
@@ -130,3 +132,19 @@ def test_over_quota_participant_causes_no_outbound_call(make_server, drip_server
     assert r.status_code == 429 and r.json()["type"].endswith("quota-exceeded"), r.text
     assert unauthenticated.status_code == 401
     assert httpx.get(drip_server + "/stats", timeout=5).json()["total"] == 0
+
+    # The submit check is the conformance check's: /info must declare robobpp/1, and answers be signed.
+    from tests.client.hostile import HostileServer
+
+    secret = "submit-secret-123"
+    with HostileServer(secret=secret) as hostile, server.client(ADMIN_TOKEN) as admin:
+        answers = {mode: admin.post("/submissions", json={"name": mode, "policy_url": f"{hostile.url}/{mode}",
+                                                          "secret": secret})
+                   for mode in ("empty_info", "unsigned", "good")}  # fmt: skip
+    assert (
+        answers["empty_info"].status_code == 422 and "missing field 'protocol'" in answers["empty_info"].text
+    )
+    assert (
+        answers["unsigned"].status_code == 422 and "missing X-Robobpp-Timestamp" in answers["unsigned"].text
+    )
+    assert answers["good"].status_code == 201, answers["good"].text

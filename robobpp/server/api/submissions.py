@@ -14,7 +14,14 @@ from starlette.concurrency import run_in_threadpool
 from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
-from robobpp.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
+from robobpp.schemas import (
+    DatasetName,
+    EpisodeDetail,
+    EpisodePublic,
+    SettingName,
+    SubmissionCreate,
+    SubmissionPublic,
+)
 from robobpp.server.api.deps import AdminDep, Principal, PrincipalDep, SessionDep, SettingsDep
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
@@ -211,3 +218,31 @@ def verify(
     checked = start_verification(session, original, settings.groups)
     session.refresh(checked)
     return SubmissionPublic.model_validate(queries.submission_view(session, checked))
+
+
+@router.post("/leaderboards/{dataset}/{setting}/verify", status_code=201, response_model=list[SubmissionPublic],
+             summary="(operator) Re-evaluate the board's top entries on the hold-out draw")  # fmt: skip
+def verify_top(
+    dataset: DatasetName,
+    setting: SettingName,
+    session: SessionDep,
+    principal: AdminDep,
+    settings: SettingsDep,
+    top: Annotated[int, Query(ge=1, le=50)] = 3,
+) -> list[SubmissionPublic]:
+    """The ``top`` best-ranked private entries that have no verdict and no verification running yet."""
+    from robobpp.db.verification import start_verification
+
+    started = []
+    for entry in queries.leaderboard(session, dataset, setting)["entries"][:top]:
+        original = session.get(Submission, entry["submission_id"])
+        if original is None or (original.verification or {}).get("status") in (
+            "running",
+            "verified",
+            "disagrees",
+        ):
+            continue
+        started.append(start_verification(session, original, settings.groups))
+    for sub in started:
+        session.refresh(sub)
+    return [SubmissionPublic.model_validate(queries.submission_view(session, sub)) for sub in started]

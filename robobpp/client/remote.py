@@ -190,10 +190,13 @@ class RemotePolicy:
 
     def act(self, obs: Observation) -> Action | None:
         self.last_round_trip = self.last_network_estimate = None
-        body = _encode(P.act_payload(obs))
+        payload = P.act_payload(obs)
+        body = _encode(payload)
         if self.probe_network:
             self._probe(len(body))
-        answer = self._call("POST", "/act", body, P.ActResponse, self.step_timeout_s, obs.step)
+        answer = self._call(
+            "POST", "/act", payload, P.ActResponse, self.step_timeout_s, obs.step, encoded=body
+        )
         round_trip = self._connection.last_exchange_s
         if round_trip is not None:
             self.last_round_trip = round_trip
@@ -270,12 +273,13 @@ class RemotePolicy:
         self,
         method: str,
         path: str,
-        payload: dict[str, Any] | bytes | None,
+        payload: dict[str, Any] | None,
         model: type[M],
         timeout_s: float,
         step: int | None = None,
         *,
         use_episode: bool = True,
+        encoded: bytes | None = None,
     ) -> M:
         what = f"{method} {path}" + (f" (step {step})" if step is not None else "")
         started = time.monotonic()
@@ -287,8 +291,9 @@ class RemotePolicy:
                 )
             if self._episode_deadline < deadline:
                 deadline, by_episode = self._episode_deadline, True
-        body = payload if isinstance(payload, bytes) else b"" if payload is None else _encode(payload)
+        body = encoded if encoded is not None else b"" if payload is None else _encode(payload)
         headers = self.request_headers(body)
+        request_signature = dict(headers).get(P.SIGNATURE_HEADER, "")
         try:
             answer = self._connection.request(
                 method, self._path + path, headers, body, deadline, self.max_response_bytes
@@ -316,7 +321,16 @@ class RemotePolicy:
                 PROTOCOL_VIOLATION,
                 f"the answer to {what} is larger than the {self.max_response_bytes}-byte cap ({exc})",
             ) from None
-        return self._parse(what, answer, model)
+        parsed = self._parse(what, answer, model)
+        if self.secret is not None:
+            # The answer must be signed for this very request: a replayed or altered one ends the episode.
+            episode_id = str(payload.get("episode_id", "")) if payload else ""
+            try:
+                P.verify_answer(self.secret, answer.headers, answer.body, episode_id=episode_id,
+                                step=payload.get("step") if payload else None, request_signature=request_signature)  # fmt: skip
+            except P.SignatureError as exc:
+                raise PolicyError(PROTOCOL_VIOLATION, f"the answer to {what} is refused: {exc}") from None
+        return parsed
 
     def _parse(self, what: str, answer: wire.Answer, model: type[M]) -> M:
         status, headers, content = answer.status, answer.headers, answer.body

@@ -10,7 +10,7 @@ Celery workers on other machines work as they are (``ROBOBPP_PULL_RELAY_URL``).
 
 When the client drops mid-episode the relay closes the worker's socket; the transport waits up to
 ``reconnect_s`` for a connection of the same submission, replays the episode's ``/reset`` and sends the
-pending request again, freshly signed. The episode goes on where it was: nothing is lost, and nothing is
+pending request again unchanged (its answer is signed for that very request; /reset is signed afresh). The episode goes on where it was: nothing is lost, and nothing is
 counted twice because the result is still written once, under the lease.
 """
 
@@ -137,9 +137,8 @@ class PullTransport:
                         raise wire.ConnectionBroke(
                             f"replaying /reset after the client came back: HTTP {again.status}"
                         )
-                return self._exchange(
-                    method, target, self._sign(body, headers), body, time.monotonic() + budget, cap
-                )
+                # The pending request goes again as it was: its answer is signed for this very request.
+                return self._exchange(method, target, headers, body, time.monotonic() + budget, cap)
             except (_ClientGone, wire.ConnectFailed):
                 if time.monotonic() >= give_up:
                     self.close()

@@ -16,15 +16,18 @@ returns plain dicts ready for JSON or templates.
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import exists, func, select, true
 from sqlalchemy.orm import Session, joinedload, selectinload
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.leaderboard import build_board, build_grid
+from robobpp.metrics import PHYSICAL
+from robobpp.sim.physics.config import PHYSICS_VERSION
 
 SETTINGS_ORDER = ("math", "physics", "execution")
 DATASETS_ORDER = ("repetitive", "diverse", "longboard")
@@ -34,11 +37,26 @@ def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
-def participant_for_token(session: Session, token: str) -> Participant | None:
+#: The most characters of policy-supplied text (termination details, errors) any page or API answer shows.
+#: The full text (up to 4,000 characters) stays in the database for the operator.
+SHOWN_TEXT_LIMIT = 500
+#: C0/C1 control characters and the bidirectional overrides that could disguise text in a page or terminal.
+_HIDDEN_CHARS = re.compile("[\x00-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+
+
+def shown_text(text: str | None, limit: int = SHOWN_TEXT_LIMIT) -> str | None:
+    """Policy-supplied text as pages and the API show it: one line, no control or direction-override
+    characters, at most ``limit`` characters (cut with an ellipsis). HTML escaping is the template's job."""
+    if text is None:
+        return None
+    flat = _HIDDEN_CHARS.sub(" ", text)
+    return flat if len(flat) <= limit else flat[: limit - 1] + "…"
+
+
+def active_token(session: Session, token: str) -> ApiToken | None:
+    """The live (unrevoked) API token row of ``token``, or None."""
     return session.execute(
-        select(Participant)
-        .join(ApiToken, ApiToken.participant_id == Participant.id)
-        .where(ApiToken.token_hash == hash_token(token), ApiToken.revoked_at.is_(None))
+        select(ApiToken).where(ApiToken.token_hash == hash_token(token), ApiToken.revoked_at.is_(None))
     ).scalar_one_or_none()
 
 
@@ -69,18 +87,31 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
     day = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.created_at > now - timedelta(days=1))
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.created_at > now - timedelta(days=1),
+            Submission.track != "verify",
+        )  # the operator's verifications use no quota
     ).scalar_one()
     active = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.status.in_(("queued", "running")))
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.status.in_(("queued", "running")),
+            Submission.track != "verify",
+        )
     ).scalar_one()
     return int(day), int(active)
 
 
 def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> list[dict[str, Any]]:
     """Every completed run on the board of a finished submission (failed ones too: they are shown apart)."""
+    # A physical setting's board shows only runs whose every episode ran the current physics version.
+    other_physics = exists().where(
+        EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
+    )
+    current = ~other_physics if setting in PHYSICAL else true()
     rows = session.execute(
         select(
             RunRow.submission_id,
@@ -93,6 +124,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
             Submission.status,
             Participant.name,
             Participant.is_builtin,
+            Submission.verification,
         )  # fmt: skip
         .join(Submission, Submission.id == RunRow.submission_id)
         .join(Participant, Participant.id == Submission.participant_id)
@@ -102,12 +134,20 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
             RunRow.status == "completed",
             Submission.track == track,
             Submission.status.in_(("completed", "failed")),
+            current,
         )  # fmt: skip
         .order_by(RunRow.submission_id)
     ).all()
     keys = ("submission_id", "metrics", "extras", "figures", "episodes_total", "completed_at", "name",
-            "submission_status", "participant", "baseline")  # fmt: skip
-    return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9])} for r in rows]
+            "submission_status", "participant", "baseline", "verification")  # fmt: skip
+    return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": _verdict(r[10])}
+            for r in rows]  # fmt: skip
+
+
+def _verdict(verification: dict[str, Any] | None) -> str | None:
+    """What a board shows of a verification: only a finished verdict."""
+    status = (verification or {}).get("status")
+    return status if status in ("verified", "disagrees", "failed") else None
 
 
 def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private") -> dict[str, Any]:
@@ -165,12 +205,14 @@ def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
     return {
         "id": sub.id, "name": sub.name, "participant": sub.participant.name,
         "baseline": sub.participant.is_builtin, "policy_url": sub.policy_url, "track": sub.track,
+        "mode": sub.mode,
         "datasets": sub.datasets, "settings": sub.settings, "lookahead": sub.lookahead, "status": sub.status,
-        "created_at": sub.created_at, "finished_at": sub.finished_at, "error": sub.error,
+        "created_at": sub.created_at, "finished_at": sub.finished_at, "error": shown_text(sub.error),
         "progress": submission_progress(session, sub.id),
         "runs": [{"dataset": r.dataset, "setting": r.setting, "status": r.status,
                   "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
                   "completed_at": r.completed_at} for r in sub.runs],
+        "verification": sub.verification,
     }  # fmt: skip
 
 
@@ -194,7 +236,7 @@ def episode_summary(ep: EpisodeRow) -> dict[str, Any]:
     return {
         "id": ep.id, "dataset": ep.dataset, "setting": ep.setting, "split": ep.split, "group": ep.group,
         "status": ep.status, "attempts": ep.attempts, "step": ep.step, "termination": ep.termination,
-        "termination_detail": ep.termination_detail, "boxes_total": ep.boxes_total,
+        "termination_detail": shown_text(ep.termination_detail), "boxes_total": ep.boxes_total,
         "boxes_placed": ep.boxes_placed, "metrics": ep.metrics, "counters": ep.counters,
         "finished_at": ep.finished_at, "has_trace": ep.trace is not None,
     }  # fmt: skip

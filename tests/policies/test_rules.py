@@ -27,12 +27,14 @@ def test_dbl_goes_lowest_then_back_left() -> None:
 
 def test_hm_picks_the_least_added_heightmap_volume() -> None:
     # terrain along x: [3, 3, 0, 0, 3, 3, 3, 3] (width 2). A 4×2×1 box rests at z = 3 everywhere; at x = 0 or
-    # 2 it traps 2·2·3 = 12 cm³ under itself, at x = 4 nothing. DBL wants the smallest x at that z, but at
-    # x = 0 the box rests on [0, 2] alone with its centre at 2, outside the shrunk contact [0.1, 1.9]: the
-    # support rule refuses it. At x = 1 the contacts [1, 2] and [4, 5] span its centre 3: DBL takes x = 1.
+    # 2 it traps 2·2·3 = 12 cm³ under itself, at x = 4 nothing. DBL takes x = 0 (same z, smaller x).
     obs = scene((8, 2, 10), [(0, 0, 2, 2, 3), (4, 0, 4, 2, 3)], (4, 2, 1))
     assert where(act("hm", obs)) == (4, 0, 0)
-    assert where(act("dbl", obs)) == (1, 0, 0)
+    assert where(act("dbl", obs)) == (0, 0, 0)
+    # after physics the support rule applies: at x = 0 the box rests on [0, 2] alone, its centre 2 outside the
+    # shrunk contact [0.1, 1.9]; at x = 1 the contacts [1, 2] and [4, 5] span its centre 3: DBL takes x = 1.
+    physical = scene((8, 2, 10), [(0, 0, 2, 2, 3), (4, 0, 4, 2, 3)], (4, 2, 1), physical=True)
+    assert where(act("dbl", physical)) == (1, 0, 0)
 
 
 def test_hm_breaks_ties_back_left() -> None:
@@ -111,3 +113,21 @@ def test_packe_rules_only_uses_its_generators() -> None:
     # floor building) — the lowest top there is 1.
     obs = scene((10, 10, 10), [(2, 0, 3, 10, 2)], (2, 10, 1))
     assert where(act("packe-rules", obs)) == (0, 0, 0)
+
+
+def test_sdfpack_branch_and_bound_finds_the_exhaustive_minimum(monkeypatch: pytest.MonkeyPatch) -> None:
+    import numpy as np
+
+    import robobpp.policies.sdfpack as sdf
+
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        placed = [
+            (int(rng.integers(0, 14)), int(rng.integers(0, 10)), 6, 5, float(rng.integers(1, 6)))
+            for _ in range(6)
+        ]
+        obs = scene((20, 15, 30), placed, (4, 3, 2))
+        monkeypatch.setattr(sdf, "CHUNK", 7)  # many rounds, stopping early
+        bounded = where(SDFPack().act(obs))
+        monkeypatch.setattr(sdf, "CHUNK", 10**9)  # everything in one round
+        assert bounded == where(SDFPack().act(obs))

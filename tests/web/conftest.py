@@ -201,6 +201,14 @@ class PageProbe:
         return path
 
 
+def sign_in(page: Any, server: Server, token: str) -> None:
+    """Sign in through the sign-in form, as a person would."""
+    page.goto(server.url + "/sign-in")
+    page.fill("#token", token)
+    page.click("#sign-in button[type=submit]")
+    page.wait_for_selector("[data-role=who]")
+
+
 @pytest.fixture
 def probe(browser: Any) -> Iterator[PageProbe]:
     context = browser.new_context(viewport={"width": 1360, "height": 900}, device_scale_factor=1)

@@ -229,6 +229,9 @@ def test_protocol_page_example_policy_really_packs() -> None:
     result = run_episode(EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0),
                          policy, "math")  # fmt: skip
     assert result.boxes_placed >= 5 and result.metrics["space_utilization"] > 0.1
+    # One API: the page shows exactly the policy of examples/policy_server.py.
+    example = (Path(__file__).resolve().parents[2] / "examples" / "policy_server.py").read_text()
+    assert code.strip() == example.split("# --- policy ---\n")[1].split("# --- end policy ---")[0].strip()
 
 
 def test_view_cli_single_episode_and_bad_file(tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ like the API); baselines' pages are public. Signing in, submitting and the opera
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Path, Query, Request
@@ -60,14 +61,24 @@ def overall_page(request: Request, session: SessionDep, settings: SettingsDep, t
     datasets, setting_names = _board_names(settings)
     cache = board_cache(request)
 
-    def build() -> bytes:  # rendered once per board version: readers of the page share it
+    def build() -> HTMLResponse:
         shown = grid_view(cache.grid(session, datasets, setting_names, track), view, tables.PAGE_SIZE,
                           (page - 1) * tables.PAGE_SIZE)  # fmt: skip
         return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
                       table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
-                      pages=tables.pages(shown, page)).body  # fmt: skip
+                      pages=tables.pages(shown, page))  # fmt: skip
 
-    return HTMLResponse(cache.response(session, track, ("home", _root(request), track, view, page), build))
+    return _shared(request, session, track, ("home", root(request), track, view, page), build)
+
+
+def _shared(request: Request, session: Session, track: str, key: tuple[Any, ...],
+            build: Callable[[], HTMLResponse]) -> HTMLResponse:  # fmt: skip
+    """An anonymous visitor's board page, rendered once per board version and shared by every such reader
+    (services/boards.py); a page naming its viewer or carrying a CSRF nonce is rendered for that viewer."""
+    who = viewer(request)
+    if who.signed_in or who.nonce:
+        return build()
+    return HTMLResponse(board_cache(request).response(session, track, key, lambda: bytes(build().body)))
 
 
 @router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
@@ -78,17 +89,18 @@ def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, ses
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
     cache = board_cache(request)
 
-    def build() -> bytes:  # rendered once per board version: readers of the page share it
+    def build() -> HTMLResponse:
         shown = board_view(cache.board(session, dataset, setting, track), view, tables.PAGE_SIZE,
                            (page - 1) * tables.PAGE_SIZE)  # fmt: skip
         return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
                       nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track, view=view,
                       table=tables.board_table(shown), weights=WEIGHTS[setting], top=tables.TOP,
                       pages=tables.pages(shown, page), board=shown,
-                      other_boards=[(d, s) for s in setting_names for d in datasets]).body  # fmt: skip
+                      other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
 
-    key = ("board-page", _root(request), dataset, setting, track, view, page)
-    return HTMLResponse(cache.response(session, track, key, build))
+    return _shared(
+        request, session, track, ("board-page", root(request), dataset, setting, track, view, page), build
+    )
 
 
 def _submission(session: Session, submission_id: int) -> Submission | None:

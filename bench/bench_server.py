@@ -41,6 +41,7 @@ from robobpp.policies.dbl import DBL
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
+from robobpp.sim.physics.config import PHYSICS_VERSION
 from robobpp.stats import group_figures
 
 ADMIN = "bench-admin-token-0123456789abcdef"
@@ -50,7 +51,7 @@ GROUPS = 30
 TEAMS = 100
 EPISODE_COLUMNS = ("id", "submission_id", "run_id", "dataset", "setting", "split", "group", "status", "attempts",
                    "step", "termination", "termination_detail", "boxes_total", "boxes_placed", "metrics", "counters",
-                   "finished_at")  # fmt: skip
+                   "finished_at", "physics_version")  # fmt: skip
 
 
 QUOTED = ", ".join(f'"{c}"' for c in EPISODE_COLUMNS)  # "group" is an SQL keyword
@@ -116,7 +117,7 @@ def seed_rows(runtime: Any, n: int) -> int:
                     term = "policy_error" if kind == "failed" else "completed"
                     rows.append((m, c, term, 40, g))
                     batch.append((episode_id, sub_id, run_id, d, st, "test", g, "done", 1, 40, term, "", 80, 40,
-                                  json.dumps(m), json.dumps(c), now))  # fmt: skip
+                                  json.dumps(m), json.dumps(c), now, None if st == "math" else PHYSICS_VERSION))  # fmt: skip
                 metrics, extras = run_figures([r[:4] for r in rows], st)
                 figures = group_figures(({**m, **c, "group": g} for m, c, _t, _b, g in rows), st)
                 runs.append({"id": run_id, "submission_id": sub_id, "dataset": d, "setting": st, "status": "completed",
@@ -187,8 +188,6 @@ def routes(sub_ids: list[int]) -> list[tuple[str, str]]:
         ("GET /?view=all&page=100", "/?view=all&page=100"),
         ("GET /boards/diverse/math", "/boards/diverse/math"),
         ("GET /boards/repetitive/execution?view=all&page=50", "/boards/repetitive/execution?view=all&page=50"),
-        ("GET /submissions/{id} (page)", f"/submissions/{sid}"),
-        ("GET /submissions/{id}/status.json", f"/submissions/{sid}/status.json"),
         ("GET /api/v1/leaderboards (grid)", "/api/v1/leaderboards"),
         ("GET /api/v1/leaderboards?view=all&offset=5000", "/api/v1/leaderboards?view=all&offset=5000"),
         ("GET /api/v1/leaderboards/diverse/math", "/api/v1/leaderboards/diverse/math"),

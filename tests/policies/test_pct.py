@@ -100,3 +100,20 @@ def test_pct_says_no_feasible_placement(real_data):
     spec = make_spec([(5, 5, 5), (20, 20, 20), (5, 5, 5)], container=(10, 10, 10))
     result = run_episode(spec, load_policy("pct"), "math")
     assert result.termination == NO_FEASIBLE_PLACEMENT and result.boxes_placed == 1
+
+
+def test_the_server_queues_pct_with_the_baselines(tmp_path):
+    from sqlalchemy import select
+
+    from robobpp.db.models import Submission
+    from robobpp.policies import BASELINES
+    from robobpp.server.app import create_app
+    from robobpp.server.bootstrap import bootstrap
+    from tests.server.test_api import make_settings
+
+    app = create_app(make_settings(f"sqlite:///{tmp_path / 'db.sqlite3'}", tmp_path, evaluate_baselines=True))
+    bootstrap(app.state.runtime)
+    with app.state.runtime.session() as session:
+        urls = set(session.execute(select(Submission.policy_url)).scalars())
+        names = set(session.execute(select(Submission.name)).scalars())
+    assert urls == {f"builtin:{name}" for name in (*BASELINES, "pct")} and "PCT" in names

@@ -1,81 +1,275 @@
-"""Evaluation server: leaderboard API latency with 1,000 submissions in the database, and submissions
-accepted per second.
+"""Evaluation server at scale: every page and API route under 20 concurrent readers, with 10,000 submissions
+(90,000 runs, 2.7 M episode rows) in the database, and submissions accepted per second.
 
-The server runs for real (uvicorn in this process, no worker pool, so evaluation does not compete for the
-CPU); requests go over loopback HTTP. The 1,000 submissions are inserted with their completed runs on all
-nine boards (raw metrics random but fixed by a seed); episode rows are not needed by the board queries.
+The server runs for real in a subprocess (uvicorn, ``--server-workers`` processes, no evaluation workers);
+readers are threads of this process over loopback HTTP, each issuing its next request as soon as the last
+one answered (closed loop, no think time). The database is seeded in bulk (PostgreSQL ``COPY``, SQLite
+``executemany``): per-group metrics random but fixed by a seed, each run's aggregate and per-group figures
+computed from its episodes exactly as a worker writes them. 2 % of the submissions are failed (every
+episode a policy error) and 2 % partial (Math Pack only), as on a real board.
 
-    python bench/bench_server.py [--database-url URL] [--submissions 1000] [--requests 200] [--accepts 100]
+    python bench/bench_server.py [--database-url URL] [--submissions 10000] [--readers 20] [--samples 60]
 """
 
 from __future__ import annotations
 
 import argparse
+import io
+import json
+import os
 import random
+import subprocess
+import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
+from datetime import timedelta
 from pathlib import Path
+from typing import Any
 
 import httpx
-import uvicorn
 from _common import machine, median, percentile
+from sqlalchemy import insert, text
 
 from robobpp.client.serve import BackgroundServer, create_policy_app
-from robobpp.db.models import Participant, RunRow, Submission, utcnow
-from robobpp.metrics import metrics_for
+from robobpp.db import queries
+from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
+from robobpp.db.work import run_figures
+from robobpp.leaderboard import build_grid
 from robobpp.policies.dbl import DBL
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
+from robobpp.stats import group_figures
 
 ADMIN = "bench-admin-token-0123456789abcdef"
 DATASETS = ("repetitive", "diverse", "longboard")
 SETTINGS = ("math", "physics", "execution")
+GROUPS = 30
+TEAMS = 100
+EPISODE_COLUMNS = ("id", "submission_id", "run_id", "dataset", "setting", "split", "group", "status", "attempts",
+                   "step", "termination", "termination_detail", "boxes_total", "boxes_placed", "metrics", "counters",
+                   "finished_at")  # fmt: skip
 
 
-def seed_rows(runtime, n: int) -> None:  # type: ignore[no-untyped-def]
+def episode_figures(
+    rng: random.Random, quality: float, setting: str
+) -> tuple[dict[str, float], dict[str, int]]:
+    """One episode's metrics and counters around a submission's quality (0..1)."""
+    u = min(1.0, max(0.0, rng.gauss(0.45 + 0.3 * quality, 0.08)))
+    m = {"space_utilization": round(u, 5), "occupancy": round(min(1.0, u + 0.2 + rng.random() * 0.1), 5),
+         "decision_time": round(0.001 + rng.random() * 0.01 * (2 - quality), 6)}  # fmt: skip
+    c: dict[str, int] = {}
+    if setting != "math":
+        m["local_stability"] = round(rng.random() * 0.01, 6)
+        m["static_stability"] = round(0.8 + 0.2 * rng.random(), 5)
+    if setting == "execution":
+        m["trajectory_length"] = round(3 + 2 * rng.random(), 4)
+        c = {"placements_attempted": 40, "placements_collapsed": rng.randrange(4), "operations": 40,
+             "operations_dangerous": rng.randrange(3)}  # fmt: skip
+    return m, c
+
+
+def seed_rows(runtime: Any, n: int) -> int:
+    """Insert ``n`` finished submissions with their runs and episodes; returns the episode rows written."""
     rng = random.Random(0)
     now = utcnow()
+    engine = runtime.engine
+    postgres = engine.dialect.name == "postgresql"
     with runtime.session() as s:
-        people = [Participant(name=f"team-{i:03d}") for i in range(100)]
-        s.add_all(people)
-        s.flush()
-        for i in range(n):
-            sub = Submission(participant_id=people[i % 100].id, name=f"policy-{i}", policy_url="https://example.org",
-                             track="private", datasets=list(DATASETS), settings=list(SETTINGS),
-                             status="completed", episodes_total=270, finished_at=now)  # fmt: skip
-            s.add(sub)
-            s.flush()
-            for d in DATASETS:
-                for st in SETTINGS:
-                    metrics = {m.key: rng.random() for m in metrics_for(st)}
-                    s.add(RunRow(submission_id=sub.id, dataset=d, setting=st, status="completed", episodes_total=30,
-                                 metrics=metrics, extras={"episodes": 30}, completed_at=now))  # fmt: skip
+        s.add_all([Participant(name=f"team-{i:03d}") for i in range(TEAMS)])
+    with runtime.session() as s:
+        teams = [
+            p for (p,) in s.execute(text("SELECT id FROM participants WHERE name LIKE 'team-%' ORDER BY id"))
+        ]
+    subs, runs, episodes = [], [], 0
+    run_id, episode_id = 0, 0
+    batch: list[tuple[Any, ...]] = []
+
+    def flush() -> None:
+        nonlocal batch
+        if batch:
+            write_episodes(engine, batch, postgres)
+            batch = []
+
+    for i in range(n):
+        kind = "failed" if i % 50 == 7 else "partial" if i % 50 == 23 else "ok"
+        settings = ("math",) if kind == "partial" else SETTINGS
+        quality = rng.random()
+        sub_id = i + 1
+        subs.append({"id": sub_id, "participant_id": teams[i % TEAMS], "name": f"policy-{i}",
+                     "policy_url": "https://example.org", "track": "private", "datasets": list(DATASETS),
+                     "settings": list(settings), "lookahead": 0, "episodes_total": GROUPS * 3 * len(settings),
+                     "status": "failed" if kind == "failed" else "completed", "created_at": now - timedelta(days=1),
+                     "finished_at": now - timedelta(seconds=n - i)})  # fmt: skip
+        for d in DATASETS:
+            for st in settings:
+                run_id += 1
+                rows = []
+                for g in range(GROUPS):
+                    episode_id += 1
+                    m, c = episode_figures(rng, quality, st)
+                    term = "policy_error" if kind == "failed" else "completed"
+                    rows.append((m, c, term, 40, g))
+                    batch.append((episode_id, sub_id, run_id, d, st, "test", g, "done", 1, 40, term, "", 80, 40,
+                                  json.dumps(m), json.dumps(c), now))  # fmt: skip
+                metrics, extras = run_figures([r[:4] for r in rows], st)
+                figures = group_figures(({**m, **c, "group": g} for m, c, _t, _b, g in rows), st)
+                runs.append({"id": run_id, "submission_id": sub_id, "dataset": d, "setting": st, "status": "completed",
+                             "episodes_total": GROUPS, "metrics": metrics, "extras": extras, "figures": figures,
+                             "completed_at": now})  # fmt: skip
+                episodes += GROUPS
+        if len(batch) >= 200_000:
+            insert_parents(runtime, subs, runs)
+            subs, runs = [], []
+            flush()
+    insert_parents(runtime, subs, runs)
+    flush()
+    if postgres:
+        with engine.begin() as c:
+            for table in ("submissions", "runs", "episodes"):
+                c.execute(
+                    text(
+                        f"SELECT setval(pg_get_serial_sequence('{table}', 'id'), (SELECT max(id) FROM {table}))"
+                    )
+                )
+            c.execute(text("ANALYZE"))
+    return episodes
 
 
-def timed_gets(client: httpx.Client, path: str, n: int) -> list[float]:
-    out = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        r = client.get(path)
-        out.append(time.perf_counter() - t0)
-        r.raise_for_status()
+def insert_parents(runtime: Any, subs: list[dict[str, Any]], runs: list[dict[str, Any]]) -> None:
+    with runtime.session() as s:
+        if subs:
+            s.execute(insert(Submission), subs)
+        if runs:
+            s.execute(insert(RunRow), runs)
+
+
+def write_episodes(engine: Any, rows: list[tuple[Any, ...]], postgres: bool) -> None:
+    if postgres:
+        buf = io.StringIO()
+        for r in rows:
+            buf.write("\t".join(_copy_field(v) for v in r) + "\n")
+        raw = engine.raw_connection()
+        try:
+            with (
+                raw.cursor() as cur,
+                cur.copy(f"COPY episodes ({', '.join(EPISODE_COLUMNS)}) FROM STDIN") as copy,
+            ):
+                copy.write(buf.getvalue())
+            raw.commit()
+        finally:
+            raw.close()
+    else:
+        keys = EPISODE_COLUMNS
+        with engine.begin() as c:
+            c.execute(insert(EpisodeRow), [dict(zip(keys, r, strict=True)) | {
+                "metrics": json.loads(r[14]), "counters": json.loads(r[15])} for r in rows])  # fmt: skip
+
+
+def _copy_field(v: Any) -> str:
+    if v is None:
+        return "\\N"
+    if hasattr(v, "isoformat"):
+        return v.isoformat()
+    return str(v).replace("\\", "\\\\").replace("\t", "\\t").replace("\n", "\\n")
+
+
+def routes(sub_ids: list[int]) -> list[tuple[str, str]]:
+    """(label, path) of every page and API route a reader of the leaderboard uses."""
+    sid = sub_ids[len(sub_ids) // 2]
+    return [
+        ("GET / (home: overall grid, best entries)", "/"),
+        ("GET /?view=all&page=100", "/?view=all&page=100"),
+        ("GET /boards/diverse/math", "/boards/diverse/math"),
+        ("GET /boards/repetitive/execution?view=all&page=50", "/boards/repetitive/execution?view=all&page=50"),
+        ("GET /submissions/{id} (page)", f"/submissions/{sid}"),
+        ("GET /submissions/{id}/status.json", f"/submissions/{sid}/status.json"),
+        ("GET /api/v1/leaderboards (grid)", "/api/v1/leaderboards"),
+        ("GET /api/v1/leaderboards?view=all&offset=5000", "/api/v1/leaderboards?view=all&offset=5000"),
+        ("GET /api/v1/leaderboards/diverse/math", "/api/v1/leaderboards/diverse/math"),
+        ("GET /api/v1/leaderboards/longboard/physics?view=all&offset=9000",
+         "/api/v1/leaderboards/longboard/physics?view=all&offset=9000"),
+        ("GET /api/v1/leaderboards/repetitive/execution?submission={id}",
+         f"/api/v1/leaderboards/repetitive/execution?view=all&submission={sid}"),
+        ("GET /api/v1/submissions/{id}", f"/api/v1/submissions/{sid}"),
+        ("GET /api/v1/submissions/{id}/episodes", f"/api/v1/submissions/{sid}/episodes"),
+        ("GET /api/v1/submissions (list)", "/api/v1/submissions"),
+        ("GET /api/v1/info", "/api/v1/info"),
+        ("GET /metrics", "/metrics"),
+    ]  # fmt: skip
+
+
+def start_server(url: str, state: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
+    env = {**os.environ, "ROBOBPP_DATABASE_URL": url, "ROBOBPP_STATE_DIR": str(state), "ROBOBPP_ADMIN_TOKEN": ADMIN,
+           "ROBOBPP_WORKERS": "0", "ROBOBPP_EVALUATE_BASELINES": "0", "ROBOBPP_SETTINGS": json.dumps(list(SETTINGS)),
+           "ROBOBPP_GROUPS": str(GROUPS), "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1",
+           "ROBOBPP_QUOTA_CONCURRENT": "1000000", "ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY": "1000000",
+           "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec"}  # fmt: skip
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "uvicorn", "robobpp.server.app:create_app", "--factory",
+                             "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
+                             "--log-level", "warning", "--no-access-log"], env=env)  # fmt: skip
+    base = f"http://127.0.0.1:{port}"
+    for _ in range(600):
+        try:
+            if httpx.get(f"{base}/api/v1/info", timeout=2).status_code == 200:
+                return proc, base
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.2)
+    proc.terminate()
+    raise RuntimeError("the server did not start")
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def read_concurrently(
+    base: str, paths: list[tuple[str, str]], readers: int, samples: int
+) -> dict[str, list[float]]:
+    """``readers`` closed-loop threads; each request picks the next route round-robin (shuffled per reader)."""
+    out: dict[str, list[float]] = {label: [] for label, _ in paths}
+    lock = threading.Lock()
+    jobs: Iterator[int] = iter(range(samples * len(paths)))
+    errors: list[str] = []
+
+    def reader(k: int) -> None:
+        order = paths[k % len(paths) :] + paths[: k % len(paths)]
+        with httpx.Client(base_url=base, timeout=60, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
+            i = 0
+            while True:
+                with lock:
+                    job = next(jobs, None)
+                if job is None:
+                    return
+                label, path = order[i % len(order)]
+                i += 1
+                t0 = time.perf_counter()
+                r = client.get(path)
+                dt = time.perf_counter() - t0
+                if r.status_code != 200:
+                    errors.append(f"{path}: {r.status_code} {r.text[:200]}")
+                with lock:
+                    out[label].append(dt)
+
+    threads = [threading.Thread(target=reader, args=(k,)) for k in range(readers)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise RuntimeError(errors[0])
     return out
 
 
-def cold_gets(app, client: httpx.Client, path: str, n: int) -> list[float]:  # type: ignore[no-untyped-def]
-    """As if a run had just completed: the version check misses and the board is recomputed."""
-    from robobpp.server.services.boards import BoardCache
-
-    out = []
-    for _ in range(n):
-        app.state.board_cache = BoardCache()
-        out.extend(timed_gets(client, path, 1))
-    return out
-
-
-def accepts_per_second(client: httpx.Client, body: dict, n: int, threads: int) -> float:  # type: ignore[type-arg]
+def accepts_per_second(client: httpx.Client, body: dict[str, Any], n: int, threads: int) -> float:
     errors: list[str] = []
 
     def post(k: int) -> None:
@@ -97,70 +291,91 @@ def accepts_per_second(client: httpx.Client, body: dict, n: int, threads: int) -
     return per * threads / elapsed
 
 
+def cold_figures(runtime: Any) -> list[tuple[str, float]]:
+    """What a change of the board costs once (computed in a background thread while readers keep the old)."""
+    out = []
+    with runtime.session() as s:
+        boards = {}
+        for st in SETTINGS:
+            for d in DATASETS:
+                t0 = time.perf_counter()
+                boards[f"{st}/{d}"] = queries.leaderboard(s, d, st)
+                if (d, st) in (("diverse", "math"), ("repetitive", "execution")):
+                    out.append((f"one board recomputed ({st}/{d}, {len(boards[f'{st}/{d}']['entries'])} ranked)",
+                                time.perf_counter() - t0))  # fmt: skip
+        t0 = time.perf_counter()
+        build_grid(boards, DATASETS, SETTINGS, "private")
+        out.append(("overall grid from the nine boards", time.perf_counter() - t0))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--database-url", default="")
-    parser.add_argument("--submissions", type=int, default=1000)
-    parser.add_argument("--requests", type=int, default=200)
-    parser.add_argument("--accepts", type=int, default=100)
+    parser.add_argument("--submissions", type=int, default=10_000)
+    parser.add_argument("--readers", type=int, default=20)
+    parser.add_argument("--samples", type=int, default=60, help="requests per route")
+    parser.add_argument("--server-workers", type=int, default=2)
+    parser.add_argument("--accepts", type=int, default=40)
     args = parser.parse_args()
 
     tmp = Path(tempfile.mkdtemp(prefix="robobpp-bench-"))
     url = args.database_url or f"sqlite:///{tmp / 'bench.sqlite3'}"
     settings = Settings(database_url=url, state_dir=tmp, admin_token=ADMIN, workers=0, evaluate_baselines=False,
-                        settings=SETTINGS, groups=30, allow_private_policy_urls=True, quota_concurrent=10**6,
-                        quota_submissions_per_day=10**6, spec_provider="robobpp.worker.specs:offline_spec")  # fmt: skip
+                        settings=SETTINGS, groups=GROUPS, spec_provider="robobpp.worker.specs:offline_spec")  # fmt: skip
     app = create_app(settings, start_workers=False)
-    bootstrap(app.state.runtime)
+    runtime = app.state.runtime
+    bootstrap(runtime)
     t0 = time.perf_counter()
-    seed_rows(app.state.runtime, args.submissions)
-    print(
-        f"seeded {args.submissions} submissions x 9 boards in {time.perf_counter() - t0:.1f} s ({machine()})"
-    )
-    print(f"database: {app.state.runtime.engine.url.get_backend_name()}")
+    episodes = seed_rows(runtime, args.submissions)
+    print(f"seeded {args.submissions} submissions, {episodes:,} episode rows in {time.perf_counter() - t0:.0f} s "
+          f"({machine()}); database: {runtime.engine.url.get_backend_name()}")  # fmt: skip
+    for label, seconds in cold_figures(runtime):
+        print(f"- {label}: {seconds:.1f} s")
+    with runtime.session() as s:
+        sub_ids = [i for (i,) in s.execute(text("SELECT id FROM submissions ORDER BY id"))]
 
-    server = uvicorn.Server(
-        uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning", lifespan="off")
-    )
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    while not server.started:
-        time.sleep(0.05)
-    port = server.servers[0].sockets[0].getsockname()[1]
-    base = f"http://127.0.0.1:{port}"
-    with httpx.Client(base_url=base, timeout=60, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
-        timed_gets(client, "/api/v1/leaderboards/diverse/math", 5)  # warm-up
-        rows = [
-            ("GET /api/v1/leaderboards/diverse/math", timed_gets(client, "/api/v1/leaderboards/diverse/math",
-                                                                   args.requests)),
-            ("GET /api/v1/leaderboards/repetitive/execution",
-             timed_gets(client, "/api/v1/leaderboards/repetitive/execution", args.requests)),
-            ("same, cold (board recomputed: scores on read)", cold_gets(app, client, "/api/v1/leaderboards/diverse/math",
-                                                                         max(20, args.requests // 4))),
-            ("GET /api/v1/leaderboards (3 x 3 grid)", timed_gets(client, "/api/v1/leaderboards",
-                                                                  max(10, args.requests // 10))),
-        ]  # fmt: skip
-        print("\n| request | n | p50 (ms) | p95 (ms) |\n|---|---|---|---|")
-        for name, samples in rows:
-            print(
-                f"| {name} | {len(samples)} | {median(samples) * 1e3:.1f} | {percentile(samples, 95) * 1e3:.1f} |"
-            )
-
-        builtin = {"name": "bench", "policy_url": "builtin:dbl"}
-        rate_builtin = accepts_per_second(client, builtin, args.accepts, 1)
-        rate_builtin_4 = accepts_per_second(client, builtin, args.accepts, 4)
-        with BackgroundServer(create_policy_app(DBL, "bench-secret-123")) as policy:
-            remote = {"name": "bench", "policy_url": policy.url, "secret": "bench-secret-123"}
-            rate_remote = accepts_per_second(client, remote, args.accepts, 1)
-        print("\n| submission | clients | accepted per second |\n|---|---|---|")
-        print(f"| builtin policy (no URL probe), 270 episode rows each | 1 | {rate_builtin:.1f} |")
-        print(f"| builtin policy (no URL probe), 270 episode rows each | 4 | {rate_builtin_4:.1f} |")
+    proc, base = start_server(url, tmp, args.server_workers)
+    try:
+        paths = routes(sub_ids)
+        t0 = time.perf_counter()
+        read_concurrently(base, paths, 4, 4)  # warm-up: every process computes its boards once
         print(
-            f"| policy URL (resolve, pin, signed GET /info), 270 episode rows each | 1 | {rate_remote:.1f} |"
+            f"warm-up (each server process computes the nine boards and the grid): {time.perf_counter() - t0:.0f} s"
         )
-    server.should_exit = True
-    thread.join(10)
-    app.state.runtime.dispose()
+        t0 = time.perf_counter()
+        samples = read_concurrently(base, paths, args.readers, args.samples)
+        total = sum(len(v) for v in samples.values())
+        elapsed = time.perf_counter() - t0
+        print(f"\n{args.readers} concurrent readers, {args.server_workers} server processes: {total} requests in "
+              f"{elapsed:.1f} s ({total / elapsed:.0f} per second)")  # fmt: skip
+        with httpx.Client(base_url=base, timeout=60, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
+            sizes = {label: len(client.get(path).content) for label, path in paths}
+        print("\n| route | n | p50 (ms) | p95 (ms) | body (kB) |\n|---|---|---|---|---|")
+        for label, values in samples.items():
+            print(f"| {label} | {len(values)} | {median(values) * 1e3:.1f} | {percentile(values, 95) * 1e3:.1f} | "
+                  f"{sizes[label] / 1e3:.1f} |")  # fmt: skip
+
+        if args.accepts:
+            with httpx.Client(
+                base_url=base, timeout=60, headers={"Authorization": f"Bearer {ADMIN}"}
+            ) as client:
+                builtin = {"name": "bench", "policy_url": "builtin:dbl"}
+                rate_builtin = accepts_per_second(client, builtin, args.accepts, 1)
+                rate_builtin_4 = accepts_per_second(client, builtin, args.accepts, 4)
+                with BackgroundServer(create_policy_app(DBL, "bench-secret-123")) as policy:
+                    remote = {"name": "bench", "policy_url": policy.url, "secret": "bench-secret-123"}
+                    rate_remote = accepts_per_second(client, remote, args.accepts, 1)
+            print("\n| submission | clients | accepted per second |\n|---|---|---|")
+            print(f"| builtin policy (no URL probe), 270 episode rows each | 1 | {rate_builtin:.1f} |")
+            print(f"| builtin policy (no URL probe), 270 episode rows each | 4 | {rate_builtin_4:.1f} |")
+            print(
+                f"| policy URL (resolve, pin, signed GET /info), 270 episode rows each | 1 | {rate_remote:.1f} |"
+            )
+    finally:
+        proc.terminate()
+        proc.wait(30)
+        runtime.dispose()
 
 
 if __name__ == "__main__":

@@ -1,31 +1,44 @@
 """A complete robobpp/1 policy server: lowest, then back-left placement. Run it, then evaluate it:
 
-python examples/policy_server.py            # serves on http://127.0.0.1:9000
+python examples/policy_server.py                      # serves on http://127.0.0.1:9000
 robobpp evaluate --policy http://127.0.0.1:9000 --dataset diverse --setting math
+
+``--port`` and ``--secret`` (at least 8 characters; requests must then be signed with it) are optional.
+The policy class is the one the server's "Take part" page shows; a test keeps the two identical.
 """
 
-import numpy as np
+import argparse
 
 from robobpp.client import serve
-from robobpp.core import Action, Observation, drop_height_map
+
+# --- policy ---
+from robobpp.core import Action, Observation
+from robobpp.policies.base import BasePolicy
+from robobpp.policies.candidates import candidate_maps
 
 
-class LowestFirst:
+class LowestFirst(BasePolicy):
+    """Place each box as low as possible, then as far back-left as possible."""
+
     name = "lowest-first"
 
     def act(self, obs: Observation) -> Action | None:
         best = None
-        for o in obs.orientations:
-            length, width, height = obs.box.dims(o)
-            z = drop_height_map(obs.heightmap, length, width)  # resting height at every integer (x, y)
-            z = np.where(z + height <= obs.container.height, z, np.inf)
-            if z.size == 0:  # the box does not fit the footprint in this orientation
-                continue
-            x, y = np.unravel_index(np.argmin(z), z.shape)
-            if np.isfinite(z[x, y]) and (best is None or z[x, y] < best[0]):
-                best = (z[x, y], float(x), float(y), o)
-        return None if best is None else Action(best[1], best[2], best[3])
+        for c in candidate_maps(obs):  # one map per orientation
+            z = c.z.copy()  # resting height of every (x, y)
+            z[~c.feasible] = float("inf")
+            x, y = divmod(int(z.argmin()), z.shape[1])
+            if c.feasible[x, y] and (best is None or z[x, y] < best[0]):
+                best = (z[x, y], x, y, c.orientation)
+        return None if best is None else Action(float(best[1]), float(best[2]), best[3])
 
+
+# --- end policy ---
 
 if __name__ == "__main__":
-    serve(LowestFirst(), port=9000)
+    parser = argparse.ArgumentParser(description="Serve the LowestFirst policy (protocol robobpp/1).")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=9000)
+    parser.add_argument("--secret", default=None, help="shared secret (at least 8 characters)")
+    args = parser.parse_args()
+    serve(LowestFirst(), host=args.host, port=args.port, secret=args.secret)

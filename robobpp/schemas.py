@@ -135,14 +135,41 @@ class EpisodeDetail(EpisodePublic):
 
 
 class LeaderboardEntry(BaseModel):
+    """A ranked entry. ``*_low``/``*_high``: bootstrap 95 % interval over groups; ``rank_low``–``rank_high``:
+    the ranks it takes in 95 % of resamples. ``score`` is the paper's relative score (it ranks the board),
+    ``stable`` the score against fixed anchors (it never moves when others arrive)."""
+
     rank: int
+    rank_low: int
+    rank_high: int
     score: float
+    score_low: float
+    score_high: float
+    stable: float
+    stable_low: float
+    stable_high: float
+    submission_id: int
+    name: str
+    participant: str
+    baseline: bool
+    best: bool = Field(description="Whether this is its participant's best entry on the board")
+    metrics: dict[str, float | None]
+    intervals: dict[str, list[float] | None] = Field(description="Each metric's 95 % interval [low, high]")
+    normalized: dict[str, float]
+    extras: dict[str, Any]
+    completed_at: datetime | None
+
+
+class UnrankedEntry(BaseModel):
+    """A failed or partial entry: shown apart, never ranked, never in a normalisation."""
+
+    status: Literal["failed", "partial"]
+    reason: str
     submission_id: int
     name: str
     participant: str
     baseline: bool
     metrics: dict[str, float | None]
-    normalized: dict[str, float]
     extras: dict[str, Any]
     completed_at: datetime | None
 
@@ -153,28 +180,70 @@ class Leaderboard(BaseModel):
     track: str
     metrics: list[str]
     weights: dict[str, float]
+    ranked_by: str = Field(description="Which score orders the board: relative (the paper's min–max)")
+    anchors: str = Field(description="Version of the stable score's fixed anchors")
+    groups: int
+    resamples: int
+    confidence: float
+    view: Literal["best", "all"]
+    total: int
+    limit: int
+    offset: int
     entries: list[LeaderboardEntry]
+    unranked_total: int
+    unranked: list[UnrankedEntry]
 
 
 class GridCell(BaseModel):
     score: float
+    score_low: float
+    score_high: float
     rank: int
+    rank_low: int
+    rank_high: int
+    stable: float
+    stable_low: float
+    stable_high: float
     pph: float | None = None
 
 
 class GridRow(BaseModel):
+    """A submission on the overall grid. The Mean (and its rank) exists only for ``ranked`` rows: those
+    ranked on every board; ``partial`` and ``failed`` rows are listed apart."""
+
     submission_id: int
     name: str
     participant: str
     baseline: bool
+    status: Literal["ranked", "partial", "failed"]
+    boards: int
     cells: dict[str, GridCell]
+    unranked: dict[str, str] = Field(default_factory=dict, description="Boards where it is failed or partial")
+    mean: float | None = None
+    mean_low: float | None = None
+    mean_high: float | None = None
+    stable: float | None = None
+    stable_low: float | None = None
+    stable_high: float | None = None
+    rank: int | None = None
+    rank_low: int | None = None
+    rank_high: int | None = None
+    best: bool = False
 
 
 class OverallGrid(BaseModel):
     datasets: list[str]
     settings: list[str]
     track: str
+    boards: int
+    ranked_by: str
+    view: Literal["best", "all"]
+    total: int
+    limit: int
+    offset: int
     rows: list[GridRow]
+    apart_total: int
+    apart: list[GridRow]
 
 
 class ServiceInfo(BaseModel):

@@ -1,7 +1,9 @@
 """``robobpp compare``: score local results against each other exactly as the leaderboard does.
 
 Each ``robobpp evaluate --json FILE`` run is an entry; entries are compared board by board (dataset ×
-setting) with the min–max weighted scoring of BENCHMARK.md §5, only where they ran the same episodes.
+setting) with the leaderboard's scoring (BENCHMARK.md §5), only where they ran the same episodes. Every
+figure carries its bootstrap 95 % interval over groups, every rank its rank interval; with two files the
+paired difference A − B of each metric and of the stable score is shown with its interval and a verdict.
 """
 
 from __future__ import annotations
@@ -10,13 +12,15 @@ import json
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
 
+from robobpp import stats
 from robobpp.cli.common import fail, table_console
-from robobpp.metrics import metrics_for
-from robobpp.scoring import score_entries
+from robobpp.metrics import METRIC_BY_KEY, metrics_for
+from robobpp.scoring import score_board
 
 
 def register(root: typer.Typer) -> None:
@@ -24,20 +28,26 @@ def register(root: typer.Typer) -> None:
 
 
 def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
-    """One entry per (file, board): policy name, board, metrics and the episode ids it ran."""
+    """One entry per (file, board): policy name, board, metrics, per-group figures and the episode ids."""
     entries: list[dict[str, Any]] = []
     for path in paths:
         try:
             payload = json.loads(path.read_text())
             episodes = payload["episodes"]
             for run in payload["runs"]:
-                ids = sorted(
-                    e["episode_id"]
-                    for e in episodes
-                    if e["dataset"] == run["dataset"] and e["setting"] == run["setting"]
+                mine = [
+                    e for e in episodes if e["dataset"] == run["dataset"] and e["setting"] == run["setting"]
+                ]
+                figures = stats.group_figures(
+                    (
+                        {**(e.get("metrics") or {}), **(e.get("counters") or {}), "group": e["group"]}
+                        for e in mine
+                    ),
+                    run["setting"],
                 )
                 entries.append({"policy": str(payload["policy"]), "file": str(path), "dataset": run["dataset"],
-                                "setting": run["setting"], "metrics": dict(run["metrics"]), "episodes": ids})  # fmt: skip
+                                "setting": run["setting"], "metrics": dict(run["metrics"]), "figures": figures,
+                                "episodes": sorted(e["episode_id"] for e in mine)})  # fmt: skip
         except OSError as exc:
             fail(f"{path}: cannot read ({exc.strerror})")
         except (ValueError, KeyError, TypeError) as exc:
@@ -46,7 +56,7 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
 
 
 def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
-    """Scored entries per board, best first. Entries of one board must have run the same episodes."""
+    """Scored entries per board, best first, with intervals. Entries of a board must have run the same episodes."""
     boards: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for entry in entries:
         boards.setdefault((entry["dataset"], entry["setting"]), []).append(entry)
@@ -56,34 +66,88 @@ def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str], list[di
             if row["episodes"] != reference["episodes"]:
                 fail(f"{dataset}/{setting}: {row['file']} and {reference['file']} ran different episodes "
                      "(use the same --split, --seed and --groups)")  # fmt: skip
-        for row, scored in zip(rows, score_entries([r["metrics"] for r in rows], setting), strict=True):
-            row.update(score=scored.score, rank=scored.rank, normalized=scored.normalized)
+        scores = score_board(rows, setting)
+        for i, row in enumerate(rows):
+            s = scores.scored[i]
+            row.update(score=s.score, rank=s.rank, normalized=s.normalized, score_ci=list(scores.score_ci[i]),
+                       rank_ci=list(scores.rank_ci[i]), stable=scores.stable[i], stable_ci=list(scores.stable_ci[i]),
+                       intervals={k: list(v) if v else None for k, v in scores.metric_ci[i].items()})  # fmt: skip
+        if len(rows) == 2:
+            diff = scores.stable_samples[:, 0].astype(np.float64) - scores.stable_samples[:, 1]
+            lo, hi = stats.interval(diff[:, None])
+            paired = {"stable": {"difference": scores.stable[0] - scores.stable[1], "low": float(lo[0]),
+                                 "high": float(hi[0]), "groups": len(rows[0]["figures"]["ids"])}}  # fmt: skip
+            for m in metrics_for(setting):
+                paired[m.key] = stats.paired_difference(rows[0]["figures"], rows[1]["figures"], m.key)
+            for row in rows:
+                row["paired"] = {"a": rows[0]["policy"], "b": rows[1]["policy"], "differences": paired}
         rows.sort(key=lambda r: (r["rank"], r["policy"]))
     return boards
+
+
+def verdict(a: str, b: str, key: str, d: dict[str, Any]) -> str:
+    """Plain words for one paired difference A − B with its interval."""
+    if d["difference"] is None or d["low"] is None:
+        return "not measured"
+    better = "up" if key == "stable" else METRIC_BY_KEY[key].better
+    if d["low"] <= 0.0 <= d["high"]:
+        return f"no clear difference over {d['groups']} groups (the interval contains 0)"
+    a_ahead = (d["low"] > 0) == (better == "up")
+    return f"{a if a_ahead else b} is better (the whole interval is on its side)"
 
 
 def compare(
     results: Annotated[list[Path], typer.Argument(help="Files written by `robobpp evaluate --json`.")],
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the scored boards here.")] = None,
 ) -> None:
-    """Rank local evaluation results board by board with the leaderboard's scoring."""
+    """Rank local evaluation results board by board with the leaderboard's scoring, with intervals."""
     if len(results) < 2:
         fail("give at least two result files: scores are relative to the other entries")
     boards = score_boards(load_entries(results))
     out = table_console()
     for (dataset, setting), rows in boards.items():
-        table = Table(title=f"{dataset} · {setting}")
+        table = Table(
+            title=f"{dataset} · {setting}", caption="[dim]brackets: bootstrap 95 % interval over groups[/]"
+        )
         table.add_column("rank", justify="right")
         table.add_column("policy")
         table.add_column("score ↑", justify="right")
+        table.add_column("stable ↑", justify="right")
         keys = metrics_for(setting)
         for m in keys:
             table.add_column(f"{m.label} {'↑' if m.better == 'up' else '↓'}", justify="right")
         for row in rows:
-            values = [row["metrics"].get(m.key) for m in keys]
-            table.add_row(str(row["rank"]), escape(row["policy"]), f"{row['score']:.3f}",
-                          *("—" if v is None else f"{v:.4f}" for v in values))  # fmt: skip
+            lo, hi = row["rank_ci"]
+            rank = str(row["rank"]) if lo == hi else f"{row['rank']} ({lo}–{hi})"
+            cells = []
+            for m in keys:
+                value, ci = row["metrics"].get(m.key), row["intervals"].get(m.key)
+                cells.append(
+                    "—"
+                    if value is None
+                    else f"{value:.4f}" + (f" [dim][{ci[0]:.4f}, {ci[1]:.4f}][/]" if ci else "")
+                )
+            table.add_row(rank, escape(row["policy"]), _with_ci(row["score"], row["score_ci"]),
+                          _with_ci(row["stable"], row["stable_ci"]), *cells)  # fmt: skip
         out.print(table)
+        paired = rows[0].get("paired")
+        if paired:
+            a, b = paired["a"], paired["b"]
+            diff = Table(
+                title=f"{dataset} · {setting}: paired difference {escape(a)} − {escape(b)} on the same groups"
+            )
+            for name in ("figure", "difference", "95 % interval", "verdict"):
+                diff.add_column(name, justify="left" if name in ("figure", "verdict") else "right")
+            for key, d in paired["differences"].items():
+                label = "Stable score" if key == "stable" else METRIC_BY_KEY[key].label
+                diff.add_row(label, "—" if d["difference"] is None else f"{d['difference']:+.4f}",
+                             "—" if d["low"] is None else f"[{d['low']:+.4f}, {d['high']:+.4f}]",
+                             escape(verdict(a, b, key, d)))  # fmt: skip
+            out.print(diff)
     if json_out is not None:
         payload = [{"dataset": d, "setting": s, "entries": rows} for (d, s), rows in boards.items()]
         json_out.write_text(json.dumps(payload, indent=1, allow_nan=False))
+
+
+def _with_ci(value: float, ci: list[float]) -> str:
+    return f"{value:.3f} [dim][{ci[0]:.3f}, {ci[1]:.3f}][/]"

@@ -69,7 +69,7 @@ def fetch(
         if "zero_rows_excluded" in facts:
             notes.append(f"{facts['zero_rows_excluded']} zero-size rows excluded")
         if "unplaceable" in facts:
-            notes.append(f"{facts['unplaceable']} unplaceable panels kept")
+            notes.append(f"{facts['unplaceable']} unplaceable panels excluded from the pools")
         usable = facts.get("usable", facts["records"])
         table.add_row(name, f"{facts['records']:,}", f"{usable:,}", f"{facts['train']:,}", f"{facts['test']:,}",
                       "; ".join(notes))  # fmt: skip
@@ -112,7 +112,8 @@ def info(
             for split in spec.splits:
                 pool = load_pool(name, split)
                 distinct = len(np.unique(pool.dims, axis=0))
-                notes = [f"{k.replace('_', ' ')}: {v}" for k, v in pool.notes.items() if v]
+                labels = {"unplaceable": "unplaceable, excluded"}  # fit in no orientation: not in the pool
+                notes = [f"{labels.get(k, k.replace('_', ' '))}: {v}" for k, v in pool.notes.items() if v]
                 table.add_row(
                     name, split, f"{pool.records:,}", f"{len(pool):,}", f"{distinct:,}",
                     *(_quartiles(pool.dims[:, i]) for i in range(3)), ", ".join(notes),

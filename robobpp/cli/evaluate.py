@@ -13,6 +13,7 @@ from rich.table import Table
 
 from robobpp.cli.common import DatasetOpt, fail, import_from_cwd, parse_choices, table_console
 from robobpp.metrics import aggregate, metrics_for
+from robobpp.stats import POLICY_FAILURES
 
 console = Console(stderr=True)
 
@@ -44,7 +45,7 @@ def evaluate(
         int, typer.Option(min=1, max=256, help="Worker processes running episodes side by side.")
     ] = 1,
 ) -> None:
-    """Evaluate a policy locally and print a results table."""
+    """Evaluate a policy locally and print a results table. Exit code 3: every episode ended in a policy failure."""
     from robobpp.client.loading import PolicyLoadError, load_policy
     from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
     from robobpp.episode import run_episode
@@ -98,10 +99,16 @@ def evaluate(
         _write_json(
             trace, {"policy": agent.name, "episodes": [r.to_dict() for rs in runs.values() for r in rs]}
         )
+    if results and all(r.termination in POLICY_FAILURES for r in results):
+        console.print(
+            f"every episode ended in a policy failure: exit code {EXIT_POLICY_FAILED}", markup=False
+        )
+        raise typer.Exit(EXIT_POLICY_FAILED)
 
 
-#: Terminations caused by the policy (not the packing): the table's count alone does not say what went wrong.
-POLICY_FAILURES = ("policy_error", "policy_timeout", "protocol_violation", "episode_timeout")
+#: Exit code when every episode ended in a policy failure (unreachable policy, errors, garbage answers,
+#: timeouts, protocol violations): scripts and CI must not mistake such a run for a result. 2 is a usage error.
+EXIT_POLICY_FAILED = 3
 
 
 def failure_notes(runs: dict[tuple[str, str], list]) -> list[str]:

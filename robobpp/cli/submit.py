@@ -320,8 +320,18 @@ def _who(name: str, participant: str, baseline: bool) -> str:
     return f"{escape(name)} [dim]({escape(participant)}{', baseline' if baseline else ''})[/]"
 
 
+def _ci(low: float | None, high: float | None) -> str:
+    return "" if low is None or high is None else f" [dim][{low:.3f}, {high:.3f}][/]"
+
+
+def _rank(rank: int | None, low: int | None, high: int | None) -> str:
+    return "—" if rank is None else str(rank) if low == high == rank else f"{rank} [dim]({low}–{high})[/]"
+
+
 def _board_table(board: Leaderboard) -> Table:
-    table = Table(title=f"{board.setting}/{board.dataset} · {board.track} track")
+    """Ranks with their 95 % rank interval, scores with their bootstrap interval, failed/partial apart."""
+    table = Table(title=f"{board.setting}/{board.dataset} · {board.track} track · {board.view} "
+                        f"({board.total} ranked, by the {board.ranked_by} score)")  # fmt: skip
     table.add_column("rank", justify="right")
     table.add_column("submission")
     for k in board.metrics:
@@ -329,32 +339,46 @@ def _board_table(board: Leaderboard) -> Table:
     pph = any("pph" in e.extras for e in board.entries)
     if pph:
         table.add_column("PPH", justify="right")
-    table.add_column("score", justify="right")
+    table.add_column("score [95 % CI]", justify="right")
+    table.add_column("stable", justify="right")
     for e in board.entries:
         cells = [_fmt(e.metrics.get(k)) for k in board.metrics]
         if pph:
             cells.append(_fmt(e.extras.get("pph"), 1))
-        table.add_row(str(e.rank), f"#{e.submission_id} " + _who(e.name, e.participant, e.baseline), *cells,
-                      _fmt(e.score, 3), style="bold green" if e.rank == 1 else None)  # fmt: skip
+        table.add_row(_rank(e.rank, e.rank_low, e.rank_high), f"#{e.submission_id} " + _who(e.name, e.participant, e.baseline),
+                      *cells, _fmt(e.score, 3) + _ci(e.score_low, e.score_high), _fmt(e.stable, 3),
+                      style="bold green" if e.rank == 1 else None)  # fmt: skip
+    for u in board.unranked:
+        table.add_row(u.status, f"#{u.submission_id} " + _who(u.name, u.participant, u.baseline),
+                      *[_fmt(u.metrics.get(k)) for k in board.metrics], *([""] if pph else []), "—", "—",
+                      style="dim")  # fmt: skip
     if not board.entries:
         table.caption = "no completed submissions on this board yet"
+    elif board.total > len(board.entries):
+        table.caption = (
+            f"first {len(board.entries)} of {board.total}; use --json or the API's offset for more"
+        )
     return table
 
 
 def _grid_table(grid: OverallGrid) -> Table:
-    """Score (rank) per board; the top four of each board stand out, as in the paper's overall table."""
-    table = Table(title=f"overall · {grid.track} track")
+    """Score (rank) per board and the Mean with intervals; partial or failed submissions after, unranked."""
+    table = Table(title=f"overall · {grid.track} track · {grid.view}")
+    table.add_column("rank", justify="right")
     table.add_column("submission")
     boards = [f"{s}/{d}" for s in grid.settings for d in grid.datasets]
     for b in boards:
         table.add_column(b, justify="right")
-    for row in grid.rows:
+    table.add_column("mean [95 % CI]", justify="right")
+    for row in [*grid.rows, *grid.apart]:
         cells = []
         for b in boards:
             c = row.cells.get(b)
-            text = "—" if c is None else f"{c.score:.3f} ({c.rank})"
+            text = row.unranked.get(b, "—") if c is None else f"{c.score:.3f} ({c.rank})"
             cells.append(f"[bold]{text}[/]" if c is not None and c.rank <= 4 else text)
-        table.add_row(f"#{row.submission_id} " + _who(row.name, row.participant, row.baseline), *cells)
-    if not grid.rows:
+        mean = row.status if row.mean is None else f"{row.mean:.3f}" + _ci(row.mean_low, row.mean_high)
+        table.add_row(_rank(row.rank, row.rank_low, row.rank_high),
+                      f"#{row.submission_id} " + _who(row.name, row.participant, row.baseline), *cells, mean)  # fmt: skip
+    if not grid.rows and not grid.apart:
         table.caption = "no completed submissions yet"
     return table

@@ -246,12 +246,21 @@ class ServerClient:
         """One episode; on the public track it carries its replay trace."""
         return self._get(f"/submissions/{int(submission_id)}/episodes/{int(episode_id)}", EpisodeDetail)
 
-    def leaderboard(self, dataset: str, setting: str, track: Track = "private") -> Leaderboard:
-        return self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params={"track": track})
+    def leaderboard(self, dataset: str, setting: str, track: Track = "private", *, view: str = "best",
+                    limit: int = 50, offset: int = 0, submission: int | None = None) -> Leaderboard:  # fmt: skip
+        """One page of a board: each participant's best entry (``view="best"``) or ``"all"`` entries."""
+        params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
+        if submission is not None:
+            params["submission"] = submission
+        return self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
 
-    def grid(self, track: Track = "private") -> OverallGrid:
-        """The overall grid: one row per submission, a score and rank per ``setting/dataset`` board."""
-        return self._get("/leaderboards", OverallGrid, params={"track": track})
+    def grid(
+        self, track: Track = "private", *, view: str = "best", limit: int = 50, offset: int = 0
+    ) -> OverallGrid:
+        """The overall grid: ranked rows (a score and rank per ``setting/dataset`` board, and the Mean) and
+        the partial or failed ones apart."""
+        return self._get("/leaderboards", OverallGrid, params={"track": track, "view": view, "limit": limit,
+                                                               "offset": offset})  # fmt: skip
 
     def create_participant(self, name: str) -> TokenCreated:
         """(Admin) A new participant and its first API token — the only time the token is shown."""
@@ -311,7 +320,9 @@ class ServerClient:
         out = []
         for run in submission.runs:
             track: Track = "public" if submission.track == "public" else "private"
-            board = self.leaderboard(run.dataset, run.setting, track=track)
+            board = self.leaderboard(
+                run.dataset, run.setting, track=track, view="all", submission=submission.id
+            )
             entry: LeaderboardEntry | None = next(
                 (e for e in board.entries if e.submission_id == submission.id), None
             )
@@ -319,5 +330,6 @@ class ServerClient:
             rank, score = (entry.rank, entry.score) if entry else (None, None)
             out.append(Standing(dataset=run.dataset, setting=run.setting, status=run.status, metrics=metrics,
                                 metric_keys=list(board.metrics), rank=rank, score=score,
-                                entries=len(board.entries)))  # fmt: skip
+                                entries=self.leaderboard(run.dataset, run.setting, track=track, view="all",
+                                                         limit=1).total))  # fmt: skip
         return out

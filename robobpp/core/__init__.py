@@ -6,7 +6,7 @@ Nothing here imports pybullet or the web stack; every other layer builds on it.
 from robobpp.core.box import ORIENTATIONS, Box, ContainerSpec, Placement, oriented_dims
 from robobpp.core.container import ContainerState
 from robobpp.core.episode_spec import EpisodeSpec
-from robobpp.core.feasibility import Infeasible, check_action
+from robobpp.core.feasibility import Infeasible, SupportModel, check_action, check_support, is_supported
 from robobpp.core.heightmap import drop_height_map, footprint_cells
 from robobpp.core.observation import Action, EpisodeInfo, Observation
 
@@ -21,8 +21,11 @@ __all__ = [
     "Infeasible",
     "Observation",
     "Placement",
+    "SupportModel",
     "check_action",
+    "check_support",
     "drop_height_map",
     "footprint_cells",
+    "is_supported",
     "oriented_dims",
 ]

@@ -3,6 +3,10 @@
 A pool is the sequence the sampling rule draws from: for ``repetitive`` the boxes of the split's records
 in time order, each record of pick quantity q expanded to q identical consecutive boxes; for ``diverse``
 one entry per usable SKU with its shipment proportion as weight; for ``longboard`` one entry per panel.
+
+Entries that fit the container in no allowed orientation (9 Long Board panels longer than the container) are
+left out of every pool and counted in ``notes["unplaceable"]``: such a box ends any episode it is drawn into, for
+every method, and the reference evaluation cannot place them either.
 """
 
 from __future__ import annotations
@@ -112,5 +116,10 @@ def load_pool(
         if dataset == "diverse":
             proportion = rec["proportion"][mask]
             weights = proportion / proportion.sum()
-    notes["unplaceable"] = int((~fits_container(dims, spec.container)).sum())
+    fits = fits_container(dims, spec.container)
+    notes["unplaceable"] = int((~fits).sum())
+    if not fits.all():
+        dims, masses, record_index = dims[fits], masses[fits], record_index[fits]
+        if weights is not None:
+            weights = weights[fits] / weights[fits].sum()
     return Pool(dataset, split, dims, masses, weights, record_index, records, notes)

@@ -98,6 +98,9 @@ class Submission(Base):
     finished_at: Mapped[datetime | None] = mapped_column(default=None)
     error: Mapped[str | None] = mapped_column(Text, default=None)
 
+    #: The board version check (``services.boards.board_version``) aggregates finished submissions per track.
+    __table_args__ = (Index("ix_submissions_track_finished", "track", "finished_at"),)
+
     participant: Mapped[Participant] = relationship()
     runs: Mapped[list[RunRow]] = relationship(back_populates="submission", cascade="all, delete-orphan",
                                               order_by="RunRow.id")  # fmt: skip
@@ -121,6 +124,9 @@ class RunRow(Base):
     metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     #: Pooled counters and side figures (boxes placed, episodes ended by collapse, PPH).
     extras: Mapped[dict[str, Any] | None] = mapped_column(default=None)
+    #: Per-group figures (``robobpp.stats.group_figures``), written with the aggregate: what the board's
+    #: bootstrap intervals resample, so a board never reads episode rows.
+    figures: Mapped[dict[str, Any] | None] = mapped_column(default=None, deferred=True)
     completed_at: Mapped[datetime | None] = mapped_column(default=None)
 
     submission: Mapped[Submission] = relationship(back_populates="runs")

@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.metrics import aggregate
+from robobpp.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
 
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
 WORKER_LOST = "worker_lost"
@@ -283,10 +284,14 @@ def finalize_run(session: Session, run_id: int) -> None:
         run.status = "cancelled"
     else:
         rows = session.execute(
-            select(EpisodeRow.metrics, EpisodeRow.counters, EpisodeRow.termination, EpisodeRow.boxes_placed)
+            select(EpisodeRow.metrics, EpisodeRow.counters, EpisodeRow.termination, EpisodeRow.boxes_placed,
+                   EpisodeRow.group)
             .where(EpisodeRow.run_id == run_id)
         ).all()  # fmt: skip
-        run.metrics, run.extras = run_figures(rows, run.setting)
+        run.metrics, run.extras = run_figures([r[:4] for r in rows], run.setting)
+        run.figures = group_figures(
+            ({**(m or {}), **(c or {}), "group": g} for m, c, _t, _b, g in rows), run.setting
+        )
         run.status = "completed"
     run.completed_at = now
     session.flush()
@@ -326,7 +331,22 @@ def _finalize_submission(session: Session, submission_id: int, now: datetime) ->
     sub.status = "failed" if "failed" in statuses else "completed"
     if sub.status == "failed":
         sub.error = "some episodes could not be evaluated; see the episode list"
+    else:
+        failing = _policy_failed_runs(session, submission_id)
+        if failing:
+            sub.status = "failed"
+            share = f"{100 * POLICY_FAILURE_SHARE:.0f} %"
+            sub.error = f"more than {share} of the episodes ended in a policy failure on {', '.join(failing)}"
     sub.finished_at = now
+
+
+def _policy_failed_runs(session: Session, submission_id: int) -> list[str]:
+    """The boards (``setting/dataset``) where the policy failed beyond the allowed share (never ranked)."""
+    runs = session.execute(
+        select(RunRow.dataset, RunRow.setting, RunRow.extras).where(RunRow.submission_id == submission_id)
+    ).all()
+    return [f"{setting}/{dataset}" for dataset, setting, extras in runs
+            if extras and run_failed(extras.get("terminations"), int(extras.get("episodes") or 0))]  # fmt: skip
 
 
 def cancel_submission(session: Session, sub: Submission) -> bool:

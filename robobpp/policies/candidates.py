@@ -1,22 +1,48 @@
-"""Vectorised placement candidates on the heightmap, shared by the heightmap-based policies."""
+"""Vectorised placement candidates on the heightmap, shared by the heightmap-based policies.
+
+Feasible means what the reference environment accepts: inside the container, below its height, and supported
+(:class:`robobpp.core.feasibility.SupportModel`). Bounds and height are cheap whole-grid arrays (``fits``); the
+support rule is a per-position test, so it is applied lazily: :func:`first_supported` walks a ranking until a
+supported placement turns up, and :attr:`CandidateMap.feasible` tests every position only when asked (the Gym
+env's action mask).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from functools import cached_property, lru_cache
 
 import numpy as np
 
-from robobpp.core import Action, Observation, drop_height_map
-from robobpp.core.feasibility import TOLERANCE_CM
+from robobpp.core import Action, Observation, Placement, drop_height_map
+from robobpp.core.feasibility import (
+    CONTACT_TOLERANCE_CM,
+    OBSERVED_CONTACT_TOLERANCE_CM,
+    TOLERANCE_CM,
+    SupportModel,
+)
+from robobpp.core.heightmap import cells_spanned
 
 
-@dataclass(frozen=True, slots=True)
+@lru_cache(maxsize=4)
+def _support_model(placed: tuple[Placement, ...]) -> SupportModel:
+    # A state after physics carries attitudes; its tops are off by the settle noise, so contacts are looser.
+    observed = any(p.quaternion is not None for p in placed)
+    return SupportModel(placed, OBSERVED_CONTACT_TOLERANCE_CM if observed else CONTACT_TOLERANCE_CM)
+
+
+def support_model(obs: Observation) -> SupportModel:
+    """The support rule over the observed boxes (built once per state, shared by every caller)."""
+    return _support_model(tuple(obs.placed))
+
+
+@dataclass(frozen=True)
 class CandidateMap:
     """For one orientation: resting height and feasibility of every integer position (x, y).
 
-    ``z[x, y]`` is where the box's bottom would rest with its min corner at (x, y) cm; ``feasible`` says the
-    box then stays inside the container (bounds are implied by the map's shape).
+    ``z[x, y]`` is where the box's bottom would rest with its min corner at (x, y) cm; ``fits`` says the box
+    then stays inside the container (bounds are implied by the map's shape); ``feasible`` adds the support rule.
     """
 
     orientation: int
@@ -24,12 +50,23 @@ class CandidateMap:
     width: float
     height: float
     z: np.ndarray
-    feasible: np.ndarray
+    fits: np.ndarray
+    support: SupportModel
+
+    def supported(self, x: int, y: int) -> bool:
+        """Whether the support rule accepts the box at (x, y) (bounds are not re-checked)."""
+        return self.support.supports(x, y, self.length, self.width, self.height, float(self.z[x, y]))
+
+    @cached_property
+    def feasible(self) -> np.ndarray:
+        """``fits`` and supported, for every position."""
+        return self.support.mask(self.z, self.length, self.width, self.height, self.fits)
 
 
 def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
     """One :class:`CandidateMap` per allowed orientation (skipping ones where the box cannot fit at all)."""
     limit = obs.container.height + TOLERANCE_CM
+    support = support_model(obs)
     for orientation in obs.orientations:
         length, width, height = obs.box.dims(orientation)
         if length > obs.container.length + TOLERANCE_CM or width > obs.container.width + TOLERANCE_CM:
@@ -37,24 +74,65 @@ def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
         z = drop_height_map(obs.heightmap, length, width)
         if z.size == 0:
             continue
-        yield CandidateMap(orientation, length, width, height, z, z + height <= limit)
+        yield CandidateMap(orientation, length, width, height, z, z + height <= limit, support)
+
+
+def first_supported(
+    obs: Observation,
+    ranked: Sequence[int] | np.ndarray,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    orientations: np.ndarray,
+    zs: np.ndarray,
+) -> Action | None:
+    """The first candidate of ``ranked`` (indices into the parallel arrays) that the support rule accepts.
+
+    Every candidate must already fit the container; the reference scores only feasible placements and keeps
+    the best, which is the first feasible one in score order.
+    """
+    support = support_model(obs)
+    for k in ranked:
+        o = int(orientations[k])
+        length, width, height = obs.box.dims(o)
+        if support.supports(float(xs[k]), float(ys[k]), length, width, height, float(zs[k])):
+            return Action(float(xs[k]), float(ys[k]), o)
+    return None
 
 
 def argmin_placement(
-    obs: Observation, score: Callable[[CandidateMap, np.ndarray, np.ndarray], np.ndarray]
+    obs: Observation,
+    score: Callable[[CandidateMap, np.ndarray, np.ndarray], np.ndarray],
+    allowed: Callable[[CandidateMap, np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> Action | None:
     """The feasible position and orientation of least ``score(cand, xs, ys)`` over every candidate map.
 
-    ``xs``/``ys`` are broadcastable column/row index arrays of the map's positions. Ties go to the earlier
-    orientation, then the smaller x, then y. ``None`` when no position is feasible in any orientation.
+    ``xs``/``ys`` are broadcastable column/row index arrays of the map's positions; ``allowed`` (same
+    arguments) narrows the positions searched. Ties go as in the reference's loops (x outer, then y, then
+    orientation): the smaller x, then the smaller y, then the earlier orientation. ``None`` when no position
+    is feasible in any orientation.
     """
-    best: tuple[float, int, int, int] | None = None
+    parts: list[tuple[np.ndarray, ...]] = []
     for cand in candidate_maps(obs):
         nx, ny = cand.z.shape
-        cost = np.where(cand.feasible, score(cand, np.arange(nx)[:, None], np.arange(ny)[None, :]), np.inf)
-        flat = int(np.argmin(cost))
-        value = float(cost.flat[flat])
-        if np.isfinite(value) and (best is None or value < best[0]):
-            x, y = divmod(flat, ny)
-            best = (value, x, y, cand.orientation)
-    return None if best is None else Action(float(best[1]), float(best[2]), best[3])
+        xs, ys = np.arange(nx)[:, None], np.arange(ny)[None, :]
+        ok = cand.fits if allowed is None else cand.fits & allowed(cand, xs, ys)
+        px, py = np.nonzero(ok)
+        cost = np.broadcast_to(score(cand, xs, ys), ok.shape)[px, py]
+        parts.append((cost, px, py, np.full(len(px), cand.orientation), cand.z[px, py]))
+    if not parts:
+        return None
+    cost, px, py, po, pz = (np.concatenate(c) for c in zip(*parts, strict=True))
+    ranked = np.lexsort((po, py, px, cost))
+    return first_supported(obs, ranked, px, py, po, pz)
+
+
+def unrotated_range(obs: Observation) -> Callable[[CandidateMap, np.ndarray, np.ndarray], np.ndarray]:
+    """The reference's position range for DBL and HM: ``x ≤ L − l`` and ``y ≤ W − w`` with the box's
+    orientation-0 footprint ``l × w``, in every orientation (its loops bound x and y before turning the box)."""
+    nx, ny = obs.heightmap.shape
+    lc, wc = cells_spanned(obs.box.length), cells_spanned(obs.box.width)
+
+    def allowed(cand: CandidateMap, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        return (xs <= nx - lc) & (ys <= ny - wc)
+
+    return allowed

@@ -7,7 +7,7 @@ import numpy as np
 from robobpp.core import Action, Observation
 from robobpp.core.heightmap import cells_spanned
 from robobpp.policies.base import BasePolicy
-from robobpp.policies.candidates import CandidateMap, argmin_placement
+from robobpp.policies.candidates import CandidateMap, argmin_placement, unrotated_range
 
 
 def window_sums(grid: np.ndarray, lc: int, wc: int) -> np.ndarray:
@@ -25,7 +25,8 @@ class HM(BasePolicy):
     placed ("selecting placements that minimize the increase in occupied volume"). The volume before is the
     same for every candidate, so the policy minimises the *added* volume, ``cells·(z + h) − Σ heightmap`` over
     the footprint: the box's own volume plus the gap it traps under itself. In cm³ that term dominates, so
-    ``x + y`` only breaks ties (back-left first); remaining ties go to orientation 0, then smaller x.
+    ``x + y`` only breaks ties (back-left first). Candidates are the supported placements; ties and the
+    position range follow the reference's loops, as for DBL.
     """
 
     name = "hm"
@@ -36,4 +37,4 @@ class HM(BasePolicy):
             added = lc * wc * (cand.z + cand.height) - window_sums(obs.heightmap, lc, wc)
             return 100.0 * added + xs + ys
 
-        return argmin_placement(obs, score)
+        return argmin_placement(obs, score, unrotated_range(obs))

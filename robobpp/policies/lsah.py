@@ -2,37 +2,49 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from robobpp.core import Action, Observation
-from robobpp.policies.ems import HEIGHT_EPS, EmsPolicy, ems_candidates
+from robobpp.policies.candidates import first_supported
+from robobpp.policies.ems import EmsPolicy, ems_candidates
 
 
 class LSAH(EmsPolicy):
-    """Least surface area: over every EMS and orientation (the box at the EMS's back-left-bottom corner),
-    minimise the surface area ``2(XY + XZ + YZ)`` of the bounding box of the packed items after placing.
+    """Least surface area, as the reference implements it: over every EMS and orientation where the box fits
+    inside the space (the box at the space's back-left-bottom corner), minimise
 
-    The bounding box is anchored at the container origin (the corner packing starts from), so it is
-    ``[0, X] × [0, Y] × [0, Z]`` with X, Y the far edges of the occupied cells and Z the highest top. The paper
-    examines six orientations; the robot allows the two upright ones. Ties: lower resting z, then smaller
-    ``x + y``, then smaller x, then orientation 0.
+    ``X·Y + (z + h)·Y + (z + h)·X``
+
+    with ``X × Y`` the footprint of the bounding rectangle of the packed boxes and the candidate (from the
+    smallest to the largest x and y any of them occupies) and ``z + h`` the candidate's own top. Equal scores
+    go to the tighter space: the smaller least slack ``min(space − box)`` over the three axes (the reference's
+    tie-break), then the lower space, then back-left, then orientation 0 (the reference: its list order). The paper examines six orientations; the robot allows the two upright.
     """
 
     name = "lsah"
 
     def act(self, obs: Observation) -> Action | None:
-        cands = ems_candidates(obs, self.spaces(obs), corners=1)
+        ems = self.spaces(obs)
+        cands = ems_candidates(obs, ems, corners=1, dedupe=False)
         if len(cands) == 0:
             return None
-        hm = obs.heightmap
-        occupied = hm > HEIGHT_EPS
-        rows, cols = np.flatnonzero(occupied.any(axis=1)), np.flatnonzero(occupied.any(axis=0))
-        bx = rows[-1] + 1 if rows.size else 0
-        by = cols[-1] + 1 if cols.size else 0
-        bz = float(hm.max()) if hm.size else 0.0
-        big_x = np.maximum(bx, cands.x + cands.lc)
-        big_y = np.maximum(by, cands.y + cands.wc)
-        big_z = np.maximum(bz, cands.z + cands.h)
-        area = 2.0 * (big_x * big_y + big_x * big_z + big_y * big_z)
-        k = int(np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, area))[0])
-        return Action(float(cands.x[k]), float(cands.y[k]), int(cands.orientation[k]))
+        nx, ny = obs.heightmap.shape
+        lo_x, lo_y, hi_x, hi_y = nx, ny, 0, 0  # the reference starts from an empty rectangle
+        for p in obs.placed:
+            lo_x, lo_y = min(lo_x, math.floor(p.x + 1e-6)), min(lo_y, math.floor(p.y + 1e-6))
+            hi_x = max(hi_x, math.ceil(p.x + p.length - 1e-6))
+            hi_y = max(hi_y, math.ceil(p.y + p.width - 1e-6))
+        big_x = np.maximum(cands.x + cands.lc, hi_x) - np.minimum(cands.x, lo_x)
+        big_y = np.maximum(cands.y + cands.wc, hi_y) - np.minimum(cands.y, lo_y)
+        top = cands.z + cands.h
+        score = big_x * big_y + top * big_y + top * big_x
+        r = ems.rects[cands.ems]
+        slack = np.minimum.reduce(
+            [r[:, 2] - r[:, 0] - cands.lc, r[:, 3] - r[:, 1] - cands.wc, ems.dz[cands.ems] - cands.h]
+        )
+        order = np.lexsort(
+            (cands.orientation, cands.y, cands.x, ems.z0[cands.ems], np.round(slack, 9), np.round(score, 6))
+        )
+        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)

@@ -7,43 +7,41 @@ import numpy as np
 from robobpp.core import Action, Observation
 from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.core.heightmap import cells_spanned
+from robobpp.policies.candidates import support_model
 from robobpp.policies.ems import EmsPolicy
 
 
 class OnlineBPH(EmsPolicy):
-    """First fit over EMS in deep-bottom-left order: sort the spaces by floor height (lowest first), then
-    back (x0), then left (y0) (spaces sharing that corner: the larger first); take the first space the box fits in, with the first orientation (0, then 1)
-    that fits, at the space's back-left-bottom corner.
+    """First fit over the EMS in the reference's order: sort the spaces by floor height, then y, then x (their
+    back-left-bottom corner, lowest first); take the first space and orientation (0, then 1) where the box,
+    dropped at the space's corner, is feasible — inside the container, below its top, supported.
 
-    Ha et al. evaluate bins × items × EMS × rotations over several open bins; here there is one bin and one
-    item, so the search reduces to spaces × orientations in DBL order ("sort spaces by depth, select the
-    first feasible position"). The box may rest below the space's floor when its footprint misses the cells
-    that set it; that is still inside the space.
+    As in the reference, the box is not required to fit inside the space: it is dropped at the space's corner
+    and rests wherever the heightmap under its footprint lets it. Ha et al. search bins × items × EMS ×
+    rotations; with one bin and one item this is the whole search.
     """
 
     name = "onlinebph"
 
     def act(self, obs: Observation) -> Action | None:
         ems = self.spaces(obs)
-        order = np.lexsort((-ems.dy, -ems.dx, ems.rects[:, 1], ems.rects[:, 0], ems.z0))
-        fits = []
-        for orientation in obs.orientations:
-            length, width, height = obs.box.dims(orientation)
-            x0, y0 = ems.rects[:, 0], ems.rects[:, 1]
-            fit = (
-                (ems.dx >= cells_spanned(length))
-                & (ems.dy >= cells_spanned(width))
-                & (ems.dz >= height - TOLERANCE_CM)
-                & (x0 + length <= obs.container.length + TOLERANCE_CM)
-                & (y0 + width <= obs.container.width + TOLERANCE_CM)
-            )
-            fits.append(fit[order])
-        if not fits:
-            return None
-        any_fit = np.logical_or.reduce(fits)
-        if not any_fit.any():
-            return None
-        first = int(np.argmax(any_fit))
-        k = int(order[first])
-        orientation = next(o for o, f in zip(obs.orientations, fits, strict=True) if f[first])
-        return Action(float(ems.rects[k, 0]), float(ems.rects[k, 1]), orientation)
+        order = np.lexsort((ems.rects[:, 0], ems.rects[:, 1], ems.z0))
+        support = support_model(obs)
+        hm = obs.heightmap
+        container = obs.container
+        seen: set[tuple[int, int]] = set()
+        for k in order:
+            x, y = int(ems.rects[k, 0]), int(ems.rects[k, 1])
+            if (x, y) in seen:  # another space with the same corner: the same placements
+                continue
+            seen.add((x, y))
+            for orientation in obs.orientations:
+                length, width, height = obs.box.dims(orientation)
+                if x + length > container.length + TOLERANCE_CM or y + width > container.width + TOLERANCE_CM:
+                    continue
+                z = float(hm[x : x + cells_spanned(length), y : y + cells_spanned(width)].max())
+                if z + height > container.height + TOLERANCE_CM:
+                    continue
+                if support.supports(x, y, length, width, height, z):
+                    return Action(float(x), float(y), orientation)
+        return None

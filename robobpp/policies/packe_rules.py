@@ -22,7 +22,8 @@ class PackERules(BasePolicy):
     4. extreme points — for every placed box, its right corner ``(x + l, y)`` and front corner ``(x, y + w)``,
        plus the container origin;
 
-    candidates where the box does not fit are filtered out. PackE lets a learned agent choose among them;
+    every candidate must be feasible (inside, below the top, supported). Not one of the paper's baselines; kept
+    as a stronger rule-based reference point. PackE lets a learned agent choose among the candidates;
     the fixed rule here takes the lowest resulting top ``z + h``, then the least volume trapped under the
     box, then the smallest ``x + y``, then orientation 0.
     """

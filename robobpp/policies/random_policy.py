@@ -8,13 +8,16 @@ import numpy as np
 
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.policies.base import BasePolicy
-from robobpp.policies.candidates import candidate_maps
+from robobpp.policies.candidates import candidate_maps, first_supported
 
 
 class RandomPolicy(BasePolicy):
-    """Pick uniformly among all feasible (x, y, orientation) on the 1 cm grid.
+    """Pick uniformly among all feasible (x, y, orientation) on the 1 cm grid. Not from the paper: the floor
+    of the scale (the reference's ``random`` does the same over its full coordinate grid).
 
-    Seeded from ``seed`` and the episode id, so the same episode gives the same placements.
+    The placements that fit are shuffled and the first supported one is taken, which is uniform over the
+    supported ones without testing them all. Seeded from ``seed`` and the episode id, so the same episode
+    gives the same placements.
     """
 
     name = "random"
@@ -27,14 +30,11 @@ class RandomPolicy(BasePolicy):
         self._rng = np.random.default_rng([self.seed, zlib.crc32(info.episode_id.encode())])
 
     def act(self, obs: Observation) -> Action | None:
-        options = [(c.orientation, np.flatnonzero(c.feasible), c.z.shape[1]) for c in candidate_maps(obs)]
-        total = sum(len(flat) for _, flat, _ in options)
-        if total == 0:
+        parts = []
+        for cand in candidate_maps(obs):
+            px, py = np.nonzero(cand.fits)
+            parts.append((px, py, np.full(len(px), cand.orientation), cand.z[px, py]))
+        if not parts:
             return None
-        pick = int(self._rng.integers(total))
-        for orientation, flat, ny in options:
-            if pick < len(flat):
-                x, y = divmod(int(flat[pick]), ny)
-                return Action(float(x), float(y), orientation)
-            pick -= len(flat)
-        raise AssertionError("unreachable")
+        xs, ys, os_, zs = (np.concatenate(c) for c in zip(*parts, strict=True))
+        return first_supported(obs, self._rng.permutation(len(xs)), xs, ys, os_, zs)

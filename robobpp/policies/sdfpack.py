@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from robobpp.core import Action, Observation
-from robobpp.policies.ems import Candidates, EmsPolicy, ems_candidates
+from robobpp.core.heightmap import cells_spanned
+from robobpp.policies.base import BasePolicy
+from robobpp.policies.candidates import candidate_maps, first_supported
+from robobpp.policies.ems import Candidates
 
 
 def _face_distance(
@@ -31,8 +34,25 @@ def _face_distance(
     return free
 
 
-class SDFPack(EmsPolicy):
-    """SDF minimisation: over every EMS, orientation and bottom corner of the space, minimise
+def every_position(obs: Observation) -> Candidates:
+    """Every integer position and orientation where the box fits the container (bounds and height)."""
+    parts = []
+    for cand in candidate_maps(obs):
+        px, py = np.nonzero(cand.fits)
+        n = len(px)
+        lc, wc = cells_spanned(cand.length), cells_spanned(cand.width)
+        parts.append(
+            (px, py, np.full(n, cand.orientation), cand.z[px, py], np.zeros(n, np.int64),
+             np.full(n, lc), np.full(n, wc), np.full(n, cand.height))
+        )  # fmt: skip
+    if not parts:
+        empty = np.zeros(0, dtype=np.int64)
+        return Candidates(empty, empty, empty, np.zeros(0), empty, empty, empty, np.zeros(0))
+    return Candidates(*(np.concatenate(c) for c in zip(*parts, strict=True)))
+
+
+class SDFPack(BasePolicy):
+    """SDF minimisation: over every 1 cm position and orientation (the paper's pseudocode), minimise
 
     ``cost = mean TSDF over the box's surface samples / τ + w_height · (z + h) / H + w_rot · [rotated]``
 
@@ -43,8 +63,8 @@ class SDFPack(EmsPolicy):
 
     Choices where the paper is vague (docs/baselines.md): the scene is 2.5-D (the heightmap), so the distance
     is measured along each face's outward normal (an upper bound of the Euclidean distance); the top face is
-    left out (it stays open for the next boxes); candidates are the EMS corners rather than every cell,
-    since a distance-minimising placement always sits snug in some corner of a space.
+    left out (it stays open for the next boxes). Ties: lower z, then back-left, then orientation 0. Not in the
+    reference code (its heuristics file has no SDFPack); the paper's pseudocode is followed.
     """
 
     name = "sdfpack"
@@ -52,7 +72,6 @@ class SDFPack(EmsPolicy):
     def __init__(
         self, tau: int = 6, samples: int = 8, levels: int = 4, w_height: float = 1.0, w_rot: float = 0.02
     ) -> None:
-        super().__init__()
         self.tau, self.samples, self.levels = tau, samples, levels
         self.w_height, self.w_rot = w_height, w_rot
 
@@ -76,7 +95,7 @@ class SDFPack(EmsPolicy):
         return total / (tau * count)
 
     def act(self, obs: Observation) -> Action | None:
-        cands = ems_candidates(obs, self.spaces(obs), corners=4)
+        cands = every_position(obs)
         if len(cands) == 0:
             return None
         cost = (
@@ -84,5 +103,5 @@ class SDFPack(EmsPolicy):
             + self.w_height * (cands.z + cands.h) / obs.container.height
             + self.w_rot * (cands.orientation != 0)
         )
-        k = int(np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, np.round(cost, 9)))[0])
-        return Action(float(cands.x[k]), float(cands.y[k]), int(cands.orientation[k]))
+        order = np.lexsort((cands.orientation, cands.x, cands.x + cands.y, cands.z, np.round(cost, 9)))
+        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)

@@ -41,21 +41,24 @@ def ensure_private_split(settings: Any) -> bool:
 
 
 def ensure_baselines(session: Any, settings: Any) -> int:
-    """One submission per built-in baseline on every offered (dataset, setting), once."""
+    """One submission per built-in baseline on every offered (dataset, setting) of both tracks, once: the
+    public track carries the baselines too, so a debug run there is compared with something."""
     participant = session.execute(
         select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
     ).scalar_one()
-    existing = set(session.execute(select(Submission.policy_url).where(
-        Submission.participant_id == participant.id, Submission.track == "private")).scalars())  # fmt: skip
     created = 0
-    for name in (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines:
-        url = f"builtin:{name}"
-        if url in existing:
-            continue
-        work.create_submission(session, participant, name=TITLES.get(name, name),
-                               policy_url=url, datasets=list(settings.datasets),
-                               settings=list(settings.enabled_settings), groups=settings.groups)  # fmt: skip
-        created += 1
+    names = (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines
+    for track in ("private", "public") if settings.public_baselines else ("private",):
+        existing = set(session.execute(select(Submission.policy_url).where(
+            Submission.participant_id == participant.id, Submission.track == track)).scalars())  # fmt: skip
+        for name in names:
+            url = f"builtin:{name}"
+            if url in existing:
+                continue
+            work.create_submission(session, participant, name=TITLES.get(name, name), policy_url=url,
+                                   datasets=list(settings.datasets), settings=list(settings.enabled_settings),
+                                   groups=settings.groups, track=track)  # fmt: skip
+            created += 1
     return created
 
 

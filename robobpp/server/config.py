@@ -66,6 +66,8 @@ class Settings(BaseSettings):
     evaluate_baselines: bool = True
     #: Built-in baselines evaluated on first start; ``None`` means every one (``robobpp.policies.BASELINES``).
     baselines: tuple[str, ...] | None = None
+    #: Also evaluate the baselines on the public track, so a debug run there is compared with something.
+    public_baselines: bool = True
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)

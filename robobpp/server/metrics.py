@@ -16,7 +16,8 @@ from prometheus_client.registry import Collector
 
 
 class _QueueCollector(Collector):
-    """Episodes and submissions by status, counted at scrape time (SQL is the record of truth)."""
+    """The queue (episodes pending or running) and submissions by status, counted at scrape time from
+    indexes (SQL is the record of truth); finished episodes are not counted: see ``queries.QUEUE_STATUSES``."""
 
     def __init__(self, app: FastAPI) -> None:
         self.app = app
@@ -24,7 +25,9 @@ class _QueueCollector(Collector):
     def collect(self) -> Iterable[GaugeMetricFamily]:
         from robobpp.db import queries
 
-        episodes = GaugeMetricFamily("robobpp_episodes", "Episodes by status", labels=["status"])
+        episodes = GaugeMetricFamily(
+            "robobpp_episodes", "Episodes queued (pending) or running", labels=["status"]
+        )
         submissions = GaugeMetricFamily("robobpp_submissions", "Submissions by status", labels=["status"])
         try:
             with self.app.state.runtime.session() as session:

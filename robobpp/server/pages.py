@@ -1,16 +1,18 @@
 """The HTML pages of the service (server-rendered Jinja2; JavaScript only adds sorting, charts and 3D).
 
 Every figure comes from ``robobpp.db.queries`` — the same functions the JSON API serves — so a page can
-never disagree with the API or compute a second leaderboard. Pages are public and read-only: they show
-what a leaderboard shows (names, statuses, metrics, termination reasons), never a policy URL, secret or
-error trace, and replays only for public-track episodes (the private split never leaves the workers).
+never disagree with the API or compute a second leaderboard. Public pages show what a public leaderboard
+shows (names, scores, replays of public-track episodes). A submission's own page, its live status and
+its failure reasons are its owner's and the operator's only (others get the 404 a missing one gets,
+like the API); baselines' pages are public. Signing in, submitting and the operator's pages are in
+``robobpp.server.site``.
 """
 
 from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, Request
+from fastapi import APIRouter, Depends, Path, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 from sqlalchemy.orm import Session
 
@@ -18,13 +20,20 @@ from robobpp.datasets import DATASETS
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
+from robobpp.leaderboard import board_view, grid_view
 from robobpp.metrics import METRICS
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep
-from robobpp.web import SETTING_TITLES, environment, tables
+from robobpp.server.api.leaderboards import board_cache
+from robobpp.server.site import account, operator
+from robobpp.server.site.render import not_found, render, root
+from robobpp.server.site.session import Viewer, load_viewer, viewer
+from robobpp.web import SETTING_TITLES, tables
 from robobpp.web.trace import TraceError, viewer_payload
 
-router = APIRouter(include_in_schema=False)
+router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
+router.include_router(account.router)
+router.include_router(operator.router)
 
 Track = Literal["private", "public"]
 DatasetPath = Annotated[str, Path(max_length=32)]
@@ -37,46 +46,37 @@ EXTRA_REASONS = {
 }
 
 
-def _root(request: Request) -> str:
-    return str(request.scope.get("root_path", "")).rstrip("/")
-
-
-def render(request: Request, template: str, status_code: int = 200, **context: Any) -> HTMLResponse:
-    root = _root(request)
-    html = (
-        environment()
-        .get_template(template)
-        .render(root=root, static=f"{root}/static", SETTING_TITLES=SETTING_TITLES, **context)
-    )
-    return HTMLResponse(html, status_code=status_code)
-
-
-def not_found(request: Request, what: str) -> HTMLResponse:
-    return render(request, "error.html", 404, title="Not found", nav="", message=what)
-
-
 def _board_names(settings: SettingsDep) -> tuple[tuple[str, ...], tuple[str, ...]]:
     return tuple(settings.datasets), tuple(settings.enabled_settings)
 
 
+View = Literal["best", "all"]
+Page = Annotated[int, Query(ge=1, le=10**5)]
+
+
 @router.get("/", response_class=HTMLResponse)
-def overall_page(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private"):
+def overall_page(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private",
+                 view: View = "best", page: Page = 1):  # fmt: skip
     datasets, setting_names = _board_names(settings)
-    grid = queries.overall_grid(session, datasets=datasets, settings=setting_names, track=track)
-    return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track,
-                  table=tables.grid_table(grid), datasets_info=DATASETS, top=tables.TOP)  # fmt: skip
+    grid = board_cache(request).grid(session, datasets, setting_names, track)
+    shown = grid_view(grid, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
+    return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
+                  table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
+                  pages=tables.pages(shown, page))  # fmt: skip
 
 
 @router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
 def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, session: SessionDep,
-               settings: SettingsDep, track: Track = "private"):  # fmt: skip
+               settings: SettingsDep, track: Track = "private", view: View = "best", page: Page = 1):  # fmt: skip
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
-    board = queries.leaderboard(session, dataset, setting, track=track)
+    board = board_cache(request).board(session, dataset, setting, track)
+    shown = board_view(board, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
     return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
-                  nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track,
-                  table=tables.board_table(board), weights=WEIGHTS[setting], top=tables.TOP,
+                  nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track, view=view,
+                  table=tables.board_table(shown), weights=WEIGHTS[setting], top=tables.TOP,
+                  pages=tables.pages(shown, page), board=shown,
                   other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
 
 
@@ -84,24 +84,38 @@ def _submission(session: Session, submission_id: int) -> Submission | None:
     return session.get(Submission, submission_id)
 
 
-def _public_view(session: Session, sub: Submission) -> dict[str, Any]:
-    """The submission as the API returns it, less what only its owner may see."""
+def _is_owner(who: Viewer, sub: Submission) -> bool:
+    """May ``who`` see this submission's details, live status and failure reasons? (The API's rule.)"""
+    return who.admin or (who.participant_id is not None and sub.participant_id == who.participant_id)
+
+
+def _visible(request: Request, session: Session, submission_id: int) -> Submission | None:
+    sub = _submission(session, submission_id)
+    if sub is None or not (_is_owner(viewer(request), sub) or sub.participant.is_builtin):
+        return None
+    return sub
+
+
+def _page_view(session: Session, sub: Submission, owner: bool) -> dict[str, Any]:
+    """The submission as the API returns it; a baseline seen by the public loses its policy URL."""
     view = queries.submission_view(session, sub)
-    view.pop("policy_url", None)
-    view.pop("error", None)
+    if not owner:
+        view.pop("policy_url", None)
     return view
 
 
 @router.get("/submissions/{submission_id}", response_class=HTMLResponse)
 def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)],
                     session: SessionDep):  # fmt: skip
-    sub = _submission(session, submission_id)
-    if sub is None:
+    sub = _visible(request, session, submission_id)
+    if sub is None:  # missing, or someone else's: the same answer, so ids reveal nothing
         return not_found(request, f"There is no submission {submission_id}.")
-    view = _public_view(session, sub)
+    owner = _is_owner(viewer(request), sub)
+    view = _page_view(session, sub, owner)
     episodes = queries.episode_rows(session, sub.id)
+    cache = board_cache(request)
     boards = {
-        (r["dataset"], r["setting"]): queries.leaderboard(session, r["dataset"], r["setting"], track=sub.track)
+        (r["dataset"], r["setting"]): cache.board(session, r["dataset"], r["setting"], sub.track)
         for r in view["runs"] if r["status"] == "completed"
     }  # fmt: skip
     ranks = {}
@@ -121,20 +135,22 @@ def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, l
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
     return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
-                  has_pph="execution" in ran,
+                  has_pph="execution" in ran, owner=owner,
+                  can_cancel=owner and view["status"] in ("queued", "running"),
                   episodes=episodes, ranks=ranks, charts=charts, metrics=columns, public=sub.track == "public",
                   reasons={**TERMINATION_REASONS, **EXTRA_REASONS}, neutral=NEUTRAL_ENDINGS)  # fmt: skip
 
 
 @router.get("/submissions/{submission_id}/status.json")
 def submission_status(
-    submission_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep
+    request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep
 ) -> JSONResponse:
-    """What the submission page polls while an evaluation runs (public figures only)."""
-    sub = _submission(session, submission_id)
+    """What the submission page polls while an evaluation runs (its owner's and the operator's)."""
+    sub = _visible(request, session, submission_id)
     if sub is None:
-        return JSONResponse({"detail": f"no submission {submission_id}"}, status_code=404)
-    view = _public_view(session, sub)
+        return JSONResponse({"detail": f"no submission {submission_id}"}, status_code=404,
+                            headers={"Cache-Control": "no-store"})  # fmt: skip
+    view = queries.submission_view(session, sub)
     runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
     return JSONResponse({"id": sub.id, "status": view["status"], "progress": view["progress"], "runs": runs},
                         headers={"Cache-Control": "no-store"})  # fmt: skip
@@ -152,6 +168,9 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
             request, "Only public-track episodes have a replay: the private test split is never shown."
         )
     summary = queries.episode_summary(ep)
+    owner = _is_owner(viewer(request), sub)
+    if not owner:  # a public replay shows how the episode ended, not the policy's own words
+        summary["termination_detail"] = ""
     raw = {**ep.trace, **{k: summary[k] for k in ("dataset", "split", "setting", "group", "boxes_total",
                                                    "boxes_placed", "termination", "termination_detail", "metrics")},
            "episode_id": str(ep.id), "policy": sub.name}  # fmt: skip
@@ -160,10 +179,13 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
     except TraceError as exc:
         return render(request, "error.html", 500, title="Replay unavailable", nav="",
                       message=f"This episode's trace cannot be drawn: {exc}")  # fmt: skip
-    root = _root(request)
+    base = root(request)
     heading = f"{sub.name} · {ep.dataset} · {ep.setting} · group {ep.group}"
+    crumbs = [("Leaderboard", f"{base}/")]
+    if owner or sub.participant.is_builtin:
+        crumbs.append((f"Submission {sub.id}", f"{base}/submissions/{sub.id}"))
     return render(request, "replay.html", title=heading, heading=heading, episodes=[payload], nav="",
-                  crumbs=[("Leaderboard", f"{root}/"), (f"Submission {sub.id}", f"{root}/submissions/{sub.id}")])  # fmt: skip
+                  crumbs=crumbs)  # fmt: skip
 
 
 @router.get("/datasets", response_class=HTMLResponse)

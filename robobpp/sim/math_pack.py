@@ -1,8 +1,14 @@
-"""Math Pack: pure geometry. A box drops onto the heightmap under its footprint and never moves."""
+"""Math Pack: pure geometry. A box drops onto the heightmap under its footprint and never moves.
+
+A placement must also pass the reference environment's support rule (:class:`robobpp.core.feasibility.SupportModel`):
+without physics nothing else would stop a box from hovering over a gap, so an unsupported placement ends the episode
+with the reason ``unsupported``, as the reference environment refuses it.
+"""
 
 from __future__ import annotations
 
 from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible
+from robobpp.core.feasibility import check_support
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 
 
@@ -30,6 +36,9 @@ class MathPack(Setting):
                     f"box top at {placement.top:g} cm would exceed the container height {state.spec.height:g} cm",
                 ),
             )
+        refused = check_support(state.placements, placement)
+        if refused is not None:
+            return StepOutcome(None, refused)
         state.add(placement)
         return StepOutcome(placement)
 

@@ -1,8 +1,8 @@
 """Table models for the leaderboard pages, shaped from the server's query results (no second scoring).
 
-The server's ``robobpp.db.queries`` ranks and scores; this module only decides what each cell shows:
-column headers with their better-direction arrows, which cells are a column's top four, sort keys for
-the sortable tables. Pure functions of plain dicts, so they are tested without a server.
+The server's ``robobpp.leaderboard`` ranks and scores; this module only decides what each cell shows:
+column headers with their better-direction arrows, intervals as text, which cells are a column's top
+four, sort keys for the sortable tables, pagination. Pure functions of plain dicts, so they are tested without a server.
 """
 
 from __future__ import annotations
@@ -54,8 +54,34 @@ def _finite(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
+#: Rows per page of the board and grid pages.
+PAGE_SIZE = 50
+
+
+def pages(shown: Mapping[str, Any], page: int) -> dict[str, Any]:
+    """Pagination of a board or grid view (``board_view``/``grid_view`` result) for the templates."""
+    total, size = int(shown.get("total", 0)), int(shown.get("limit", PAGE_SIZE)) or PAGE_SIZE
+    last = max(1, math.ceil(total / size))
+    return {"page": page, "last": last, "total": total, "prev": page - 1 if page > 1 else None,
+            "next": page + 1 if page < last else None}  # fmt: skip
+
+
+def span(low: Any, high: Any, digits: int = 3) -> str:
+    """An interval as text ("0.412–0.488"); empty when unknown."""
+    if not (_finite(low) and _finite(high)):
+        return ""
+    return f"{low:.{digits}f}–{high:.{digits}f}"
+
+
+def rank_span(rank: Any, low: Any, high: Any) -> str:
+    """A rank with its interval: "3 (2–5)", or just "3" when the interval is that rank alone."""
+    if rank is None:
+        return "—"
+    return str(rank) if low == high == rank or low is None else f"{rank} ({low}–{high})"
+
+
 def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
-    """Rows and columns of one leaderboard page from ``queries.leaderboard(...)``'s result."""
+    """Rows and columns of one leaderboard page from a ``board_view(...)`` result."""
     setting = board["setting"]
     columns = metric_columns(setting)
     entries = list(board.get("entries", []))
@@ -67,25 +93,37 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
     for i, e in enumerate(entries):
         metrics = e.get("metrics") or {}
         extras = e.get("extras") or {}
+        intervals = e.get("intervals") or {}
         rows.append({
             "rank": e.get("rank"),
+            "rank_text": rank_span(e.get("rank"), e.get("rank_low"), e.get("rank_high")),
             "score": e.get("score"),
+            "score_ci": span(e.get("score_low"), e.get("score_high")),
+            "stable": e.get("stable"),
+            "stable_ci": span(e.get("stable_low"), e.get("stable_high")),
             "score_place": score_places[i],
             "submission_id": e.get("submission_id"),
             "name": e.get("name", ""),
             "participant": e.get("participant", ""),
             "baseline": bool(e.get("baseline")),
             "cells": [{"key": c.key, "value": metrics.get(c.key), "place": places[c.key][i],
+                       "ci": span(*(intervals.get(c.key) or (None, None)), digits=4),
                        "normalized": (e.get("normalized") or {}).get(c.key)} for c in columns],
             "pph": extras.get("pph"),
             "boxes_placed": extras.get("boxes_placed_mean"),
             "episodes": extras.get("episodes"),
         })  # fmt: skip
-    return {"columns": columns, "rows": rows, "has_pph": setting == "execution"}
+    apart = [{"submission_id": e.get("submission_id"), "name": e.get("name", ""), "participant": e.get("participant", ""),
+              "baseline": bool(e.get("baseline")), "status": e.get("status"), "reason": e.get("reason", ""),
+              "figures": [(e.get("metrics") or {}).get(c.key) for c in columns]}
+             for e in board.get("unranked", [])]  # fmt: skip
+    return {"columns": columns, "rows": rows, "has_pph": setting == "execution", "apart": apart,
+            "apart_total": board.get("unranked_total", len(apart))}  # fmt: skip
 
 
 def grid_table(grid: Mapping[str, Any]) -> dict[str, Any]:
-    """The overall 3 × 3 grid from ``queries.overall_grid(...)``: one column per (setting, dataset)."""
+    """The overall 3 × 3 grid from a ``grid_view(...)`` result: one column per (setting, dataset); the Mean
+    and its rank only for the rows ranked on every board, the partial and failed rows apart."""
     settings = list(grid.get("settings", []))
     datasets = list(grid.get("datasets", []))
     keys = [f"{s}/{d}" for s in settings for d in datasets]
@@ -93,20 +131,30 @@ def grid_table(grid: Mapping[str, Any]) -> dict[str, Any]:
     places = {
         k: dense_top([(r.get("cells") or {}).get(k, {}).get("score") for r in rows], "up") for k in keys
     }
-    out = []
-    for i, r in enumerate(rows):
+
+    def shaped(r: Mapping[str, Any], i: int | None) -> dict[str, Any]:
         cells = []
         for k in keys:
             cell = (r.get("cells") or {}).get(k)
             cells.append({"key": k, "score": cell.get("score") if cell else None,
-                          "rank": cell.get("rank") if cell else None, "place": places[k][i]})  # fmt: skip
-        scores = [c["score"] for c in cells if c["score"] is not None]
-        out.append({
+                          "rank": cell.get("rank") if cell else None,
+                          "ci": span(cell.get("score_low"), cell.get("score_high")) if cell else "",
+                          "rank_ci": rank_span(cell.get("rank"), cell.get("rank_low"), cell.get("rank_high")) if cell else "",
+                          "unranked": (r.get("unranked") or {}).get(k),
+                          "place": places[k][i] if i is not None else None})  # fmt: skip
+        return {
             "submission_id": r.get("submission_id"), "name": r.get("name", ""),
             "participant": r.get("participant", ""), "baseline": bool(r.get("baseline")), "cells": cells,
-            "mean": sum(scores) / len(scores) if scores else None, "boards": len(scores),
-        })  # fmt: skip
-    return {"settings": settings, "datasets": datasets, "keys": keys, "rows": out}
+            "mean": r.get("mean"), "mean_ci": span(r.get("mean_low"), r.get("mean_high")),
+            "stable": r.get("stable"), "stable_ci": span(r.get("stable_low"), r.get("stable_high")),
+            "rank_text": rank_span(r.get("rank"), r.get("rank_low"), r.get("rank_high")),
+            "status": r.get("status", "ranked"), "boards": r.get("boards", len([c for c in cells if c["score"] is not None])),
+        }  # fmt: skip
+
+    return {"settings": settings, "datasets": datasets, "keys": keys,
+            "rows": [shaped(r, i) for i, r in enumerate(rows)],
+            "apart": [shaped(r, None) for r in grid.get("apart", [])],
+            "apart_total": grid.get("apart_total", 0)}  # fmt: skip
 
 
 def radar_groups(runs: Sequence[Mapping[str, Any]], boards: Mapping[tuple[str, str], Mapping[str, Any]],

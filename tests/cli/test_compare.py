@@ -1,6 +1,9 @@
 """`robobpp compare`: local results scored against each other like the leaderboard."""
 
 import json
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -49,3 +52,33 @@ def test_compare_refuses_bad_input(tmp_path):
     proc = robobpp("compare", str(bad), str(tmp_path / "missing.json"))
     assert proc.returncode != 0 and "not a `robobpp evaluate --json` file" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.network
+def test_compare_shows_intervals_and_a_policy_against_itself_is_zero_centred(results, tmp_path):
+    twin = tmp_path / "twin.json"
+    twin.write_text(results["dbl"].read_text().replace('"policy": "dbl"', '"policy": "dbl-again"'))
+    out = tmp_path / "self.json"
+    proc = robobpp("compare", str(results["dbl"]), str(twin), "--json", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "paired difference" in proc.stdout and "no clear difference" in proc.stdout
+    (board,) = json.loads(out.read_text())
+    paired = board["entries"][0]["paired"]["differences"]
+    for key in ("space_utilization", "occupancy", "stable"):
+        assert paired[key]["difference"] == 0 and paired[key]["low"] == 0 == paired[key]["high"]
+    entry = board["entries"][0]
+    low, high = entry["intervals"]["space_utilization"]
+    assert low <= entry["metrics"]["space_utilization"] <= high and entry["rank_ci"] == [1, 1]
+
+
+@pytest.mark.network
+def test_evaluate_exits_3_when_every_episode_is_a_policy_failure(real_data, tmp_path):
+    (tmp_path / "garbage.py").write_text(
+        "from robobpp.core import Action\n\n\nclass Garbage:\n    name = 'garbage'\n\n"
+        "    def reset(self, info):\n        pass\n\n    def act(self, obs):\n        return Action(float('nan'), 0.0, 0)\n"
+    )
+    proc = subprocess.run([sys.executable, "-m", "robobpp.cli", "evaluate", "--policy", "garbage:Garbage",
+                           "--dataset", "repetitive", "--groups", "2"], capture_output=True, text=True, timeout=300,
+                          cwd=tmp_path, env={**os.environ, "ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    assert proc.returncode == 3, proc.stderr
+    assert "every episode ended in a policy failure" in proc.stderr and "invalid_action in 2" in proc.stderr

@@ -37,7 +37,7 @@ def test_evaluate_writes_results_matching_the_loop(real_data, tmp_path):
     mean = sum(r.metrics["occupancy"] for r in local) / 2
     assert payload["runs"][0]["metrics"]["occupancy"] == pytest.approx(mean)
     steps = json.loads(trace.read_text())["episodes"][0]["steps"]
-    assert len(steps) == local[0].boxes_total and steps[0]["placement"]["z"] == 0
+    assert len(steps) == len(local[0].steps) and steps[0]["placement"]["z"] == 0
 
 
 @pytest.mark.parametrize(

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robobpp.datasets import load_pool, load_records
+from robobpp.datasets import DATASETS, load_pool, load_records
 from robobpp.datasets.cache import MANIFEST, converted_dir
-from robobpp.datasets.importer import diverse_is_test
+from robobpp.datasets.importer import diverse_is_test, fits_container
 from robobpp.datasets.sources import SOURCE_SHA256
 
 pytestmark = pytest.mark.network
@@ -120,13 +120,16 @@ def test_diverse_split_by_stable_hash_and_weights(real_data: Path) -> None:
         np.testing.assert_allclose(pool.masses, volumes * 1e-6 * 250.0)
 
 
-def test_longboard_keeps_unplaceable_panels(real_data: Path) -> None:
+def test_longboard_pools_leave_out_the_unplaceable_panels(real_data: Path) -> None:
     facts = _manifest(real_data)["datasets"]["longboard"]
     assert facts["unplaceable"] == 9 and facts["train"] == 234 and facts["test"] == 59
     pools = [load_pool("longboard", s) for s in ("train", "test")]
-    assert sum(p.notes["unplaceable"] for p in pools) == 9
+    assert [p.notes["unplaceable"] for p in pools] == [7, 2]
+    assert [len(p) for p in pools] == [227, 57] and [p.records for p in pools] == [234, 59]
     dims = np.vstack([p.dims for p in pools])
-    assert any(tuple(d) == (660.0, 225.0, 8.0) for d in dims)  # the probable typo, kept as given
+    assert not any(tuple(d) == (660.0, 225.0, 8.0) for d in dims)  # the probable typo: fits nowhere, left out
+    container = DATASETS["longboard"].container
+    assert fits_container(dims, container).all()
     np.testing.assert_allclose(pools[0].masses, pools[0].dims.prod(axis=1) * 1e-6 * 400.0)
     heavier = load_pool("longboard", "train", density_kg_m3=800.0)
     np.testing.assert_allclose(heavier.masses, 2 * pools[0].masses)

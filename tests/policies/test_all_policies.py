@@ -13,6 +13,8 @@ from tests.conftest import make_spec
 from tests.policies.scenes import scene
 
 ALL = list(BASELINES)
+#: Policies that search every 1 cm position (the others search EMS corners).
+CELL_POLICIES = {"dbl", "hm", "sdfpack", "packe-rules", "random"}
 
 
 def test_every_paper_baseline_is_registered() -> None:
@@ -49,8 +51,10 @@ def test_fits_nowhere_ends_the_episode_with_that_reason(name: str) -> None:
 def test_completes_an_episode_with_valid_actions_and_gives_up_only_when_dbl_does(
     name: str, random_spec
 ) -> None:
-    """Math Pack, 80 random boxes in the Repetitive container. DBL searches every cell, so when a policy
-    says nothing fits, DBL must agree (the EMS are complete); every action it does take is valid."""
+    """Math Pack, 80 random boxes in the Repetitive container. DBL searches every cell, so when a policy that
+    also searches every cell says nothing fits, DBL must agree. The EMS policies try only the corners of the
+    spaces, as in the reference, and may give up earlier. Every action taken is valid and supported (Math Pack
+    would end the episode with ``unsupported`` otherwise)."""
     policy = load_policy(name)
     episode = Episode(random_spec, "math")
     policy.reset(episode.info)
@@ -58,7 +62,8 @@ def test_completes_an_episode_with_valid_actions_and_gives_up_only_when_dbl_does
         obs = episode.observe()
         action = policy.act(obs)
         if action is None:
-            assert load_policy("dbl").act(obs) is None, f"{name} gave up but DBL found a place"
+            if name in CELL_POLICIES:
+                assert load_policy("dbl").act(obs) is None, f"{name} gave up but DBL found a place"
         else:
             assert isinstance(action.x, float) and float(action.x).is_integer()
             assert check_action(action.x, action.y, action.orientation, obs.box, obs.container) is None

@@ -6,7 +6,7 @@ import pytest
 
 from robobpp.core import Action
 from robobpp.policies import load_policy
-from robobpp.policies.sdfpack import SDFPack
+from robobpp.policies.sdfpack import SDFPack, every_position
 from tests.policies.scenes import scene
 
 
@@ -27,55 +27,63 @@ def test_dbl_goes_lowest_then_back_left() -> None:
 
 def test_hm_picks_the_least_added_heightmap_volume() -> None:
     # terrain along x: [3, 3, 0, 0, 3, 3, 3, 3] (width 2). A 4×2×1 box rests at z = 3 everywhere; at x = 0 or
-    # 2 it traps 2·2·3 = 12 cm³ under itself, at x = 4 nothing. DBL takes x = 0 (same z, smaller x).
+    # 2 it traps 2·2·3 = 12 cm³ under itself, at x = 4 nothing. DBL wants the smallest x at that z, but at
+    # x = 0 the box rests on [0, 2] alone with its centre at 2, outside the shrunk contact [0.1, 1.9]: the
+    # support rule refuses it. At x = 1 the contacts [1, 2] and [4, 5] span its centre 3: DBL takes x = 1.
     obs = scene((8, 2, 10), [(0, 0, 2, 2, 3), (4, 0, 4, 2, 3)], (4, 2, 1))
     assert where(act("hm", obs)) == (4, 0, 0)
-    assert where(act("dbl", obs)) == (0, 0, 0)
+    assert where(act("dbl", obs)) == (1, 0, 0)
 
 
 def test_hm_breaks_ties_back_left() -> None:
     assert where(act("hm", scene((10, 10, 10), [], (3, 2, 1)))) == (0, 0, 0)
 
 
-def test_lsah_minimises_the_bounding_box_surface() -> None:
-    # a 5×5×5 cube in the corner of a 10×10×10 container; a 5×5×2 slab on top makes a 5×5×7 bounding box
-    # (area 190), beside it a 10×5×5 one (area 250): LSAH stacks, DBL goes to the floor.
+def test_lsah_scores_the_bounding_rectangle_and_the_candidates_own_top() -> None:
+    # a 5×5×5 cube in the corner of 10×10×10; a 5×5×2 box. Candidates are space corners: (5, 0) and (0, 5)
+    # on the floor, (0, 0) on the cube. Score X·Y + (z + h)·(X + Y) over the packed footprint rectangle:
+    # (5, 0): 10·5 + 2·15 = 80; (0, 5): 5·10 + 2·15 = 80; (0, 0) on top: 5·5 + 7·10 = 95.
+    # The floor ties; both spaces leave zero slack along one axis, so back-left decides: (0, 5).
     obs = scene((10, 10, 10), [(0, 0, 5, 5, 5)], (5, 5, 2))
-    assert where(act("lsah", obs)) == (0, 0, 0)
-    assert where(act("dbl", obs)) == (0, 5, 0)
-
-
-def test_lsah_rotates_when_that_keeps_the_box_smaller() -> None:
-    # a 5×2×5 box: beside the cube along x unrotated gives 10×5×5 (250); rotated (2×5) gives 7×5×5 (190),
-    # the same as unrotated in front (5×7×5); ties go to z, then x + y, then the smaller x: (0, 5) unrotated.
-    obs = scene((10, 10, 10), [(0, 0, 5, 5, 5)], (5, 2, 5))
     assert where(act("lsah", obs)) == (0, 5, 0)
 
 
-def test_onlinebph_takes_the_first_feasible_space_lowest_first() -> None:
-    # a 5×10×5 wall at x = 0: the floor space is x ∈ [5, 10) (5 wide), the space on top spans everything at z = 5.
+def test_lsah_height_term_is_the_candidates_top_not_the_stack() -> None:
+    # a 5×5×8 tower: beside it 10·5 + 1·15 = 65, on it 5·5 + 9·10 = 115. (With the stack's top, 8, in the
+    # height term the floor would score 50 + 8·15 = 170 and LSAH would climb the tower.)
+    obs = scene((10, 10, 10), [(0, 0, 5, 5, 8)], (5, 5, 1))
+    assert where(act("lsah", obs)) == (0, 5, 0)
+
+
+def test_onlinebph_sorts_spaces_by_height_then_y_then_x() -> None:
+    # a 5×5×5 cube at the origin leaves floor spaces with corners (5, 0) and (0, 5): (z, y, x) order takes
+    # (5, 0) first (y = 0); the old (z, x, y) order would have taken (0, 5).
+    obs = scene((10, 10, 10), [(0, 0, 5, 5, 5)], (2, 2, 1))
+    assert where(act("onlinebph", obs)) == (5, 0, 0)
+    # a 5×10×5 wall: the floor space's corner is (5, 0); 6×3 is too long there unrotated, rotated it fits
     wall = [(0, 0, 5, 10, 5)]
-    # 6×3: unrotated it is too long for the floor space, rotated (3×6) it fits → first space, orientation 1
     assert where(act("onlinebph", scene((10, 10, 10), wall, (6, 3, 2)))) == (5, 0, 1)
-    # 6×6 fits the floor space in neither orientation → the next space, on top of the wall
+    # 6×6 fits there in neither orientation → the next space, the wall's top: resting on [0, 5] × [0, 6] with
+    # its centre (3, 3) inside the shrunk contact
     assert where(act("onlinebph", scene((10, 10, 10), wall, (6, 6, 2)))) == (0, 0, 0)
 
 
-def test_br_prefers_the_space_the_box_fills() -> None:
-    # walls at x ∈ [0, 3) and [5, 10), height 5, leave a 2-wide slot. A 2×10×5 board fills the slot
-    # (fit 1, the same board still fits above it, top 5/10: utility 1.5); on top it would cover 20 % of the
-    # space (fit 0.2, still fits beside it, top 10/10: utility 0.2).
+def test_br_takes_the_largest_space() -> None:
+    # walls at x ∈ [0, 3) and [5, 10), 5 high, in 10×10×10: the slot [3, 5) × [0, 10) × [0, 10) holds 200 cm³,
+    # the space over everything [0, 10)² × [5, 10) 500 cm³. A 2×10×5 board fits both (the one item type fits
+    # both: +1 +10 each), so BR puts it at the big space's corner, on the first wall (fully supported).
     obs = scene((10, 10, 10), [(0, 0, 3, 10, 5), (5, 0, 5, 10, 5)], (2, 10, 5))
-    assert where(act("br", obs)) == (3, 0, 0)
+    assert where(act("br", obs)) == (0, 0, 0)
 
 
-def test_macs_keeps_the_largest_free_rectangle() -> None:
-    # a 2×2×5 block at x ∈ [5, 7) of a 10×2×10 container: floor slots of 5 and 3 cells. A 2×2×5 box in the
-    # small slot keeps the 5-cell slot (area 10) below z = 5; in the big slot only 3 cells (area 6) stay.
-    # Above z = 5 everything is free either way. DBL would take x = 0.
-    obs = scene((10, 2, 10), [(5, 0, 2, 2, 5)], (2, 2, 5))
-    assert where(act("macs", obs)) == (7, 0, 0)
-    assert where(act("dbl", obs)) == (0, 0, 0)
+def test_macs_counts_levels_below_where_the_box_rests() -> None:
+    # 10×2×10: block A 2×2×5 at x ∈ [0, 2), block B 2×2×3 at x ∈ [8, 10); a 2×2×1 box. On the floor the
+    # score is 0 (no level below). On B (z = 3): levels 0–2 keep [2, 8) free → 3 · 12 = 36. On A (z = 5):
+    # levels 0–2 keep [2, 8) (12), levels 3–4 keep [2, 10) (16, B is only 3 high) → 36 + 32 = 68. MACS
+    # climbs onto A; DBL stays on the floor.
+    obs = scene((10, 2, 10), [(0, 0, 2, 2, 5), (8, 0, 2, 2, 3)], (2, 2, 1))
+    assert where(act("macs", obs)) == (0, 0, 0)
+    assert where(act("dbl", obs)) == (2, 0, 0)
 
 
 def test_sdfpack_fills_the_snug_slot_and_scores_it_by_hand() -> None:
@@ -84,9 +92,7 @@ def test_sdfpack_fills_the_snug_slot_and_scores_it_by_hand() -> None:
     obs = scene((10, 10, 10), [(0, 0, 4, 10, 2), (6, 0, 4, 10, 2)], (2, 3, 2))
     assert where(act("sdfpack", obs)) == (4, 0, 0)
     policy = SDFPack()
-    from robobpp.policies.ems import EmsTracker, ems_candidates
-
-    cands = ems_candidates(obs, EmsTracker().update(obs.heightmap, 10.0), corners=4)
+    cands = every_position(obs)
     slot = [k for k in range(len(cands)) if (cands.x[k], cands.y[k], cands.orientation[k]) == (4, 0, 0)]
     cost = policy.sdf_cost(obs.heightmap, cands.take(slot))
     # 1 face of 4 × (8 × 4) side samples at distance τ, out of 4·32 side + 64 bottom samples

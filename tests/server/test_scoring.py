@@ -1,13 +1,16 @@
-"""Scoring on read (BENCHMARK.md §5): min–max per metric, direction, weights, ties, missing values."""
+"""Scoring (BENCHMARK.md §5): min–max per metric, direction, weights, ties, missing values; the stable
+score; bootstrap intervals, rank intervals and paired differences."""
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
+from robobpp import stats
 from robobpp.metrics import metrics_for
-from robobpp.scoring import WEIGHTS, normalize, score_entries
+from robobpp.scoring import ANCHORS, WEIGHTS, anchored, normalize, score_board, score_entries
 
 
 @pytest.mark.parametrize("setting", ["math", "physics", "execution"])
@@ -76,3 +79,93 @@ def test_execution_uses_all_eight_metrics() -> None:
 def test_unknown_setting_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown setting"):
         score_entries([], "juggling")
+
+
+# ---- intervals (robobpp.stats; docs/benchmark.md "Uncertainty") ----------------------------------------
+
+
+def _entry(rng: np.random.Generator, mean: float, groups: int) -> dict:
+    """An entry with per-group utilisation drawn around ``mean`` (the spread of real groups, ~0.08)."""
+    su = np.clip(rng.normal(mean, 0.08, groups), 0, 1)
+    occ = np.clip(rng.normal(0.8, 0.05, groups), 0, 1)
+    dt = np.abs(rng.normal(0.002, 0.0005, groups))
+    values = {"space_utilization": su.tolist(), "occupancy": occ.tolist(), "decision_time": dt.tolist()}
+    figures = {"ids": list(range(groups)), "values": values, "pooled": {}}
+    return {"metrics": {k: float(np.mean(v)) for k, v in values.items()}, "figures": figures}
+
+
+def test_intervals_shrink_as_groups_grow() -> None:
+    widths = []
+    for groups in (10, 40, 160):
+        rng = np.random.default_rng(3)
+        entries = [_entry(rng, 0.6, groups), _entry(rng, 0.55, groups), _entry(rng, 0.5, groups)]
+        board = score_board(entries, "math")
+        low, high = board.metric_ci[0]["space_utilization"]
+        assert low <= entries[0]["metrics"]["space_utilization"] <= high
+        widths.append(high - low)
+    assert widths[0] > widths[1] > widths[2]
+    assert widths[0] / widths[2] > 2.5  # ∝ 1/√groups: 4 in expectation
+
+
+def test_intervals_are_seeded_and_rank_intervals_cover_the_rank() -> None:
+    rng = np.random.default_rng(7)
+    entries = [_entry(rng, m, 30) for m in (0.70, 0.69, 0.50, 0.30)]
+    a, b = score_board(entries, "math"), score_board(entries, "math")
+    assert a.score_ci == b.score_ci and a.rank_ci == b.rank_ci  # same data, same interval, every read
+    for s, (lo, hi) in zip(a.scored, a.rank_ci, strict=True):
+        assert lo <= s.rank <= hi
+    assert a.rank_ci[0][1] >= 2 and a.rank_ci[1][0] == 1  # 0.70 vs 0.69 over 30 groups: not clearly apart
+    assert a.rank_ci[3][0] >= 3 and a.rank_ci[0][1] <= 2  # far behind the top two, never among them
+    other = score_board(entries, "math", seed=1)
+    assert other.score_ci != a.score_ci  # the seed is what fixes them
+
+
+def test_stable_score_ignores_other_entries_and_relative_score_does_not() -> None:
+    rng = np.random.default_rng(11)
+    a, b, c = (_entry(rng, m, 20) for m in (0.6, 0.5, 0.1))
+    two, three = score_board([a, b], "math"), score_board([a, b, c], "math")
+    assert two.stable[:2] == three.stable[:2] and two.stable_ci[:2] == three.stable_ci[:2]
+    assert two.scored[1].score != three.scored[1].score  # the paper's relative score moves
+    assert 0.0 <= three.stable[2] < three.stable[0] <= 1.0
+
+
+def test_anchors_map_bounds_to_zero_and_one() -> None:
+    for key, (zero, one, _scale) in ANCHORS.items():
+        assert anchored(np.array([zero, one, np.nan]), key).tolist() == [0.0, 1.0, 0.0]
+    assert anchored(np.array([0.1]), "decision_time")[0] == pytest.approx(0.5)  # log scale: 10 s … 1 ms
+
+
+def test_paired_difference_of_a_policy_with_itself_is_zero_centred() -> None:
+    rng = np.random.default_rng(5)
+    a = _entry(rng, 0.6, 30)["figures"]
+    same = stats.paired_difference(a, a, "space_utilization")
+    assert same["difference"] == 0.0 and same["low"] == 0.0 and same["high"] == 0.0
+    noisy = {
+        **a,
+        "values": {k: (np.array(v) + rng.normal(0, 0.02, 30)).tolist() for k, v in a["values"].items()},
+    }
+    d = stats.paired_difference(a, noisy, "space_utilization")
+    assert d["low"] < 0 < d["high"] and abs(d["low"] + d["high"]) < 0.5 * (d["high"] - d["low"])
+    better = {
+        **a,
+        "values": {**a["values"], "space_utilization": [v + 0.05 for v in a["values"]["space_utilization"]]},
+    }
+    d = stats.paired_difference(better, a, "space_utilization")
+    assert d["low"] == pytest.approx(0.05) and d["high"] == pytest.approx(0.05)  # pairing removes group noise
+
+
+def test_pooled_ratio_is_resampled_as_a_ratio_of_sums() -> None:
+    figures = {"ids": [0, 1], "values": {}, "pooled": {"collapsed_placement": [[1.0, 10.0], [9.0, 10.0]]}}
+    counts = np.array([[1.0, 1.0], [2.0, 0.0], [0.0, 2.0]])
+    assert stats.metric_samples([figures], "collapsed_placement", counts)[:, 0].tolist() == [0.5, 0.1, 0.9]
+
+
+def test_groups_needed_follows_the_paired_spread() -> None:
+    assert stats.groups_needed(0.05, 0.05) == 8  # (1.96 + 0.84)² ≈ 7.84
+    assert stats.groups_needed(0.05, 0.025) > 4 * stats.groups_needed(0.05, 0.05) - 4
+
+
+def test_run_failed_share() -> None:
+    assert not stats.run_failed({"completed": 27, "policy_timeout": 3}, 30)  # 10 % is allowed
+    assert stats.run_failed({"completed": 26, "policy_timeout": 3, "invalid_action": 1}, 30)
+    assert not stats.run_failed({"collapse": 30}, 30)  # a packing outcome, not a policy failure

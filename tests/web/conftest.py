@@ -112,6 +112,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         "ROBOBPP_GROUPS": "2",
         "ROBOBPP_SETTINGS": json.dumps(["math", "physics"]),
         "ROBOBPP_BASELINES": json.dumps(["dbl", "hm", "lsah", "onlinebph", "random"]),
+        "ROBOBPP_PUBLIC_BASELINES": "false",  # CI time; the public-track DBL stays alone on its boards
         "ROBOBPP_WORKERS": "1",
         "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "true",
     }
@@ -197,6 +198,14 @@ class PageProbe:
         path = SCREENSHOTS / f"{name}.png"
         self.page.screenshot(path=str(path), full_page=True)
         return path
+
+
+def sign_in(page: Any, server: Server, token: str) -> None:
+    """Sign in through the sign-in form, as a person would."""
+    page.goto(server.url + "/sign-in")
+    page.fill("#token", token)
+    page.click("#sign-in button[type=submit]")
+    page.wait_for_selector("[data-role=who]")
 
 
 @pytest.fixture

@@ -9,9 +9,39 @@ import pytest
 
 from robobpp.core import Action, Observation
 from robobpp.policies.dbl import DBL
-from tests.web.conftest import HOSTILE_PARTICIPANT, HOSTILE_SUBMISSION, PageProbe, Server
+from tests.web.conftest import (
+    ADMIN_TOKEN,
+    HOSTILE_PARTICIPANT,
+    HOSTILE_SUBMISSION,
+    PageProbe,
+    Server,
+    sign_in,
+)
 
 pytestmark = pytest.mark.browser
+
+
+#: Every radar's ring (tick) labels that touch a metric (point) label or another ring label, as drawn.
+RADAR_OVERLAPS = """() => Array.from(document.querySelectorAll('canvas[data-radar]')).flatMap((canvas) => {
+    const chart = Chart.getChart(canvas), r = chart.scales.r, ctx = chart.ctx;
+    const size = (r.options.ticks.font || {}).size || Chart.defaults.font.size || 12;
+    ctx.font = `${size}px sans-serif`;
+    // Ring labels are drawn centred on the vertical axis. To read clearly one keeps its own height clear
+    // above and below (and 2 px to the sides) of any other label.
+    const rings = r.ticks.filter((t) => t.label !== "" && t.label !== undefined).map((t) => {
+        const p = r.getPointPositionForValue(0, t.value), w = ctx.measureText(String(t.label)).width;
+        return { text: t.label, left: p.x - w / 2 - 2, right: p.x + w / 2 + 2, top: p.y - 1.5 * size, bottom: p.y + 1.5 * size };
+    });
+    const hit = (a, b) => a.left < b.right && a.right > b.left && a.top < b.bottom && a.bottom > b.top;
+    const out = [];
+    rings.forEach((a, i) => {
+        r._pointLabelItems.forEach((l) => { if (hit(a, l)) out.push(`ring ${a.text} on a metric label`); });
+        rings.slice(i + 1).forEach((b) => {
+            if (Math.abs(a.top - b.top) < 1.5 * size) out.push(`ring ${a.text} crowds ring ${b.text}`);
+        });
+    });
+    return r._pointLabelItems.length ? out : ["no metric labels drawn"];
+})"""
 
 
 def _column_values(probe: PageProbe, table: str, key: str) -> list[float]:
@@ -37,7 +67,7 @@ def test_overall_grid_highlights_top_four_and_links_boards(server: Server, probe
         """() => {
             const rows = Array.from(document.querySelectorAll('#overall tbody tr'));
             const out = [];
-            for (let c = 1; c <= 6; c += 1) {
+            for (let c = 2; c <= 7; c += 1) {  // 0: rank, 1: method
                 out.push(rows.map((r) => [r.cells[c].className, parseFloat(r.cells[c].textContent)]));
             }
             return out;
@@ -92,7 +122,8 @@ def test_board_reads_without_javascript(server: Server, browser: Any) -> None:
     page = context.new_page()
     try:
         page.goto(server.url + "/boards/diverse/math")
-        ranks = [int(v) for v in page.locator("#board tbody tr td:first-child").all_inner_texts()]
+        # "3 (2–5)": the rank, then its interval over the bootstrap resamples
+        ranks = [int(v.split()[0]) for v in page.locator("#board tbody tr td:first-child").all_inner_texts()]
         assert ranks == sorted(ranks) and ranks[0] == 1
         assert page.locator("#board thead button").count() == 0  # no dead sort buttons without JS
         assert "%" in page.locator("#board tbody tr").first.inner_text()
@@ -102,7 +133,8 @@ def test_board_reads_without_javascript(server: Server, browser: Any) -> None:
 
 def test_hostile_names_show_as_text(server: Server, probe: PageProbe) -> None:
     sid = server.ids["hostile"]
-    for path in ("/", "/boards/longboard/math", f"/submissions/{sid}"):
+    sign_in(probe.page, server, ADMIN_TOKEN)  # a participant's own page is its owner's and the operator's
+    for path in ("/", "/boards/longboard/math", f"/submissions/{sid}", "/account"):
         probe.page.goto(server.url + path)
         body = probe.page.locator("body").inner_text()
         assert HOSTILE_PARTICIPANT in body, path
@@ -138,6 +170,9 @@ def test_submission_page_shows_results_charts_and_episodes(server: Server, probe
 
 
 def test_submission_page_of_a_ranked_baseline(server: Server, probe: PageProbe) -> None:
+    probe.page.set_viewport_size(
+        {"width": 1280, "height": 900}
+    )  # the window the radar labels were crowded in
     probe.page.goto(f"{server.url}/submissions/1")  # the first baseline, on boards with 6 entries
     ranks = probe.page.locator("#runs tbody tr td:nth-child(4)").all_inner_texts()
     assert ranks and all(r.endswith("of 6") for r in ranks), ranks
@@ -150,6 +185,7 @@ def test_submission_page_of_a_ranked_baseline(server: Server, probe: PageProbe) 
         ".flatMap((c) => Chart.getChart(c).data.datasets.flatMap((d) => d.data))"
     )
     assert values and all(0.0 <= v <= 1.0 for v in values) and max(values) > 0
+    assert probe.page.evaluate(RADAR_OVERLAPS) == []
     assert probe.page.locator("#episodes a", has_text="3D replay").count() == 0  # private: no replays
     probe.shot("submission")
     probe.assert_clean()
@@ -263,3 +299,78 @@ def test_api_docs_render_offline(server: Server, probe: PageProbe) -> None:
     assert not blocked, f"/docs reached outside the server: {blocked}"
     probe.assert_clean()
     probe.shot("api-docs")
+
+
+def test_tables_fit_their_container_at_1280_px(server: Server, browser: Any) -> None:
+    """At a 1280 px wide window no results table needs a horizontal scroll bar."""
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    page = context.new_page()
+    wide = {}
+    try:
+        sign_in(page, server, ADMIN_TOKEN)  # the owner's view has the widest episode table (details)
+        for path in ("/", "/boards/repetitive/physics", "/boards/longboard/math", "/submissions/1",
+                     f"/submissions/{server.ids['hostile']}", f"/submissions/{server.ids['public']}"):  # fmt: skip
+            page.goto(server.url + path)
+            sizes = page.evaluate(
+                "() => Array.from(document.querySelectorAll('.table-wrap'))"
+                ".map((w) => [w.querySelector('table').id, w.scrollWidth, w.clientWidth])"
+            )
+            assert sizes, path
+            wide.update({f"{path} #{t}": (s, c) for t, s, c in sizes if s > c + 1})
+    finally:
+        context.close()
+    assert not wide, f"tables wider than their container (scroll width, width): {wide}"
+
+
+def test_execution_results_and_radar_fit_at_1280_px(server: Server, browser: Any) -> None:
+    """The widest results table — every setting's metrics, PPH, the owner's detail column with a 500-character
+    failure text — rendered by the real template and stylesheet, fits a 1280 px window."""
+    from datetime import datetime
+
+    from robobpp.episode import TERMINATION_REASONS
+    from robobpp.metrics import METRICS
+    from robobpp.server.site.session import Viewer
+    from robobpp.web import environment, tables
+
+    metrics = {m.key: 0.123456 for m in METRICS}
+    runs = [{"dataset": d, "setting": s, "status": "completed", "episodes_total": 30, "metrics": metrics,
+             "extras": {"pph": 612.0}, "completed_at": None}
+            for s in ("math", "physics", "execution") for d in ("repetitive", "diverse", "longboard")]  # fmt: skip
+    now = datetime(2026, 1, 1)
+    sub = {"id": 7, "name": "a-rather-long-policy-name v12", "participant": "participant-with-a-long-name",
+           "baseline": False, "policy_url": "https://policy.example.org:9000/" + "p" * 60, "track": "public",
+           "status": "completed", "created_at": now, "finished_at": now, "error": None, "runs": runs,
+           "progress": {"episodes_total": 270, "episodes_done": 270, "episodes_running": 0, "episodes_failed": 0,
+                        "phase": None}}  # fmt: skip
+    episodes = [{"id": 100000 + i, "dataset": "longboard", "setting": "execution", "group": i, "status": "done",
+                 "attempts": 1, "boxes_placed": 80, "boxes_total": 80, "metrics": metrics, "has_trace": True,
+                 "termination": "policy_error", "termination_detail": "POST /act (step 12) failed: " + "x" * 470}
+                for i in range(3)]  # fmt: skip
+    html = environment().get_template("submission.html").render(
+        root=server.url, static=server.url + "/static", SETTING_TITLES={"math": "Math Pack",
+        "physics": "Physics Pack", "execution": "Execution Pack"}, viewer=Viewer(nonce="n", admin=True, name="operator"),
+        csrf="n", title="t", nav="", sub=sub, has_pph=True, owner=True, can_cancel=False, episodes=episodes,
+        ranks={(r["dataset"], r["setting"]): {"rank": 12, "score": 0.5, "of": 20} for r in runs},
+        charts={"radar": [{"setting": "execution", "single": False, "labels": [m.label for m in METRICS],
+                           "series": [{"label": d, "values": [0.2 * (i % 5) for i in range(len(METRICS))]}
+                                      for d in ("repetitive", "diverse", "longboard")]}],
+                "utilization": tables.histogram([0.5])}, metrics=list(METRICS), public=True,
+        reasons=TERMINATION_REASONS, neutral=set(),
+    )  # fmt: skip
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    try:
+        page = context.new_page()
+        page.set_content(html, wait_until="load")
+        page.wait_for_function(
+            "() => window.Chart && Chart.getChart(document.querySelector('canvas[data-radar]'))"
+        )
+        overlaps = page.evaluate(RADAR_OVERLAPS)
+        sizes = page.evaluate(
+            "() => Array.from(document.querySelectorAll('.table-wrap'))"
+            ".map((w) => [w.querySelector('table').id, w.scrollWidth, w.clientWidth])"
+        )
+    finally:
+        context.close()
+    assert [t for t, _, _ in sizes] == ["runs", "episodes"]
+    assert all(s <= c + 1 for _, s, c in sizes), sizes
+    assert overlaps == [], overlaps  # the Execution radar: 8 metrics in a third of the page

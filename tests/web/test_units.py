@@ -22,7 +22,7 @@ from robobpp.web.dataset_stats import (
     summarise,
     weighted_quantiles,
 )
-from robobpp.web.tables import board_table, dense_top, grid_table, histogram, radar_groups
+from robobpp.web.tables import board_table, dense_top, grid_table, histogram, pages, radar_groups
 from robobpp.web.trace import TraceError, episodes_from, read_trace, viewer_payload
 from robobpp.web.viewer import render_standalone
 
@@ -143,16 +143,20 @@ def test_board_table_columns_and_places() -> None:
 
 def test_grid_table_and_radar() -> None:
     grid = {"settings": ["math"], "datasets": ["diverse", "longboard"], "rows": [
-        {"submission_id": 1, "name": "a", "participant": "p", "baseline": True,
-         "cells": {"math/diverse": {"score": 0.9, "rank": 1}}},
-        {"submission_id": 2, "name": "b", "participant": "q", "baseline": False,
+        {"submission_id": 2, "name": "b", "participant": "q", "baseline": False, "status": "ranked", "mean": 0.6,
+         "mean_low": 0.5, "mean_high": 0.7, "rank": 1, "rank_low": 1, "rank_high": 2,
          "cells": {"math/diverse": {"score": 0.2, "rank": 2}, "math/longboard": {"score": 1.0, "rank": 1}}},
-    ]}  # fmt: skip
+    ], "apart": [
+        {"submission_id": 1, "name": "a", "participant": "p", "baseline": True, "status": "partial", "boards": 1,
+         "cells": {"math/diverse": {"score": 0.9, "rank": 1}}},
+    ], "apart_total": 1}  # fmt: skip
     table = grid_table(grid)
     assert table["keys"] == ["math/diverse", "math/longboard"]
-    a, b = table["rows"]
-    assert a["cells"][1]["score"] is None and a["mean"] == 0.9
+    (b,) = table["rows"]
+    (a,) = table["apart"]
+    assert a["cells"][1]["score"] is None and a["mean"] is None and a["status"] == "partial"  # never a Mean
     assert b["cells"][1]["place"] == 1 and math.isclose(b["mean"], 0.6)
+    assert b["rank_text"] == "1 (1–2)" and b["mean_ci"] == "0.500–0.700"
     runs = [{"dataset": "diverse", "setting": "math"}, {"dataset": "longboard", "setting": "math"}]
     groups = radar_groups(runs, {("diverse", "math"): _board()}, 2)
     assert len(groups) == 1 and groups[0]["labels"][0] == "Space Utilization"
@@ -207,7 +211,8 @@ def test_every_template_autoescapes() -> None:
     html = env.get_template("board.html").render(
         root="", static="/static", title="t", nav="", dataset=__import__("robobpp.datasets").datasets.DATASETS["diverse"],
         setting="math", track="private", table=board_table(_board()), weights={"a": 1.0}, top=4, other_boards=[],
-        SETTING_TITLES={"math": "Math Pack"},
+        SETTING_TITLES={"math": "Math Pack"}, view="best", pages=pages({"total": 2, "limit": 50}, 1),
+        board={"anchors": "anchors-v1", "confidence": 0.95, "groups": 30, "resamples": 1000},
     )  # fmt: skip
     assert "<b>" not in html.split("<main>")[1] and "&lt;b&gt;" in html
 
@@ -224,6 +229,9 @@ def test_protocol_page_example_policy_really_packs() -> None:
     result = run_episode(EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0),
                          policy, "math")  # fmt: skip
     assert result.boxes_placed >= 5 and result.metrics["space_utilization"] > 0.1
+    # One API: the page shows exactly the policy of examples/policy_server.py.
+    example = (Path(__file__).resolve().parents[2] / "examples" / "policy_server.py").read_text()
+    assert code.strip() == example.split("# --- policy ---\n")[1].split("# --- end policy ---")[0].strip()
 
 
 def test_view_cli_single_episode_and_bad_file(tmp_path: Path) -> None:

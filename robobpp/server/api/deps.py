@@ -39,6 +39,8 @@ class Principal:
 
     participant: Participant | None
     admin: bool = False
+    #: The API token's row id (participants only): the pages' signed session names it, never the token.
+    token_id: int | None = None
 
     @property
     def participant_id(self) -> int | None:
@@ -49,24 +51,32 @@ def _unauthorized(detail: str) -> ProblemError:
     return ProblemError(401, "unauthorized", "Unauthorized", detail, headers={"WWW-Authenticate": "Bearer"})
 
 
-def get_principal(
-    request: Request,
-    settings: SettingsDep,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-) -> Principal:
-    if credentials is None or not credentials.credentials:
-        raise _unauthorized("send an API token as 'Authorization: Bearer <token>'")
-    token = credentials.credentials
-    if len(token) > 256:
-        raise _unauthorized("the API token is not valid")
+def principal_for_token(request: Request, token: str) -> Principal | None:
+    """Who holds ``token`` (the admin token or a live API token), or None. Shared by the API's bearer
+    auth and the pages' sign-in, so both accept exactly the same tokens."""
+    settings: Settings = request.app.state.settings
+    if not token or len(token) > 256:
+        return None
     if hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
         return Principal(None, admin=True)
     # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
     with request.app.state.runtime.session() as session:
-        participant = queries.participant_for_token(session, token)
-    if participant is None:
+        row = queries.active_token(session, token)
+        if row is None:
+            return None
+        return Principal(row.participant, token_id=row.id)
+
+
+def get_principal(
+    request: Request,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> Principal:
+    if credentials is None or not credentials.credentials:
+        raise _unauthorized("send an API token as 'Authorization: Bearer <token>'")
+    principal = principal_for_token(request, credentials.credentials)
+    if principal is None:
         raise _unauthorized("the API token is not valid (unknown or revoked)")
-    return Principal(participant)
+    return principal
 
 
 def require_admin(principal: Annotated[Principal, Depends(get_principal)]) -> Principal:

@@ -1,17 +1,18 @@
-"""Leaderboards: raw metrics stored, scores and ranks computed on read (BENCHMARK.md §5)."""
+"""Leaderboards: raw metrics and per-group figures stored; scores, intervals and ranks computed once per
+change of the board and served from the cache, a page at a time (BENCHMARK.md §5)."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 
 from robobpp.episode import TERMINATION_REASONS
+from robobpp.leaderboard import board_view, grid_view
 from robobpp.schemas import DatasetName, Leaderboard, OverallGrid, ServiceInfo, SettingName
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep
-from robobpp.server.services import boards
-from robobpp.server.services.boards import BoardCache
+from robobpp.server.services.boards import BoardCache, to_json
 
 router = APIRouter(tags=["leaderboards"])
 Track = Literal["private", "public"]
@@ -21,33 +22,37 @@ def board_cache(request: Request) -> BoardCache:
     """The app's board cache (version-checked against SQL on every read; see services.boards)."""
     cache = getattr(request.app.state, "board_cache", None)
     if cache is None:
-        cache = request.app.state.board_cache = BoardCache()
+        runtime = getattr(request.app.state, "runtime", None)
+        cache = request.app.state.board_cache = BoardCache(runtime.session if runtime is not None else None)
     return cache
 
 
-@router.get(
-    "/leaderboards", response_model=OverallGrid, summary="The overall grid: every board's score and rank"
-)
-def overall(
-    request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private"
-) -> OverallGrid:
-    grid = boards.overall_grid(
-        board_cache(request), session, settings.datasets, settings.enabled_settings, track
+View = Annotated[
+    Literal["best", "all"],
+    Query(description="best: each participant's best entry (default); all: every entry"),
+]
+Limit = Annotated[int, Query(ge=1, le=500)]
+Offset = Annotated[int, Query(ge=0, le=10**7)]
+
+
+@router.get("/leaderboards", response_model=OverallGrid,
+            summary="The overall grid: every board's score and rank, and the Mean with intervals")  # fmt: skip
+def overall(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private",
+            view: View = "best", limit: Limit = 50, offset: Offset = 0) -> Response:  # fmt: skip
+    grid = board_cache(request).grid(
+        session, tuple(settings.datasets), tuple(settings.enabled_settings), track
     )
-    return OverallGrid.model_validate(grid)
+    return Response(to_json(grid_view(grid, view, limit, offset)), media_type="application/json")
 
 
 @router.get("/leaderboards/{dataset}/{setting}", response_model=Leaderboard,
-            summary="One leaderboard (dataset × setting) with raw metrics, normalised scores and rank")  # fmt: skip
-def board(
-    request: Request,
-    dataset: DatasetName,
-    setting: SettingName,
-    session: SessionDep,
-    track: Track = "private",
-) -> Response:
-    _data, body = board_cache(request).get(session, dataset, setting, track)
-    return Response(body, media_type="application/json")
+            summary="One leaderboard (dataset × setting): raw metrics, both scores, intervals and rank intervals")  # fmt: skip
+def board(request: Request, dataset: DatasetName, setting: SettingName, session: SessionDep,
+          track: Track = "private", view: View = "best", limit: Limit = 50, offset: Offset = 0,
+          submission: Annotated[int | None, Query(ge=1, le=2**62, description="Only this submission")] = None,
+          ) -> Response:  # fmt: skip
+    data = board_cache(request).board(session, dataset, setting, track)
+    return Response(to_json(board_view(data, view, limit, offset, submission)), media_type="application/json")
 
 
 @router.get("/info", response_model=ServiceInfo, summary="What this service evaluates")

@@ -1,16 +1,24 @@
-"""Leaderboards with a version-checked cache.
+"""Leaderboards with a version-checked cache, so every read is a dictionary lookup and one small SQL query.
 
-Scores are computed on read (they are relative), but a board only changes when a run on it completes or a
-submission on it finishes; so each read first asks SQL for the board's *version* (count and latest
-timestamps, two indexed aggregates) and recomputes only when it moved. The cache is per process and never
-trusted without that check, so several API processes stay correct.
+A board (scores, bootstrap intervals, rank intervals) is costly to compute — seconds for 10,000 entries —
+and changes only when a submission of its track finishes: its runs are shown only then. So each read asks
+SQL for the track's *version* (count and latest finish time of finished submissions, one index-only
+aggregate) and recomputes only when it moved. The cache is per process and never trusted without that
+check, so several API processes stay correct.
+
+When a large board is stale (its last computation took longer than ``sync_limit_s``), readers keep getting
+the previous version while one background thread computes the new one: a busy board never makes a reader
+wait seconds, and it is current again as soon as that computation ends.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import threading
-from collections import OrderedDict
+import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from datetime import datetime
 from typing import Any
 
@@ -18,20 +26,28 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from robobpp.db import queries
-from robobpp.db.models import RunRow, Submission
-from robobpp.scoring import WEIGHTS
+from robobpp.db.models import Submission
+from robobpp.leaderboard import build_grid
+
+log = logging.getLogger("robobpp.server")
+SessionFactory = Callable[[], AbstractContextManager[Session]]
 
 
-def board_version(session: Session, dataset: str, setting: str, track: str) -> tuple[Any, ...]:
-    runs = session.execute(
-        select(func.count(), func.max(RunRow.completed_at), func.max(RunRow.id)).where(
-            RunRow.dataset == dataset, RunRow.setting == setting, RunRow.status == "completed")
-    ).one()  # fmt: skip
-    subs = session.execute(
-        select(func.count(), func.max(Submission.finished_at)).where(Submission.track == track,
-                                                                      Submission.finished_at.is_not(None))
-    ).one()  # fmt: skip
-    return (*runs, *subs)
+def board_version(session: Session, track: str) -> tuple[Any, ...]:
+    """Changes whenever a submission of ``track`` finishes or is removed (ix_submissions_track_finished).
+
+    Read once per session (one request): a page showing several boards checks the version once.
+    """
+    known: dict[str, tuple[Any, ...]] = session.info.setdefault("board_versions", {})
+    if track not in known:
+        known[track] = tuple(
+            session.execute(
+                select(func.count(), func.max(Submission.finished_at)).where(
+                    Submission.track == track, Submission.finished_at.is_not(None)
+                )
+            ).one()
+        )
+    return known[track]
 
 
 def _default(value: object) -> str:
@@ -44,36 +60,87 @@ def to_json(data: Any) -> bytes:
     return json.dumps(data, default=_default, allow_nan=False, separators=(",", ":")).encode()
 
 
+class _Slot:
+    __slots__ = ("version", "value", "seconds", "refreshing")
+
+    def __init__(self, version: tuple[Any, ...], value: Any, seconds: float) -> None:
+        self.version, self.value, self.seconds, self.refreshing = version, value, seconds, False
+
+
 class BoardCache:
-    def __init__(self, size: int = 64) -> None:
-        self._data: OrderedDict[tuple[str, str, str], tuple[tuple[Any, ...], dict[str, Any], bytes]] = (
-            OrderedDict()
-        )
+    """Boards and grids per (track, …), each stored with the track version it was computed at."""
+
+    def __init__(self, session_factory: SessionFactory | None = None, *, size: int = 64,
+                 sync_limit_s: float = 0.25) -> None:  # fmt: skip
+        self._slots: dict[tuple[Any, ...], _Slot] = {}
         self._lock = threading.Lock()
+        self._computing: dict[tuple[Any, ...], threading.Lock] = {}
+        self.session_factory = session_factory
         self.size = size
+        self.sync_limit_s = sync_limit_s
 
-    def get(
-        self, session: Session, dataset: str, setting: str, track: str = "private"
-    ) -> tuple[dict[str, Any], bytes]:
-        """The board (dict, as :func:`robobpp.db.queries.leaderboard` plus ``weights``) and its JSON."""
-        key = (dataset, setting, track)
-        version = board_version(session, dataset, setting, track)
+    def board(self, session: Session, dataset: str, setting: str, track: str = "private") -> dict[str, Any]:
+        """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``."""
+        version = board_version(session, track)
+        return self._get(("board", dataset, setting, track), version, session,
+                         lambda s: queries.leaderboard(s, dataset, setting, track=track))  # fmt: skip
+
+    def grid(self, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
+             track: str = "private") -> dict[str, Any]:  # fmt: skip
+        """The overall grid from the (cached) boards; page it with ``grid_view``."""
+        version = board_version(session, track)
+
+        def compute(s: Session) -> dict[str, Any]:
+            boards = {f"{st}/{d}": self._get(("board", d, st, track), version, s,
+                                             lambda s2, d=d, st=st: queries.leaderboard(s2, d, st, track=track),
+                                             background=False)  # fmt: skip
+                      for st in settings for d in datasets}  # fmt: skip
+            return build_grid(boards, datasets, settings, track)
+
+        return self._get(("grid", datasets, settings, track), version, session, compute)
+
+    def _get(self, key: tuple[Any, ...], version: tuple[Any, ...], session: Session,
+             compute: Callable[[Session], Any], background: bool = True) -> Any:  # fmt: skip
         with self._lock:
-            hit = self._data.get(key)
-            if hit is not None and hit[0] == version:
-                self._data.move_to_end(key)
-                return hit[1], hit[2]
-        data = {**queries.leaderboard(session, dataset, setting, track=track), "weights": WEIGHTS[setting]}
-        body = to_json(data)
+            slot = self._slots.get(key)
+            if slot is not None and slot.version == version:
+                return slot.value
+            if (background and slot is not None and self.session_factory is not None
+                    and slot.seconds > self.sync_limit_s):  # fmt: skip
+                if not slot.refreshing:
+                    slot.refreshing = True
+                    threading.Thread(target=self._refresh, args=(key, compute), daemon=True,
+                                     name="board-refresh").start()  # fmt: skip
+                return slot.value
+        return self._store(key, version, compute, session)
+
+    def _store(self, key: tuple[Any, ...], version: tuple[Any, ...], compute: Callable[[Session], Any],
+               session: Session) -> Any:  # fmt: skip
         with self._lock:
-            self._data[key] = (version, data, body)
-            while len(self._data) > self.size:
-                self._data.popitem(last=False)
-        return data, body
+            key_lock = self._computing.setdefault(key, threading.Lock())
+        with key_lock:  # readers arriving together wait for one computation instead of each doing it
+            with self._lock:
+                slot = self._slots.get(key)
+                if slot is not None and slot.version == version:
+                    return slot.value
+            started = time.perf_counter()
+            value = compute(session)
+            with self._lock:
+                self._slots[key] = _Slot(version, value, time.perf_counter() - started)
+                while len(self._slots) > self.size:
+                    self._slots.pop(next(iter(self._slots)))
+            return value
 
-
-def overall_grid(cache: BoardCache, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
-                 track: str = "private") -> dict[str, Any]:  # fmt: skip
-    """The 3 × 3 grid from (cached) boards: one row per submission, a (score, rank) cell per board."""
-    return queries.overall_grid(session, datasets=datasets, settings=settings, track=track,
-                                board=lambda dataset, setting: cache.get(session, dataset, setting, track)[0])  # fmt: skip
+    def _refresh(self, key: tuple[Any, ...], compute: Callable[[Session], Any]) -> None:
+        assert self.session_factory is not None
+        try:
+            with self.session_factory() as session:
+                # the version read first: a submission finishing meanwhile makes the next read refresh again
+                session.info.pop("board_versions", None)
+                self._store(key, board_version(session, key[-1]), compute, session)
+        except Exception:  # noqa: BLE001 - readers keep the previous board; the next stale read retries
+            log.exception("board refresh failed for %s", key)
+            with self._lock:
+                slot = self._slots.get(key)
+                if slot is not None:
+                    slot.refreshing = False

@@ -40,6 +40,9 @@ from robobpp.sim.robot.urdf import LINK_NAMES, SHAPES
 Q_SCALE = 10_000
 #: Largest joint error (rad) of the simplified waypoint list against the full one.
 TOLERANCE_RAD = 5e-4
+#: IK step (m) of the replay-only straight moves (pick, the final rise): they are only drawn, and the
+#: joint-linear chord between two poses 10 cm apart strays from the straight line by well under a cm.
+REPLAY_LINE_STEP_M = 0.10
 
 
 def cell(layout: Layout) -> dict[str, Any]:
@@ -114,7 +117,7 @@ def _ticks(trajectory: motion.Trajectory, dt: float) -> np.ndarray:
 def _line_or_joint(layout: Layout, q_from: np.ndarray, tcp_to: np.ndarray, q_to: np.ndarray) -> np.ndarray:
     """A straight TCP line from ``q_from`` to ``tcp_to`` ending exactly on ``q_to``; the plain joint move
     when the line is not reachable."""
-    line = motion.cartesian_line(layout, q_from, tcp_to)
+    line = motion.cartesian_line(layout, q_from, tcp_to, REPLAY_LINE_STEP_M)
     if line is None or motion.joint_time(line[-1], q_to) > 1e-3:
         return np.stack([np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)])
     line[-1] = q_to

@@ -113,3 +113,24 @@ def test_the_replay_reader_takes_and_checks_the_robot(run: tuple) -> None:
     bad["steps"][1]["extra"]["motion"]["phases"][0][0] = "dance"
     with pytest.raises(TraceError, match="phases"):
         viewer_payload(bad)
+
+
+def test_a_box_the_arm_shoves_is_tracked_during_the_transfer() -> None:
+    """A slot behind a 95 cm wall: no path, the unchecked palletiser move drives the carried box into the
+    wall, which the track shows moving before the release, on the arm's own time line."""
+    boxes = [Box(134, 50, 95, 30.0), Box(20, 15, 10, 1.0)]
+    pack = ExecutionPack()
+    try:
+        pack.reset(EpisodeSpec("handmade", "train", 0, tuple(boxes), ContainerSpec(134, 125, 100), 7.0, 0))
+        pack.apply(boxes[0], Action(0, 75, 0), 0)
+        outcome = pack.apply(boxes[1], Action(57, 58, 0), 1)
+    finally:
+        pack.close()
+    assert outcome.dangerous
+    grip_on, grip_off = outcome.extra["motion"]["grip"]
+    track = outcome.extra["track"]
+    (wall,) = [row for row in track["boxes"] if row[0] == 0]
+    first, samples = wall[1], np.array(wall[2:]).reshape(-1, 7)
+    assert grip_on < track["t"][first] < grip_off  # moving while the arm carries the box
+    during = [k for k in range(len(samples)) if track["t"][first + k] <= grip_off]
+    assert np.abs(samples[during[-1]] - samples[0]).max() > 3  # it had moved before the release

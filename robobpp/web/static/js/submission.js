@@ -10,16 +10,21 @@
       const group = data.radar[Number(canvas.dataset.radar)];
       new Chart(canvas, {
         type: "radar",
+        // Long metric names on two lines, so the labels around the chart stay clear of each other.
         data: {
-          labels: group.labels,
+          labels: group.labels.map((l) => (l.length > 12 && l.includes(" ") ? l.split(" ") : l)),
           datasets: group.series.map((s, i) => ({
             label: s.label, data: s.values, borderColor: PALETTE[i % PALETTE.length],
             backgroundColor: PALETTE[i % PALETTE.length] + "22", pointRadius: 3, borderWidth: 2,
           })),
         },
         options: { maintainAspectRatio: false, animation: false,
-          scales: { r: { min: 0, max: 1, ticks: { stepSize: 0.2, backdropColor: "transparent" },
-                         pointLabels: { font: { size: 12 } } } },
+          // Ring labels sit on the vertical axis, under the top metric's label: the outer ring (1) and the
+          // centre (0) go unlabelled and the metric labels keep a gap, so the two never overlap.
+          scales: { r: { min: 0, max: 1,
+                         ticks: { stepSize: 0.25, showLabelBackdrop: false, color: "#64748b", font: { size: 10 },
+                                  callback: (v) => (v > 0 && v < 1 ? v.toFixed(2) : "") },
+                         pointLabels: { font: { size: 12 }, padding: 12 } } },
           plugins: { legend: { position: "bottom" } } },
       });
     });

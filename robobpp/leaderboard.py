@@ -1,0 +1,249 @@
+"""Boards and the overall grid from stored runs: who is ranked, scores with intervals, each participant's best.
+
+Pure functions of plain dicts (no database), so the server, the pages and the tests build boards alike.
+
+Honest entries (docs/benchmark.md, "Who is ranked"): an entry is ranked on a board only when it is
+*valid* (its submission finished without failure and at most ``stats.POLICY_FAILURE_SHARE`` of its episodes
+ended in a policy failure) and *complete* (it ran every group the board's other entries ran). Failed and
+partial entries are listed apart, without rank, and never enter a normalisation, so their arrival moves
+no other entry's score. In the overall grid, the Mean ranks only submissions ranked on every board.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from robobpp import stats
+from robobpp.metrics import metrics_for
+from robobpp.scoring import ANCHORS_VERSION, RANKED_BY, WEIGHTS, competition_ranks, score_board
+
+#: Resamples kept per board for the overall grid's Mean interval (of the board's ``stats.RESAMPLES``).
+GRID_RESAMPLES = 250
+
+
+def participant_key(row: Mapping[str, Any]) -> str:
+    """Whose entry this is, for "each participant's best": each baseline counts as its own participant."""
+    return f"baseline:{row['name']}" if row.get("baseline") else f"participant:{row['participant']}"
+
+
+def _classify(row: Mapping[str, Any], groups: int) -> tuple[str, str]:
+    extras = row.get("extras") or {}
+    episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
+    failures = stats.policy_failure_count(extras.get("terminations"))
+    if stats.run_failed(extras.get("terminations"), episodes):
+        share = f"{100 * stats.POLICY_FAILURE_SHARE:.0f} %"
+        return "failed", f"{failures} of {episodes} episodes ended in a policy failure (more than {share})"
+    if row.get("submission_status") == "failed":
+        return "failed", "the submission failed (some episodes could not be evaluated)"
+    if episodes < groups:
+        return "partial", f"ran {episodes} of the board's {groups} groups"
+    return "ranked", ""
+
+
+def _public(row: Mapping[str, Any]) -> dict[str, Any]:
+    keys = ("submission_id", "name", "participant", "baseline", "metrics", "extras", "completed_at")
+    return {k: row.get(k) for k in keys} | {
+        "metrics": row.get("metrics") or {},
+        "extras": row.get("extras") or {},
+    }
+
+
+def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, track: str) -> dict[str, Any]:
+    """One board from its candidate runs (``submission_id``, ``name``, ``participant``, ``baseline``,
+    ``submission_status``, ``episodes_total``, ``metrics``, ``extras``, ``figures``, ``completed_at``).
+
+    ``entries`` are the ranked ones, best first; ``unranked`` the failed and partial ones. Keys starting
+    with ``_`` are for the grid and never served.
+    """
+    counts = [int((r.get("extras") or {}).get("episodes") or r.get("episodes_total") or 0) for r in rows]
+    valid = [
+        n
+        for r, n in zip(rows, counts, strict=True)
+        if not stats.run_failed((r.get("extras") or {}).get("terminations"), n)
+    ]
+    groups = max(valid, default=0)
+    ranked_rows, unranked = [], []
+    for row in rows:
+        status, reason = _classify(row, groups)
+        if status == "ranked":
+            ranked_rows.append(row)
+        else:
+            unranked.append({**_public(row), "status": status, "reason": reason})
+    scores = score_board(ranked_rows, setting)
+    entries = []
+    for i, row in enumerate(ranked_rows):
+        s = scores.scored[i]
+        entries.append({
+            **_public(row), "rank": s.rank, "rank_low": scores.rank_ci[i][0], "rank_high": scores.rank_ci[i][1],
+            "score": s.score, "score_low": scores.score_ci[i][0], "score_high": scores.score_ci[i][1],
+            "stable": scores.stable[i], "stable_low": scores.stable_ci[i][0], "stable_high": scores.stable_ci[i][1],
+            "normalized": s.normalized, "intervals": {k: list(v) if v else None for k, v in scores.metric_ci[i].items()},
+            "_column": i,
+        })  # fmt: skip
+    _mark_best(entries, scores.samples)
+    order = sorted(range(len(entries)), key=lambda i: (entries[i]["rank"], entries[i]["submission_id"]))
+    unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
+    best = [{**e, "rank": e["best_rank"], "rank_low": e["best_rank_low"], "rank_high": e["best_rank_high"]}
+            for e in entries if e["best"]]  # fmt: skip
+    best.sort(key=lambda e: (e["rank"], e["submission_id"]))
+    return {
+        "dataset": dataset, "setting": setting, "track": track, "metrics": [m.key for m in metrics_for(setting)],
+        "weights": WEIGHTS[setting], "ranked_by": RANKED_BY, "anchors": ANCHORS_VERSION, "groups": groups,
+        "resamples": stats.RESAMPLES, "confidence": stats.CONFIDENCE,
+        "entries": [entries[i] for i in order], "unranked": unranked,
+        # copies: a slice would keep the full resample arrays alive in the cache
+        "_best": best,  # the default view, ready to page
+        "_samples": scores.samples[:GRID_RESAMPLES].copy(),
+        "_stable_samples": scores.stable_samples[:GRID_RESAMPLES].copy(),
+    }  # fmt: skip
+
+
+def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray) -> None:
+    """Flag each participant's best entry and rank the best entries among themselves (with intervals)."""
+    best: dict[str, int] = {}
+    for i, e in enumerate(entries):
+        key = participant_key(e)
+        j = best.get(key)
+        if j is None or (e["rank"], e["submission_id"]) < (entries[j]["rank"], entries[j]["submission_id"]):
+            best[key] = i
+    chosen = sorted(best.values())
+    ranks = competition_ranks([entries[i]["score"] for i in chosen])
+    low, high = stats.rank_interval(stats.rank_samples(samples[:, chosen])) if chosen else ([], [])
+    for e in entries:
+        e["best"] = False
+    for k, i in enumerate(chosen):
+        entries[i].update(
+            best=True, best_rank=ranks[k], best_rank_low=int(low[k]), best_rank_high=int(high[k])
+        )
+
+
+def board_view(board: Mapping[str, Any], view: str = "best", limit: int = 50, offset: int = 0,
+               submission_id: int | None = None) -> dict[str, Any]:  # fmt: skip
+    """One page of a board as served: ``best`` (each participant's best entry, ranked among them) or
+    ``all`` entries; ``submission_id`` narrows to one submission (ranked or not)."""
+    entries: Sequence[Mapping[str, Any]] = board["_best"] if view == "best" else board["entries"]
+    unranked: Sequence[Mapping[str, Any]] = board["unranked"]
+    if submission_id is not None:
+        entries = [e for e in board["entries"] if e["submission_id"] == submission_id]
+        unranked = [e for e in unranked if e["submission_id"] == submission_id]
+    head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
+    return {
+        **head, "view": view, "total": len(entries), "limit": limit, "offset": offset,
+        "entries": [_served(e) for e in entries[offset : offset + limit]],
+        "unranked_total": len(unranked), "unranked": [dict(e) for e in unranked[:limit]],
+    }  # fmt: skip
+
+
+def _served(entry: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in entry.items() if not k.startswith("_") and not k.startswith("best_")}
+
+
+def build_grid(boards: Mapping[str, Mapping[str, Any]], datasets: Sequence[str], settings: Sequence[str],
+               track: str) -> dict[str, Any]:  # fmt: skip
+    """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
+    interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board."""
+    keys = [f"{s}/{d}" for s in settings for d in datasets]
+    rows: dict[int, dict[str, Any]] = {}
+
+    def row_for(e: Mapping[str, Any]) -> dict[str, Any]:
+        return rows.setdefault(e["submission_id"], {"submission_id": e["submission_id"], "name": e["name"],
+                               "participant": e["participant"], "baseline": e["baseline"], "cells": {},
+                               "unranked": {}, "_columns": {}})  # fmt: skip
+
+    for key in keys:
+        for e in boards[key]["entries"]:
+            row = row_for(e)
+            row["cells"][key] = {
+                f: e[f]
+                for f in (
+                    "score",
+                    "score_low",
+                    "score_high",
+                    "rank",
+                    "rank_low",
+                    "rank_high",
+                    "stable",
+                    "stable_low",
+                    "stable_high",
+                )
+            }
+            row["cells"][key]["pph"] = (e.get("extras") or {}).get("pph")
+            row["_columns"][key] = e["_column"]
+        for e in boards[key]["unranked"]:
+            row_for(e)["unranked"][key] = e["status"]
+    complete = [r for r in rows.values() if len(r["cells"]) == len(keys) and keys]
+    _grid_means(complete, boards, keys)
+    ranked_ids = {r["submission_id"] for r in complete}
+    apart = []
+    for r in rows.values():
+        if r["submission_id"] not in ranked_ids:
+            r["status"] = "failed" if "failed" in r["unranked"].values() else "partial"
+            r["boards"] = len(r["cells"])
+            r.update(dict.fromkeys(("mean", "mean_low", "mean_high", "stable", "stable_low", "stable_high",
+                                    "rank", "rank_low", "rank_high")), best=False)  # fmt: skip
+            apart.append(r)
+    complete.sort(key=lambda r: (r["rank"], r["submission_id"]))
+    apart.sort(key=lambda r: (r["status"], -r["boards"], r["submission_id"]))
+    best = [{**r, "rank": r["best_rank"], "rank_low": r["best_rank_low"], "rank_high": r["best_rank_high"]}
+            for r in complete if r["best"]]  # fmt: skip
+    best.sort(key=lambda r: (r["rank"], r["submission_id"]))
+    ranked = {participant_key(r) for r in best}
+    return {"datasets": list(datasets), "settings": list(settings), "track": track, "boards": len(keys),
+            "ranked_by": RANKED_BY, "rows": complete, "apart": apart, "_best": best,
+            "_best_apart": [r for r in apart if participant_key(r) not in ranked]}  # fmt: skip
+
+
+def _grid_means(
+    rows: list[dict[str, Any]], boards: Mapping[str, Mapping[str, Any]], keys: Sequence[str]
+) -> None:
+    """Mean over boards with interval, rank and rank interval; then each participant's best row."""
+    if not rows:
+        return
+    rel = np.zeros((GRID_RESAMPLES, len(rows)), dtype=np.float64)
+    stab = np.zeros_like(rel)
+    for key in keys:
+        cols = [r["_columns"][key] for r in rows]
+        samples, stable = boards[key]["_samples"], boards[key]["_stable_samples"]
+        rel[: samples.shape[0]] += samples[:, cols]
+        stab[: stable.shape[0]] += stable[:, cols]
+    rel = np.round(rel / len(keys), 12)
+    stab /= len(keys)
+    means = [round(sum(r["cells"][k]["score"] for k in keys) / len(keys), 12) for r in rows]
+    stables = [sum(r["cells"][k]["stable"] for k in keys) / len(keys) for r in rows]
+    ranks = competition_ranks(means)
+    lo, hi = stats.interval(rel)
+    slo, shi = stats.interval(stab)
+    rlo, rhi = stats.rank_interval(stats.rank_samples(rel))
+    # the samples are float32 (memory of a 10,000-entry cache): 6 decimals is their precision
+    lo, hi, slo, shi = (np.round(a, 6) for a in (lo, hi, slo, shi))
+    for i, r in enumerate(rows):
+        r.update(status="ranked", boards=len(keys), mean=means[i], mean_low=float(lo[i]), mean_high=float(hi[i]),
+                 stable=stables[i], stable_low=float(slo[i]), stable_high=float(shi[i]), rank=ranks[i],
+                 rank_low=int(rlo[i]), rank_high=int(rhi[i]), best=False)  # fmt: skip
+    best: dict[str, int] = {}
+    for i, r in enumerate(rows):
+        j = best.get(participant_key(r))
+        if j is None or (r["rank"], r["submission_id"]) < (rows[j]["rank"], rows[j]["submission_id"]):
+            best[participant_key(r)] = i
+    chosen = sorted(best.values())
+    best_ranks = competition_ranks([means[i] for i in chosen])
+    blo, bhi = stats.rank_interval(stats.rank_samples(rel[:, chosen]))
+    for k, i in enumerate(chosen):
+        rows[i].update(
+            best=True, best_rank=best_ranks[k], best_rank_low=int(blo[k]), best_rank_high=int(bhi[k])
+        )
+
+
+def grid_view(
+    grid: Mapping[str, Any], view: str = "best", limit: int = 50, offset: int = 0
+) -> dict[str, Any]:
+    """One page of the grid: each participant's best complete submission (ranked among them) or all rows."""
+    rows: list[Mapping[str, Any]] = grid["_best"] if view == "best" else grid["rows"]
+    apart: list[Mapping[str, Any]] = grid["_best_apart"] if view == "best" else grid["apart"]
+    head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
+    return {**head, "view": view, "total": len(rows), "limit": limit, "offset": offset,
+            "rows": [_served(r) for r in rows[offset : offset + limit]], "apart_total": len(apart),
+            "apart": [_served(r) for r in apart[:limit]]}  # fmt: skip

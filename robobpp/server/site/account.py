@@ -1,0 +1,200 @@
+"""Participant pages: sign in with an API token, submit a policy, follow and cancel your submissions.
+
+Every action calls the JSON API's handler (``create_submission``, ``cancel``, ``revoke_token``), so the
+page and ``POST /api/v1/...`` share one code path: the same URL check, quota, ownership and errors.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Form, Path, Request
+from fastapi.responses import HTMLResponse, Response
+from pydantic import ValidationError
+
+from robobpp.datasets import DATASETS
+from robobpp.db import queries
+from robobpp.db.models import Participant
+from robobpp.schemas import SubmissionCreate
+from robobpp.server.api import participants as api_participants
+from robobpp.server.api import submissions as api_submissions
+from robobpp.server.api.deps import Principal, principal_for_token
+from robobpp.server.problems import ProblemError
+from robobpp.server.site import session as web_session
+from robobpp.server.site.render import not_found, redirect, refused, render
+from robobpp.server.site.session import Viewer, load_viewer, viewer
+
+router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
+Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
+#: Form fields are read with generous caps; the API's own models then apply the real limits.
+Text = Annotated[str, Form(max_length=4096)]
+BAD_CSRF = "This form has expired or did not come from this site. Reload the page and try again."
+
+
+def principal_of(request: Request, who: Viewer) -> Principal | None:
+    """The API's principal for a signed-in viewer (a fresh participant row), or None when signed out."""
+    if who.admin:
+        return Principal(None, admin=True)
+    if who.participant_id is None:
+        return None
+    with request.app.state.runtime.session() as session:
+        participant = session.get(Participant, who.participant_id)
+    return None if participant is None else Principal(participant, token_id=who.token_id)
+
+
+def problem_text(exc: ProblemError | ValidationError) -> str:
+    """One readable line per problem; text that came from a policy is cut like everywhere else."""
+    if isinstance(exc, ValidationError):
+        lines = [f"{'.'.join(str(p) for p in e['loc']) or 'form'}: {e['msg']}" for e in exc.errors()]
+        return queries.shown_text("; ".join(lines)) or ""
+    return queries.shown_text(f"{exc.title}: {exc.detail}") or ""
+
+
+# ---- sign in / out ---------------------------------------------------------------------------------------
+
+
+@router.get("/sign-in", response_class=HTMLResponse)
+def sign_in_page(request: Request) -> Response:
+    who = viewer(request)
+    if who.signed_in:
+        return redirect(request, "/operator" if who.admin else "/account")
+    return render(request, "sign_in.html", title="Sign in", nav="account", form=True, error=None)
+
+
+@router.post("/sign-in", response_class=HTMLResponse)
+def sign_in(request: Request, token: Text = "", csrf: Text = "") -> Response:
+    if not web_session.csrf_ok(request, csrf):
+        return render(request, "sign_in.html", 403, title="Sign in", nav="account", form=True, error=BAD_CSRF)
+    principal = principal_for_token(request, token.strip())
+    if principal is None or (principal.participant is not None and principal.participant.is_builtin):
+        return render(request, "sign_in.html", 401, title="Sign in", nav="account", form=True,
+                      error="That token is not valid (unknown or revoked). Ask the operator for a new one.")  # fmt: skip
+    response = redirect(request, "/operator" if principal.admin else "/account")
+    web_session.start(request, response, token_id=principal.token_id, admin=principal.admin)
+    return response
+
+
+@router.post("/sign-out")
+def sign_out(request: Request, csrf: Text = "") -> Response:
+    if not web_session.csrf_ok(request, csrf):
+        return refused(request, BAD_CSRF)
+    response = redirect(request, "/")
+    web_session.end(request, response)
+    return response
+
+
+def _need_sign_in(request: Request) -> Response:
+    return redirect(request, "/sign-in")
+
+
+# ---- your submissions ------------------------------------------------------------------------------------
+
+
+@router.get("/account", response_class=HTMLResponse)
+def account_page(request: Request) -> Response:
+    who = viewer(request)
+    principal = principal_of(request, who)
+    if principal is None:
+        return _need_sign_in(request)
+    settings = request.app.state.settings
+    with request.app.state.runtime.session() as session:
+        me = api_participants.me(request, principal, session, settings)
+        subs = api_submissions.list_submissions(session, principal, limit=200, offset=0)
+        tokens = (
+            api_participants.list_tokens(session, principal, participant_id=None) if not who.admin else []
+        )
+    return render(request, "account.html", title="Your submissions" if not who.admin else "All submissions",
+                  nav="account", me=me, subs=subs, tokens=tokens)  # fmt: skip
+
+
+@router.post("/account/tokens/{token_id}/revoke")
+def revoke_own_token(request: Request, token_id: Id, csrf: Text = "") -> Response:
+    who = viewer(request)
+    principal = principal_of(request, who)
+    if principal is None:
+        return _need_sign_in(request)
+    if not web_session.csrf_ok(request, csrf):
+        return refused(request, BAD_CSRF)
+    try:
+        with request.app.state.runtime.session() as session:
+            api_participants.revoke_token(token_id, session, principal)
+    except ProblemError as exc:
+        return render(request, "error.html", exc.status, title=exc.title, nav="", message=problem_text(exc))
+    # Revoking the token this browser signed in with ends the session: the next page asks to sign in.
+    return redirect(request, "/account")
+
+
+# ---- submit ----------------------------------------------------------------------------------------------
+
+
+def _form_defaults(request: Request) -> dict[str, Any]:
+    settings = request.app.state.settings
+    return {"name": "", "policy_url": "", "datasets": list(settings.datasets),
+            "settings": list(settings.enabled_settings), "track": "private", "lookahead": 0}  # fmt: skip
+
+
+def _submit_page(
+    request: Request, values: dict[str, Any], error: str | None, status_code: int = 200
+) -> Response:
+    settings = request.app.state.settings
+    return render(request, "submit.html", status_code, title="Submit a policy", nav="submit", values=values,
+                  error=error, datasets_offered=[DATASETS[d] for d in settings.datasets],
+                  settings_offered=settings.enabled_settings, quota_day=settings.quota_submissions_per_day,
+                  quota_concurrent=settings.quota_concurrent, min_secret=8)  # fmt: skip
+
+
+@router.get("/submit", response_class=HTMLResponse)
+def submit_page(request: Request) -> Response:
+    if principal_of(request, viewer(request)) is None:
+        return _need_sign_in(request)
+    return _submit_page(request, _form_defaults(request), None)
+
+
+@router.post("/submit", response_class=HTMLResponse)
+def submit(
+    request: Request,
+    name: Text = "",
+    policy_url: Text = "",
+    secret: Text = "",
+    datasets: Annotated[list[str], Form(max_length=8)] = [],  # noqa: B006 - FastAPI copies form defaults
+    settings: Annotated[list[str], Form(max_length=8)] = [],  # noqa: B006
+    track: Text = "private",
+    lookahead: Text = "0",
+    csrf: Text = "",
+) -> Response:
+    principal = principal_of(request, viewer(request))
+    if principal is None:
+        return _need_sign_in(request)
+    # The secret is never echoed back into the form.
+    values = {"name": name, "policy_url": policy_url, "datasets": datasets, "settings": settings, "track": track,
+              "lookahead": lookahead}  # fmt: skip
+    if not web_session.csrf_ok(request, csrf):
+        return _submit_page(request, values, BAD_CSRF, 403)
+    try:
+        body = SubmissionCreate.model_validate({
+            "name": name, "policy_url": policy_url, "secret": secret or None, "datasets": datasets or None,
+            "settings": settings or None, "track": track, "lookahead": int(lookahead) if lookahead.strip().isdigit() else lookahead,
+        })  # fmt: skip
+        created = api_submissions.create_submission(request, body, principal, request.app.state.settings)
+    except (ProblemError, ValidationError) as exc:
+        status = exc.status if isinstance(exc, ProblemError) else 422
+        return _submit_page(request, values, problem_text(exc), status)
+    return redirect(request, f"/submissions/{created.id}")
+
+
+@router.post("/submissions/{submission_id}/cancel")
+def cancel(request: Request, submission_id: Id, csrf: Text = "") -> Response:
+    principal = principal_of(request, viewer(request))
+    if principal is None:
+        return not_found(request, f"There is no submission {submission_id}.")
+    if not web_session.csrf_ok(request, csrf):
+        return refused(request, BAD_CSRF)
+    try:
+        with request.app.state.runtime.session() as session:
+            api_submissions.cancel(submission_id, session, principal)
+    except ProblemError as exc:
+        if exc.status == 404:
+            return not_found(request, f"There is no submission {submission_id}.")
+        if exc.status != 409:  # already finished: the page shows how it ended
+            raise
+    return redirect(request, f"/submissions/{submission_id}")

@@ -1,0 +1,120 @@
+"""Operator pages (admin session): participants, their API tokens and submissions.
+
+A new token is shown once, in the answer to the POST that made it (``Cache-Control: no-store``), the
+way the API shows it; afterwards only its prefix is listed.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Path, Request
+from fastapi.responses import HTMLResponse, Response
+from pydantic import ValidationError
+from sqlalchemy import func, select
+
+from robobpp.db import queries
+from robobpp.db.models import ApiToken, Participant, Submission
+from robobpp.schemas import ParticipantCreate, SubmissionPublic, TokenCreated
+from robobpp.server.api import participants as api_participants
+from robobpp.server.api.deps import Principal
+from robobpp.server.problems import ProblemError
+from robobpp.server.site import session as web_session
+from robobpp.server.site.account import BAD_CSRF, Text, problem_text
+from robobpp.server.site.render import not_found, redirect, refused, render
+from robobpp.server.site.session import load_viewer, viewer
+
+router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
+Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
+ADMIN = Principal(None, admin=True)
+
+
+def _is_admin(request: Request) -> bool:
+    return viewer(request).admin
+
+
+def _participants_page(request: Request, *, created: TokenCreated | None = None, error: str | None = None,
+                       name: str = "", status_code: int = 200) -> Response:  # fmt: skip
+    with request.app.state.runtime.session() as session:
+        tokens = dict(session.execute(select(ApiToken.participant_id, func.count()).where(ApiToken.revoked_at.is_(None))
+                                      .group_by(ApiToken.participant_id)).all())  # fmt: skip
+        subs = dict(session.execute(select(Submission.participant_id, func.count())
+                                    .group_by(Submission.participant_id)).all())  # fmt: skip
+        rows = [{"id": p.id, "name": p.name, "builtin": p.is_builtin, "created_at": p.created_at,
+                 "tokens": tokens.get(p.id, 0), "submissions": subs.get(p.id, 0)}
+                for p in session.execute(select(Participant).order_by(Participant.id)).scalars()]  # fmt: skip
+    return render(request, "operator.html", status_code, title="Participants", nav="operator", rows=rows,
+                  created=created, error=error, name=name)  # fmt: skip
+
+
+@router.get("/operator", response_class=HTMLResponse)
+def operator_page(request: Request) -> Response:
+    if not _is_admin(request):
+        return not_found(request, "There is no such page.")
+    return _participants_page(request)
+
+
+@router.post("/operator/participants", response_class=HTMLResponse)
+def create_participant(request: Request, name: Text = "", csrf: Text = "") -> Response:
+    if not _is_admin(request):
+        return not_found(request, "There is no such page.")
+    if not web_session.csrf_ok(request, csrf):
+        return refused(request, BAD_CSRF)
+    try:
+        body = ParticipantCreate.model_validate({"name": name})
+        with request.app.state.runtime.session() as session:
+            created = api_participants.create_participant(body, session, ADMIN)
+    except (ProblemError, ValidationError) as exc:
+        status = exc.status if isinstance(exc, ProblemError) else 422
+        return _participants_page(request, error=problem_text(exc), name=name, status_code=status)
+    return _participants_page(request, created=created, status_code=201)
+
+
+def _participant_page(request: Request, participant_id: int, *, created: TokenCreated | None = None,
+                      status_code: int = 200) -> Response:  # fmt: skip
+    with request.app.state.runtime.session() as session:
+        participant = session.get(Participant, participant_id)
+        if participant is None:
+            return not_found(request, f"There is no participant {participant_id}.")
+        tokens = api_participants.list_tokens(session, ADMIN, participant_id=participant_id)
+        subs = [SubmissionPublic.model_validate(queries.submission_view(session, s))
+                for s in queries.list_submissions(session, participant_id, limit=200)]  # fmt: skip
+        info = {"id": participant.id, "name": participant.name, "builtin": participant.is_builtin,
+                "created_at": participant.created_at}  # fmt: skip
+    return render(request, "operator_participant.html", status_code, title=f"Participant {info['name']}",
+                  nav="operator", participant=info, tokens=tokens, subs=subs, created=created)  # fmt: skip
+
+
+@router.get("/operator/participants/{participant_id}", response_class=HTMLResponse)
+def participant_page(request: Request, participant_id: Id) -> Response:
+    if not _is_admin(request):
+        return not_found(request, "There is no such page.")
+    return _participant_page(request, participant_id)
+
+
+@router.post("/operator/participants/{participant_id}/tokens", response_class=HTMLResponse)
+def issue_token(request: Request, participant_id: Id, csrf: Text = "") -> Response:
+    if not _is_admin(request):
+        return not_found(request, "There is no such page.")
+    if not web_session.csrf_ok(request, csrf):
+        return refused(request, BAD_CSRF)
+    try:
+        with request.app.state.runtime.session() as session:
+            created = api_participants.create_token(participant_id, session, ADMIN)
+    except ProblemError as exc:
+        return render(request, "error.html", exc.status, title=exc.title, nav="", message=problem_text(exc))
+    return _participant_page(request, participant_id, created=created, status_code=201)
+
+
+@router.post("/operator/tokens/{token_id}/revoke")
+def revoke_token(request: Request, token_id: Id, csrf: Text = "") -> Response:
+    if not _is_admin(request):
+        return not_found(request, "There is no such page.")
+    if not web_session.csrf_ok(request, csrf):
+        return refused(request, BAD_CSRF)
+    try:
+        with request.app.state.runtime.session() as session:
+            token = api_participants.revoke_token(token_id, session, ADMIN)
+    except ProblemError as exc:
+        return render(request, "error.html", exc.status, title=exc.title, nav="", message=problem_text(exc))
+    return redirect(request, f"/operator/participants/{token.participant_id}")

@@ -1,89 +1,148 @@
-"""Fast mode against the full dynamic simulation on REAL train groups (CI runs the synthetic fidelity test;
-this is the same comparison on the benchmark's own data, too slow for CI).
+"""Fidelity of the default physics (fast mode) against the full dynamic simulation on REAL train groups, and
+the full simulation against itself (docs/physics.md, "Fidelity"). Too slow for CI; CI runs a handful of
+these episodes (tests/sim/physics/test_fidelity_real.py).
 
-    python bench/fidelity_physics.py [--groups 5] [--policies dbl,hm] [--noise]
+    python bench/fidelity_physics.py --groups 10 --policies dbl,hm,lsah --out fidelity.jsonl
+    python bench/fidelity_physics.py --summarize fidelity.jsonl
 
-Reports, per dataset: same termination, same boxes placed, and the local-stability difference on episodes that
-neither run ended by a collapse (after a collapse, where falling boxes land is chaotic in both modes).
-``--noise`` also runs the full simulation with the release gap 0.1 mm larger and reports the same figures for
-full against that: the noise floor of the reference itself, which fast mode cannot be expected to beat.
+Per episode three runs: ``fast`` (the default), ``full`` (every box dynamic, the whole 200-step window at
+every placement) and ``full+0.1mm`` (full with the release gap 0.1 mm larger: the reference's own chaos).
+Two runs *agree* on an episode when they end for the same reason, place the same number of boxes (±1) and
+their Local Stability is within 5 mm. The pass mark: fast agrees with full as often as full+0.1mm does,
+tested with the exact one-sided McNemar test on the paired outcomes (are there significantly more episodes
+where only the fast comparison disagrees than where only the noise comparison does?).
+
+Each episode's line (JSON) also holds the CPU seconds of every box (observe + decision + place and settle),
+so the same run gives the per-dataset CPU-s per box of the default mode beside the full simulation's.
+Episodes run group by group across datasets and policies, so a run cut short still covers all of them.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
 
-from _common import machine
+from _common import machine, median, percentile
 
 from robobpp.datasets import DATASETS, episode_specs
 from robobpp.episode import EpisodeResult, run_episode
 from robobpp.policies import load_policy
 from robobpp.sim.physics import PhysicsConfig, PhysicsPack
+from robobpp.sim.physics.fidelity import Outcome, compare, mcnemar_one_sided
 
-RUNS = {
+RUNS: dict[str, dict[str, Any]] = {
     "fast": {"mode": "fast"},
     "full": {"mode": "full"},
     "full+0.1mm": {"mode": "full", "release_gap_cm": PhysicsConfig().release_gap_cm + 0.01},
 }
 
 
-class Tally:
-    """Agreement of one run against the reference (full) over a data set's episodes."""
+def outcome(run: dict[str, Any]) -> Outcome:
+    return Outcome(run["termination"], run["placed"], run["ls"] or 0.0)
 
-    def __init__(self) -> None:
-        self.n = self.same_term = self.same_boxes = self.compared = 0
-        self.worst = 0.0
 
-    def add(self, a: EpisodeResult, b: EpisodeResult) -> None:
-        self.n += 1
-        self.same_term += a.termination == b.termination
-        self.same_boxes += a.boxes_placed == b.boxes_placed
-        if "collapse" not in (a.termination, b.termination):
-            self.compared += 1
-            diff = abs((a.metrics["local_stability"] or 0) - (b.metrics["local_stability"] or 0))
-            self.worst = max(self.worst, diff * 1000)
+def run_one(spec: Any, policy: str, run: str) -> dict[str, Any]:
+    per_box: list[float] = []
+    last = time.process_time()
 
-    def row(self, name: str, against: str, cpu: float) -> str:
-        return (f"| {name} | {against} | {self.n} | {self.same_term}/{self.n} | {self.same_boxes}/{self.n} "
-                f"| {self.compared} | {self.worst:.2f} | {cpu:.0f} |")  # fmt: skip
+    def tick(_record: object) -> None:
+        nonlocal last
+        now = time.process_time()
+        per_box.append(now - last)
+        last = now
+
+    result: EpisodeResult = run_episode(spec, load_policy(policy), PhysicsPack(**RUNS[run]), on_step=tick)
+    return {
+        "termination": result.termination, "placed": result.boxes_placed,
+        "ls": result.metrics.get("local_stability"), "util": result.metrics.get("space_utilization"),
+        "static": result.metrics.get("static_stability"), "cpu_per_box": per_box,
+    }  # fmt: skip
+
+
+def summarize(lines: list[dict[str, Any]]) -> str:
+    out = []
+    by_ds: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for line in lines:
+        by_ds[line["dataset"]].append(line)
+    out.append(
+        "| dataset | episodes | compared | same termination | boxes placed ±1 | LS within 5 mm | agree (all three) |"
+    )
+    out.append("|---|---|---|---|---|---|---|")
+    pairs = {"fast vs full": ("fast", "full"), "full+0.1mm vs full": ("full+0.1mm", "full")}
+    flags: dict[str, list[bool]] = {name: [] for name in pairs}
+    for ds in [*by_ds, "all"]:
+        rows = lines if ds == "all" else by_ds[ds]
+        for name, (a, b) in pairs.items():
+            got = [compare(outcome(r["runs"][a]), outcome(r["runs"][b])) for r in rows]
+            n = len(got)
+            cols = [sum(g.same_termination for g in got), sum(g.same_boxes for g in got),
+                    sum(g.same_local_stability for g in got)]  # fmt: skip
+            both = sum(g.agree for g in got)
+            if ds == "all":
+                flags[name] = [g.agree for g in got]
+            out.append(
+                f"| {ds} | {n} | {name} | {cols[0]}/{n} | {cols[1]}/{n} | {cols[2]}/{n} | {both}/{n} |"
+            )
+    fast_only = sum(
+        f and not n for f, n in zip(flags["full+0.1mm vs full"], flags["fast vs full"], strict=True)
+    )
+    noise_only = sum(
+        n and not f for f, n in zip(flags["full+0.1mm vs full"], flags["fast vs full"], strict=True)
+    )
+    # Discordant pairs: b = only fast disagrees, c = only the noise run disagrees. H0: b and c are equally
+    # likely; H1: fast disagrees more often (one-sided exact McNemar = binomial test on b of b + c).
+    p_value = mcnemar_one_sided(fast_only, noise_only)
+    out.append("")
+    out.append(f"discordant episodes: only fast vs full disagrees {fast_only}, only full+0.1mm vs full "
+               f"disagrees {noise_only}; exact one-sided McNemar p = {p_value:.3f} "
+               f"({'pass' if p_value >= 0.05 else 'FAIL'} at 0.05)")  # fmt: skip
+    out.append("")
+    out.append("| dataset | boxes | fast CPU-s/box median | fast p95 | full CPU-s/box median | full p95 |")
+    out.append("|---|---|---|---|---|---|")
+    for ds, rows in by_ds.items():
+        fast = [c for r in rows for c in r["runs"]["fast"]["cpu_per_box"]]
+        full = [c for r in rows for c in r["runs"]["full"]["cpu_per_box"]]
+        out.append(f"| {ds} | {len(fast)} / {len(full)} | {median(fast):.4f} | {percentile(fast, 95):.4f} "
+                   f"| {median(full):.4f} | {percentile(full, 95):.4f} |")  # fmt: skip
+    return "\n".join(out)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--groups", type=int, default=5)
-    parser.add_argument("--policies", default="dbl,hm")
-    parser.add_argument("--noise", action="store_true", help="also full vs full with a 0.1 mm larger gap")
+    parser.add_argument("--groups", type=int, default=10)
+    parser.add_argument("--first-group", type=int, default=0)
+    parser.add_argument("--policies", default="dbl,hm,lsah")
+    parser.add_argument("--datasets", default=",".join(DATASETS))
+    parser.add_argument("--out", type=Path, default=Path("fidelity.jsonl"))
+    parser.add_argument("--summarize", type=Path, help="only print the tables of an existing --out file")
     args = parser.parse_args()
-    runs = ["fast", "full"] + (["full+0.1mm"] if args.noise else [])
-    print(f"machine: {machine()}")
-    rows = []
-    totals = {run: Tally() for run in runs[::2]}
-    for name in DATASETS:
-        tallies = {run: Tally() for run in runs[::2]}  # fast vs full, full+0.1mm vs full
-        cpu = dict.fromkeys(runs, 0.0)
-        for policy in args.policies.split(","):
-            for spec in episode_specs(name, groups=args.groups):
-                results = {}
-                for run in runs:
-                    t0 = time.process_time()
-                    results[run] = run_episode(spec, load_policy(policy), PhysicsPack(**RUNS[run]))
-                    cpu[run] += time.process_time() - t0
-                line = " / ".join(f"{results[r].termination}{results[r].boxes_placed}" for r in runs)
-                print(f"# {name} {policy} group {spec.group}: {' / '.join(runs)} = {line}", flush=True)
-                for run, tally in tallies.items():
-                    tally.add(results[run], results["full"])
-                    totals[run].add(results[run], results["full"])
-        rows += [
-            tallies[run].row(name, f"{run} vs full", cpu[run]) + f" {cpu['full']:.0f} |" for run in tallies
-        ]
-    print("| dataset | compared | episodes | same termination | same boxes placed | compared (no collapse) "
-          "| max LS diff (mm) | its CPU s | full CPU s |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|")
-    print("\n".join(rows))
-    for run, tally in totals.items():
-        print(f"all: {run} vs full: same termination {tally.same_term}/{tally.n}, "
-              f"max LS diff {tally.worst:.2f} mm over {tally.compared} without collapse")  # fmt: skip
+    if args.summarize:
+        print(summarize([json.loads(t) for t in args.summarize.read_text().splitlines() if t.strip()]))
+        return
+    print(f"machine: {machine()}", flush=True)
+    datasets = args.datasets.split(",")
+    specs = {ds: episode_specs(ds, groups=args.first_group + args.groups) for ds in datasets}
+    lines = []
+    with args.out.open("a") as fh:
+        for g in range(args.first_group, args.first_group + args.groups):
+            for ds in datasets:
+                for policy in args.policies.split(","):
+                    spec = specs[ds][g]
+                    runs = {run: run_one(spec, policy, run) for run in RUNS}
+                    line = {"dataset": ds, "policy": policy, "group": spec.group, "runs": runs}
+                    fh.write(json.dumps(line) + "\n")
+                    fh.flush()
+                    lines.append(line)
+                    brief = " / ".join(f"{r['termination']} {r['placed']} {(r['ls'] or 0) * 1000:.1f}mm"
+                                       for r in runs.values())  # fmt: skip
+                    print(
+                        f"# {ds} {policy} group {spec.group}: fast / full / full+0.1mm = {brief}", flush=True
+                    )
+    print(summarize(lines))
 
 
 if __name__ == "__main__":

@@ -74,6 +74,9 @@ class EpisodeResult:
     container: dict[str, float]
     steps: list[StepRecord] = field(default_factory=list)
     final: list[dict[str, Any]] = field(default_factory=list)
+    #: ``Setting.physics_version`` of the setting that produced it (None: Math Pack, or recorded before
+    #: versions existed).
+    physics_version: str | None = None
 
     def to_dict(self, trace: bool = True) -> dict[str, Any]:
         data = asdict(self)
@@ -228,6 +231,7 @@ class Episode:
             metrics=metrics,
             counters=dict(self.counters),
             container={"length": container.length, "width": container.width, "height": container.height},
+            physics_version=self.setting.physics_version,
             steps=self.steps,
             final=[
                 {

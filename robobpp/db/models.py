@@ -161,6 +161,8 @@ class EpisodeRow(Base):
     termination_detail: Mapped[str | None] = mapped_column(Text, default=None)
     boxes_total: Mapped[int | None] = mapped_column(default=None)
     boxes_placed: Mapped[int | None] = mapped_column(default=None)
+    #: ``EpisodeResult.physics_version`` (None: Math Pack); a board shows only the current version's runs.
+    physics_version: Mapped[str | None] = mapped_column(String(32), default=None)
     metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     counters: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     #: Per-step trace; kept for the public track only (private episodes have no replay).

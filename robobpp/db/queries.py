@@ -21,11 +21,13 @@ from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import exists, func, select, true
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.leaderboard import build_board, build_grid
+from robobpp.metrics import PHYSICAL
+from robobpp.sim.physics.config import PHYSICS_VERSION
 
 SETTINGS_ORDER = ("math", "physics", "execution")
 DATASETS_ORDER = ("repetitive", "diverse", "longboard")
@@ -97,6 +99,11 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
 
 def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> list[dict[str, Any]]:
     """Every completed run on the board of a finished submission (failed ones too: they are shown apart)."""
+    # A physical setting's board shows only runs whose every episode ran the current physics version.
+    other_physics = exists().where(
+        EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
+    )
+    current = ~other_physics if setting in PHYSICAL else true()
     rows = session.execute(
         select(
             RunRow.submission_id,
@@ -118,6 +125,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
             RunRow.status == "completed",
             Submission.track == track,
             Submission.status.in_(("completed", "failed")),
+            current,
         )  # fmt: skip
         .order_by(RunRow.submission_id)
     ).all()

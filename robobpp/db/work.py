@@ -196,6 +196,7 @@ def complete_episode(
         "termination_detail": result.get("termination_detail", "")[:4000],
         "boxes_total": result["boxes_total"],
         "boxes_placed": result["boxes_placed"],
+        "physics_version": result.get("physics_version"),
         "step": len(result.get("steps", ())) or result["boxes_placed"],
         "metrics": result["metrics"],
         "counters": result["counters"],

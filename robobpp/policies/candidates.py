@@ -77,6 +77,23 @@ def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
         yield CandidateMap(orientation, length, width, height, z, z + height <= limit, support)
 
 
+def first_supported_index(
+    obs: Observation,
+    ranked: Sequence[int] | np.ndarray,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    orientations: np.ndarray,
+    zs: np.ndarray,
+) -> int | None:
+    """The first index of ``ranked`` (into the parallel arrays) whose placement the support rule accepts."""
+    support = support_model(obs)
+    for k in ranked:
+        length, width, height = obs.box.dims(int(orientations[k]))
+        if support.supports(float(xs[k]), float(ys[k]), length, width, height, float(zs[k])):
+            return int(k)
+    return None
+
+
 def first_supported(
     obs: Observation,
     ranked: Sequence[int] | np.ndarray,
@@ -90,13 +107,8 @@ def first_supported(
     Every candidate must already fit the container; the reference scores only feasible placements and keeps
     the best, which is the first feasible one in score order.
     """
-    support = support_model(obs)
-    for k in ranked:
-        o = int(orientations[k])
-        length, width, height = obs.box.dims(o)
-        if support.supports(float(xs[k]), float(ys[k]), length, width, height, float(zs[k])):
-            return Action(float(xs[k]), float(ys[k]), o)
-    return None
+    k = first_supported_index(obs, ranked, xs, ys, orientations, zs)
+    return None if k is None else Action(float(xs[k]), float(ys[k]), int(orientations[k]))
 
 
 def argmin_placement(

@@ -59,5 +59,11 @@ class Setting(ABC):
     def final_boxes(self) -> list[FinalBox]:
         """Planned vs actual pose of every placed box, read at the end of the episode."""
 
+    @property
+    def physics_version(self) -> str | None:
+        """The version of the physics behind this setting's outcomes (recorded with every result; boards
+        never mix versions); None for a setting without physics (Math Pack)."""
+        return None
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release simulator resources."""

@@ -41,6 +41,8 @@ def render_standalone(episodes: list[dict[str, Any]], source: str = "trace") -> 
             replay_js=Markup((STATIC_DIR / "js" / "replay.js").read_text(encoding="utf-8")),
             three_url=_data_url(vendor / "three.module.min.js"),
             controls_url=_data_url(vendor / "OrbitControls.js"),
+            robot_url=_data_url(STATIC_DIR / "js" / "robot.js"),
+            info_url=_data_url(STATIC_DIR / "js" / "replay_info.js"),
         )
     )
 

@@ -111,3 +111,21 @@ def test_packe_rules_only_uses_its_generators() -> None:
     # floor building) — the lowest top there is 1.
     obs = scene((10, 10, 10), [(2, 0, 3, 10, 2)], (2, 10, 1))
     assert where(act("packe-rules", obs)) == (0, 0, 0)
+
+
+def test_sdfpack_branch_and_bound_finds_the_exhaustive_minimum(monkeypatch: pytest.MonkeyPatch) -> None:
+    import numpy as np
+
+    import robobpp.policies.sdfpack as sdf
+
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        placed = [
+            (int(rng.integers(0, 14)), int(rng.integers(0, 10)), 6, 5, float(rng.integers(1, 6)))
+            for _ in range(6)
+        ]
+        obs = scene((20, 15, 30), placed, (4, 3, 2))
+        monkeypatch.setattr(sdf, "CHUNK", 7)  # many rounds, stopping early
+        bounded = where(SDFPack().act(obs))
+        monkeypatch.setattr(sdf, "CHUNK", 10**9)  # everything in one round
+        assert bounded == where(SDFPack().act(obs))

@@ -79,6 +79,17 @@ def _seed(client: TestClient, tokens: dict[str, str]) -> tuple[int, int, int, in
             if track == "public":
                 ep.trace = _trace()
             sub.error = DETAIL
+            if track == "private":  # finished and failed: a failed entry, shown apart on the public board
+                for other in s.execute(
+                    select(EpisodeRow).where(EpisodeRow.submission_id == sub.id)
+                ).scalars():
+                    other.status, other.termination, other.termination_detail = "done", "policy_error", DETAIL
+                    other.finished_at, other.boxes_total, other.boxes_placed = utcnow(), 4, 0
+                for run in sub.runs:
+                    run.status, run.completed_at = "completed", utcnow()
+                    run.metrics = {"space_utilization": 0.0, "occupancy": 0.0, "decision_time": 0.01}
+                    run.extras = {"terminations": {"policy_error": run.episodes_total}}
+                sub.status, sub.finished_at = "failed", utcnow()
             s.flush()
             ids += [sub.id, ep.id]
     return ids[0], ids[1], ids[2], ids[3]
@@ -175,10 +186,21 @@ def test_operator_pages_are_the_operators(world: World, who: str, path: str) -> 
 
 @pytest.mark.parametrize("who", VIEWERS)
 def test_public_pages_never_show_failure_reasons(world: World, who: str) -> None:
+    board = world.clients[who].get("/boards/diverse/math")
+    assert "alice-private" in board.text  # the failed entry is on the public board, by name...
     for path in ("/", "/?track=public", "/boards/diverse/math", "/boards/diverse/math?track=public"):
         r = world.clients[who].get(path)
         assert r.status_code == 200, path
-        assert LEAK not in r.text and TAIL not in r.text and POLICY_URL not in r.text, path
+        assert LEAK not in r.text and TAIL not in r.text and POLICY_URL not in r.text, (
+            path
+        )  # ...not its reasons
+    api = world.clients["anonymous"].get("/api/v1/leaderboards/diverse/math")
+    assert (
+        api.status_code == 200
+        and "alice-private" in api.text
+        and LEAK not in api.text
+        and TAIL not in api.text
+    )
 
 
 def test_cancel_form_needs_the_owner_and_a_csrf_token(world: World) -> None:

@@ -6,6 +6,8 @@ Every figure that changes a physical outcome lives here, so a run can record exa
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
@@ -18,6 +20,14 @@ from robobpp.core.feasibility import TOLERANCE_CM
 #: everything is at rest. Both are deterministic.
 Mode = Literal["full", "fast"]
 
+#: The version of the simulated physics. Every stored result records it (``EpisodeResult.physics_version``,
+#: the episodes table, ``evaluate --json``) and a board shows only results of the current one. Bump it
+#: whenever a change to this package can change an outcome (a termination, a pose, a metric).
+#: 1: friction 0.5, dataset masses, release into the footprint as chosen, collapse on the horizontal
+#: distance. 2: the reference implementation's friction (1.0), mass (0.5 kg), collapse rule (|dx| or |dy|
+#: over the threshold) and a release clear of the neighbours (docs/physics.md, "Against the reference").
+PHYSICS_VERSION = "2"
+
 
 @dataclass(frozen=True, slots=True)
 class PhysicsConfig:
@@ -25,14 +35,23 @@ class PhysicsConfig:
     dt: float = 1.0 / 240.0
     #: Gravity, m/s² (pointing down).
     gravity: float = 9.81
-    #: Coulomb friction, box–box and box–floor.
-    lateral_friction: float = 0.5
+    #: Coulomb friction of a contact pair, box–box and box–floor (the reference implementation's 1.0).
+    lateral_friction: float = 1.0
     restitution: float = 0.0
     #: Velocity damping per second (pybullet's defaults, kept explicit so they are recorded).
     linear_damping: float = 0.04
     angular_damping: float = 0.04
     #: Constraint solver iterations per step (pybullet's default).
     solver_iterations: int = 50
+    #: Every box is simulated with this mass, kg (the reference implementation's 0.5 kg for every box);
+    #: None: the dataset's mass. Only the physics uses it: the Execution Pack's suction check keeps the
+    #: dataset's mass.
+    box_mass_kg: float | None = 0.5
+    #: Release the box clear of a neighbour that reaches less than ``edge_tolerance_cm`` into its footprint
+    #: (shifted horizontally by that overlap plus ``clear_gap_cm``), as the reference never releases a box
+    #: into another; False releases it into the neighbour and the solver pushes the two apart.
+    release_clear: bool = True
+    clear_gap_cm: float = 0.01
     #: Side walls around the pallet (the reference implementation has none: a pallet, not a bin).
     walls: bool = False
     #: Gap between the box's bottom and its computed resting height at release, cm.
@@ -76,10 +95,13 @@ class PhysicsConfig:
             or self.release_gap_cm < 0
             or self.edge_tolerance_cm < 0
             or self.wake_margin_cm < 0
+            or self.clear_gap_cm < 0
         ):
             raise ValueError("release gap, edge tolerance and wake margin must be >= 0")
         if min(self.solver_iterations, self.stability_steps, self.rest_steps, self.max_steps) < 1:
             raise ValueError("solver iterations and step counts must be >= 1")
+        if self.box_mass_kg is not None and not (math.isfinite(self.box_mass_kg) and self.box_mass_kg > 0):
+            raise ValueError(f"physics box_mass_kg must be > 0 or None, got {self.box_mass_kg!r}")
         if self.mode not in ("full", "fast"):
             raise ValueError(f"physics mode must be 'full' or 'fast', got {self.mode!r}")
 
@@ -92,3 +114,17 @@ class PhysicsConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @property
+    def version(self) -> str:
+        """``PHYSICS_VERSION`` for the validated defaults (either mode: fast is validated against full);
+        otherwise that plus a short digest of the settings, so a result of changed physics never shares
+        a board with the defaults'."""
+        changed = {k: v for k, v in self.to_dict().items() if k != "mode" and v != getattr(_DEFAULTS, k)}
+        if not changed:
+            return PHYSICS_VERSION
+        digest = hashlib.sha256(json.dumps(changed, sort_keys=True).encode()).hexdigest()[:8]
+        return f"{PHYSICS_VERSION}+{digest}"
+
+
+_DEFAULTS = PhysicsConfig()

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from robobpp.core import Placement
+
 #: Cells of the footprint sampled by the vertical rays: at most this far apart, cm.
 RAY_SPACING_CM = 1.0
 
@@ -123,3 +125,43 @@ def heightmap_from_boxes(
             region = hm[i0:i1, j0:j1]
             np.maximum(region, bz, out=region)
     return hm
+
+
+def _overlaps(lo: np.ndarray, hi: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+    """Mask of the bounds (lo, hi) that overlap the box [box_lo, box_hi] with positive volume."""
+    return ((np.minimum(hi, box_hi) - np.maximum(lo, box_lo)) > 1e-9).all(axis=1)
+
+
+def clear_shift(
+    lo: np.ndarray, hi: np.ndarray, planned: Placement, gap: float, tolerance: float, clearance: float
+) -> tuple[float, float]:
+    """Horizontal shift (cm) that moves ``planned``, released ``gap`` above its height, out of every box
+    bound (lo, hi) it would start inside, along the axis that needs less, by the overlap + ``clearance``.
+
+    Only overlaps of at most ``tolerance`` are shifted away (deeper ones are what the box rests on); when
+    the needed shifts conflict (neighbours on both sides) or the shifted box would still start inside a
+    box, no shift: (0, 0), and the solver separates them as before.
+    """
+    x0, y0, z0 = planned.x, planned.y, planned.z + gap
+    box_lo = np.array([x0, y0, z0])
+    box_hi = box_lo + np.array([planned.length, planned.width, planned.height])
+    hits = _overlaps(lo, hi, box_lo, box_hi)
+    if not hits.any():
+        return 0.0, 0.0
+    shift = np.zeros(2)
+    lo_h, hi_h = lo[hits, :2], hi[hits, :2]
+    # Per blocking box and axis: the shift that ends the overlap, towards the side away from its centre.
+    centre = (box_lo[:2] + box_hi[:2]) / 2
+    away = np.where((lo_h + hi_h) / 2 > centre, lo_h - box_hi[:2] - clearance, hi_h - box_lo[:2] + clearance)
+    for need in away:
+        axis = int(np.argmin(np.abs(need)))
+        if abs(need[axis]) > tolerance + clearance:
+            return 0.0, 0.0
+        if shift[axis] * need[axis] < 0:  # pushed from both sides along this axis
+            return 0.0, 0.0
+        shift[axis] = need[axis] if abs(need[axis]) > abs(shift[axis]) else shift[axis]
+    moved_lo = box_lo + np.array([shift[0], shift[1], 0.0])
+    moved_hi = box_hi + np.array([shift[0], shift[1], 0.0])
+    if _overlaps(lo, hi, moved_lo, moved_hi).any():
+        return 0.0, 0.0
+    return float(shift[0]), float(shift[1])

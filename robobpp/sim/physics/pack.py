@@ -11,7 +11,7 @@ import numpy as np
 from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
-from robobpp.sim.physics.geometry import heightmap_from_boxes, surface_height
+from robobpp.sim.physics.geometry import aabbs, clear_shift, heightmap_from_boxes, surface_height
 from robobpp.sim.physics.recording import PoseRecorder
 from robobpp.sim.physics.settle import Displacement, Settler, SettleReport, detect_collapse
 from robobpp.sim.physics.world import PhysicsWorld, WorldBox
@@ -49,6 +49,10 @@ class PhysicsPack(Setting):
         self.recorder: PoseRecorder | None = None
 
     # -- Setting -------------------------------------------------------------------------------------
+    @property
+    def physics_version(self) -> str:
+        return self.config.version
+
     def reset(self, spec: EpisodeSpec) -> None:
         self.close()
         self.spec = spec
@@ -121,13 +125,29 @@ class PhysicsPack(Setting):
         from the start like the new box.
         """
         world = self._world()
+        cfg = self.config
         cx, cy, cz = planned.center
+        if cfg.release_clear:
+            dx, dy = self._clearance(planned)
+            cx, cy = cx + dx, cy + dy
         extents = (planned.length, planned.width, planned.height)
-        new = world.add_box((cx, cy, cz + self.config.release_gap_cm), extents, mass)
+        body_mass = mass if cfg.box_mass_kg is None else cfg.box_mass_kg
+        new = world.add_box((cx, cy, cz + cfg.release_gap_cm), extents, body_mass)
         self._boxes.append(new)
         self._planned.append(planned)
         self._state = None
         return self._settler.run([new, *disturbed], self.recorder)
+
+    def _clearance(self, planned: Placement) -> tuple[float, float]:
+        """Horizontal shift (cm) that releases ``planned`` clear of the placed boxes reaching into its
+        footprint above its resting height (by less than the edge tolerance, which ``resting_height``
+        ignores); (0, 0) when nothing is in the way or no shift of at most that size clears it all."""
+        centers, quats, halves = self._world().poses_cm(self._boxes)
+        lo, hi = aabbs(centers, quats, halves)
+        return clear_shift(
+            lo, hi, planned, self.config.release_gap_cm, self.config.edge_tolerance_cm,
+            self.config.clear_gap_cm,
+        )  # fmt: skip
 
     def finish_placement(
         self,

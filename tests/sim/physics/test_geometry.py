@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from robobpp.sim.physics.geometry import aabbs, heightmap_from_boxes, surface_height
+from robobpp.core import Placement
+from robobpp.sim.physics.geometry import aabbs, clear_shift, heightmap_from_boxes, surface_height
 
 UPRIGHT = (0.0, 0.0, 0.0, 1.0)
 
@@ -51,3 +52,35 @@ def test_heightmap_covers_actual_bounds() -> None:
     hm = heightmap_from_boxes((40, 20), c, q, h, tolerance=0.5)
     assert hm[:20, :].min() == 10
     assert hm[20:, :].max() == 5 and hm[20:, :].min() == 5
+
+
+def _bounds(*boxes: tuple[float, float, float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    arr = np.array(boxes, dtype=float).reshape(-1, 6)
+    return arr[:, :3], arr[:, 3:]
+
+
+def test_clear_shift_moves_the_box_out_of_a_shallow_neighbour() -> None:
+    """A neighbour reaching 4 mm into the footprint: the box is shifted away by 4 mm + the clearance."""
+    lo, hi = _bounds((0, 0, 0, 27.4, 30, 20))  # neighbour occupies x < 27.4
+    planned = Placement(27, 0, 0, 20, 20, 10, 0, 0)
+    dx, dy = clear_shift(lo, hi, planned, 0.2, 0.5, 0.01)
+    assert (dx, dy) == pytest.approx((0.41, 0.0))
+    # On the other side it is shifted the other way; along y the same.
+    lo, hi = _bounds((46.8, 0, 0, 70, 30, 20))
+    assert clear_shift(lo, hi, planned, 0.2, 0.5, 0.01) == pytest.approx((-0.21, 0.0))
+    lo, hi = _bounds((27, 19.7, 0, 47, 40, 20))
+    assert clear_shift(lo, hi, planned, 0.2, 0.5, 0.01) == pytest.approx((0.0, -0.31))
+
+
+def test_clear_shift_leaves_what_it_cannot_or_need_not_clear() -> None:
+    planned = Placement(27, 0, 0, 20, 20, 10, 0, 0)
+    # Nothing in the way; a box below the release height (what it rests on) is not in the way either.
+    assert clear_shift(*_bounds((0, 0, 0, 10, 10, 5)), planned, 0.2, 0.5, 0.01) == (0.0, 0.0)
+    assert clear_shift(*_bounds((20, 0, -10, 50, 30, 0)), planned, 0.2, 0.5, 0.01) == (0.0, 0.0)
+    # Deeper than the tolerance, or squeezed from both sides along x: released as chosen.
+    assert clear_shift(*_bounds((0, 0, 0, 28, 30, 20)), planned, 0.2, 0.5, 0.01) == (0.0, 0.0)
+    both = _bounds((0, 0, 0, 27.3, 30, 20), (46.8, 0, 0, 70, 30, 20))
+    assert clear_shift(*both, planned, 0.2, 0.5, 0.01) == (0.0, 0.0)
+    # A shift that would run into another box is not taken.
+    blocked = _bounds((0, 0, 0, 27.3, 30, 20), (47.1, 0, 0, 47.3, 30, 20))
+    assert clear_shift(*blocked, planned, 0.2, 0.5, 0.01) == (0.0, 0.0)

@@ -148,3 +148,18 @@ def test_stability_reward() -> None:
     assert stability_reward(0.0, None, []) == 0.0
     with pytest.raises(ValueError):
         stability_reward(float("nan"), 0.5, [])
+
+
+@pytest.mark.parametrize(("threshold", "collapsed"), [(6.0, False), (4.9, True)])
+def test_collapse_is_dx_or_dy_over_the_threshold(threshold: float, collapsed: bool) -> None:
+    """The reference implementation's rule: 5 cm along x and 5 cm along y (7.1 cm diagonally) is within a
+    6 cm threshold; either component over it is a collapse."""
+    from robobpp.core import ContainerSpec
+
+    with PhysicsWorld() as world:
+        world.add_pallet(ContainerSpec(100, 100, 100))
+        box = world.add_box((50, 50, 5), (10, 10, 10), 1.0)
+        moved = detect_collapse(world, [box], [(45, 45, 5)], [0], threshold_cm=threshold)
+        assert bool(moved) is collapsed
+        if moved:
+            assert moved[0].horizontal_cm == pytest.approx(5.0, abs=0.01)

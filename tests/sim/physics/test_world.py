@@ -17,7 +17,8 @@ def test_defaults_are_the_benchmarks() -> None:
     cfg = PhysicsConfig()
     assert cfg.dt == pytest.approx(1 / 240)
     assert cfg.gravity == pytest.approx(9.81)
-    assert cfg.lateral_friction == pytest.approx(0.5)
+    assert cfg.lateral_friction == pytest.approx(1.0)  # the reference implementation's
+    assert cfg.box_mass_kg == pytest.approx(0.5)
     assert cfg.restitution == 0.0
     assert cfg.walls is False
     assert cfg.stability_steps == 200
@@ -37,6 +38,8 @@ def test_defaults_are_the_benchmarks() -> None:
         dict(release_gap_cm=float("nan")),
         dict(mode="turbo"),
         dict(max_steps=0),
+        dict(box_mass_kg=0.0),
+        dict(clear_gap_cm=-0.1),
     ],  # fmt: skip
 )
 def test_bad_config_is_refused(bad: dict[str, object]) -> None:
@@ -55,10 +58,13 @@ def test_box_comes_to_rest_on_the_pallet() -> None:
         assert world.speeds([box])[0] < 1e-3
 
 
-@pytest.mark.parametrize(("slope", "slides"), [(0.45, False), (0.55, True)])
-def test_pair_friction_is_one_half(slope: float, slides: bool) -> None:
-    """Tilting gravity by atan(slope): a box sticks below μ = 0.5 and slides above it (Bullet multiplies)."""
-    with PhysicsWorld() as world:
+@pytest.mark.parametrize(
+    ("friction", "slope", "slides"),
+    [(1.0, 0.9, False), (1.0, 1.1, True), (0.5, 0.45, False), (0.5, 0.55, True)],
+)
+def test_pair_friction_is_as_configured(friction: float, slope: float, slides: bool) -> None:
+    """Tilting gravity by atan(slope): a box sticks below μ and slides above it (Bullet multiplies)."""
+    with PhysicsWorld(PhysicsConfig(lateral_friction=friction)) as world:
         world.add_pallet(PALLET)
         box = world.add_box((60, 60, 5), (30, 20, 10), 5.0)
         theta = math.atan(slope)

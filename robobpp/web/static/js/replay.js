@@ -10,38 +10,22 @@
 // The same file runs on the server's replay page and in `robobpp view`'s offline page.
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { Robot, bracket, jointsAt } from "robobpp/robot.js";
+import { TERMINATION_TEXT, episodeRows, overlayText, setKV, stepRows } from "robobpp/replay_info.js";
 
 // Viridis from a quarter up (its darkest end hides edges and shading), then interpolated in sRGB.
 const VIRIDIS = ["#3b528b", "#2c728e", "#21918c", "#27ad81", "#5ec962", "#aadc32", "#fde725"]
   .map((hex) => { const c = new THREE.Color(hex); return [c.r, c.g, c.b]; });
 const COLLAPSE_COLOR = new THREE.Color("#e11d48");
 const PATH_COLOR = new THREE.Color("#8b5cf6");
-const ARM_COLOR = 0xf26a0f; // the robot's links; the tests look for this hue
-const JOINT_COLOR = 0x374151;
 // Collapse thresholds of BENCHMARK.md §2 (cm): a box displaced further than this is drawn as collapsed.
 const THRESHOLDS = { repetitive: 7, diverse: 4, longboard: 7 };
-// Units of the compact trace arrays (robobpp/sim/execution/recording.py, robobpp/sim/physics/recording.py).
-const Q_UNIT = 1e-4; // rad
+// Units of the compact box tracks (robobpp/sim/physics/recording.py).
 const TRACK_CM = 0.1; // mm -> cm
 const TRACK_QUAT = 1e-4;
 // A step with nothing timed (or a very short one) still takes this long at 1×, so every box is seen.
 const MIN_STEP_S = 0.4;
 const SPEEDS = [0.25, 0.5, 1, 2, 4, 8, 16];
-const TERMINATION_TEXT = {
-  completed: "every box was placed",
-  no_feasible_placement: "no feasible placement",
-  out_of_bounds: "footprint outside the container",
-  too_high: "box top above the container",
-  collapse: "collapse",
-  policy_error: "policy error",
-  policy_timeout: "policy timeout",
-  protocol_violation: "protocol violation",
-  episode_timeout: "episode time budget exceeded",
-  grasp_failed: "suction grasp failed",
-  invalid_action: "invalid action",
-};
-const PHASE_TEXT = { pick: "pick", transfer: "transfer", retreat: "retreat" };
-
 function viridis(t) {
   const x = Math.min(1, Math.max(0, t)) * (VIRIDIS.length - 1);
   const i = Math.min(VIRIDIS.length - 2, Math.floor(x));
@@ -49,24 +33,6 @@ function viridis(t) {
   const a = VIRIDIS[i];
   const b = VIRIDIS[i + 1];
   return new THREE.Color(a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f, a[2] + (b[2] - a[2]) * f);
-}
-
-function fmt(value, digits = 3, unit = "") {
-  if (value === null || value === undefined || !Number.isFinite(value)) return "—";
-  const text = value.toFixed(digits);
-  return `${/^-0(\.0+)?$/.test(text) ? text.slice(1) : text}${unit}`;
-}
-
-function setKV(dl, rows) {
-  dl.replaceChildren();
-  for (const [key, value, cls] of rows) {
-    const dt = document.createElement("dt");
-    dt.textContent = key;
-    const dd = document.createElement("dd");
-    dd.textContent = value; // textContent: trace strings are never parsed as HTML
-    if (cls) dd.className = cls;
-    dl.append(dt, dd);
-  }
 }
 
 // Rotation of a box: the quaternion's attitude, less the nominal 90° yaw already in the swapped extents
@@ -85,89 +51,6 @@ function boxRotation(p) {
 
 function center(p) {
   return new THREE.Vector3(p.x + p.length / 2, p.y + p.width / 2, p.z + p.height / 2);
-}
-
-// Index of the last entry of the ascending `times` that is <= t (0 when t precedes them all).
-function bracket(times, t) {
-  let lo = 0;
-  let hi = times.length - 1;
-  while (lo < hi) {
-    const mid = (lo + hi + 1) >> 1;
-    if (times[mid] <= t) lo = mid; else hi = mid - 1;
-  }
-  return lo;
-}
-
-// Joint angles (rad) of a step's motion at `ms` into the step: joint-linear between waypoints, as driven.
-function jointsAt(motion, ms) {
-  const { t, q } = motion;
-  const i = bracket(t, ms);
-  const j = Math.min(i + 1, t.length - 1);
-  const f = j > i && t[j] > t[i] ? Math.min(1, Math.max(0, (ms - t[i]) / (t[j] - t[i]))) : 0;
-  const out = new Array(6);
-  for (let k = 0; k < 6; k += 1) out[k] = (q[6 * i + k] + f * (q[6 * j + k] - q[6 * i + k])) * Q_UNIT;
-  return out;
-}
-
-// The arm, built from the cell's joint table: one Object3D per joint frame, each turning about its axis.
-class Robot {
-  constructor(cell) {
-    this.cell = cell;
-    this.root = new THREE.Group();
-    const [bx, by, bz, yaw] = cell.base;
-    this.root.position.set(bx * 100, by * 100, bz * 100);
-    this.root.rotation.z = yaw;
-    this.root.scale.setScalar(100); // the cell is in metres, the scene in cm
-    const arm = new THREE.MeshStandardMaterial({ color: ARM_COLOR, roughness: 0.5, metalness: 0.1 });
-    const dark = new THREE.MeshStandardMaterial({ color: JOINT_COLOR, roughness: 0.6, metalness: 0.2 });
-    const axes = { x: new THREE.Vector3(1, 0, 0), y: new THREE.Vector3(0, 1, 0), z: new THREE.Vector3(0, 0, 1) };
-    Robot.addShapes(this.root, cell.shapes[0], dark);
-    let parent = this.root;
-    this.joints = cell.joints.map(([axis, x, y, z], i) => {
-      const node = new THREE.Object3D();
-      node.position.set(x, y, z);
-      node.userData.axis = axes[axis];
-      parent.add(node);
-      Robot.addShapes(node, cell.shapes[i + 1], i >= 4 ? dark : arm);
-      parent = node;
-      return node;
-    });
-    const flange = this.joints[5];
-    Robot.addShapes(flange, cell.shapes[7], dark);
-    const [toolLength, toolRadius] = cell.tool;
-    const cup = new THREE.Mesh(new THREE.CylinderGeometry(toolRadius * 1.6, toolRadius * 1.6, 0.02, 24).rotateZ(Math.PI / 2), dark);
-    cup.position.set(toolLength - 0.01, 0, 0);
-    flange.add(cup);
-    this.tcp = new THREE.Object3D();
-    this.tcp.position.set(toolLength, 0, 0);
-    flange.add(this.tcp);
-    // The carried box rides on the TCP at the pose the trace gives (box frame in the TCP frame, metres).
-    this.carried = new THREE.Group();
-    this.tcp.add(this.carried);
-    this.setJoints(cell.home);
-  }
-
-  static addShapes(node, shapes, material) {
-    for (const [kind, size, xyz, rpy] of shapes) {
-      const geometry = kind === "box"
-        ? new THREE.BoxGeometry(size[0], size[1], size[2])
-        // URDF cylinders lie along z, three.js's along y.
-        : new THREE.CylinderGeometry(size[0], size[0], size[1], 28).rotateX(Math.PI / 2);
-      const mesh = new THREE.Mesh(geometry, material);
-      mesh.position.set(xyz[0], xyz[1], xyz[2]);
-      mesh.rotation.set(rpy[0], rpy[1], rpy[2], "ZYX"); // URDF rpy: Rz(yaw) Ry(pitch) Rx(roll)
-      node.add(mesh);
-    }
-  }
-
-  setJoints(q) {
-    this.joints.forEach((node, i) => node.quaternion.setFromAxisAngle(node.userData.axis, q[i]));
-    this.root.updateMatrixWorld(true);
-  }
-
-  tcpWorld() {
-    return new THREE.Vector3().setFromMatrixPosition(this.tcp.matrixWorld);
-  }
 }
 
 class Replay {
@@ -654,59 +537,14 @@ class Replay {
 
   // -- figures beside the view -------------------------------------------------------------------------
   showStepInfo(frame, phase, ms) {
-    const dl = this.el("step-info");
-    const ep = this.episode;
-    this.overlay.classList.remove("collapse");
-    if (frame === 0) {
-      setKV(dl, [["Step", `0 of ${this.frames}`], ["State", "empty container"]]);
-      this.overlay.textContent = `${ep.dataset} · ${ep.setting} — empty container`;
-      return;
-    }
-    const s = ep.steps[frame - 1];
-    const p = s.placement;
-    const rows = [
-      ["Step", `${frame} of ${this.frames} (box #${s.step ?? frame - 1})`],
-      ["Box (cm)", `${fmt(s.box.length, 0)} × ${fmt(s.box.width, 0)} × ${fmt(s.box.height, 0)}`],
-      ["Position (cm)", p ? `x ${fmt(p.x, 1)}, y ${fmt(p.y, 1)}, z ${fmt(p.z, 1)}` : "not placed"],
-      ["Orientation", p ? (p.orientation === 1 ? "1 (rotated 90°)" : "0 (length along x)") : "—"],
-      ["Decision time", fmt(s.decision_time === null ? null : s.decision_time * 1000, 2, " ms")],
-    ];
-    if (s.static_stability !== null) rows.push(["Static stability", fmt(s.static_stability, 3)]);
-    if (s.trajectory_length_m !== null) rows.push(["Tool path", fmt(s.trajectory_length_m, 2, " m")]);
-    if (s.motion) rows.push(["Operation", `${fmt((s.motion.grip[1] - s.motion.grip[0]) / 1000, 2, " s")} grasp to release`]);
-    if (s.dangerous !== null) rows.push(["Dangerous", s.dangerous ? "yes" : "no", s.dangerous ? "bad" : ""]);
-    if (s.collapsed) rows.push(["Collapse", "yes — a box moved beyond the threshold", "bad"]);
-    if (s.termination) rows.push(["Ended", TERMINATION_TEXT[s.termination] || s.termination, "bad"]);
-    setKV(dl, rows);
-    let text = `Step ${frame} / ${this.frames}`;
-    if (ms !== null && phase) {
-      const suction = this.root.dataset.suction === "on" ? " · suction on" : "";
-      text += ` — ${PHASE_TEXT[phase] || phase}${suction} · ${fmt(ms / 1000, 2, " s")}`;
-    } else if (frame === this.frames) text += ` — final state: ${TERMINATION_TEXT[ep.termination] || ep.termination}`;
-    if (s.dangerous) text += " — dangerous operation";
-    if (s.collapsed && (ms === null || phase === "settle" || phase === "retreat")) { text += " — collapse!"; this.overlay.classList.add("collapse"); }
-    else if (s.dangerous || (s.termination && s.termination !== "completed" && ms === null)) this.overlay.classList.add("collapse");
+    setKV(this.el("step-info"), stepRows(this.episode, frame));
+    const { text, alarm } = overlayText(this.episode, frame, phase, ms, this.root.dataset.suction === "on");
+    this.overlay.classList.toggle("collapse", alarm);
     this.overlay.textContent = text;
   }
 
   showEpisodeInfo() {
-    const ep = this.episode;
-    const pct = (v) => (v === null || v === undefined ? "—" : `${(v * 100).toFixed(1)}%`);
-    const rows = [
-      ["Dataset", ep.dataset || "—"], ["Setting", ep.setting || "—"], ["Policy", ep.policy || "—"],
-      ["Group", ep.group ?? "—"], ["Boxes placed", `${ep.boxes_placed ?? "?"} of ${ep.boxes_total ?? "?"}`],
-      ["Container (cm)", `${ep.container.length} × ${ep.container.width} × ${ep.container.height}`],
-      ["Ended", `${TERMINATION_TEXT[ep.termination] || ep.termination}`],
-    ];
-    if (ep.termination_detail && ep.termination_detail !== TERMINATION_TEXT[ep.termination]
-        && ep.termination !== "completed") rows.push(["Detail", ep.termination_detail]);
-    const m = ep.metrics || {};
-    if ("space_utilization" in m) rows.push(["Utilization", pct(m.space_utilization)]);
-    if ("occupancy" in m) rows.push(["Occupancy", pct(m.occupancy)]);
-    if ("local_stability" in m) rows.push(["Local stability", fmt(m.local_stability, 4, " m")]);
-    if ("static_stability" in m) rows.push(["Static stability", fmt(m.static_stability, 3)]);
-    if ("trajectory_length" in m) rows.push(["Trajectory", fmt(m.trajectory_length, 2, " m")]);
-    setKV(this.el("episode-info"), rows);
+    setKV(this.el("episode-info"), episodeRows(this.episode));
   }
 
   // For tests and the console: the TCP in the container frame (cm), or null without a robot.

@@ -1,0 +1,155 @@
+"""The paper's baseline table, reproduced: Space Utilization of every paper heuristic × dataset, paper vs ours.
+
+For each dataset the first ``--groups`` train groups (80 boxes each, seed 0) are run with each of the paper's
+seven heuristics through the one episode loop (``run_episode``) in ``--setting`` (math or physics). The mean
+Space Utilization is set beside the paper's figure (its appendix tables, Math Pack and Physics Pack), with the
+Spearman rank correlation of the seven heuristics and the mean absolute difference per dataset.
+
+    python bench/paper_table.py --setting math --groups 30 [--json out.json] [--datasets ...] [--policies ...]
+    nice python bench/paper_table.py --setting physics --groups 10
+
+Geometry and physics figures are deterministic; nothing here depends on the machine but the run time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from collections import Counter
+from typing import Any
+
+import numpy as np
+from _common import machine
+
+DATASETS = ("repetitive", "diverse", "longboard")
+#: The paper's seven heuristics, in its order.
+POLICIES = ("dbl", "hm", "lsah", "onlinebph", "br", "macs", "sdfpack")
+
+#: Space Utilization from the paper's appendix tables (test split, 30 sequences): Repetitive, Diverse, Long Board.
+PAPER: dict[str, dict[str, tuple[float, float, float]]] = {
+    "math": {
+        "dbl": (0.617, 0.549, 0.520),
+        "hm": (0.579, 0.423, 0.355),
+        "lsah": (0.619, 0.569, 0.474),
+        "onlinebph": (0.500, 0.474, 0.428),
+        "br": (0.587, 0.524, 0.363),
+        "macs": (0.445, 0.352, 0.232),
+        "sdfpack": (0.586, 0.543, 0.274),
+    },
+    "physics": {
+        "dbl": (0.385, 0.257, 0.349),
+        "hm": (0.398, 0.330, 0.255),
+        "lsah": (0.373, 0.285, 0.254),
+        "onlinebph": (0.116, 0.120, 0.277),
+        "br": (0.222, 0.258, 0.169),
+        "macs": (0.070, 0.134, 0.135),
+        "sdfpack": (0.150, 0.259, 0.155),
+    },
+}
+
+
+def ranks(values: list[float]) -> np.ndarray:
+    """Ranks 1..n, ties given their average rank (as Spearman's rho needs)."""
+    a = np.asarray(values, dtype=np.float64)
+    order = np.argsort(a, kind="stable")
+    out = np.empty(len(a))
+    out[order] = np.arange(1, len(a) + 1)
+    for v in np.unique(a):
+        tied = a == v
+        out[tied] = out[tied].mean()
+    return out
+
+
+def spearman(x: list[float], y: list[float]) -> float:
+    rx, ry = ranks(x), ranks(y)
+    return float(np.corrcoef(rx, ry)[0, 1])
+
+
+def switch_off_support() -> None:
+    """Experiment only: every placement counts as supported (what packsim's Math Pack does, see the docs)."""
+    from robobpp.core.feasibility import SupportModel
+
+    SupportModel.why_unsupported = lambda self, *args: None  # type: ignore[method-assign]
+    SupportModel.mask = lambda self, z, length, width, height, fits: fits.copy()  # type: ignore[method-assign]
+
+
+def run(dataset: str, policy: str, setting: str, groups: int) -> dict[str, Any]:
+    from robobpp.datasets import episode_specs
+    from robobpp.episode import run_episode
+    from robobpp.policies import load_policy
+
+    cpu0 = time.process_time()
+    results = [run_episode(s, load_policy(policy), setting) for s in episode_specs(dataset, "train", groups)]
+    return {
+        "space_utilization": statistics.mean(r.metrics["space_utilization"] for r in results),
+        "boxes_placed": statistics.mean(r.boxes_placed for r in results),
+        "terminations": dict(Counter(r.termination for r in results)),
+        "cpu_s": time.process_time() - cpu0,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--setting", choices=("math", "physics"), default="math")
+    parser.add_argument("--groups", type=int, default=30)
+    parser.add_argument("--datasets", default=",".join(DATASETS))
+    parser.add_argument("--policies", default=",".join(POLICIES))
+    parser.add_argument("--json", help="also write every figure here")
+    parser.add_argument(
+        "--no-support",
+        action="store_true",
+        help="experiment: switch the support rule off (Math Pack and every policy's candidates)",
+    )
+    args = parser.parse_args()
+    if args.no_support:
+        switch_off_support()
+    datasets = [d for d in args.datasets.split(",") if d]
+    policies = [p for p in args.policies.split(",") if p]
+    paper = PAPER[args.setting]
+    ours: dict[str, dict[str, dict[str, Any]]] = {}
+    for dataset in datasets:
+        ours[dataset] = {}
+        for policy in policies:
+            ours[dataset][policy] = run(dataset, policy, args.setting, args.groups)
+            fig = ours[dataset][policy]
+            print(f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
+                  f"({fig['boxes_placed']:.1f} boxes, {fig['terminations']}, {fig['cpu_s']:.0f} s)", flush=True)  # fmt: skip
+
+    col = {d: DATASETS.index(d) for d in datasets}
+    rule = " without the support rule (experiment)" if args.no_support else ""
+    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, train split, {args.groups} groups (seed 0); "
+          f"paper: its test-split tables. {machine()}\n")  # fmt: skip
+    print("| heuristic | " + " | ".join(f"{d} paper | {d} ours | diff" for d in datasets) + " |")
+    print("|---|" + "---:|" * (3 * len(datasets)))
+    for policy in policies:
+        cells = []
+        for d in datasets:
+            p, o = paper[policy][col[d]], ours[d][policy]["space_utilization"]
+            cells += [f"{p:.3f}", f"{o:.3f}", f"{o - p:+.3f}"]
+        print(f"| {policy} | " + " | ".join(cells) + " |")
+    summary = {}
+    for d in datasets:
+        p = [paper[q][col[d]] for q in policies]
+        o = [ours[d][q]["space_utilization"] for q in policies]
+        summary[d] = {
+            "spearman": spearman(p, o) if len(policies) > 2 else float("nan"),
+            "mean_abs_diff": float(np.mean(np.abs(np.subtract(o, p)))),
+        }
+    print("| **Spearman** | " + " | ".join(f" | {summary[d]['spearman']:.2f} | " for d in datasets) + " |")
+    print(
+        "| **mean abs diff** | "
+        + " | ".join(f" | {summary[d]['mean_abs_diff']:.3f} | " for d in datasets)
+        + " |"
+    )
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"setting": args.setting, "groups": args.groups, "ours": ours, "paper": paper,
+                       "summary": summary}, fh, indent=1)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,78 @@
+"""Every result records the physics version that produced it; a board never mixes versions."""
+
+from __future__ import annotations
+
+import pytest
+from _physics_specs import spec_of
+from sqlalchemy import select
+
+from robobpp.core import Box
+from robobpp.db import work
+from robobpp.db.migrate import upgrade
+from robobpp.db.models import EpisodeRow, Participant
+from robobpp.db.queries import leaderboard
+from robobpp.db.session import make_engine, make_session_factory, transaction
+from robobpp.episode import EpisodeResult, run_episode
+from robobpp.policies import load_policy
+from robobpp.sim import make_setting
+from robobpp.sim.physics import PHYSICS_VERSION, PhysicsConfig
+
+
+def test_results_record_the_physics_version() -> None:
+    spec = spec_of([Box(20, 20, 10, 1.0)] * 2)
+    physics = run_episode(spec, load_policy("dbl"), "physics")
+    assert physics.physics_version == PHYSICS_VERSION
+    assert EpisodeResult.from_dict(physics.to_dict(trace=False)).physics_version == PHYSICS_VERSION
+    assert run_episode(spec, load_policy("dbl"), "math").physics_version is None
+    # Full mode is the validated default's reference: the same version. Changed physics is not.
+    assert make_setting("physics", mode="full").physics_version == PHYSICS_VERSION
+    custom = make_setting("physics", lateral_friction=0.5).physics_version
+    assert custom is not None and custom.startswith(PHYSICS_VERSION + "+")
+    assert custom != make_setting("physics", walls=True).physics_version
+    assert PhysicsConfig(lateral_friction=0.5).version == custom  # a pure function of the settings
+
+
+@pytest.fixture
+def factory(tmp_path):  # type: ignore[no-untyped-def]
+    url = f"sqlite:///{tmp_path / 'board.db'}"
+    engine = make_engine(url)
+    upgrade(url, engine=engine)
+    yield make_session_factory(engine)
+    engine.dispose()
+
+
+def _finished_submission(factory, name: str, version: str | None) -> None:  # type: ignore[no-untyped-def]
+    with transaction(factory) as s:
+        p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
+        if p is None:
+            p = Participant(name="p")
+            s.add(p)
+            s.flush()
+        work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
+                               settings=["math", "physics"], groups=1)  # fmt: skip
+    for setting in ("math", "physics"):
+        with transaction(factory) as s:
+            claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
+            assert claim is not None
+            row = s.get(EpisodeRow, claim.episode_id)
+            assert row is not None and row.setting == setting
+            metrics = {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01}
+            if setting == "physics":
+                metrics |= {"local_stability": 0.01, "static_stability": 0.4}
+            result = {"termination": "completed", "termination_detail": "", "boxes_total": 3,
+                      "boxes_placed": 3, "metrics": metrics, "counters": {}, "steps": [],
+                      "physics_version": version if setting == "physics" else None}  # fmt: skip
+            assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
+            s.refresh(row)
+            assert row.physics_version == result["physics_version"]
+
+
+def test_a_physics_board_shows_only_the_current_version(factory) -> None:  # type: ignore[no-untyped-def]
+    _finished_submission(factory, "now", PHYSICS_VERSION)
+    _finished_submission(factory, "old", "1")
+    _finished_submission(factory, "unversioned", None)
+    with transaction(factory) as s:
+        physics = [e["name"] for e in leaderboard(s, "diverse", "physics", track="private")["entries"]]
+        math = sorted(e["name"] for e in leaderboard(s, "diverse", "math", track="private")["entries"])
+    assert physics == ["now"]
+    assert math == ["now", "old", "unversioned"]  # geometry has no physics version

@@ -6,7 +6,7 @@ import pytest
 from robobpp.core import Placement, check_action
 from robobpp.episode import NO_FEASIBLE_PLACEMENT, Episode, run_episode
 from robobpp.policies import load_policy
-from robobpp.policies.pct.leaves import SpaceTracker, build_nodes, supported
+from robobpp.policies.pct.leaves import SpaceTracker, build_nodes
 from tests.conftest import make_spec
 from tests.policies.scenes import scene
 
@@ -53,16 +53,13 @@ def test_the_first_internal_node_is_valid_before_any_box():
     assert nodes.next_item.tolist() == [1, 0, 0, 2, 3, 4]  # sides ascending
 
 
-def test_support_needs_the_centre_inside_the_shrunk_contact_polygon():
-    tops = np.array([[0, 0, 4, 3, 2.0]])  # the corner box's footprint and top
-    assert supported(1, 0, 2, 2, 2.0, tops)  # fully on the box
-    # half on the box: contact [2, 4] × [0, 3] shrinks to [2.1, 3.9] × [0.15, 2.85]; centre x = 4 is outside
-    assert not supported(2, 0, 4, 4, 2.0, tops)
-    # resting on two boxes: the hull spans the gap between them, the centre is over the gap
-    two = np.array([[0, 0, 3, 10, 2.0], [7, 0, 10, 10, 2.0]])
-    assert supported(0, 0, 10, 4, 2.0, two)
-    assert supported(5, 5, 1, 1, 0.0, two)  # on the floor
-    assert not supported(0, 0, 10, 4, 3.0, two)  # nothing has its top at 3 cm
+def test_leaves_follow_the_support_rule():
+    # a 4 × 6 box on the 4 × 3 corner box at (0, 0): the contact [0, 4] × [0, 3] shrinks to [0.2, 3.8] × [0.15, 2.85]
+    obs = scene((10, 10, 10), [CORNER_BOX], (4, 6, 1))
+    nodes = build_nodes(obs, spaces_of(obs)[1], np.random.default_rng(0))
+    assert (0, 0, 0) not in nodes.actions  # 4 along x, 6 along y: centre (2, 3) is off the polygon
+    assert (0, 0, 1) in nodes.actions  # turned, 6 along x: centre (3, 2) is on it
+    assert {(6, 0, 0), (0, 4, 0), (6, 4, 0)} <= set(nodes.actions)  # on the floor: always supported
 
 
 def test_tracker_rebuilds_when_a_placed_box_moved():

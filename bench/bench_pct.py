@@ -21,6 +21,7 @@ from _common import machine, median, percentile
 from robobpp.datasets import episode_specs
 from robobpp.episode import Episode
 from robobpp.policies import load_policy
+from robobpp.policies.candidates import support_model
 
 
 def main() -> None:
@@ -37,7 +38,7 @@ def main() -> None:
         anything = types.SimpleNamespace(supports=lambda *_a: True)
         leaves.support_model = lambda _obs: anything  # type: ignore[assignment]
     specs = episode_specs(args.dataset, split="train", groups=args.groups, seed=0)
-    cpu, wall, utils = [], [], []
+    cpu, wall, build, utils = [], [], [], []
     for k, spec in enumerate(specs, 1):
         policy = load_policy("pct")
         episode = Episode(spec, "math")
@@ -45,9 +46,12 @@ def main() -> None:
         while not episode.done:
             obs = episode.observe()
             c0, w0 = time.thread_time(), time.perf_counter()
+            support_model(obs)  # built once per state (cached), shared with Math Pack's own check
+            c1 = time.thread_time()
             action = policy.act(obs)
             cpu.append(time.thread_time() - c0)
             wall.append(time.perf_counter() - w0)
+            build.append(c1 - c0)
             episode.step(action, wall[-1])
         utils.append(episode.result("pct").metrics["space_utilization"])
         print(f"\r{k}/{len(specs)}", end="", file=sys.stderr, flush=True)

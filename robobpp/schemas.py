@@ -109,6 +109,9 @@ class SubmissionPublic(BaseModel):
     error: str | None
     progress: Progress
     runs: list[RunPublic]
+    #: Re-evaluation on the hold-out draw (docs/server.md, threat model): ``status`` (running, verified,
+    #: disagrees, failed, cancelled), the verification's ``submission_id``, and per board both intervals.
+    verification: dict[str, Any] | None = None
 
 
 class EpisodePublic(BaseModel):
@@ -158,6 +161,8 @@ class LeaderboardEntry(BaseModel):
     normalized: dict[str, float]
     extras: dict[str, Any]
     completed_at: datetime | None
+    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, failed, or null.
+    verification: str | None = None
 
 
 class UnrankedEntry(BaseModel):
@@ -172,6 +177,8 @@ class UnrankedEntry(BaseModel):
     metrics: dict[str, float | None]
     extras: dict[str, Any]
     completed_at: datetime | None
+    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, failed, or null.
+    verification: str | None = None
 
 
 class Leaderboard(BaseModel):

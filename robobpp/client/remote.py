@@ -209,8 +209,11 @@ class RemotePolicy:
         headers = list(self._headers)
         if payload is not None:
             headers.append(("Content-Type", "application/json"))
+        request_signature = ""
         if self.secret is not None:
-            headers.extend(P.signed_headers(self.secret, body).items())
+            signed = P.signed_headers(self.secret, body)
+            request_signature = signed[P.SIGNATURE_HEADER]
+            headers.extend(signed.items())
         try:
             answer = self._connection.request(
                 method, self._path + path, headers, body, deadline, self.max_response_bytes
@@ -238,7 +241,16 @@ class RemotePolicy:
                 PROTOCOL_VIOLATION,
                 f"the answer to {what} is larger than the {self.max_response_bytes}-byte cap ({exc})",
             ) from None
-        return self._parse(what, answer, model)
+        parsed = self._parse(what, answer, model)
+        if self.secret is not None:
+            # The answer must be signed for this very request: a replayed or altered one ends the episode.
+            episode_id = str(payload.get("episode_id", "")) if payload else ""
+            try:
+                P.verify_answer(self.secret, answer.headers, answer.body, episode_id=episode_id,
+                                step=payload.get("step") if payload else None, request_signature=request_signature)  # fmt: skip
+            except P.SignatureError as exc:
+                raise PolicyError(PROTOCOL_VIOLATION, f"the answer to {what} is refused: {exc}") from None
+        return parsed
 
     def _parse(self, what: str, answer: wire.Answer, model: type[M]) -> M:
         status, headers, content = answer.status, answer.headers, answer.body

@@ -87,12 +87,20 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
     day = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.created_at > now - timedelta(days=1))
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.created_at > now - timedelta(days=1),
+            Submission.track != "verify",
+        )  # the operator's verifications use no quota
     ).scalar_one()
     active = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.status.in_(("queued", "running")))
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.status.in_(("queued", "running")),
+            Submission.track != "verify",
+        )
     ).scalar_one()
     return int(day), int(active)
 
@@ -116,6 +124,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
             Submission.status,
             Participant.name,
             Participant.is_builtin,
+            Submission.verification,
         )  # fmt: skip
         .join(Submission, Submission.id == RunRow.submission_id)
         .join(Participant, Participant.id == Submission.participant_id)
@@ -130,8 +139,15 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
         .order_by(RunRow.submission_id)
     ).all()
     keys = ("submission_id", "metrics", "extras", "figures", "episodes_total", "completed_at", "name",
-            "submission_status", "participant", "baseline")  # fmt: skip
-    return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9])} for r in rows]
+            "submission_status", "participant", "baseline", "verification")  # fmt: skip
+    return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": _verdict(r[10])}
+            for r in rows]  # fmt: skip
+
+
+def _verdict(verification: dict[str, Any] | None) -> str | None:
+    """What a board shows of a verification: only a finished verdict."""
+    status = (verification or {}).get("status")
+    return status if status in ("verified", "disagrees", "failed") else None
 
 
 def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private") -> dict[str, Any]:
@@ -190,6 +206,7 @@ def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
         "runs": [{"dataset": r.dataset, "setting": r.setting, "status": r.status,
                   "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
                   "completed_at": r.completed_at} for r in sub.runs],
+        "verification": sub.verification,
     }  # fmt: skip
 
 

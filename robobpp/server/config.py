@@ -53,7 +53,11 @@ class Settings(BaseSettings):
     settings: tuple[str, ...] = ()
     #: ``module:function(dataset, split, group, groups) -> EpisodeSpec`` override (tests, offline demo).
     spec_provider: str = ""
-    lease_s: float = Field(default=120.0, gt=0)
+    #: Worker lease; renewed every quarter lease (heartbeat), swept every quarter lease: a dead worker's
+    #: episode is back in the queue within 1.25 leases (25 s with the default).
+    lease_s: float = Field(default=20.0, gt=0)
+    #: Episodes of one participant's remote policies running at once, whatever the number of workers.
+    participant_max_running: int = Field(default=4, ge=1, le=1000)
     #: Celery executor (scaled deployment): ``redis://…`` or ``amqp://…``; empty = local process pool.
     broker_url: str = ""
     #: Broker queue the episode tasks go to (one per deployment; tests use a fresh one per run).
@@ -71,6 +75,11 @@ class Settings(BaseSettings):
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)
+    #: Submit-time ``GET /info`` checks: deadline on the whole exchange, at most this many at once overall
+    #: and per participant (server/probes.py).
+    probe_timeout_s: float = Field(default=5.0, gt=0, le=60)
+    probe_concurrency: int = Field(default=8, ge=1, le=256)
+    probe_per_participant: int = Field(default=1, ge=1, le=64)
     quota_submissions_per_day: int = Field(default=10, ge=0)
     quota_concurrent: int = Field(default=2, ge=0)
 

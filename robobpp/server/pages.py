@@ -135,7 +135,7 @@ def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, l
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
     return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
-                  has_pph="execution" in ran, owner=owner,
+                  has_pph="execution" in ran, owner=owner, site=str(request.base_url).rstrip("/"),
                   can_cancel=owner and view["status"] in ("queued", "running"),
                   episodes=episodes, ranks=ranks, charts=charts, metrics=columns, public=sub.track == "public",
                   reasons={**TERMINATION_REASONS, **EXTRA_REASONS}, neutral=NEUTRAL_ENDINGS)  # fmt: skip

@@ -14,12 +14,15 @@ class WorkerOptions:
     groups: int = 30
     private_dir: Path = Path("datasets_private")
     spec_provider: str = ""
-    lease_s: float = 120.0
+    #: Short, renewed every quarter lease by a heartbeat: a dead worker's episode is re-sent within ~25 s.
+    lease_s: float = 20.0
     max_attempts: int = 3
     poll_interval_s: float = 0.5
     step_timeout_s: float = 10.0
     episode_timeout_s: float = 1800.0
     response_cap_bytes: int = 64 * 1024
+    #: Episodes of one participant's remote policies running at once (outbound calls to one server).
+    max_running_per_participant: int = 4
 
 
 def worker_options(settings: Any) -> WorkerOptions:
@@ -29,4 +32,5 @@ def worker_options(settings: Any) -> WorkerOptions:
         spec_provider=settings.spec_provider, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
         poll_interval_s=settings.poll_interval_s, step_timeout_s=settings.step_timeout_s,
         episode_timeout_s=settings.episode_timeout_s, response_cap_bytes=settings.response_cap_bytes,
+        max_running_per_participant=settings.participant_max_running,
     )  # fmt: skip

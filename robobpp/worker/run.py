@@ -22,6 +22,7 @@ from robobpp.db.work import Claim
 from robobpp.episode import StepRecord, run_episode
 from robobpp.policies import load_policy
 from robobpp.worker.options import WorkerOptions
+from robobpp.worker.outage import OutageLog
 from robobpp.worker.specs import episode_spec
 
 log = logging.getLogger("robobpp.worker")
@@ -54,7 +55,7 @@ def make_policy(claim: Claim, settings: WorkerOptions) -> Any:
 
 
 class _Lease(threading.Thread):
-    """Renews the lease every third of its length; flags the claim lost when renewal is refused."""
+    """The heartbeat: renews the lease every quarter of its length; flags the claim lost when refused."""
 
     def __init__(self, factory: sessionmaker[Session], claim: Claim, lease_s: float) -> None:
         super().__init__(name=f"lease-{claim.episode_id}", daemon=True)
@@ -64,15 +65,17 @@ class _Lease(threading.Thread):
         self.done = threading.Event()
 
     def run(self) -> None:
-        interval = max(0.2, min(self.lease_s / 3, 10.0))
+        interval = max(0.2, min(self.lease_s / 4, 10.0))
+        outages = OutageLog(log, f"lease of episode {self.claim.episode_id}")
         while not self.done.wait(interval):
             try:
                 with self.factory() as s, s.begin():
                     ok = work.heartbeat(s, self.claim.episode_id, self.claim.token, lease_s=self.lease_s,
                                         step=self.step)  # fmt: skip
-            except Exception:  # noqa: BLE001 - a blip of the database: try again next interval
-                log.warning("lease renewal of episode %s failed", self.claim.episode_id, exc_info=True)
+            except Exception as exc:  # noqa: BLE001 - a blip of the database: try again next interval
+                outages.failed(exc, "renewal")
                 continue
+            outages.ok("database")
             if not ok:
                 self.lost.set()
                 return
@@ -121,7 +124,8 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
 def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worker: str) -> bool | None:
     """Claim the next episode and run it. ``None`` when there was nothing to do."""
     with factory() as s, s.begin():
-        claim = work.claim_episode(s, worker, lease_s=settings.lease_s, max_attempts=settings.max_attempts)
+        claim = work.claim_episode(s, worker, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
+                                   max_running_per_participant=settings.max_running_per_participant)  # fmt: skip
     if claim is None:
         return None
     return run_claimed(factory, claim, settings)

@@ -65,9 +65,7 @@ def submit(app: Any, participant: str, url: str, *, datasets: tuple[str, ...] = 
 
 def drain(app: Any) -> None:
     runtime = app.state.runtime
-    while (
-        claim_and_run(runtime.session_factory, worker_options(runtime.settings), "test:host:1") is not None
-    ):
+    while claim_and_run(runtime.session_factory, worker_options(runtime.settings), "test:host:1") is not None:
         pass
 
 

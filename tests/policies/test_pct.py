@@ -1,5 +1,7 @@
 """PCT's tree nodes on hand-built scenes (worked out by hand), and the policy with the authors' weights."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -53,9 +55,13 @@ def test_the_first_internal_node_is_valid_before_any_box():
     assert nodes.next_item.tolist() == [1, 0, 0, 2, 3, 4]  # sides ascending
 
 
-def test_leaves_follow_the_support_rule():
+def test_leaves_follow_the_support_rule_in_the_physical_settings():
     # a 4 × 6 box on the 4 × 3 corner box at (0, 0): the contact [0, 4] × [0, 3] shrinks to [0.2, 3.8] × [0.15, 2.85]
-    obs = scene((10, 10, 10), [CORNER_BOX], (4, 6, 1))
+    math_obs = scene((10, 10, 10), [CORNER_BOX], (4, 6, 1))
+    math_nodes = build_nodes(math_obs, spaces_of(math_obs)[1], np.random.default_rng(0))
+    assert (0, 0, 0) in math_nodes.actions  # Math Pack: no support rule, as in the reference's Math Pack
+    settled = tuple(dataclasses.replace(p, quaternion=(0.0, 0.0, 0.0, 1.0)) for p in math_obs.placed)
+    obs = dataclasses.replace(math_obs, placed=settled)  # observed after physics: the rule applies
     nodes = build_nodes(obs, spaces_of(obs)[1], np.random.default_rng(0))
     assert (0, 0, 0) not in nodes.actions  # 4 along x, 6 along y: centre (2, 3) is off the polygon
     assert (0, 0, 1) in nodes.actions  # turned, 6 along x: centre (3, 2) is on it

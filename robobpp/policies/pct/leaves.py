@@ -10,15 +10,16 @@ packsim), with the Leaf Node Expansion Scheme "EMS" the weights were trained wit
   reach over a void; the network was trained on them, so we keep them.
 * **Leaves**: for every space and both yaw orientations of the box (integer footprint, ceil of the length
   and width), the four floor corners of the space where the box fits inside it. Each is then checked like
-  a drop onto the heightmap: inside the container, top ≤ container height, and supported (below: the rule Math Pack enforces).
+  a drop onto the heightmap: inside the container, top ≤ container height, and supported (below).
   Candidates are shuffled (seeded) before the first 50 feasible ones are kept, as the reference shuffles.
 * **Features**, all later scaled by 1 / the longest container side: internal ``[x0, y0, z0, x1, y1, z1]``
   of each placed box (before the first box, one all-zero node is valid, as in the reference); leaf
   ``[x0, y0, z_space, x1, y1, H, 0, 0]`` (the space's floor, not the resting height, and the container
   height H, as the reference writes them); next item ``[density = 1, 0, 0, its three sides ascending]``.
 
-Support is the reference's recursive centre-of-mass rule, the one every policy and Math Pack use
-(:func:`robobpp.policies.candidates.support_model`), so a chosen leaf is never refused as unsupported.
+Support: the reference's rule as every policy applies it (:func:`robobpp.policies.candidates.support_model`):
+in the physical settings a leaf must pass the recursive centre-of-mass test; in Math Pack, as in the
+reference's Math Pack, there is no such check.
 """
 
 from __future__ import annotations

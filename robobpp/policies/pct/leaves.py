@@ -153,8 +153,8 @@ def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) 
         pick = (orient == o) & (xs >= 0) & (ys >= 0) & (xs < z_map.shape[0]) & (ys < z_map.shape[1])
         z[pick] = z_map[xs[pick], ys[pick]]
     fits = z + size[:, 2] <= container.height + TOLERANCE_CM
-    # The support rule (shared with every policy and Math Pack), tested in the shuffled order in batches (the
-    # model tests a batch of positions of one orientation together) until 50 leaves are found.
+    # The support rule as every policy applies it (none in Math Pack), tested in the shuffled order in batches
+    # (the model tests a batch of positions of one orientation together) until 50 leaves are found.
     support = support_model(obs)
     candidates, accepted = np.flatnonzero(fits), 0
     fits[:] = False

@@ -7,6 +7,8 @@ Spearman rank correlation of the seven heuristics and the mean absolute differen
 
     python bench/paper_table.py --setting math --groups 30 [--json out.json] [--datasets ...] [--policies ...]
     nice python bench/paper_table.py --setting physics --groups 10
+    python bench/paper_table.py --setting math --support      # experiment: Math Pack with the support rule
+    python bench/paper_table.py --merge a.json b.json         # one table from earlier runs' --json files
 
 Geometry and physics figures are deterministic; nothing here depends on the machine but the run time.
 """
@@ -18,6 +20,7 @@ import json
 import statistics
 import time
 from collections import Counter
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -67,21 +70,35 @@ def spearman(x: list[float], y: list[float]) -> float:
     return float(np.corrcoef(rx, ry)[0, 1])
 
 
-def switch_off_support() -> None:
-    """Experiment only: every placement counts as supported (what packsim's Math Pack does, see the docs)."""
-    from robobpp.core.feasibility import SupportModel
+def switch_on_support_in_math() -> None:
+    """Experiment only: Math Pack with the reference's support rule, in the setting and in every policy's
+    candidates (PCT's own environment does this; packsim's Math Pack does not)."""
+    import robobpp.policies.candidates as candidates
+    from robobpp.core.feasibility import CONTACT_TOLERANCE_CM, SupportModel, check_support
+    from robobpp.sim.base import StepOutcome
+    from robobpp.sim.math_pack import MathPack
 
-    SupportModel.why_unsupported = lambda self, *args: None  # type: ignore[method-assign]
-    SupportModel.mask = lambda self, z, length, width, height, fits: fits.copy()  # type: ignore[method-assign]
+    candidates._support_model = lru_cache(maxsize=4)(
+        lambda placed: SupportModel(placed, CONTACT_TOLERANCE_CM)
+    )  # type: ignore[assignment]
+    plain_apply = MathPack.apply
+
+    def apply(self: MathPack, box: Any, action: Any, index: int) -> StepOutcome:
+        state = self.state()
+        planned = state.drop(box, action.x, action.y, action.orientation, index)
+        refused = check_support(state.placements, planned)
+        return StepOutcome(None, refused) if refused is not None else plain_apply(self, box, action, index)
+
+    MathPack.apply = apply  # type: ignore[method-assign]
 
 
-def run(dataset: str, policy: str, setting: str, groups: int) -> dict[str, Any]:
+def run(dataset: str, policy: str, setting: str, groups: int, split: str = "train") -> dict[str, Any]:
     from robobpp.datasets import episode_specs
     from robobpp.episode import run_episode
     from robobpp.policies import load_policy
 
     cpu0 = time.process_time()
-    results = [run_episode(s, load_policy(policy), setting) for s in episode_specs(dataset, "train", groups)]
+    results = [run_episode(s, load_policy(policy), setting) for s in episode_specs(dataset, split, groups)]
     return {
         "space_utilization": statistics.mean(r.metrics["space_utilization"] for r in results),
         "boxes_placed": statistics.mean(r.boxes_placed for r in results),
@@ -96,32 +113,42 @@ def main() -> None:
     )
     parser.add_argument("--setting", choices=("math", "physics"), default="math")
     parser.add_argument("--groups", type=int, default=30)
+    parser.add_argument("--split", choices=("train", "test"), default="train")
     parser.add_argument("--datasets", default=",".join(DATASETS))
     parser.add_argument("--policies", default=",".join(POLICIES))
     parser.add_argument("--json", help="also write every figure here")
     parser.add_argument(
-        "--no-support",
+        "--support",
         action="store_true",
-        help="experiment: switch the support rule off (Math Pack and every policy's candidates)",
+        help="experiment: Math Pack with the reference's support rule (setting and every policy's candidates)",
+    )
+    parser.add_argument(
+        "--merge", nargs="+", metavar="JSON", help="print one table from the --json files of earlier runs"
     )
     args = parser.parse_args()
-    if args.no_support:
-        switch_off_support()
+    if args.support:
+        switch_on_support_in_math()
     datasets = [d for d in args.datasets.split(",") if d]
     policies = [p for p in args.policies.split(",") if p]
     paper = PAPER[args.setting]
     ours: dict[str, dict[str, dict[str, Any]]] = {}
+    for path in args.merge or ():
+        with open(path) as fh:
+            for dataset, figures in json.load(fh)["ours"].items():
+                ours.setdefault(dataset, {}).update(figures)
     for dataset in datasets:
-        ours[dataset] = {}
+        ours.setdefault(dataset, {})
         for policy in policies:
-            ours[dataset][policy] = run(dataset, policy, args.setting, args.groups)
+            if policy in ours[dataset]:
+                continue
+            ours[dataset][policy] = run(dataset, policy, args.setting, args.groups, args.split)
             fig = ours[dataset][policy]
             print(f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
                   f"({fig['boxes_placed']:.1f} boxes, {fig['terminations']}, {fig['cpu_s']:.0f} s)", flush=True)  # fmt: skip
 
     col = {d: DATASETS.index(d) for d in datasets}
-    rule = " without the support rule (experiment)" if args.no_support else ""
-    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, train split, {args.groups} groups (seed 0); "
+    rule = " with the support rule (experiment)" if args.support else ""
+    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, {args.groups} groups (seed 0); "
           f"paper: its test-split tables. {machine()}\n")  # fmt: skip
     print("| heuristic | " + " | ".join(f"{d} paper | {d} ours | diff" for d in datasets) + " |")
     print("|---|" + "---:|" * (3 * len(datasets)))

@@ -8,6 +8,8 @@ Spearman rank correlation of the seven heuristics and the mean absolute differen
     python bench/paper_table.py --setting math --groups 30 [--json out.json] [--datasets ...] [--policies ...]
     nice python bench/paper_table.py --setting physics --groups 10
     python bench/paper_table.py --setting math --support      # experiment: Math Pack with the support rule
+    nice python bench/paper_table.py --setting physics --groups 10 --no-support   # experiment: candidates unchecked
+    nice python bench/paper_table.py --setting physics --groups 10 --open-loop    # experiment: packsim's replay
     python bench/paper_table.py --merge a.json b.json         # one table from earlier runs' --json files
 
 Geometry and physics figures are deterministic; nothing here depends on the machine but the run time.
@@ -92,13 +94,58 @@ def switch_on_support_in_math() -> None:
     MathPack.apply = apply  # type: ignore[method-assign]
 
 
-def run(dataset: str, policy: str, setting: str, groups: int, split: str = "train") -> dict[str, Any]:
+def switch_off_support() -> None:
+    """Experiment only: no support rule in any policy's candidates, physical settings included."""
+    import robobpp.policies.candidates as candidates
+
+    candidates._support_model = lambda placed: candidates._NO_RULE  # type: ignore[assignment]
+
+
+class Replay:
+    """Plays back a fixed list of actions (then says "no feasible placement"): packsim's open loop."""
+
+    name = "replay"
+
+    def __init__(self, actions: list[Any]) -> None:
+        self.actions = list(actions)
+
+    def reset(self, info: Any) -> None:
+        return None
+
+    def act(self, obs: Any) -> Any:
+        return self.actions.pop(0) if self.actions else None
+
+    def close(self, reason: str) -> None:
+        return None
+
+
+def open_loop(spec: Any, policy: str, setting: str) -> Any:
+    """Experiment: plan every action in Math Pack, then replay them in ``setting`` — what the reference does
+    (packsim replays actions computed offline on idealised geometry; physics never feeds back)."""
+    from robobpp.core import Action
+    from robobpp.episode import run_episode
+    from robobpp.policies import load_policy
+
+    planned = run_episode(spec, load_policy(policy), "math")
+    actions = [
+        Action(s.action["x"], s.action["y"], s.action["orientation"]) for s in planned.steps if s.action
+    ]
+    return run_episode(spec, Replay(actions), setting)  # type: ignore[arg-type]
+
+
+def run(
+    dataset: str, policy: str, setting: str, groups: int, split: str = "train", replay: bool = False
+) -> dict[str, Any]:
     from robobpp.datasets import episode_specs
     from robobpp.episode import run_episode
     from robobpp.policies import load_policy
 
     cpu0 = time.process_time()
-    results = [run_episode(s, load_policy(policy), setting) for s in episode_specs(dataset, split, groups)]
+    specs = episode_specs(dataset, split, groups)
+    if replay:
+        results = [open_loop(s, policy, setting) for s in specs]
+    else:
+        results = [run_episode(s, load_policy(policy), setting) for s in specs]
     return {
         "space_utilization": statistics.mean(r.metrics["space_utilization"] for r in results),
         "boxes_placed": statistics.mean(r.boxes_placed for r in results),
@@ -125,7 +172,19 @@ def main() -> None:
     parser.add_argument(
         "--merge", nargs="+", metavar="JSON", help="print one table from the --json files of earlier runs"
     )
+    parser.add_argument(
+        "--no-support",
+        action="store_true",
+        help="experiment: no support rule in the candidates of the physical settings either",
+    )
+    parser.add_argument(
+        "--open-loop",
+        action="store_true",
+        help="experiment: plan in Math Pack, replay the actions in --setting (packsim's open loop)",
+    )
     args = parser.parse_args()
+    if args.no_support:
+        switch_off_support()
     if args.support:
         switch_on_support_in_math()
     datasets = [d for d in args.datasets.split(",") if d]
@@ -141,13 +200,17 @@ def main() -> None:
         for policy in policies:
             if policy in ours[dataset]:
                 continue
-            ours[dataset][policy] = run(dataset, policy, args.setting, args.groups, args.split)
+            ours[dataset][policy] = run(
+                dataset, policy, args.setting, args.groups, args.split, args.open_loop
+            )
             fig = ours[dataset][policy]
             print(f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
                   f"({fig['boxes_placed']:.1f} boxes, {fig['terminations']}, {fig['cpu_s']:.0f} s)", flush=True)  # fmt: skip
 
     col = {d: DATASETS.index(d) for d in datasets}
     rule = " with the support rule (experiment)" if args.support else ""
+    rule = " without the support rule in the candidates (experiment)" if args.no_support else rule
+    rule += ", open loop: planned in Math Pack, replayed (experiment)" if args.open_loop else ""
     print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, {args.groups} groups (seed 0); "
           f"paper: its test-split tables. {machine()}\n")  # fmt: skip
     print("| heuristic | " + " | ".join(f"{d} paper | {d} ours | diff" for d in datasets) + " |")

@@ -19,6 +19,7 @@ EXTRA_OF: dict[str, tuple[str, str]] = {
     "psycopg": ("server", "the evaluation server on PostgreSQL"),
     "prometheus_client": ("server", "the evaluation server"),
     "multipart": ("server", "the evaluation server"),
+    "pydantic_settings": ("server", "the evaluation server"),
     "celery": ("worker", "Celery workers"),
     "kombu": ("worker", "Celery workers"),
     "redis": ("worker", "Celery workers on Redis"),

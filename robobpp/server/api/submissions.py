@@ -15,6 +15,7 @@ from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
 from robobpp.schemas import (
+    PULL_URL,
     DatasetName,
     EpisodeDetail,
     EpisodePublic,
@@ -57,6 +58,9 @@ async def _check_url(
 ) -> tuple[str, str | None]:
     """(policy URL, pinned address). Runs before any row is written; the only outbound call of the API,
     made through the probe gate (deadline, size cap, bounded concurrency; server/probes.py)."""
+    if body.mode == "pull":  # nothing to reach: the participant's client connects to us
+        return PULL_URL, None
+    assert body.policy_url is not None  # the schema demands it in push mode
     url = body.policy_url.strip()
     if url.startswith(BUILTIN_SCHEME):
         if not principal.admin:
@@ -137,7 +141,8 @@ async def create_submission(
                 _check_quota(request, principal, settings, lock=session)
             sub = work.create_submission(session, participant, name=body.name, policy_url=url, secret=body.secret,
                                          pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
-                                         groups=settings.groups, track=body.track, lookahead=body.lookahead)  # fmt: skip
+                                         groups=settings.groups, track=body.track, lookahead=body.lookahead,
+                                         mode=body.mode)  # fmt: skip
             session.refresh(sub)
             return SubmissionPublic.model_validate(queries.submission_view(session, sub))
 

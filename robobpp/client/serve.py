@@ -37,6 +37,9 @@ def _json(data: Any, status: int = 200, headers: dict[str, str] | None = None) -
     return Response(body, status_code=status, media_type="application/json", headers=headers)
 
 
+_EMPTY = Response(b"{}", media_type="application/json")
+
+
 def _error(status: int, error: str, detail: str) -> Response:
     return _json({"error": error, "detail": detail}, status)
 
@@ -161,6 +164,11 @@ def create_policy_app(
             return answer(request, P.response_from_action(action, elapsed), req.episode_id, req.step)
         except (TypeError, ValueError) as exc:  # NaN or a non-number in the policy's own action
             return _error(500, "policy_error", f"act returned an action that is not finite numbers: {exc}")
+
+    @app.post("/echo", responses={200: {"model": P.EmptyResponse, "description": "at once"}})
+    async def echo() -> Response:
+        """The evaluator's network probe: answered at once, body unread (docs/protocol.md, Decision time)."""
+        return _EMPTY
 
     @app.post("/close", responses=_responses(P.EmptyResponse), openapi_extra=_request_doc(P.CloseRequest))
     async def close(request: Request) -> Response:

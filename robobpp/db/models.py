@@ -90,6 +90,9 @@ class Submission(Base):
     #: ``private`` (the leaderboard, test split), ``public`` (train split, traces kept) or ``verify`` (the
     #: held-out draw of the private pool; never on a board).
     track: Mapped[str] = mapped_column(String(16), default="private")
+    #: ``push``: workers call ``policy_url``; ``pull``: the participant's client connects out to the server
+    #: (``robobpp connect``) and workers drive episodes through that connection (``policy_url`` is unused).
+    mode: Mapped[str] = mapped_column(String(8), default="push", server_default="push")
     datasets: Mapped[list[Any]] = mapped_column()
     settings: Mapped[list[Any]] = mapped_column()
     lookahead: Mapped[int] = mapped_column(default=0)

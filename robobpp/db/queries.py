@@ -200,6 +200,7 @@ def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
     return {
         "id": sub.id, "name": sub.name, "participant": sub.participant.name,
         "baseline": sub.participant.is_builtin, "policy_url": sub.policy_url, "track": sub.track,
+        "mode": sub.mode,
         "datasets": sub.datasets, "settings": sub.settings, "lookahead": sub.lookahead, "status": sub.status,
         "created_at": sub.created_at, "finished_at": sub.finished_at, "error": shown_text(sub.error),
         "progress": submission_progress(session, sub.id),

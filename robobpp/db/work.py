@@ -52,6 +52,7 @@ class Claim:
     pinned_ip: str | None
     lookahead: int
     keep_trace: bool
+    mode: str = "push"
 
 
 def create_submission(
@@ -67,11 +68,12 @@ def create_submission(
     secret: str | None = None,
     pinned_ip: str | None = None,
     lookahead: int = 0,
+    mode: str = "push",
 ) -> Submission:
     """The submission with one run per (dataset, setting) and one episode per group, in one transaction."""
     split = SPLIT_OF_TRACK[track]
     sub = Submission(participant=participant, name=name, policy_url=policy_url, secret=secret,
-                     pinned_ip=pinned_ip, track=track, datasets=list(datasets), settings=list(settings),
+                     pinned_ip=pinned_ip, track=track, mode=mode, datasets=list(datasets), settings=list(settings),
                      lookahead=lookahead, status="queued", episodes_total=len(datasets) * len(settings) * groups)  # fmt: skip
     session.add(sub)
     session.flush()
@@ -233,7 +235,8 @@ def claim_episode(
             if sub.status == "queued":
                 sub.status = "running"
             return Claim(ep.id, token, ep.attempts, sub.id, ep.dataset, ep.setting, ep.split, ep.group,
-                         sub.policy_url, sub.secret, sub.pinned_ip, sub.lookahead, sub.track == "public")  # fmt: skip
+                         sub.policy_url, sub.secret, sub.pinned_ip, sub.lookahead, sub.track == "public",
+                         sub.mode)  # fmt: skip
     return None
 
 

@@ -67,6 +67,13 @@ class Settings(BaseSettings):
     step_timeout_s: float = Field(default=10.0, gt=0)
     episode_timeout_s: float = Field(default=1800.0, gt=0)
     response_cap_bytes: int = Field(default=64 * 1024, ge=1024)
+    # pull mode (robobpp connect): workers reach the participants' clients through this server's relay
+    #: The server's URL as the workers see it; ``robobpp serve`` fills in its own address when empty.
+    pull_relay_url: str = ""
+    #: How long a worker waits for a participant's client before handing the episode back for a retry.
+    pull_wait_s: float = Field(default=30.0, gt=0)
+    #: How long a worker waits for a dropped client to come back before the episode ends with policy_error.
+    pull_reconnect_s: float = Field(default=30.0, gt=0)
     evaluate_baselines: bool = True
     #: Built-in baselines evaluated on first start; ``None`` means every one (``robobpp.policies.BASELINES``).
     baselines: tuple[str, ...] | None = None

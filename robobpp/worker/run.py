@@ -38,20 +38,47 @@ def worker_id(kind: str = "local") -> str:
 
 
 def make_policy(claim: Claim, settings: WorkerOptions) -> Any:
-    """A built-in policy in-process (``builtin:NAME``), or the participant's server over robobpp/1."""
+    """A built-in policy in-process (``builtin:NAME``), the participant's server over robobpp/1 (push), or
+    the participant's client through the server's relay (pull). Remote ones probe the network, so that
+    the decision time ranked is the policy's, not the distance's."""
     if claim.policy_url.startswith("builtin:"):
         return load_policy(claim.policy_url.removeprefix("builtin:"))
     from robobpp.client.remote import RemotePolicy
 
-    return RemotePolicy(
-        claim.policy_url,
+    transport = None
+    url = claim.policy_url
+    if claim.mode == "pull":
+        from robobpp.client.frames import MAX_ENVELOPE
+        from robobpp.worker.pull import PullTransport
+
+        if not settings.pull_relay_url:
+            raise RuntimeError("a pull episode needs ROBOBPP_PULL_RELAY_URL (the server's URL) on the worker")
+        transport = PullTransport(settings.pull_relay_url, claim.episode_id, claim.token,
+                                  wait_s=settings.pull_wait_s, reconnect_s=settings.pull_reconnect_s,
+                                  max_frame_bytes=settings.response_cap_bytes + MAX_ENVELOPE)  # fmt: skip
+        url = settings.pull_relay_url  # names the policy only: every byte goes through the transport
+    policy = RemotePolicy(
+        url,
         claim.secret,
         step_timeout_s=settings.step_timeout_s,
         episode_timeout_s=settings.episode_timeout_s,
         max_response_bytes=settings.response_cap_bytes,
         resolved_ip=claim.pinned_ip,
         name=f"submission-{claim.submission_id}",
+        probe_network=True,
+        transport=transport,
     )
+    if transport is not None:
+        transport.headers_for = policy.request_headers
+    return policy
+
+
+def _pair_pull_client(policy: Any) -> None:
+    """Pull mode: wait for the participant's client before the episode starts (raises ``NoClient``)."""
+    transport = getattr(policy, "_connection", None)
+    pair = getattr(transport, "pair", None)
+    if pair is not None:
+        pair(transport.wait_s)
 
 
 class _Lease(threading.Thread):
@@ -95,6 +122,16 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
         return False
     lease = _Lease(factory, claim, settings.lease_s)
     lease.start()
+    try:
+        _pair_pull_client(policy)  # under the lease: the wait may outlast it
+    except Exception as exc:  # noqa: BLE001 - no client (yet): hand the episode back, bounded retries
+        lease.done.set()
+        lease.join(timeout=5)
+        with factory() as s, s.begin():
+            work.release_episode(s, claim.episode_id, claim.token, f"pull mode: {exc}",
+                                 max_attempts=settings.max_attempts)  # fmt: skip
+        log.info("episode %s: %s", claim.episode_id, exc)
+        return False
 
     def on_step(record: StepRecord) -> None:
         lease.step = record.step + 1

@@ -69,13 +69,15 @@ def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, pol
             return admin.get(f"/submissions/{i}").json()["status"]
 
         wait_for(lambda: status(tuned) == "completed" and status(baseline) == "completed", 120)
-        checks = {}
-        for original in (tuned, baseline):
-            r = admin.post(f"/submissions/{original}/verify")
-            assert r.status_code == 201, r.text
-            assert r.json()["track"] == "verify"
-            checks[original] = r.json()["id"]
-            assert admin.get(f"/submissions/{original}").json()["verification"]["status"] == "running"
+        # The operator verifies the board's top entries (here both: the tuned policy and the baseline).
+        r = admin.post(f"/leaderboards/{DATASET}/math/verify", params={"top": 2})
+        assert r.status_code == 201, r.text
+        assert len(r.json()) == 2 and {v["track"] for v in r.json()} == {"verify"}
+        running = {o: admin.get(f"/submissions/{o}").json()["verification"] for o in (tuned, baseline)}
+        assert {v["status"] for v in running.values()} == {"running"}
+        checks = {o: v["submission_id"] for o, v in running.items()}
+        assert set(checks.values()) == {v["id"] for v in r.json()}
+        assert admin.post(f"/leaderboards/{DATASET}/math/verify", params={"top": 2}).json() == []  # not twice
         assert admin.post(f"/submissions/{tuned}/verify").status_code == 409  # one at a time
         with server.client(token) as alice:
             assert alice.post(f"/submissions/{tuned}/verify").status_code == 403  # operator only

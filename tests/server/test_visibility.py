@@ -368,3 +368,26 @@ def test_every_form_post_needs_the_csrf_token(world: World) -> None:
     assert operator.get("/account").status_code == 200  # still signed in
     page = operator.get(f"/operator/participants/{ids['participant_id']}").text
     assert page.count("Revoke") == before and "csrf-victim" not in operator.get("/operator").text
+
+
+def test_submit_form_goes_through_the_api_handler(world: World, policy_server) -> None:  # type: ignore[no-untyped-def]
+    """The form answers with the API's own checks (secret length, URL probe) and writes what the API writes."""
+    policy = policy_server(secret="form-secret-123")
+    admin = world.bearer["operator"]
+    r = world.clients["anonymous"].post("/api/v1/participants", json={"name": "former"}, headers=admin)
+    bearer = {"Authorization": f"Bearer {r.json()['token']}"}
+    with TestClient(world.clients["owner"].app) as browser:
+        sign_in(browser, r.json()["token"])
+        form = browser.get("/submit")
+        base = {"name": "formed", "policy_url": policy.url, "datasets": ["diverse"], "settings": ["math"],
+                "csrf": _csrf(form.text)}  # fmt: skip
+        short = browser.post("/submit", data={**base, "secret": "s3cret"})
+        assert short.status_code == 422 and "secret" in short.text and "at least 8" in short.text
+        wrong = browser.post("/submit", data={**base, "secret": "not-the-secret"})
+        assert wrong.status_code == 422 and "Policy unreachable" in wrong.text
+        assert browser.get("/api/v1/submissions", headers=bearer).json() == []  # nothing written
+        ok = browser.post("/submit", data={**base, "secret": "form-secret-123"}, follow_redirects=False)
+        assert ok.status_code == 303, ok.text
+        listed = browser.get("/api/v1/submissions", headers=bearer).json()
+        assert [f"/submissions/{s['id']}" for s in listed] == [ok.headers["location"]]
+        assert listed[0]["participant"] == "former" and listed[0]["datasets"] == ["diverse"]

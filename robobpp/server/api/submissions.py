@@ -14,7 +14,15 @@ from starlette.concurrency import run_in_threadpool
 from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
-from robobpp.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
+from robobpp.schemas import (
+    PULL_URL,
+    DatasetName,
+    EpisodeDetail,
+    EpisodePublic,
+    SettingName,
+    SubmissionCreate,
+    SubmissionPublic,
+)
 from robobpp.server.api.deps import AdminDep, Principal, PrincipalDep, SessionDep, SettingsDep
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
@@ -50,6 +58,9 @@ async def _check_url(
 ) -> tuple[str, str | None]:
     """(policy URL, pinned address). Runs before any row is written; the only outbound call of the API,
     made through the probe gate (deadline, size cap, bounded concurrency; server/probes.py)."""
+    if body.mode == "pull":  # nothing to reach: the participant's client connects to us
+        return PULL_URL, None
+    assert body.policy_url is not None  # the schema demands it in push mode
     url = body.policy_url.strip()
     if url.startswith(BUILTIN_SCHEME):
         if not principal.admin:
@@ -130,7 +141,8 @@ async def create_submission(
                 _check_quota(request, principal, settings, lock=session)
             sub = work.create_submission(session, participant, name=body.name, policy_url=url, secret=body.secret,
                                          pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
-                                         groups=settings.groups, track=body.track, lookahead=body.lookahead)  # fmt: skip
+                                         groups=settings.groups, track=body.track, lookahead=body.lookahead,
+                                         mode=body.mode)  # fmt: skip
             session.refresh(sub)
             return SubmissionPublic.model_validate(queries.submission_view(session, sub))
 
@@ -194,9 +206,14 @@ def episode(submission_id: Id, episode_id: Id, session: SessionDep, principal: P
 @router.post("/submissions/{submission_id}/verify", status_code=201, response_model=SubmissionPublic,
              summary="(operator) Re-evaluate a completed private-track submission on the hold-out draw")  # fmt: skip
 def verify(
-    submission_id: Id, session: SessionDep, principal: AdminDep, settings: SettingsDep
+    request: Request, submission_id: Id, principal: AdminDep, settings: SettingsDep
 ) -> SubmissionPublic:
     """Answers the verification submission (track ``verify``); the original's ``verification`` follows it."""
+    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+        return _verify_one(session, submission_id, settings)
+
+
+def _verify_one(session: Session, submission_id: int, settings: Settings) -> SubmissionPublic:
     from robobpp.db.verification import start_verification
 
     original = session.get(Submission, submission_id)
@@ -211,3 +228,38 @@ def verify(
     checked = start_verification(session, original, settings.groups)
     session.refresh(checked)
     return SubmissionPublic.model_validate(queries.submission_view(session, checked))
+
+
+@router.post("/leaderboards/{dataset}/{setting}/verify", status_code=201, response_model=list[SubmissionPublic],
+             summary="(operator) Re-evaluate the board's top entries on the hold-out draw")  # fmt: skip
+def verify_top(
+    request: Request,
+    dataset: DatasetName,
+    setting: SettingName,
+    principal: AdminDep,
+    settings: SettingsDep,
+    top: Annotated[int, Query(ge=1, le=50)] = 3,
+) -> list[SubmissionPublic]:
+    """The ``top`` best-ranked private entries that have no verdict and no verification running yet."""
+    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+        return _verify_top(session, dataset, setting, settings, top)
+
+
+def _verify_top(
+    session: Session, dataset: str, setting: str, settings: Settings, top: int
+) -> list[SubmissionPublic]:
+    from robobpp.db.verification import start_verification
+
+    started = []
+    for entry in queries.leaderboard(session, dataset, setting)["entries"][:top]:
+        original = session.get(Submission, entry["submission_id"])
+        if original is None or (original.verification or {}).get("status") in (
+            "running",
+            "verified",
+            "disagrees",
+        ):
+            continue
+        started.append(start_verification(session, original, settings.groups))
+    for sub in started:
+        session.refresh(sub)
+    return [SubmissionPublic.model_validate(queries.submission_view(session, sub)) for sub in started]

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Path, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.datasets import DATASETS
 from robobpp.db import queries
@@ -153,7 +154,7 @@ def submit_page(request: Request) -> Response:
 
 
 @router.post("/submit", response_class=HTMLResponse)
-def submit(
+async def submit(
     request: Request,
     name: Text = "",
     mode: Text = "push",
@@ -165,7 +166,9 @@ def submit(
     lookahead: Text = "0",
     csrf: Text = "",
 ) -> Response:
-    principal = principal_of(request, viewer(request))
+    # async like the API handler it awaits (its policy check runs on its own bounded pool); the short
+    # database reads go to the thread pool.
+    principal = await run_in_threadpool(principal_of, request, viewer(request))
     if principal is None:
         return _need_sign_in(request)
     # The secret is never echoed back into the form.
@@ -183,7 +186,9 @@ def submit(
             if mode == "pull":
                 fields["policy_url"] = None  # a URL left in the hidden push field is not an error
         body = SubmissionCreate.model_validate(fields)
-        created = api_submissions.create_submission(request, body, principal, request.app.state.settings)
+        created = await api_submissions.create_submission(
+            request, body, principal, request.app.state.settings
+        )
     except (ProblemError, ValidationError) as exc:
         status = exc.status if isinstance(exc, ProblemError) else 422
         return _submit_page(request, values, problem_text(exc), status)

@@ -43,7 +43,14 @@ def serve(
     """Run the evaluation service: API, pages, migrations at start, baselines, local workers."""
     from robobpp.extras import require
 
-    for package in ("sqlalchemy", "alembic", "pydantic_settings", "prometheus_client", "multipart"):
+    for package in (
+        "sqlalchemy",
+        "alembic",
+        "pydantic_settings",
+        "prometheus_client",
+        "multipart",
+        "itsdangerous",
+    ):
         require(package, "server", "robobpp serve")
     import uvicorn
     from pydantic import ValidationError

@@ -206,9 +206,14 @@ def episode(submission_id: Id, episode_id: Id, session: SessionDep, principal: P
 @router.post("/submissions/{submission_id}/verify", status_code=201, response_model=SubmissionPublic,
              summary="(operator) Re-evaluate a completed private-track submission on the hold-out draw")  # fmt: skip
 def verify(
-    submission_id: Id, session: SessionDep, principal: AdminDep, settings: SettingsDep
+    request: Request, submission_id: Id, principal: AdminDep, settings: SettingsDep
 ) -> SubmissionPublic:
     """Answers the verification submission (track ``verify``); the original's ``verification`` follows it."""
+    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+        return _verify_one(session, submission_id, settings)
+
+
+def _verify_one(session: Session, submission_id: int, settings: Settings) -> SubmissionPublic:
     from robobpp.db.verification import start_verification
 
     original = session.get(Submission, submission_id)
@@ -228,14 +233,21 @@ def verify(
 @router.post("/leaderboards/{dataset}/{setting}/verify", status_code=201, response_model=list[SubmissionPublic],
              summary="(operator) Re-evaluate the board's top entries on the hold-out draw")  # fmt: skip
 def verify_top(
+    request: Request,
     dataset: DatasetName,
     setting: SettingName,
-    session: SessionDep,
     principal: AdminDep,
     settings: SettingsDep,
     top: Annotated[int, Query(ge=1, le=50)] = 3,
 ) -> list[SubmissionPublic]:
     """The ``top`` best-ranked private entries that have no verdict and no verification running yet."""
+    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+        return _verify_top(session, dataset, setting, settings, top)
+
+
+def _verify_top(
+    session: Session, dataset: str, setting: str, settings: Settings, top: int
+) -> list[SubmissionPublic]:
     from robobpp.db.verification import start_verification
 
     started = []

@@ -22,7 +22,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import exists, func, select, true
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, joinedload, selectinload
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.leaderboard import build_board, build_grid
@@ -169,7 +169,8 @@ def overall_grid(
 
 
 def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
-    """Episodes by status and the current phase (the (dataset, setting) being evaluated)."""
+    """Episodes by status and the current phase (the (dataset, setting) being evaluated; only looked up
+    while episodes wait or run: a finished submission has none)."""
     counts = dict(
         session.execute(
             select(EpisodeRow.status, func.count())
@@ -177,12 +178,16 @@ def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
             .group_by(EpisodeRow.status)
         ).all()
     )
-    running = session.execute(
-        select(EpisodeRow.dataset, EpisodeRow.setting)
-        .where(EpisodeRow.submission_id == submission_id, EpisodeRow.status.in_(("running", "pending")))
-        .order_by(EpisodeRow.id)
-        .limit(1)
-    ).first()
+    running = (
+        session.execute(
+            select(EpisodeRow.dataset, EpisodeRow.setting)
+            .where(EpisodeRow.submission_id == submission_id, EpisodeRow.status.in_(("running", "pending")))
+            .order_by(EpisodeRow.id)
+            .limit(1)
+        ).first()
+        if counts.get("running") or counts.get("pending")
+        else None
+    )
     total = sum(counts.values())
     finished = counts.get("done", 0) + counts.get("failed", 0)
     return {
@@ -214,7 +219,14 @@ def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
 def list_submissions(
     session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0
 ) -> list[Submission]:
-    query = select(Submission).order_by(Submission.id.desc()).limit(limit).offset(offset)
+    # runs and participant loaded with the page (two queries), not once per listed submission
+    query = (
+        select(Submission)
+        .options(selectinload(Submission.runs), joinedload(Submission.participant))
+        .order_by(Submission.id.desc())
+        .limit(limit)
+        .offset(offset)
+    )
     if participant_id is not None:
         query = query.where(Submission.participant_id == participant_id)
     return list(session.execute(query).scalars())

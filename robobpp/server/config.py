@@ -79,6 +79,8 @@ class Settings(BaseSettings):
     baselines: tuple[str, ...] | None = None
     #: Also evaluate the baselines on the public track, so a debug run there is compared with something.
     public_baselines: bool = True
+    #: How often (seconds) an API process checks in SQL whether a board changed (services/boards.py).
+    board_refresh_s: float = Field(default=1.0, ge=0, le=60)
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)

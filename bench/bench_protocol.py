@@ -4,7 +4,11 @@ The policy server runs in its own process (``robobpp policy serve dbl``), as a p
 client and server do not share a GIL. Each step's overhead is the caller-measured decision time of the
 remote step minus that of the same step in-process (the states are identical: DBL is deterministic).
 
-    python bench/bench_protocol.py [--episodes 10] [--boxes 80] [--secret s] [--json out.json]
+``--mode pull`` measures pull mode instead: a real ``robobpp serve`` (SQLite, no workers) relays between
+this process, which plays the worker (it holds the lease of a pull episode), and ``robobpp connect dbl``
+in its own process. ``--probe`` adds the echo probes of the network estimate and reports their figures.
+
+    python bench/bench_protocol.py [--mode push|pull] [--probe] [--episodes 10] [--boxes 80] [--secret s]
 """
 
 from __future__ import annotations
@@ -60,6 +64,69 @@ def start_server(port: int, secret: str | None) -> subprocess.Popen[bytes]:
     raise RuntimeError("policy server did not start")
 
 
+class PullRig:
+    """A relay server, a participant's ``robobpp connect dbl`` and a claimed pull episode to drive through."""
+
+    ADMIN = "bench-admin-token-0123456789abcdef"
+
+    def __init__(self, state_dir: str, secret: str | None) -> None:
+        import httpx
+
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        db = f"sqlite:///{state_dir}/bench.sqlite3"
+        env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
+        env.update({"ROBOBPP_STATE_DIR": state_dir, "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": self.ADMIN,
+                    "ROBOBPP_WORKERS": "0", "ROBOBPP_EVALUATE_BASELINES": "0", "ROBOBPP_GROUPS": "1",
+                    "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
+                    "ROBOBPP_LEASE_S": "3600"})  # fmt: skip
+        code = "import sys; from robobpp.cli import main; sys.argv = ['robobpp', *sys.argv[1:]]; main()"
+        self.procs = [subprocess.Popen([sys.executable, "-c", code, "serve", "--port", str(self.port)],
+                                       env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]  # fmt: skip
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the relay server did not start") from None
+            time.sleep(0.3)
+        api = httpx.Client(base_url=self.url + "/api/v1", headers={"Authorization": f"Bearer {self.ADMIN}"})
+        token = api.post("/participants", json={"name": "bench"}).json()["token"]
+        body = {"name": "bench", "mode": "pull", "datasets": ["diverse"], "settings": ["math"]}
+        if secret:
+            body["secret"] = secret
+        mine = httpx.Client(base_url=self.url + "/api/v1", headers={"Authorization": f"Bearer {token}"})
+        self.submission = mine.post("/submissions", json=body).json()["id"]
+        client_env = dict(os.environ, ROBOBPP_TOKEN=token, ROBOBPP_SERVER=self.url)
+        if secret:
+            client_env["ROBOBPP_POLICY_SECRET"] = secret
+        self.procs.append(subprocess.Popen([sys.executable, "-c", code, "connect", "dbl", "--submission",
+                                            str(self.submission)], env=client_env,
+                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
+        from robobpp.db import work
+        from robobpp.db.session import make_engine, make_session_factory
+
+        factory = make_session_factory(make_engine(db))
+        with factory() as session, session.begin():
+            self.claim = work.claim_episode(session, "bench:worker", lease_s=3600, max_attempts=3)
+        assert self.claim is not None and self.claim.mode == "pull"
+
+    def policy(self, secret: str | None, probe: bool) -> RemotePolicy:
+        from robobpp.worker.pull import PullTransport
+
+        transport = PullTransport(self.url, self.claim.episode_id, self.claim.token, wait_s=30)
+        policy = RemotePolicy(self.url, secret, transport=transport, probe_network=probe)
+        transport.headers_for = policy.request_headers
+        return policy
+
+    def stop(self) -> None:
+        for proc in reversed(self.procs):
+            proc.terminate()
+            proc.wait(timeout=20)
+
+
 def server_cpu_s(pid: int) -> float | None:
     """User + system CPU seconds of the server process (Linux /proc), None elsewhere."""
     try:
@@ -79,13 +146,28 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--boxes", type=int, default=80)
     parser.add_argument("--secret", default=None, help="sign every request (HMAC-SHA256)")
+    parser.add_argument("--mode", choices=("push", "pull"), default="push")
+    parser.add_argument("--probe", action="store_true", help="echo probes before each act (network estimate)")
     parser.add_argument("--json", dest="json_out", default=None)
     args = parser.parse_args()
 
-    port = free_port()
-    server = start_server(port, args.secret)
+    import tempfile
+
+    tmp = tempfile.TemporaryDirectory()
+    rig = None
+    if args.mode == "pull":
+        rig = PullRig(tmp.name, args.secret)
+        server = rig.procs[1]  # the participant's process: the policy's side, as in push mode
+    else:
+        port = free_port()
+        server = start_server(port, args.secret)
+    probes: list[float] = []
+    round_trips: list[float] = []
     try:
-        remote = RemotePolicy(f"http://127.0.0.1:{port}", args.secret)
+        if rig is not None:
+            remote = rig.policy(args.secret, args.probe)
+        else:
+            remote = RemotePolicy(f"http://127.0.0.1:{port}", args.secret, probe_network=args.probe)
         episodes = specs(args.episodes, args.boxes)
         run_episode(episodes[0], remote, "math")  # warm-up: connection, imports, caches
         run_episode(episodes[0], DBL(), "math")
@@ -109,10 +191,18 @@ def main() -> None:
                 local_t.append(ls.decision_time)
                 if rs.compute_time is not None:
                     compute.append(rs.compute_time)
+                if rs.round_trip is not None:
+                    round_trips.append(rs.round_trip)
+                if rs.network_estimate is not None:
+                    probes.append(rs.network_estimate)
         server_after = server_cpu_s(server.pid)
     finally:
-        server.terminate()
-        server.wait(timeout=10)
+        if rig is not None:
+            rig.stop()
+        else:
+            server.terminate()
+            server.wait(timeout=10)
+        tmp.cleanup()
     steps = len(overhead)
     # CPU spent on the protocol per step, both processes, excluding the policy's own compute: a figure
     # that a busy machine's scheduling delays do not inflate (the wall-clock ones above they do).
@@ -121,6 +211,8 @@ def main() -> None:
         spent = (cpu_remote - cpu_local) + (server_after - server_before) - sum(compute)
         cpu_overhead = spent / steps * 1000.0
     figures = {
+        "mode": args.mode,
+        "probe": args.probe,
         "steps": steps,
         "signed": bool(args.secret),
         "overhead_p50_ms": pct(overhead, 50),
@@ -130,6 +222,8 @@ def main() -> None:
         "in_process_p50_ms": pct(local_t, 50),
         "in_process_p95_ms": pct(local_t, 95),
         "server_compute_p50_ms": pct(compute, 50) if compute else None,
+        "round_trip_p50_ms": pct(round_trips, 50) if round_trips else None,
+        "network_estimate_p50_ms": pct(probes, 50) if probes else None,
         "cpu_overhead_mean_ms": cpu_overhead,
         "cpu_count": os.cpu_count(),
         "python": sys.version.split()[0],

@@ -7,6 +7,10 @@ Spearman rank correlation of the seven heuristics and the mean absolute differen
 
     python bench/paper_table.py --setting math --groups 30 [--json out.json] [--datasets ...] [--policies ...]
     nice python bench/paper_table.py --setting physics --groups 10
+    python bench/paper_table.py --setting math --support      # experiment: Math Pack with the support rule
+    nice python bench/paper_table.py --setting physics --groups 10 --no-support   # experiment: candidates unchecked
+    nice python bench/paper_table.py --setting physics --groups 10 --open-loop    # experiment: packsim's replay
+    python bench/paper_table.py --merge a.json b.json         # one table from earlier runs' --json files
 
 Geometry and physics figures are deterministic; nothing here depends on the machine but the run time.
 """
@@ -18,6 +22,7 @@ import json
 import statistics
 import time
 from collections import Counter
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -76,21 +81,80 @@ def spearman(x: list[float], y: list[float]) -> float:
     return float(np.corrcoef(rx, ry)[0, 1])
 
 
+def switch_on_support_in_math() -> None:
+    """Experiment only: Math Pack with the reference's support rule, in the setting and in every policy's
+    candidates (PCT's own environment does this; packsim's Math Pack does not)."""
+    import robobpp.policies.candidates as candidates
+    from robobpp.core.feasibility import CONTACT_TOLERANCE_CM, SupportModel, check_support
+    from robobpp.sim.base import StepOutcome
+    from robobpp.sim.math_pack import MathPack
+
+    candidates._support_model = lru_cache(maxsize=4)(
+        lambda placed: SupportModel(placed, CONTACT_TOLERANCE_CM)
+    )  # type: ignore[assignment]
+    plain_apply = MathPack.apply
+
+    def apply(self: MathPack, box: Any, action: Any, index: int) -> StepOutcome:
+        state = self.state()
+        planned = state.drop(box, action.x, action.y, action.orientation, index)
+        refused = check_support(state.placements, planned)
+        return StepOutcome(None, refused) if refused is not None else plain_apply(self, box, action, index)
+
+    MathPack.apply = apply  # type: ignore[method-assign]
+
+
 def switch_off_support() -> None:
-    """Experiment only: every placement counts as supported (what packsim's Math Pack does, see the docs)."""
-    from robobpp.core.feasibility import SupportModel
+    """Experiment only: no support rule in any policy's candidates, physical settings included."""
+    import robobpp.policies.candidates as candidates
 
-    SupportModel.why_unsupported = lambda self, *args: None  # type: ignore[method-assign]
-    SupportModel.mask = lambda self, z, length, width, height, fits: fits.copy()  # type: ignore[method-assign]
+    candidates._support_model = lambda placed: candidates._NO_RULE  # type: ignore[assignment]
 
 
-def run(dataset: str, policy: str, setting: str, groups: int) -> dict[str, Any]:
+class Replay:
+    """Plays back a fixed list of actions (then says "no feasible placement"): packsim's open loop."""
+
+    name = "replay"
+
+    def __init__(self, actions: list[Any]) -> None:
+        self.actions = list(actions)
+
+    def reset(self, info: Any) -> None:
+        return None
+
+    def act(self, obs: Any) -> Any:
+        return self.actions.pop(0) if self.actions else None
+
+    def close(self, reason: str) -> None:
+        return None
+
+
+def open_loop(spec: Any, policy: str, setting: str) -> Any:
+    """Experiment: plan every action in Math Pack, then replay them in ``setting`` — what the reference does
+    (packsim replays actions computed offline on idealised geometry; physics never feeds back)."""
+    from robobpp.core import Action
+    from robobpp.episode import run_episode
+    from robobpp.policies import load_policy
+
+    planned = run_episode(spec, load_policy(policy), "math")
+    actions = [
+        Action(s.action["x"], s.action["y"], s.action["orientation"]) for s in planned.steps if s.action
+    ]
+    return run_episode(spec, Replay(actions), setting)  # type: ignore[arg-type]
+
+
+def run(
+    dataset: str, policy: str, setting: str, groups: int, split: str = "train", replay: bool = False
+) -> dict[str, Any]:
     from robobpp.datasets import episode_specs
     from robobpp.episode import run_episode
     from robobpp.policies import load_policy
 
     cpu0 = time.process_time()
-    results = [run_episode(s, load_policy(policy), setting) for s in episode_specs(dataset, "train", groups)]
+    specs = episode_specs(dataset, split, groups)
+    if replay:
+        results = [open_loop(s, policy, setting) for s in specs]
+    else:
+        results = [run_episode(s, load_policy(policy), setting) for s in specs]
     return {
         "space_utilization": statistics.mean(r.metrics["space_utilization"] for r in results),
         "boxes_placed": statistics.mean(r.boxes_placed for r in results),
@@ -105,32 +169,58 @@ def main() -> None:
     )
     parser.add_argument("--setting", choices=("math", "physics", "execution"), default="math")
     parser.add_argument("--groups", type=int, default=30)
+    parser.add_argument("--split", choices=("train", "test"), default="train")
     parser.add_argument("--datasets", default=",".join(DATASETS))
     parser.add_argument("--policies", default=",".join(POLICIES))
     parser.add_argument("--json", help="also write every figure here")
     parser.add_argument(
+        "--support",
+        action="store_true",
+        help="experiment: Math Pack with the reference's support rule (setting and every policy's candidates)",
+    )
+    parser.add_argument(
+        "--merge", nargs="+", metavar="JSON", help="print one table from the --json files of earlier runs"
+    )
+    parser.add_argument(
         "--no-support",
         action="store_true",
-        help="experiment: switch the support rule off (Math Pack and every policy's candidates)",
+        help="experiment: no support rule in the candidates of the physical settings either",
+    )
+    parser.add_argument(
+        "--open-loop",
+        action="store_true",
+        help="experiment: plan in Math Pack, replay the actions in --setting (packsim's open loop)",
     )
     args = parser.parse_args()
     if args.no_support:
         switch_off_support()
+    if args.support:
+        switch_on_support_in_math()
     datasets = [d for d in args.datasets.split(",") if d]
     policies = [p for p in args.policies.split(",") if p]
     paper = PAPER[args.setting]
     ours: dict[str, dict[str, dict[str, Any]]] = {}
+    for path in args.merge or ():
+        with open(path) as fh:
+            for dataset, figures in json.load(fh)["ours"].items():
+                ours.setdefault(dataset, {}).update(figures)
     for dataset in datasets:
-        ours[dataset] = {}
+        ours.setdefault(dataset, {})
         for policy in policies:
-            ours[dataset][policy] = run(dataset, policy, args.setting, args.groups)
+            if policy in ours[dataset]:
+                continue
+            ours[dataset][policy] = run(
+                dataset, policy, args.setting, args.groups, args.split, args.open_loop
+            )
             fig = ours[dataset][policy]
             print(f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
                   f"({fig['boxes_placed']:.1f} boxes, {fig['terminations']}, {fig['cpu_s']:.0f} s)", flush=True)  # fmt: skip
 
     col = {d: DATASETS.index(d) for d in datasets}
-    rule = " without the support rule (experiment)" if args.no_support else ""
-    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, train split, {args.groups} groups (seed 0); "
+    rule = " with the support rule (experiment)" if args.support else ""
+    rule = " without the support rule in the candidates (experiment)" if args.no_support else rule
+    rule += ", open loop: planned in Math Pack, replayed (experiment)" if args.open_loop else ""
+    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, {args.groups} groups (seed 0); "
           f"paper: its test-split tables. {machine()}\n")  # fmt: skip
     print("| heuristic | " + " | ".join(f"{d} paper | {d} ours | diff" for d in datasets) + " |")
     print("|---|" + "---:|" * (3 * len(datasets)))

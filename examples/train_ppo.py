@@ -31,9 +31,10 @@ import gymnasium as gym
 import numpy as np
 
 import robobpp  # noqa: F401 - importing robobpp registers robobpp/Pack-v0
-from robobpp.core import Action, ContainerSpec, Observation
-from robobpp.env import encode_observation, feasible_mask
+from robobpp.core import ORIENTATIONS, Action, ContainerSpec, Observation
+from robobpp.env import encode_observation
 from robobpp.policies import BasePolicy
+from robobpp.policies.candidates import candidate_maps, first_supported
 
 try:
     import torch
@@ -91,13 +92,24 @@ class PPOPolicy(BasePolicy):
         self.model = MaskablePPO.load(path, device="cpu")
 
     def act(self, obs: Observation) -> Action | None:
-        mask = feasible_mask(obs)
-        if not mask.any():
+        # The agent's most probable placement that fits (bounds and height: cheap whole-grid arrays), walking
+        # down its ranking to the first that the support rule accepts: the greedy choice under the full mask,
+        # without testing support at every cell.
+        shape = (*obs.container.grid_shape, len(ORIENTATIONS))
+        fits, z = np.zeros(shape, bool), np.zeros(shape)
+        for cand in candidate_maps(obs):
+            cx, cy = cand.fits.shape
+            fits[:cx, :cy, cand.orientation], z[:cx, :cy, cand.orientation] = cand.fits, cand.z
+        if not fits.any():
             return None
         x = features(encode_observation(obs, 0), obs.container)
-        index, _ = self.model.predict(x, action_masks=mask.ravel(), deterministic=True)
-        gx, gy, orientation = np.unravel_index(int(index), mask.shape)
-        return Action(float(gx), float(gy), int(orientation))
+        tensor, _ = self.model.policy.obs_to_tensor(x)
+        with torch.no_grad():
+            probs = self.model.policy.get_distribution(tensor, action_masks=fits.ravel()).distribution.probs
+        ranked = np.argsort(-probs[0].numpy(), kind="stable")
+        ranked = ranked[fits.ravel()[ranked]]
+        xs, ys, orientations = np.unravel_index(ranked, shape)
+        return first_supported(obs, range(len(ranked)), xs, ys, orientations, z.ravel()[ranked])
 
 
 def evaluate(policy: str, args: argparse.Namespace, out: Path, extra_env: dict[str, str]) -> float:

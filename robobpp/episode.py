@@ -47,6 +47,10 @@ class StepRecord:
     action: dict[str, float] | None
     decision_time: float
     compute_time: float | None = None
+    #: A remote policy's raw round trip around ``act`` and the evaluator's network estimate for it; the
+    #: decision time is then their difference (``None`` for an in-process policy).
+    round_trip: float | None = None
+    network_estimate: float | None = None
     placement: dict[str, Any] | None = None
     termination: str | None = None
     static_stability: float | None = None
@@ -116,6 +120,8 @@ class Episode:
         self._static: list[float] = []
         self._trajectory: list[float] = []
         self._decision: list[float] = []
+        self._round_trip: list[float] = []
+        self._network: list[float] = []
 
     @property
     def info(self) -> EpisodeInfo:
@@ -146,16 +152,29 @@ class Episode:
         if self.termination is None:
             self.termination = Infeasible(reason, detail)
 
-    def step(self, action: Action | None, decision_time: float) -> StepRecord:
+    def step(
+        self,
+        action: Action | None,
+        decision_time: float,
+        *,
+        round_trip: float | None = None,
+        network_estimate: float | None = None,
+    ) -> StepRecord:
         """Apply the policy's answer for the current box; ``None`` means "no feasible placement"."""
         assert not self.done, "episode is over"
         box = self.spec.boxes[self.index]
         self._decision.append(decision_time)
+        if round_trip is not None:
+            self._round_trip.append(round_trip)
+        if network_estimate is not None:
+            self._network.append(network_estimate)
         record = StepRecord(
             step=self.index,
             box={"length": box.length, "width": box.width, "height": box.height, "mass": box.mass},
             action=None,
             decision_time=decision_time,
+            round_trip=round_trip,
+            network_estimate=network_estimate,
         )
         self.steps.append(record)
         if action is None:
@@ -201,6 +220,10 @@ class Episode:
             "occupancy": M.occupancy(final, container),
             "decision_time": sum(self._decision) / len(self._decision) if self._decision else None,
         }
+        if self._round_trip:  # a remote policy: the raw figures beside the decision time they gave
+            metrics["round_trip"] = sum(self._round_trip) / len(self._round_trip)
+        if self._network:
+            metrics["network_estimate"] = sum(self._network) / len(self._network)
         if self.setting.name in M.PHYSICAL:
             metrics["local_stability"] = M.local_stability_m(final)
             metrics["static_stability"] = sum(self._static) / len(self._static) if self._static else None
@@ -244,6 +267,18 @@ class Episode:
         )
 
 
+def step_timing(policy: Policy) -> tuple[float | None, float | None]:
+    """A remote policy's (round trip, network estimate) of its last ``act``; ``(None, None)`` in-process.
+
+    :class:`~robobpp.client.remote.RemotePolicy` times the exchange itself and estimates the network's
+    share with echo probes on the same connection (docs/protocol.md, "Decision time").
+    """
+    round_trip = getattr(policy, "last_round_trip", None)
+    network = getattr(policy, "last_network_estimate", None)
+    ok = isinstance(round_trip, float) and (network is None or isinstance(network, float))
+    return (round_trip, network) if ok else (None, None)
+
+
 def run_episode(
     spec: EpisodeSpec,
     policy: Policy,
@@ -282,7 +317,10 @@ def run_episode(
             if action is not None and not isinstance(action, Action):
                 episode.end(POLICY_ERROR, f"act returned {type(action).__name__}, expected Action or None")
                 break
-            record = episode.step(action, decision)
+            round_trip, network = step_timing(policy)
+            if round_trip is not None and network is not None:
+                decision = max(0.0, round_trip - network)  # the network's share is not the policy's time
+            record = episode.step(action, decision, round_trip=round_trip, network_estimate=network)
             if on_step is not None:
                 on_step(record)
         result = episode.result(getattr(policy, "name", type(policy).__name__))

@@ -44,7 +44,16 @@ def _classify(row: Mapping[str, Any], groups: int) -> tuple[str, str]:
 
 
 def _public(row: Mapping[str, Any]) -> dict[str, Any]:
-    keys = ("submission_id", "name", "participant", "baseline", "metrics", "extras", "completed_at")
+    keys = (
+        "submission_id",
+        "name",
+        "participant",
+        "baseline",
+        "metrics",
+        "extras",
+        "completed_at",
+        "verification",
+    )
     return {k: row.get(k) for k in keys} | {
         "metrics": row.get("metrics") or {},
         "extras": row.get("extras") or {},

@@ -22,12 +22,19 @@ Requests are signed when the submission has a secret: ``X-Robobpp-Timestamp`` is
 seconds and ``X-Robobpp-Signature`` the hex HMAC-SHA256, keyed with the secret, of the timestamp's ASCII
 digits followed directly by the raw request body (empty for ``GET /info``). A receiver refuses a
 signature that does not match or whose timestamp lies outside the replay window.
+
+With a secret the *answers* are signed too, and bound to the request they answer: the same two headers
+on a 200 answer carry the HMAC of :func:`answer_message` — the episode id and step of the request, the
+answer's timestamp, the request's own signature (unique per request) and the raw answer body. An answer
+replayed from another step, episode or evaluation, or altered on the way, does not verify; the caller
+ends the episode as ``protocol_violation``. docs/protocol.md shows the exact bytes.
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
+import json
 import math
 import time
 from collections.abc import Mapping
@@ -340,6 +347,23 @@ def signed_headers(secret: str | bytes, body: bytes, now: float | None = None) -
     return {TIMESTAMP_HEADER: timestamp, SIGNATURE_HEADER: sign(secret, timestamp, body)}
 
 
+def _signature_headers(headers: Mapping[str, str], now: float | None, window_s: float) -> tuple[str, str]:
+    """(timestamp, signature) from ``headers``, after checking their form and the replay window."""
+    timestamp = headers.get(TIMESTAMP_HEADER) or headers.get(TIMESTAMP_HEADER.lower())
+    signature = headers.get(SIGNATURE_HEADER) or headers.get(SIGNATURE_HEADER.lower())
+    if not timestamp or not signature:
+        raise SignatureError(f"missing {TIMESTAMP_HEADER} or {SIGNATURE_HEADER} header")
+    if not timestamp.isascii() or not timestamp.isdigit() or len(timestamp) > 12:
+        raise SignatureError(f"{TIMESTAMP_HEADER} must be Unix time in whole seconds")
+    current = time.time() if now is None else now
+    if abs(current - int(timestamp)) > window_s:
+        raise SignatureError(
+            f"stale timestamp: {abs(current - int(timestamp)):.0f} s from this server's clock "
+            f"(window {window_s:g} s)"
+        )
+    return timestamp, signature.strip().lower()
+
+
 def verify(
     secret: str | bytes,
     headers: Mapping[str, str],
@@ -353,21 +377,64 @@ def verify(
     ``headers`` may be any case-insensitive mapping (Starlette's, httpx's) or a plain dict with the
     canonical names. The comparison is constant-time.
     """
-    timestamp = headers.get(TIMESTAMP_HEADER) or headers.get(TIMESTAMP_HEADER.lower())
-    signature = headers.get(SIGNATURE_HEADER) or headers.get(SIGNATURE_HEADER.lower())
-    if not timestamp or not signature:
-        raise SignatureError(f"missing {TIMESTAMP_HEADER} or {SIGNATURE_HEADER} header")
-    if not timestamp.isascii() or not timestamp.isdigit() or len(timestamp) > 12:
-        raise SignatureError(f"{TIMESTAMP_HEADER} must be Unix time in whole seconds")
-    current = time.time() if now is None else now
-    if abs(current - int(timestamp)) > window_s:
-        raise SignatureError(
-            f"stale timestamp: {abs(current - int(timestamp)):.0f} s from this server's clock "
-            f"(window {window_s:g} s)"
-        )
-    expected = sign(secret, timestamp, body)
-    if not hmac.compare_digest(expected, signature.strip().lower()):
+    timestamp, signature = _signature_headers(headers, now, window_s)
+    if not hmac.compare_digest(sign(secret, timestamp, body), signature):
         raise SignatureError("signature does not match the body and timestamp")
+
+
+#: First line of every signed answer: a request signature can never be mistaken for an answer's.
+ANSWER_CONTEXT = b"robobpp/1 answer\n"
+
+
+def answer_message(
+    episode_id: str, step: int | None, timestamp: int, request_signature: str, body: bytes
+) -> bytes:
+    """The exact bytes an answer's HMAC covers.
+
+    ``b"robobpp/1 answer\\n"``, then the compact ASCII JSON array ``[episode_id, step, timestamp,
+    request_signature]`` (``episode_id`` is ``""`` for ``/info``; ``step`` is the ``/act`` step, ``null``
+    for the other endpoints; ``timestamp`` the answer's, an integer), then ``b"\\n"``, then the raw body.
+    JSON quoting keeps the fields unambiguous whatever characters an episode id holds.
+    """
+    head = json.dumps([episode_id, step, int(timestamp), request_signature], separators=(",", ":"))
+    return ANSWER_CONTEXT + head.encode("ascii") + b"\n" + body
+
+
+def sign_answer(
+    secret: str | bytes,
+    *,
+    episode_id: str,
+    step: int | None,
+    request_signature: str,
+    body: bytes,
+    now: float | None = None,
+) -> dict[str, str]:
+    """Headers that sign an answer ``body`` to the request signed ``request_signature``."""
+    timestamp = int(time.time() if now is None else now)
+    message = answer_message(episode_id, step, timestamp, request_signature.strip().lower(), body)
+    mac = hmac.new(_key(secret), message, hashlib.sha256).hexdigest()
+    return {TIMESTAMP_HEADER: str(timestamp), SIGNATURE_HEADER: mac}
+
+
+def verify_answer(
+    secret: str | bytes,
+    headers: Mapping[str, str],
+    body: bytes,
+    *,
+    episode_id: str,
+    step: int | None,
+    request_signature: str,
+    now: float | None = None,
+    window_s: float = DEFAULT_REPLAY_WINDOW_S,
+) -> None:
+    """Raise :class:`SignatureError` unless the answer is signed for exactly this request."""
+    timestamp, signature = _signature_headers(headers, now, window_s)
+    message = answer_message(episode_id, step, int(timestamp), request_signature.strip().lower(), body)
+    if not hmac.compare_digest(hmac.new(_key(secret), message, hashlib.sha256).hexdigest(), signature):
+        raise SignatureError(
+            "the answer's signature does not match this request's episode, step and body "
+            "(replayed from another request, or altered)"
+        )
 
 
 __all__ = [
@@ -388,6 +455,7 @@ __all__ = [
     "ResetRequest",
     "SignatureError",
     "act_payload",
+    "answer_message",
     "action_from_response",
     "info_from_reset",
     "json_schema",
@@ -395,6 +463,8 @@ __all__ = [
     "reset_payload",
     "response_from_action",
     "sign",
+    "sign_answer",
     "signed_headers",
     "verify",
+    "verify_answer",
 ]

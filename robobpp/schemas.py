@@ -11,12 +11,17 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
 Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=64,
                                         pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._\-]*$")]  # fmt: skip
 DatasetName = Literal["repetitive", "diverse", "longboard"]
 SettingName = Literal["math", "physics", "execution"]
+#: ``push``: the workers call the policy's URL. ``pull``: the participant's client connects out to the server
+#: (``robobpp connect``), for policies behind NAT or a firewall; the workers drive it through that connection.
+SubmissionMode = Literal["push", "pull"]
+#: What a pull submission stores as its policy URL (it has none; the client connects to the server).
+PULL_URL = "pull:"
 
 
 class Strict(BaseModel):
@@ -61,8 +66,15 @@ class Me(BaseModel):
 
 class SubmissionCreate(Strict):
     name: Name
-    policy_url: Annotated[str, StringConstraints(min_length=1, max_length=2048)] = Field(
-        description="Base URL of a policy server speaking robobpp/1 (http or https)"
+    mode: SubmissionMode = Field(
+        default="push",
+        description="push: the workers call policy_url. pull: no URL; the policy connects out to this server "
+        "(robobpp connect, WebSocket /api/v1/pull/connect?submission=ID) and is driven through that connection",
+    )
+    policy_url: Annotated[str, StringConstraints(min_length=1, max_length=2048)] | None = Field(
+        default=None,
+        description="Base URL of a policy server speaking robobpp/1 (http or https); required in push mode, "
+        "absent in pull mode",
     )
     secret: Annotated[str, StringConstraints(min_length=8, max_length=256)] | None = Field(
         default=None, description="HMAC key the workers sign policy requests with (never shown again)"
@@ -71,6 +83,14 @@ class SubmissionCreate(Strict):
     settings: list[SettingName] | None = Field(default=None, min_length=1, max_length=3)
     track: Literal["private", "public"] = "private"
     lookahead: int = Field(default=0, ge=0, le=10)
+
+    @model_validator(mode="after")
+    def _url_matches_mode(self) -> SubmissionCreate:
+        if self.mode == "push" and not self.policy_url:
+            raise ValueError("policy_url is required in push mode (or use mode 'pull')")
+        if self.mode == "pull" and self.policy_url:
+            raise ValueError("a pull submission has no policy_url: the policy connects to the server")
+        return self
 
 
 class Progress(BaseModel):
@@ -99,6 +119,7 @@ class SubmissionPublic(BaseModel):
     participant: str
     baseline: bool
     policy_url: str
+    mode: SubmissionMode = "push"
     track: str
     datasets: list[str]
     settings: list[str]
@@ -109,6 +130,9 @@ class SubmissionPublic(BaseModel):
     error: str | None
     progress: Progress
     runs: list[RunPublic]
+    #: Re-evaluation on the hold-out draw (docs/server.md, threat model): ``status`` (running, verified,
+    #: disagrees, failed, cancelled), the verification's ``submission_id``, and per board both intervals.
+    verification: dict[str, Any] | None = None
 
 
 class EpisodePublic(BaseModel):
@@ -158,6 +182,8 @@ class LeaderboardEntry(BaseModel):
     normalized: dict[str, float]
     extras: dict[str, Any]
     completed_at: datetime | None
+    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, failed, or null.
+    verification: str | None = None
 
 
 class UnrankedEntry(BaseModel):
@@ -172,6 +198,8 @@ class UnrankedEntry(BaseModel):
     metrics: dict[str, float | None]
     extras: dict[str, Any]
     completed_at: datetime | None
+    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, failed, or null.
+    verification: str | None = None
 
 
 class Leaderboard(BaseModel):

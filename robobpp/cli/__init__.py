@@ -15,7 +15,18 @@ app = typer.Typer(
 
 def _register() -> None:
     # Imported here so `robobpp --help` stays fast and each area owns its own module.
-    from robobpp.cli import accounts, compare, datasets, evaluate, protocol, server, submit, view, worker
+    from robobpp.cli import (
+        accounts,
+        compare,
+        connect,
+        datasets,
+        evaluate,
+        protocol,
+        server,
+        submit,
+        view,
+        worker,
+    )
 
     app.add_typer(datasets.app, name="datasets")
     evaluate.register(app)
@@ -23,6 +34,7 @@ def _register() -> None:
     protocol.register(app)
     server.register(app)
     submit.register(app)
+    connect.register(app)
     accounts.register(app)
     view.register(app)
     worker.register(app)

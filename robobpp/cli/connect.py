@@ -1,1 +1,82 @@
-"""placeholder"""
+"""``robobpp connect``: pull mode — the policy connects out to the server, so it needs no public URL."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from robobpp.cli.common import fail, import_from_cwd, table_console
+from robobpp.cli.submit import DATASETS, SETTINGS, ServerOpt, TokenOpt, TrackOpt, _names, _track, err
+
+
+def connect_command(
+    policy: Annotated[
+        str, typer.Argument(help="module:Class of your policy, or a built-in name (dbl, ...).")
+    ],
+    submission: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            max=2**31 - 1,
+            help="Join this pull submission (e.g. after a restart) instead of creating one.",
+        ),  # fmt: skip
+    ] = None,
+    parallel: Annotated[int, typer.Option(min=1, max=64, help="Episodes served at once (connections).")] = 1,
+    secret: Annotated[
+        str | None,
+        typer.Option(envvar="ROBOBPP_POLICY_SECRET", help="Refuse requests not signed with this secret."),
+    ] = None,
+    name: Annotated[str | None, typer.Option(help="Name on the leaderboard (default: the policy's).")] = None,
+    dataset: Annotated[
+        list[str] | None, typer.Option("--dataset", help="repetitive, diverse, longboard (repeat or comma).")
+    ] = None,
+    setting: Annotated[
+        list[str] | None, typer.Option("--setting", help="math, physics, execution (repeat or comma).")
+    ] = None,
+    track: TrackOpt = "private",
+    lookahead: Annotated[int, typer.Option(min=0, max=10, help="Next boxes shown to the policy.")] = 0,
+    server: ServerOpt = "http://127.0.0.1:8000",
+    token: TokenOpt = None,
+) -> None:
+    """Evaluate a policy in pull mode: open outbound connections to the server and serve its episodes
+    through them until the submission finishes (works behind NAT and firewalls; no port to open)."""
+    from robobpp.cli.submit import _finish, _standings_table
+    from robobpp.client.api import ServerClient, ServerError
+    from robobpp.client.connect import connect
+    from robobpp.policies import PolicyLoadError, load_policy
+
+    if not (token or "").strip():
+        fail("no API token: pass --token or set ROBOBPP_TOKEN", code=2)
+    if policy.startswith(("http://", "https://")):
+        fail("give the policy as module:Class (or a built-in name): pull mode runs it here, not at a URL")
+    import_from_cwd(policy)
+    try:
+        load_policy(policy)  # fail here, in plain words, rather than in every connection
+    except PolicyLoadError as exc:
+        fail(str(exc))
+    datasets = _names(dataset, DATASETS, "dataset")
+    settings = _names(setting, SETTINGS, "setting")
+
+    def factory() -> object:  # one instance per connection: --parallel episodes run side by side
+        return load_policy(policy)
+
+    try:
+        final = connect(factory, server, token or "", submission=submission, secret=secret, name=name,
+                        datasets=datasets, settings=settings, track=_track(track), lookahead=lookahead,
+                        parallel=parallel, on_event=lambda m: err.print(escape(m), soft_wrap=True))  # fmt: skip
+        with ServerClient(server, token) as client:
+            table_console().print(_standings_table(final, client.standings(final)))
+    except ServerError as exc:
+        fail(escape(str(exc)), code=1)
+    except KeyboardInterrupt:
+        err.print(
+            "stopped; the episodes in flight wait for the client to come back (robobpp connect --submission)"
+        )
+        raise typer.Exit(130) from None
+    _finish(final)
+
+
+def register(root: typer.Typer) -> None:
+    root.command("connect")(connect_command)

@@ -41,6 +41,17 @@ def serve(
     ] = None,
 ) -> None:
     """Run the evaluation service: API, pages, migrations at start, baselines, local workers."""
+    from robobpp.extras import require
+
+    for package in (
+        "sqlalchemy",
+        "alembic",
+        "pydantic_settings",
+        "prometheus_client",
+        "multipart",
+        "itsdangerous",
+    ):
+        require(package, "server", "robobpp serve")
     import uvicorn
     from pydantic import ValidationError
 
@@ -59,6 +70,10 @@ def serve(
         base = Settings(**overrides)
         if demo:
             overrides.update(demo_overrides(base.state_dir))
+        if not base.pull_relay_url:  # the local workers reach the pull relay on this very server
+            overrides["pull_relay_url"] = (
+                f"http://{'127.0.0.1' if host in ('0.0.0.0', '::', '') else host}:{port}"
+            )
         settings = Settings(**overrides)
     except (ValidationError, ValueError) as exc:
         fail(f"invalid settings: {settings_problem(exc)}")

@@ -295,19 +295,24 @@ def leaderboard(
     setting: Annotated[str | None, typer.Option(help="math, physics or execution (with --dataset).")] = None,
     track: TrackOpt = "private",
     as_json: JsonOpt = False,
+    view: Annotated[
+        str, typer.Option(help="best: each participant's best entry; all: every entry.")
+    ] = "best",
     server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
 ) -> None:
     """One leaderboard (metrics, score, rank), or the overall grid when no board is given."""
     if (dataset is None) != (setting is None):
         fail("give both --dataset and --setting for one board, or neither for the overall grid")
+    if view not in ("best", "all"):
+        fail(f"unknown view {view!r}; expected best or all")
     if dataset is not None and dataset not in DATASETS:
         fail(f"unknown dataset {dataset!r}; expected one of {', '.join(DATASETS)}")
     if setting is not None and setting not in SETTINGS:
         fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")
     with _client(server, token, need_token=False) as client:
-        data = (client.leaderboard(dataset, setting, _track(track)) if dataset and setting
-                else client.grid(_track(track)))  # fmt: skip
+        data = (client.leaderboard(dataset, setting, _track(track), view=view) if dataset and setting
+                else client.grid(_track(track), view=view))  # fmt: skip
     if as_json:
         print(data.model_dump_json(indent=2))
         return

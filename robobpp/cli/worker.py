@@ -54,6 +54,10 @@ def worker(
     """Run episodes from the broker queue (needs ROBOBPP_BROKER_URL and ROBOBPP_DATABASE_URL)."""
     from pydantic import ValidationError
 
+    from robobpp.extras import require
+
+    for package in ("celery", "sqlalchemy", "pydantic_settings"):
+        require(package, "worker", "robobpp worker")
     from robobpp.worker.celery_app import BrokerURLError, app_from_settings, check_broker_url
 
     if pool not in POOLS:

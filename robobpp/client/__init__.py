@@ -1,5 +1,5 @@
-"""Client SDK: serve a policy over protocol robobpp/1, drive a remote one as a local policy, and talk to an
-evaluation server (:class:`ServerClient`).
+"""Client SDK: serve a policy over protocol robobpp/1 (``serve``, or ``connect`` it out to a server in pull
+mode), drive a remote one as a local policy, and talk to an evaluation server (:class:`ServerClient`).
 
 Imports are lazy so that using :class:`RemotePolicy` never pulls in FastAPI and uvicorn.
 """
@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from robobpp.client.api import ServerClient, ServerError
+    from robobpp.client.connect import connect
     from robobpp.client.remote import RemotePolicy
     from robobpp.client.serve import BackgroundServer, create_policy_app, serve
 
@@ -22,6 +23,7 @@ _LAZY = {
     "serve": "robobpp.client.serve",
     "ServerClient": "robobpp.client.api",
     "ServerError": "robobpp.client.api",
+    "connect": "robobpp.client.connect",
 }
 
 
@@ -44,11 +46,13 @@ class _ClientPackage(ModuleType):
     """
 
     def __setattr__(self, name: str, value: object) -> None:
-        if name == "serve" and isinstance(value, ModuleType):
+        if name in ("serve", "connect") and isinstance(value, ModuleType):
             return
         super().__setattr__(name, value)
 
 
 sys.modules[__name__].__class__ = _ClientPackage
 
-__all__ = ["BackgroundServer", "RemotePolicy", "ServerClient", "ServerError", "create_policy_app", "serve"]
+__all__ = [
+    "BackgroundServer", "RemotePolicy", "ServerClient", "ServerError", "connect", "create_policy_app", "serve",
+]  # fmt: skip

@@ -204,7 +204,7 @@ class ServerClient:
 
     def submit(
         self,
-        policy_url: str,
+        policy_url: str | None,
         secret: str | None = None,
         name: str | None = None,
         datasets: list[str] | None = None,
@@ -212,11 +212,17 @@ class ServerClient:
         track: Track = "private",
         *,
         lookahead: int = 0,
+        mode: Literal["push", "pull"] = "push",
     ) -> SubmissionPublic:
         """Submit a policy server for evaluation. The server probes ``/info`` before writing anything, so
-        a wrong secret or an unreachable URL fails here, not halfway through the evaluation."""
-        body: dict[str, Any] = {"name": name or default_name(policy_url), "policy_url": policy_url,
+        a wrong secret or an unreachable URL fails here, not halfway through the evaluation.
+
+        ``mode="pull"`` (no URL): the policy connects out to the server instead
+        (:func:`robobpp.client.connect.connect` does both steps)."""
+        body: dict[str, Any] = {"name": name or default_name(policy_url or "pull"), "mode": mode,
                                 "track": track, "lookahead": lookahead}  # fmt: skip
+        if policy_url is not None:
+            body["policy_url"] = policy_url
         if secret:
             body["secret"] = secret
         if datasets:

@@ -15,8 +15,10 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import json
+import statistics
 import time
-from typing import Any, TypeVar
+from collections import deque
+from typing import Any, Protocol, TypeVar
 from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ValidationError
@@ -34,7 +36,30 @@ EPISODE_TIMEOUT = "episode_timeout"
 
 #: An answer is a few hundred bytes; this leaves room for verbose error bodies and nothing more.
 DEFAULT_MAX_RESPONSE_BYTES = 64 * 1024
+#: Echo probes kept for the network estimate (their median), and the longest one probe may take.
+PROBE_WINDOW = 5
+PROBE_TIMEOUT_S = 2.0
 M = TypeVar("M", bound=BaseModel)
+
+
+class Transport(Protocol):
+    """How requests reach the policy: :class:`wire.Connection` (push) or the server's pull relay."""
+
+    last_exchange_s: float | None
+
+    @property
+    def is_open(self) -> bool: ...
+
+    def request(
+        self, method: str, target: str, headers: list[tuple[str, str]], body: bytes, deadline: float, cap: int
+    ) -> wire.Answer: ...
+
+    def close(self) -> None: ...
+
+
+def probe_body(size: int) -> bytes:
+    """An echo probe's body: JSON of ``size`` bytes (at least 10), so it travels like the request it times."""
+    return b'{"pad":"' + b"0" * max(0, size - 10) + b'"}'
 
 
 def _short(value: object, limit: int = 80) -> str:
@@ -62,6 +87,10 @@ def describe_validation(exc: ValidationError) -> str:
     return "; ".join(parts)
 
 
+def _encode(payload: dict[str, Any]) -> bytes:
+    return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+
+
 class RemotePolicy:
     """A policy behind an HTTP(S) URL, driven through protocol ``robobpp/1``.
 
@@ -71,8 +100,15 @@ class RemotePolicy:
     never followed and no proxy from the environment is used.
 
     The caller measures decision time around :meth:`act`; the policy's self-reported ``compute_time``
-    lands in :attr:`Action.compute_time`. :meth:`close` ends the episode on the server side and closes
-    the connection; the object can then be reset for another episode.
+    lands in :attr:`Action.compute_time` (informational). With ``probe_network`` each ``/act`` is preceded
+    by an echo probe of the same size on the same connection (``POST /echo``; any complete answer, even a
+    404, is a sample); :attr:`last_round_trip` is then the act's round trip and
+    :attr:`last_network_estimate` the median of the last probes, capped by the fastest act round trip of
+    the episode, and the episode loop ranks their difference. :meth:`close` ends the episode on the
+    server side and closes the connection; the object can then be reset for another episode.
+
+    ``transport`` replaces the HTTP connection (pull mode: the server's relay to a participant's client);
+    the URL then only names the policy.
     """
 
     def __init__(
@@ -90,6 +126,8 @@ class RemotePolicy:
         verify_tls: bool = True,
         check_info: bool = True,
         name: str | None = None,
+        probe_network: bool = False,
+        transport: Transport | None = None,
     ) -> None:
         parts = urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
@@ -119,7 +157,7 @@ class RemotePolicy:
         self.check_info = check_info
         self.info: P.InfoResponse | None = None
         self._path = parts.path.rstrip("/")
-        self._connection = wire.Connection(
+        self._connection: Transport = transport or wire.Connection(
             parts.hostname,
             port,
             connect_to=resolved_ip,
@@ -127,6 +165,11 @@ class RemotePolicy:
             verify_tls=verify_tls,
             connect_timeout_s=self.connect_timeout_s,
         )
+        self.probe_network = probe_network
+        self.last_round_trip: float | None = None
+        self.last_network_estimate: float | None = None
+        self._probes: deque[float] = deque(maxlen=PROBE_WINDOW)
+        self._fastest_act = float("inf")
         self._headers = [("Accept", "application/json"), ("Accept-Encoding", "identity"),
                          ("User-Agent", f"robobpp/{__version__}"), (P.PROTOCOL_HEADER, P.PROTOCOL)]  # fmt: skip
         self._episode_id: str | None = None
@@ -136,6 +179,8 @@ class RemotePolicy:
 
     def reset(self, info: EpisodeInfo) -> None:
         self._episode_id = info.episode_id
+        self._probes.clear()
+        self._fastest_act = float("inf")
         self._episode_deadline = (
             time.monotonic() + self.episode_timeout_s if self.episode_timeout_s is not None else None
         )
@@ -144,8 +189,41 @@ class RemotePolicy:
         self._call("POST", "/reset", P.reset_payload(info), P.EmptyResponse, self.reset_timeout_s)
 
     def act(self, obs: Observation) -> Action | None:
-        answer = self._call("POST", "/act", P.act_payload(obs), P.ActResponse, self.step_timeout_s, obs.step)
+        self.last_round_trip = self.last_network_estimate = None
+        payload = P.act_payload(obs)
+        body = _encode(payload)
+        if self.probe_network:
+            self._probe(len(body))
+        answer = self._call(
+            "POST", "/act", payload, P.ActResponse, self.step_timeout_s, obs.step, encoded=body
+        )
+        round_trip = self._connection.last_exchange_s
+        if round_trip is not None:
+            self.last_round_trip = round_trip
+            self._fastest_act = min(self._fastest_act, round_trip)
+            if self._probes:  # a slow echo can never make the network look slower than the fastest act
+                self.last_network_estimate = min(statistics.median(self._probes), self._fastest_act)
         return P.action_from_response(answer)
+
+    def _probe(self, size: int) -> None:
+        """One echo probe of ``size`` bytes; its round trip joins the window. A failed probe is no sample."""
+        body = probe_body(size)
+        deadline = time.monotonic() + min(self.step_timeout_s, PROBE_TIMEOUT_S)
+        if self._episode_deadline is not None:
+            deadline = min(deadline, self._episode_deadline)
+        try:
+            self._connection.request(
+                "POST",
+                self._path + "/echo",
+                self.request_headers(body),
+                body,
+                deadline,
+                self.max_response_bytes,
+            )
+        except (wire.DeadlineExceeded, wire.ConnectFailed, wire.ConnectionBroke, wire.TooLarge, ValueError):
+            return  # the act that follows meets the same connection and reports what is wrong with it
+        if self._connection.last_exchange_s is not None:
+            self._probes.append(self._connection.last_exchange_s)
 
     def close(self, reason: str = "completed", *, strict: bool = False) -> None:
         """Tell the server the episode ended, then close the connection.
@@ -172,7 +250,16 @@ class RemotePolicy:
     @property
     def connected(self) -> bool:
         """Whether a connection is open (kept alive between the steps of an episode)."""
-        return self._connection._sock is not None
+        return self._connection.is_open
+
+    def request_headers(self, body: bytes) -> list[tuple[str, str]]:
+        """The headers of one request with this body: protocol, content type, signature (with a secret)."""
+        headers = list(self._headers)
+        if body:
+            headers.append(("Content-Type", "application/json"))
+        if self.secret is not None:
+            headers.extend(P.signed_headers(self.secret, body).items())
+        return headers
 
     def __enter__(self) -> RemotePolicy:
         return self
@@ -192,6 +279,7 @@ class RemotePolicy:
         step: int | None = None,
         *,
         use_episode: bool = True,
+        encoded: bytes | None = None,
     ) -> M:
         what = f"{method} {path}" + (f" (step {step})" if step is not None else "")
         started = time.monotonic()
@@ -203,14 +291,9 @@ class RemotePolicy:
                 )
             if self._episode_deadline < deadline:
                 deadline, by_episode = self._episode_deadline, True
-        body = (
-            b"" if payload is None else json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
-        )
-        headers = list(self._headers)
-        if payload is not None:
-            headers.append(("Content-Type", "application/json"))
-        if self.secret is not None:
-            headers.extend(P.signed_headers(self.secret, body).items())
+        body = encoded if encoded is not None else b"" if payload is None else _encode(payload)
+        headers = self.request_headers(body)
+        request_signature = dict(headers).get(P.SIGNATURE_HEADER, "")
         try:
             answer = self._connection.request(
                 method, self._path + path, headers, body, deadline, self.max_response_bytes
@@ -238,7 +321,16 @@ class RemotePolicy:
                 PROTOCOL_VIOLATION,
                 f"the answer to {what} is larger than the {self.max_response_bytes}-byte cap ({exc})",
             ) from None
-        return self._parse(what, answer, model)
+        parsed = self._parse(what, answer, model)
+        if self.secret is not None:
+            # The answer must be signed for this very request: a replayed or altered one ends the episode.
+            episode_id = str(payload.get("episode_id", "")) if payload else ""
+            try:
+                P.verify_answer(self.secret, answer.headers, answer.body, episode_id=episode_id,
+                                step=payload.get("step") if payload else None, request_signature=request_signature)  # fmt: skip
+            except P.SignatureError as exc:
+                raise PolicyError(PROTOCOL_VIOLATION, f"the answer to {what} is refused: {exc}") from None
+        return parsed
 
     def _parse(self, what: str, answer: wire.Answer, model: type[M]) -> M:
         status, headers, content = answer.status, answer.headers, answer.body

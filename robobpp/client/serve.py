@@ -32,9 +32,12 @@ from robobpp.policies.base import Policy
 _EPISODE_MEMORY = 1024
 
 
-def _json(data: Any, status: int = 200) -> Response:
+def _json(data: Any, status: int = 200, headers: dict[str, str] | None = None) -> Response:
     body = json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
-    return Response(body, status_code=status, media_type="application/json")
+    return Response(body, status_code=status, media_type="application/json", headers=headers)
+
+
+_EMPTY = Response(b"{}", media_type="application/json")
 
 
 def _error(status: int, error: str, detail: str) -> Response:
@@ -99,6 +102,17 @@ def create_policy_app(
         except ValidationError as exc:
             return _error(422, "invalid_request", describe_validation(exc))
 
+    def answer(
+        request: Request, data: dict[str, Any], episode_id: str = "", step: int | None = None
+    ) -> Response:
+        """A 200 answer; with a secret, signed for the request it answers (episode, step, its signature)."""
+        if secret is None:
+            return _json(data)
+        body = json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
+        headers = P.sign_answer(secret, episode_id=episode_id, step=step, body=body,
+                                request_signature=request.headers.get(P.SIGNATURE_HEADER, ""))  # fmt: skip
+        return Response(body, media_type="application/json", headers=headers)
+
     def call_hook(hook: str, *args: object) -> Response | None:
         method = getattr(policy, hook, None)
         if not callable(method):
@@ -112,7 +126,7 @@ def create_policy_app(
     @app.get("/info", responses=_responses(P.InfoResponse), openapi_extra={})
     async def get_info(request: Request) -> Response:
         checked = await read(request, P.EmptyResponse)
-        return checked if isinstance(checked, Response) else _json(info)
+        return checked if isinstance(checked, Response) else answer(request, info)
 
     @app.post("/reset", responses=_responses(P.EmptyResponse), openapi_extra=_request_doc(P.ResetRequest))
     async def reset(request: Request) -> Response:
@@ -122,7 +136,7 @@ def create_policy_app(
         assert isinstance(req, P.ResetRequest)
         episode = P.info_from_reset(req)
         remember(req.episode_id, episode.container, None)
-        return call_hook("reset", episode) or _json({})
+        return call_hook("reset", episode) or answer(request, {}, req.episode_id)
 
     @app.post("/act", responses=_responses(P.ActResponse), openapi_extra=_request_doc(P.ActRequest))
     async def act(request: Request) -> Response:
@@ -147,9 +161,14 @@ def create_policy_app(
                 500, "policy_error", f"act returned {type(action).__name__}, expected Action or None"
             )
         try:
-            return _json(P.response_from_action(action, elapsed))
+            return answer(request, P.response_from_action(action, elapsed), req.episode_id, req.step)
         except (TypeError, ValueError) as exc:  # NaN or a non-number in the policy's own action
             return _error(500, "policy_error", f"act returned an action that is not finite numbers: {exc}")
+
+    @app.post("/echo", responses={200: {"model": P.EmptyResponse, "description": "at once"}})
+    async def echo() -> Response:
+        """The evaluator's network probe: answered at once, body unread (docs/protocol.md, Decision time)."""
+        return _EMPTY
 
     @app.post("/close", responses=_responses(P.EmptyResponse), openapi_extra=_request_doc(P.CloseRequest))
     async def close(request: Request) -> Response:
@@ -158,7 +177,7 @@ def create_policy_app(
             return req
         assert isinstance(req, P.CloseRequest)
         episodes.pop(req.episode_id, None)
-        return call_hook("close", req.reason) or _json({})
+        return call_hook("close", req.reason) or answer(request, {}, req.episode_id)
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:

@@ -77,6 +77,8 @@ class Connection:
         self._sock: socket.socket | None = None
         self._h11: h11.Connection | None = None
         self.opened = 0  # connections opened so far (keep-alive shows as 1)
+        #: Seconds from sending the last request to its complete answer (the round trip, no connect).
+        self.last_exchange_s: float | None = None
 
     def _remaining(self, deadline: float) -> float:
         left = deadline - time.monotonic()
@@ -106,6 +108,10 @@ class Connection:
         self._sock = sock
         self._h11 = h11.Connection(h11.CLIENT, max_incomplete_event_size=MAX_HEAD_BYTES)
         self.opened += 1
+
+    @property
+    def is_open(self) -> bool:
+        return self._sock is not None
 
     def close(self) -> None:
         sock, self._sock, self._h11 = self._sock, None, None
@@ -148,6 +154,7 @@ class Connection:
             data += conn.send(h11.EndOfMessage())
         except h11.LocalProtocolError as exc:
             raise ValueError(f"cannot send request: {exc}") from None
+        sent_at = time.perf_counter()
         try:
             sock.settimeout(self._remaining(deadline))
             sock.sendall(data)
@@ -192,6 +199,7 @@ class Connection:
                 break
             elif isinstance(event, h11.ConnectionClosed):
                 raise ConnectionBroke("the server closed the connection in the middle of the answer")
+        self.last_exchange_s = time.perf_counter() - sent_at
         if conn.our_state is h11.DONE and conn.their_state is h11.DONE:
             conn.start_next_cycle()  # keep-alive
         else:

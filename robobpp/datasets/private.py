@@ -21,6 +21,9 @@ from robobpp.datasets.sources import WHEEL_SHA256, sha256_file
 from robobpp.datasets.specfile import read_json, write_json_atomic, write_specs
 
 PRIVATE_FORMAT = "robobpp-private/1"
+#: Subdirectory of the private root holding the hold-out draw: the same format, drawn from the same test
+#: pool with another secret seed, and played only by verifications of top entries (docs/server.md).
+HOLDOUT_DIR = "holdout"
 PRIVATE_SPLIT = "test"
 HINT = "run `robobpp datasets build-private` to (re)build it"
 

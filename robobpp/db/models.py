@@ -87,8 +87,12 @@ class Submission(Base):
     secret: Mapped[str | None] = mapped_column(String(256), default=None)
     #: The address the host resolved to when the submission was checked (resolve once, then pin).
     pinned_ip: Mapped[str | None] = mapped_column(String(64), default=None)
-    #: ``private`` (the leaderboard, test split) or ``public`` (train split, traces kept).
+    #: ``private`` (the leaderboard, test split), ``public`` (train split, traces kept) or ``verify`` (the
+    #: held-out draw of the private pool; never on a board).
     track: Mapped[str] = mapped_column(String(16), default="private")
+    #: ``push``: workers call ``policy_url``; ``pull``: the participant's client connects out to the server
+    #: (``robobpp connect``) and workers drive episodes through that connection (``policy_url`` is unused).
+    mode: Mapped[str] = mapped_column(String(8), default="push", server_default="push")
     datasets: Mapped[list[Any]] = mapped_column()
     settings: Mapped[list[Any]] = mapped_column()
     lookahead: Mapped[int] = mapped_column(default=0)
@@ -97,6 +101,10 @@ class Submission(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
     finished_at: Mapped[datetime | None] = mapped_column(default=None)
     error: Mapped[str | None] = mapped_column(Text, default=None)
+    #: A verification run (track ``verify``) names the submission it re-evaluates on never-played groups.
+    verifies_id: Mapped[int | None] = mapped_column(Integer, default=None, index=True)
+    #: On the verified submission: the verdict of its latest verification (docs/server.md, threat model).
+    verification: Mapped[dict[str, Any] | None] = mapped_column(default=None)
 
     #: The board version check (``services.boards.board_version``) aggregates finished submissions per track.
     __table_args__ = (Index("ix_submissions_track_finished", "track", "finished_at"),)
@@ -153,6 +161,9 @@ class EpisodeRow(Base):
     worker: Mapped[str | None] = mapped_column(String(128), default=None)
     lease_token: Mapped[str | None] = mapped_column(String(64), default=None)
     lease_expires_at: Mapped[datetime | None] = mapped_column(default=None)
+    #: When a broker message was last sent for this pending episode (Celery executor): a restarted server
+    #: sends nothing that is already queued. Cleared when the episode goes back to pending without one.
+    enqueued_at: Mapped[datetime | None] = mapped_column(default=None)
     started_at: Mapped[datetime | None] = mapped_column(default=None)
     finished_at: Mapped[datetime | None] = mapped_column(default=None)
     #: Boxes handled so far in the current attempt (progress display).

@@ -22,7 +22,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import exists, func, select, true
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, joinedload, selectinload
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.leaderboard import build_board, build_grid
@@ -87,12 +87,20 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
     day = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.created_at > now - timedelta(days=1))
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.created_at > now - timedelta(days=1),
+            Submission.track != "verify",
+        )  # the operator's verifications use no quota
     ).scalar_one()
     active = session.execute(
         select(func.count())
         .select_from(Submission)
-        .where(Submission.participant_id == participant_id, Submission.status.in_(("queued", "running")))
+        .where(
+            Submission.participant_id == participant_id,
+            Submission.status.in_(("queued", "running")),
+            Submission.track != "verify",
+        )
     ).scalar_one()
     return int(day), int(active)
 
@@ -116,6 +124,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
             Submission.status,
             Participant.name,
             Participant.is_builtin,
+            Submission.verification,
         )  # fmt: skip
         .join(Submission, Submission.id == RunRow.submission_id)
         .join(Participant, Participant.id == Submission.participant_id)
@@ -130,8 +139,15 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
         .order_by(RunRow.submission_id)
     ).all()
     keys = ("submission_id", "metrics", "extras", "figures", "episodes_total", "completed_at", "name",
-            "submission_status", "participant", "baseline")  # fmt: skip
-    return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9])} for r in rows]
+            "submission_status", "participant", "baseline", "verification")  # fmt: skip
+    return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": _verdict(r[10])}
+            for r in rows]  # fmt: skip
+
+
+def _verdict(verification: dict[str, Any] | None) -> str | None:
+    """What a board shows of a verification: only a finished verdict."""
+    status = (verification or {}).get("status")
+    return status if status in ("verified", "disagrees", "failed") else None
 
 
 def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private") -> dict[str, Any]:
@@ -153,7 +169,8 @@ def overall_grid(
 
 
 def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
-    """Episodes by status and the current phase (the (dataset, setting) being evaluated)."""
+    """Episodes by status and the current phase (the (dataset, setting) being evaluated; only looked up
+    while episodes wait or run: a finished submission has none)."""
     counts = dict(
         session.execute(
             select(EpisodeRow.status, func.count())
@@ -161,12 +178,16 @@ def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
             .group_by(EpisodeRow.status)
         ).all()
     )
-    running = session.execute(
-        select(EpisodeRow.dataset, EpisodeRow.setting)
-        .where(EpisodeRow.submission_id == submission_id, EpisodeRow.status.in_(("running", "pending")))
-        .order_by(EpisodeRow.id)
-        .limit(1)
-    ).first()
+    running = (
+        session.execute(
+            select(EpisodeRow.dataset, EpisodeRow.setting)
+            .where(EpisodeRow.submission_id == submission_id, EpisodeRow.status.in_(("running", "pending")))
+            .order_by(EpisodeRow.id)
+            .limit(1)
+        ).first()
+        if counts.get("running") or counts.get("pending")
+        else None
+    )
     total = sum(counts.values())
     finished = counts.get("done", 0) + counts.get("failed", 0)
     return {
@@ -184,19 +205,28 @@ def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
     return {
         "id": sub.id, "name": sub.name, "participant": sub.participant.name,
         "baseline": sub.participant.is_builtin, "policy_url": sub.policy_url, "track": sub.track,
+        "mode": sub.mode,
         "datasets": sub.datasets, "settings": sub.settings, "lookahead": sub.lookahead, "status": sub.status,
         "created_at": sub.created_at, "finished_at": sub.finished_at, "error": shown_text(sub.error),
         "progress": submission_progress(session, sub.id),
         "runs": [{"dataset": r.dataset, "setting": r.setting, "status": r.status,
                   "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
                   "completed_at": r.completed_at} for r in sub.runs],
+        "verification": sub.verification,
     }  # fmt: skip
 
 
 def list_submissions(
     session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0
 ) -> list[Submission]:
-    query = select(Submission).order_by(Submission.id.desc()).limit(limit).offset(offset)
+    # runs and participant loaded with the page (two queries), not once per listed submission
+    query = (
+        select(Submission)
+        .options(selectinload(Submission.runs), joinedload(Submission.participant))
+        .order_by(Submission.id.desc())
+        .limit(limit)
+        .offset(offset)
+    )
     if participant_id is not None:
         query = query.where(Submission.participant_id == participant_id)
     return list(session.execute(query).scalars())

@@ -1,8 +1,11 @@
 """Engines and sessions for SQLite (embedded default) and PostgreSQL (scaled).
 
-SQLite is shared by the API process and the worker processes, so every transaction starts with
+SQLite is shared by the API process and the worker processes, so every writing transaction starts with
 ``BEGIN IMMEDIATE`` (one writer at a time, waiting on the busy timeout instead of failing on a lock
-upgrade) and the journal is WAL so readers never block the writer.
+upgrade) and the journal is WAL so readers never block the writer. Reads (``read_only=True``: the API's
+GET routes, ``/healthz``) take a plain deferred ``BEGIN`` on ``query_only`` connections instead: a WAL
+reader needs no lock, so it never queues behind the writers (a read waited 7 s behind them under 20
+concurrent readers during an evaluation before; see BENCHMARKS.md, "SQLite reads").
 """
 
 from __future__ import annotations
@@ -19,8 +22,11 @@ def is_sqlite(url: str) -> bool:
     return url.startswith("sqlite")
 
 
-def make_engine(url: str, **kwargs: Any) -> Engine:
+def make_engine(url: str, *, read_only: bool = False, **kwargs: Any) -> Engine:
     if is_sqlite(url):
+        if read_only:  # one connection per concurrent reader; they cost a file handle each
+            kwargs.setdefault("pool_size", 20)
+            kwargs.setdefault("max_overflow", 20)
         engine = create_engine(url, connect_args={"timeout": 60, "check_same_thread": False}, **kwargs)
 
         @event.listens_for(engine, "connect")
@@ -31,11 +37,13 @@ def make_engine(url: str, **kwargs: Any) -> Engine:
             cursor.execute("PRAGMA synchronous=NORMAL")
             cursor.execute("PRAGMA foreign_keys=ON")
             cursor.execute("PRAGMA busy_timeout=60000")
+            if read_only:
+                cursor.execute("PRAGMA query_only=ON")
             cursor.close()
 
         @event.listens_for(engine, "begin")
         def _on_begin(conn: Any) -> None:
-            conn.exec_driver_sql("BEGIN IMMEDIATE")
+            conn.exec_driver_sql("BEGIN" if read_only else "BEGIN IMMEDIATE")
 
         return engine
     kwargs.setdefault("pool_pre_ping", True)

@@ -30,6 +30,9 @@ from robobpp.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
 WORKER_LOST = "worker_lost"
 ACTIVE_SUBMISSION = ("queued", "running")
+#: Which groups a track plays: the private split, the public train groups, or the private pool's hold-out
+#: draw (verifications only; docs/server.md, threat model).
+SPLIT_OF_TRACK = {"private": "test", "public": "train", "verify": "holdout"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,6 +52,7 @@ class Claim:
     pinned_ip: str | None
     lookahead: int
     keep_trace: bool
+    mode: str = "push"
 
 
 def create_submission(
@@ -64,11 +68,12 @@ def create_submission(
     secret: str | None = None,
     pinned_ip: str | None = None,
     lookahead: int = 0,
+    mode: str = "push",
 ) -> Submission:
     """The submission with one run per (dataset, setting) and one episode per group, in one transaction."""
-    split = "test" if track == "private" else "train"
+    split = SPLIT_OF_TRACK[track]
     sub = Submission(participant=participant, name=name, policy_url=policy_url, secret=secret,
-                     pinned_ip=pinned_ip, track=track, datasets=list(datasets), settings=list(settings),
+                     pinned_ip=pinned_ip, track=track, mode=mode, datasets=list(datasets), settings=list(settings),
                      lookahead=lookahead, status="queued", episodes_total=len(datasets) * len(settings) * groups)  # fmt: skip
     session.add(sub)
     session.flush()
@@ -83,6 +88,63 @@ def create_submission(
             ])  # fmt: skip
     session.flush()
     return sub
+
+
+def take_unsent(
+    session: Session,
+    *,
+    stale_after_s: float,
+    ids: list[int] | None = None,
+    now: datetime | None = None,
+    limit: int = 1000,
+) -> list[int]:
+    """Pending episodes of active submissions with no broker message out, marked as sent now.
+
+    The caller sends their messages inside the same transaction: if the broker refuses, the marks roll
+    back and the next round tries again; a commit that fails after the send leaves a duplicate message,
+    which the claim turns into a no-op. The conditional UPDATE makes concurrent dispatchers (server
+    replicas, worker sweepers) send each episode once. A message older than ``stale_after_s`` (longer than
+    the broker keeps an unacknowledged one) is presumed lost and sent again.
+    """
+    now = now or utcnow()
+    unsent = and_(
+        EpisodeRow.status == "pending",
+        or_(
+            EpisodeRow.enqueued_at.is_(None), EpisodeRow.enqueued_at < now - timedelta(seconds=stale_after_s)
+        ),
+    )
+    query = (
+        select(EpisodeRow.id)
+        .join(Submission, Submission.id == EpisodeRow.submission_id)
+        .where(unsent, Submission.status.in_(ACTIVE_SUBMISSION))
+        .order_by(EpisodeRow.id)
+        .limit(limit)
+    )
+    if ids is not None:
+        query = query.where(EpisodeRow.id.in_(ids))
+    candidates = list(session.execute(query).scalars())
+    if not candidates:
+        return []
+    return sorted(
+        session.execute(
+            update(EpisodeRow)
+            .where(EpisodeRow.id.in_(candidates), unsent)
+            .values(enqueued_at=now)
+            .returning(EpisodeRow.id)
+            .execution_options(synchronize_session=False)
+        ).scalars()
+    )
+
+
+def _busy_participants(max_running: int) -> Any:
+    """Participants with ``max_running`` remote episodes running: the claim skips their other episodes."""
+    return (
+        select(Submission.participant_id)
+        .join(EpisodeRow, EpisodeRow.submission_id == Submission.id)
+        .where(EpisodeRow.status == "running", ~Submission.policy_url.startswith("builtin:"))
+        .group_by(Submission.participant_id)
+        .having(func.count() >= max_running)
+    )
 
 
 def _expired(now: datetime) -> Any:
@@ -121,22 +183,29 @@ def claim_episode(
     max_attempts: int,
     now: datetime | None = None,
     episode_id: int | None = None,
+    max_running_per_participant: int | None = None,
 ) -> Claim | None:
     """Lease the oldest runnable episode (pending, or running with an expired lease) to ``worker``.
 
-    ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it)."""
+    ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it).
+    ``max_running_per_participant`` bounds how many episodes of one participant's remote policies run at
+    once (outbound calls to one participant's server), whatever the number of workers."""
     now = now or utcnow()
     reap_expired(session, max_attempts, now)
     runnable = or_(EpisodeRow.status == "pending", and_(_expired(now), EpisodeRow.attempts < max_attempts))
     if episode_id is not None:
         runnable = and_(EpisodeRow.id == episode_id, runnable)
+    eligible = runnable
+    if max_running_per_participant is not None:  # checked at select time: two racing claims may pass it both
+        eligible = and_(runnable, or_(Submission.policy_url.startswith("builtin:"),
+                                      Submission.participant_id.not_in(_busy_participants(max_running_per_participant))))  # fmt: skip
     for _ in range(
         5
     ):  # another claimer may win the row between select and update (SQLite has no SKIP LOCKED)
         row = session.execute(
             select(EpisodeRow.id)
             .join(Submission, Submission.id == EpisodeRow.submission_id)
-            .where(runnable, Submission.status.in_(ACTIVE_SUBMISSION))
+            .where(eligible, Submission.status.in_(ACTIVE_SUBMISSION))
             .order_by(EpisodeRow.id)
             .limit(1)
             .with_for_update(skip_locked=True, of=EpisodeRow)
@@ -166,7 +235,8 @@ def claim_episode(
             if sub.status == "queued":
                 sub.status = "running"
             return Claim(ep.id, token, ep.attempts, sub.id, ep.dataset, ep.setting, ep.split, ep.group,
-                         sub.policy_url, sub.secret, sub.pinned_ip, sub.lookahead, sub.track == "public")  # fmt: skip
+                         sub.policy_url, sub.secret, sub.pinned_ip, sub.lookahead, sub.track == "public",
+                         sub.mode)  # fmt: skip
     return None
 
 
@@ -244,6 +314,7 @@ def release_episode(
     else:
         ep.status = "pending"
         ep.lease_expires_at = None
+        ep.enqueued_at = None  # no message is out for it now: a dispatcher sends one
     return True
 
 
@@ -339,6 +410,10 @@ def _finalize_submission(session: Session, submission_id: int, now: datetime) ->
             share = f"{100 * POLICY_FAILURE_SHARE:.0f} %"
             sub.error = f"more than {share} of the episodes ended in a policy failure on {', '.join(failing)}"
     sub.finished_at = now
+    if sub.verifies_id is not None:  # a verification: its verdict goes onto the verified submission
+        from robobpp.db.verification import record_verdict
+
+        record_verdict(session, sub)
 
 
 def _policy_failed_runs(session: Session, submission_id: int) -> list[str]:
@@ -370,4 +445,8 @@ def cancel_submission(session: Session, sub: Submission) -> bool:
     )
     sub.status = "cancelled"
     sub.finished_at = now
+    if sub.verifies_id is not None:
+        original = session.get(Submission, sub.verifies_id)
+        if original is not None and (original.verification or {}).get("submission_id") == sub.id:
+            original.verification = {"status": "cancelled", "submission_id": sub.id}
     return True

@@ -1,8 +1,10 @@
 """Vectorised placement candidates on the heightmap, shared by the heightmap-based policies.
 
-Feasible means what the reference environment accepts: inside the container, below its height, and supported
-(:class:`robobpp.core.feasibility.SupportModel`). Bounds and height are cheap whole-grid arrays (``fits``); the
-support rule is a per-position test, so it is applied lazily: :func:`first_supported` walks a ranking until a
+Feasible means what the reference environment accepts: inside the container, below its height, and — in the
+physical settings — supported (:class:`robobpp.core.feasibility.SupportModel`). The reference (packsim) turns its
+stability check on for Physics and Execution Pack and off for Math Pack; a policy sees which from the state: boxes
+observed after physics carry their attitude (``Placement.quaternion``), Math Pack's never do. Bounds and height are
+cheap whole-grid arrays (``fits``); the support rule is a per-position test, so it is applied lazily: :func:`first_supported` walks a ranking until a
 supported placement turns up, and :attr:`CandidateMap.feasible` tests every position only when asked (the Gym
 env's action mask).
 """
@@ -17,7 +19,6 @@ import numpy as np
 
 from robobpp.core import Action, Observation, Placement, drop_height_map
 from robobpp.core.feasibility import (
-    CONTACT_TOLERANCE_CM,
     OBSERVED_CONTACT_TOLERANCE_CM,
     TOLERANCE_CM,
     SupportModel,
@@ -25,15 +26,36 @@ from robobpp.core.feasibility import (
 from robobpp.core.heightmap import cells_spanned
 
 
+class _NoSupportRule(SupportModel):
+    """Math Pack: every placement inside the container is accepted (the reference's check is off there)."""
+
+    def __init__(self) -> None:
+        super().__init__(())
+
+    def why_unsupported(self, *args: float) -> str | None:
+        return None
+
+    def mask(self, z: np.ndarray, length: float, width: float, height: float, fits: np.ndarray) -> np.ndarray:
+        return fits.copy()
+
+
+_NO_RULE = _NoSupportRule()
+
+
+def physical(placed: Sequence[Placement]) -> bool:
+    """Whether a state was observed after physics (its boxes carry attitudes): the support rule applies."""
+    return any(p.quaternion is not None for p in placed)
+
+
 @lru_cache(maxsize=4)
 def _support_model(placed: tuple[Placement, ...]) -> SupportModel:
-    # A state after physics carries attitudes; its tops are off by the settle noise, so contacts are looser.
-    observed = any(p.quaternion is not None for p in placed)
-    return SupportModel(placed, OBSERVED_CONTACT_TOLERANCE_CM if observed else CONTACT_TOLERANCE_CM)
+    # After physics, tops are off by the settle noise, so contacts are looser than on exact geometry.
+    return SupportModel(placed, OBSERVED_CONTACT_TOLERANCE_CM) if physical(placed) else _NO_RULE
 
 
 def support_model(obs: Observation) -> SupportModel:
-    """The support rule over the observed boxes (built once per state, shared by every caller)."""
+    """The support rule over the observed boxes (built once per state, shared by every caller); a rule that
+    accepts everything for a Math Pack state."""
     return _support_model(tuple(obs.placed))
 
 

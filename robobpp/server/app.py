@@ -72,6 +72,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         finally:
             if executor is not None:
                 executor.stop()
+            app.state.probe_gate.shutdown()
             runtime.dispose()
 
     app = FastAPI(
@@ -86,6 +87,10 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
 
     app.state.settings = settings
     app.state.runtime = Runtime(settings)
+    from robobpp.server.probes import ProbeGate
+
+    app.state.probe_gate = ProbeGate(settings.probe_concurrency, settings.probe_per_participant,
+                                     min(settings.probe_timeout_s, settings.step_timeout_s))  # fmt: skip
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     problems.install(app)
     install_metrics(app)

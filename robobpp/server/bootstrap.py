@@ -32,11 +32,14 @@ def ensure_private_split(settings: Any) -> bool:
     if build is None:
         log.warning("robobpp.datasets.build_private is not available; the private track cannot run")
         return False
-    root = settings.private_dir
-    if (root / "manifest.json").is_file():
-        return True
-    log.warning("building the private split in %s with a fresh secret seed (first start)", root)
-    build(root, seed=secrets.randbits(63), groups=settings.groups, datasets=list(settings.datasets))
+    from robobpp.datasets.private import HOLDOUT_DIR
+
+    # The split every submission plays, and the hold-out draw that only verifications play (own seed).
+    for root in (settings.private_dir, settings.private_dir / HOLDOUT_DIR):
+        if (root / "manifest.json").is_file():
+            continue
+        log.warning("building the private split in %s with a fresh secret seed (first start)", root)
+        build(root, seed=secrets.randbits(63), groups=settings.groups, datasets=list(settings.datasets))
     return True
 
 

@@ -53,7 +53,11 @@ class Settings(BaseSettings):
     settings: tuple[str, ...] = ()
     #: ``module:function(dataset, split, group, groups) -> EpisodeSpec`` override (tests, offline demo).
     spec_provider: str = ""
-    lease_s: float = Field(default=120.0, gt=0)
+    #: Worker lease; renewed every quarter lease (heartbeat), swept every quarter lease: a dead worker's
+    #: episode is back in the queue within 1.25 leases (25 s with the default).
+    lease_s: float = Field(default=20.0, gt=0)
+    #: Episodes of one participant's remote policies running at once, whatever the number of workers.
+    participant_max_running: int = Field(default=4, ge=1, le=1000)
     #: Celery executor (scaled deployment): ``redis://…`` or ``amqp://…``; empty = local process pool.
     broker_url: str = ""
     #: Broker queue the episode tasks go to (one per deployment; tests use a fresh one per run).
@@ -63,14 +67,28 @@ class Settings(BaseSettings):
     step_timeout_s: float = Field(default=10.0, gt=0)
     episode_timeout_s: float = Field(default=1800.0, gt=0)
     response_cap_bytes: int = Field(default=64 * 1024, ge=1024)
+    # pull mode (robobpp connect): workers reach the participants' clients through this server's relay
+    #: The server's URL as the workers see it; ``robobpp serve`` fills in its own address when empty.
+    pull_relay_url: str = ""
+    #: How long a worker waits for a participant's client before handing the episode back for a retry.
+    pull_wait_s: float = Field(default=30.0, gt=0)
+    #: How long a worker waits for a dropped client to come back before the episode ends with policy_error.
+    pull_reconnect_s: float = Field(default=30.0, gt=0)
     evaluate_baselines: bool = True
     #: Built-in baselines evaluated on first start; ``None`` means every one (``robobpp.policies.BASELINES``).
     baselines: tuple[str, ...] | None = None
     #: Also evaluate the baselines on the public track, so a debug run there is compared with something.
     public_baselines: bool = True
+    #: How often (seconds) an API process checks in SQL whether a board changed (services/boards.py).
+    board_refresh_s: float = Field(default=1.0, ge=0, le=60)
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)
+    #: Submit-time ``GET /info`` checks: deadline on the whole exchange, at most this many at once overall
+    #: and per participant (server/probes.py).
+    probe_timeout_s: float = Field(default=5.0, gt=0, le=60)
+    probe_concurrency: int = Field(default=8, ge=1, le=256)
+    probe_per_participant: int = Field(default=1, ge=1, le=64)
     quota_submissions_per_day: int = Field(default=10, ge=0)
     quota_concurrent: int = Field(default=2, ge=0)
 

@@ -30,7 +30,7 @@ class _QueueCollector(Collector):
         )
         submissions = GaugeMetricFamily("robobpp_submissions", "Submissions by status", labels=["status"])
         try:
-            with self.app.state.runtime.session() as session:
+            with self.app.state.runtime.read_session() as session:
                 for status, n in queries.episode_status_counts(session).items():
                     episodes.add_metric([status], n)
                 for status, n in queries.submission_status_counts(session).items():

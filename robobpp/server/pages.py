@@ -10,6 +10,7 @@ like the API); baselines' pages are public. Signing in, submitting and the opera
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Path, Query, Request
@@ -58,11 +59,26 @@ Page = Annotated[int, Query(ge=1, le=10**5)]
 def overall_page(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private",
                  view: View = "best", page: Page = 1):  # fmt: skip
     datasets, setting_names = _board_names(settings)
-    grid = board_cache(request).grid(session, datasets, setting_names, track)
-    shown = grid_view(grid, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
-    return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
-                  table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
-                  pages=tables.pages(shown, page))  # fmt: skip
+    cache = board_cache(request)
+
+    def build() -> HTMLResponse:
+        shown = grid_view(cache.grid(session, datasets, setting_names, track), view, tables.PAGE_SIZE,
+                          (page - 1) * tables.PAGE_SIZE)  # fmt: skip
+        return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
+                      table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
+                      pages=tables.pages(shown, page))  # fmt: skip
+
+    return _shared(request, session, track, ("home", root(request), track, view, page), build)
+
+
+def _shared(request: Request, session: Session, track: str, key: tuple[Any, ...],
+            build: Callable[[], HTMLResponse]) -> HTMLResponse:  # fmt: skip
+    """An anonymous visitor's board page, rendered once per board version and shared by every such reader
+    (services/boards.py); a page naming its viewer or carrying a CSRF nonce is rendered for that viewer."""
+    who = viewer(request)
+    if who.signed_in or who.nonce:
+        return build()
+    return HTMLResponse(board_cache(request).response(session, track, key, lambda: bytes(build().body)))
 
 
 @router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
@@ -71,13 +87,20 @@ def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, ses
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
-    board = board_cache(request).board(session, dataset, setting, track)
-    shown = board_view(board, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
-    return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
-                  nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track, view=view,
-                  table=tables.board_table(shown), weights=WEIGHTS[setting], top=tables.TOP,
-                  pages=tables.pages(shown, page), board=shown,
-                  other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
+    cache = board_cache(request)
+
+    def build() -> HTMLResponse:
+        shown = board_view(cache.board(session, dataset, setting, track), view, tables.PAGE_SIZE,
+                           (page - 1) * tables.PAGE_SIZE)  # fmt: skip
+        return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
+                      nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track, view=view,
+                      table=tables.board_table(shown), weights=WEIGHTS[setting], top=tables.TOP,
+                      pages=tables.pages(shown, page), board=shown,
+                      other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
+
+    return _shared(
+        request, session, track, ("board-page", root(request), dataset, setting, track, view, page), build
+    )
 
 
 def _submission(session: Session, submission_id: int) -> Submission | None:
@@ -135,7 +158,7 @@ def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, l
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
     return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
-                  has_pph="execution" in ran, owner=owner,
+                  has_pph="execution" in ran, owner=owner, site=str(request.base_url).rstrip("/"),
                   can_cancel=owner and view["status"] in ("queued", "running"),
                   episodes=episodes, ranks=ranks, charts=charts, metrics=columns, public=sub.track == "public",
                   reasons={**TERMINATION_REASONS, **EXTRA_REASONS}, neutral=NEUTRAL_ENDINGS)  # fmt: skip

@@ -3,7 +3,7 @@
 Refused: non-http(s) schemes, credentials in the URL, hosts that resolve to private, loopback,
 link-local, multicast, reserved or unspecified addresses (unless the operator allows private addresses)
 and cloud metadata endpoints (always). The host is resolved once, at submission, and the address is
-pinned: workers connect to that address (:class:`PinnedTransport`), so a DNS answer that changes later
+pinned: workers and the submit probe connect to that address, so a DNS answer that changes later
 (rebinding) cannot steer them inside the network. Redirects are never followed.
 """
 
@@ -13,8 +13,6 @@ import ipaddress
 import socket
 from dataclasses import dataclass
 from urllib.parse import urlsplit
-
-import httpx
 
 #: Cloud metadata services: refused even when private addresses are allowed.
 METADATA_ADDRESSES = frozenset(
@@ -102,62 +100,24 @@ def check_policy_url(url: str, *, allow_private: bool) -> CheckedURL:
     return CheckedURL(url.rstrip("/"), host, port, str(addresses[0]))
 
 
-class PinnedTransport(httpx.HTTPTransport):
-    """Connects to the pinned address whatever the host name resolves to now; TLS still checks the name."""
-
-    def __init__(self, pinned_ip: str, host: str, **kwargs: object) -> None:
-        super().__init__(**kwargs)  # type: ignore[arg-type]
-        self.pinned_ip = pinned_ip
-        self.host = host
-
-    def handle_request(self, request: httpx.Request) -> httpx.Response:
-        if request.url.host == self.host:
-            ip = self.pinned_ip
-            request.url = request.url.copy_with(host=ip)
-            request.extensions = {**request.extensions, "sni_hostname": self.host}
-        return super().handle_request(request)
-
-
 def probe_policy(
     checked: CheckedURL, *, secret: str | None = None, timeout_s: float = 5.0, cap_bytes: int = 64 * 1024
 ) -> dict[str, object]:
-    """Signed ``GET {url}/info`` through the pinned address, no redirects, capped body; raise if unusable."""
-    from robobpp.protocol import signed_headers
+    """Signed ``GET {url}/info`` through the pinned address; raise :class:`UnsafeURLError` if unusable.
 
-    headers = {"Host": _host_header(checked)}
-    if secret is not None:
-        headers.update(signed_headers(secret, b""))
-    transport = PinnedTransport(checked.pinned_ip, checked.host)
+    The same check as ``robobpp protocol check`` (:meth:`RemotePolicy.fetch_info`): one hard deadline on
+    the whole exchange (connect, send, every byte of the answer), a size cap, no redirects, the strict
+    ``InfoResponse`` model (``protocol`` must be ``robobpp/1``) and, with a secret, a signed answer.
+    """
+    from robobpp.client.remote import RemotePolicy
+    from robobpp.policies.base import PolicyError
+
+    policy = RemotePolicy(checked.url, secret, step_timeout_s=timeout_s, connect_timeout_s=timeout_s,
+                          max_response_bytes=cap_bytes, resolved_ip=checked.pinned_ip, check_info=False)  # fmt: skip
     try:
-        with (
-            httpx.Client(transport=transport, timeout=timeout_s, follow_redirects=False) as client,
-            client.stream("GET", checked.url + "/info", headers=headers) as r,
-        ):
-            body = b""
-            for chunk in r.iter_bytes():
-                body += chunk
-                if len(body) > cap_bytes:
-                    raise UnsafeURLError("policy-unreachable", "the policy's /info answer is too large")
-    except httpx.HTTPError as exc:
-        raise UnsafeURLError("policy-unreachable",
-                             f"the policy at {checked.url} did not answer GET /info: {type(exc).__name__}") from None  # fmt: skip
-    if r.status_code == 401:
-        raise UnsafeURLError("policy-unreachable", "the policy refused our signed GET /info (HTTP 401): "
-                             "is the submission's secret the one the policy server checks?")  # fmt: skip
-    if r.status_code != 200:
-        raise UnsafeURLError("policy-unreachable", f"the policy's GET /info answered HTTP {r.status_code}")
-    try:
-        info = httpx.Response(200, content=body).json()
-    except ValueError:
-        raise UnsafeURLError("policy-unreachable", "the policy's GET /info answer is not JSON") from None
-    if not isinstance(info, dict):
-        raise UnsafeURLError("policy-unreachable", "the policy's GET /info answer is not a JSON object")
-    protocol = info.get("protocol")
-    if protocol is not None and protocol != "robobpp/1":
-        raise UnsafeURLError("policy-unreachable", f"the policy speaks {protocol!r}, not robobpp/1")
-    return info
-
-
-def _host_header(checked: CheckedURL) -> str:
-    default = 443 if checked.url.startswith("https") else 80
-    return checked.host if checked.port == default else f"{checked.host}:{checked.port}"
+        info = policy.fetch_info()
+    except PolicyError as exc:
+        raise UnsafeURLError("policy-unreachable", f"GET {checked.url}/info: {exc.detail}") from None
+    finally:
+        policy.close()
+    return info.model_dump()

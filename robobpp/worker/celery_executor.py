@@ -2,8 +2,9 @@
 
 The server does not run episodes; it *dispatches* them. One background thread:
 
-1. sends a message for every pending episode it has not sent yet (new submissions, the baselines, and —
-   after a server restart, when its memory is empty — everything still pending: queued work resumes);
+1. sends a message for every pending episode that has none out (new submissions, the baselines, episodes
+   handed back for a retry), marking it in SQL (``enqueued_at``) in the same transaction: after a server
+   restart nothing already queued is sent again, and nothing pending is forgotten;
 2. sweeps expired leases: a running episode whose worker died (``kill -9``, a lost machine) is put back to
    ``pending`` and sent again, in one transaction, so exactly one sweeper re-sends it even when many run.
 
@@ -20,14 +21,15 @@ import time
 from datetime import datetime
 
 from celery import Celery
-from sqlalchemy import create_engine, select, update
+from sqlalchemy import create_engine, update
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import NullPool
 
 from robobpp.db import work
-from robobpp.db.models import EpisodeRow, Submission, utcnow
+from robobpp.db.models import EpisodeRow, utcnow
 from robobpp.db.session import make_engine, make_session_factory
 from robobpp.worker.celery_names import options_of
+from robobpp.worker.outage import OutageLog
 from robobpp.worker.tasks import enqueue
 
 log = logging.getLogger("robobpp.worker.celery")
@@ -52,7 +54,7 @@ def requeue_expired(
                 EpisodeRow.lease_expires_at < now,
                 EpisodeRow.attempts < max_attempts,
             )  # fmt: skip
-            .values(status="pending", lease_token=None, lease_expires_at=None)
+            .values(status="pending", lease_token=None, lease_expires_at=None, enqueued_at=now)
             .returning(EpisodeRow.id)
             .execution_options(synchronize_session=False)
         ).scalars()
@@ -63,34 +65,28 @@ def requeue_expired(
     return ids
 
 
-def active_episode_ids(session: Session) -> tuple[set[int], set[int]]:
-    """(pending, running) episode ids of submissions still being evaluated."""
-    rows = session.execute(
-        select(EpisodeRow.id, EpisodeRow.status)
-        .join(Submission, Submission.id == EpisodeRow.submission_id)
-        .where(EpisodeRow.status.in_(("pending", "running")), Submission.status.in_(work.ACTIVE_SUBMISSION))
-    ).all()
-    pending = {i for i, s in rows if s == "pending"}
-    return pending, {i for i, s in rows if s == "running"}
-
-
 class _Loop(threading.Thread):
-    """A daemon thread calling ``tick`` every ``interval`` seconds until stopped; errors are logged."""
+    """A daemon thread calling ``tick`` every ``interval`` seconds until stopped.
+
+    ``tick`` returns the dependencies it used (``database``, ``broker``); outages of those are logged
+    once when they start and once when they end (:class:`OutageLog`), not once per round.
+    """
 
     def __init__(self, name: str, interval: float) -> None:
         super().__init__(name=name, daemon=True)
         self.interval = interval
         self.stopping = threading.Event()
+        self.outages = OutageLog(log, name)
 
-    def tick(self) -> None:  # pragma: no cover - overridden
+    def tick(self) -> tuple[str, ...]:  # pragma: no cover - overridden
         raise NotImplementedError
 
     def run(self) -> None:
         while not self.stopping.is_set():
             try:
-                self.tick()
-            except Exception:  # noqa: BLE001 - the database or broker blinked: try again next round
-                log.warning("%s: round failed", self.name, exc_info=True)
+                self.outages.ok(*self.tick())
+            except Exception as exc:  # noqa: BLE001 - the database or broker blinked: try again next round
+                self.outages.failed(exc)
             self.stopping.wait(self.interval)
 
     def stop(self, timeout: float = 5.0) -> None:
@@ -111,21 +107,23 @@ class LeaseSweeper(_Loop):
 
     def __init__(self, app: Celery, interval: float | None = None) -> None:
         options = options_of(app)
-        super().__init__("robobpp-lease-sweeper", interval or max(1.0, options.lease_s / 2))
+        super().__init__("robobpp-lease-sweeper", interval or sweep_interval_s(options.lease_s))
         self.app = app
         self.options = options
         self.factory = _own_factory(options.database_url)
 
-    def tick(self) -> None:
+    def tick(self) -> tuple[str, ...]:
         with self.factory() as s, s.begin():
-            requeue_expired(s, self.app, self.options.max_attempts)
+            sent = requeue_expired(s, self.app, self.options.max_attempts)
+        return ("database", "broker") if sent else ("database",)
 
 
 class CeleryExecutor(_Loop):
     """Server side of the scaled deployment: dispatch pending episodes, sweep leases, count workers.
 
-    Same surface as :class:`robobpp.worker.local.LocalExecutor` (``start``, ``stop``, ``alive``) plus
-    ``submit(episode_ids)`` for callers that want a new submission sent before the next round.
+    Same surface as :class:`robobpp.worker.local.LocalExecutor` (``start``, ``stop``, ``alive``). What has
+    been sent is recorded in SQL (``episodes.enqueued_at``), not in memory, so a restarted server — or a
+    second one — sends nothing that is already queued.
     """
 
     def __init__(self, app: Celery, *, ping_every_s: float = 15.0) -> None:
@@ -134,50 +132,51 @@ class CeleryExecutor(_Loop):
         self.app = app
         self.options = options
         self.factory = _own_factory(options.database_url)
-        self._sent: set[int] = set()
-        self._sent_lock = threading.Lock()
         self._workers = 0
         self._ping_every_s = ping_every_s
         self._last_ping = 0.0
         self._last_sweep = 0.0
 
-    def submit(self, episode_ids: list[int]) -> int:
-        with self._sent_lock:
-            new = [i for i in episode_ids if i not in self._sent]
-            enqueue(self.app, new)
-            self._sent.update(new)
-        return len(new)
-
     def dispatch(self) -> int:
-        """Send what is pending and unsent; forget what finished (keeps memory bounded by active work)."""
-        with self.factory() as s:
-            pending, running = active_episode_ids(s)
-        with self._sent_lock:
-            new = sorted(pending - self._sent)
-            enqueue(self.app, new)
-            self._sent = (self._sent & (pending | running)) | set(new)
-        return len(new)
+        """Send a message for every pending episode that has none out; the marks commit with the sends."""
+        return dispatch_unsent(self.factory, self.app)
 
     def sweep(self) -> list[int]:
         with self.factory() as s, s.begin():
-            ids = requeue_expired(s, self.app, self.options.max_attempts)
-        with self._sent_lock:
-            self._sent.update(ids)
-        return ids
+            return requeue_expired(s, self.app, self.options.max_attempts)
 
-    def tick(self) -> None:
+    def tick(self) -> tuple[str, ...]:
         now = time.monotonic()
-        if now - self._last_sweep >= max(1.0, self.options.lease_s / 2):
+        sent = 0
+        if now - self._last_sweep >= sweep_interval_s(self.options.lease_s):
             self._last_sweep = now
-            self.sweep()
-        self.dispatch()
+            sent += len(self.sweep())
+        sent += self.dispatch()
         if now - self._last_ping >= self._ping_every_s:
             self._last_ping = now
             self._workers = count_workers(self.app)
+        return ("database", "broker") if sent else ("database",)
 
     def alive(self) -> int:
         """Celery workers that answered the last ping (health page; refreshed every ``ping_every_s``)."""
         return self._workers
+
+
+def sweep_interval_s(lease_s: float) -> float:
+    """How often leases are swept: a quarter lease, so a dead worker's episode is re-sent within 1.25 leases."""
+    return max(1.0, lease_s / 4)
+
+
+def dispatch_unsent(factory: sessionmaker[Session], app: Celery) -> int:
+    from robobpp.worker.celery_app import visibility_timeout_s
+
+    options = options_of(app)
+    with factory() as s, s.begin():
+        ids = work.take_unsent(
+            s, stale_after_s=visibility_timeout_s(options.episode_timeout_s, options.lease_s)
+        )
+        enqueue(app, ids)
+    return len(ids)
 
 
 def count_workers(app: Celery, timeout: float = 1.0) -> int:
@@ -198,7 +197,7 @@ def executor_from_settings(settings: object) -> CeleryExecutor:
 __all__ = [
     "CeleryExecutor",
     "LeaseSweeper",
-    "active_episode_ids",
+    "dispatch_unsent",
     "executor_from_settings",
     "requeue_expired",
 ]

@@ -20,6 +20,7 @@ from typing import Any
 from robobpp.db import work
 from robobpp.db.session import make_engine, make_session_factory
 from robobpp.worker.options import WorkerOptions
+from robobpp.worker.outage import OutageLog
 
 log = logging.getLogger("robobpp.worker")
 
@@ -39,13 +40,15 @@ def worker_main(options: WorkerOptions, stop: Any) -> None:
     engine = make_engine(options.database_url)
     factory = make_session_factory(engine)
     me = worker_id("local")
+    outages = OutageLog(log, f"worker {me}")
     parent = os.getppid()
     try:
         while not stop.value and not leaving.is_set() and os.getppid() == parent:  # orphans stop claiming
             try:
                 outcome = claim_and_run(factory, options, me)
-            except Exception:  # noqa: BLE001 - the database blinked; wait and try again
-                log.warning("worker %s: claim failed", me, exc_info=True)
+                outages.ok("database")
+            except Exception as exc:  # noqa: BLE001 - the database blinked; wait and try again
+                outages.failed(exc, "claim")
                 outcome = None
             if outcome is None:
                 leaving.wait(options.poll_interval_s)
@@ -67,6 +70,7 @@ class LocalExecutor:
         self._lock = threading.Lock()
         self._stopping = threading.Event()
         self._supervisor = threading.Thread(target=self._supervise, name="robobpp-supervisor", daemon=True)
+        self._outages = OutageLog(log, "local worker supervisor")
 
     def _spawn(self) -> BaseProcess:
         proc = self._ctx.Process(target=worker_main, args=(self.options, self._stop), name="robobpp-worker",
@@ -103,8 +107,9 @@ class LocalExecutor:
                     self._procs.append(self._spawn())
             try:
                 self._release_dead()
-            except Exception:  # noqa: BLE001
-                log.warning("could not hand back dead workers' episodes", exc_info=True)
+                self._outages.ok("database")
+            except Exception as exc:  # noqa: BLE001
+                self._outages.failed(exc, "handing back dead workers' episodes")
 
     def alive(self) -> int:
         with self._lock:

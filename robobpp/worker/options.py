@@ -14,12 +14,18 @@ class WorkerOptions:
     groups: int = 30
     private_dir: Path = Path("datasets_private")
     spec_provider: str = ""
-    lease_s: float = 120.0
+    #: Short, renewed every quarter lease by a heartbeat: a dead worker's episode is re-sent within ~25 s.
+    lease_s: float = 20.0
     max_attempts: int = 3
     poll_interval_s: float = 0.5
     step_timeout_s: float = 10.0
     episode_timeout_s: float = 1800.0
     response_cap_bytes: int = 64 * 1024
+    pull_relay_url: str = ""
+    pull_wait_s: float = 30.0
+    pull_reconnect_s: float = 30.0
+    #: Episodes of one participant's remote policies running at once (outbound calls to one server).
+    max_running_per_participant: int = 4
 
 
 def worker_options(settings: Any) -> WorkerOptions:
@@ -29,4 +35,7 @@ def worker_options(settings: Any) -> WorkerOptions:
         spec_provider=settings.spec_provider, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
         poll_interval_s=settings.poll_interval_s, step_timeout_s=settings.step_timeout_s,
         episode_timeout_s=settings.episode_timeout_s, response_cap_bytes=settings.response_cap_bytes,
+        pull_relay_url=settings.pull_relay_url, pull_wait_s=settings.pull_wait_s,
+        pull_reconnect_s=settings.pull_reconnect_s,
+        max_running_per_participant=settings.participant_max_running,
     )  # fmt: skip

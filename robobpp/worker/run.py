@@ -22,6 +22,7 @@ from robobpp.db.work import Claim
 from robobpp.episode import StepRecord, run_episode
 from robobpp.policies import load_policy
 from robobpp.worker.options import WorkerOptions
+from robobpp.worker.outage import OutageLog
 from robobpp.worker.specs import episode_spec
 
 log = logging.getLogger("robobpp.worker")
@@ -37,24 +38,51 @@ def worker_id(kind: str = "local") -> str:
 
 
 def make_policy(claim: Claim, settings: WorkerOptions) -> Any:
-    """A built-in policy in-process (``builtin:NAME``), or the participant's server over robobpp/1."""
+    """A built-in policy in-process (``builtin:NAME``), the participant's server over robobpp/1 (push), or
+    the participant's client through the server's relay (pull). Remote ones probe the network, so that
+    the decision time ranked is the policy's, not the distance's."""
     if claim.policy_url.startswith("builtin:"):
         return load_policy(claim.policy_url.removeprefix("builtin:"))
     from robobpp.client.remote import RemotePolicy
 
-    return RemotePolicy(
-        claim.policy_url,
+    transport = None
+    url = claim.policy_url
+    if claim.mode == "pull":
+        from robobpp.client.frames import MAX_ENVELOPE
+        from robobpp.worker.pull import PullTransport
+
+        if not settings.pull_relay_url:
+            raise RuntimeError("a pull episode needs ROBOBPP_PULL_RELAY_URL (the server's URL) on the worker")
+        transport = PullTransport(settings.pull_relay_url, claim.episode_id, claim.token,
+                                  wait_s=settings.pull_wait_s, reconnect_s=settings.pull_reconnect_s,
+                                  max_frame_bytes=settings.response_cap_bytes + MAX_ENVELOPE)  # fmt: skip
+        url = settings.pull_relay_url  # names the policy only: every byte goes through the transport
+    policy = RemotePolicy(
+        url,
         claim.secret,
         step_timeout_s=settings.step_timeout_s,
         episode_timeout_s=settings.episode_timeout_s,
         max_response_bytes=settings.response_cap_bytes,
         resolved_ip=claim.pinned_ip,
         name=f"submission-{claim.submission_id}",
+        probe_network=True,
+        transport=transport,
     )
+    if transport is not None:
+        transport.headers_for = policy.request_headers
+    return policy
+
+
+def _pair_pull_client(policy: Any) -> None:
+    """Pull mode: wait for the participant's client before the episode starts (raises ``NoClient``)."""
+    transport = getattr(policy, "_connection", None)
+    pair = getattr(transport, "pair", None)
+    if pair is not None:
+        pair(transport.wait_s)
 
 
 class _Lease(threading.Thread):
-    """Renews the lease every third of its length; flags the claim lost when renewal is refused."""
+    """The heartbeat: renews the lease every quarter of its length; flags the claim lost when refused."""
 
     def __init__(self, factory: sessionmaker[Session], claim: Claim, lease_s: float) -> None:
         super().__init__(name=f"lease-{claim.episode_id}", daemon=True)
@@ -64,15 +92,17 @@ class _Lease(threading.Thread):
         self.done = threading.Event()
 
     def run(self) -> None:
-        interval = max(0.2, min(self.lease_s / 3, 10.0))
+        interval = max(0.2, min(self.lease_s / 4, 10.0))
+        outages = OutageLog(log, f"lease of episode {self.claim.episode_id}")
         while not self.done.wait(interval):
             try:
                 with self.factory() as s, s.begin():
                     ok = work.heartbeat(s, self.claim.episode_id, self.claim.token, lease_s=self.lease_s,
                                         step=self.step)  # fmt: skip
-            except Exception:  # noqa: BLE001 - a blip of the database: try again next interval
-                log.warning("lease renewal of episode %s failed", self.claim.episode_id, exc_info=True)
+            except Exception as exc:  # noqa: BLE001 - a blip of the database: try again next interval
+                outages.failed(exc, "renewal")
                 continue
+            outages.ok("database")
             if not ok:
                 self.lost.set()
                 return
@@ -92,6 +122,16 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
         return False
     lease = _Lease(factory, claim, settings.lease_s)
     lease.start()
+    try:
+        _pair_pull_client(policy)  # under the lease: the wait may outlast it
+    except Exception as exc:  # noqa: BLE001 - no client (yet): hand the episode back, bounded retries
+        lease.done.set()
+        lease.join(timeout=5)
+        with factory() as s, s.begin():
+            work.release_episode(s, claim.episode_id, claim.token, f"pull mode: {exc}",
+                                 max_attempts=settings.max_attempts)  # fmt: skip
+        log.info("episode %s: %s", claim.episode_id, exc)
+        return False
 
     def on_step(record: StepRecord) -> None:
         lease.step = record.step + 1
@@ -121,7 +161,8 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
 def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worker: str) -> bool | None:
     """Claim the next episode and run it. ``None`` when there was nothing to do."""
     with factory() as s, s.begin():
-        claim = work.claim_episode(s, worker, lease_s=settings.lease_s, max_attempts=settings.max_attempts)
+        claim = work.claim_episode(s, worker, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
+                                   max_running_per_participant=settings.max_running_per_participant)  # fmt: skip
     if claim is None:
         return None
     return run_claimed(factory, claim, settings)

@@ -1,6 +1,7 @@
 """Where a work item's :class:`EpisodeSpec` comes from.
 
 ``test`` split: the private evaluation set built on the server (``datasets_private/``), never served.
+``holdout``: the private pool's second draw (``datasets_private/holdout/``), played by verifications only.
 ``train`` split: the public groups, drawn with seed 0 (anyone can reproduce them with the SDK).
 ``ROBOBPP_SPEC_PROVIDER=module:function`` replaces both (offline tests, synthetic demos).
 """
@@ -56,7 +57,14 @@ def episode_spec(
 ) -> EpisodeSpec:
     if provider:
         return _provider(provider)(dataset, split, group, groups)
-    specs = _private(dataset, str(private_dir)) if split == "test" else _public(dataset, groups)
+    if split == "test":
+        specs = _private(dataset, str(private_dir))
+    elif split == "holdout":  # the private pool's second draw, played by verifications only
+        from robobpp.datasets.private import HOLDOUT_DIR
+
+        specs = _private(dataset, str(Path(private_dir) / HOLDOUT_DIR))
+    else:
+        specs = _public(dataset, groups)
     if not 0 <= group < len(specs):
         raise SpecUnavailableError(f"{dataset}/{split} has {len(specs)} groups; group {group} does not exist")
     return specs[group]
@@ -81,9 +89,11 @@ def offline_spec(dataset: str, split: str, group: int, groups: int) -> EpisodeSp
 
     ds = get_dataset(dataset)
     seed = zlib.crc32(f"{dataset}/{split}/{group}".encode())
+    # The hold-out draw has its own boxes but looks like the test split (same ids), as the real one does.
+    label = "test" if split == "holdout" else split
     rng = np.random.default_rng(seed)
     c = ds.container
     dims = rng.uniform(0.15, 0.45, size=(OFFLINE_BOXES, 3)) * np.array([c.length, c.width, c.height * 0.5])
     boxes = tuple(Box(float(round(a)), float(round(b)), float(round(h)), float(round(rng.uniform(1, 8), 2)))
                   for a, b, h in dims)  # fmt: skip
-    return EpisodeSpec(dataset, split, group, boxes, c, ds.collapse_threshold_cm, seed)
+    return EpisodeSpec(dataset, label, group, boxes, c, ds.collapse_threshold_cm, seed)

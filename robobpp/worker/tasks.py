@@ -15,7 +15,7 @@ import threading
 from typing import Any
 
 from celery import Celery
-from sqlalchemy import Engine, select
+from sqlalchemy import Engine, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from robobpp.db import work
@@ -78,19 +78,25 @@ def execute(app: Celery, episode_id: int, worker: str | None = None) -> str:
     me = worker or worker_id("celery")
     with factory() as s, s.begin():
         claim = work.claim_episode(s, me, lease_s=options.lease_s, max_attempts=options.max_attempts,
-                                   episode_id=episode_id)  # fmt: skip
+                                   episode_id=episode_id,
+                                   max_running_per_participant=options.max_running_per_participant)  # fmt: skip
+        if claim is None:
+            # Still pending means its participant already has its share of episodes running: send it again
+            # later (this message is acknowledged). Otherwise it is done, cancelled, failed, unknown, or
+            # leased by a live worker; the sweeper re-sends it if that lease ever expires.
+            s.execute(update(EpisodeRow).where(EpisodeRow.id == episode_id, EpisodeRow.status == "pending")
+                      .values(enqueued_at=None))  # fmt: skip
+            later = work.take_unsent(s, stale_after_s=0, ids=[episode_id])
+            enqueue(app, later, countdown=RETRY_DELAY_S)
     if claim is None:
-        # Done, cancelled, failed, unknown, or leased by a live worker. In the last case the sweeper sends
-        # the episode again if that lease ever expires; nothing is waiting on this copy.
-        log.info("episode %s: nothing to do here (finished or held by another worker)", episode_id)
+        log.info("episode %s: nothing to do here (%s)", episode_id,
+                 "its participant is at its limit; sent again later" if later else "finished or held by another worker")  # fmt: skip
         return "skipped"
     log.info("episode %s: attempt %s on %s", episode_id, claim.attempt, me)
     if run_claimed(factory, claim, options):
         return "recorded"
-    with factory() as s:
-        status = s.execute(select(EpisodeRow.status).where(EpisodeRow.id == episode_id)).scalar_one_or_none()
-    if status == "pending":  # the unit handed it back for another attempt: it needs a new message
-        enqueue(app, [episode_id], countdown=RETRY_DELAY_S)
+    with factory() as s, s.begin():  # handed back for another attempt: it needs a new message, sent once
+        enqueue(app, work.take_unsent(s, stale_after_s=0, ids=[episode_id]), countdown=RETRY_DELAY_S)
     return "dropped"
 
 

@@ -3,6 +3,11 @@
 ``http://127.0.0.1:PORT/<mode>`` is a policy base URL: ``/<mode>/info``, ``/<mode>/reset`` ... behave
 well except where the mode says otherwise (mostly on ``/act``). It is written on raw sockets so that it
 can do what a framework would refuse to: drip bytes, drop the connection, lie about lengths.
+
+With ``secret`` it signs its 200 answers like the SDK does (bound to each request), so that the modes
+``replay`` (step 0's signed answer sent again at every later step), ``wrong_episode`` (signed for another
+episode id), ``resign_old`` (signed with a timestamp outside the replay window) and ``unsigned`` test the
+caller's answer check and nothing else.
 """
 
 from __future__ import annotations
@@ -12,6 +17,8 @@ import socket
 import socketserver
 import threading
 import time
+
+from robobpp import protocol as P
 
 GOOD_ACT = {"x": 0.0, "y": 0.0, "orientation": 0}
 
@@ -38,6 +45,9 @@ ACT_BODIES: dict[str, bytes] = {
 
 class _Handler(socketserver.BaseRequestHandler):
     server: HostileServer
+    current: tuple[dict[str, str], bytes] = ({}, b"")
+    mode = ""
+    replayed: tuple[bytes, str] | None = None
 
     def handle(self) -> None:
         self.server.opened()
@@ -63,6 +73,7 @@ class _Handler(socketserver.BaseRequestHandler):
                     buffer += chunk
                 body, buffer = buffer[:length], buffer[length:]
                 self.server.requests.append((method, target, headers, body))
+                self.current = (headers, body)
                 if not self.respond(sock, target):
                     return
         except OSError:
@@ -72,14 +83,43 @@ class _Handler(socketserver.BaseRequestHandler):
 
     def send(self, sock: socket.socket, status: str, body: bytes, ctype: str = "application/json",
              extra: str = "") -> bool:  # fmt: skip
+        if status.startswith("200") and self.server.secret is not None and "X-Robobpp-" not in extra:
+            extra += self.signature(body)
         head = f"HTTP/1.1 {status}\r\nContent-Type: {ctype}\r\nContent-Length: {len(body)}\r\n{extra}\r\n"
         sock.sendall(head.encode() + body)
         return True
 
+    def signature(self, body: bytes) -> str:
+        """Answer-signature header lines for ``body`` as the SDK would sign it (bent by the mode)."""
+        headers, request_body = self.current
+        mode = self.mode
+        if mode == "unsigned":
+            return ""
+        try:
+            request = json.loads(request_body) if request_body else {}
+        except ValueError:
+            request = {}
+        episode_id = str(request.get("episode_id", "")) if isinstance(request, dict) else ""
+        step = request.get("step") if isinstance(request, dict) else None
+        if mode == "wrong_episode" and step is not None:
+            episode_id += "-other"
+        now = (
+            time.time() - 10 * P.DEFAULT_REPLAY_WINDOW_S
+            if mode == "resign_old" and step is not None
+            else None
+        )
+        assert self.server.secret is not None
+        signed = P.sign_answer(self.server.secret, episode_id=episode_id, step=step, body=body, now=now,
+                               request_signature=headers.get(P.SIGNATURE_HEADER.lower(), ""))  # fmt: skip
+        return "".join(f"{k}: {v}\r\n" for k, v in signed.items())
+
     def respond(self, sock: socket.socket, target: str) -> bool:
         """Answer one request; False closes the connection."""
         _, mode, endpoint = target.split("/", 2)
+        self.mode = mode
         if endpoint == "info":
+            if mode == "empty_info":
+                return self.send(sock, "200 OK", b"{}")
             protocol = "robobpp/2" if mode == "wrong_protocol" else "robobpp/1"
             return self.send(sock, "200 OK", json.dumps({"protocol": protocol, "name": mode}).encode())
         if endpoint == "reset" and mode == "reset_500":
@@ -87,8 +127,15 @@ class _Handler(socketserver.BaseRequestHandler):
         if endpoint in ("reset", "close"):
             return self.send(sock, "200 OK", b"{}")
         # endpoint == "act"
+        if mode == "replay":  # the first signed answer of the connection, byte for byte, every time
+            if self.replayed is None:
+                body = json.dumps(GOOD_ACT).encode()
+                self.replayed = (body, self.signature(body))
+            return self.send(sock, "200 OK", self.replayed[0], extra=self.replayed[1])
         if mode in ACT_BODIES:
             return self.send(sock, "200 OK", ACT_BODIES[mode])
+        if mode in ("unsigned", "wrong_episode", "resign_old"):
+            return self.send(sock, "200 OK", ACT_BODIES["good"])
         if mode == "error500":
             return self.send(sock, "500 Internal Server Error", b'{"error": "kaput"}')
         if mode == "html":
@@ -130,9 +177,10 @@ class HostileServer(socketserver.ThreadingTCPServer):
     daemon_threads = True
     allow_reuse_address = True
 
-    def __init__(self, slow_s: float = 3.0) -> None:
+    def __init__(self, slow_s: float = 3.0, secret: str | None = None) -> None:
         super().__init__(("127.0.0.1", 0), _Handler)
         self.slow_s = slow_s
+        self.secret = secret
         self.requests: list[tuple[str, str, dict[str, str], bytes]] = []
         self._lock = threading.Lock()
         self.open_connections = 0

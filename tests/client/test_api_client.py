@@ -180,10 +180,12 @@ def test_leaderboard_command_shows_boards_and_the_grid(
     server: ServerProcess, fast: BackgroundServer, token: str, api: ServerClient, cli: CliRunner
 ) -> None:
     sub = api.wait(api.submit(fast.url, SECRET, "for board", ["diverse"]).id, poll_s=0.2)
-    board = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse", "--setting", "math")
+    board = run_cli(
+        cli, server, None, "leaderboard", "--dataset", "diverse", "--setting", "math", "--view", "all"
+    )
     assert board.exit_code == 0, board.output
     assert "Space Utilization (0.6)" in board.stdout and f"#{sub.id} for board" in board.stdout
-    grid = run_cli(cli, server, None, "leaderboard")
+    grid = run_cli(cli, server, None, "leaderboard", "--view", "all")
     assert grid.exit_code == 0 and "math/diverse" in grid.stdout and f"#{sub.id} for board" in grid.stdout
     as_json = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse", "--setting", "math", "--json")
     assert '"entries"' in as_json.stdout

@@ -35,7 +35,7 @@ def test_check_passes_a_conforming_signed_server() -> None:
 
 
 def test_check_reports_every_violation_and_fails() -> None:
-    with HostileServer() as server:
+    with HostileServer(secret="s3cret") as server:
         report = check_policy_server(f"{server.url}/extra", "s3cret", step_timeout_s=2)
         result = _cli("protocol", "check", f"{server.url}/nan", "--timeout", "2")
     problems = [f.message for f in report.violations]

@@ -123,7 +123,8 @@ def test_check_support_names_the_reason() -> None:
     assert check_support(_stack(BASE), Placement(0, 0, 5, 10, 10, 2, 0, 1)) is None
 
 
-def test_math_pack_ends_the_episode_on_an_unsupported_placement() -> None:
+def test_math_pack_accepts_an_unsupported_placement_like_the_reference() -> None:
+    """packsim's Math Pack runs with the stability check off; the paper's Math figures are reproduced that way."""
     from robobpp.core import Action
     from robobpp.episode import run_episode
     from robobpp.policies import BasePolicy
@@ -136,16 +137,16 @@ def test_math_pack_ends_the_episode_on_an_unsupported_placement() -> None:
         def act(self, obs):  # type: ignore[no-untyped-def]
             return self.answers.pop(0)
 
-    spec = make_spec([(4, 10, 5), (10, 10, 2), (4, 10, 5)])
-    # the second box hangs 6 cm past the first one (centre 5 over contact [0, 4]): refused, nothing placed
+    spec = make_spec([(4, 10, 5), (10, 10, 2), (4, 10, 5)], container=(10, 10, 20))
+    # the second box hangs 6 cm past the first one (centre 5 over contact [0, 4]): placed anyway, at z = 5
     result = run_episode(spec, Scripted([Action(0, 0, 0), Action(0, 0, 0), Action(6, 0, 0)]), "math")
-    assert result.termination == "unsupported" and result.boxes_placed == 1
-    assert result.steps[-1].placement is None and result.steps[-1].termination == "unsupported"
+    assert result.termination == "completed" and result.boxes_placed == 3
+    assert result.steps[1].placement is not None and result.steps[1].placement["z"] == 5
 
 
 def test_physics_pack_lets_physics_decide_an_unsupported_placement() -> None:
-    """Decision: Physics and Execution Pack do not refuse a placement the rule rejects (the reference's env
-    step checks only bounds and height there); gravity decides. Policies still see the rule in their candidates."""
+    """Physics and Execution Pack do not refuse a placement the rule rejects either (the reference's env step
+    checks only bounds and height); gravity decides. There the rule is in the candidates policies see."""
     from robobpp.core import Action
     from robobpp.episode import run_episode
     from robobpp.policies import BasePolicy

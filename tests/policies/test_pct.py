@@ -1,12 +1,14 @@
 """PCT's tree nodes on hand-built scenes (worked out by hand), and the policy with the authors' weights."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from robobpp.core import Placement, check_action
 from robobpp.episode import NO_FEASIBLE_PLACEMENT, Episode, run_episode
 from robobpp.policies import load_policy
-from robobpp.policies.pct.leaves import SpaceTracker, build_nodes, supported
+from robobpp.policies.pct.leaves import SpaceTracker, build_nodes
 from tests.conftest import make_spec
 from tests.policies.scenes import scene
 
@@ -53,16 +55,17 @@ def test_the_first_internal_node_is_valid_before_any_box():
     assert nodes.next_item.tolist() == [1, 0, 0, 2, 3, 4]  # sides ascending
 
 
-def test_support_needs_the_centre_inside_the_shrunk_contact_polygon():
-    tops = np.array([[0, 0, 4, 3, 2.0]])  # the corner box's footprint and top
-    assert supported(1, 0, 2, 2, 2.0, tops)  # fully on the box
-    # half on the box: contact [2, 4] × [0, 3] shrinks to [2.1, 3.9] × [0.15, 2.85]; centre x = 4 is outside
-    assert not supported(2, 0, 4, 4, 2.0, tops)
-    # resting on two boxes: the hull spans the gap between them, the centre is over the gap
-    two = np.array([[0, 0, 3, 10, 2.0], [7, 0, 10, 10, 2.0]])
-    assert supported(0, 0, 10, 4, 2.0, two)
-    assert supported(5, 5, 1, 1, 0.0, two)  # on the floor
-    assert not supported(0, 0, 10, 4, 3.0, two)  # nothing has its top at 3 cm
+def test_leaves_follow_the_support_rule_in_the_physical_settings():
+    # a 4 × 6 box on the 4 × 3 corner box at (0, 0): the contact [0, 4] × [0, 3] shrinks to [0.2, 3.8] × [0.15, 2.85]
+    math_obs = scene((10, 10, 10), [CORNER_BOX], (4, 6, 1))
+    math_nodes = build_nodes(math_obs, spaces_of(math_obs)[1], np.random.default_rng(0))
+    assert (0, 0, 0) in math_nodes.actions  # Math Pack: no support rule, as in the reference's Math Pack
+    settled = tuple(dataclasses.replace(p, quaternion=(0.0, 0.0, 0.0, 1.0)) for p in math_obs.placed)
+    obs = dataclasses.replace(math_obs, placed=settled)  # observed after physics: the rule applies
+    nodes = build_nodes(obs, spaces_of(obs)[1], np.random.default_rng(0))
+    assert (0, 0, 0) not in nodes.actions  # 4 along x, 6 along y: centre (2, 3) is off the polygon
+    assert (0, 0, 1) in nodes.actions  # turned, 6 along x: centre (3, 2) is on it
+    assert {(6, 0, 0), (0, 4, 0), (6, 4, 0)} <= set(nodes.actions)  # on the floor: always supported
 
 
 def test_tracker_rebuilds_when_a_placed_box_moved():
@@ -100,3 +103,20 @@ def test_pct_says_no_feasible_placement(real_data):
     spec = make_spec([(5, 5, 5), (20, 20, 20), (5, 5, 5)], container=(10, 10, 10))
     result = run_episode(spec, load_policy("pct"), "math")
     assert result.termination == NO_FEASIBLE_PLACEMENT and result.boxes_placed == 1
+
+
+def test_the_server_queues_pct_with_the_baselines(tmp_path):
+    from sqlalchemy import select
+
+    from robobpp.db.models import Submission
+    from robobpp.policies import BASELINES
+    from robobpp.server.app import create_app
+    from robobpp.server.bootstrap import bootstrap
+    from tests.server.test_api import make_settings
+
+    app = create_app(make_settings(f"sqlite:///{tmp_path / 'db.sqlite3'}", tmp_path, evaluate_baselines=True))
+    bootstrap(app.state.runtime)
+    with app.state.runtime.session() as session:
+        urls = set(session.execute(select(Submission.policy_url)).scalars())
+        names = set(session.execute(select(Submission.name)).scalars())
+    assert urls == {f"builtin:{name}" for name in (*BASELINES, "pct")} and "PCT" in names

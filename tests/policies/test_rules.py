@@ -27,12 +27,14 @@ def test_dbl_goes_lowest_then_back_left() -> None:
 
 def test_hm_picks_the_least_added_heightmap_volume() -> None:
     # terrain along x: [3, 3, 0, 0, 3, 3, 3, 3] (width 2). A 4×2×1 box rests at z = 3 everywhere; at x = 0 or
-    # 2 it traps 2·2·3 = 12 cm³ under itself, at x = 4 nothing. DBL wants the smallest x at that z, but at
-    # x = 0 the box rests on [0, 2] alone with its centre at 2, outside the shrunk contact [0.1, 1.9]: the
-    # support rule refuses it. At x = 1 the contacts [1, 2] and [4, 5] span its centre 3: DBL takes x = 1.
+    # 2 it traps 2·2·3 = 12 cm³ under itself, at x = 4 nothing. DBL takes x = 0 (same z, smaller x).
     obs = scene((8, 2, 10), [(0, 0, 2, 2, 3), (4, 0, 4, 2, 3)], (4, 2, 1))
     assert where(act("hm", obs)) == (4, 0, 0)
-    assert where(act("dbl", obs)) == (1, 0, 0)
+    assert where(act("dbl", obs)) == (0, 0, 0)
+    # after physics the support rule applies: at x = 0 the box rests on [0, 2] alone, its centre 2 outside the
+    # shrunk contact [0.1, 1.9]; at x = 1 the contacts [1, 2] and [4, 5] span its centre 3: DBL takes x = 1.
+    physical = scene((8, 2, 10), [(0, 0, 2, 2, 3), (4, 0, 4, 2, 3)], (4, 2, 1), physical=True)
+    assert where(act("dbl", physical)) == (1, 0, 0)
 
 
 def test_hm_breaks_ties_back_left() -> None:

@@ -135,6 +135,7 @@ def server_env(state_dir: Path, db: str, **extra: str) -> dict[str, str]:
     env.update({
         "ROBOBPP_STATE_DIR": str(state_dir), "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
         "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1", "ROBOBPP_SPEC_PROVIDER": OFFLINE, "ROBOBPP_GROUPS": "2",
+        "ROBOBPP_BOARD_REFRESH_S": "0",  # tests read a board right after a submission finishes
         "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_WORKERS": "2", "ROBOBPP_LEASE_S": "4",
         "ROBOBPP_POLL_INTERVAL_S": "0.2", "ROBOBPP_BASELINES": '["dbl"]',
     })  # fmt: skip

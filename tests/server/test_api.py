@@ -18,7 +18,7 @@ ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 def make_settings(db_url: str, tmp_path, **kw) -> Settings:  # type: ignore[no-untyped-def]
     base = {"database_url": db_url, "state_dir": tmp_path, "admin_token": ADMIN_TOKEN, "workers": 0,
-            "spec_provider": OFFLINE, "groups": 2, "settings": ("math",), "evaluate_baselines": False,
+            "spec_provider": OFFLINE, "board_refresh_s": 0, "groups": 2, "settings": ("math",), "evaluate_baselines": False,
             "allow_private_policy_urls": True, "quota_concurrent": 2, "quota_submissions_per_day": 3}  # fmt: skip
     return Settings(**{**base, **kw})
 

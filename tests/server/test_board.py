@@ -41,7 +41,7 @@ class NaNPolicy:
 def board_app(tmp_path: Path):  # type: ignore[no-untyped-def]
     settings = Settings(database_url=f"sqlite:///{tmp_path / 'board.sqlite3'}", state_dir=tmp_path, admin_token=ADMIN,
                         workers=0, evaluate_baselines=False, settings=("math",), datasets=("diverse", "longboard"),
-                        groups=GROUPS, allow_private_policy_urls=True,
+                        groups=GROUPS, allow_private_policy_urls=True, board_refresh_s=0,
                         spec_provider="robobpp.worker.specs:offline_spec")  # fmt: skip
     app = create_app(settings, start_workers=False)
     bootstrap(app.state.runtime)
@@ -65,9 +65,7 @@ def submit(app: Any, participant: str, url: str, *, datasets: tuple[str, ...] = 
 
 def drain(app: Any) -> None:
     runtime = app.state.runtime
-    while (
-        claim_and_run(runtime.session_factory, worker_options(runtime.settings), "test:host:1") is not None
-    ):
+    while claim_and_run(runtime.session_factory, worker_options(runtime.settings), "test:host:1") is not None:
         pass
 
 

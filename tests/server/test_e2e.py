@@ -70,7 +70,9 @@ def test_submit_remote_policy_and_read_the_leaderboard(db_url, make_server, poli
     # The policy secret never leaves the server: not in any answer, not in the log, not on the pages.
     answers = [alice.get(f"/submissions/{sub['id']}"), alice.get(f"/submissions/{sub['id']}/episodes"),
                httpx.get(f"{server.url}/submissions/{sub['id']}"), httpx.get(f"{server.url}/")]  # fmt: skip
-    assert all(a.status_code == 200 and "policy-secret-123" not in a.text for a in answers)
+    # the submission's page is its owner's only: anonymous visitors get a 404 (server/pages.py)
+    assert [a.status_code for a in answers] == [200, 200, 404, 200]
+    assert all("policy-secret-123" not in a.text for a in answers)
     assert "policy-secret-123" not in server.log.read_text()
 
 

@@ -132,3 +132,51 @@ def test_concurrent_claimers_never_share_an_episode(factory) -> None:
     with transaction(factory) as s:
         runs = s.execute(select(RunRow)).scalars().all()
         assert all(r.status == "completed" and r.extras["episodes"] == 10 for r in runs)
+
+
+# ---- outbound bounds: a participant's remote policy gets at most N episodes at once; sends are marked once
+
+
+def _remote(factory, name: str, url: str, groups: int = 4) -> int:  # type: ignore[no-untyped-def]
+    with transaction(factory) as s:
+        p = Participant(name=name)
+        s.add(p)
+        s.flush()
+        return work.create_submission(s, p, name=name, policy_url=url, datasets=["diverse"], settings=["math"],
+                                      groups=groups).id  # fmt: skip
+
+
+def _claim_limited(factory, limit: int):  # type: ignore[no-untyped-def]
+    with transaction(factory) as s:
+        return work.claim_episode(s, "w", lease_s=30, max_attempts=3, max_running_per_participant=limit)
+
+
+def test_a_participant_gets_at_most_its_share_of_running_episodes(factory) -> None:
+    greedy = _remote(factory, "greedy", "http://203.0.113.7:9000", groups=5)
+    other = _remote(factory, "other", "http://203.0.113.8:9000", groups=1)
+    baseline = _remote(factory, "builtin-ish", "builtin:dbl", groups=3)
+    claims = [c for c in (_claim_limited(factory, 2) for _ in range(8)) if c is not None]
+    by_sub = {s: sum(c.submission_id == s for c in claims) for s in (greedy, other, baseline)}
+    # greedy's five episodes come first in id order, yet only two run; the others are not held back, and
+    # built-in policies (no outbound call) are not limited.
+    assert by_sub == {greedy: 2, other: 1, baseline: 3}
+    assert _claim_limited(factory, 2) is None
+    with transaction(factory) as s:  # one of greedy's finishes: the next one may start
+        done = next(c for c in claims if c.submission_id == greedy)
+        assert work.complete_episode(s, done.episode_id, done.token, {
+            "termination": "completed", "boxes_total": 1, "boxes_placed": 1, "metrics": {}, "counters": {}},
+            keep_trace=False)  # fmt: skip
+    nxt = _claim_limited(factory, 2)
+    assert nxt is not None and nxt.submission_id == greedy
+
+
+def test_pending_episodes_are_sent_once_and_lost_messages_again(factory) -> None:
+    sub = _remote(factory, "p", "builtin:dbl", groups=3)
+    with transaction(factory) as s:
+        first = work.take_unsent(s, stale_after_s=3600)
+    with transaction(factory) as s:
+        again = work.take_unsent(s, stale_after_s=3600)  # what a restarted dispatcher would send
+    with transaction(factory) as s:
+        stale = work.take_unsent(s, stale_after_s=3600, now=utcnow() + timedelta(hours=2))
+        ids = set(s.execute(select(EpisodeRow.id).where(EpisodeRow.submission_id == sub)).scalars())
+    assert set(first) == ids and again == [] and set(stale) == ids

@@ -109,6 +109,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         "ROBOBPP_DATABASE_URL": "",
         "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
         "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
+        "ROBOBPP_BOARD_REFRESH_S": "0",  # pages follow a finishing submission at once
         "ROBOBPP_GROUPS": "2",
         "ROBOBPP_SETTINGS": json.dumps(["math", "physics"]),
         "ROBOBPP_BASELINES": json.dumps(["dbl", "hm", "lsah", "onlinebph", "random"]),

@@ -316,6 +316,10 @@ def test_tables_fit_their_container_at_1280_px(server: Server, browser: Any) -> 
                 ".map((w) => [w.querySelector('table').id, w.scrollWidth, w.clientWidth])"
             )
             assert sizes, path
+            header = page.evaluate(
+                "() => document.querySelector('.site-header').getBoundingClientRect().height"
+            )
+            assert header < 70, f"{path}: the operator's navigation wraps ({header:.0f} px high)"
             wide.update({f"{path} #{t}": (s, c) for t, s, c in sizes if s > c + 1})
     finally:
         context.close()

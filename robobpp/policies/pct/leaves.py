@@ -17,10 +17,9 @@ packsim), with the Leaf Node Expansion Scheme "EMS" the weights were trained wit
   ``[x0, y0, z_space, x1, y1, H, 0, 0]`` (the space's floor, not the resting height, and the container
   height H, as the reference writes them); next item ``[density = 1, 0, 0, its three sides ascending]``.
 
-Support (the reference's rule for a box that does not rest on the floor): the boxes whose tops are at the
-resting height and overlap the footprint form a contact polygon (convex hull of the overlaps), shrunk by
-10 % towards its centre; the box's centre must lie strictly inside it. The reference then propagates the
-box's weight down through the stack; that second part is not done here.
+Support: the reference's rule as every policy applies it (:func:`robobpp.policies.candidates.support_model`):
+in the physical settings a leaf must pass the recursive centre-of-mass test; in Math Pack, as in the
+reference's Math Pack, there is no such check.
 """
 
 from __future__ import annotations
@@ -32,15 +31,14 @@ import numpy as np
 
 from robobpp.core import Observation, Placement, drop_height_map
 from robobpp.core.feasibility import TOLERANCE_CM
+from robobpp.policies.candidates import support_model
 
 INTERNAL_HOLDER = 80
 LEAF_HOLDER = 50
 #: Smallest side of a space worth keeping, cm (the reference uses the smallest item side of its item set).
 MIN_SPACE = 1.0
-#: Two tops count as the same level within this distance, cm (physics settles boxes by fractions of a mm).
-LEVEL_TOLERANCE = 0.5
-#: The reference shrinks the contact polygon by this fraction towards its centre.
-SHRINK = 0.1
+#: Candidates whose support is tested together (about what yields 50 leaves in one or two batches).
+_BATCH = 96
 
 
 def cells(length: float) -> int:
@@ -107,74 +105,6 @@ def _maximal(spaces: np.ndarray) -> np.ndarray:
     return spaces[~inside.any(axis=1)]
 
 
-def _hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """Convex hull, counter-clockwise, of 2-D points (Andrew's monotone chain)."""
-    pts = sorted(set(points))
-
-    def half(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
-        out: list[tuple[float, float]] = []
-        for p in seq:
-            while len(out) >= 2 and (
-                (out[-1][0] - out[-2][0]) * (p[1] - out[-2][1])
-                - (out[-1][1] - out[-2][1]) * (p[0] - out[-2][0])
-                <= 0
-            ):
-                out.pop()
-            out.append(p)
-        return out
-
-    return half(pts)[:-1] + half(pts[::-1])[:-1]
-
-
-def _inside_shrunk_hull(contacts: np.ndarray, cx: float, cy: float) -> bool:
-    """Whether (cx, cy) lies strictly inside the hull of the contact rectangles shrunk by ``SHRINK``."""
-    if (
-        len(contacts) == 1
-    ):  # one rectangle: its hull's vertex mean is its centre, shrinking keeps it a rectangle
-        x0, y0, x1, y1 = contacts[0]
-        half_x, half_y = (1 - SHRINK) * (x1 - x0) / 2, (1 - SHRINK) * (y1 - y0) / 2
-        return abs(cx - (x0 + x1) / 2) < half_x and abs(cy - (y0 + y1) / 2) < half_y
-    corners = [(x, y) for x0, y0, x1, y1 in contacts.tolist() for x in (x0, x1) for y in (y0, y1)]
-    hull = np.array(_hull(corners))
-    hull = hull - SHRINK * (hull - hull.mean(axis=0))
-    edge = np.roll(hull, -1, axis=0) - hull
-    to_point = np.array([cx, cy]) - hull
-    return bool(np.all(edge[:, 0] * to_point[:, 1] - edge[:, 1] * to_point[:, 0] > 0))
-
-
-def _contacts(
-    x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray, z: np.ndarray, tops: np.ndarray
-):
-    """For each footprint resting at ``z``: its overlap rectangles with the boxes whose tops are at ``z``.
-
-    Returns (rects (n, b, 4), touching (n, b) bool). ``tops`` is (b, 5): x0, y0, x1, y1, top.
-    """
-    level = np.abs(tops[None, :, 4] - z[:, None]) <= LEVEL_TOLERANCE
-    rects = np.stack(
-        [
-            np.maximum(tops[None, :, 0], x0[:, None]),
-            np.maximum(tops[None, :, 1], y0[:, None]),
-            np.minimum(tops[None, :, 2], x1[:, None]),
-            np.minimum(tops[None, :, 3], y1[:, None]),
-        ],
-        axis=2,
-    )
-    touching = level & (rects[..., 2] > rects[..., 0]) & (rects[..., 3] > rects[..., 1])
-    return rects, touching
-
-
-def supported(x0: float, y0: float, sx: float, sy: float, z: float, tops: np.ndarray) -> bool:
-    """The reference's support rule for one box resting at ``z`` (see the module docstring).
-
-    ``tops`` is (b, 5): x0, y0, x1, y1, top of the placed boxes (whole-cell footprints).
-    """
-    if z <= TOLERANCE_CM:
-        return True
-    one = np.array
-    rects, touching = _contacts(one([x0]), one([y0]), one([x0 + sx]), one([y0 + sy]), one([z]), tops)
-    return bool(touching[0].any()) and _inside_shrunk_hull(rects[0, touching[0]], x0 + sx / 2, y0 + sy / 2)
-
-
 @dataclass(frozen=True, slots=True)
 class Nodes:
     """The network's inputs for one decision and what each leaf means as an action."""
@@ -223,25 +153,31 @@ def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) 
         pick = (orient == o) & (xs >= 0) & (ys >= 0) & (xs < z_map.shape[0]) & (ys < z_map.shape[1])
         z[pick] = z_map[xs[pick], ys[pick]]
     fits = z + size[:, 2] <= container.height + TOLERANCE_CM
-    raised = fits & (z > TOLERANCE_CM)
-    rects, touching = _contacts(xs[raised], ys[raised], xs[raised] + size[raised, 0],
-                                ys[raised] + size[raised, 1], z[raised], extents[:, [0, 1, 3, 4, 5]])  # fmt: skip
-    contact = np.zeros((len(order), *rects.shape[1:]))
-    touches = np.zeros((len(order), len(extents)), bool)
-    contact[raised], touches[raised] = rects, touching
-    fits &= ~raised | touches.any(axis=1)
-    leaves = np.zeros((LEAF_HOLDER, 8))
-    actions: list[tuple[int, int, int]] = []
-    for i in np.flatnonzero(fits):
-        if raised[i] and not _inside_shrunk_hull(
-            contact[i, touches[i]], xs[i] + size[i, 0] / 2, ys[i] + size[i, 1] / 2
-        ):
-            continue
-        sx, sy = size[i, :2]
-        leaves[len(actions)] = (xs[i], ys[i], order[i, 2], xs[i] + sx, ys[i] + sy, container.height, 0, 0)
-        actions.append((int(xs[i]), int(ys[i]), int(orient[i])))
-        if len(actions) == LEAF_HOLDER:
+    # The support rule as every policy applies it (none in Math Pack), tested in the shuffled order in batches
+    # (the model tests a batch of positions of one orientation together) until 50 leaves are found.
+    support = support_model(obs)
+    candidates, accepted = np.flatnonzero(fits), 0
+    fits[:] = False
+    for start in range(0, len(candidates), _BATCH):
+        batch = candidates[start : start + _BATCH]
+        for o, (_, _, height, z_map) in heights.items():
+            pick = batch[orient[batch] == o]
+            if pick.size == 0:
+                continue
+            wanted = np.zeros(z_map.shape, bool)
+            wanted[xs[pick], ys[pick]] = True
+            length, width, _ = obs.box.dims(o)
+            fits[pick] = support.mask(z_map, length, width, height, wanted)[xs[pick], ys[pick]]
+        accepted += int(fits[batch].sum())
+        if accepted >= LEAF_HOLDER:
             break
+    chosen = np.flatnonzero(fits)[:LEAF_HOLDER]
+    leaves = np.zeros((LEAF_HOLDER, 8))
+    leaves[: len(chosen)] = np.column_stack(
+        [xs[chosen], ys[chosen], order[chosen, 2], xs[chosen] + size[chosen, 0], ys[chosen] + size[chosen, 1],
+         np.full(len(chosen), container.height), np.zeros((len(chosen), 2))]
+    )  # fmt: skip
+    actions = [(int(xs[i]), int(ys[i]), int(orient[i])) for i in chosen]
     leaf_valid = np.zeros(LEAF_HOLDER, bool)
     leaf_valid[: len(actions)] = True
     b = obs.box

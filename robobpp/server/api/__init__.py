@@ -19,12 +19,13 @@ _router: Any = None
 def _build() -> Any:
     from fastapi import APIRouter
 
-    from robobpp.server.api import leaderboards, participants, submissions
+    from robobpp.server.api import leaderboards, participants, pull, submissions
 
     built = APIRouter()
     built.include_router(participants.router)
     built.include_router(submissions.router)
     built.include_router(leaderboards.router)
+    built.include_router(pull.router)
     return built
 
 

@@ -23,9 +23,14 @@ def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
+#: Methods whose handlers only read: their transaction never waits for the writers (db/session.py).
+READ_METHODS = frozenset({"GET", "HEAD"})
+
+
 def get_session(request: Request) -> Iterator[Session]:
     """One transaction per request: committed after the handler, rolled back if it raises."""
-    with request.app.state.runtime.session() as session:
+    runtime = request.app.state.runtime
+    with runtime.read_session() if request.method in READ_METHODS else runtime.session() as session:
         yield session
 
 
@@ -60,7 +65,7 @@ def principal_for_token(request: Request, token: str) -> Principal | None:
     if hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
         return Principal(None, admin=True)
     # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
-    with request.app.state.runtime.session() as session:
+    with request.app.state.runtime.read_session() as session:
         row = queries.active_token(session, token)
         if row is None:
             return None

@@ -13,7 +13,7 @@ router = APIRouter(tags=["health"])
 def healthz(request: Request) -> JSONResponse:
     runtime = request.app.state.runtime
     try:
-        with runtime.engine.connect() as connection:
+        with runtime.read_engine.connect() as connection:
             connection.execute(text("SELECT 1"))
     except Exception as exc:  # noqa: BLE001 - any database failure means "not healthy"
         return JSONResponse({"status": "unavailable", "database": type(exc).__name__}, status_code=503)

@@ -23,7 +23,9 @@ def board_cache(request: Request) -> BoardCache:
     cache = getattr(request.app.state, "board_cache", None)
     if cache is None:
         runtime = getattr(request.app.state, "runtime", None)
-        cache = request.app.state.board_cache = BoardCache(runtime.session if runtime is not None else None)
+        refresh = runtime.settings.board_refresh_s if runtime is not None else 0.0
+        cache = request.app.state.board_cache = BoardCache(runtime.session if runtime is not None else None,
+                                                           refresh_s=refresh)  # fmt: skip
     return cache
 
 
@@ -39,10 +41,10 @@ Offset = Annotated[int, Query(ge=0, le=10**7)]
             summary="The overall grid: every board's score and rank, and the Mean with intervals")  # fmt: skip
 def overall(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private",
             view: View = "best", limit: Limit = 50, offset: Offset = 0) -> Response:  # fmt: skip
-    grid = board_cache(request).grid(
-        session, tuple(settings.datasets), tuple(settings.enabled_settings), track
-    )
-    return Response(to_json(grid_view(grid, view, limit, offset)), media_type="application/json")
+    cache, boards = board_cache(request), (tuple(settings.datasets), tuple(settings.enabled_settings))
+    body = cache.response(session, track, ("api-grid", *boards, track, view, limit, offset),
+                          lambda: to_json(grid_view(cache.grid(session, *boards, track), view, limit, offset)))  # fmt: skip
+    return Response(body, media_type="application/json")
 
 
 @router.get("/leaderboards/{dataset}/{setting}", response_model=Leaderboard,
@@ -51,8 +53,11 @@ def board(request: Request, dataset: DatasetName, setting: SettingName, session:
           track: Track = "private", view: View = "best", limit: Limit = 50, offset: Offset = 0,
           submission: Annotated[int | None, Query(ge=1, le=2**62, description="Only this submission")] = None,
           ) -> Response:  # fmt: skip
-    data = board_cache(request).board(session, dataset, setting, track)
-    return Response(to_json(board_view(data, view, limit, offset, submission)), media_type="application/json")
+    cache = board_cache(request)
+    body = cache.response(session, track, ("api-board", dataset, setting, track, view, limit, offset, submission),
+                          lambda: to_json(board_view(cache.board(session, dataset, setting, track), view, limit,
+                                                     offset, submission)))  # fmt: skip
+    return Response(body, media_type="application/json")
 
 
 @router.get("/info", response_model=ServiceInfo, summary="What this service evaluates")

@@ -1,21 +1,40 @@
-"""Submissions: create (URL checked, quota checked, rows written in one transaction), status, cancel,
+"""Submissions: create (quota checked, then URL checked, rows written in one transaction), status, cancel,
 per-episode results. Another participant's submission answers 404, exactly like a missing one."""
 
 from __future__ import annotations
 
+import contextlib
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Request
 from sqlalchemy import select
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
-from robobpp.schemas import EpisodeDetail, EpisodePublic, SubmissionCreate, SubmissionPublic
-from robobpp.server.api.deps import PrincipalDep, SessionDep, SettingsDep
+from robobpp.schemas import (
+    PULL_URL,
+    DatasetName,
+    EpisodeDetail,
+    EpisodePublic,
+    SettingName,
+    SubmissionCreate,
+    SubmissionPublic,
+)
+from robobpp.server.api.deps import AdminDep, Principal, PrincipalDep, SessionDep, SettingsDep
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
+from robobpp.server.config import Settings
+from robobpp.server.probes import ProbeGate
 from robobpp.server.problems import ProblemError
-from robobpp.server.urlsafety import BUILTIN_SCHEME, UnsafeURLError, check_policy_url, probe_policy
+from robobpp.server.urlsafety import (
+    BUILTIN_SCHEME,
+    CheckedURL,
+    UnsafeURLError,
+    check_policy_url,
+    probe_policy,
+)
 
 router = APIRouter(tags=["submissions"])
 #: Ids are bounded so a huge number is a 422, not an integer overflow inside the database.
@@ -34,10 +53,14 @@ def _visible(session: SessionDep, principal: PrincipalDep, submission_id: int) -
     raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id} visible to this token")
 
 
-def _check_url(
-    body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
+async def _check_url(
+    request: Request, body: SubmissionCreate, principal: Principal, settings: Settings
 ) -> tuple[str, str | None]:
-    """(policy URL, pinned address). Runs before any row is written; network only here."""
+    """(policy URL, pinned address). Runs before any row is written; the only outbound call of the API,
+    made through the probe gate (deadline, size cap, bounded concurrency; server/probes.py)."""
+    if body.mode == "pull":  # nothing to reach: the participant's client connects to us
+        return PULL_URL, None
+    assert body.policy_url is not None  # the schema demands it in push mode
     url = body.policy_url.strip()
     if url.startswith(BUILTIN_SCHEME):
         if not principal.admin:
@@ -48,25 +71,48 @@ def _check_url(
                 422, "policy-url-invalid", "Invalid policy URL", f"unknown built-in policy {url!r}"
             )
         return url, None
-    try:
+    gate: ProbeGate = request.app.state.probe_gate
+
+    def check() -> CheckedURL:
         checked = check_policy_url(url, allow_private=settings.allow_private_policy_urls)
         probe_policy(
-            checked,
-            secret=body.secret,
-            timeout_s=min(5.0, settings.step_timeout_s),
-            cap_bytes=settings.response_cap_bytes,
+            checked, secret=body.secret, timeout_s=gate.deadline_s, cap_bytes=settings.response_cap_bytes
         )
+        return checked
+
+    try:
+        checked = await gate.run(f"participant-{principal.participant_id or 'admin'}", check)
     except UnsafeURLError as exc:
         title = {"policy-url-forbidden": "Policy URL refused", "policy-unreachable": "Policy unreachable"}
         raise ProblemError(422, exc.kind, title.get(exc.kind, "Invalid policy URL"), exc.detail) from None
     return checked.url, checked.pinned_ip
 
 
+def _check_quota(
+    request: Request, principal: Principal, settings: Settings, *, lock: Session | None = None
+) -> None:
+    """Refuse (429) a participant over quota. Called before the probe, and again under the row lock."""
+    if principal.admin:
+        return
+    assert principal.participant is not None
+    with contextlib.ExitStack() as stack:
+        session = lock if lock is not None else stack.enter_context(request.app.state.runtime.read_session())
+        day, active = queries.quota_usage(session, principal.participant.id)
+    if day >= settings.quota_submissions_per_day:
+        raise ProblemError(429, "quota-exceeded", "Quota exceeded",
+                           f"at most {settings.quota_submissions_per_day} submissions per 24 hours")  # fmt: skip
+    if active >= settings.quota_concurrent:
+        raise ProblemError(429, "quota-exceeded", "Quota exceeded",
+                           f"at most {settings.quota_concurrent} evaluations at a time; wait or cancel one")  # fmt: skip
+
+
 @router.post("/submissions", status_code=201, response_model=SubmissionPublic,
              summary="Submit a policy URL for evaluation")  # fmt: skip
-def create_submission(
+async def create_submission(
     request: Request, body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
 ) -> SubmissionPublic:
+    # async on purpose: the policy check awaits its own bounded pool and holds none of the threads that
+    # serve every other route; the short database steps run on that shared pool.
     datasets = _unique(body.datasets or list(settings.datasets))
     setting_names = _unique(body.settings or list(settings.enabled_settings))
     for d in datasets:
@@ -78,29 +124,29 @@ def create_submission(
         if s not in settings.enabled_settings:
             raise ProblemError(422, "setting-unavailable", "Setting unavailable",
                                f"setting {s!r} is not offered here (offered: {', '.join(settings.enabled_settings)})")  # fmt: skip
-    url, pinned_ip = _check_url(body, principal, settings)
-    with request.app.state.runtime.session() as session:
-        if principal.admin:
-            participant = session.execute(
-                select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
-            ).scalar_one()
-        else:
-            assert principal.participant is not None
-            participant = session.execute(
-                select(Participant).where(Participant.id == principal.participant.id).with_for_update()
-            ).scalar_one()  # the row lock serialises quota checks of one participant
-            day, active = queries.quota_usage(session, participant.id)
-            if day >= settings.quota_submissions_per_day:
-                raise ProblemError(429, "quota-exceeded", "Quota exceeded",
-                                   f"at most {settings.quota_submissions_per_day} submissions per 24 hours")  # fmt: skip
-            if active >= settings.quota_concurrent:
-                raise ProblemError(429, "quota-exceeded", "Quota exceeded",
-                                   f"at most {settings.quota_concurrent} evaluations at a time; wait or cancel one")  # fmt: skip
-        sub = work.create_submission(session, participant, name=body.name, policy_url=url, secret=body.secret,
-                                     pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
-                                     groups=settings.groups, track=body.track, lookahead=body.lookahead)  # fmt: skip
-        session.refresh(sub)
-        return SubmissionPublic.model_validate(queries.submission_view(session, sub))
+    await run_in_threadpool(_check_quota, request, principal, settings)  # no outbound call over quota
+    url, pinned_ip = await _check_url(request, body, principal, settings)
+
+    def create() -> SubmissionPublic:
+        with request.app.state.runtime.session() as session:
+            if principal.admin:
+                participant = session.execute(
+                    select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
+                ).scalar_one()
+            else:
+                assert principal.participant is not None
+                participant = session.execute(
+                    select(Participant).where(Participant.id == principal.participant.id).with_for_update()
+                ).scalar_one()  # the row lock serialises quota checks of one participant
+                _check_quota(request, principal, settings, lock=session)
+            sub = work.create_submission(session, participant, name=body.name, policy_url=url, secret=body.secret,
+                                         pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
+                                         groups=settings.groups, track=body.track, lookahead=body.lookahead,
+                                         mode=body.mode)  # fmt: skip
+            session.refresh(sub)
+            return SubmissionPublic.model_validate(queries.submission_view(session, sub))
+
+    return await run_in_threadpool(create)
 
 
 @router.get("/submissions", response_model=list[SubmissionPublic], summary="Your submissions, newest first")
@@ -155,3 +201,65 @@ def episode(submission_id: Id, episode_id: Id, session: SessionDep, principal: P
         )
     trace = ep.trace if sub.track == "public" else None
     return EpisodeDetail.model_validate({**queries.episode_summary(ep), "trace": trace})
+
+
+@router.post("/submissions/{submission_id}/verify", status_code=201, response_model=SubmissionPublic,
+             summary="(operator) Re-evaluate a completed private-track submission on the hold-out draw")  # fmt: skip
+def verify(
+    request: Request, submission_id: Id, principal: AdminDep, settings: SettingsDep
+) -> SubmissionPublic:
+    """Answers the verification submission (track ``verify``); the original's ``verification`` follows it."""
+    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+        return _verify_one(session, submission_id, settings)
+
+
+def _verify_one(session: Session, submission_id: int, settings: Settings) -> SubmissionPublic:
+    from robobpp.db.verification import start_verification
+
+    original = session.get(Submission, submission_id)
+    if original is None:
+        raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id}")
+    if original.track != "private" or original.status != "completed":
+        raise ProblemError(409, "conflict", "Cannot verify",
+                           f"only completed private-track submissions are verified (this one: {original.track}, {original.status})")  # fmt: skip
+    if (original.verification or {}).get("status") == "running":
+        raise ProblemError(409, "conflict", "Already verifying",
+                           f"verification #{original.verification['submission_id']} is still running")  # fmt: skip
+    checked = start_verification(session, original, settings.groups)
+    session.refresh(checked)
+    return SubmissionPublic.model_validate(queries.submission_view(session, checked))
+
+
+@router.post("/leaderboards/{dataset}/{setting}/verify", status_code=201, response_model=list[SubmissionPublic],
+             summary="(operator) Re-evaluate the board's top entries on the hold-out draw")  # fmt: skip
+def verify_top(
+    request: Request,
+    dataset: DatasetName,
+    setting: SettingName,
+    principal: AdminDep,
+    settings: SettingsDep,
+    top: Annotated[int, Query(ge=1, le=50)] = 3,
+) -> list[SubmissionPublic]:
+    """The ``top`` best-ranked private entries that have no verdict and no verification running yet."""
+    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+        return _verify_top(session, dataset, setting, settings, top)
+
+
+def _verify_top(
+    session: Session, dataset: str, setting: str, settings: Settings, top: int
+) -> list[SubmissionPublic]:
+    from robobpp.db.verification import start_verification
+
+    started = []
+    for entry in queries.leaderboard(session, dataset, setting)["entries"][:top]:
+        original = session.get(Submission, entry["submission_id"])
+        if original is None or (original.verification or {}).get("status") in (
+            "running",
+            "verified",
+            "disagrees",
+        ):
+            continue
+        started.append(start_verification(session, original, settings.groups))
+    for sub in started:
+        session.refresh(sub)
+    return [SubmissionPublic.model_validate(queries.submission_view(session, sub)) for sub in started]

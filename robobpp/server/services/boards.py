@@ -9,6 +9,9 @@ check, so several API processes stay correct.
 When a large board is stale (its last computation took longer than ``sync_limit_s``), readers keep getting
 the previous version while one background thread computes the new one: a busy board never makes a reader
 wait seconds, and it is current again as soon as that computation ends.
+
+``refresh_s`` (``ROBOBPP_BOARD_REFRESH_S``, 1 s by default) bounds how often a process asks SQL for the
+version: a board may then lag a finished submission by that long, and a read costs no query at all.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import json
 import logging
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from datetime import datetime
@@ -34,7 +38,8 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 
 
 def board_version(session: Session, track: str) -> tuple[Any, ...]:
-    """Changes whenever a submission of ``track`` finishes or is removed (ix_submissions_track_finished).
+    """Changes whenever a submission of ``track`` (or, for ``private``, a verification) finishes or is
+    removed (ix_submissions_track_finished).
 
     Read once per session (one request): a page showing several boards checks the version once.
     """
@@ -43,7 +48,9 @@ def board_version(session: Session, track: str) -> tuple[Any, ...]:
         known[track] = tuple(
             session.execute(
                 select(func.count(), func.max(Submission.finished_at)).where(
-                    Submission.track == track, Submission.finished_at.is_not(None)
+                    # a verification finishing writes its verdict onto a private entry (db/verification.py)
+                    Submission.track.in_((track, "verify") if track == "private" else (track,)),
+                    Submission.finished_at.is_not(None),
                 )
             ).one()
         )
@@ -71,24 +78,59 @@ class BoardCache:
     """Boards and grids per (track, …), each stored with the track version it was computed at."""
 
     def __init__(self, session_factory: SessionFactory | None = None, *, size: int = 64,
-                 sync_limit_s: float = 0.25) -> None:  # fmt: skip
+                 sync_limit_s: float = 0.25, refresh_s: float = 0.0) -> None:  # fmt: skip
         self._slots: dict[tuple[Any, ...], _Slot] = {}
         self._lock = threading.Lock()
         self._computing: dict[tuple[Any, ...], threading.Lock] = {}
         self.session_factory = session_factory
         self.size = size
         self.sync_limit_s = sync_limit_s
+        self.refresh_s = refresh_s
+        self._versions: dict[str, tuple[float, tuple[Any, ...]]] = {}
+        self._responses: OrderedDict[tuple[Any, ...], tuple[tuple[Any, ...], bytes]] = OrderedDict()
+        self.responses_size = 512
+
+    def version(self, session: Session, track: str) -> tuple[Any, ...]:
+        """The track's version, read from SQL at most every ``refresh_s`` seconds per process: within that
+        window a request touches no database at all (SQLite serialises every transaction)."""
+        now = time.monotonic()
+        with self._lock:
+            known = self._versions.get(track)
+        if known is not None and now - known[0] < self.refresh_s:
+            return known[1]
+        version = board_version(session, track)
+        with self._lock:
+            self._versions[track] = (now, version)
+        return version
+
+    def response(
+        self, session: Session, track: str, key: tuple[Any, ...], build: Callable[[], bytes]
+    ) -> bytes:
+        """A served body (a page of a board as JSON, a rendered page) built once per board version: readers
+        of the same page share it instead of each serialising or rendering it."""
+        version = self.version(session, track)
+        with self._lock:
+            hit = self._responses.get(key)
+            if hit is not None and hit[0] == version:
+                self._responses.move_to_end(key)
+                return hit[1]
+        body = build()
+        with self._lock:
+            self._responses[key] = (version, body)
+            while len(self._responses) > self.responses_size:
+                self._responses.popitem(last=False)
+        return body
 
     def board(self, session: Session, dataset: str, setting: str, track: str = "private") -> dict[str, Any]:
         """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``."""
-        version = board_version(session, track)
+        version = self.version(session, track)
         return self._get(("board", dataset, setting, track), version, session,
                          lambda s: queries.leaderboard(s, dataset, setting, track=track))  # fmt: skip
 
     def grid(self, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
              track: str = "private") -> dict[str, Any]:  # fmt: skip
         """The overall grid from the (cached) boards; page it with ``grid_view``."""
-        version = board_version(session, track)
+        version = self.version(session, track)
 
         def compute(s: Session) -> dict[str, Any]:
             boards = {f"{st}/{d}": self._get(("board", d, st, track), version, s,

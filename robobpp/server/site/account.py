@@ -11,6 +11,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Path, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.datasets import DATASETS
 from robobpp.db import queries
@@ -29,6 +30,8 @@ Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 #: Form fields are read with generous caps; the API's own models then apply the real limits.
 Text = Annotated[str, Form(max_length=4096)]
 BAD_CSRF = "This form has expired or did not come from this site. Reload the page and try again."
+#: Pull mode (the policy connects out to the server) is offered once the API's submission model has it.
+PULL_OFFERED = "mode" in SubmissionCreate.model_fields
 
 
 def principal_of(request: Request, who: Viewer) -> Principal | None:
@@ -129,7 +132,7 @@ def revoke_own_token(request: Request, token_id: Id, csrf: Text = "") -> Respons
 
 def _form_defaults(request: Request) -> dict[str, Any]:
     settings = request.app.state.settings
-    return {"name": "", "policy_url": "", "datasets": list(settings.datasets),
+    return {"name": "", "mode": "push", "policy_url": "", "datasets": list(settings.datasets),
             "settings": list(settings.enabled_settings), "track": "private", "lookahead": 0}  # fmt: skip
 
 
@@ -140,7 +143,7 @@ def _submit_page(
     return render(request, "submit.html", status_code, title="Submit a policy", nav="submit", values=values,
                   error=error, datasets_offered=[DATASETS[d] for d in settings.datasets],
                   settings_offered=settings.enabled_settings, quota_day=settings.quota_submissions_per_day,
-                  quota_concurrent=settings.quota_concurrent, min_secret=8)  # fmt: skip
+                  quota_concurrent=settings.quota_concurrent, min_secret=8, pull_offered=PULL_OFFERED)  # fmt: skip
 
 
 @router.get("/submit", response_class=HTMLResponse)
@@ -151,9 +154,10 @@ def submit_page(request: Request) -> Response:
 
 
 @router.post("/submit", response_class=HTMLResponse)
-def submit(
+async def submit(
     request: Request,
     name: Text = "",
+    mode: Text = "push",
     policy_url: Text = "",
     secret: Text = "",
     datasets: Annotated[list[str], Form(max_length=8)] = [],  # noqa: B006 - FastAPI copies form defaults
@@ -162,20 +166,29 @@ def submit(
     lookahead: Text = "0",
     csrf: Text = "",
 ) -> Response:
-    principal = principal_of(request, viewer(request))
+    # async like the API handler it awaits (its policy check runs on its own bounded pool); the short
+    # database reads go to the thread pool.
+    principal = await run_in_threadpool(principal_of, request, viewer(request))
     if principal is None:
         return _need_sign_in(request)
     # The secret is never echoed back into the form.
-    values = {"name": name, "policy_url": policy_url, "datasets": datasets, "settings": settings, "track": track,
+    values = {"name": name, "mode": mode, "policy_url": policy_url, "datasets": datasets, "settings": settings, "track": track,
               "lookahead": lookahead}  # fmt: skip
     if not web_session.csrf_ok(request, csrf):
         return _submit_page(request, values, BAD_CSRF, 403)
     try:
-        body = SubmissionCreate.model_validate({
-            "name": name, "policy_url": policy_url, "secret": secret or None, "datasets": datasets or None,
+        fields = {
+            "name": name, "policy_url": policy_url or None, "secret": secret or None, "datasets": datasets or None,
             "settings": settings or None, "track": track, "lookahead": int(lookahead) if lookahead.strip().isdigit() else lookahead,
-        })  # fmt: skip
-        created = api_submissions.create_submission(request, body, principal, request.app.state.settings)
+        }  # fmt: skip
+        if PULL_OFFERED:
+            fields["mode"] = mode
+            if mode == "pull":
+                fields["policy_url"] = None  # a URL left in the hidden push field is not an error
+        body = SubmissionCreate.model_validate(fields)
+        created = await api_submissions.create_submission(
+            request, body, principal, request.app.state.settings
+        )
     except (ProblemError, ValidationError) as exc:
         status = exc.status if isinstance(exc, ProblemError) else 422
         return _submit_page(request, values, problem_text(exc), status)

@@ -60,13 +60,19 @@ class PoseRecorder:
         if not force and k % self.every:
             return
         t = self._t0 + k
-        if self._times and t <= self._times[-1]:
-            return  # the forced last sample fell on the grid, or a stretch restarted at the same time
-        self._times.append(t)
+        if self._times and t < self._times[-1]:
+            return
+        # The same time again (a forced last sample on the grid; a settle starting where the drive ended):
+        # the boxes already sampled then keep their pose, the others join that sample.
+        if not self._times or t > self._times[-1]:
+            self._times.append(t)
         n = len(self._times) - 1
-        centers, quats, _ = self.world.poses_cm(list(boxes))
+        todo = [b for b in boxes if (row := self._poses.get(b.body)) is None or row[0] + len(row[1]) <= n]
+        if not todo:
+            return
+        centers, quats, _ = self.world.poses_cm(todo)
         q = np.concatenate([np.round(centers * TRACK_POS_PER_CM), np.round(quats * TRACK_QUAT_SCALE)], axis=1)
-        for box, pose in zip(boxes, q.astype(np.int64), strict=True):
+        for box, pose in zip(todo, q.astype(np.int64), strict=True):
             first, rows = self._poses.setdefault(box.body, (n, []))
             # A box that left the simulated set and came back: hold its pose over the gap.
             while first + len(rows) < n:

@@ -1,0 +1,145 @@
+"""A broker outage writes one line when it starts and one when it ends, not a traceback per round.
+
+The dispatcher talks to the machine's real Redis through a TCP relay this test can switch off (listener
+closed, open connections cut: what a Redis restart looks like to a client) and on again.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from robobpp.db import work
+from robobpp.db.migrate import upgrade
+from robobpp.db.models import Participant
+from robobpp.db.session import make_engine, make_session_factory
+from robobpp.worker.celery_app import make_celery
+from robobpp.worker.celery_executor import CeleryExecutor
+from robobpp.worker.options import WorkerOptions
+from robobpp.worker.outage import OutageLog
+from tests.celery.conftest import _drop_queue, _reachable
+
+pytestmark = pytest.mark.redis
+
+
+class Relay:
+    """127.0.0.1:<port> → Redis, switchable."""
+
+    def __init__(self, target: tuple[str, int]) -> None:
+        self.target = target
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            self.port = probe.getsockname()[1]
+        self.listener: socket.socket | None = None
+        self.conns: list[socket.socket] = []
+
+    def up(self) -> None:
+        listener = socket.socket()
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(("127.0.0.1", self.port))
+        listener.listen(16)
+        self.listener = listener
+        threading.Thread(target=self._accept, args=(listener,), daemon=True).start()
+
+    def down(self) -> None:
+        listener, self.listener = self.listener, None
+        if listener is not None:
+            with contextlib.suppress(OSError):
+                listener.shutdown(socket.SHUT_RDWR)
+            listener.close()
+        for c in self.conns:
+            with contextlib.suppress(OSError):
+                c.shutdown(socket.SHUT_RDWR)
+            c.close()
+        self.conns.clear()
+
+    def _accept(self, listener: socket.socket) -> None:
+        while True:
+            try:
+                client, _ = listener.accept()
+            except OSError:
+                return
+            upstream = socket.create_connection(self.target)
+            self.conns += [client, upstream]
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
+
+    @staticmethod
+    def _pump(src: socket.socket, dst: socket.socket) -> None:
+        with contextlib.suppress(OSError):
+            while data := src.recv(65536):
+                dst.sendall(data)
+        with contextlib.suppress(OSError):
+            dst.shutdown(socket.SHUT_RDWR)
+
+
+def test_broker_outage_logs_one_line_down_and_one_up(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    if not _reachable("127.0.0.1", 6379):
+        pytest.skip("Redis is not running at 127.0.0.1:6379")
+    url = f"sqlite:///{tmp_path / 'outage.sqlite3'}"
+    upgrade(url)
+    factory = make_session_factory(make_engine(url))
+    relay = Relay(("127.0.0.1", 6379))
+    relay.up()
+    queue = f"robobpp-outage-{relay.port}"
+    app = make_celery(f"redis://127.0.0.1:{relay.port}/0", WorkerOptions(database_url=url, poll_interval_s=0.1),
+                      queue=queue)  # fmt: skip
+    executor = CeleryExecutor(app, ping_every_s=10_000)
+    caplog.set_level(logging.DEBUG, logger="robobpp.worker.celery")
+
+    def submit(name: str) -> None:
+        with factory() as s, s.begin():
+            p = Participant(name=name)
+            s.add(p)
+            s.flush()
+            work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
+                                   settings=["math"], groups=2)  # fmt: skip
+
+    try:
+        executor.start()
+        relay.down()
+        for i in range(8):  # work keeps arriving during the outage: every round tries the broker and fails
+            submit(f"during-{i}")
+            time.sleep(0.4)
+        relay.up()
+        submit("after")
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and "reachable again" not in caplog.text:
+            time.sleep(0.2)
+    finally:
+        executor.stop()
+        relay.down()
+        _drop_queue("redis://127.0.0.1:6379/0", queue)
+    records = [
+        r for r in caplog.records if r.name == "robobpp.worker.celery" and r.levelno >= logging.WARNING
+    ]
+    attempts = [r for r in caplog.records if "still unreachable" in r.getMessage()]
+    assert len(attempts) >= 3, "the outage should have spanned several failed rounds"
+    outage = [
+        r.getMessage()
+        for r in records
+        if "unreachable" in r.getMessage() or "reachable again" in r.getMessage()
+    ]
+    assert len(outage) == 2, outage
+    assert "broker unreachable" in outage[0] and "broker reachable again" in outage[1]
+    assert not any(r.exc_info for r in records), "no traceback for an outage"
+
+
+def test_a_bug_still_gets_its_traceback(caplog: pytest.LogCaptureFixture) -> None:
+    log = logging.getLogger("robobpp.test.outage")
+    caplog.set_level(logging.DEBUG, logger="robobpp.test.outage")
+    outages = OutageLog(log, "loop")
+    for _ in range(2):
+        try:
+            {}["missing"]  # noqa: B018 - a programming error, not an outage
+        except KeyError as exc:
+            outages.failed(exc)
+    assert [bool(r.exc_info) for r in caplog.records] == [True, True]

@@ -1,0 +1,101 @@
+"""Verification on the hold-out draw (docs/server.md, threat model): an honest policy is verified; a policy
+tuned to the played groups — here one that memorised their boxes and gives up on anything else — is
+flagged ``disagrees``, on the submission and on the board."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from robobpp.core import Action, EpisodeInfo, Observation
+from robobpp.db.verification import agree, interval
+from robobpp.policies.dbl import DBL
+from robobpp.worker.specs import offline_spec
+from tests.server.conftest import ADMIN_TOKEN, db_rows, new_participant, wait_for
+
+GROUPS = 4
+DATASET = "diverse"
+
+
+def test_interval_and_agreement() -> None:
+    a = interval([0.50, 0.55, 0.60])
+    assert a["low"] < a["mean"] < a["high"] and a["mean"] == pytest.approx(0.55)
+    assert agree(a, interval([0.52, 0.58, 0.61]))
+    assert not agree(a, interval([0.20, 0.22, 0.25]))
+    assert interval([0.4])["low"] == interval([0.4])["high"] == 0.4
+
+
+class Memoriser(DBL):
+    """Plays DBL on box sequences it recorded from the played groups, and gives up on any other."""
+
+    def __init__(self, recorded: list[tuple[tuple[float, float, float], ...]]) -> None:
+        super().__init__()
+        self.recorded = recorded
+        self.seen: dict[str, list[tuple[float, float, float]]] = {}  # per episode: two workers call at once
+
+    def reset(self, info: EpisodeInfo) -> None:
+        self.seen[info.episode_id] = []
+
+    def act(self, obs: Observation) -> Action | None:
+        seen = self.seen.setdefault(obs.episode_id, [])
+        seen.append((obs.box.length, obs.box.width, obs.box.height))
+        if not any(seq[: len(seen)] == tuple(seen) for seq in self.recorded):
+            return None  # an unknown group: no tuned answer for it
+        return super().act(obs)
+
+
+def _played_sequences() -> list[tuple[tuple[float, float, float], ...]]:
+    """What a participant records by playing the private track once: the boxes of every played group."""
+    return [tuple((b.length, b.width, b.height) for b in offline_spec(DATASET, "test", g, GROUPS).boxes)
+            for g in range(GROUPS)]  # fmt: skip
+
+
+def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, policy_server, tmp_path) -> None:
+    url = f"sqlite:///{tmp_path / 'verify.sqlite3'}"
+    server = make_server(url, ROBOBPP_GROUPS=str(GROUPS), ROBOBPP_DATASETS=f'["{DATASET}"]')
+    memoriser = policy_server(Memoriser(_played_sequences()))
+    with server.client(ADMIN_TOKEN) as admin:
+        token = new_participant(admin, "tuner")
+        with server.client(token) as alice:
+            r = alice.post("/submissions", json={"name": "tuned", "policy_url": memoriser.url,
+                                                 "secret": "policy-secret-123"})  # fmt: skip
+            assert r.status_code == 201, r.text
+        tuned = r.json()["id"]
+        (baseline,) = [s["id"] for s in admin.get("/submissions").json()
+                       if s["policy_url"] == "builtin:dbl" and s["track"] == "private"]  # fmt: skip
+
+        def status(i: int) -> str:
+            return admin.get(f"/submissions/{i}").json()["status"]
+
+        wait_for(lambda: status(tuned) == "completed" and status(baseline) == "completed", 120)
+        # The operator verifies the board's top entries (here both: the tuned policy and the baseline).
+        r = admin.post(f"/leaderboards/{DATASET}/math/verify", params={"top": 2})
+        assert r.status_code == 201, r.text
+        assert len(r.json()) == 2 and {v["track"] for v in r.json()} == {"verify"}
+        running = {o: admin.get(f"/submissions/{o}").json()["verification"] for o in (tuned, baseline)}
+        assert {v["status"] for v in running.values()} == {"running"}
+        checks = {o: v["submission_id"] for o, v in running.items()}
+        assert set(checks.values()) == {v["id"] for v in r.json()}
+        assert admin.post(f"/leaderboards/{DATASET}/math/verify", params={"top": 2}).json() == []  # not twice
+        assert admin.post(f"/submissions/{tuned}/verify").status_code == 409  # one at a time
+        with server.client(token) as alice:
+            assert alice.post(f"/submissions/{tuned}/verify").status_code == 403  # operator only
+        wait_for(lambda: all(status(v) == "completed" for v in checks.values()), 120)
+
+        verdicts: dict[int, Any] = {o: admin.get(f"/submissions/{o}").json()["verification"] for o in checks}
+        board = admin.get(f"/leaderboards/{DATASET}/math").json()["entries"]
+
+    assert verdicts[tuned]["status"] == "disagrees", verdicts[tuned]
+    assert verdicts[baseline]["status"] == "verified", verdicts[baseline]
+    (run,) = verdicts[tuned]["runs"]
+    assert run["played"]["n"] == run["holdout"]["n"] == GROUPS
+    assert run["played"]["method"] == run["holdout"]["method"] == "bootstrap"  # the board's own intervals
+    assert run["holdout"]["high"] < run["played"]["low"]  # tuned: good where it was tuned, not elsewhere
+    # The hold-out groups are other boxes under the same episode ids, and no verification is on a board.
+    played = db_rows(url, "SELECT split, metrics FROM episodes WHERE submission_id = :s", s=tuned)
+    holdout = db_rows(url, "SELECT split FROM episodes WHERE submission_id = :s", s=checks[tuned])
+    assert {r.split for r in played} == {"test"} and {r.split for r in holdout} == {"holdout"}
+    on_board = {e["submission_id"]: e["verification"] for e in board}
+    assert set(checks.values()).isdisjoint(on_board)
+    assert on_board[tuned] == "disagrees" and on_board[baseline] == "verified"

@@ -118,10 +118,13 @@ def main() -> None:
     parser.add_argument("--policies", default="dbl,hm,lsah")
     parser.add_argument("--datasets", default=",".join(DATASETS))
     parser.add_argument("--out", type=Path, default=Path("fidelity.jsonl"))
-    parser.add_argument("--summarize", type=Path, help="only print the tables of an existing --out file")
+    parser.add_argument(
+        "--summarize", type=Path, nargs="+", help="only print the tables of existing --out files (together)"
+    )
     args = parser.parse_args()
     if args.summarize:
-        print(summarize([json.loads(t) for t in args.summarize.read_text().splitlines() if t.strip()]))
+        texts = [t for path in args.summarize for t in path.read_text().splitlines()]
+        print(summarize([json.loads(t) for t in texts if t.strip()]))
         return
     print(f"machine: {machine()}", flush=True)
     datasets = args.datasets.split(",")

@@ -1,8 +1,8 @@
 """The paper's baseline table, reproduced: Space Utilization of every paper heuristic × dataset, paper vs ours.
 
 For each dataset the first ``--groups`` train groups (80 boxes each, seed 0) are run with each of the paper's
-seven heuristics through the one episode loop (``run_episode``) in ``--setting`` (math or physics). The mean
-Space Utilization is set beside the paper's figure (its appendix tables, Math Pack and Physics Pack), with the
+seven heuristics through the one episode loop (``run_episode``) in ``--setting`` (math, physics or execution).
+The mean Space Utilization is set beside the paper's figure (its appendix tables, one per pack), with the
 Spearman rank correlation of the seven heuristics and the mean absolute difference per dataset.
 
     python bench/paper_table.py --setting math --groups 30 [--json out.json] [--datasets ...] [--policies ...]
@@ -51,6 +51,15 @@ PAPER: dict[str, dict[str, tuple[float, float, float]]] = {
         "br": (0.222, 0.258, 0.169),
         "macs": (0.070, 0.134, 0.135),
         "sdfpack": (0.150, 0.259, 0.155),
+    },
+    "execution": {
+        "dbl": (0.359, 0.183, 0.285),
+        "hm": (0.083, 0.143, 0.214),
+        "lsah": (0.304, 0.091, 0.187),
+        "onlinebph": (0.118, 0.097, 0.240),
+        "br": (0.121, 0.067, 0.124),
+        "macs": (0.047, 0.125, 0.123),
+        "sdfpack": (0.098, 0.100, 0.119),
     },
 }
 
@@ -158,7 +167,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--setting", choices=("math", "physics"), default="math")
+    parser.add_argument("--setting", choices=("math", "physics", "execution"), default="math")
     parser.add_argument("--groups", type=int, default=30)
     parser.add_argument("--split", choices=("train", "test"), default="train")
     parser.add_argument("--datasets", default=",".join(DATASETS))

@@ -8,7 +8,19 @@ import typer
 from rich.markup import escape
 
 from robobpp.cli.common import fail, import_from_cwd, table_console
-from robobpp.cli.submit import DATASETS, SETTINGS, ServerOpt, TokenOpt, TrackOpt, _names, _track, err
+from robobpp.cli.submit import (
+    DATASETS,
+    SETTINGS,
+    BoardDatasetsOpt,
+    BoardSettingsOpt,
+    LookaheadOpt,
+    ServerOpt,
+    TokenOpt,
+    TrackOpt,
+    _names,
+    _track,
+    err,
+)
 
 
 def connect_command(
@@ -29,14 +41,10 @@ def connect_command(
         typer.Option(envvar="ROBOBPP_POLICY_SECRET", help="Refuse requests not signed with this secret."),
     ] = None,
     name: Annotated[str | None, typer.Option(help="Name on the leaderboard (default: the policy's).")] = None,
-    dataset: Annotated[
-        list[str] | None, typer.Option("--dataset", help="repetitive, diverse, longboard (repeat or comma).")
-    ] = None,
-    setting: Annotated[
-        list[str] | None, typer.Option("--setting", help="math, physics, execution (repeat or comma).")
-    ] = None,
+    dataset: BoardDatasetsOpt = None,
+    setting: BoardSettingsOpt = None,
     track: TrackOpt = "private",
-    lookahead: Annotated[int, typer.Option(min=0, max=10, help="Next boxes shown to the policy.")] = 0,
+    lookahead: LookaheadOpt = 0,
     server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
 ) -> None:

@@ -34,6 +34,14 @@ TokenOpt = Annotated[
     typer.Option("--token", envvar="ROBOBPP_TOKEN", help="API token (shown once when it was created)."),
 ]
 TrackOpt = Annotated[str, typer.Option("--track", help="private (test split) or public (train split).")]
+#: The boards a submission is evaluated on (submit and connect share them).
+BoardDatasetsOpt = Annotated[
+    list[str] | None, typer.Option("--dataset", help="repetitive, diverse, longboard (repeat or comma).")
+]
+BoardSettingsOpt = Annotated[
+    list[str] | None, typer.Option("--setting", help="math, physics, execution (repeat or comma).")
+]
+LookaheadOpt = Annotated[int, typer.Option(min=0, max=10, help="Next boxes shown to the policy.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the API's JSON instead of a table.")]
 IdArg = Annotated[int, typer.Argument(min=1, max=2**31 - 1, help="Submission id.")]
 
@@ -119,14 +127,10 @@ def submit(
         typer.Option(envvar="ROBOBPP_POLICY_SECRET", help="HMAC secret the workers sign requests with."),
     ] = None,
     name: Annotated[str | None, typer.Option(help="Name on the leaderboard (default: from the URL).")] = None,
-    dataset: Annotated[
-        list[str] | None, typer.Option("--dataset", help="repetitive, diverse, longboard (repeat or comma).")
-    ] = None,
-    setting: Annotated[
-        list[str] | None, typer.Option("--setting", help="math, physics, execution (repeat or comma).")
-    ] = None,
+    dataset: BoardDatasetsOpt = None,
+    setting: BoardSettingsOpt = None,
     track: TrackOpt = "private",
-    lookahead: Annotated[int, typer.Option(min=0, max=10, help="Next boxes shown to the policy.")] = 0,
+    lookahead: LookaheadOpt = 0,
     wait: Annotated[
         bool, typer.Option("--wait", help="Follow the evaluation, then print the results.")
     ] = False,

@@ -40,7 +40,7 @@ def principal_of(request: Request, who: Viewer) -> Principal | None:
         return Principal(None, admin=True)
     if who.participant_id is None:
         return None
-    with request.app.state.runtime.session() as session:
+    with request.app.state.runtime.read_session() as session:
         participant = session.get(Participant, who.participant_id)
     return None if participant is None else Principal(participant, token_id=who.token_id)
 

@@ -73,7 +73,7 @@ def viewer(request: Request) -> Viewer:
     if data.get("a") == 1:
         found = Viewer(nonce=nonce, admin=True, name="operator")
     elif isinstance(data.get("t"), int):
-        with request.app.state.runtime.session() as session:
+        with request.app.state.runtime.read_session() as session:
             row = session.get(ApiToken, data["t"])
             if row is not None and row.revoked_at is None and not row.participant.is_builtin:
                 found = Viewer(nonce=nonce, participant_id=row.participant_id, name=row.participant.name,
@@ -83,8 +83,7 @@ def viewer(request: Request) -> Viewer:
 
 
 def load_viewer(request: Request) -> Viewer:
-    """Router dependency: resolve the viewer before a handler opens its own transaction (on SQLite a
-    second, nested transaction would wait for the first one's write lock)."""
+    """Router dependency: resolve (and cache) the viewer before the handler opens its own transaction."""
     return viewer(request)
 
 

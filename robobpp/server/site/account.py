@@ -53,6 +53,11 @@ def problem_text(exc: ProblemError | ValidationError) -> str:
     return queries.shown_text(f"{exc.title}: {exc.detail}") or ""
 
 
+def problem_page(request: Request, exc: ProblemError) -> Response:
+    """The error page for an API problem raised under a form's POST."""
+    return render(request, "error.html", exc.status, title=exc.title, nav="", message=problem_text(exc))
+
+
 # ---- sign in / out ---------------------------------------------------------------------------------------
 
 
@@ -122,7 +127,7 @@ def revoke_own_token(request: Request, token_id: Id, csrf: Text = "") -> Respons
         with request.app.state.runtime.session() as session:
             api_participants.revoke_token(token_id, session, principal)
     except ProblemError as exc:
-        return render(request, "error.html", exc.status, title=exc.title, nav="", message=problem_text(exc))
+        return problem_page(request, exc)
     # Revoking the token this browser signed in with ends the session: the next page asks to sign in.
     return redirect(request, "/account")
 

@@ -20,7 +20,7 @@ from robobpp.server.api import participants as api_participants
 from robobpp.server.api.deps import Principal
 from robobpp.server.problems import ProblemError
 from robobpp.server.site import session as web_session
-from robobpp.server.site.account import BAD_CSRF, Text, problem_text
+from robobpp.server.site.account import BAD_CSRF, Text, problem_page, problem_text
 from robobpp.server.site.render import not_found, redirect, refused, render
 from robobpp.server.site.session import load_viewer, viewer
 
@@ -31,6 +31,15 @@ ADMIN = Principal(None, admin=True)
 
 def _is_admin(request: Request) -> bool:
     return viewer(request).admin
+
+
+def _refuse_form(request: Request, csrf: str) -> Response | None:
+    """The answer to an operator form's POST from anyone but the operator, or without the CSRF token."""
+    if not _is_admin(request):
+        return not_found(request, "There is no such page.")
+    if not web_session.csrf_ok(request, csrf):
+        return refused(request, BAD_CSRF)
+    return None
 
 
 def _participants_page(request: Request, *, created: TokenCreated | None = None, error: str | None = None,
@@ -56,10 +65,8 @@ def operator_page(request: Request) -> Response:
 
 @router.post("/operator/participants", response_class=HTMLResponse)
 def create_participant(request: Request, name: Text = "", csrf: Text = "") -> Response:
-    if not _is_admin(request):
-        return not_found(request, "There is no such page.")
-    if not web_session.csrf_ok(request, csrf):
-        return refused(request, BAD_CSRF)
+    if (refusal := _refuse_form(request, csrf)) is not None:
+        return refusal
     try:
         body = ParticipantCreate.model_validate({"name": name})
         with request.app.state.runtime.session() as session:
@@ -94,27 +101,23 @@ def participant_page(request: Request, participant_id: Id) -> Response:
 
 @router.post("/operator/participants/{participant_id}/tokens", response_class=HTMLResponse)
 def issue_token(request: Request, participant_id: Id, csrf: Text = "") -> Response:
-    if not _is_admin(request):
-        return not_found(request, "There is no such page.")
-    if not web_session.csrf_ok(request, csrf):
-        return refused(request, BAD_CSRF)
+    if (refusal := _refuse_form(request, csrf)) is not None:
+        return refusal
     try:
         with request.app.state.runtime.session() as session:
             created = api_participants.create_token(participant_id, session, ADMIN)
     except ProblemError as exc:
-        return render(request, "error.html", exc.status, title=exc.title, nav="", message=problem_text(exc))
+        return problem_page(request, exc)
     return _participant_page(request, participant_id, created=created, status_code=201)
 
 
 @router.post("/operator/tokens/{token_id}/revoke")
 def revoke_token(request: Request, token_id: Id, csrf: Text = "") -> Response:
-    if not _is_admin(request):
-        return not_found(request, "There is no such page.")
-    if not web_session.csrf_ok(request, csrf):
-        return refused(request, BAD_CSRF)
+    if (refusal := _refuse_form(request, csrf)) is not None:
+        return refusal
     try:
         with request.app.state.runtime.session() as session:
             token = api_participants.revoke_token(token_id, session, ADMIN)
     except ProblemError as exc:
-        return render(request, "error.html", exc.status, title=exc.title, nav="", message=problem_text(exc))
+        return problem_page(request, exc)
     return redirect(request, f"/operator/participants/{token.participant_id}")

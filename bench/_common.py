@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import platform
 import statistics
+import time
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -21,3 +22,19 @@ def median(values: list[float]) -> float:
 
 def machine() -> str:
     return f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
+class CpuPerStep:
+    """An ``on_step`` callback for ``run_episode``: CPU seconds spent on each step (decision + apply + metrics).
+
+    Measured between consecutive callbacks, so the first step includes the episode's set-up.
+    """
+
+    def __init__(self) -> None:
+        self.per_box: list[float] = []
+        self._last = time.process_time()
+
+    def __call__(self, _record: object) -> None:
+        now = time.process_time()
+        self.per_box.append(now - self._last)
+        self._last = now

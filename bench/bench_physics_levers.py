@@ -18,13 +18,12 @@ import argparse
 import cProfile
 import io
 import pstats
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
 import pybullet as p
-from _common import machine, median
+from _common import CpuPerStep, machine, median
 
 from robobpp.datasets import episode_specs
 from robobpp.episode import EpisodeResult, run_episode
@@ -64,16 +63,8 @@ LEVERS: dict[str, tuple[dict[str, Any], Callable[[], Any]]] = {
 
 
 def run(spec: Any, policy: str, options: dict[str, Any]) -> tuple[EpisodeResult, list[float]]:
-    per_box: list[float] = []
-    last = time.process_time()
-
-    def tick(_record: object) -> None:
-        nonlocal last
-        now = time.process_time()
-        per_box.append(now - last)
-        last = now
-
-    return run_episode(spec, load_policy(policy), PhysicsPack(**options), on_step=tick), per_box
+    clock = CpuPerStep()
+    return run_episode(spec, load_policy(policy), PhysicsPack(**options), on_step=clock), clock.per_box
 
 
 def main() -> None:

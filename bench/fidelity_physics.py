@@ -21,12 +21,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from _common import machine, median, percentile
+from _common import CpuPerStep, machine, median, percentile
 
 from robobpp.datasets import DATASETS, episode_specs
 from robobpp.episode import EpisodeResult, run_episode
@@ -46,20 +45,12 @@ def outcome(run: dict[str, Any]) -> Outcome:
 
 
 def run_one(spec: Any, policy: str, run: str) -> dict[str, Any]:
-    per_box: list[float] = []
-    last = time.process_time()
-
-    def tick(_record: object) -> None:
-        nonlocal last
-        now = time.process_time()
-        per_box.append(now - last)
-        last = now
-
-    result: EpisodeResult = run_episode(spec, load_policy(policy), PhysicsPack(**RUNS[run]), on_step=tick)
+    clock = CpuPerStep()
+    result: EpisodeResult = run_episode(spec, load_policy(policy), PhysicsPack(**RUNS[run]), on_step=clock)
     return {
         "termination": result.termination, "placed": result.boxes_placed,
         "ls": result.metrics.get("local_stability"), "util": result.metrics.get("space_utilization"),
-        "static": result.metrics.get("static_stability"), "cpu_per_box": per_box,
+        "static": result.metrics.get("static_stability"), "cpu_per_box": clock.per_box,
     }  # fmt: skip
 
 

@@ -198,12 +198,20 @@ def main() -> None:
         switch_on_support_in_math()
     datasets = [d for d in args.datasets.split(",") if d]
     policies = [p for p in args.policies.split(",") if p]
-    paper = PAPER[args.setting]
     ours: dict[str, dict[str, dict[str, Any]]] = {}
     for path in args.merge or ():
         with open(path) as fh:
-            for dataset, figures in json.load(fh)["ours"].items():
-                ours.setdefault(dataset, {}).update(figures)
+            earlier = json.load(fh)
+        # The files say which setting and group count they hold; a table must not mix them, nor compare a
+        # Physics run with the paper's Math column because --setting was left at its default.
+        if path == args.merge[0]:
+            args.setting, args.groups = earlier["setting"], earlier["groups"]
+        elif (earlier["setting"], earlier["groups"]) != (args.setting, args.groups):
+            parser.error(f"{path} holds {earlier['setting']} / {earlier['groups']} groups, "
+                         f"not {args.setting} / {args.groups} groups like {args.merge[0]}")  # fmt: skip
+        for dataset, figures in earlier["ours"].items():
+            ours.setdefault(dataset, {}).update(figures)
+    paper = PAPER[args.setting]
     for dataset in datasets:
         ours.setdefault(dataset, {})
         for policy in policies:

@@ -110,8 +110,9 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
     }  # fmt: skip
 
 
-def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray) -> None:
-    """Flag each participant's best entry and rank the best entries among themselves (with intervals)."""
+def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray, score: str = "score") -> None:
+    """Flag each participant's best entry (a board's entry or a grid row, ranked by ``score``) and rank the
+    best ones among themselves (with intervals)."""
     best: dict[str, int] = {}
     for i, e in enumerate(entries):
         key = participant_key(e)
@@ -119,7 +120,7 @@ def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray) -> None:
         if j is None or (e["rank"], e["submission_id"]) < (entries[j]["rank"], entries[j]["submission_id"]):
             best[key] = i
     chosen = sorted(best.values())
-    ranks = competition_ranks([entries[i]["score"] for i in chosen])
+    ranks = competition_ranks([entries[i][score] for i in chosen])
     low, high = stats.rank_interval(stats.rank_samples(samples[:, chosen])) if chosen else ([], [])
     for e in entries:
         e["best"] = False
@@ -231,19 +232,8 @@ def _grid_means(
     for i, r in enumerate(rows):
         r.update(status="ranked", boards=len(keys), mean=means[i], mean_low=float(lo[i]), mean_high=float(hi[i]),
                  stable=stables[i], stable_low=float(slo[i]), stable_high=float(shi[i]), rank=ranks[i],
-                 rank_low=int(rlo[i]), rank_high=int(rhi[i]), best=False)  # fmt: skip
-    best: dict[str, int] = {}
-    for i, r in enumerate(rows):
-        j = best.get(participant_key(r))
-        if j is None or (r["rank"], r["submission_id"]) < (rows[j]["rank"], rows[j]["submission_id"]):
-            best[participant_key(r)] = i
-    chosen = sorted(best.values())
-    best_ranks = competition_ranks([means[i] for i in chosen])
-    blo, bhi = stats.rank_interval(stats.rank_samples(rel[:, chosen]))
-    for k, i in enumerate(chosen):
-        rows[i].update(
-            best=True, best_rank=best_ranks[k], best_rank_low=int(blo[k]), best_rank_high=int(bhi[k])
-        )
+                 rank_low=int(rlo[i]), rank_high=int(rhi[i]))  # fmt: skip
+    _mark_best(rows, rel, score="mean")
 
 
 def grid_view(

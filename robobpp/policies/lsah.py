@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from robobpp.core import Action, Observation
+from robobpp.core.feasibility import cell_rect
 from robobpp.policies.candidates import first_supported
 from robobpp.policies.ems import EmsPolicy, ems_candidates
 
@@ -33,9 +32,8 @@ class LSAH(EmsPolicy):
         nx, ny = obs.heightmap.shape
         lo_x, lo_y, hi_x, hi_y = nx, ny, 0, 0  # the reference starts from an empty rectangle
         for p in obs.placed:
-            lo_x, lo_y = min(lo_x, math.floor(p.x + 1e-6)), min(lo_y, math.floor(p.y + 1e-6))
-            hi_x = max(hi_x, math.ceil(p.x + p.length - 1e-6))
-            hi_y = max(hi_y, math.ceil(p.y + p.width - 1e-6))
+            x0, y0, x1, y1 = cell_rect(p.x, p.y, p.length, p.width)
+            lo_x, lo_y, hi_x, hi_y = min(lo_x, x0), min(lo_y, y0), max(hi_x, x1), max(hi_y, y1)
         big_x = np.maximum(cands.x + cands.lc, hi_x) - np.minimum(cands.x, lo_x)
         big_y = np.maximum(cands.y + cands.wc, hi_y) - np.minimum(cands.y, lo_y)
         top = cands.z + cands.h

@@ -168,6 +168,15 @@ def test_public_replay_shows_the_failure_reason_to_the_owner_only(world: World, 
 
 
 @pytest.mark.parametrize("who", VIEWERS)
+def test_boards_link_only_the_submission_pages_the_viewer_may_open(world: World, who: str) -> None:
+    """Someone else's submission page is a 404, so the boards name it without a link."""
+    for path in ("/boards/diverse/math", "/"):
+        r = world.clients[who].get(path)
+        assert "alice-private" in r.text, path
+        assert (f'href="/submissions/{world.private}"' in r.text) == (who in ("owner", "operator")), path
+
+
+@pytest.mark.parametrize("who", VIEWERS)
 def test_account_lists_only_your_own_submissions(world: World, who: str) -> None:
     r = world.clients[who].get("/account", follow_redirects=False)
     if who == "anonymous":

@@ -77,7 +77,8 @@ def test_overall_grid_highlights_top_four_and_links_boards(server: Server, probe
         top = [v for cls, v in cells if cls.startswith("rank-")]
         rest = [v for cls, v in cells if not cls.startswith("rank-") and v == v]
         assert any(cls == "rank-1" for cls, _ in cells)
-        assert len(top) >= min(4, len({v for _, v in cells})) and min(top) > max(rest, default=-1.0)
+        # >=: the cells show 3 decimals, so the 4th and 5th places can print the same figure (0.2174 vs 0.2166).
+        assert len(top) >= min(4, len({v for _, v in cells})) and min(top) >= max(rest, default=-1.0)
     first = table.locator("thead a").first
     href = first.get_attribute("href")
     assert href == "/boards/repetitive/math"

@@ -105,7 +105,7 @@ def account_page(request: Request) -> Response:
     if principal is None:
         return _need_sign_in(request)
     settings = request.app.state.settings
-    with request.app.state.runtime.session() as session:
+    with request.app.state.runtime.read_session() as session:
         me = api_participants.me(request, principal, session, settings)
         subs = api_submissions.list_submissions(session, principal, limit=200, offset=0)
         tokens = (

@@ -44,7 +44,7 @@ def _refuse_form(request: Request, csrf: str) -> Response | None:
 
 def _participants_page(request: Request, *, created: TokenCreated | None = None, error: str | None = None,
                        name: str = "", status_code: int = 200) -> Response:  # fmt: skip
-    with request.app.state.runtime.session() as session:
+    with request.app.state.runtime.read_session() as session:
         tokens = dict(session.execute(select(ApiToken.participant_id, func.count()).where(ApiToken.revoked_at.is_(None))
                                       .group_by(ApiToken.participant_id)).all())  # fmt: skip
         subs = dict(session.execute(select(Submission.participant_id, func.count())
@@ -79,7 +79,7 @@ def create_participant(request: Request, name: Text = "", csrf: Text = "") -> Re
 
 def _participant_page(request: Request, participant_id: int, *, created: TokenCreated | None = None,
                       status_code: int = 200) -> Response:  # fmt: skip
-    with request.app.state.runtime.session() as session:
+    with request.app.state.runtime.read_session() as session:
         participant = session.get(Participant, participant_id)
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")

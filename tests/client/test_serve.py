@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import httpx
 import numpy as np
@@ -114,21 +114,24 @@ def test_wire_round_trip_keeps_odd_floats_and_tilted_boxes() -> None:
     np.testing.assert_array_equal(back.heightmap, obs.heightmap)
 
 
+# The headers are made when the test runs, not at collection: a suite that reaches this test more than the 300 s
+# window after collecting it would otherwise see every timestamp as stale.
 @pytest.mark.parametrize(
-    ("headers", "words"),
+    ("make_headers", "words"),
     [
-        ({}, "missing"),
-        ({P.TIMESTAMP_HEADER: str(int(time.time())), P.SIGNATURE_HEADER: "0" * 64}, "does not match"),
-        (P.signed_headers("wrong secret", b"{}"), "does not match"),
-        (P.signed_headers(SECRET, b"{}", now=time.time() - 3600), "stale"),
-        (P.signed_headers(SECRET, b"{}", now=time.time() + 3600), "stale"),
-        ({P.TIMESTAMP_HEADER: "12.5", P.SIGNATURE_HEADER: "00"}, "whole seconds"),
-        (P.signed_headers(SECRET, b'{"episode_id": "x"}'), "does not match"),  # signed another body
+        (lambda: {}, "missing"),
+        (lambda: {P.TIMESTAMP_HEADER: str(int(time.time())), P.SIGNATURE_HEADER: "0" * 64}, "does not match"),
+        (lambda: P.signed_headers("wrong secret", b"{}"), "does not match"),
+        (lambda: P.signed_headers(SECRET, b"{}", now=time.time() - 3600), "stale"),
+        (lambda: P.signed_headers(SECRET, b"{}", now=time.time() + 3600), "stale"),
+        (lambda: {P.TIMESTAMP_HEADER: "12.5", P.SIGNATURE_HEADER: "00"}, "whole seconds"),
+        (lambda: P.signed_headers(SECRET, b'{"episode_id": "x"}'), "does not match"),  # signed another body
     ],
 )
 def test_bad_or_stale_signature_is_refused_with_401(
-    signed: BackgroundServer, headers: dict[str, str], words: str
+    signed: BackgroundServer, make_headers: Callable[[], dict[str, str]], words: str
 ) -> None:
+    headers = make_headers()
     body = b"{}"
     for method, path in (("GET", "/info"), ("POST", "/reset"), ("POST", "/act"), ("POST", "/close")):
         response = httpx.request(method, signed.url + path, content=body, headers=headers)

@@ -26,7 +26,9 @@ Mode = Literal["full", "fast"]
 #: 1: friction 0.5, dataset masses, release into the footprint as chosen, collapse on the horizontal
 #: distance. 2: the reference implementation's friction (1.0), mass (0.5 kg), collapse rule (|dx| or |dy|
 #: over the threshold) and a release clear of the neighbours (docs/physics.md, "Against the reference").
-PHYSICS_VERSION = "2"
+#: 3: friction anchors on every contact (positional static friction), which removes the solver's creep of
+#: piles at rest (docs/physics.md, "Creep").
+PHYSICS_VERSION = "3"
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +45,11 @@ class PhysicsConfig:
     angular_damping: float = 0.04
     #: Constraint solver iterations per step (pybullet's default).
     solver_iterations: int = 50
+    #: Friction anchors on every body (pybullet's ``frictionAnchor``): a sticking contact keeps its point
+    #: and the solver corrects positional slip, so a pile at rest stays where it is. Off, a resting pile
+    #: creeps by micrometres per step, a time-discretisation artefact that shrinks with the time step
+    #: (``bench/physics_creep.py``, docs/physics.md "Creep"). Sliding past μ is unchanged.
+    friction_anchor: bool = True
     #: Every box is simulated with this mass, kg (the reference implementation's 0.5 kg for every box);
     #: None: the dataset's mass. Only the physics uses it: the Execution Pack's suction check keeps the
     #: dataset's mass.

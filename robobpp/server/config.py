@@ -81,6 +81,9 @@ class Settings(BaseSettings):
     public_baselines: bool = True
     #: How often (seconds) an API process checks in SQL whether a board changed (services/boards.py).
     board_refresh_s: float = Field(default=1.0, ge=0, le=60)
+    #: From this many finished submissions on a track, its boards are computed in a separate process (so
+    #: seconds of scoring never stall the API process) and computed when the server starts.
+    board_process_from: int = Field(default=1000, ge=0)
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)

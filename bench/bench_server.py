@@ -389,7 +389,7 @@ def main() -> None:
         warm_up(base, paths)
         print(f"warm-up (the server computes the nine boards and the grid when it starts): "
               f"{time.perf_counter() - t0:.0f} s")  # fmt: skip
-        alone = cpu_per_request(base, proc.pid, paths, 20)
+        alone = cpu_per_request(base, proc.pid, paths, 50)
         load0 = os.getloadavg()[0]
         server0 = cpu_seconds(proc.pid)
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:

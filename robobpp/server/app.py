@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import sys
 import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -53,6 +54,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         from robobpp.server.bootstrap import bootstrap
 
         runtime = app.state.runtime
+        # threads coming back from SQL take the GIL from the event loop within this long (CPython: 5 ms,
+        # which under 20 readers queued every SQL-reading route behind the loop; BENCHMARKS.md)
+        sys.setswitchinterval(settings.switch_interval_s)
         await _run_sync(bootstrap, runtime)
         from robobpp.server.api.leaderboards import make_board_cache
 

@@ -15,7 +15,6 @@ from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-ACTIVE_SUBMISSIONS = ("queued", "running")
 FINISHED_SUBMISSIONS = ("completed", "failed", "cancelled")
 
 
@@ -39,15 +38,14 @@ class _QueueCollector(Collector):
         submissions = GaugeMetricFamily("robobpp_submissions", "Submissions by status", labels=["status"])
         try:
             with self.app.state.runtime.read_session() as session:
-                for status, n in queries.episode_status_counts(session).items():
-                    episodes.add_metric([status], n)
-                counts = queries.submission_status_counts(session, ACTIVE_SUBMISSIONS)
-                marker = queries.last_finished(session)
+                queue, active, marker = queries.queue_snapshot(session)  # one round trip
                 if self._finished is None or self._finished[0] != marker:
                     finished = queries.submission_status_counts(session, FINISHED_SUBMISSIONS)
                     self._finished = (marker, finished)
-                for status, n in {**counts, **self._finished[1]}.items():
-                    submissions.add_metric([status], n)
+            for status, n in queue.items():
+                episodes.add_metric([status], n)
+            for status, n in {**active, **self._finished[1]}.items():
+                submissions.add_metric([status], n)
         except Exception:  # noqa: BLE001 - a scrape must not fail because the database blinked
             pass
         yield episodes

@@ -20,6 +20,9 @@ STEP = 2
 SAMPLE = 5
 #: Weight of the resting height: the reference adds ``posZ · block_unit`` with packsim's block unit 0.01.
 Z_WEIGHT = 0.01
+#: The point distances are measured from (cm): the container's origin corner (experiments move it to where the
+#: reference's world-frame scene points lie: ``bench/paper_table.py --sdfpack-corner``).
+CORNER = (0.0, 0.0, 0.0)
 #: Distances summed per batch (bounds the memory of one evaluation).
 _BATCH = 1 << 22
 
@@ -39,7 +42,7 @@ def distance_sum(
     """For each candidate min corner (xs[k], ys[k], zs[k]) (cm), the sum over the box's sample points of
     their distance to the container's origin corner — what the reference's distance term measures (its
     scene points are in metres, its sample points in centimetres; docs/baselines.md)."""
-    ox, oy, oz = offsets
+    ox, oy, oz = (o - c for o, c in zip(offsets, CORNER, strict=True))
     n = len(xs)
     per = max(1, len(ox) * len(oy) * len(oz))
     out = np.empty(n)
@@ -74,6 +77,17 @@ class SDFPack(BasePolicy):
 
     name = "sdfpack"
 
+    def distances(
+        self,
+        obs: Observation,
+        xs: np.ndarray,
+        ys: np.ndarray,
+        zs: np.ndarray,
+        offsets: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> np.ndarray:
+        """The distance term of every candidate (experiments replace it: ``bench/paper_table.py``)."""
+        return distance_sum(xs, ys, zs, offsets)
+
     def act(self, obs: Observation) -> Action | None:
         parts = []
         for cand in candidate_maps(obs):
@@ -85,7 +99,9 @@ class SDFPack(BasePolicy):
                 continue
             pz = cand.z[px, py].astype(np.float64)
             offsets = sample_offsets(cand.length, cand.width, cand.height)
-            score = distance_sum(px.astype(np.float64), py.astype(np.float64), pz, offsets) + Z_WEIGHT * pz
+            score = (
+                self.distances(obs, px.astype(np.float64), py.astype(np.float64), pz, offsets) + Z_WEIGHT * pz
+            )
             parts.append((px, py, np.full(px.size, cand.orientation), pz, np.round(score, 9)))
         if not parts:
             return None

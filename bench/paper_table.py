@@ -205,6 +205,44 @@ def open_loop(spec: Any, policy: str, setting: str) -> Any:
     return run_episode(spec, Replay(actions), setting)  # type: ignore[arg-type]
 
 
+def episode_record(r: Any) -> dict[str, Any]:
+    """One episode's figures for the JSON: what the table needs, and the evidence for the gaps (how it ended,
+    collapses, the execution's dangerous operations and the boxes its motion disturbed)."""
+    record: dict[str, Any] = {
+        "group": r.group,
+        "space_utilization": r.metrics["space_utilization"],
+        "boxes_placed": r.boxes_placed,
+        "termination": r.termination,
+        "termination_detail": r.termination_detail,
+        "counters": dict(r.counters),
+    }
+    if r.setting == "execution":
+        steps = [s for s in r.steps if s.action]
+        reasons: Counter[str] = Counter()
+        for s in steps:
+            reasons.update(s.extra.get("dangerous_reasons", ()))
+        record["dangerous_reasons"] = dict(reasons)
+        record["disturbed_boxes"] = sum(int(s.extra.get("disturbed_boxes", 0)) for s in steps)
+        record["steps_disturbing"] = sum(1 for s in steps if s.extra.get("disturbed_boxes", 0))
+        record["failed_grasps"] = sum(1 for s in steps if s.extra.get("failed_grasp"))
+        record["plan_status"] = dict(Counter(str(s.extra.get("plan_status")) for s in steps if s.extra))
+        record["trajectory_length"] = r.metrics.get("trajectory_length")
+    return record
+
+
+def summarise(episodes: list[dict[str, Any]], cpu_s: float) -> dict[str, Any]:
+    """The mean figures of a (dataset, policy) cell from its episodes (kept beside them, so that runs over
+    different group ranges can be merged)."""
+    return {
+        "space_utilization": statistics.mean(e["space_utilization"] for e in episodes),
+        "boxes_placed": statistics.mean(e["boxes_placed"] for e in episodes),
+        "terminations": dict(Counter(e["termination"] for e in episodes)),
+        "groups": sorted(e["group"] for e in episodes),
+        "cpu_s": cpu_s,
+        "episodes": episodes,
+    }
+
+
 def run(
     dataset: str,
     policy: str,
@@ -213,22 +251,19 @@ def run(
     split: str = "train",
     replay: bool = False,
     item_set: bool = False,
+    first_group: int = 0,
 ) -> dict[str, Any]:
     from robobpp.datasets import episode_specs
     from robobpp.episode import run_episode
 
     cpu0 = time.process_time()
-    specs = episode_specs(dataset, split, groups)
+    # A group's boxes depend on its index only, so groups first_group.. are the same as in a longer run.
+    specs = episode_specs(dataset, split, first_group + groups)[first_group:]
     if replay:
         results = [open_loop(s, policy, setting) for s in specs]
     else:
         results = [run_episode(s, make_policy(policy, s, item_set), setting) for s in specs]
-    return {
-        "space_utilization": statistics.mean(r.metrics["space_utilization"] for r in results),
-        "boxes_placed": statistics.mean(r.boxes_placed for r in results),
-        "terminations": dict(Counter(r.termination for r in results)),
-        "cpu_s": time.process_time() - cpu0,
-    }
+    return summarise([episode_record(r) for r in results], time.process_time() - cpu0)
 
 
 def main() -> None:
@@ -237,6 +272,12 @@ def main() -> None:
     )
     parser.add_argument("--setting", choices=("math", "physics", "execution"), default="math")
     parser.add_argument("--groups", type=int, default=30)
+    parser.add_argument(
+        "--first-group",
+        type=int,
+        default=0,
+        help="run groups first-group .. first-group+groups-1 (split a long run; --merge pools the ranges)",
+    )
     parser.add_argument("--split", choices=("train", "test"), default="train")
     parser.add_argument("--datasets", default=",".join(DATASETS))
     parser.add_argument("--policies", default=",".join(POLICIES))
@@ -276,6 +317,7 @@ def main() -> None:
         action="store_true",
         help="experiment: OnlineBPH's smallest item side from the group's whole item set (the reference's)",
     )
+    parser.add_argument("--verbose", action="store_true", help="also print how each heuristic's episodes ended")
     args = parser.parse_args()
     if args.sdfpack_scene:
         sdfpack_scene_distances()
@@ -293,18 +335,29 @@ def main() -> None:
     datasets = [d for d in args.datasets.split(",") if d]
     policies = [p for p in args.policies.split(",") if p]
     ours: dict[str, dict[str, dict[str, Any]]] = {}
+    # What a table may not mix: a Physics run beside the paper's Math column because --setting was left at
+    # its default, or closed- and open-loop runs. Group ranges may differ: the episodes are pooled.
+    kind = {"setting": args.setting, "open_loop": args.open_loop}
     for path in args.merge or ():
         with open(path) as fh:
             earlier = json.load(fh)
-        # The files say which setting and group count they hold; a table must not mix them, nor compare a
-        # Physics run with the paper's Math column because --setting was left at its default.
+        theirs = {"setting": earlier["setting"], "open_loop": earlier.get("open_loop", False)}
         if path == args.merge[0]:
-            args.setting, args.groups = earlier["setting"], earlier["groups"]
-        elif (earlier["setting"], earlier["groups"]) != (args.setting, args.groups):
-            parser.error(f"{path} holds {earlier['setting']} / {earlier['groups']} groups, "
-                         f"not {args.setting} / {args.groups} groups like {args.merge[0]}")  # fmt: skip
+            kind = theirs
+            args.setting, args.open_loop = theirs["setting"], theirs["open_loop"]
+        elif theirs != kind:
+            parser.error(f"{path} holds {theirs}, not {kind} like {args.merge[0]}")
         for dataset, figures in earlier["ours"].items():
-            ours.setdefault(dataset, {}).update(figures)
+            for policy, fig in figures.items():
+                mine = ours.setdefault(dataset, {}).get(policy)
+                if mine is None:
+                    ours[dataset][policy] = fig
+                    continue
+                if "episodes" not in fig or "episodes" not in mine:
+                    parser.error(f"{path}: {dataset}/{policy} again, without per-episode figures to pool")
+                if set(mine["groups"]) & set(fig["groups"]):
+                    parser.error(f"{path}: {dataset}/{policy} groups {fig['groups']} overlap {mine['groups']}")
+                ours[dataset][policy] = summarise(mine["episodes"] + fig["episodes"], mine["cpu_s"] + fig["cpu_s"])
     paper = PAPER[args.setting]
     for dataset in datasets:
         ours.setdefault(dataset, {})
@@ -319,10 +372,13 @@ def main() -> None:
                 args.split,
                 args.open_loop,
                 args.onlinebph_item_set,
+                args.first_group,
             )
             fig = ours[dataset][policy]
             print(f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
                   f"({fig['boxes_placed']:.1f} boxes, {fig['terminations']}, {fig['cpu_s']:.0f} s)", flush=True)  # fmt: skip
+            if args.json:  # as it goes: a run stopped early keeps its finished cells
+                write_json(args.json, args, ours, {})
 
     col = {d: DATASETS.index(d) for d in datasets}
     rule = " with the support rule (experiment)" if args.support else ""
@@ -332,7 +388,9 @@ def main() -> None:
     rule += f", SDFPack distances from {args.sdfpack_corner} (experiment)" if args.sdfpack_corner else ""
     rule += ", SDFPack distances to the scene (experiment)" if args.sdfpack_scene else ""
     rule += ", OnlineBPH bound from the group's item set (experiment)" if args.onlinebph_item_set else ""
-    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, {args.groups} groups (seed 0); "
+    counts = {d: sorted({len(ours[d][q].get("groups", ())) or args.groups for q in policies}) for d in datasets}
+    groups = " / ".join(f"{d} {'–'.join(map(str, counts[d]))}" for d in datasets)
+    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, groups: {groups} (seed 0); "
           f"paper: its test-split tables. {machine()}\n")  # fmt: skip
     print("| heuristic | " + " | ".join(f"{d} paper | {d} ours | diff" for d in datasets) + " |")
     print("|---|" + "---:|" * (3 * len(datasets)))
@@ -357,9 +415,40 @@ def main() -> None:
         + " |"
     )
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump({"setting": args.setting, "groups": args.groups, "ours": ours, "paper": paper,
-                       "summary": summary}, fh, indent=1)  # fmt: skip
+        write_json(args.json, args, ours, summary)
+    if args.setting == "execution" or args.verbose:
+        print_evidence(ours, datasets, policies)
+
+
+def write_json(path: str, args: argparse.Namespace, ours: dict[str, Any], summary: dict[str, Any]) -> None:
+    with open(path, "w") as fh:
+        json.dump({"setting": args.setting, "groups": args.groups, "first_group": args.first_group,
+                   "open_loop": args.open_loop, "ours": ours, "paper": PAPER[args.setting],
+                   "summary": summary}, fh, indent=1)  # fmt: skip
+
+
+def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str]) -> None:
+    """Per heuristic: how its episodes ended, and (Execution Pack) what the robot did — the evidence for the
+    gaps to the paper."""
+    print("\n| dataset | heuristic | episodes | boxes placed | endings | collapsed placements "
+          "| dangerous ops / ops | dangerous reasons | boxes disturbed (steps) |")
+    print("|---|---|---:|---:|---|---:|---:|---|---:|")
+    for d in datasets:
+        for q in policies:
+            fig = ours[d][q]
+            eps = fig.get("episodes", [])
+            c: Counter[str] = Counter()
+            reasons: Counter[str] = Counter()
+            for e in eps:
+                c.update(e["counters"])
+                reasons.update(e.get("dangerous_reasons", {}))
+            endings = ", ".join(f"{k} {v}" for k, v in sorted(fig["terminations"].items()))
+            ops = f"{c['operations_dangerous']} / {c['operations']}" if c["operations"] else "–"
+            disturbed = (f"{sum(e.get('disturbed_boxes', 0) for e in eps)} "
+                         f"({sum(e.get('steps_disturbing', 0) for e in eps)})")  # fmt: skip
+            why = ", ".join(f"{k} {v}" for k, v in reasons.most_common()) or "–"
+            print(f"| {d} | {q} | {len(eps)} | {fig['boxes_placed']:.1f} | {endings} "
+                  f"| {c['placements_collapsed']} / {c['placements_attempted']} | {ops} | {why} | {disturbed} |")  # fmt: skip
 
 
 if __name__ == "__main__":

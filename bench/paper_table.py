@@ -417,7 +417,7 @@ def main() -> None:
     if args.json:
         write_json(args.json, args, ours, summary)
     if args.setting == "execution" or args.verbose:
-        print_evidence(ours, datasets, policies)
+        print_evidence(ours, datasets, policies, args.setting)
 
 
 def write_json(path: str, args: argparse.Namespace, ours: dict[str, Any], summary: dict[str, Any]) -> None:
@@ -427,12 +427,15 @@ def write_json(path: str, args: argparse.Namespace, ours: dict[str, Any], summar
                    "summary": summary}, fh, indent=1)  # fmt: skip
 
 
-def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str]) -> None:
+def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str], setting: str) -> None:
     """Per heuristic: how its episodes ended, and (Execution Pack) what the robot did — the evidence for the
     gaps to the paper."""
-    print("\n| dataset | heuristic | episodes | boxes placed | endings | collapsed placements "
-          "| dangerous ops / ops | dangerous reasons | boxes disturbed (steps) |")
-    print("|---|---|---:|---:|---|---:|---:|---|---:|")
+    robot = setting == "execution"
+    head = "| dataset | heuristic | episodes | boxes placed | endings | collapsed placements |"
+    if robot:
+        head += " dangerous ops / ops | dangerous reasons | boxes disturbed (steps) |"
+    print("\n" + head)
+    print("|---|---|---:|---:|---|---:|" + ("---:|---|---:|" if robot else ""))
     for d in datasets:
         for q in policies:
             fig = ours[d][q]
@@ -443,13 +446,14 @@ def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str
                 c.update(e["counters"])
                 reasons.update(e.get("dangerous_reasons", {}))
             endings = ", ".join(f"{k} {v}" for k, v in sorted(fig["terminations"].items()))
-            ops = f"{c['operations_dangerous']} / {c['operations']}" if c["operations"] else "–"
-            disturbed = (f"{sum(e.get('disturbed_boxes', 0) for e in eps)} "
-                         f"({sum(e.get('steps_disturbing', 0) for e in eps)})")  # fmt: skip
-            why = ", ".join(f"{k} {v}" for k, v in reasons.most_common()) or "–"
-            print(f"| {d} | {q} | {len(eps)} | {fig['boxes_placed']:.1f} | {endings} "
-                  f"| {c['placements_collapsed']} / {c['placements_attempted']} | {ops} | {why} | {disturbed} |")  # fmt: skip
-
+            row = (f"| {d} | {q} | {len(eps)} | {fig['boxes_placed']:.1f} | {endings} "
+                   f"| {c['placements_collapsed']} / {c['placements_attempted']} |")  # fmt: skip
+            if robot:
+                disturbed = (f"{sum(e.get('disturbed_boxes', 0) for e in eps)} "
+                             f"({sum(e.get('steps_disturbing', 0) for e in eps)})")  # fmt: skip
+                why = ", ".join(f"{k} {v}" for k, v in reasons.most_common()) or "–"
+                row += f" {c['operations_dangerous']} / {c['operations']} | {why} | {disturbed} |"
+            print(row)
 
 if __name__ == "__main__":
     main()

@@ -216,8 +216,30 @@ def episode_record(r: Any) -> dict[str, Any]:
         "termination_detail": r.termination_detail,
         "counters": dict(r.counters),
     }
+    if r.setting in ("physics", "execution"):
+        # How far the step (the robot's motion, the release and the settle) moved the boxes placed before it:
+        # the largest horizontal shift of their centres between the poses recorded after the previous step
+        # and after this one (cm).
+        shifts, before = [], None
+        for s in r.steps:
+            poses = s.extra.get("poses") if s.extra else None
+            if poses is None:
+                continue
+            if before:
+                old = np.asarray(before, dtype=np.float64)[:, :2]
+                new = np.asarray(poses[: len(before)], dtype=np.float64)[:, :2]
+                shifts.append(float(np.max(np.hypot(*(new - old).T))))
+            before = poses
+        record["steps_shifting_1cm"] = sum(1 for v in shifts if v > 1.0)
+        record["max_shift_cm"] = max(shifts, default=0.0)
     if r.setting == "execution":
         steps = [s for s in r.steps if s.action]
+        # the operations that were dangerous or collapsed: [step, reasons, boxes woken, collapsed]
+        record["marked_steps"] = [
+            [s.step, list(s.extra.get("dangerous_reasons", ())), int(s.extra.get("disturbed_boxes", 0)), s.collapsed]
+            for s in steps
+            if s.dangerous or s.collapsed
+        ]
         reasons: Counter[str] = Counter()
         for s in steps:
             reasons.update(s.extra.get("dangerous_reasons", ()))
@@ -427,15 +449,22 @@ def write_json(path: str, args: argparse.Namespace, ours: dict[str, Any], summar
                    "summary": summary}, fh, indent=1)  # fmt: skip
 
 
+def count(episodes: list[dict[str, Any]], key: str) -> str:
+    """The sum of an episode figure, and over how many episodes when older runs lack it."""
+    have = [e[key] for e in episodes if key in e]
+    return f"{sum(have)}" + (f" ({len(have)} episodes)" if len(have) < len(episodes) else "")
+
+
 def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str], setting: str) -> None:
     """Per heuristic: how its episodes ended, and (Execution Pack) what the robot did — the evidence for the
     gaps to the paper."""
     robot = setting == "execution"
-    head = "| dataset | heuristic | episodes | boxes placed | endings | collapsed placements |"
+    head = "| dataset | heuristic | episodes | boxes placed | endings | collapsed placements | steps moving a box > 1 cm |"
     if robot:
-        head += " dangerous ops / ops | dangerous reasons | boxes disturbed (steps) |"
+        head += (" dangerous ops / ops | dangerous reasons | boxes woken by the motion (steps) "
+                 "| collapses on a dangerous op |")  # fmt: skip
     print("\n" + head)
-    print("|---|---|---:|---:|---|---:|" + ("---:|---|---:|" if robot else ""))
+    print("|---|---|---:|---:|---|---:|---:|" + ("---:|---|---:|---:|" if robot else ""))
     for d in datasets:
         for q in policies:
             fig = ours[d][q]
@@ -447,12 +476,18 @@ def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str
                 reasons.update(e.get("dangerous_reasons", {}))
             endings = ", ".join(f"{k} {v}" for k, v in sorted(fig["terminations"].items()))
             row = (f"| {d} | {q} | {len(eps)} | {fig['boxes_placed']:.1f} | {endings} "
-                   f"| {c['placements_collapsed']} / {c['placements_attempted']} |")  # fmt: skip
+                   f"| {c['placements_collapsed']} / {c['placements_attempted']} "
+                   f"| {count(eps, 'steps_shifting_1cm')} |")  # fmt: skip
             if robot:
                 disturbed = (f"{sum(e.get('disturbed_boxes', 0) for e in eps)} "
                              f"({sum(e.get('steps_disturbing', 0) for e in eps)})")  # fmt: skip
                 why = ", ".join(f"{k} {v}" for k, v in reasons.most_common()) or "–"
-                row += f" {c['operations_dangerous']} / {c['operations']} | {why} | {disturbed} |"
+                marked = [e for e in eps if "marked_steps" in e]
+                collapses = [m for e in marked for m in e["marked_steps"] if m[3]]
+                on_danger = f"{sum(1 for m in collapses if m[1])} / {len(collapses)}"
+                if len(marked) < len(eps):
+                    on_danger += f" ({len(marked)} episodes)"
+                row += f" {c['operations_dangerous']} / {c['operations']} | {why} | {disturbed} | {on_danger} |"
             print(row)
 
 if __name__ == "__main__":

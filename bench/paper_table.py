@@ -452,6 +452,8 @@ def write_json(path: str, args: argparse.Namespace, ours: dict[str, Any], summar
 def count(episodes: list[dict[str, Any]], key: str) -> str:
     """The sum of an episode figure, and over how many episodes when older runs lack it."""
     have = [e[key] for e in episodes if key in e]
+    if not have:
+        return "–"
     return f"{sum(have)}" + (f" ({len(have)} episodes)" if len(have) < len(episodes) else "")
 
 

@@ -236,7 +236,12 @@ def episode_record(r: Any) -> dict[str, Any]:
         steps = [s for s in r.steps if s.action]
         # the operations that were dangerous or collapsed: [step, reasons, boxes woken, collapsed]
         record["marked_steps"] = [
-            [s.step, list(s.extra.get("dangerous_reasons", ())), int(s.extra.get("disturbed_boxes", 0)), s.collapsed]
+            [
+                s.step,
+                list(s.extra.get("dangerous_reasons", ())),
+                int(s.extra.get("disturbed_boxes", 0)),
+                s.collapsed,
+            ]
             for s in steps
             if s.dangerous or s.collapsed
         ]
@@ -339,7 +344,9 @@ def main() -> None:
         action="store_true",
         help="experiment: OnlineBPH's smallest item side from the group's whole item set (the reference's)",
     )
-    parser.add_argument("--verbose", action="store_true", help="also print how each heuristic's episodes ended")
+    parser.add_argument(
+        "--verbose", action="store_true", help="also print how each heuristic's episodes ended"
+    )
     args = parser.parse_args()
     if args.sdfpack_scene:
         sdfpack_scene_distances()
@@ -378,8 +385,12 @@ def main() -> None:
                 if "episodes" not in fig or "episodes" not in mine:
                     parser.error(f"{path}: {dataset}/{policy} again, without per-episode figures to pool")
                 if set(mine["groups"]) & set(fig["groups"]):
-                    parser.error(f"{path}: {dataset}/{policy} groups {fig['groups']} overlap {mine['groups']}")
-                ours[dataset][policy] = summarise(mine["episodes"] + fig["episodes"], mine["cpu_s"] + fig["cpu_s"])
+                    parser.error(
+                        f"{path}: {dataset}/{policy} groups {fig['groups']} overlap {mine['groups']}"
+                    )
+                ours[dataset][policy] = summarise(
+                    mine["episodes"] + fig["episodes"], mine["cpu_s"] + fig["cpu_s"]
+                )
     paper = PAPER[args.setting]
     for dataset in datasets:
         ours.setdefault(dataset, {})
@@ -410,7 +421,9 @@ def main() -> None:
     rule += f", SDFPack distances from {args.sdfpack_corner} (experiment)" if args.sdfpack_corner else ""
     rule += ", SDFPack distances to the scene (experiment)" if args.sdfpack_scene else ""
     rule += ", OnlineBPH bound from the group's item set (experiment)" if args.onlinebph_item_set else ""
-    counts = {d: sorted({len(ours[d][q].get("groups", ())) or args.groups for q in policies}) for d in datasets}
+    counts = {
+        d: sorted({len(ours[d][q].get("groups", ())) or args.groups for q in policies}) for d in datasets
+    }
     groups = " / ".join(f"{d} {'–'.join(map(str, counts[d]))}" for d in datasets)
     print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, groups: {groups} (seed 0); "
           f"paper: its test-split tables. {machine()}\n")  # fmt: skip
@@ -489,8 +502,11 @@ def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str
                 on_danger = f"{sum(1 for m in collapses if m[1])} / {len(collapses)}"
                 if len(marked) < len(eps):
                     on_danger += f" ({len(marked)} episodes)"
-                row += f" {c['operations_dangerous']} / {c['operations']} | {why} | {disturbed} | {on_danger} |"
+                row += (
+                    f" {c['operations_dangerous']} / {c['operations']} | {why} | {disturbed} | {on_danger} |"
+                )
             print(row)
+
 
 if __name__ == "__main__":
     main()

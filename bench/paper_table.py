@@ -154,6 +154,19 @@ def sdfpack_scene_distances() -> None:
     SDFPack.distances = distances  # type: ignore[method-assign]
 
 
+#: Experiment only (``--physics-option``): options of the physical setting (fields of ``PhysicsConfig``).
+SETTING_OPTIONS: dict[str, Any] = {}
+
+
+def make_setting(setting: str) -> Any:
+    """The setting for one episode: its name, or a fresh instance with the ``--physics-option`` values."""
+    if not SETTING_OPTIONS or setting == "math":
+        return setting
+    from robobpp.sim import make_setting as build
+
+    return build(setting, **SETTING_OPTIONS)
+
+
 def make_policy(name: str, spec: Any, item_set: bool = False) -> Any:
     """The policy for one episode; ``item_set`` (experiment only) gives OnlineBPH the smallest side of the
     group's whole item set, as the reference's environment has it, instead of the sides seen so far."""
@@ -202,7 +215,7 @@ def open_loop(spec: Any, policy: str, setting: str) -> Any:
     actions = [
         Action(s.action["x"], s.action["y"], s.action["orientation"]) for s in planned.steps if s.action
     ]
-    return run_episode(spec, Replay(actions), setting)  # type: ignore[arg-type]
+    return run_episode(spec, Replay(actions), make_setting(setting))  # type: ignore[arg-type]
 
 
 def episode_record(r: Any) -> dict[str, Any]:
@@ -289,7 +302,7 @@ def run(
     if replay:
         results = [open_loop(s, policy, setting) for s in specs]
     else:
-        results = [run_episode(s, make_policy(policy, s, item_set), setting) for s in specs]
+        results = [run_episode(s, make_policy(policy, s, item_set), make_setting(setting)) for s in specs]
     return summarise([episode_record(r) for r in results], time.process_time() - cpu0)
 
 
@@ -345,9 +358,22 @@ def main() -> None:
         help="experiment: OnlineBPH's smallest item side from the group's whole item set (the reference's)",
     )
     parser.add_argument(
+        "--physics-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="experiment: a PhysicsConfig field for the physical setting, e.g. mode=full friction_anchor=false",
+    )
+    parser.add_argument(
         "--verbose", action="store_true", help="also print how each heuristic's episodes ended"
     )
     args = parser.parse_args()
+    for option in args.physics_option:
+        key, _, value = option.partition("=")
+        try:
+            SETTING_OPTIONS[key] = json.loads(value)
+        except json.JSONDecodeError:
+            SETTING_OPTIONS[key] = value
     if args.sdfpack_scene:
         sdfpack_scene_distances()
     if args.sdfpack_step or args.sdfpack_corner:
@@ -421,6 +447,7 @@ def main() -> None:
     rule += f", SDFPack distances from {args.sdfpack_corner} (experiment)" if args.sdfpack_corner else ""
     rule += ", SDFPack distances to the scene (experiment)" if args.sdfpack_scene else ""
     rule += ", OnlineBPH bound from the group's item set (experiment)" if args.onlinebph_item_set else ""
+    rule += f", physics {', '.join(args.physics_option)} (experiment)" if args.physics_option else ""
     counts = {
         d: sorted({len(ours[d][q].get("groups", ())) or args.groups for q in policies}) for d in datasets
     }

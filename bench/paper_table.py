@@ -14,7 +14,14 @@ Spearman rank correlation of the seven heuristics and the mean absolute differen
     python bench/paper_table.py --policies sdfpack --sdfpack-corner 4.4,0.7,2.4   # experiment: distances from there
     nice python bench/paper_table.py --policies sdfpack --groups 10 --sdfpack-scene   # experiment: true distances
     python bench/paper_table.py --policies onlinebph --onlinebph-item-set   # experiment: the group's item set
-    python bench/paper_table.py --merge a.json b.json         # one table from earlier runs' --json files
+    nice python bench/paper_table.py --setting execution --groups 2 --first-group 4 --json e4.json   # groups 4, 5
+    python bench/paper_table.py --merge a.json b.json         # one table from earlier runs' --json files (episodes pooled)
+    nice python bench/paper_table.py --setting physics --open-loop --groups 5 --physics-option mode=full \
+        --physics-option friction_anchor=false --physics-option stability_steps=2200   # experiment: reference-like settle
+
+``--verbose`` (always in Execution Pack) also prints how each heuristic's episodes ended and, in the physical settings,
+how often a step moved an earlier box by more than 1 cm; in Execution Pack the dangerous operations, their reasons,
+the boxes the robot came near, and how many collapses happened in a dangerous operation.
 
 Geometry and physics figures are deterministic; nothing here depends on the machine but the run time.
 """

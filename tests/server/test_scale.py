@@ -186,6 +186,7 @@ def test_metrics_scrape_costs_the_same_with_more_history(scale_app) -> None:
     assert 'robobpp_submissions{status="completed"} 4.0' in text
     assert 'robobpp_submissions{status="queued"} 0.0' in text
     assert 'robobpp_episodes{status="pending"} 0.0' in text
+    assert "robobpp_board_snapshot_seconds " in text and "robobpp_board_snapshots " in text
 
 
 def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str, tmp_path: Path) -> None:

@@ -21,6 +21,7 @@ from robobpp.server.api import participants as api_participants
 from robobpp.server.api import submissions as api_submissions
 from robobpp.server.api.deps import Principal, principal_for_token
 from robobpp.server.problems import ProblemError
+from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import not_found, redirect, refused, render
 from robobpp.server.site.session import Viewer, load_viewer, viewer
@@ -106,8 +107,10 @@ def account_page(request: Request) -> Response:
         return _need_sign_in(request)
     settings = request.app.state.settings
     with request.app.state.runtime.read_session() as session:
-        me = api_participants.me(request, principal, session, settings)
-        subs = api_submissions.submission_models(session, principal, limit=200, offset=0)
+        me = api_participants.me_of(session, principal, settings)
+        subs = api_submissions.submission_models(
+            finished_views(request.app.state), session, principal, limit=200
+        )
         tokens = (
             api_participants.list_tokens(session, principal, participant_id=None) if not who.admin else []
         )

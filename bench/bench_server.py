@@ -1,14 +1,17 @@
 """Evaluation server at scale: every page and API route under 20 concurrent readers, with 10,000 submissions
 (90,000 runs, 2.7 M episode rows) in the database, and submissions accepted per second.
 
-The server runs for real in a subprocess (uvicorn, ``--server-workers`` processes, no evaluation workers);
-readers are threads of this process over loopback HTTP, each issuing its next request as soon as the last
-one answered (closed loop, no think time). The database is seeded in bulk (PostgreSQL ``COPY``, SQLite
+The server runs for real in a subprocess (uvicorn, ``--server-workers`` processes — one, as ``robobpp serve``
+runs it — no evaluation workers); the readers are a separate load-generator process (``_load.py``) over
+loopback HTTP, each issuing its next request as soon as the last one answered (closed loop, no think time),
+round-robin over every page and API route (``routes``). It prints p50/p95 per route, the server's CPU per
+request under load and per route alone, and the load generator's CPU. The database is seeded in bulk (PostgreSQL ``COPY``, SQLite
 ``executemany``): per-group metrics random but fixed by a seed, each run's aggregate and per-group figures
 computed from its episodes exactly as a worker writes them. 2 % of the submissions are failed (every
 episode a policy error) and 2 % partial (Math Pack only), as on a real board.
 
     python bench/bench_server.py [--database-url URL] [--submissions 10000] [--readers 20] [--samples 60]
+        [--seed-only | --reuse [--cold]] [--accepts 40]
 """
 
 from __future__ import annotations

@@ -136,6 +136,22 @@ def take_unsent(
     )
 
 
+def has_overdue(session: Session, *, older_than_s: float, now: datetime | None = None) -> bool:
+    """Whether a pending episode of an active submission has had its message out for over ``older_than_s``.
+
+    The cheap first question of the lost-message check (:func:`robobpp.worker.celery_executor.resend_lost`):
+    only when it says yes does the dispatcher ask the broker how long the queue is."""
+    cutoff = (now or utcnow()) - timedelta(seconds=older_than_s)
+    row = session.execute(
+        select(EpisodeRow.id)
+        .join(Submission, Submission.id == EpisodeRow.submission_id)
+        .where(EpisodeRow.status == "pending", EpisodeRow.enqueued_at < cutoff,
+               Submission.status.in_(ACTIVE_SUBMISSION))
+        .limit(1)
+    ).first()  # fmt: skip
+    return row is not None
+
+
 def _busy_participants(max_running: int) -> Any:
     """Participants with ``max_running`` remote episodes running: the claim skips their other episodes."""
     return (
@@ -208,7 +224,10 @@ def claim_episode(
             .where(eligible, Submission.status.in_(ACTIVE_SUBMISSION))
             .order_by(EpisodeRow.id)
             .limit(1)
-            .with_for_update(skip_locked=True, of=EpisodeRow)
+            # Any episode: skip rows another claimer holds. One named episode: wait for the row instead. Its
+            # sender publishes inside the transaction that marks it sent, so a fast worker can get the
+            # message before that commit; skipping the row then would turn the message into a no-op.
+            .with_for_update(skip_locked=episode_id is None, of=EpisodeRow)
         ).first()
         if row is None:
             return None

@@ -206,6 +206,7 @@ def claim_episode(
     ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it).
     ``max_running_per_participant`` bounds how many episodes of one participant's remote policies run at
     once (outbound calls to one participant's server), whatever the number of workers."""
+    fixed_now = now
     now = now or utcnow()
     reap_expired(session, max_attempts, now)
     runnable = or_(EpisodeRow.status == "pending", and_(_expired(now), EpisodeRow.attempts < max_attempts))
@@ -231,6 +232,7 @@ def claim_episode(
         ).first()
         if row is None:
             return None
+        taken_at = fixed_now or utcnow()  # after any wait for the row: the lease starts now, not before
         token = secrets.token_hex(16)
         claimed = session.execute(
             update(EpisodeRow)
@@ -240,8 +242,8 @@ def claim_episode(
                 attempts=EpisodeRow.attempts + 1,
                 worker=worker[:128],
                 lease_token=token,
-                lease_expires_at=now + timedelta(seconds=lease_s),
-                started_at=now,
+                lease_expires_at=taken_at + timedelta(seconds=lease_s),
+                started_at=taken_at,
                 step=0,
             )  # fmt: skip
             .execution_options(synchronize_session=False)

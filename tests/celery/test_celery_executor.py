@@ -187,9 +187,9 @@ def test_the_server_dispatches_to_celery_when_a_broker_is_set(own_fleet: Fleet, 
             "name": "random-run", "policy_url": "builtin:random", "track": "public"})  # fmt: skip
         assert made.status_code == 201, made.text
 
-        def finished() -> bool:  # the baseline (queued at start) and the API's submission, nothing else
+        def finished() -> bool:  # the baselines queued at start and the API's submission: all it holds
             subs = client.get("/api/v1/submissions", headers=auth).json()
-            return len(subs) == 2 and all(s["status"] == "completed" for s in subs)
+            return len(subs) >= 2 and all(s["status"] == "completed" for s in subs)
 
         wait_for(finished, 120, "baseline and submission on the workers", fleet.logs)
         health = client.get("/healthz").json()
@@ -199,7 +199,7 @@ def test_the_server_dispatches_to_celery_when_a_broker_is_set(own_fleet: Fleet, 
     engine = make_engine(env["ROBOBPP_DATABASE_URL"])
     try:
         with make_session_factory(engine)() as s:
-            ran_by = s.execute(select(EpisodeRow.worker).where(EpisodeRow.status == "done")).scalars().all()
+            ran = s.execute(select(EpisodeRow.status, EpisodeRow.worker)).all()
     finally:
         engine.dispose()
-    assert len(ran_by) == 4 and all(w.startswith("celery:") for w in ran_by), ran_by
+    assert len(ran) >= 4 and all(st == "done" and w.startswith("celery:") for st, w in ran), ran

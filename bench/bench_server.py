@@ -16,20 +16,23 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import multiprocessing
 import os
 import random
+import re
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
 import httpx
 from _common import machine, median, percentile
+from _load import read_concurrently
 from sqlalchemy import insert, text
 
 from robobpp.client.serve import BackgroundServer, create_policy_app
@@ -180,27 +183,73 @@ def _copy_field(v: Any) -> str:
     return str(v).replace("\\", "\\\\").replace("\t", "\\t").replace("\n", "\\n")
 
 
-def routes(sub_ids: list[int]) -> list[tuple[str, str]]:
-    """(label, path) of every page and API route a reader of the leaderboard uses."""
+def routes(sub_ids: list[int], cookie: str) -> list[tuple[str, str, dict[str, str]]]:
+    """(label, path, headers) of every page and API route a reader uses: public pages anonymous (as a
+    visitor reads them), a submission's own page signed in (its owner's view; here the operator's), the
+    API with a bearer token."""
     sid = sub_ids[len(sub_ids) // 2]
+    api = {"Authorization": f"Bearer {ADMIN}"}
+    anonymous: dict[str, str] = {}
+    owner = {"Cookie": cookie}
     return [
-        ("GET / (home: overall grid, best entries)", "/"),
-        ("GET /?view=all&page=100", "/?view=all&page=100"),
-        ("GET /boards/diverse/math", "/boards/diverse/math"),
-        ("GET /boards/repetitive/execution?view=all&page=50", "/boards/repetitive/execution?view=all&page=50"),
-        ("GET /api/v1/leaderboards (grid)", "/api/v1/leaderboards"),
-        ("GET /api/v1/leaderboards?view=all&offset=5000", "/api/v1/leaderboards?view=all&offset=5000"),
-        ("GET /api/v1/leaderboards/diverse/math", "/api/v1/leaderboards/diverse/math"),
+        ("GET / (home: overall grid, best entries)", "/", anonymous),
+        ("GET /?view=all&page=100", "/?view=all&page=100", anonymous),
+        ("GET /boards/diverse/math", "/boards/diverse/math", anonymous),
+        ("GET /boards/repetitive/execution?view=all&page=50", "/boards/repetitive/execution?view=all&page=50",
+         anonymous),
+        ("GET /submissions/{id} (page, signed in)", f"/submissions/{sid}", owner),
+        ("GET /submissions/{id}/status.json (signed in)", f"/submissions/{sid}/status.json", owner),
+        ("GET /datasets", "/datasets", anonymous),
+        ("GET /protocol", "/protocol", anonymous),
+        ("GET /docs", "/docs", anonymous),
+        ("GET /openapi.json", "/openapi.json", anonymous),
+        ("GET /api/v1/leaderboards (grid)", "/api/v1/leaderboards", api),
+        ("GET /api/v1/leaderboards?view=all&offset=5000", "/api/v1/leaderboards?view=all&offset=5000", api),
+        ("GET /api/v1/leaderboards/diverse/math", "/api/v1/leaderboards/diverse/math", api),
         ("GET /api/v1/leaderboards/longboard/physics?view=all&offset=9000",
-         "/api/v1/leaderboards/longboard/physics?view=all&offset=9000"),
+         "/api/v1/leaderboards/longboard/physics?view=all&offset=9000", api),
         ("GET /api/v1/leaderboards/repetitive/execution?submission={id}",
-         f"/api/v1/leaderboards/repetitive/execution?view=all&submission={sid}"),
-        ("GET /api/v1/submissions/{id}", f"/api/v1/submissions/{sid}"),
-        ("GET /api/v1/submissions/{id}/episodes", f"/api/v1/submissions/{sid}/episodes"),
-        ("GET /api/v1/submissions (list)", "/api/v1/submissions"),
-        ("GET /api/v1/info", "/api/v1/info"),
-        ("GET /metrics", "/metrics"),
+         f"/api/v1/leaderboards/repetitive/execution?view=all&submission={sid}", api),
+        ("GET /api/v1/submissions/{id}", f"/api/v1/submissions/{sid}", api),
+        ("GET /api/v1/submissions/{id}/episodes", f"/api/v1/submissions/{sid}/episodes", api),
+        ("GET /api/v1/submissions (list)", "/api/v1/submissions", api),
+        ("GET /api/v1/info", "/api/v1/info", api),
+        ("GET /healthz", "/healthz", anonymous),
+        ("GET /metrics", "/metrics", anonymous),
     ]  # fmt: skip
+
+
+def sign_in(base: str) -> str:
+    """The operator's session cookie, through the sign-in form as a browser gets it."""
+    with httpx.Client(base_url=base, timeout=60) as client:
+        page = client.get("/sign-in").text
+        csrf = re.search(r'name="csrf" value="([^"]+)"', page)
+        assert csrf is not None, "no CSRF field on the sign-in page"
+        client.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
+        value = client.cookies.get("robobpp_session")
+        assert value, "signing in set no session cookie"
+        return f"robobpp_session={value}"
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_per_request(
+    base: str, pid: int, paths: list[tuple[str, str, dict[str, str]]], n: int
+) -> dict[str, float]:
+    """Server CPU per request of each route, one request at a time (no queueing): ``n`` requests each."""
+    out = {}
+    with httpx.Client(base_url=base, timeout=60) as client:
+        for label, path, headers in paths:
+            client.get(path, headers=headers)
+            c0 = cpu_seconds(pid)
+            for _ in range(n):
+                client.get(path, headers=headers)
+            out[label] = (cpu_seconds(pid) - c0) / n
+    return out
 
 
 def start_server(url: str, state: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
@@ -233,57 +282,24 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def read_concurrently(
-    base: str, paths: list[tuple[str, str]], readers: int, samples: int
-) -> dict[str, list[float]]:
-    """``readers`` closed-loop threads; each request picks the next route round-robin (shuffled per reader)."""
-    out: dict[str, list[float]] = {label: [] for label, _ in paths}
-    lock = threading.Lock()
-    jobs: Iterator[int] = iter(range(samples * len(paths)))
-    errors: list[str] = []
-
-    def reader(k: int) -> None:
-        order = paths[k % len(paths) :] + paths[: k % len(paths)]
-        with httpx.Client(base_url=base, timeout=60, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
-            i = 0
-            while True:
-                with lock:
-                    job = next(jobs, None)
-                if job is None:
-                    return
-                label, path = order[i % len(order)]
-                i += 1
-                t0 = time.perf_counter()
-                r = client.get(path)
-                dt = time.perf_counter() - t0
-                if r.status_code != 200:
-                    errors.append(f"{path}: {r.status_code} {r.text[:200]}")
-                with lock:
-                    out[label].append(dt)
-
-    threads = [threading.Thread(target=reader, args=(k,)) for k in range(readers)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    if errors:
-        raise RuntimeError(errors[0])
-    return out
-
-
-def warm_up(base: str, paths: list[tuple[str, str]], processes: int, limit_s: float = 0.5) -> None:
-    """Until a whole pass (each route several times, so every server process sees it) answers each
-    request within ``limit_s``: every process has computed its boards, grid and pages once."""
-    with httpx.Client(base_url=base, timeout=600, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
-        for _ in range(30):
+def warm_up(
+    base: str, paths: list[tuple[str, str, dict[str, str]]], limit_s: float = 0.5, deadline_s: float = 1800
+) -> None:
+    """Until a whole pass answers each request within ``limit_s``: the server has computed its boards,
+    grid and pages once (it starts computing them when it starts)."""
+    end = time.monotonic() + deadline_s
+    with httpx.Client(base_url=base, timeout=deadline_s) as client:
+        while time.monotonic() < end:
             slowest = 0.0
-            for _label, path in paths:
-                for _ in range(2 * processes):
-                    t0 = time.perf_counter()
-                    client.get(path)
-                    slowest = max(slowest, time.perf_counter() - t0)
+            for _label, path, headers in paths:
+                t0 = time.perf_counter()
+                r = client.get(path, headers=headers)
+                if r.status_code != 200:
+                    raise RuntimeError(f"{path}: {r.status_code} {r.text[:300]}")
+                slowest = max(slowest, time.perf_counter() - t0)
             if slowest < limit_s:
                 return
+    raise RuntimeError("the server did not warm up")
 
 
 def accepts_per_second(client: httpx.Client, body: dict[str, Any], n: int, threads: int) -> float:
@@ -308,21 +324,21 @@ def accepts_per_second(client: httpx.Client, body: dict[str, Any], n: int, threa
     return per * threads / elapsed
 
 
-def cold_figures(runtime: Any) -> list[tuple[str, float]]:
-    """What a change of the board costs once (computed in a background thread while readers keep the old)."""
+def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
+    """What a change of the board costs once: (label, wall s, CPU s) of each board and the grid, computed
+    as the server computes them (in the background; readers keep the previous version meanwhile)."""
     out = []
-    with runtime.session() as s:
+    with runtime.read_session() as s:
         boards = {}
         for st in SETTINGS:
             for d in DATASETS:
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 boards[f"{st}/{d}"] = queries.leaderboard(s, d, st)
-                if (d, st) in (("diverse", "math"), ("repetitive", "execution")):
-                    out.append((f"one board recomputed ({st}/{d}, {len(boards[f'{st}/{d}']['entries'])} ranked)",
-                                time.perf_counter() - t0))  # fmt: skip
-        t0 = time.perf_counter()
+                out.append((f"board {st}/{d} ({len(boards[f'{st}/{d}']['entries'])} ranked)",
+                            time.perf_counter() - t0, time.process_time() - c0))  # fmt: skip
+        t0, c0 = time.perf_counter(), time.process_time()
         build_grid(boards, DATASETS, SETTINGS, "private")
-        out.append(("overall grid from the nine boards", time.perf_counter() - t0))
+        out.append(("overall grid from the nine boards", time.perf_counter() - t0, time.process_time() - c0))
     return out
 
 
@@ -332,10 +348,13 @@ def main() -> None:
     parser.add_argument("--submissions", type=int, default=10_000)
     parser.add_argument("--readers", type=int, default=20)
     parser.add_argument("--samples", type=int, default=60, help="requests per route")
-    # one process: uvicorn's multi-process supervisor restarts a worker that misses its pings, and a
-    # process computing a 10,000-entry board holds the GIL for seconds at a time
+    # one process, as ``robobpp serve`` runs it
     parser.add_argument("--server-workers", type=int, default=1)
     parser.add_argument("--reuse", action="store_true", help="the database is already seeded")
+    parser.add_argument("--seed-only", action="store_true", help="seed the database and stop")
+    parser.add_argument(
+        "--cold", action="store_true", help="time the cold computation (default unless --reuse)"
+    )
     parser.add_argument("--accepts", type=int, default=40)
     args = parser.parse_args()
 
@@ -348,33 +367,55 @@ def main() -> None:
     bootstrap(runtime)
     t0 = time.perf_counter()
     episodes = 0 if args.reuse else seed_rows(runtime, args.submissions)
-    print(f"seeded {args.submissions} submissions, {episodes:,} episode rows in {time.perf_counter() - t0:.0f} s "
-          f"({machine()}); database: {runtime.engine.url.get_backend_name()}")  # fmt: skip
-    for label, seconds in [] if args.reuse else cold_figures(runtime):
-        print(f"- {label}: {seconds:.1f} s")
-    with runtime.session() as s:
+    with runtime.read_session() as s:
+        n_subs = s.execute(text("SELECT count(*) FROM submissions")).scalar_one()
+        n_eps = s.execute(text("SELECT count(*) FROM episodes")).scalar_one()
         sub_ids = [i for (i,) in s.execute(text("SELECT id FROM submissions ORDER BY id"))]
+    seeded = f"seeded in {time.perf_counter() - t0:.0f} s" if episodes else "reused"
+    print(f"{n_subs:,} submissions, {n_eps:,} episode rows ({seeded}); database: "
+          f"{runtime.engine.url.get_backend_name()}; {machine()}")  # fmt: skip
+    if args.seed_only:
+        runtime.dispose()
+        return
+    if args.cold or not args.reuse:
+        print(f"cold computation (load average {os.getloadavg()[0]:.1f}):")
+        for label, wall, cpu in cold_figures(runtime):
+            print(f"- {label}: {wall:.1f} s ({cpu:.1f} s CPU)")
 
     proc, base = start_server(url, tmp, args.server_workers)
     try:
-        paths = routes(sub_ids)
+        paths = routes(sub_ids, sign_in(base))
         t0 = time.perf_counter()
-        warm_up(base, paths, args.server_workers)
-        print(
-            f"warm-up (each server process computes the nine boards and the grid): {time.perf_counter() - t0:.0f} s"
-        )
-        t0 = time.perf_counter()
-        samples = read_concurrently(base, paths, args.readers, args.samples)
+        warm_up(base, paths)
+        print(f"warm-up (the server computes the nine boards and the grid when it starts): "
+              f"{time.perf_counter() - t0:.0f} s")  # fmt: skip
+        alone = cpu_per_request(base, proc.pid, paths, 50)
+        load0 = os.getloadavg()[0]
+        server0 = cpu_seconds(proc.pid)
+        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            result = pool.submit(read_concurrently, base, paths, args.readers, args.samples).result()
+        server_cpu = cpu_seconds(proc.pid) - server0
+        if result["error_count"]:
+            raise RuntimeError(f"{result['error_count']} failed requests, e.g. {result['errors']}")
+        samples: dict[str, list[float]] = result["latencies"]
         total = sum(len(v) for v in samples.values())
-        elapsed = time.perf_counter() - t0
-        print(f"\n{args.readers} concurrent readers, {args.server_workers} server processes: {total} requests in "
-              f"{elapsed:.1f} s ({total / elapsed:.0f} per second)")  # fmt: skip
-        with httpx.Client(base_url=base, timeout=60, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
-            sizes = {label: len(client.get(path).content) for label, path in paths}
-        print("\n| route | n | p50 (ms) | p95 (ms) | body (kB) |\n|---|---|---|---|---|")
+        elapsed = result["elapsed"]
+        print(f"\n{args.readers} concurrent readers (one load-generator process), {args.server_workers} server "
+              f"process(es): {total} requests in {elapsed:.1f} s ({total / elapsed:.0f} per second); server CPU "
+              f"{server_cpu:.1f} s ({1e3 * server_cpu / total:.2f} ms per request), load generator CPU "
+              f"{result['cpu']:.1f} s ({1e3 * result['cpu'] / total:.2f} ms per request); load average "
+              f"{load0:.1f} before, {os.getloadavg()[0]:.1f} after")  # fmt: skip
+        with httpx.Client(base_url=base, timeout=60) as client:
+            sizes = {label: len(client.get(path, headers=headers).content) for label, path, headers in paths}
+        print(
+            "\n| route | n | p50 (ms) | p95 (ms) | server CPU alone (ms) | body (kB) |\n|---|---|---|---|---|---|"
+        )
         for label, values in samples.items():
             print(f"| {label} | {len(values)} | {median(values) * 1e3:.1f} | {percentile(values, 95) * 1e3:.1f} | "
-                  f"{sizes[label] / 1e3:.1f} |")  # fmt: skip
+                  f"{alone[label] * 1e3:.1f} | {sizes[label] / 1e3:.1f} |")  # fmt: skip
+        everything = [v for values in samples.values() for v in values]
+        print(f"| all routes | {len(everything)} | {median(everything) * 1e3:.1f} | "
+              f"{percentile(everything, 95) * 1e3:.1f} | | |")  # fmt: skip
 
         if args.accepts:
             with httpx.Client(

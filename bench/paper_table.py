@@ -10,6 +10,10 @@ Spearman rank correlation of the seven heuristics and the mean absolute differen
     python bench/paper_table.py --setting math --support      # experiment: Math Pack with the support rule
     nice python bench/paper_table.py --setting physics --groups 10 --no-support   # experiment: candidates unchecked
     nice python bench/paper_table.py --setting physics --groups 10 --open-loop    # experiment: packsim's replay
+    python bench/paper_table.py --policies sdfpack --sdfpack-step 1   # experiment: SDFPack on the 1 cm grid
+    python bench/paper_table.py --policies sdfpack --sdfpack-corner 4.4,0.7,2.4   # experiment: distances from there
+    nice python bench/paper_table.py --policies sdfpack --groups 10 --sdfpack-scene   # experiment: true distances
+    python bench/paper_table.py --policies onlinebph --onlinebph-item-set   # experiment: the group's item set
     python bench/paper_table.py --merge a.json b.json         # one table from earlier runs' --json files
 
 Geometry and physics figures are deterministic; nothing here depends on the machine but the run time.
@@ -110,6 +114,65 @@ def switch_off_support() -> None:
     candidates._support_model = lambda placed: candidates._NO_RULE  # type: ignore[assignment]
 
 
+def sdfpack_scene_distances() -> None:
+    """Experiment only: SDFPack's distance term as the reference means it, in one unit (cm) — each sample point's
+    distance to the nearest of the scene points the reference lists: the top cell of every 5th heightmap column
+    along x and y (an empty column's index −1 wraps to the container's top layer, as in the reference) and the
+    point's own projections on the four walls and the floor. Our policy measures to the origin corner, which is
+    what the reference computes with sample points in cm and scene points in metres."""
+    from robobpp.policies.sdfpack import SDFPack
+
+    def distances(self: Any, obs: Any, xs: Any, ys: Any, zs: Any, offsets: Any) -> Any:
+        hm = obs.heightmap
+        nx, ny = hm.shape
+        nz = int(round(obs.container.height))
+        gx, gy = np.arange(0, nx, 5), np.arange(0, ny, 5)
+        top = np.ceil(hm[np.ix_(gx, gy)] - 1e-9) - 1
+        top = np.where(top < 0, nz - 1, np.minimum(top, nz - 1))  # (I, J): the scene point of each column
+        # squared distance from every cell to the nearest scene point, one axis at a time
+        b, c = np.arange(ny, dtype=np.float64), np.arange(nz, dtype=np.float64)
+        g = np.full((len(gx), ny, nz), np.inf)
+        for j, y in enumerate(gy):
+            g = np.minimum(g, (b - y)[None, :, None] ** 2 + (c[None, None, :] - top[:, j, None, None]) ** 2)
+        a = np.arange(nx, dtype=np.float64)
+        d2 = np.full((nx, ny, nz), np.inf)
+        for i, x in enumerate(gx):
+            d2 = np.minimum(d2, (a - x)[:, None, None] ** 2 + g[i][None])
+        edt = np.sqrt(d2)
+        ox, oy, oz = offsets
+        out = np.empty(len(xs))
+        step = max(1, (1 << 21) // max(1, len(ox) * len(oy) * len(oz)))
+        for s in range(0, len(xs), step):
+            a = (xs[s : s + step, None] + ox[None, :]).astype(np.int64)[:, :, None, None]
+            b = (ys[s : s + step, None] + oy[None, :]).astype(np.int64)[:, None, :, None]
+            c = (zs[s : s + step, None] + oz[None, :])[:, None, None, :]
+            walls = np.minimum(np.minimum(a, nx - 1 - a), np.minimum(b, ny - 1 - b))
+            scene = edt[a, b, np.clip(np.rint(c).astype(np.int64), 0, nz - 1)]
+            out[s : s + step] = np.minimum(np.minimum(walls, c), scene).sum(axis=(1, 2, 3))
+        return out
+
+    SDFPack.distances = distances  # type: ignore[method-assign]
+
+
+def make_policy(name: str, spec: Any, item_set: bool = False) -> Any:
+    """The policy for one episode; ``item_set`` (experiment only) gives OnlineBPH the smallest side of the
+    group's whole item set, as the reference's environment has it, instead of the sides seen so far."""
+    from robobpp.core.heightmap import cells_spanned
+    from robobpp.policies import load_policy
+
+    policy = load_policy(name)
+    if item_set and name == "onlinebph":
+        smallest = min(min(cells_spanned(b.length), cells_spanned(b.width), b.height) for b in spec.boxes)
+        plain_reset = policy.reset
+
+        def reset(info: Any) -> None:
+            plain_reset(info)
+            policy._smallest = smallest
+
+        policy.reset = reset
+    return policy
+
+
 class Replay:
     """Plays back a fixed list of actions (then says "no feasible placement"): packsim's open loop."""
 
@@ -143,18 +206,23 @@ def open_loop(spec: Any, policy: str, setting: str) -> Any:
 
 
 def run(
-    dataset: str, policy: str, setting: str, groups: int, split: str = "train", replay: bool = False
+    dataset: str,
+    policy: str,
+    setting: str,
+    groups: int,
+    split: str = "train",
+    replay: bool = False,
+    item_set: bool = False,
 ) -> dict[str, Any]:
     from robobpp.datasets import episode_specs
     from robobpp.episode import run_episode
-    from robobpp.policies import load_policy
 
     cpu0 = time.process_time()
     specs = episode_specs(dataset, split, groups)
     if replay:
         results = [open_loop(s, policy, setting) for s in specs]
     else:
-        results = [run_episode(s, load_policy(policy), setting) for s in specs]
+        results = [run_episode(s, make_policy(policy, s, item_set), setting) for s in specs]
     return {
         "space_utilization": statistics.mean(r.metrics["space_utilization"] for r in results),
         "boxes_placed": statistics.mean(r.boxes_placed for r in results),
@@ -191,7 +259,33 @@ def main() -> None:
         action="store_true",
         help="experiment: plan in Math Pack, replay the actions in --setting (packsim's open loop)",
     )
+    parser.add_argument(
+        "--sdfpack-step", type=int, help="experiment: SDFPack's search grid step (cm; the reference's is 2)"
+    )
+    parser.add_argument(
+        "--sdfpack-corner",
+        help="experiment: the point x,y,z (cm) SDFPack measures its distances from (the reference's: near 0,0,0)",
+    )
+    parser.add_argument(
+        "--sdfpack-scene",
+        action="store_true",
+        help="experiment: SDFPack's distances to the packed scene in one unit (what the reference's term means)",
+    )
+    parser.add_argument(
+        "--onlinebph-item-set",
+        action="store_true",
+        help="experiment: OnlineBPH's smallest item side from the group's whole item set (the reference's)",
+    )
     args = parser.parse_args()
+    if args.sdfpack_scene:
+        sdfpack_scene_distances()
+    if args.sdfpack_step or args.sdfpack_corner:
+        import robobpp.policies.sdfpack as sdfpack
+
+        if args.sdfpack_step:
+            sdfpack.STEP = args.sdfpack_step
+        if args.sdfpack_corner:
+            sdfpack.CORNER = tuple(float(v) for v in args.sdfpack_corner.split(","))  # type: ignore[assignment]
     if args.no_support:
         switch_off_support()
     if args.support:
@@ -218,7 +312,13 @@ def main() -> None:
             if policy in ours[dataset]:
                 continue
             ours[dataset][policy] = run(
-                dataset, policy, args.setting, args.groups, args.split, args.open_loop
+                dataset,
+                policy,
+                args.setting,
+                args.groups,
+                args.split,
+                args.open_loop,
+                args.onlinebph_item_set,
             )
             fig = ours[dataset][policy]
             print(f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
@@ -228,6 +328,10 @@ def main() -> None:
     rule = " with the support rule (experiment)" if args.support else ""
     rule = " without the support rule in the candidates (experiment)" if args.no_support else rule
     rule += ", open loop: planned in Math Pack, replayed (experiment)" if args.open_loop else ""
+    rule += f", SDFPack grid step {args.sdfpack_step} cm (experiment)" if args.sdfpack_step else ""
+    rule += f", SDFPack distances from {args.sdfpack_corner} (experiment)" if args.sdfpack_corner else ""
+    rule += ", SDFPack distances to the scene (experiment)" if args.sdfpack_scene else ""
+    rule += ", OnlineBPH bound from the group's item set (experiment)" if args.onlinebph_item_set else ""
     print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, {args.groups} groups (seed 0); "
           f"paper: its test-split tables. {machine()}\n")  # fmt: skip
     print("| heuristic | " + " | ".join(f"{d} paper | {d} ours | diff" for d in datasets) + " |")

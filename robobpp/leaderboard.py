@@ -105,6 +105,7 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
         "entries": [entries[i] for i in order], "unranked": unranked,
         # copies: a slice would keep the full resample arrays alive in the cache
         "_best": best,  # the default view, ready to page
+        "_index": {entries[i]["submission_id"]: k for k, i in enumerate(order)},  # position in "entries"
         "_samples": scores.samples[:GRID_RESAMPLES].copy(),
         "_stable_samples": scores.stable_samples[:GRID_RESAMPLES].copy(),
     }  # fmt: skip
@@ -130,6 +131,16 @@ def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray, score: str = 
         )
 
 
+def find_entry(board: Mapping[str, Any], submission_id: int) -> Mapping[str, Any] | None:
+    """A submission's ranked entry on a board, or None (a dictionary lookup on a board built here)."""
+    entries = board.get("entries") or []
+    index = board.get("_index")
+    if index is None:
+        return next((e for e in entries if e.get("submission_id") == submission_id), None)
+    i = index.get(submission_id)
+    return entries[i] if i is not None else None
+
+
 def board_view(board: Mapping[str, Any], view: str = "best", limit: int = 50, offset: int = 0,
                submission_id: int | None = None) -> dict[str, Any]:  # fmt: skip
     """One page of a board as served: ``best`` (each participant's best entry, ranked among them) or
@@ -137,7 +148,8 @@ def board_view(board: Mapping[str, Any], view: str = "best", limit: int = 50, of
     entries: Sequence[Mapping[str, Any]] = board["_best"] if view == "best" else board["entries"]
     unranked: Sequence[Mapping[str, Any]] = board["unranked"]
     if submission_id is not None:
-        entries = [e for e in board["entries"] if e["submission_id"] == submission_id]
+        found = find_entry(board, submission_id)
+        entries = [found] if found is not None else []
         unranked = [e for e in unranked if e["submission_id"] == submission_id]
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
     return {

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -77,8 +77,61 @@ def episode_status_counts(session: Session) -> dict[str, int]:
     return counts
 
 
-def submission_status_counts(session: Session) -> dict[str, int]:
-    return dict(session.execute(select(Submission.status, func.count()).group_by(Submission.status)).all())
+def submission_status_counts(session: Session, statuses: Sequence[str] | None = None) -> dict[str, int]:
+    """Submissions by status: every status (a scan of the status index), or only ``statuses`` (one
+    equality lookup each, whose cost follows their count: the active ones are few)."""
+    if statuses is None:
+        return dict(
+            session.execute(select(Submission.status, func.count()).group_by(Submission.status)).all()
+        )
+    return {
+        status: int(
+            session.execute(
+                select(func.count()).select_from(Submission).where(Submission.status == status)
+            ).scalar_one()
+        )
+        for status in statuses
+    }
+
+
+def queue_snapshot(session: Session) -> tuple[dict[str, int], dict[str, int], tuple[Any, ...]]:
+    """What a /metrics scrape reads, in one statement (one round trip): episodes by queue status, active
+    submissions by status, and :func:`last_finished`. Each part is an index lookup whose cost follows the
+    queue, not the history."""
+    parts = [
+        select(func.count()).select_from(EpisodeRow).where(EpisodeRow.status == s).scalar_subquery()
+        for s in QUEUE_STATUSES
+    ]
+    parts += [
+        select(func.count()).select_from(Submission).where(Submission.status == s).scalar_subquery()
+        for s in ACTIVE_SUBMISSION_STATUSES
+    ]
+    parts += [
+        select(func.max(Submission.finished_at)).where(Submission.track == t).scalar_subquery()
+        for t in TRACKS
+    ]
+    row = session.execute(select(*parts)).one()
+    q, a = len(QUEUE_STATUSES), len(ACTIVE_SUBMISSION_STATUSES)
+    episodes = {s: int(n) for s, n in zip(QUEUE_STATUSES, row[:q], strict=True)}
+    active = {s: int(n) for s, n in zip(ACTIVE_SUBMISSION_STATUSES, row[q : q + a], strict=True)}
+    return episodes, active, tuple(row[q + a :])
+
+
+ACTIVE_SUBMISSION_STATUSES = ("queued", "running")
+
+#: Every track a submission may have (``Submission.track``).
+TRACKS = ("private", "public", "verify")
+
+
+def last_finished(session: Session) -> tuple[Any, ...]:
+    """The latest finish time on each track (ix_submissions_track_finished: one index lookup per track).
+    Moves whenever a submission completes, fails or is cancelled: what finished counts are cached by."""
+    return tuple(
+        session.execute(
+            select(func.max(Submission.finished_at)).where(Submission.track == track)
+        ).scalar_one()
+        for track in TRACKS
+    )
 
 
 def quota_usage(session: Session, participant_id: int, now: datetime | None = None) -> tuple[int, int]:
@@ -171,13 +224,24 @@ def overall_grid(
 def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
     """Episodes by status and the current phase (the (dataset, setting) being evaluated; only looked up
     while episodes wait or run: a finished submission has none)."""
-    counts = dict(
-        session.execute(
-            select(EpisodeRow.status, func.count())
-            .where(EpisodeRow.submission_id == submission_id)
-            .group_by(EpisodeRow.status)
-        ).all()
-    )
+    return submissions_progress(session, [submission_id])[submission_id]
+
+
+def submissions_progress(session: Session, submission_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
+    """:func:`submission_progress` of several submissions in one aggregate (a listed page of submissions
+    costs one query, not two per submission), plus one phase lookup per submission still running."""
+    counts: dict[int, dict[str, int]] = {i: {} for i in submission_ids}
+    if submission_ids:
+        for sid, status, n in session.execute(
+            select(EpisodeRow.submission_id, EpisodeRow.status, func.count())
+            .where(EpisodeRow.submission_id.in_(list(submission_ids)))
+            .group_by(EpisodeRow.submission_id, EpisodeRow.status)
+        ):
+            counts[sid][status] = n
+    return {sid: _progress(session, sid, c) for sid, c in counts.items()}
+
+
+def _progress(session: Session, submission_id: int, counts: dict[str, int]) -> dict[str, Any]:
     running = (
         session.execute(
             select(EpisodeRow.dataset, EpisodeRow.setting)
@@ -201,28 +265,44 @@ def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
     }
 
 
-def submission_view(session: Session, sub: Submission) -> dict[str, Any]:
+def submission_view(session: Session, sub: Submission, progress: dict[str, Any] | None = None,
+                    runs: Sequence[RunRow] | None = None) -> dict[str, Any]:  # fmt: skip
+    """``progress`` (its entry of :func:`submissions_progress`) and ``runs`` (of :func:`runs_of`) when
+    already looked up for several submissions."""
     return {
         "id": sub.id, "name": sub.name, "participant": sub.participant.name,
         "baseline": sub.participant.is_builtin, "policy_url": sub.policy_url, "track": sub.track,
         "mode": sub.mode,
         "datasets": sub.datasets, "settings": sub.settings, "lookahead": sub.lookahead, "status": sub.status,
         "created_at": sub.created_at, "finished_at": sub.finished_at, "error": shown_text(sub.error),
-        "progress": submission_progress(session, sub.id),
+        "progress": progress if progress is not None else submission_progress(session, sub.id),
         "runs": [{"dataset": r.dataset, "setting": r.setting, "status": r.status,
                   "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
-                  "completed_at": r.completed_at} for r in sub.runs],
+                  "completed_at": r.completed_at} for r in (sub.runs if runs is None else runs)],
         "verification": sub.verification,
     }  # fmt: skip
 
 
+def runs_of(session: Session, submission_ids: Sequence[int]) -> dict[int, list[RunRow]]:
+    """The runs of several submissions in one query (in id order, as ``Submission.runs``)."""
+    out: dict[int, list[RunRow]] = {i: [] for i in submission_ids}
+    if submission_ids:
+        rows = session.execute(
+            select(RunRow).where(RunRow.submission_id.in_(list(submission_ids))).order_by(RunRow.id)
+        ).scalars()
+        for run in rows:
+            out[run.submission_id].append(run)
+    return out
+
+
 def list_submissions(
-    session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0
+    session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0, with_runs: bool = True
 ) -> list[Submission]:
-    # runs and participant loaded with the page (two queries), not once per listed submission
+    """A page of submissions, newest first, with their participant; ``with_runs``: their runs too (one
+    more query for the page, not one per listed submission)."""
     query = (
         select(Submission)
-        .options(selectinload(Submission.runs), joinedload(Submission.participant))
+        .options(*([selectinload(Submission.runs)] if with_runs else []), joinedload(Submission.participant))
         .order_by(Submission.id.desc())
         .limit(limit)
         .offset(offset)

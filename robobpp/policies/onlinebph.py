@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from robobpp.core import Action, Observation
+from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.core.heightmap import cells_spanned
 from robobpp.policies.candidates import support_model
@@ -19,13 +21,33 @@ class OnlineBPH(EmsPolicy):
     As in the reference, the box is not required to fit inside the space: it is dropped at the space's corner
     and rests wherever the heightmap under its footprint lets it. Ha et al. search bins × items × EMS ×
     rotations; with one bin and one item this is the whole search.
+
+    Spaces with a side (length, width or height) shorter than the smallest item side are not listed, as the
+    reference's EMS keep only spaces at least that large. The reference takes the smallest side of the
+    dataset's item set; an online policy does not have it, so this is the smallest side (whole-cell length
+    and width, height) of the boxes it has been asked to place in the episode so far, plus the lookahead.
+    Only OnlineBPH notices the bound: the other EMS heuristics need the box to fit inside the space.
     """
 
     name = "onlinebph"
 
+    def __init__(self) -> None:
+        super().__init__()
+        self._smallest = math.inf
+
+    def reset(self, info: EpisodeInfo) -> None:
+        super().reset(info)
+        self._smallest = math.inf
+
     def act(self, obs: Observation) -> Action | None:
+        for box in (obs.box, *obs.lookahead):
+            self._smallest = min(
+                self._smallest, cells_spanned(box.length), cells_spanned(box.width), box.height
+            )
         ems = self.spaces(obs)
-        order = np.lexsort((ems.rects[:, 0], ems.rects[:, 1], ems.z0))
+        s = self._smallest
+        usable = np.flatnonzero((ems.dx >= s) & (ems.dy >= s) & (ems.dz >= s - 1e-6))
+        order = usable[np.lexsort((ems.rects[usable, 0], ems.rects[usable, 1], ems.z0[usable]))]
         support = support_model(obs)
         hm = obs.heightmap
         container = obs.container

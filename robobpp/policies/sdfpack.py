@@ -1,4 +1,9 @@
-"""SDFPack, signed-distance-field minimisation (Pan et al. 2023; RoboBPP paper, Algorithm "SDF Packing")."""
+"""SDFPack, the RoboBPP paper's box version of SDF minimisation (Pan et al. 2023; Algorithm "SDF Packing").
+
+The rule is the reference's own box implementation (packsim's packer module, function ``sdf_pack_regular``,
+which its packer calls for method ``SDFPack``), read for its facts; docs/baselines.md states it and what its
+distance term really measures.
+"""
 
 from __future__ import annotations
 
@@ -8,132 +13,99 @@ from robobpp.core import Action, Observation
 from robobpp.core.heightmap import cells_spanned
 from robobpp.policies.base import BasePolicy
 from robobpp.policies.candidates import candidate_maps, first_supported_index
-from robobpp.policies.ems import Candidates
+
+#: The reference searches every second centimetre along x and y (its loops step by 2 from 0).
+STEP = 2
+#: Sample points inside the box every 5 cm along each axis, from its min corner.
+SAMPLE = 5
+#: Weight of the resting height: the reference adds ``posZ · block_unit`` with packsim's block unit 0.01.
+Z_WEIGHT = 0.01
+#: The point distances are measured from (cm): the container's origin corner (experiments move it to where the
+#: reference's world-frame scene points lie: ``bench/paper_table.py --sdfpack-corner``).
+CORNER = (0.0, 0.0, 0.0)
+#: Distances summed per batch (bounds the memory of one evaluation).
+_BATCH = 1 << 22
 
 
-def _face_distance(
-    hm: np.ndarray, rows: np.ndarray, cols0: np.ndarray, step: int, t: np.ndarray, tau: int, along_x: bool
+def sample_offsets(length: float, width: float, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets of the sample points from the box's min corner: 0, 5, 10, … below each (whole-cell) side."""
+    return (
+        np.arange(0, cells_spanned(length), SAMPLE, dtype=np.float64),
+        np.arange(0, cells_spanned(width), SAMPLE, dtype=np.float64),
+        np.arange(0, height, SAMPLE, dtype=np.float64),
+    )
+
+
+def distance_sum(
+    xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, offsets: tuple[np.ndarray, np.ndarray, np.ndarray]
 ) -> np.ndarray:
-    """Truncated distance (cells) from sample points on one side face to the nearest solid along the
-    face's outward normal: a heightmap column taller than the point, or the container wall.
-
-    ``rows`` (C, S) index the face cells, ``cols0`` (C,) the first column outside the face, ``step`` ±1
-    the outward direction, ``t`` (C, T) the sample heights. Returns (C, S, T) in [0, tau].
-    """
-    nx, ny = hm.shape
-    limit = nx if along_x else ny
-    reach = np.full(rows.shape, -np.inf)
-    free = np.zeros((*rows.shape, t.shape[1]))
-    for k in range(tau):
-        col = cols0[:, None] + step * k
-        wall = (col < 0) | (col >= limit)
-        c = np.clip(col, 0, limit - 1)
-        h = hm[c, rows] if along_x else hm[rows, c]
-        reach = np.maximum(reach, np.where(wall, np.inf, h))
-        free += reach[:, :, None] <= t[:, None, :]
-    return free
-
-
-def every_position(obs: Observation) -> Candidates:
-    """Every integer position and orientation where the box fits the container (bounds and height)."""
-    parts = []
-    for cand in candidate_maps(obs):
-        px, py = np.nonzero(cand.fits)
-        n = len(px)
-        lc, wc = cells_spanned(cand.length), cells_spanned(cand.width)
-        parts.append(
-            (px, py, np.full(n, cand.orientation), cand.z[px, py], np.zeros(n, np.int64),
-             np.full(n, lc), np.full(n, wc), np.full(n, cand.height))
-        )  # fmt: skip
-    if not parts:
-        empty = np.zeros(0, dtype=np.int64)
-        return Candidates(empty, empty, empty, np.zeros(0), empty, empty, empty, np.zeros(0))
-    return Candidates(*(np.concatenate(c) for c in zip(*parts, strict=True)))
-
-
-#: Candidates scored per round of the branch and bound.
-CHUNK = 2048
+    """For each candidate min corner (xs[k], ys[k], zs[k]) (cm), the sum over the box's sample points of
+    their distance to the container's origin corner — what the reference's distance term measures (its
+    scene points are in metres, its sample points in centimetres; docs/baselines.md)."""
+    ox, oy, oz = (o - c for o, c in zip(offsets, CORNER, strict=True))
+    n = len(xs)
+    per = max(1, len(ox) * len(oy) * len(oz))
+    out = np.empty(n)
+    step = max(1, _BATCH // per)
+    for s in range(0, n, step):
+        e = min(n, s + step)
+        a = (xs[s:e, None] + ox[None, :]) ** 2  # (C, I)
+        b = (ys[s:e, None] + oy[None, :]) ** 2  # (C, J)
+        c = (zs[s:e, None] + oz[None, :]) ** 2  # (C, K)
+        d = np.sqrt(a[:, :, None, None] + b[:, None, :, None] + c[:, None, None, :])
+        out[s:e] = d.sum(axis=(1, 2, 3))
+    return out
 
 
 class SDFPack(BasePolicy):
-    """SDF minimisation: over every 1 cm position and orientation (the paper's pseudocode), minimise
+    """The reference's SDFPack for boxes. For each orientation (0, then 1) and each position on a 2 cm grid
+    (``x = 0, 2, 4, … ≤ L − l``, ``y = 0, 2, … ≤ W − w``, whole-cell footprint) where the box, dropped, stays
+    inside the container, minimise
 
-    ``cost = mean TSDF over the box's surface samples / τ + w_height · (z + h) / H + w_rot · [rotated]``
+    ``score = Σ_points d(p) + 0.01 · z + rot``
 
-    where the TSDF of the packed scene (container walls, floor and heightmap) is evaluated on a grid of
-    points of the box's bottom and four side faces and truncated at ``τ`` cm: a box that touches its
-    neighbours everywhere scores 0, one in open space scores 1. Pan et al. minimise the SDF of the scene
-    sampled on the object's surface plus a height term; the paper adds a rotation penalty.
+    over the sample points ``p = (x + 5i, y + 5j, z + 5k)`` inside the box (every 5 cm from its min corner),
+    ``z`` the resting height and ``rot = 1 − (volume / bounding volume)^(1/3)``, which is 0 for a box.
+    ``d(p)`` is meant as the distance to the packed scene (the reference's "TSDF": nearest of the
+    heightmap's top points and the walls' and floor's projections of p); as the reference computes it — p in
+    centimetres, the scene points in metres in its world frame, all within 4.4 units of the origin — it
+    is the distance from p to the container's origin corner, which is what we compute (docs/baselines.md).
 
-    Choices where the paper is vague (docs/baselines.md): the scene is 2.5-D (the heightmap), so the distance
-    is measured along each face's outward normal (an upper bound of the Euclidean distance); the top face is
-    left out (it stays open for the next boxes). Ties: lower z, then back-left, then orientation 0. Not in the
-    reference code (its heuristics file has no SDFPack); the paper's pseudocode is followed.
+    Ties go to the first in the reference's loop order (orientation, then x, then y). In the physical
+    settings the first supported placement in score order is taken, like every policy here.
     """
 
     name = "sdfpack"
 
-    def __init__(
-        self, tau: int = 6, samples: int = 8, levels: int = 4, w_height: float = 1.0, w_rot: float = 0.02
-    ) -> None:
-        self.tau, self.samples, self.levels = tau, samples, levels
-        self.w_height, self.w_rot = w_height, w_rot
-
-    def _samples(self, c: Candidates) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        s = (np.arange(self.samples) + 0.5) / self.samples
-        u = (np.arange(self.levels) + 0.5) / self.levels
-        rows_x = c.x[:, None] + np.floor(s[None, :] * c.lc[:, None]).astype(np.int64)  # along the x extent
-        rows_y = c.y[:, None] + np.floor(s[None, :] * c.wc[:, None]).astype(np.int64)  # along the y extent
-        t = c.z[:, None] + u[None, :] * c.h[:, None]
-        return rows_x, rows_y, t
-
-    @property
-    def _count(self) -> int:
-        return 4 * self.samples * self.levels + self.samples * self.samples
-
-    def bottom_cost(self, hm: np.ndarray, c: Candidates) -> np.ndarray:
-        """The bottom face's share of :meth:`sdf_cost` (cheap: the gap under the box, one lookup per sample)."""
-        rows_x, rows_y, _ = self._samples(c)
-        under = hm[rows_x[:, :, None], rows_y[:, None, :]]  # (C, S, S) bottom samples
-        return np.minimum(c.z[:, None, None] - under, self.tau).sum(axis=(1, 2)) / (self.tau * self._count)
-
-    def sdf_cost(self, hm: np.ndarray, c: Candidates) -> np.ndarray:
-        """Mean truncated distance / τ of every candidate's surface samples, in [0, 1]."""
-        rows_x, rows_y, t = self._samples(c)
-        tau = self.tau
-        total = (
-            _face_distance(hm, rows_y, c.x - 1, -1, t, tau, along_x=True).sum(axis=(1, 2))
-            + _face_distance(hm, rows_y, c.x + c.lc, 1, t, tau, along_x=True).sum(axis=(1, 2))
-            + _face_distance(hm, rows_x, c.y - 1, -1, t, tau, along_x=False).sum(axis=(1, 2))
-            + _face_distance(hm, rows_x, c.y + c.wc, 1, t, tau, along_x=False).sum(axis=(1, 2))
-        )
-        return total / (tau * self._count) + self.bottom_cost(hm, c)
+    def distances(
+        self,
+        obs: Observation,
+        xs: np.ndarray,
+        ys: np.ndarray,
+        zs: np.ndarray,
+        offsets: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> np.ndarray:
+        """The distance term of every candidate (experiments replace it: ``bench/paper_table.py``)."""
+        return distance_sum(xs, ys, zs, offsets)
 
     def act(self, obs: Observation) -> Action | None:
-        cands = every_position(obs)
-        if len(cands) == 0:
+        parts = []
+        for cand in candidate_maps(obs):
+            nx, ny = cand.z.shape
+            gx, gy = np.meshgrid(np.arange(0, nx, STEP), np.arange(0, ny, STEP), indexing="ij")
+            keep = cand.fits[gx, gy]
+            px, py = gx[keep], gy[keep]
+            if px.size == 0:
+                continue
+            pz = cand.z[px, py].astype(np.float64)
+            offsets = sample_offsets(cand.length, cand.width, cand.height)
+            score = (
+                self.distances(obs, px.astype(np.float64), py.astype(np.float64), pz, offsets) + Z_WEIGHT * pz
+            )
+            parts.append((px, py, np.full(px.size, cand.orientation), pz, np.round(score, 9)))
+        if not parts:
             return None
-        hm = obs.heightmap
-        base = self.w_height * (cands.z + cands.h) / obs.container.height + self.w_rot * (
-            cands.orientation != 0
-        )
-        # Branch and bound, exact: the side faces only add, so base + bottom is a lower bound of the cost.
-        # Side faces are computed in bound order until the best supported cost so far beats every bound left.
-        bound = base + self.bottom_cost(hm, cands)
-        by_bound = np.argsort(bound, kind="stable")
-        cost = np.full(len(cands), np.inf)
-        best: Action | None = None
-        best_cost = np.inf
-        start = 0
-        while start < len(by_bound) and bound[by_bound[start]] <= best_cost:
-            chunk = by_bound[start : start + CHUNK]
-            cost[chunk] = np.round(base[chunk] + self.sdf_cost(hm, cands.take(chunk)), 9)
-            start += len(chunk)
-            done = by_bound[:start]
-            order = done[np.lexsort((cands.orientation[done], cands.x[done], cands.x[done] + cands.y[done],
-                                     cands.z[done], cost[done]))]  # fmt: skip
-            k = first_supported_index(obs, order, cands.x, cands.y, cands.orientation, cands.z)
-            if k is not None:
-                best = Action(float(cands.x[k]), float(cands.y[k]), int(cands.orientation[k]))
-                best_cost = float(cost[k])
-        return best
+        xs, ys, orient, zs, score = (np.concatenate(c) for c in zip(*parts, strict=True))
+        ranked = np.lexsort((ys, xs, orient, score))
+        k = first_supported_index(obs, ranked, xs, ys, orient, zs)
+        return None if k is None else Action(float(xs[k]), float(ys[k]), int(orient[k]))

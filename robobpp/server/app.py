@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 import logging
+import sys
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -52,7 +54,15 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         from robobpp.server.bootstrap import bootstrap
 
         runtime = app.state.runtime
+        # threads coming back from SQL take the GIL from the event loop within this long (CPython: 5 ms,
+        # which under 20 readers queued every SQL-reading route behind the loop; BENCHMARKS.md)
+        sys.setswitchinterval(settings.switch_interval_s)
         await _run_sync(bootstrap, runtime)
+        from robobpp.server.api.leaderboards import make_board_cache
+
+        board_cache = app.state.board_cache = make_board_cache(runtime)
+        # large tracks' boards computed now, in the background, not by the first readers
+        threading.Thread(target=board_cache.warm, daemon=True, name="board-warm").start()
         executor = None
         if run_workers and settings.broker_url:
             from robobpp.worker.celery_executor import executor_from_settings
@@ -73,6 +83,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
             if executor is not None:
                 executor.stop()
             app.state.probe_gate.shutdown()
+            board_cache.close()
             runtime.dispose()
 
     app = FastAPI(
@@ -113,7 +124,7 @@ def _include_docs(app: FastAPI) -> None:
     from fastapi.responses import HTMLResponse
 
     @app.get("/docs", include_in_schema=False)
-    def docs() -> HTMLResponse:
+    async def docs() -> HTMLResponse:
         return get_swagger_ui_html(
             openapi_url="/openapi.json",
             title=f"{app.title} — API",

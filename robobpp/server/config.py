@@ -81,6 +81,12 @@ class Settings(BaseSettings):
     public_baselines: bool = True
     #: How often (seconds) an API process checks in SQL whether a board changed (services/boards.py).
     board_refresh_s: float = Field(default=1.0, ge=0, le=60)
+    #: From this many finished submissions on a track, its boards are computed in a separate process (so
+    #: seconds of scoring never stall the API process) and computed when the server starts.
+    board_process_from: int = Field(default=1000, ge=0)
+    #: The API process's GIL switch interval (``sys.setswitchinterval``): how long a worker thread back from
+    #: SQL may wait for the event loop to hand over the interpreter.
+    switch_interval_s: float = Field(default=0.0005, gt=0, le=0.1)
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)

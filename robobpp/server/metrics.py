@@ -9,18 +9,25 @@ import time
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from fastapi import FastAPI, Request, Response
+from fastapi import FastAPI, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.registry import Collector
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+FINISHED_SUBMISSIONS = ("completed", "failed", "cancelled")
 
 
 class _QueueCollector(Collector):
-    """The queue (episodes pending or running) and submissions by status, counted at scrape time from
-    indexes (SQL is the record of truth); finished episodes are not counted: see ``queries.QUEUE_STATUSES``."""
+    """The queue (episodes pending or running) and submissions by status, read from SQL (the record of
+    truth) at scrape time with a cost that does not grow with history: episodes and submissions queued or
+    running are counted on their status indexes (their cost follows the queue); finished episodes are not
+    counted (``queries.QUEUE_STATUSES``); finished submissions by status are recounted only when a
+    submission finished since the last scrape (``queries.last_finished``, one index lookup per track)."""
 
     def __init__(self, app: FastAPI) -> None:
         self.app = app
+        self._finished: tuple[tuple[Any, ...], dict[str, int]] | None = None
 
     def collect(self) -> Iterable[GaugeMetricFamily]:
         from robobpp.db import queries
@@ -31,10 +38,14 @@ class _QueueCollector(Collector):
         submissions = GaugeMetricFamily("robobpp_submissions", "Submissions by status", labels=["status"])
         try:
             with self.app.state.runtime.read_session() as session:
-                for status, n in queries.episode_status_counts(session).items():
-                    episodes.add_metric([status], n)
-                for status, n in queries.submission_status_counts(session).items():
-                    submissions.add_metric([status], n)
+                queue, active, marker = queries.queue_snapshot(session)  # one round trip
+                if self._finished is None or self._finished[0] != marker:
+                    finished = queries.submission_status_counts(session, FINISHED_SUBMISSIONS)
+                    self._finished = (marker, finished)
+            for status, n in queue.items():
+                episodes.add_metric([status], n)
+            for status, n in {**active, **self._finished[1]}.items():
+                submissions.add_metric([status], n)
         except Exception:  # noqa: BLE001 - a scrape must not fail because the database blinked
             pass
         yield episodes
@@ -60,6 +71,38 @@ def route_template(scope: Mapping[str, Any]) -> str:
     return path if isinstance(path, str) and path else "unmatched"
 
 
+class _CountRequests:
+    """Pure ASGI middleware counting requests and their latency per route template.
+
+    Not ``@app.middleware("http")``: Starlette's ``BaseHTTPMiddleware`` runs the rest of the app in a task
+    of its own and copies the body through a stream, a fixed cost on every request (BENCHMARKS.md).
+    """
+
+    def __init__(self, app: ASGIApp, requests: Counter, latency: Histogram) -> None:
+        self.app, self.requests, self.latency = app, requests, latency
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = time.perf_counter()
+        status = 500
+
+        async def send_status(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_status)
+        finally:
+            path = route_template(scope)
+            method = scope.get("method", "")
+            self.requests.labels(method, path, str(status)).inc()
+            self.latency.labels(method, path).observe(time.perf_counter() - started)
+
+
 def install_metrics(app: FastAPI) -> None:
     registry = CollectorRegistry()
     requests = Counter(
@@ -70,14 +113,7 @@ def install_metrics(app: FastAPI) -> None:
     registry.register(_QueueCollector(app))
     app.state.metrics_registry = registry
 
-    @app.middleware("http")
-    async def _count(request: Request, call_next):  # type: ignore[no-untyped-def]
-        started = time.perf_counter()
-        response = await call_next(request)
-        path = route_template(request.scope)
-        requests.labels(request.method, path, str(response.status_code)).inc()
-        latency.labels(request.method, path).observe(time.perf_counter() - started)
-        return response
+    app.add_middleware(_CountRequests, requests=requests, latency=latency)
 
     @app.get("/metrics", include_in_schema=False)
     def metrics() -> Response:

@@ -15,21 +15,25 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Path, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse
+from markupsafe import Markup
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.datasets import DATASETS
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
-from robobpp.leaderboard import board_view, grid_view
+from robobpp.leaderboard import board_view, find_entry, grid_view
 from robobpp.metrics import METRICS
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep
-from robobpp.server.api.leaderboards import board_cache
+from robobpp.server.api.leaderboards import board_cache, cached_body
+from robobpp.server.api.submissions import in_read_session
+from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root
 from robobpp.server.site.session import Viewer, load_viewer, viewer
-from robobpp.web import SETTING_TITLES, tables
+from robobpp.web import SETTING_TITLES, environment, tables
 from robobpp.web.trace import TraceError, viewer_payload
 
 router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
@@ -56,41 +60,58 @@ Page = Annotated[int, Query(ge=1, le=10**5)]
 
 
 @router.get("/", response_class=HTMLResponse)
-def overall_page(request: Request, session: SessionDep, settings: SettingsDep, track: Track = "private",
-                 view: View = "best", page: Page = 1):  # fmt: skip
+async def overall_page(request: Request, settings: SettingsDep, track: Track = "private", view: View = "best",
+                       page: Page = 1):  # fmt: skip
     datasets, setting_names = _board_names(settings)
-    cache = board_cache(request)
 
-    def build() -> HTMLResponse:
-        shown = grid_view(cache.grid(session, datasets, setting_names, track), view, tables.PAGE_SIZE,
-                          (page - 1) * tables.PAGE_SIZE)  # fmt: skip
+    def build(session: Session) -> HTMLResponse:
+        shown = grid_view(board_cache(request).grid(session, datasets, setting_names, track), view,
+                          tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)  # fmt: skip
         return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
                       table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
                       pages=tables.pages(shown, page))  # fmt: skip
 
-    return _shared(request, session, track, ("home", root(request), track, view, page), build)
+    return await _shared(request, track, ("home", root(request), track, view, page), build)
 
 
-def _shared(request: Request, session: Session, track: str, key: tuple[Any, ...],
-            build: Callable[[], HTMLResponse]) -> HTMLResponse:  # fmt: skip
+async def _shared(request: Request, track: str, key: tuple[Any, ...],
+                  build: Callable[[Session], HTMLResponse]) -> HTMLResponse:  # fmt: skip
     """An anonymous visitor's board page, rendered once per board version and shared by every such reader
-    (services/boards.py); a page naming its viewer or carrying a CSRF nonce is rendered for that viewer."""
+    (services/boards.py; answered on the event loop while current); a page naming its viewer or carrying a
+    CSRF nonce is rendered for that viewer, in a worker thread."""
     who = viewer(request)
     if who.signed_in or who.nonce:
-        return build()
-    return HTMLResponse(board_cache(request).response(session, track, key, lambda: bytes(build().body)))
+
+        def personal() -> HTMLResponse:
+            with request.app.state.runtime.read_session() as session:
+                return build(session)
+
+        return await run_in_threadpool(personal)
+    return HTMLResponse(await cached_body(request, track, key, lambda s: bytes(build(s).body)))
+
+
+async def _static(request: Request, key: tuple[Any, ...], build: Callable[[], HTMLResponse]) -> HTMLResponse:
+    """A page that changes only with the configuration (datasets, protocol): an anonymous visitor's copy
+    is rendered once per process."""
+    who = viewer(request)
+    if who.signed_in or who.nonce:
+        return await run_in_threadpool(build)
+    pages: dict[tuple[Any, ...], bytes] = request.app.state.__dict__.setdefault("_static_pages", {})
+    key = (*key, root(request))
+    if key not in pages:
+        pages[key] = bytes((await run_in_threadpool(build)).body)
+    return HTMLResponse(pages[key])
 
 
 @router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
-def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, session: SessionDep,
-               settings: SettingsDep, track: Track = "private", view: View = "best", page: Page = 1):  # fmt: skip
+async def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, settings: SettingsDep,
+                     track: Track = "private", view: View = "best", page: Page = 1):  # fmt: skip
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
-    cache = board_cache(request)
 
-    def build() -> HTMLResponse:
-        shown = board_view(cache.board(session, dataset, setting, track), view, tables.PAGE_SIZE,
+    def build(session: Session) -> HTMLResponse:
+        shown = board_view(board_cache(request).board(session, dataset, setting, track), view, tables.PAGE_SIZE,
                            (page - 1) * tables.PAGE_SIZE)  # fmt: skip
         return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
                       nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track, view=view,
@@ -98,8 +119,8 @@ def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, ses
                       pages=tables.pages(shown, page), board=shown,
                       other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
 
-    return _shared(
-        request, session, track, ("board-page", root(request), dataset, setting, track, view, page), build
+    return await _shared(
+        request, track, ("board-page", root(request), dataset, setting, track, view, page), build
     )
 
 
@@ -119,23 +140,27 @@ def _visible(request: Request, session: Session, submission_id: int) -> Submissi
     return sub
 
 
-def _page_view(session: Session, sub: Submission, owner: bool) -> dict[str, Any]:
+def _page_view(request: Request, session: Session, sub: Submission, owner: bool) -> dict[str, Any]:
     """The submission as the API returns it; a baseline seen by the public loses its policy URL."""
-    view = queries.submission_view(session, sub)
+    view = dict(
+        finished_views(request.app.state).get(("view",), sub, lambda: queries.submission_view(session, sub))
+    )
     if not owner:
         view.pop("policy_url", None)
     return view
 
 
 @router.get("/submissions/{submission_id}", response_class=HTMLResponse)
-def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)],
-                    session: SessionDep):  # fmt: skip
+async def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)]):
+    return await in_read_session(request, lambda session: _submission_page(request, session, submission_id))
+
+
+def _submission_page(request: Request, session: Session, submission_id: int) -> HTMLResponse:
     sub = _visible(request, session, submission_id)
     if sub is None:  # missing, or someone else's: the same answer, so ids reveal nothing
         return not_found(request, f"There is no submission {submission_id}.")
     owner = _is_owner(viewer(request), sub)
-    view = _page_view(session, sub, owner)
-    episodes = queries.episode_rows(session, sub.id)
+    view = _page_view(request, session, sub, owner)
     cache = board_cache(request)
     boards = {
         (r["dataset"], r["setting"]): cache.board(session, r["dataset"], r["setting"], sub.track)
@@ -143,37 +168,50 @@ def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, l
     }  # fmt: skip
     ranks = {}
     for key, board in boards.items():
-        entry = next((e for e in board["entries"] if e["submission_id"] == sub.id), None)
+        entry = find_entry(board, sub.id)
         if entry is not None:
             ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": len(board["entries"])}
-    utilisation = [
-        (e["metrics"] or {}).get("space_utilization")
-        for e in episodes
-        if e["status"] == "done" and e["metrics"]
-    ]
-    charts = {
-        "radar": tables.radar_groups(view["runs"], boards, sub.id),
-        "utilization": tables.histogram([u for u in utilisation if u is not None]),
-    }
+    public = sub.track == "public"
+    reasons = {**TERMINATION_REASONS, **EXTRA_REASONS}
+    views = finished_views(request.app.state)
+
+    def episode_table() -> tuple[Markup, dict[str, list]]:
+        """The episode table and the utilisation histogram: a finished submission's are built once."""
+        episodes = queries.episode_rows(session, sub.id)
+        utilisation = [(e["metrics"] or {}).get("space_utilization")
+                       for e in episodes if e["status"] == "done" and e["metrics"]]  # fmt: skip
+        html = environment().get_template("_episodes_table.html").render(
+            root=root(request), sub=view, episodes=episodes, owner=owner, public=public, reasons=reasons,
+            neutral=NEUTRAL_ENDINGS)  # fmt: skip
+        return Markup(html), tables.histogram([u for u in utilisation if u is not None])
+
+    table, histogram = views.get(("page-episodes", owner, public, root(request)), sub, episode_table)
+    charts = {"radar": tables.radar_groups(view["runs"], boards, sub.id), "utilization": histogram}
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
     return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
                   has_pph="execution" in ran, owner=owner, site=str(request.base_url).rstrip("/"),
-                  can_cancel=owner and view["status"] in ("queued", "running"),
-                  episodes=episodes, ranks=ranks, charts=charts, metrics=columns, public=sub.track == "public",
-                  reasons={**TERMINATION_REASONS, **EXTRA_REASONS}, neutral=NEUTRAL_ENDINGS)  # fmt: skip
+                  can_cancel=owner and view["status"] in ("queued", "running"), episodes_table=table,
+                  ranks=ranks, charts=charts, metrics=columns, public=public, reasons=reasons,
+                  neutral=NEUTRAL_ENDINGS)  # fmt: skip
 
 
 @router.get("/submissions/{submission_id}/status.json")
-def submission_status(
-    request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep
+async def submission_status(
+    request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)]
 ) -> JSONResponse:
     """What the submission page polls while an evaluation runs (its owner's and the operator's)."""
+    return await in_read_session(request, lambda session: _submission_status(request, session, submission_id))
+
+
+def _submission_status(request: Request, session: Session, submission_id: int) -> JSONResponse:
     sub = _visible(request, session, submission_id)
     if sub is None:
         return JSONResponse({"detail": f"no submission {submission_id}"}, status_code=404,
                             headers={"Cache-Control": "no-store"})  # fmt: skip
-    view = queries.submission_view(session, sub)
+    view = finished_views(request.app.state).get(
+        ("view",), sub, lambda: queries.submission_view(session, sub)
+    )
     runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
     return JSONResponse({"id": sub.id, "status": view["status"], "progress": view["progress"], "runs": runs},
                         headers={"Cache-Control": "no-store"})  # fmt: skip
@@ -212,7 +250,11 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
 
 
 @router.get("/datasets", response_class=HTMLResponse)
-def datasets_page(request: Request):
+async def datasets_page(request: Request):
+    return await _static(request, ("datasets",), lambda: _datasets_page(request))
+
+
+def _datasets_page(request: Request) -> HTMLResponse:
     from robobpp.web import dataset_stats as ds
 
     cards = []
@@ -230,7 +272,7 @@ def datasets_page(request: Request):
 
 
 @router.get("/protocol", response_class=HTMLResponse)
-def protocol_page(request: Request, settings: SettingsDep):
-    return render(request, "protocol.html", title="Take part", nav="protocol", reasons=TERMINATION_REASONS,
+async def protocol_page(request: Request, settings: SettingsDep):
+    return await _static(request, ("protocol",), lambda: render(request, "protocol.html", title="Take part", nav="protocol", reasons=TERMINATION_REASONS,
                   datasets=DATASETS, settings_offered=settings.enabled_settings,
-                  quota_day=settings.quota_submissions_per_day, quota_concurrent=settings.quota_concurrent)  # fmt: skip
+                  quota_day=settings.quota_submissions_per_day, quota_concurrent=settings.quota_concurrent))  # fmt: skip

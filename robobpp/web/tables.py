@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from robobpp.leaderboard import find_entry
 from robobpp.metrics import METRIC_BY_KEY, metrics_for
 
 #: How many of a column's best entries are highlighted (the paper highlights its top methods).
@@ -164,9 +165,7 @@ def radar_groups(runs: Sequence[Mapping[str, Any]], boards: Mapping[tuple[str, s
     groups: dict[str, dict[str, Any]] = {}
     for run in runs:
         board = boards.get((run["dataset"], run["setting"]))
-        entry = next(
-            (e for e in (board or {}).get("entries", []) if e.get("submission_id") == submission_id), None
-        )
+        entry = find_entry(board or {}, submission_id)
         if entry is None:
             continue
         keys = [m.key for m in metrics_for(run["setting"])]

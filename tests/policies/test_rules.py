@@ -6,7 +6,6 @@ import pytest
 
 from robobpp.core import Action
 from robobpp.policies import load_policy
-from robobpp.policies.sdfpack import SDFPack, every_position
 from tests.policies.scenes import scene
 
 
@@ -70,6 +69,18 @@ def test_onlinebph_sorts_spaces_by_height_then_y_then_x() -> None:
     assert where(act("onlinebph", scene((10, 10, 10), wall, (6, 6, 2)))) == (0, 0, 0)
 
 
+def test_onlinebph_skips_spaces_narrower_than_the_smallest_item_side() -> None:
+    # walls 4 and 5 wide, 5 high, leave a 1 cm floor strip at x ∈ [4, 5): its corner (4, 0) comes first in
+    # (z, y, x) order, and a 3×3×2 box dropped there would rest on the second wall at z = 5. The strip is
+    # narrower than the smallest item side seen (2), so, as the reference's EMS do, it is not listed: the
+    # next space is the one over both walls, corner (0, 0).
+    obs = scene((10, 10, 10), [(0, 0, 4, 10, 5), (5, 0, 5, 10, 5)], (3, 3, 2))
+    assert where(act("onlinebph", obs)) == (0, 0, 0)
+    # a 1×3×2 box is 1 cm thin: the strip is usable again and it goes into it, on the floor
+    walls = [(0, 0, 4, 10, 5), (5, 0, 5, 10, 5)]
+    assert where(act("onlinebph", scene((10, 10, 10), walls, (1, 3, 2)))) == (4, 0, 0)
+
+
 def test_br_takes_the_largest_space() -> None:
     # walls at x ∈ [0, 3) and [5, 10), 5 high, in 10×10×10: the slot [3, 5) × [0, 10) × [0, 10) holds 200 cm³,
     # the space over everything [0, 10)² × [5, 10) 500 cm³. A 2×10×5 board fits both (the one item type fits
@@ -88,17 +99,37 @@ def test_macs_counts_levels_below_where_the_box_rests() -> None:
     assert where(act("dbl", obs)) == (2, 0, 0)
 
 
-def test_sdfpack_fills_the_snug_slot_and_scores_it_by_hand() -> None:
-    # two 4×10×2 walls leave a 2-wide slot at x ∈ [4, 6). A 2×3×2 box at its back end touches a wall on
-    # three faces and the floor; only its front face (+y) sees open space up to the truncation τ = 6.
-    obs = scene((10, 10, 10), [(0, 0, 4, 10, 2), (6, 0, 4, 10, 2)], (2, 3, 2))
+def test_sdfpack_stacks_near_the_corner_rather_than_far_on_the_floor() -> None:
+    # a 10×10×2 platform in the corner of 20×20×20; a 2×2×2 box has one sample point, its min corner, and
+    # scores its distance from the origin corner + 0.01·z: on the platform at (0, 0) 2 + 0.02 = 2.02, on the
+    # floor at best (10, 0) or (0, 10): 10. SDFPack climbs; DBL (100·z first) stays on the floor.
+    obs = scene((20, 20, 20), [(0, 0, 10, 10, 2)], (2, 2, 2))
+    assert where(act("sdfpack", obs)) == (0, 0, 0)
+    assert where(act("dbl", obs)) == (0, 10, 0)
+
+
+def test_sdfpack_searches_every_second_centimetre() -> None:
+    # a 3×10×5 wall at x ∈ [0, 3): the floor starts at x = 3, which the 2 cm grid (x = 0, 2, 4, …) skips.
+    # At x = 2 the 2×2×2 box rests on the wall: √(2² + 5²) + 0.05 = 5.44; at x = 4 on the floor: 4.
+    obs = scene((10, 10, 10), [(0, 0, 3, 10, 5)], (2, 2, 2))
     assert where(act("sdfpack", obs)) == (4, 0, 0)
-    policy = SDFPack()
-    cands = every_position(obs)
-    slot = [k for k in range(len(cands)) if (cands.x[k], cands.y[k], cands.orientation[k]) == (4, 0, 0)]
-    cost = policy.sdf_cost(obs.heightmap, cands.take(slot))
-    # 1 face of 4 × (8 × 4) side samples at distance τ, out of 4·32 side + 64 bottom samples
-    assert cost[0] == pytest.approx(32 / (4 * 32 + 64))
+    assert where(act("dbl", obs)) == (3, 0, 0)
+
+
+def test_sdfpack_sums_the_distance_of_every_5_cm_sample_point() -> None:
+    import numpy as np
+
+    from robobpp.policies.sdfpack import distance_sum, sample_offsets
+
+    # a 6×6×6 box at the origin: sample offsets {0, 5} on each axis, 8 points at distances 0, 5 (×3),
+    # 5√2 (×3), 5√3
+    offsets = sample_offsets(6, 6, 6)
+    assert [list(o) for o in offsets] == [[0, 5], [0, 5], [0, 5]]
+    zero = np.zeros(1)
+    assert distance_sum(zero, zero, zero, offsets)[0] == pytest.approx(15 + 15 * 2**0.5 + 5 * 3**0.5)
+    # at (2, 0, 1) a 4.5 cm high box (one level of points, x offsets 0 and 5 of its 6 cm): √5 + √50
+    got = distance_sum(np.array([2.0]), zero, np.array([1.0]), sample_offsets(6, 2, 4.5))[0]
+    assert got == pytest.approx(5**0.5 + 50**0.5)
 
 
 def test_packe_rules_takes_the_candidate_with_the_lowest_top() -> None:
@@ -113,21 +144,3 @@ def test_packe_rules_only_uses_its_generators() -> None:
     # floor building) — the lowest top there is 1.
     obs = scene((10, 10, 10), [(2, 0, 3, 10, 2)], (2, 10, 1))
     assert where(act("packe-rules", obs)) == (0, 0, 0)
-
-
-def test_sdfpack_branch_and_bound_finds_the_exhaustive_minimum(monkeypatch: pytest.MonkeyPatch) -> None:
-    import numpy as np
-
-    import robobpp.policies.sdfpack as sdf
-
-    rng = np.random.default_rng(5)
-    for _ in range(5):
-        placed = [
-            (int(rng.integers(0, 14)), int(rng.integers(0, 10)), 6, 5, float(rng.integers(1, 6)))
-            for _ in range(6)
-        ]
-        obs = scene((20, 15, 30), placed, (4, 3, 2))
-        monkeypatch.setattr(sdf, "CHUNK", 7)  # many rounds, stopping early
-        bounded = where(SDFPack().act(obs))
-        monkeypatch.setattr(sdf, "CHUNK", 10**9)  # everything in one round
-        assert bounded == where(SDFPack().act(obs))

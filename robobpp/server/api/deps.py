@@ -10,6 +10,7 @@ from typing import Annotated
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.db import queries
 from robobpp.db.models import Participant
@@ -19,7 +20,7 @@ from robobpp.server.problems import ProblemError
 _bearer = HTTPBearer(auto_error=False, description="An API token, or the admin token")
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:  # async: no worker thread for an attribute read
     return request.app.state.settings
 
 
@@ -72,19 +73,25 @@ def principal_for_token(request: Request, token: str) -> Principal | None:
         return Principal(row.participant, token_id=row.id)
 
 
-def get_principal(
+async def get_principal(
     request: Request,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> Principal:
+    """Async: the admin token is checked on the event loop; a participant's token row is read in a
+    worker thread (every request re-reads it, so a revoked token stops working at once)."""
     if credentials is None or not credentials.credentials:
         raise _unauthorized("send an API token as 'Authorization: Bearer <token>'")
-    principal = principal_for_token(request, credentials.credentials)
+    token = credentials.credentials
+    settings: Settings = request.app.state.settings
+    if 0 < len(token) <= 256 and hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
+        return Principal(None, admin=True)
+    principal = await run_in_threadpool(principal_for_token, request, token)
     if principal is None:
         raise _unauthorized("the API token is not valid (unknown or revoked)")
     return principal
 
 
-def require_admin(principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
+async def require_admin(principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
     if not principal.admin:
         raise ProblemError(403, "forbidden", "Forbidden", "this operation needs the admin token")
     return principal

@@ -4,15 +4,17 @@ per-episode results. Another participant's submission answers 404, exactly like 
 from __future__ import annotations
 
 import contextlib
-from typing import Annotated
+from collections.abc import Callable
+from typing import Annotated, Any, TypeVar
 
-from fastapi import APIRouter, Path, Query, Request
+from fastapi import APIRouter, Path, Query, Request, Response
+from pydantic import TypeAdapter
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from robobpp.db import queries, work
-from robobpp.db.models import Participant, Submission
+from robobpp.db.models import Participant, RunRow, Submission
 from robobpp.policies import BUILTIN
 from robobpp.schemas import (
     PULL_URL,
@@ -28,6 +30,7 @@ from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate
 from robobpp.server.problems import ProblemError
+from robobpp.server.services.submissions import finished_views
 from robobpp.server.urlsafety import (
     BUILTIN_SCHEME,
     CheckedURL,
@@ -37,6 +40,7 @@ from robobpp.server.urlsafety import (
 )
 
 router = APIRouter(tags=["submissions"])
+T = TypeVar("T")
 #: Ids are bounded so a huge number is a 422, not an integer overflow inside the database.
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 
@@ -150,22 +154,64 @@ async def create_submission(
 
 
 @router.get("/submissions", response_model=list[SubmissionPublic], summary="Your submissions, newest first")
-def list_submissions(
-    session: SessionDep,
+async def list_submissions(
+    request: Request,
     principal: PrincipalDep,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
-) -> list[SubmissionPublic]:
+) -> Response:
+    owner = None if principal.admin else principal.participant_id
+    views = finished_views(request.app.state)
+
+    def listed(session: Session) -> bytes:
+        subs = queries.list_submissions(session, owner, limit=limit, offset=offset, with_runs=False)
+        # runs and progress read together for the ones not built yet (one query each, not two per submission)
+        missing = [s.id for s in subs if not views.has(("api",), s)]
+        progress = queries.submissions_progress(session, missing)
+        runs = queries.runs_of(session, missing)
+        parts = [views.get(("api",), s, lambda s=s: _json(session, s, progress.get(s.id), runs.get(s.id)))
+                 for s in subs]  # fmt: skip
+        return b"[" + b",".join(parts) + b"]"
+
+    return Response(await in_read_session(request, listed), media_type="application/json")
+
+
+async def in_read_session(request: Request, work: Callable[[Session], T]) -> T:
+    """``work`` in one worker thread with one read-only transaction: a route that must read SQL costs one
+    thread hand-off, not one per dependency (the session's opening and closing, the handler)."""
+
+    def run() -> T:
+        with request.app.state.runtime.read_session() as session:
+            return work(session)
+
+    return await run_in_threadpool(run)
+
+
+def submission_models(session: Session, principal: Principal, limit: int = 50, offset: int = 0,
+                      ) -> list[SubmissionPublic]:  # fmt: skip
+    """The listed submissions as models (the account page), with runs and progress read for the page."""
     owner = None if principal.admin else principal.participant_id
     subs = queries.list_submissions(session, owner, limit=limit, offset=offset)
-    return [SubmissionPublic.model_validate(queries.submission_view(session, s)) for s in subs]
+    progress = queries.submissions_progress(session, [s.id for s in subs])
+    return [
+        SubmissionPublic.model_validate(queries.submission_view(session, s, progress[s.id])) for s in subs
+    ]
+
+
+def _json(session: Session, sub: Submission, progress: dict[str, Any] | None = None,
+          runs: list[RunRow] | None = None) -> bytes:  # fmt: skip
+    view = queries.submission_view(session, sub, progress, runs)
+    return SubmissionPublic.model_validate(view).model_dump_json().encode()
 
 
 @router.get("/submissions/{submission_id}", response_model=SubmissionPublic,
             summary="One submission: status, progress and per-run metrics")  # fmt: skip
-def get_submission(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> SubmissionPublic:
-    return SubmissionPublic.model_validate(queries.submission_view(session, _visible(session, principal,
-                                                                                     submission_id)))  # fmt: skip
+async def get_submission(request: Request, submission_id: Id, principal: PrincipalDep) -> Response:
+    def one(session: Session) -> bytes:
+        sub = _visible(session, principal, submission_id)
+        return finished_views(request.app.state).get(("api",), sub, lambda: _json(session, sub))
+
+    return Response(await in_read_session(request, one), media_type="application/json")
 
 
 @router.post("/submissions/{submission_id}/cancel", response_model=SubmissionPublic,
@@ -185,9 +231,19 @@ def cancel(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> S
 
 @router.get("/submissions/{submission_id}/episodes", response_model=list[EpisodePublic],
             summary="Per-episode results with termination reasons")  # fmt: skip
-def episodes(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> list[EpisodePublic]:
-    sub = _visible(session, principal, submission_id)
-    return [EpisodePublic.model_validate(e) for e in queries.episode_rows(session, sub.id)]
+async def episodes(request: Request, submission_id: Id, principal: PrincipalDep) -> Response:
+    def listed(session: Session) -> bytes:
+        sub = _visible(session, principal, submission_id)
+        return finished_views(request.app.state).get(
+            ("api-episodes",),
+            sub,
+            lambda: _EPISODES.dump_json(_EPISODES.validate_python(queries.episode_rows(session, sub.id))),
+        )
+
+    return Response(await in_read_session(request, listed), media_type="application/json")
+
+
+_EPISODES = TypeAdapter(list[EpisodePublic])
 
 
 @router.get("/submissions/{submission_id}/episodes/{episode_id}", response_model=EpisodeDetail,

@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import json
 import logging
+import multiprocessing
+import pickle
 import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import AbstractContextManager
 from datetime import datetime
 from typing import Any
@@ -67,6 +70,41 @@ def to_json(data: Any) -> bytes:
     return json.dumps(data, default=_default, allow_nan=False, separators=(",", ":")).encode()
 
 
+def compute_snapshot(session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
+                     track: str) -> dict[str, Any]:  # fmt: skip
+    """Every board of a track and its overall grid, computed now: ``{"boards": {(dataset, setting): board},
+    "grid": grid}``. The boards lose the resample arrays only the grid needs (tens of MB at 10,000 entries)."""
+    boards = {(d, st): queries.leaderboard(session, d, st, track=track) for st in settings for d in datasets}
+    grid = build_grid({f"{st}/{d}": b for (d, st), b in boards.items()}, datasets, settings, track)
+    for b in boards.values():
+        b.pop("_samples", None)
+        b.pop("_stable_samples", None)
+    return {"boards": boards, "grid": grid}
+
+
+_CHILD_FACTORIES: dict[str, Any] = {}
+
+
+def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str, ...],
+                       track: str) -> tuple[tuple[Any, ...], list[bytes]]:  # fmt: skip
+    """:func:`compute_snapshot` in the board process: the version it read and the snapshot, pickled in parts
+    (each board, the grid) so the serving process unpickles one part at a time, never holding its GIL for
+    the whole snapshot."""
+    from robobpp.db.session import is_sqlite, make_engine, make_session_factory
+
+    factory = _CHILD_FACTORIES.get(url)
+    if factory is None:
+        factory = _CHILD_FACTORIES[url] = make_session_factory(make_engine(url, read_only=True, pool_size=1))
+    with factory() as session, session.begin():
+        if not is_sqlite(url):  # one snapshot of the database for the version and every row read
+            session.connection(execution_options={"isolation_level": "REPEATABLE READ"})
+        version = board_version(session, track)
+        snap = compute_snapshot(session, datasets, settings, track)
+    parts = [pickle.dumps(("grid", snap["grid"]), protocol=pickle.HIGHEST_PROTOCOL)]
+    parts += [pickle.dumps((key, b), protocol=pickle.HIGHEST_PROTOCOL) for key, b in snap["boards"].items()]
+    return version, parts
+
+
 class _Slot:
     __slots__ = ("version", "value", "seconds", "refreshing")
 
@@ -75,10 +113,19 @@ class _Slot:
 
 
 class BoardCache:
-    """Boards and grids per (track, …), each stored with the track version it was computed at."""
+    """Each track's snapshot (its boards and grid), and served bodies, stored with the track version they
+    were computed at.
+
+    ``datasets``/``settings`` are the boards a snapshot holds (a board outside them is computed on its own).
+    ``database_url`` and ``process_from``: a track with at least ``process_from`` finished submissions is
+    computed in a separate process (``_snapshot_in_child``), so the seconds of CPU it takes never hold the
+    serving process's GIL; smaller tracks are computed in the calling thread.
+    """
 
     def __init__(self, session_factory: SessionFactory | None = None, *, size: int = 64,
-                 sync_limit_s: float = 0.25, refresh_s: float = 0.0) -> None:  # fmt: skip
+                 sync_limit_s: float = 0.25, refresh_s: float = 0.0,
+                 datasets: tuple[str, ...] = queries.DATASETS_ORDER, settings: tuple[str, ...] = queries.SETTINGS_ORDER,
+                 database_url: str | None = None, process_from: int | None = None) -> None:  # fmt: skip
         self._slots: dict[tuple[Any, ...], _Slot] = {}
         self._lock = threading.Lock()
         self._computing: dict[tuple[Any, ...], threading.Lock] = {}
@@ -86,9 +133,17 @@ class BoardCache:
         self.size = size
         self.sync_limit_s = sync_limit_s
         self.refresh_s = refresh_s
+        self.datasets, self.settings = tuple(datasets), tuple(settings)
+        self.database_url = database_url
+        self.process_from = process_from
+        self._pool: ProcessPoolExecutor | None = None
         self._versions: dict[str, tuple[float, tuple[Any, ...]]] = {}
+        self._local = threading.local()  # the version of the data a body being built was read from
         self._responses: OrderedDict[tuple[Any, ...], tuple[tuple[Any, ...], bytes]] = OrderedDict()
         self.responses_size = 512
+        #: Snapshots computed so far, and how long the last one took (``robobpp_board_*`` in /metrics).
+        self.computed = 0
+        self.last_seconds = 0.0
 
     def version(self, session: Session, track: str) -> tuple[Any, ...]:
         """The track's version, read from SQL at most every ``refresh_s`` seconds per process: within that
@@ -103,61 +158,140 @@ class BoardCache:
             self._versions[track] = (now, version)
         return version
 
+    def fresh_response(self, track: str, key: tuple[Any, ...]) -> bytes | None:
+        """The served body of ``key`` when it is current without asking SQL (the track's version was read
+        less than ``refresh_s`` ago and the body was built at it), else None: then call :meth:`response`
+        with a session. No I/O and no computation, so an async handler may call it on the event loop."""
+        now = time.monotonic()
+        with self._lock:
+            known = self._versions.get(track)
+            if known is None or now - known[0] >= self.refresh_s:
+                return None
+            hit = self._responses.get(key)
+            if hit is None or hit[0] != known[1]:
+                return None
+            self._responses.move_to_end(key)
+            return hit[1]
+
     def response(
         self, session: Session, track: str, key: tuple[Any, ...], build: Callable[[], bytes]
     ) -> bytes:
         """A served body (a page of a board as JSON, a rendered page) built once per board version: readers
-        of the same page share it instead of each serialising or rendering it."""
+        of the same page share it instead of each serialising or rendering it.
+
+        A body is stored with the version of the data it was built from: while a large board is being
+        recomputed it is built from the previous snapshot, and is served as such until the new one lands
+        (never stored as if it were current)."""
         version = self.version(session, track)
         with self._lock:
             hit = self._responses.get(key)
-            if hit is not None and hit[0] == version:
+            if hit is not None and (hit[0] == version or self._refreshing_at(track, hit[0])):
                 self._responses.move_to_end(key)
                 return hit[1]
+        self._local.used = version
         body = build()
+        used = self._local.used
         with self._lock:
-            self._responses[key] = (version, body)
+            self._responses[key] = (used, body)
             while len(self._responses) > self.responses_size:
                 self._responses.popitem(last=False)
         return body
 
+    def _refreshing_at(self, track: str, version: tuple[Any, ...]) -> bool:
+        """Whether the track's snapshot is still the one at ``version`` and its successor is being computed."""
+        slot = self._slots.get(("snapshot", self.datasets, self.settings, track))
+        return slot is not None and slot.refreshing and slot.version == version
+
+    def snapshot(self, session: Session, track: str = "private") -> dict[str, Any]:
+        """The track's boards and grid (:func:`compute_snapshot`), current as of its version."""
+        version = self.version(session, track)
+        return self._get(("snapshot", self.datasets, self.settings, track), version, session,
+                         self._compute(track, version))  # fmt: skip
+
     def board(self, session: Session, dataset: str, setting: str, track: str = "private") -> dict[str, Any]:
         """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``."""
+        if dataset in self.datasets and setting in self.settings:
+            return self.snapshot(session, track)["boards"][(dataset, setting)]
         version = self.version(session, track)
         return self._get(("board", dataset, setting, track), version, session,
-                         lambda s: queries.leaderboard(s, dataset, setting, track=track))  # fmt: skip
+                         lambda s: (None, queries.leaderboard(s, dataset, setting, track=track)))  # fmt: skip
 
     def grid(self, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
              track: str = "private") -> dict[str, Any]:  # fmt: skip
-        """The overall grid from the (cached) boards; page it with ``grid_view``."""
+        """The overall grid; page it with ``grid_view``."""
+        if tuple(datasets) == self.datasets and tuple(settings) == self.settings:
+            return self.snapshot(session, track)["grid"]
         version = self.version(session, track)
+        return self._get(("grid", tuple(datasets), tuple(settings), track), version, session,
+                         lambda s: (None, compute_snapshot(s, tuple(datasets), tuple(settings), track)["grid"]))  # fmt: skip
 
-        def compute(s: Session) -> dict[str, Any]:
-            boards = {f"{st}/{d}": self._get(("board", d, st, track), version, s,
-                                             lambda s2, d=d, st=st: queries.leaderboard(s2, d, st, track=track),
-                                             background=False)  # fmt: skip
-                      for st in settings for d in datasets}  # fmt: skip
-            return build_grid(boards, datasets, settings, track)
+    def warm(self, tracks: tuple[str, ...] = ("private", "public")) -> None:
+        """Compute the snapshots of large tracks now (the server calls this in a thread when it starts), so
+        the first readers find them ready instead of waiting for them."""
+        if self.session_factory is None:
+            return
+        for track in tracks:
+            try:
+                with self.session_factory() as session:
+                    if self._in_process(self.version(session, track)):
+                        self.snapshot(session, track)
+            except Exception:  # noqa: BLE001 - the first reader computes it instead
+                log.exception("warming the %s boards failed", track)
 
-        return self._get(("grid", datasets, settings, track), version, session, compute)
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+    def _in_process(self, version: tuple[Any, ...]) -> bool:
+        return (
+            bool(self.database_url) and self.process_from is not None and int(version[0]) >= self.process_from
+        )
+
+    def _compute(self, track: str, version: tuple[Any, ...]) -> Callable[[Session], tuple[Any, Any]]:
+        """(version computed at or None, snapshot): in this thread, or in the board process."""
+        if not self._in_process(version):
+            return lambda s: (None, compute_snapshot(s, self.datasets, self.settings, track))
+
+        def remote(_session: Session) -> tuple[Any, Any]:
+            with self._lock:
+                if self._pool is None:
+                    # spawn, not fork: the serving process has threads and open connections
+                    self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                                     max_tasks_per_child=1)  # fmt: skip
+                pool = self._pool
+            assert self.database_url is not None
+            computed_at, parts = pool.submit(_snapshot_in_child, self.database_url, self.datasets,
+                                             self.settings, track).result()  # fmt: skip
+            snap: dict[str, Any] = {"boards": {}}
+            for part in parts:
+                key, value = pickle.loads(part)
+                if key == "grid":
+                    snap["grid"] = value
+                else:
+                    snap["boards"][key] = value
+                time.sleep(0)  # let the request threads run between parts
+            return computed_at, snap
+
+        return remote
 
     def _get(self, key: tuple[Any, ...], version: tuple[Any, ...], session: Session,
-             compute: Callable[[Session], Any], background: bool = True) -> Any:  # fmt: skip
+             compute: Callable[[Session], tuple[Any, Any]]) -> Any:  # fmt: skip
         with self._lock:
             slot = self._slots.get(key)
             if slot is not None and slot.version == version:
                 return slot.value
-            if (background and slot is not None and self.session_factory is not None
-                    and slot.seconds > self.sync_limit_s):  # fmt: skip
+            if slot is not None and self.session_factory is not None and slot.seconds > self.sync_limit_s:
+                self._local.used = slot.version  # a body built from it is stored under its version
                 if not slot.refreshing:
                     slot.refreshing = True
-                    threading.Thread(target=self._refresh, args=(key, compute), daemon=True,
+                    threading.Thread(target=self._refresh, args=(key,), daemon=True,
                                      name="board-refresh").start()  # fmt: skip
                 return slot.value
         return self._store(key, version, compute, session)
 
-    def _store(self, key: tuple[Any, ...], version: tuple[Any, ...], compute: Callable[[Session], Any],
-               session: Session) -> Any:  # fmt: skip
+    def _store(self, key: tuple[Any, ...], version: tuple[Any, ...],
+               compute: Callable[[Session], tuple[Any, Any]], session: Session) -> Any:  # fmt: skip
         with self._lock:
             key_lock = self._computing.setdefault(key, threading.Lock())
         with key_lock:  # readers arriving together wait for one computation instead of each doing it
@@ -166,22 +300,36 @@ class BoardCache:
                 if slot is not None and slot.version == version:
                     return slot.value
             started = time.perf_counter()
-            value = compute(session)
+            computed_at, value = compute(session)
+            seconds = time.perf_counter() - started
             with self._lock:
-                self._slots[key] = _Slot(version, value, time.perf_counter() - started)
+                # the version the board process read (never older than ``version``): stored under it, a
+                # submission that finished meanwhile is not computed twice
+                self._slots[key] = _Slot(computed_at or version, value, seconds)
                 while len(self._slots) > self.size:
                     self._slots.pop(next(iter(self._slots)))
+                self.computed += 1
+                self.last_seconds = seconds
             return value
 
-    def _refresh(self, key: tuple[Any, ...], compute: Callable[[Session], Any]) -> None:
+    def _refresh(self, key: tuple[Any, ...]) -> None:
         assert self.session_factory is not None
+        track = key[-1]
         try:
             with self.session_factory() as session:
                 # the version read first: a submission finishing meanwhile makes the next read refresh again
                 session.info.pop("board_versions", None)
-                self._store(key, board_version(session, key[-1]), compute, session)
+                version = board_version(session, track)
+                if key[0] == "snapshot":
+                    compute = self._compute(track, version)
+                elif key[0] == "board":
+                    compute = lambda s: (None, queries.leaderboard(s, key[1], key[2], track=track))  # noqa: E731
+                else:
+                    compute = lambda s: (None, compute_snapshot(s, key[1], key[2], track)["grid"])  # noqa: E731
+                self._store(key, version, compute, session)
         except Exception:  # noqa: BLE001 - readers keep the previous board; the next stale read retries
             log.exception("board refresh failed for %s", key)
+        finally:
             with self._lock:
                 slot = self._slots.get(key)
                 if slot is not None:

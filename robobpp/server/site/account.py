@@ -107,7 +107,7 @@ def account_page(request: Request) -> Response:
     settings = request.app.state.settings
     with request.app.state.runtime.read_session() as session:
         me = api_participants.me(request, principal, session, settings)
-        subs = api_submissions.list_submissions(session, principal, limit=200, offset=0)
+        subs = api_submissions.submission_models(session, principal, limit=200, offset=0)
         tokens = (
             api_participants.list_tokens(session, principal, participant_id=None) if not who.admin else []
         )

@@ -84,8 +84,10 @@ def _participant_page(request: Request, participant_id: int, *, created: TokenCr
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")
         tokens = api_participants.list_tokens(session, ADMIN, participant_id=participant_id)
-        subs = [SubmissionPublic.model_validate(queries.submission_view(session, s))
-                for s in queries.list_submissions(session, participant_id, limit=200)]  # fmt: skip
+        listed = queries.list_submissions(session, participant_id, limit=200)
+        progress = queries.submissions_progress(session, [s.id for s in listed])
+        subs = [SubmissionPublic.model_validate(queries.submission_view(session, s, progress[s.id]))
+                for s in listed]  # fmt: skip
         info = {"id": participant.id, "name": participant.name, "builtin": participant.is_builtin,
                 "created_at": participant.created_at}  # fmt: skip
     return render(request, "operator_participant.html", status_code, title=f"Participant {info['name']}",

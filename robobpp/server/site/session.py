@@ -18,6 +18,7 @@ from urllib.parse import urlsplit
 
 from fastapi import Request, Response
 from itsdangerous import BadSignature, URLSafeTimedSerializer
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.db.models import ApiToken
 from robobpp.server.config import Settings
@@ -82,8 +83,13 @@ def viewer(request: Request) -> Viewer:
     return found
 
 
-def load_viewer(request: Request) -> Viewer:
-    """Router dependency: resolve (and cache) the viewer before the handler opens its own transaction."""
+async def load_viewer(request: Request) -> Viewer:
+    """Router dependency: resolve (and cache) the viewer before the handler opens its own transaction.
+
+    Async, so an anonymous visitor or the operator (whose cookie alone decides) costs no worker thread;
+    a participant's session reads its token row in one."""
+    if getattr(request.state, "viewer", None) is None and isinstance(_load(request).get("t"), int):
+        return await run_in_threadpool(viewer, request)
     return viewer(request)
 
 

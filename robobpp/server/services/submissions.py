@@ -1,0 +1,76 @@
+"""Served forms of finished submissions, built once: a finished submission never changes.
+
+Once a submission is completed, failed or cancelled, its runs, episodes and progress are final (workers
+write only under a live lease, and finishing clears them); only a verification verdict may still be
+written onto it. So its API body, its episode list and its page's episode table are keyed by
+``(id, status, finished_at, verification)`` — read with the submission's own row, which every route loads
+anyway to check who may see it — and built once per process. A submission still queued or running is
+built on every read.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from robobpp.db.models import Submission
+
+T = TypeVar("T")
+FINISHED = ("completed", "failed", "cancelled")
+
+
+def stamp(sub: Submission) -> tuple[Any, ...] | None:
+    """What a finished submission's served forms depend on, or None while it may still change."""
+    if sub.status not in FINISHED or sub.finished_at is None:
+        return None
+    return sub.id, sub.status, sub.finished_at, json.dumps(sub.verification, sort_keys=True, default=str)
+
+
+class FinishedViews:
+    """An LRU of built forms bounded in bytes (``kind`` names the form: API body, episode list, page
+    table…); a form that is not bytes or text counts as ``OTHER_BYTES``."""
+
+    OTHER_BYTES = 8192
+
+    def __init__(self, max_bytes: int = 64 * 2**20) -> None:
+        self.max_bytes = max_bytes
+        self._items: OrderedDict[tuple[Any, ...], tuple[int, Any]] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def has(self, kind: tuple[Any, ...], sub: Submission) -> bool:
+        key = stamp(sub)
+        if key is None:
+            return False
+        with self._lock:
+            return (*kind, *key) in self._items
+
+    def get(self, kind: tuple[Any, ...], sub: Submission, build: Callable[[], T]) -> T:
+        key = stamp(sub)
+        if key is None:
+            return build()
+        full = (*kind, *key)
+        with self._lock:
+            if full in self._items:
+                self._items.move_to_end(full)
+                return self._items[full][1]  # type: ignore[no-any-return]
+        value = build()
+        cost = len(value) if isinstance(value, bytes | str) else self.OTHER_BYTES
+        with self._lock:
+            if full not in self._items:
+                self._items[full] = (cost, value)
+                self._bytes += cost
+            while self._bytes > self.max_bytes and self._items:
+                self._bytes -= self._items.popitem(last=False)[1][0]
+        return value
+
+
+def finished_views(state: Any) -> FinishedViews:
+    """The app's cache (``request.app.state``), created on first use."""
+    views = getattr(state, "finished_views", None)
+    if views is None:
+        views = state.finished_views = FinishedViews()
+    return views

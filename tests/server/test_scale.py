@@ -1,0 +1,216 @@
+"""The board at scale, on SQLite and PostgreSQL: snapshots computed in the board process equal the
+in-process ones, a finished run reaches every cached route, finished submissions' cached forms follow a
+verification verdict, and a /metrics scrape costs the same however much history the database holds.
+
+(Latencies are measured by bench/bench_server.py, never asserted here.)"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import event, select
+
+from robobpp.db import work
+from robobpp.db.models import Participant, Submission
+from robobpp.server.app import create_app
+from robobpp.server.bootstrap import bootstrap
+from robobpp.server.config import Settings
+from robobpp.server.services.boards import BoardCache, compute_snapshot
+from robobpp.worker.options import worker_options
+from robobpp.worker.run import claim_and_run
+
+GROUPS = 3
+ADMIN = "scale-admin-token-0123456789abcdef"
+DATASETS = ("diverse", "longboard")
+
+
+def make_app(url: str, tmp_path: Path, **extra: Any) -> Any:
+    settings = Settings(database_url=url, state_dir=tmp_path, admin_token=ADMIN, workers=0, evaluate_baselines=False,
+                        settings=("math",), datasets=DATASETS, groups=GROUPS, board_refresh_s=0,
+                        spec_provider="robobpp.worker.specs:offline_spec", **extra)  # fmt: skip
+    app = create_app(settings, start_workers=False)
+    bootstrap(app.state.runtime)
+    return app
+
+
+@pytest.fixture
+def scale_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
+    app = make_app(db_url, tmp_path)
+    with TestClient(app, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
+        yield app, client
+    app.state.runtime.dispose()
+
+
+def submit(app: Any, participant: str, url: str, name: str | None = None) -> int:
+    with app.state.runtime.session() as s:
+        p = s.execute(select(Participant).where(Participant.name == participant)).scalar_one_or_none()
+        if p is None:
+            p = Participant(name=participant)
+            s.add(p)
+            s.flush()
+        return work.create_submission(s, p, name=name or participant, policy_url=url, datasets=list(DATASETS),
+                                      settings=["math"], groups=GROUPS).id  # fmt: skip
+
+
+def drain(app: Any) -> None:
+    runtime = app.state.runtime
+    while claim_and_run(runtime.session_factory, worker_options(runtime.settings), "test:host:1") is not None:
+        pass
+
+
+def _plain(value: Any) -> Any:
+    """A snapshot without its numpy arrays, comparable with ==."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items() if not hasattr(v, "dtype")}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def test_board_process_snapshot_equals_the_in_process_one(db_url: str, tmp_path: Path) -> None:
+    app = make_app(db_url, tmp_path)
+    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random"), ("a", "builtin:lsah")):
+        submit(app, who, url, name=url)
+    drain(app)
+    runtime = app.state.runtime
+    remote = BoardCache(runtime.read_session, datasets=DATASETS, settings=("math",),
+                        database_url=runtime.settings.sqlalchemy_url, process_from=0)  # fmt: skip
+    try:
+        with runtime.read_session() as s:
+            far = remote.snapshot(s, "private")
+            near = compute_snapshot(s, DATASETS, ("math",), "private")
+    finally:
+        remote.close()
+        runtime.dispose()
+    assert remote.computed == 1
+    assert len(far["grid"]["rows"]) == 3
+    assert _plain(far) == _plain(near)
+
+
+def test_a_finished_run_reaches_every_cached_route(scale_app) -> None:
+    app, client = scale_app
+    submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    routes = ["/api/v1/leaderboards/diverse/math?view=all", "/api/v1/leaderboards?view=all", "/",
+              "/boards/diverse/math?view=all"]  # fmt: skip
+    anonymous = TestClient(app)
+    for path in routes:  # cached now (the pages as an anonymous visitor sees them: shared)
+        body = (anonymous if not path.startswith("/api") else client).get(path).text
+        assert "first-entry" in body and "second-entry" not in body, path
+    submit(app, "bob", "builtin:dbl", name="second-entry")
+    drain(app)
+    for path in routes:
+        body = (anonymous if not path.startswith("/api") else client).get(path).text
+        assert "first-entry" in body and "second-entry" in body, path
+
+
+def test_best_entry_default_and_pages_of_all_entries(scale_app) -> None:
+    app, client = scale_app
+    for name, url in (("r", "builtin:random"), ("d", "builtin:dbl"), ("l", "builtin:lsah")):
+        submit(app, "alice", url, name=name)
+    submit(app, "bob", "builtin:random", name="bob-r")
+    drain(app)
+    best = client.get("/api/v1/leaderboards/diverse/math").json()
+    assert best["view"] == "best" and best["total"] == 2  # one entry per participant
+    assert sorted(e["participant"] for e in best["entries"]) == ["alice", "bob"]
+    everything = client.get("/api/v1/leaderboards/diverse/math", params={"view": "all"}).json()
+    assert everything["total"] == 4
+    pages = [client.get("/api/v1/leaderboards/diverse/math",
+                        params={"view": "all", "limit": 3, "offset": o}).json()["entries"] for o in (0, 3)]  # fmt: skip
+    assert [len(p) for p in pages] == [3, 1]
+    assert [e["submission_id"] for p in pages for e in p] == [
+        e["submission_id"] for e in everything["entries"]
+    ]
+    grid = client.get("/api/v1/leaderboards", params={"limit": 1}).json()
+    assert grid["total"] == 2 and len(grid["rows"]) == 1
+
+
+def test_a_finished_submission_s_cached_forms_follow_its_verdict(scale_app) -> None:
+    app, client = scale_app
+    sid = submit(app, "alice", "builtin:dbl")
+    drain(app)
+    first = client.get(f"/api/v1/submissions/{sid}").json()
+    listed = client.get("/api/v1/submissions").json()
+    assert first["status"] == "completed" and first["verification"] is None
+    assert [s for s in listed if s["id"] == sid] == [first]
+    assert len(client.get(f"/api/v1/submissions/{sid}/episodes").json()) == GROUPS * len(DATASETS)
+    with app.state.runtime.session() as s:
+        s.get(Submission, sid).verification = {"status": "verified", "submission_id": 99}
+    again = client.get(f"/api/v1/submissions/{sid}").json()
+    assert again["verification"] == {"status": "verified", "submission_id": 99}
+    assert [s["verification"] for s in client.get("/api/v1/submissions").json() if s["id"] == sid] == [
+        again["verification"]
+    ]
+
+
+def _statements(app: Any, client: TestClient) -> list[str]:
+    seen: list[str] = []
+    engine = app.state.runtime.read_engine
+
+    def record(_conn: Any, _cursor: Any, statement: str, *_: Any) -> None:
+        text = " ".join(statement.split()).lower()
+        if text.startswith("select"):  # not SQLite's BEGIN
+            seen.append(text)
+
+    event.listen(engine, "before_cursor_execute", record)
+    try:
+        assert client.get("/metrics").status_code == 200
+    finally:
+        event.remove(engine, "before_cursor_execute", record)
+    return seen
+
+
+def test_metrics_scrape_costs_the_same_with_more_history(scale_app) -> None:
+    app, client = scale_app
+    submit(app, "alice", "builtin:random")
+    drain(app)
+    _statements(app, client)  # the first scrape counts finished submissions once
+    small = _statements(app, client)
+    for who in ("bob", "carol", "dave"):
+        submit(app, who, "builtin:dbl")
+    drain(app)
+    after_finish = _statements(app, client)
+    large = _statements(app, client)
+    # nothing finished since the last scrape: the same statements, all index lookups, none aggregating
+    # the finished history (episodes or submissions)
+    assert large == small
+    assert not any("group by" in s for s in large), large
+    assert all(" where " in s for s in large), large
+    # something finished: its counts are read once more, then cached again
+    assert len(after_finish) > len(large)
+    text = client.get("/metrics").text
+    assert 'robobpp_submissions{status="completed"} 4.0' in text
+    assert 'robobpp_submissions{status="queued"} 0.0' in text
+    assert 'robobpp_episodes{status="pending"} 0.0' in text
+
+
+def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str, tmp_path: Path) -> None:
+    """Above ``board_process_from`` the snapshot is computed in the board process; once one exists, a
+    reader after a change gets the previous one at once, and the new result appears when it is ready."""
+    app = make_app(db_url, tmp_path, board_process_from=1)
+    try:
+        with TestClient(app, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
+            submit(app, "alice", "builtin:random", name="first-entry")
+            drain(app)
+            path = "/api/v1/leaderboards/diverse/math?view=all"
+            assert [e["name"] for e in client.get(path).json()["entries"]] == ["first-entry"]
+            cache = app.state.board_cache
+            cache.sync_limit_s = 0.0  # every snapshot counts as large: refreshed in the background
+            submit(app, "bob", "builtin:dbl", name="second-entry")
+            drain(app)
+            deadline = time.monotonic() + 120
+            names: list[str] = []
+            while time.monotonic() < deadline:
+                names = [e["name"] for e in client.get(path).json()["entries"]]
+                if "second-entry" in names:
+                    break
+                assert names == ["first-entry"]  # the previous board meanwhile, never an error
+                time.sleep(0.2)
+            assert sorted(names) == ["first-entry", "second-entry"]
+            assert cache.computed >= 2
+    finally:
+        app.state.runtime.dispose()

@@ -26,7 +26,11 @@ Mode = Literal["full", "fast"]
 #: 1: friction 0.5, dataset masses, release into the footprint as chosen, collapse on the horizontal
 #: distance. 2: the reference implementation's friction (1.0), mass (0.5 kg), collapse rule (|dx| or |dy|
 #: over the threshold) and a release clear of the neighbours (docs/physics.md, "Against the reference").
-PHYSICS_VERSION = "2"
+#: 3: friction anchors on every contact (positional static friction), which removes the solver's creep of
+#: piles at rest, and an observation that 0.1 mm of settling cannot flip: the heightmap claims a cell a box
+#: covers by more than 2.5 mm (was 5 mm, exactly half a cell) and the observed placements are rounded to
+#: 1 mm like the heightmap (docs/physics.md, "Creep" and "Fidelity").
+PHYSICS_VERSION = "3"
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +47,11 @@ class PhysicsConfig:
     angular_damping: float = 0.04
     #: Constraint solver iterations per step (pybullet's default).
     solver_iterations: int = 50
+    #: Friction anchors on every body (pybullet's ``frictionAnchor``): a sticking contact keeps its point
+    #: and the solver corrects positional slip, so a pile at rest stays where it is. Off, a resting pile
+    #: creeps by micrometres per step, a time-discretisation artefact that shrinks with the time step
+    #: (``bench/physics_creep.py``, docs/physics.md "Creep"). Sliding past μ is unchanged.
+    friction_anchor: bool = True
     #: Every box is simulated with this mass, kg (the reference implementation's 0.5 kg for every box);
     #: None: the dataset's mass. Only the physics uses it: the Execution Pack's suction check keeps the
     #: dataset's mass.
@@ -59,10 +68,23 @@ class PhysicsConfig:
     #: Horizontal slack when deciding what lies under a footprint, cm: a neighbour overlapping the
     #: footprint by less than this (settling noise, rounding to the 1 cm grid) does not lift the new box.
     edge_tolerance_cm: float = 0.5
+    #: The observed heightmap claims a 1 cm cell for a box when the box's actual bounds, shrunk horizontally
+    #: by this (cm), still reach into it, i.e. when the box covers more than this much of the cell. Box sides
+    #: in the datasets are mostly multiples of 0.5 cm and actions lie on the 1 cm grid, so box edges sit at
+    #: whole or half centimetres; a shrink of 0.25 cm keeps every such edge 2.5 mm from a cell boundary, so
+    #: settling noise of a tenth of a millimetre cannot flip a whole row of cells, and a half-covered cell
+    #: counts as covered, as in the Math Pack's heightmap. (Version 2 shrank by ``edge_tolerance_cm``,
+    #: 0.5 cm, which put half-centimetre edges exactly on a cell boundary.)
+    heightmap_shrink_cm: float = 0.25
     #: The observed heightmap is rounded to this, cm. Sub-millimetre settling noise then cannot flip a
     #: heightmap policy's choice (DBL weighs 0.01 cm of height like 1 cm of x), which keeps decisions
     #: reproducible across machines and between the fast and full simulation. 0 keeps the raw heights.
     heightmap_resolution_cm: float = 0.1
+    #: The observed placements (``state().placements``, the min corner of each box's actual pose) are
+    #: rounded to this, cm, for the same reason: a policy's own rules on them (the support rule's cells,
+    #: ``floor``/``ceil`` of a corner the policy put on the 1 cm grid) must not flip on 0.1 mm of settling.
+    #: Outcomes, metrics and the replay keep the unrounded poses. 0 keeps them raw.
+    pose_resolution_cm: float = 0.1
     #: Steps after each release over which Static Stability takes its max speeds (the paper's 200).
     stability_steps: int = 200
     #: Everything counts as at rest when every dynamic box moves slower than these (m/s, rad/s)...
@@ -96,6 +118,8 @@ class PhysicsConfig:
             or self.edge_tolerance_cm < 0
             or self.wake_margin_cm < 0
             or self.clear_gap_cm < 0
+            or self.heightmap_shrink_cm < 0
+            or self.pose_resolution_cm < 0
         ):
             raise ValueError("release gap, edge tolerance and wake margin must be >= 0")
         if min(self.solver_iterations, self.stability_steps, self.rest_steps, self.max_steps) < 1:

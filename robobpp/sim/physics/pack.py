@@ -211,13 +211,20 @@ class PhysicsPack(Setting):
         indices = [p.index for p in self._planned]
         return detect_collapse(self._world(), self._boxes, targets, indices, self.spec.collapse_threshold_cm)
 
-    def _actual(self, i: int) -> Placement:
+    def _actual(self, i: int, resolution: float = 0.0) -> Placement:
+        """Box ``i`` where it is: its centre as measured written as a min corner, rounded to ``resolution``
+        cm (the observation) or not (0: outcomes and metrics)."""
         centre, quat = self._world().pose_cm(self._boxes[i])
         planned = self._planned[i]
-        return Placement(
+        corner = (
             centre[0] - planned.length / 2,
             centre[1] - planned.width / 2,
             centre[2] - planned.height / 2,
+        )
+        if resolution > 0:
+            corner = tuple(round(round(c / resolution) * resolution, 6) for c in corner)
+        return Placement(
+            *corner,
             planned.length,
             planned.width,
             planned.height,
@@ -232,10 +239,11 @@ class PhysicsPack(Setting):
         if self._state is None:
             assert self.spec is not None
             state = ContainerState(self.spec.container)
-            state.placements = [self._actual(i) for i in range(len(self._boxes))]
+            step = self.config.pose_resolution_cm
+            state.placements = [self._actual(i, step) for i in range(len(self._boxes))]
             centers, quats, halves = world.poses_cm(self._boxes)
             hm = heightmap_from_boxes(
-                state.heightmap.shape, centers, quats, halves, self.config.edge_tolerance_cm
+                state.heightmap.shape, centers, quats, halves, self.config.heightmap_shrink_cm
             )
             res = self.config.heightmap_resolution_cm
             state.heightmap = np.round(hm / res) * res if res > 0 else hm

@@ -6,6 +6,8 @@ methods speak centimetres like the rest of robobpp and convert at this boundary.
 
 Friction: Bullet multiplies the two bodies' coefficients for a contact, so every body gets
 ``sqrt(lateral_friction)`` and each box–box and box–pallet pair then has exactly ``lateral_friction``.
+Every body carries a friction anchor (``PhysicsConfig.friction_anchor``): a contact point that sticks keeps
+its position, so static friction holds a resting pile in place instead of letting it creep.
 """
 
 from __future__ import annotations
@@ -83,7 +85,7 @@ class PhysicsWorld:
     # -- static scene --------------------------------------------------------------------------------
     def _surface(self, body: int) -> None:
         p.changeDynamics(body, -1, lateralFriction=self._body_friction, restitution=self._body_restitution,
-                         physicsClientId=self.client)  # fmt: skip
+                         frictionAnchor=int(self.config.friction_anchor), physicsClientId=self.client)  # fmt: skip
 
     def _static_box(self, half_m: tuple[float, float, float], center_m: tuple[float, float, float]) -> int:
         shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half_m, physicsClientId=self.client)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pybullet as p
 import pytest
 from _physics_specs import spec_of
 
@@ -163,3 +164,28 @@ def test_collapse_is_dx_or_dy_over_the_threshold(threshold: float, collapsed: bo
         assert bool(moved) is collapsed
         if moved:
             assert moved[0].horizontal_cm == pytest.approx(5.0, abs=0.01)
+
+
+@pytest.mark.parametrize("noise", [-0.002, 0.0, 0.002])
+def test_observation_does_not_flip_on_a_tenth_of_a_millimetre(noise: float) -> None:
+    """A 42.5 cm box put at x = 45 ends at 87.5: half of cell 87. Settling noise of a few hundredths of a
+    millimetre either way must give the policy the same heightmap (the half-covered cell claimed, as in
+    the Math Pack) and the same placements (rounded to 1 mm, so ``floor`` of a corner on the grid holds)."""
+    box = Box(42.5, 32.5, 27.0, 9.0)
+    pack = _pack([box])
+    pack.apply(box, Action(45, 0, 0), 0)
+    world = pack.world
+    assert world is not None
+    (x, y, z), quat = world.pose_cm(pack.boxes[0])
+    p.resetBasePositionAndOrientation(
+        pack.boxes[0].body, ((x + noise) / 100, y / 100, z / 100), quat, physicsClientId=world.client
+    )
+    pack._state = None  # the pose was moved by hand
+    state = pack.state()
+    assert state.heightmap[45:88, 0:33].min() == pytest.approx(27.0)
+    assert state.heightmap[88:, :].max() == 0 and state.heightmap[:45, :].max() == 0
+    placed = state.placements[0]
+    assert (placed.x, placed.y, placed.z) == (45.0, 0.0, 0.0)
+    # Outcomes and metrics keep the measured pose.
+    assert pack.final_boxes()[0].actual.x == pytest.approx(45.0 + noise, abs=1e-3)
+    pack.close()

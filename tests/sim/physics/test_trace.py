@@ -36,9 +36,10 @@ def test_each_step_records_every_box_pose_compactly() -> None:
         assert len(pose) == 7 and all(type(v) is float for v in pose)  # plain floats, not numpy
         assert all(round(v, 2) == v for v in pose[:3]) and all(round(v, 5) == v for v in pose[3:])
         assert math.isclose(math.hypot(*pose[3:]), 1.0, abs_tol=1e-4)
-    # Box 0 stood upright at its target after step 0 and lies 30 cm away after the collapse.
+    # Box 0 stood upright at its target after step 0 and lies on its side 30 cm away after the collapse
+    # (on the deck or on the slab: its centre is no longer 25 cm up, its attitude turned by about 90°).
     assert math.dist(first[0][:2], (64.0, 75.0)) < 0.1 and abs(first[0][2] - 25.0) < 0.1
-    assert math.dist(second[0][:2], first[0][:2]) > 20 and second[0][2] < 10
+    assert math.dist(second[0][:2], first[0][:2]) > 20 and second[0][2] < 15 and abs(second[0][6]) < 0.9
     assert 0 in result.steps[1].extra["collapsed_boxes"]
     # The new box's pose is its reported placement's centre.
     placed = result.steps[1].placement
@@ -93,7 +94,7 @@ def test_a_collapse_is_recorded_over_time() -> None:
     assert math.dist([v / 10 for v in samples[0][:3]], before[:3]) < 0.1
     assert math.dist([v / 10 for v in samples[-1][:3]], after[:3]) < 0.1
     heights = [s[2] for s in samples]
-    assert heights[0] > 240 and heights[-1] < 100
+    assert heights[0] > 240 and heights[-1] < 150  # upright 25 cm, then on its side (<= 14 cm)
 
 
 def test_recording_changes_nothing_and_quiet_steps_record_nothing() -> None:

@@ -42,8 +42,8 @@ def _reachable(host: str, port: int) -> bool:
         return False
 
 
-@pytest.fixture(scope="module")
-def pg_url() -> Iterator[str]:
+@contextlib.contextmanager
+def _fresh_database() -> Iterator[str]:
     if not _reachable("127.0.0.1", 5432):
         pytest.skip("PostgreSQL is not running at 127.0.0.1:5432")
     import psycopg
@@ -52,10 +52,27 @@ def pg_url() -> Iterator[str]:
     with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
         conn.execute(f'CREATE DATABASE "{name}"')
     url = f"postgresql+psycopg://postgres@127.0.0.1:5432/{name}"
-    upgrade(url)
-    yield url
-    with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
-        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+    try:
+        upgrade(url)
+        yield url
+    finally:
+        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(scope="module")
+def pg_url() -> Iterator[str]:
+    """One database for a module's tests (each test makes its own submissions in it)."""
+    with _fresh_database() as url:
+        yield url
+
+
+@pytest.fixture
+def own_pg_url() -> Iterator[str]:
+    """A database for one test alone: for a server, which dispatches every pending episode of its database
+    and whose API lists every submission in it, so another test's leftovers must not be there."""
+    with _fresh_database() as url:
+        yield url
 
 
 @pytest.fixture(params=["redis", "rabbitmq"])
@@ -144,6 +161,14 @@ class Fleet:
 @pytest.fixture
 def fleet(pg_url: str, broker: tuple[str, str], tmp_path: Path) -> Iterator[Fleet]:
     f = Fleet(pg_url, *broker, tmp_path)
+    yield f
+    f.stop()
+
+
+@pytest.fixture
+def own_fleet(own_pg_url: str, broker: tuple[str, str], tmp_path: Path) -> Iterator[Fleet]:
+    """Workers on a database of this test's own (``own_pg_url``)."""
+    f = Fleet(own_pg_url, *broker, tmp_path)
     yield f
     f.stop()
 

@@ -186,6 +186,7 @@ def test_metrics_scrape_costs_the_same_with_more_history(scale_app) -> None:
     assert 'robobpp_submissions{status="completed"} 4.0' in text
     assert 'robobpp_submissions{status="queued"} 0.0' in text
     assert 'robobpp_episodes{status="pending"} 0.0' in text
+    assert "robobpp_board_snapshot_seconds " in text and "robobpp_board_snapshots " in text
 
 
 def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str, tmp_path: Path) -> None:
@@ -214,3 +215,25 @@ def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str
             assert cache.computed >= 2
     finally:
         app.state.runtime.dispose()
+
+
+def test_the_account_page_is_paged(scale_app, monkeypatch: pytest.MonkeyPatch) -> None:
+    import re
+
+    from robobpp.server.site import account
+
+    app, _client = scale_app
+    names = [f"entry-{i}" for i in range(3)]
+    for name in names:
+        submit(app, "alice", "builtin:random", name=name)
+    drain(app)
+    monkeypatch.setattr(account, "ACCOUNT_PAGE_SIZE", 2)
+    browser = TestClient(app)
+    csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
+    assert csrf is not None
+    browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
+    first, second = browser.get("/account").text, browser.get("/account", params={"page": 2}).text
+    assert [n for n in names if n in first] == names[1:]  # newest first
+    assert 'href="?page=2"' in first and 'href="?page=1"' not in first
+    assert [n for n in names if n in second] == names[:1]
+    assert 'href="?page=1"' in second and 'href="?page=3"' not in second

@@ -121,19 +121,34 @@ class Fleet:
         }
         self.tmp = tmp
         self.procs: list[subprocess.Popen[bytes]] = []
+        self.hostnames: dict[int, str] = {}  # pid → Celery node name
 
     def start(self, n: int = 2, concurrency: int = 1) -> list[subprocess.Popen[bytes]]:
         new = []
         for i in range(n):
             log = open(self.tmp / f"worker-{len(self.procs)}.log", "wb")  # noqa: SIM115 - closed with the process
+            hostname = f"w{len(self.procs)}-{uuid.uuid4().hex[:6]}@test"
             cmd = [sys.executable, "-c", "from robobpp.cli import main; main()", "worker", "--concurrency", str(concurrency),
-                   "--loglevel", "info", "--hostname", f"w{len(self.procs)}-{uuid.uuid4().hex[:6]}@test"]  # fmt: skip
+                   "--loglevel", "info", "--hostname", hostname]  # fmt: skip
             proc = subprocess.Popen(cmd, env=self.env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
                                     start_new_session=True)  # fmt: skip
             self.procs.append(proc)
+            self.hostnames[proc.pid] = hostname
             new.append(proc)
             del i
         return new
+
+    def answering(self, app: Any) -> int:
+        """How many of *this fleet's* live workers answer a ping. The control channel is shared by every worker
+        on the broker (other tests' and other runs' too), so a plain ping count can be met by strangers."""
+        mine = [self.hostnames[p.pid] for p in self.procs if p.poll() is None]
+        if not mine:
+            return 0
+        try:
+            replies = app.control.ping(destination=mine, timeout=0.5) or []
+        except Exception:  # noqa: BLE001 - broker not reachable yet
+            return 0
+        return sum(1 for reply in replies for name in reply if name in mine)
 
     def kill(self, proc: subprocess.Popen[bytes]) -> None:
         """``kill -9`` of the worker's whole process group."""
@@ -200,6 +215,22 @@ def episodes(factory: Any, submission_id: int) -> list[EpisodeRow]:
     with factory() as s:
         return list(s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == submission_id)
                               .order_by(EpisodeRow.id)).scalars())  # fmt: skip
+
+
+def episode_states(factory: Any, submission_id: int | None = None) -> str:
+    """The episodes' bookkeeping, one line each: what a timed-out wait needs to tell a lost message (pending,
+    marked sent) from a lease that kept expiring (attempts) or a worker that never finished (running)."""
+    query = select(EpisodeRow).order_by(EpisodeRow.id)
+    if submission_id is not None:
+        query = query.where(EpisodeRow.submission_id == submission_id)
+    with factory() as s:
+        rows = s.execute(query).scalars().all()
+        return "\n".join(
+            f"episode {r.id} (submission {r.submission_id}): {r.status} attempts={r.attempts} step={r.step} "
+            f"worker={r.worker} enqueued_at={r.enqueued_at} lease_expires_at={r.lease_expires_at} "
+            f"termination={r.termination}"
+            for r in rows
+        )
 
 
 def submission_status(factory: Any, submission_id: int) -> str:

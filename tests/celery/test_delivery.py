@@ -18,7 +18,7 @@ from sqlalchemy import update
 from robobpp.db import work
 from robobpp.db.models import EpisodeRow, Submission, utcnow
 from robobpp.worker.celery_app import make_celery
-from robobpp.worker.celery_executor import CeleryExecutor, count_workers, queue_length, resend_lost
+from robobpp.worker.celery_executor import CeleryExecutor, queue_length, resend_lost
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.tasks import enqueue
 from tests.celery.conftest import LEASE_S, Fleet, episodes, new_submission, submission_status, wait_for
@@ -52,7 +52,7 @@ def _purge(app: Any) -> None:
 
 
 def _wait_for_workers(fleet: Fleet, app: Any, n: int) -> None:
-    wait_for(lambda: count_workers(app, timeout=0.5) >= n, 90, f"{n} workers to answer", fleet.logs)
+    wait_for(lambda: fleet.answering(app) >= n, 90, f"{n} workers to answer", fleet.logs)
 
 
 def _assert_recorded_once(factory: Any, sub: int, fleet: Fleet) -> None:

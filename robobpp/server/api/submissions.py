@@ -164,13 +164,16 @@ async def list_submissions(
     views = finished_views(request.app.state)
 
     def listed(session: Session) -> bytes:
-        subs = queries.list_submissions(session, owner, limit=limit, offset=offset, with_runs=False)
-        # runs and progress read together for the ones not built yet (one query each, not two per submission)
-        missing = [s.id for s in subs if not views.has(("api",), s)]
+        # the page's keys first (a few columns, no objects); the submissions not built yet are then read
+        # whole, with their runs and progress (one query each, not two per submission)
+        keys = queries.list_submission_keys(session, owner, limit=limit, offset=offset)
+        missing = [k.id for k in keys if not views.has(("api",), k)]
+        subs = queries.submissions_by_id(session, missing)
         progress = queries.submissions_progress(session, missing)
         runs = queries.runs_of(session, missing)
-        parts = [views.get(("api",), s, lambda s=s: _json(session, s, progress.get(s.id), runs.get(s.id)))
-                 for s in subs]  # fmt: skip
+        parts = [views.get(("api",), k, lambda k=k: _json(session, subs[k.id] if k.id in subs else session.get(Submission, k.id),
+                                                          progress.get(k.id), runs.get(k.id)))
+                 for k in keys]  # fmt: skip
         return b"[" + b",".join(parts) + b"]"
 
     return Response(await in_read_session(request, listed), media_type="application/json")

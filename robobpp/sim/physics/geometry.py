@@ -88,7 +88,9 @@ def surface_height(
     per_chunk = max(1, RAY_BOX_BUDGET // points.shape[0])
     top = -np.inf
     for k in range(0, c.shape[0], per_chunk):
-        top = max(top, _highest_hit(c[k : k + per_chunk], h[k : k + per_chunk], rot[k : k + per_chunk], points))
+        top = max(
+            top, _highest_hit(c[k : k + per_chunk], h[k : k + per_chunk], rot[k : k + per_chunk], points)
+        )
     return max(0.0, float(top))
 
 

@@ -12,16 +12,16 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import event, select
+from sqlalchemy import event
 
-from robobpp.db import work
-from robobpp.db.models import Participant, Submission
+from robobpp.db.models import Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
 from robobpp.server.services.boards import BoardCache, compute_snapshot
 from robobpp.worker.options import worker_options
 from robobpp.worker.run import claim_and_run
+from tests.server.conftest import submit_direct
 
 GROUPS = 3
 ADMIN = "scale-admin-token-0123456789abcdef"
@@ -46,14 +46,7 @@ def scale_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
 
 
 def submit(app: Any, participant: str, url: str, name: str | None = None) -> int:
-    with app.state.runtime.session() as s:
-        p = s.execute(select(Participant).where(Participant.name == participant)).scalar_one_or_none()
-        if p is None:
-            p = Participant(name=participant)
-            s.add(p)
-            s.flush()
-        return work.create_submission(s, p, name=name or participant, policy_url=url, datasets=list(DATASETS),
-                                      settings=["math"], groups=GROUPS).id  # fmt: skip
+    return submit_direct(app, participant, url, datasets=DATASETS, groups=GROUPS, name=name)
 
 
 def drain(app: Any) -> None:

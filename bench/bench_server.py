@@ -1,14 +1,17 @@
 """Evaluation server at scale: every page and API route under 20 concurrent readers, with 10,000 submissions
 (90,000 runs, 2.7 M episode rows) in the database, and submissions accepted per second.
 
-The server runs for real in a subprocess (uvicorn, ``--server-workers`` processes, no evaluation workers);
-readers are threads of this process over loopback HTTP, each issuing its next request as soon as the last
-one answered (closed loop, no think time). The database is seeded in bulk (PostgreSQL ``COPY``, SQLite
+The server runs for real in a subprocess (uvicorn, ``--server-workers`` processes — one, as ``robobpp serve``
+runs it — no evaluation workers); the readers are a separate load-generator process (``_load.py``) over
+loopback HTTP, each issuing its next request as soon as the last one answered (closed loop, no think time),
+round-robin over every page and API route (``routes``). It prints p50/p95 per route, the server's CPU per
+request under load and per route alone, and the load generator's CPU. The database is seeded in bulk (PostgreSQL ``COPY``, SQLite
 ``executemany``): per-group metrics random but fixed by a seed, each run's aggregate and per-group figures
 computed from its episodes exactly as a worker writes them. 2 % of the submissions are failed (every
 episode a policy error) and 2 % partial (Math Pack only), as on a real board.
 
     python bench/bench_server.py [--database-url URL] [--submissions 10000] [--readers 20] [--samples 60]
+        [--seed-only | --reuse [--cold]] [--accepts 40]
 """
 
 from __future__ import annotations
@@ -183,7 +186,7 @@ def _copy_field(v: Any) -> str:
     return str(v).replace("\\", "\\\\").replace("\t", "\\t").replace("\n", "\\n")
 
 
-def routes(sub_ids: list[int], cookie: str) -> list[tuple[str, str, dict[str, str]]]:
+def routes(sub_ids: list[int], cookie: str, episode_id: int) -> list[tuple[str, str, dict[str, str]]]:
     """(label, path, headers) of every page and API route a reader uses: public pages anonymous (as a
     visitor reads them), a submission's own page signed in (its owner's view; here the operator's), the
     API with a bearer token."""
@@ -199,6 +202,8 @@ def routes(sub_ids: list[int], cookie: str) -> list[tuple[str, str, dict[str, st
          anonymous),
         ("GET /submissions/{id} (page, signed in)", f"/submissions/{sid}", owner),
         ("GET /submissions/{id}/status.json (signed in)", f"/submissions/{sid}/status.json", owner),
+        ("GET /account (signed in: all submissions, newest 50)", "/account", owner),
+        ("GET /operator (signed in)", "/operator", owner),
         ("GET /datasets", "/datasets", anonymous),
         ("GET /protocol", "/protocol", anonymous),
         ("GET /docs", "/docs", anonymous),
@@ -212,7 +217,10 @@ def routes(sub_ids: list[int], cookie: str) -> list[tuple[str, str, dict[str, st
          f"/api/v1/leaderboards/repetitive/execution?view=all&submission={sid}", api),
         ("GET /api/v1/submissions/{id}", f"/api/v1/submissions/{sid}", api),
         ("GET /api/v1/submissions/{id}/episodes", f"/api/v1/submissions/{sid}/episodes", api),
+        ("GET /api/v1/submissions/{id}/episodes/{episode_id}", f"/api/v1/submissions/{sid}/episodes/{episode_id}",
+         api),
         ("GET /api/v1/submissions (list)", "/api/v1/submissions", api),
+        ("GET /api/v1/me", "/api/v1/me", api),
         ("GET /api/v1/info", "/api/v1/info", api),
         ("GET /healthz", "/healthz", anonymous),
         ("GET /metrics", "/metrics", anonymous),
@@ -384,11 +392,19 @@ def main() -> None:
 
     proc, base = start_server(url, tmp, args.server_workers)
     try:
-        paths = routes(sub_ids, sign_in(base))
+        sid = sub_ids[len(sub_ids) // 2]
+        with runtime.read_session() as s:
+            episode_id = s.execute(
+                text("SELECT min(id) FROM episodes WHERE submission_id = :s"), {"s": sid}
+            ).scalar_one()
+        paths = routes(sub_ids, sign_in(base), episode_id)
         t0 = time.perf_counter()
         warm_up(base, paths)
-        print(f"warm-up (the server computes the nine boards and the grid when it starts): "
-              f"{time.perf_counter() - t0:.0f} s")  # fmt: skip
+        scrape = httpx.get(f"{base}/metrics").text
+        snapshot = re.search(r"^robobpp_board_snapshot_seconds ([0-9.e+-]+)$", scrape, re.M)
+        print(f"warm-up (the server computes each track's nine boards and grid when it starts, in its board "
+              f"process): {time.perf_counter() - t0:.0f} s; last snapshot "
+              f"{float(snapshot.group(1)) if snapshot else float('nan'):.1f} s")  # fmt: skip
         alone = cpu_per_request(base, proc.pid, paths, 50)
         load0 = os.getloadavg()[0]
         server0 = cpu_seconds(proc.pid)

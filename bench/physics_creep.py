@@ -82,7 +82,9 @@ def record_actions(spec: Any, policy: str) -> list[Action]:
     result = run_episode(spec, load_policy(policy), PhysicsPack())
     print(f"# recorded in the default physics: {result.termination} after {result.boxes_placed} boxes: "
           f"{result.termination_detail}", flush=True)  # fmt: skip
-    return [Action(s.action["x"], s.action["y"], int(s.action["orientation"])) for s in result.steps if s.action]
+    return [
+        Action(s.action["x"], s.action["y"], int(s.action["orientation"])) for s in result.steps if s.action
+    ]
 
 
 def replay(spec: Any, actions: list[Action], name: str, boxes: int) -> dict[str, Any]:

@@ -295,6 +295,29 @@ def runs_of(session: Session, submission_ids: Sequence[int]) -> dict[int, list[R
     return out
 
 
+def list_submission_keys(session: Session, participant_id: int | None, *, limit: int = 50,
+                         offset: int = 0) -> list[Any]:  # fmt: skip
+    """The page of :func:`list_submissions` as rows of ``id, status, finished_at, verification`` only: what
+    tells whether a built form of each is still current (``server.services.submissions.stamp``)."""
+    query = (
+        select(Submission.id, Submission.status, Submission.finished_at, Submission.verification)
+        .order_by(Submission.id.desc())
+        .limit(limit)
+        .offset(offset)
+    )
+    if participant_id is not None:
+        query = query.where(Submission.participant_id == participant_id)
+    return list(session.execute(query).all())
+
+
+def submissions_by_id(session: Session, ids: Sequence[int]) -> dict[int, Submission]:
+    """Submissions with their participant, by id (one query)."""
+    if not ids:
+        return {}
+    query = select(Submission).options(joinedload(Submission.participant)).where(Submission.id.in_(list(ids)))
+    return {s.id: s for s in session.execute(query).scalars()}
+
+
 def list_submissions(
     session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0, with_runs: bool = True
 ) -> list[Submission]:

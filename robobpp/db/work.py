@@ -136,6 +136,22 @@ def take_unsent(
     )
 
 
+def has_overdue(session: Session, *, older_than_s: float, now: datetime | None = None) -> bool:
+    """Whether a pending episode of an active submission has had its message out for over ``older_than_s``.
+
+    The cheap first question of the lost-message check (:func:`robobpp.worker.celery_executor.resend_lost`):
+    only when it says yes does the dispatcher ask the broker how long the queue is."""
+    cutoff = (now or utcnow()) - timedelta(seconds=older_than_s)
+    row = session.execute(
+        select(EpisodeRow.id)
+        .join(Submission, Submission.id == EpisodeRow.submission_id)
+        .where(EpisodeRow.status == "pending", EpisodeRow.enqueued_at < cutoff,
+               Submission.status.in_(ACTIVE_SUBMISSION))
+        .limit(1)
+    ).first()  # fmt: skip
+    return row is not None
+
+
 def _busy_participants(max_running: int) -> Any:
     """Participants with ``max_running`` remote episodes running: the claim skips their other episodes."""
     return (
@@ -190,6 +206,7 @@ def claim_episode(
     ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it).
     ``max_running_per_participant`` bounds how many episodes of one participant's remote policies run at
     once (outbound calls to one participant's server), whatever the number of workers."""
+    fixed_now = now
     now = now or utcnow()
     reap_expired(session, max_attempts, now)
     runnable = or_(EpisodeRow.status == "pending", and_(_expired(now), EpisodeRow.attempts < max_attempts))
@@ -208,10 +225,14 @@ def claim_episode(
             .where(eligible, Submission.status.in_(ACTIVE_SUBMISSION))
             .order_by(EpisodeRow.id)
             .limit(1)
-            .with_for_update(skip_locked=True, of=EpisodeRow)
+            # Any episode: skip rows another claimer holds. One named episode: wait for the row instead. Its
+            # sender publishes inside the transaction that marks it sent, so a fast worker can get the
+            # message before that commit; skipping the row then would turn the message into a no-op.
+            .with_for_update(skip_locked=episode_id is None, of=EpisodeRow)
         ).first()
         if row is None:
             return None
+        taken_at = fixed_now or utcnow()  # after any wait for the row: the lease starts now, not before
         token = secrets.token_hex(16)
         claimed = session.execute(
             update(EpisodeRow)
@@ -221,8 +242,8 @@ def claim_episode(
                 attempts=EpisodeRow.attempts + 1,
                 worker=worker[:128],
                 lease_token=token,
-                lease_expires_at=now + timedelta(seconds=lease_s),
-                started_at=now,
+                lease_expires_at=taken_at + timedelta(seconds=lease_s),
+                started_at=taken_at,
                 step=0,
             )  # fmt: skip
             .execution_options(synchronize_session=False)

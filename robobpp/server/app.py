@@ -57,6 +57,10 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         # threads coming back from SQL take the GIL from the event loop within this long (CPython: 5 ms,
         # which under 20 readers queued every SQL-reading route behind the loop; BENCHMARKS.md)
         sys.setswitchinterval(settings.switch_interval_s)
+        if settings.api_threads:
+            import anyio.to_thread
+
+            anyio.to_thread.current_default_thread_limiter().total_tokens = settings.api_threads
         await _run_sync(bootstrap, runtime)
         from robobpp.server.api.leaderboards import make_board_cache
 

@@ -87,6 +87,8 @@ class Settings(BaseSettings):
     #: The API process's GIL switch interval (``sys.setswitchinterval``): how long a worker thread back from
     #: SQL may wait for the event loop to hand over the interpreter.
     switch_interval_s: float = Field(default=0.0005, gt=0, le=0.1)
+    #: Worker threads of the API process for routes that read or write SQL (0: the framework's 40).
+    api_threads: int = Field(default=0, ge=0, le=256)
 
     # API limits
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)

@@ -50,6 +50,17 @@ class _QueueCollector(Collector):
             pass
         yield episodes
         yield submissions
+        cache = getattr(self.app.state, "board_cache", None)
+        if cache is not None:
+            computed = GaugeMetricFamily(
+                "robobpp_board_snapshots", "Board snapshots computed by this process"
+            )
+            computed.add_metric([], cache.computed)
+            seconds = GaugeMetricFamily("robobpp_board_snapshot_seconds",
+                                        "Wall time of this process's last board snapshot computation")  # fmt: skip
+            seconds.add_metric([], cache.last_seconds)
+            yield computed
+            yield seconds
 
 
 def route_template(scope: Mapping[str, Any]) -> str:

@@ -6,7 +6,11 @@ The server does not run episodes; it *dispatches* them. One background thread:
    handed back for a retry), marking it in SQL (``enqueued_at``) in the same transaction: after a server
    restart nothing already queued is sent again, and nothing pending is forgotten;
 2. sweeps expired leases: a running episode whose worker died (``kill -9``, a lost machine) is put back to
-   ``pending`` and sent again, in one transaction, so exactly one sweeper re-sends it even when many run.
+   ``pending`` and sent again, in one transaction, so exactly one sweeper re-sends it even when many run;
+3. re-sends lost messages: a pending episode marked sent more than a delivery timeout ago while the queue is
+   empty has no message left anywhere a live worker will take it from (lost by the broker, or reserved by
+   a worker that died before claiming it, which Redis hides until its visibility timeout): it is sent
+   again (:func:`resend_lost`).
 
 Broker redelivery (acks late) is the fast path; the sweep is the path that always works, whatever the
 broker does with an unacknowledged message (RabbitMQ requeues at once, Redis only after its visibility
@@ -28,7 +32,7 @@ from sqlalchemy.pool import NullPool
 from robobpp.db import work
 from robobpp.db.models import EpisodeRow, utcnow
 from robobpp.db.session import make_engine, make_session_factory
-from robobpp.worker.celery_names import options_of
+from robobpp.worker.celery_names import options_of, queue_of
 from robobpp.worker.outage import OutageLog
 from robobpp.worker.tasks import enqueue
 
@@ -115,6 +119,7 @@ class LeaseSweeper(_Loop):
     def tick(self) -> tuple[str, ...]:
         with self.factory() as s, s.begin():
             sent = requeue_expired(s, self.app, self.options.max_attempts)
+        sent += resend_lost(self.factory, self.app)
         return ("database", "broker") if sent else ("database",)
 
 
@@ -152,6 +157,7 @@ class CeleryExecutor(_Loop):
             self._last_sweep = now
             sent += len(self.sweep())
         sent += self.dispatch()
+        sent += len(resend_lost(self.factory, self.app))
         if now - self._last_ping >= self._ping_every_s:
             self._last_ping = now
             self._workers = count_workers(self.app)
@@ -179,6 +185,52 @@ def dispatch_unsent(factory: sessionmaker[Session], app: Celery) -> int:
     return len(ids)
 
 
+def delivery_timeout_s(lease_s: float) -> float:
+    """How long a message may stay out, with the queue empty and its episode unclaimed, before it is presumed
+    lost: one lease, at least 10 s (a worker that reserved it claims it within milliseconds)."""
+    return max(10.0, float(lease_s))
+
+
+def queue_length(app: Celery) -> int:
+    """Messages waiting in the episode queue (ready ones: not those reserved by a worker). A queue that does
+    not exist holds none (Redis drops an empty list)."""
+    with app.pool.acquire(block=True) as conn:
+        try:
+            with conn.channel() as channel:
+                return int(channel.queue_declare(queue=queue_of(app), passive=True).message_count)
+        except conn.channel_errors:
+            return 0
+
+
+def resend_lost(factory: sessionmaker[Session], app: Celery) -> list[int]:
+    """Send again the pending episodes whose message is neither queued nor with a live worker.
+
+    The mark (``enqueued_at``) says a message was sent, not that a worker can still get it: a broker can
+    lose it (a Redis restart without persistence), and a worker killed after reserving it but before its
+    claim takes it along; Redis hands such a message out again only after its visibility timeout, an hour
+    with the defaults, while RabbitMQ requeues it at once. A message that still waits in the queue is not
+    lost, however old (a backlog). So: when a pending episode was marked sent more than
+    :func:`delivery_timeout_s` ago *and the queue is empty*, its message is gone; it is sent again. With a
+    backlog nothing is re-sent until the queue drains, so a backlog never multiplies messages; a copy that
+    turns out not to be lost is a duplicate, which the claim turns into a no-op. The conditional UPDATE of
+    :func:`work.take_unsent` makes concurrent checkers (server replicas, worker sweepers) send it once.
+    """
+    options = options_of(app)
+    timeout = delivery_timeout_s(options.lease_s)
+    with factory() as s, s.begin():
+        if not work.has_overdue(s, older_than_s=timeout):
+            return []
+        # Asked after the database: a message sent since is fresh, so it can only make the queue longer.
+        if queue_length(app):
+            return []
+        ids = work.take_unsent(s, stale_after_s=timeout)
+        enqueue(app, ids)
+    if ids:
+        log.warning("re-sent %d episode(s) whose message was neither queued nor claimed after %.0f s: %s",
+                    len(ids), timeout, ids[:20])  # fmt: skip
+    return ids
+
+
 def count_workers(app: Celery, timeout: float = 1.0) -> int:
     try:
         replies = app.control.ping(timeout=timeout) or []
@@ -197,7 +249,10 @@ def executor_from_settings(settings: object) -> CeleryExecutor:
 __all__ = [
     "CeleryExecutor",
     "LeaseSweeper",
+    "delivery_timeout_s",
     "dispatch_unsent",
     "executor_from_settings",
+    "queue_length",
     "requeue_expired",
+    "resend_lost",
 ]

@@ -42,8 +42,8 @@ def _reachable(host: str, port: int) -> bool:
         return False
 
 
-@pytest.fixture(scope="module")
-def pg_url() -> Iterator[str]:
+@contextlib.contextmanager
+def _fresh_database() -> Iterator[str]:
     if not _reachable("127.0.0.1", 5432):
         pytest.skip("PostgreSQL is not running at 127.0.0.1:5432")
     import psycopg
@@ -52,10 +52,27 @@ def pg_url() -> Iterator[str]:
     with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
         conn.execute(f'CREATE DATABASE "{name}"')
     url = f"postgresql+psycopg://postgres@127.0.0.1:5432/{name}"
-    upgrade(url)
-    yield url
-    with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
-        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+    try:
+        upgrade(url)
+        yield url
+    finally:
+        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(scope="module")
+def pg_url() -> Iterator[str]:
+    """One database for a module's tests (each test makes its own submissions in it)."""
+    with _fresh_database() as url:
+        yield url
+
+
+@pytest.fixture
+def own_pg_url() -> Iterator[str]:
+    """A database for one test alone: for a server, which dispatches every pending episode of its database
+    and whose API lists every submission in it, so another test's leftovers must not be there."""
+    with _fresh_database() as url:
+        yield url
 
 
 @pytest.fixture(params=["redis", "rabbitmq"])
@@ -104,19 +121,34 @@ class Fleet:
         }
         self.tmp = tmp
         self.procs: list[subprocess.Popen[bytes]] = []
+        self.hostnames: dict[int, str] = {}  # pid → Celery node name
 
     def start(self, n: int = 2, concurrency: int = 1) -> list[subprocess.Popen[bytes]]:
         new = []
         for i in range(n):
             log = open(self.tmp / f"worker-{len(self.procs)}.log", "wb")  # noqa: SIM115 - closed with the process
+            hostname = f"w{len(self.procs)}-{uuid.uuid4().hex[:6]}@test"
             cmd = [sys.executable, "-c", "from robobpp.cli import main; main()", "worker", "--concurrency", str(concurrency),
-                   "--loglevel", "info", "--hostname", f"w{len(self.procs)}-{uuid.uuid4().hex[:6]}@test"]  # fmt: skip
+                   "--loglevel", "info", "--hostname", hostname]  # fmt: skip
             proc = subprocess.Popen(cmd, env=self.env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
                                     start_new_session=True)  # fmt: skip
             self.procs.append(proc)
+            self.hostnames[proc.pid] = hostname
             new.append(proc)
             del i
         return new
+
+    def answering(self, app: Any) -> int:
+        """How many of *this fleet's* live workers answer a ping. The control channel is shared by every worker
+        on the broker (other tests' and other runs' too), so a plain ping count can be met by strangers."""
+        mine = [self.hostnames[p.pid] for p in self.procs if p.poll() is None]
+        if not mine:
+            return 0
+        try:
+            replies = app.control.ping(destination=mine, timeout=0.5) or []
+        except Exception:  # noqa: BLE001 - broker not reachable yet
+            return 0
+        return sum(1 for reply in replies for name in reply if name in mine)
 
     def kill(self, proc: subprocess.Popen[bytes]) -> None:
         """``kill -9`` of the worker's whole process group."""
@@ -148,6 +180,14 @@ def fleet(pg_url: str, broker: tuple[str, str], tmp_path: Path) -> Iterator[Flee
     f.stop()
 
 
+@pytest.fixture
+def own_fleet(own_pg_url: str, broker: tuple[str, str], tmp_path: Path) -> Iterator[Fleet]:
+    """Workers on a database of this test's own (``own_pg_url``)."""
+    f = Fleet(own_pg_url, *broker, tmp_path)
+    yield f
+    f.stop()
+
+
 def new_submission(factory: Any, *, policy: str, datasets: list[str], groups: int, name: str) -> int:
     with factory() as s, s.begin():
         participant = s.execute(select(Participant).where(Participant.name == name)).scalar_one_or_none()
@@ -175,6 +215,22 @@ def episodes(factory: Any, submission_id: int) -> list[EpisodeRow]:
     with factory() as s:
         return list(s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == submission_id)
                               .order_by(EpisodeRow.id)).scalars())  # fmt: skip
+
+
+def episode_states(factory: Any, submission_id: int | None = None) -> str:
+    """The episodes' bookkeeping, one line each: what a timed-out wait needs to tell a lost message (pending,
+    marked sent) from a lease that kept expiring (attempts) or a worker that never finished (running)."""
+    query = select(EpisodeRow).order_by(EpisodeRow.id)
+    if submission_id is not None:
+        query = query.where(EpisodeRow.submission_id == submission_id)
+    with factory() as s:
+        rows = s.execute(query).scalars().all()
+        return "\n".join(
+            f"episode {r.id} (submission {r.submission_id}): {r.status} attempts={r.attempts} step={r.step} "
+            f"worker={r.worker} enqueued_at={r.enqueued_at} lease_expires_at={r.lease_expires_at} "
+            f"termination={r.termination}"
+            for r in rows
+        )
 
 
 def submission_status(factory: Any, submission_id: int) -> str:

@@ -14,9 +14,17 @@ from robobpp.db.models import EpisodeRow, RunRow
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
 from robobpp.worker.celery_app import make_celery
-from robobpp.worker.celery_executor import CeleryExecutor, count_workers
+from robobpp.worker.celery_executor import CeleryExecutor
 from robobpp.worker.options import WorkerOptions
-from tests.celery.conftest import LEASE_S, Fleet, episodes, new_submission, submission_status, wait_for
+from tests.celery.conftest import (
+    LEASE_S,
+    Fleet,
+    episode_states,
+    episodes,
+    new_submission,
+    submission_status,
+    wait_for,
+)
 from tests.celery.helpers import spec
 
 pytestmark = [pytest.mark.postgres, pytest.mark.redis, pytest.mark.rabbitmq]
@@ -34,9 +42,7 @@ def _start(fleet: Fleet, workers: int) -> tuple[Any, CeleryExecutor]:
     """Workers first (and answering), then the server-side dispatcher, so every worker competes."""
     fleet.start(workers)
     app = _app(fleet)
-    wait_for(
-        lambda: count_workers(app, timeout=0.5) >= workers, 90, f"{workers} workers to answer", fleet.logs
-    )
+    wait_for(lambda: fleet.answering(app) >= workers, 90, f"{workers} workers to answer", fleet.logs)
     executor = CeleryExecutor(app)
     executor.start()
     return app, executor
@@ -85,9 +91,8 @@ def test_kill_9_mid_episode_completes_once_on_the_other_worker(fleet: Fleet, fac
         victim_group = os.getpgid(victim_pid)
         victim = next(p for p in fleet.procs if p.pid == victim_group)
         fleet.kill(victim)  # kill -9 of the whole worker: main process and its pool child
-        wait_for(
-            lambda: submission_status(factory, sub) == "completed", 120, "the retried episode", fleet.logs
-        )
+        wait_for(lambda: submission_status(factory, sub) == "completed", 120, "the retried episode",
+                 lambda: f"{episode_states(factory, sub)}\n{fleet.logs()}")  # fmt: skip
         (done,) = episodes(factory, sub)
         seen = (done.status, done.attempts, done.worker, row.worker)
         assert done.status == "done", f"{seen}\n{fleet.logs()}"
@@ -158,9 +163,23 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
 
 
 @pytest.mark.parametrize("broker", ["redis"], indirect=True)
-def test_the_server_dispatches_to_celery_when_a_broker_is_set(fleet: Fleet, tmp_path: Path) -> None:
+def test_the_server_dispatches_to_celery_when_a_broker_is_set(own_fleet: Fleet, tmp_path: Path) -> None:
     """End to end: baselines queued at first start and a submission made through the API both run on the
-    Celery workers; the server itself runs no local pool."""
+    Celery workers; the server itself runs no local pool.
+
+    The server gets a database of its own: it dispatches every pending episode of its database and its API
+    lists every submission in it, so in the module's shared database one unfinished submission of an earlier
+    test (a failed kill test) kept this test waiting although its own work was all recorded."""
+    from robobpp.db.session import make_engine, make_session_factory
+
+    engine = make_engine(own_fleet.env["ROBOBPP_DATABASE_URL"])
+    try:
+        _serve_and_check(own_fleet, make_session_factory(engine), tmp_path)
+    finally:
+        engine.dispose()
+
+
+def _serve_and_check(fleet: Fleet, own: Any, tmp_path: Path) -> None:
     from fastapi.testclient import TestClient
 
     from robobpp.server.app import create_app
@@ -182,19 +201,14 @@ def test_the_server_dispatches_to_celery_when_a_broker_is_set(fleet: Fleet, tmp_
             "name": "random-run", "policy_url": "builtin:random", "track": "public"})  # fmt: skip
         assert made.status_code == 201, made.text
 
-        def finished() -> bool:
+        def finished() -> bool:  # the baselines queued at start and the API's submission: all it holds
             subs = client.get("/api/v1/submissions", headers=auth).json()
-            return bool(subs) and all(s["status"] == "completed" for s in subs) and len(subs) >= 2
+            return len(subs) >= 2 and all(s["status"] == "completed" for s in subs)
 
-        wait_for(finished, 120, "baseline and submission on the workers", fleet.logs)
+        wait_for(finished, 120, "baseline and submission on the workers",
+                 lambda: f"{episode_states(own)}\n{fleet.logs()}")  # fmt: skip
         health = client.get("/healthz").json()
         assert health["status"] == "ok"
-    from robobpp.db.session import make_engine, make_session_factory
-
-    engine = make_engine(env["ROBOBPP_DATABASE_URL"])
-    try:
-        with make_session_factory(engine)() as s:
-            ran_by = s.execute(select(EpisodeRow.worker).where(EpisodeRow.status == "done")).scalars().all()
-    finally:
-        engine.dispose()
-    assert len(ran_by) >= 4 and all(w.startswith("celery:") for w in ran_by), ran_by
+    with own() as s:
+        ran = s.execute(select(EpisodeRow.status, EpisodeRow.worker)).all()
+    assert len(ran) >= 4 and all(st == "done" and w.startswith("celery:") for st, w in ran), ran

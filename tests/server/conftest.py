@@ -17,8 +17,11 @@ from typing import Any
 
 import httpx
 import pytest
+from sqlalchemy import select
 
 from robobpp.core import Action, Observation
+from robobpp.db import work
+from robobpp.db.models import Participant
 from robobpp.policies.dbl import DBL
 
 PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
@@ -203,6 +206,20 @@ def db_rows(url: str, sql: str, **params: Any) -> list[Any]:
             return list(conn.execute(text(sql), params).all())
     finally:
         engine.dispose()
+
+
+def submit_direct(app: Any, participant: str, url: str, *, datasets: tuple[str, ...], groups: int,
+                  name: str | None = None) -> int:  # fmt: skip
+    """A Math-setting submission written straight into the app's database (no HTTP, no quota), for tests
+    that need many entries quickly; the participant is created on first use."""
+    with app.state.runtime.session() as s:
+        p = s.execute(select(Participant).where(Participant.name == participant)).scalar_one_or_none()
+        if p is None:
+            p = Participant(name=participant)
+            s.add(p)
+            s.flush()
+        return work.create_submission(s, p, name=name or participant, policy_url=url, datasets=list(datasets),
+                                      settings=["math"], groups=groups).id  # fmt: skip
 
 
 def new_participant(client: httpx.Client, name: str = "alice") -> str:

@@ -13,13 +13,13 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from robobpp.core import Action
-from robobpp.db import work
-from robobpp.db.models import Participant, Submission
+from robobpp.db.models import Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
 from robobpp.worker.options import worker_options
 from robobpp.worker.run import claim_and_run
+from tests.server.conftest import submit_direct
 
 GROUPS = 4
 ADMIN = "board-admin-token-0123456789abcdef"
@@ -52,15 +52,7 @@ def board_app(tmp_path: Path):  # type: ignore[no-untyped-def]
 
 def submit(app: Any, participant: str, url: str, *, datasets: tuple[str, ...] = ("diverse", "longboard"),
            name: str | None = None) -> int:  # fmt: skip
-    with app.state.runtime.session() as s:
-        p = s.execute(select(Participant).where(Participant.name == participant)).scalar_one_or_none()
-        if p is None:
-            p = Participant(name=participant)
-            s.add(p)
-            s.flush()
-        sub = work.create_submission(s, p, name=name or participant, policy_url=url, datasets=list(datasets),
-                                     settings=["math"], groups=GROUPS)  # fmt: skip
-        return sub.id
+    return submit_direct(app, participant, url, datasets=datasets, groups=GROUPS, name=name)
 
 
 def drain(app: Any) -> None:

@@ -12,16 +12,16 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import event, select
+from sqlalchemy import event
 
-from robobpp.db import work
-from robobpp.db.models import Participant, Submission
+from robobpp.db.models import Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
 from robobpp.server.services.boards import BoardCache, compute_snapshot
 from robobpp.worker.options import worker_options
 from robobpp.worker.run import claim_and_run
+from tests.server.conftest import submit_direct
 
 GROUPS = 3
 ADMIN = "scale-admin-token-0123456789abcdef"
@@ -46,14 +46,7 @@ def scale_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
 
 
 def submit(app: Any, participant: str, url: str, name: str | None = None) -> int:
-    with app.state.runtime.session() as s:
-        p = s.execute(select(Participant).where(Participant.name == participant)).scalar_one_or_none()
-        if p is None:
-            p = Participant(name=participant)
-            s.add(p)
-            s.flush()
-        return work.create_submission(s, p, name=name or participant, policy_url=url, datasets=list(DATASETS),
-                                      settings=["math"], groups=GROUPS).id  # fmt: skip
+    return submit_direct(app, participant, url, datasets=DATASETS, groups=GROUPS, name=name)
 
 
 def drain(app: Any) -> None:
@@ -186,6 +179,7 @@ def test_metrics_scrape_costs_the_same_with_more_history(scale_app) -> None:
     assert 'robobpp_submissions{status="completed"} 4.0' in text
     assert 'robobpp_submissions{status="queued"} 0.0' in text
     assert 'robobpp_episodes{status="pending"} 0.0' in text
+    assert "robobpp_board_snapshot_seconds " in text and "robobpp_board_snapshots " in text
 
 
 def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str, tmp_path: Path) -> None:
@@ -214,3 +208,25 @@ def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str
             assert cache.computed >= 2
     finally:
         app.state.runtime.dispose()
+
+
+def test_the_account_page_is_paged(scale_app, monkeypatch: pytest.MonkeyPatch) -> None:
+    import re
+
+    from robobpp.server.site import account
+
+    app, _client = scale_app
+    names = [f"entry-{i}" for i in range(3)]
+    for name in names:
+        submit(app, "alice", "builtin:random", name=name)
+    drain(app)
+    monkeypatch.setattr(account, "ACCOUNT_PAGE_SIZE", 2)
+    browser = TestClient(app)
+    csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
+    assert csrf is not None
+    browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
+    first, second = browser.get("/account").text, browser.get("/account", params={"page": 2}).text
+    assert [n for n in names if n in first] == names[1:]  # newest first
+    assert 'href="?page=2"' in first and 'href="?page=1"' not in first
+    assert [n for n in names if n in second] == names[:1]
+    assert 'href="?page=1"' in second and 'href="?page=3"' not in second

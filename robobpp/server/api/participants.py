@@ -7,11 +7,14 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Request
 from sqlalchemy import select
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.db import queries
 from robobpp.db.models import ApiToken, Participant, utcnow
 from robobpp.schemas import Me, ParticipantCreate, ParticipantPublic, TokenCreated, TokenPublic
-from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, SettingsDep
+from robobpp.server.api.deps import AdminDep, Principal, PrincipalDep, SessionDep, SettingsDep
+from robobpp.server.config import Settings
 from robobpp.server.problems import ProblemError
 
 router = APIRouter(tags=["participants"])
@@ -48,7 +51,19 @@ def create_token(participant_id: Id, session: SessionDep, _admin: AdminDep) -> T
 
 
 @router.get("/me", response_model=Me, summary="Who the token belongs to, and its quota use")
-def me(request: Request, principal: PrincipalDep, session: SessionDep, settings: SettingsDep) -> Me:
+async def me(request: Request, principal: PrincipalDep, settings: SettingsDep) -> Me:
+    if principal.participant is None:
+        return Me(admin=principal.admin, participant=None)
+
+    def read() -> Me:
+        with request.app.state.runtime.read_session() as session:
+            return me_of(session, principal, settings)
+
+    return await run_in_threadpool(read)
+
+
+def me_of(session: Session, principal: Principal, settings: Settings) -> Me:
+    """Who ``principal`` is and its quota use (the API's /me and the account page)."""
     if principal.participant is None:
         return Me(admin=principal.admin, participant=None)
     day, active = queries.quota_usage(session, principal.participant.id)

@@ -30,7 +30,7 @@ from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate
 from robobpp.server.problems import ProblemError
-from robobpp.server.services.submissions import finished_views
+from robobpp.server.services.submissions import FinishedViews, finished_views
 from robobpp.server.urlsafety import (
     BUILTIN_SCHEME,
     CheckedURL,
@@ -164,13 +164,16 @@ async def list_submissions(
     views = finished_views(request.app.state)
 
     def listed(session: Session) -> bytes:
-        subs = queries.list_submissions(session, owner, limit=limit, offset=offset, with_runs=False)
-        # runs and progress read together for the ones not built yet (one query each, not two per submission)
-        missing = [s.id for s in subs if not views.has(("api",), s)]
+        # the page's keys first (a few columns, no objects); the submissions not built yet are then read
+        # whole, with their runs and progress (one query each, not two per submission)
+        keys = queries.list_submission_keys(session, owner, limit=limit, offset=offset)
+        missing = [k.id for k in keys if not views.has(("api",), k)]
+        subs = queries.submissions_by_id(session, missing)
         progress = queries.submissions_progress(session, missing)
         runs = queries.runs_of(session, missing)
-        parts = [views.get(("api",), s, lambda s=s: _json(session, s, progress.get(s.id), runs.get(s.id)))
-                 for s in subs]  # fmt: skip
+        parts = [views.get(("api",), k, lambda k=k: _json(session, subs[k.id] if k.id in subs else session.get(Submission, k.id),
+                                                          progress.get(k.id), runs.get(k.id)))
+                 for k in keys]  # fmt: skip
         return b"[" + b",".join(parts) + b"]"
 
     return Response(await in_read_session(request, listed), media_type="application/json")
@@ -187,15 +190,17 @@ async def in_read_session(request: Request, work: Callable[[Session], T]) -> T:
     return await run_in_threadpool(run)
 
 
-def submission_models(session: Session, principal: Principal, limit: int = 50, offset: int = 0,
-                      ) -> list[SubmissionPublic]:  # fmt: skip
-    """The listed submissions as models (the account page), with runs and progress read for the page."""
+def submission_models(views: FinishedViews, session: Session, principal: Principal, limit: int = 50,
+                      offset: int = 0) -> list[SubmissionPublic]:  # fmt: skip
+    """The listed submissions as models (the account pages), with runs and progress read for the page;
+    finished ones built once (``views``)."""
     owner = None if principal.admin else principal.participant_id
-    subs = queries.list_submissions(session, owner, limit=limit, offset=offset)
-    progress = queries.submissions_progress(session, [s.id for s in subs])
-    return [
-        SubmissionPublic.model_validate(queries.submission_view(session, s, progress[s.id])) for s in subs
-    ]
+    subs = queries.list_submissions(session, owner, limit=limit, offset=offset, with_runs=False)
+    missing = [s.id for s in subs if not views.has(("model",), s)]
+    progress = queries.submissions_progress(session, missing)
+    runs = queries.runs_of(session, missing)
+    return [views.get(("model",), s, lambda s=s: SubmissionPublic.model_validate(
+        queries.submission_view(session, s, progress.get(s.id), runs.get(s.id)))) for s in subs]  # fmt: skip
 
 
 def _json(session: Session, sub: Submission, progress: dict[str, Any] | None = None,
@@ -248,15 +253,20 @@ _EPISODES = TypeAdapter(list[EpisodePublic])
 
 @router.get("/submissions/{submission_id}/episodes/{episode_id}", response_model=EpisodeDetail,
             summary="One episode; public-track episodes include their replay trace")  # fmt: skip
-def episode(submission_id: Id, episode_id: Id, session: SessionDep, principal: PrincipalDep) -> EpisodeDetail:
-    sub = _visible(session, principal, submission_id)
-    ep = queries.get_episode(session, sub.id, episode_id)
-    if ep is None:
-        raise ProblemError(
-            404, "not-found", "Not found", f"no episode {episode_id} in submission {submission_id}"
-        )
-    trace = ep.trace if sub.track == "public" else None
-    return EpisodeDetail.model_validate({**queries.episode_summary(ep), "trace": trace})
+async def episode(
+    request: Request, submission_id: Id, episode_id: Id, principal: PrincipalDep
+) -> EpisodeDetail:
+    def one(session: Session) -> EpisodeDetail:
+        sub = _visible(session, principal, submission_id)
+        ep = queries.get_episode(session, sub.id, episode_id)
+        if ep is None:
+            raise ProblemError(
+                404, "not-found", "Not found", f"no episode {episode_id} in submission {submission_id}"
+            )
+        trace = ep.trace if sub.track == "public" else None
+        return EpisodeDetail.model_validate({**queries.episode_summary(ep), "trace": trace})
+
+    return await in_read_session(request, one)
 
 
 @router.post("/submissions/{submission_id}/verify", status_code=201, response_model=SubmissionPublic,

@@ -22,8 +22,9 @@ T = TypeVar("T")
 FINISHED = ("completed", "failed", "cancelled")
 
 
-def stamp(sub: Submission) -> tuple[Any, ...] | None:
-    """What a finished submission's served forms depend on, or None while it may still change."""
+def stamp(sub: Submission | Any) -> tuple[Any, ...] | None:
+    """What a finished submission's served forms depend on, or None while it may still change. ``sub``: a
+    submission, or a row with its ``id, status, finished_at, verification``."""
     if sub.status not in FINISHED or sub.finished_at is None:
         return None
     return sub.id, sub.status, sub.finished_at, json.dumps(sub.verification, sort_keys=True, default=str)
@@ -41,14 +42,14 @@ class FinishedViews:
         self._bytes = 0
         self._lock = threading.Lock()
 
-    def has(self, kind: tuple[Any, ...], sub: Submission) -> bool:
+    def has(self, kind: tuple[Any, ...], sub: Submission | Any) -> bool:
         key = stamp(sub)
         if key is None:
             return False
         with self._lock:
             return (*kind, *key) in self._items
 
-    def get(self, kind: tuple[Any, ...], sub: Submission, build: Callable[[], T]) -> T:
+    def get(self, kind: tuple[Any, ...], sub: Submission | Any, build: Callable[[], T]) -> T:
         key = stamp(sub)
         if key is None:
             return build()

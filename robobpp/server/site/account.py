@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Form, Path, Request
+from fastapi import APIRouter, Depends, Form, Path, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
@@ -21,6 +21,7 @@ from robobpp.server.api import participants as api_participants
 from robobpp.server.api import submissions as api_submissions
 from robobpp.server.api.deps import Principal, principal_for_token
 from robobpp.server.problems import ProblemError
+from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import not_found, redirect, refused, render
 from robobpp.server.site.session import Viewer, load_viewer, viewer
@@ -98,21 +99,28 @@ def _need_sign_in(request: Request) -> Response:
 # ---- your submissions ------------------------------------------------------------------------------------
 
 
+#: Submissions per page of the account page (newest first).
+ACCOUNT_PAGE_SIZE = 50
+
+
 @router.get("/account", response_class=HTMLResponse)
-def account_page(request: Request) -> Response:
+def account_page(request: Request, page: Annotated[int, Query(ge=1, le=10**5)] = 1) -> Response:
     who = viewer(request)
     principal = principal_of(request, who)
     if principal is None:
         return _need_sign_in(request)
     settings = request.app.state.settings
     with request.app.state.runtime.read_session() as session:
-        me = api_participants.me(request, principal, session, settings)
-        subs = api_submissions.submission_models(session, principal, limit=200, offset=0)
+        me = api_participants.me_of(session, principal, settings)
+        # one more than a page: whether a next page exists, without counting every submission
+        subs = api_submissions.submission_models(finished_views(request.app.state), session, principal,
+                                                 limit=ACCOUNT_PAGE_SIZE + 1, offset=(page - 1) * ACCOUNT_PAGE_SIZE)  # fmt: skip
         tokens = (
             api_participants.list_tokens(session, principal, participant_id=None) if not who.admin else []
         )
     return render(request, "account.html", title="Your submissions" if not who.admin else "All submissions",
-                  nav="account", me=me, subs=subs, tokens=tokens)  # fmt: skip
+                  nav="account", me=me, subs=subs[:ACCOUNT_PAGE_SIZE], tokens=tokens, page=page,
+                  more=len(subs) > ACCOUNT_PAGE_SIZE)  # fmt: skip
 
 
 @router.post("/account/tokens/{token_id}/revoke")

@@ -13,12 +13,13 @@ from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
 from sqlalchemy import func, select
 
-from robobpp.db import queries
 from robobpp.db.models import ApiToken, Participant, Submission
-from robobpp.schemas import ParticipantCreate, SubmissionPublic, TokenCreated
+from robobpp.schemas import ParticipantCreate, TokenCreated
 from robobpp.server.api import participants as api_participants
+from robobpp.server.api import submissions as api_submissions
 from robobpp.server.api.deps import Principal
 from robobpp.server.problems import ProblemError
+from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import session as web_session
 from robobpp.server.site.account import BAD_CSRF, Text, problem_page, problem_text
 from robobpp.server.site.render import not_found, redirect, refused, render
@@ -84,10 +85,8 @@ def _participant_page(request: Request, participant_id: int, *, created: TokenCr
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")
         tokens = api_participants.list_tokens(session, ADMIN, participant_id=participant_id)
-        listed = queries.list_submissions(session, participant_id, limit=200)
-        progress = queries.submissions_progress(session, [s.id for s in listed])
-        subs = [SubmissionPublic.model_validate(queries.submission_view(session, s, progress[s.id]))
-                for s in listed]  # fmt: skip
+        subs = api_submissions.submission_models(finished_views(request.app.state), session,
+                                                 Principal(participant, admin=False), limit=200)  # fmt: skip
         info = {"id": participant.id, "name": participant.name, "builtin": participant.is_builtin,
                 "created_at": participant.created_at}  # fmt: skip
     return render(request, "operator_participant.html", status_code, title=f"Participant {info['name']}",

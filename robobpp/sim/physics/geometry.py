@@ -83,6 +83,23 @@ def surface_height(
     xs, ys = _axis_samples(x0, x1, tolerance), _axis_samples(y0, y1, tolerance)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     points = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)  # (P, 3)
+    # A few boxes at a time: a long board's footprint holds ~15,000 rays, and all boxes at once made the
+    # (B, P, 3) arrays below tens of MB (the worker's peak memory). The result is the same.
+    per_chunk = max(1, RAY_BOX_BUDGET // points.shape[0])
+    top = -np.inf
+    for k in range(0, c.shape[0], per_chunk):
+        top = max(
+            top, _highest_hit(c[k : k + per_chunk], h[k : k + per_chunk], rot[k : k + per_chunk], points)
+        )
+    return max(0.0, float(top))
+
+
+#: Rays × boxes intersected at once by :func:`surface_height` (bounds its temporary arrays to a few MB).
+RAY_BOX_BUDGET = 50_000
+
+
+def _highest_hit(c: np.ndarray, h: np.ndarray, rot: np.ndarray, points: np.ndarray) -> float:
+    """Highest exit point of the vertical rays from ``points`` through the boxes they hit (-inf: none)."""
     # Ray r(t) = point + t·ez; in the box frame: a + t·d with a = Rᵀ(point − c), d = Rᵀ·ez.
     a = np.einsum("bji,bpj->bpi", rot, points[None, :, :] - c[:, None, :])  # (B, P, 3)
     d = rot[:, 2, :][:, None, :]  # (B, 1, 3)
@@ -96,9 +113,7 @@ def surface_height(
     t_hi = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
     enter, leave = t_lo.max(axis=2), t_hi.min(axis=2)
     hit = enter <= leave
-    if not hit.any():
-        return 0.0
-    return max(0.0, float(leave[hit].max()))
+    return float(leave[hit].max()) if hit.any() else -np.inf
 
 
 def heightmap_from_boxes(

@@ -205,25 +205,23 @@ class BoardCache:
     def snapshot(self, session: Session, track: str = "private") -> dict[str, Any]:
         """The track's boards and grid (:func:`compute_snapshot`), current as of its version."""
         version = self.version(session, track)
-        return self._get(("snapshot", self.datasets, self.settings, track), version, session,
-                         self._compute(track, version))  # fmt: skip
+        key = ("snapshot", self.datasets, self.settings, track)
+        return self._get(key, version, session, self._computer(key, version))
 
     def board(self, session: Session, dataset: str, setting: str, track: str = "private") -> dict[str, Any]:
         """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``."""
         if dataset in self.datasets and setting in self.settings:
             return self.snapshot(session, track)["boards"][(dataset, setting)]
-        version = self.version(session, track)
-        return self._get(("board", dataset, setting, track), version, session,
-                         lambda s: (None, queries.leaderboard(s, dataset, setting, track=track)))  # fmt: skip
+        version, key = self.version(session, track), ("board", dataset, setting, track)
+        return self._get(key, version, session, self._computer(key, version))
 
     def grid(self, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
              track: str = "private") -> dict[str, Any]:  # fmt: skip
         """The overall grid; page it with ``grid_view``."""
         if tuple(datasets) == self.datasets and tuple(settings) == self.settings:
             return self.snapshot(session, track)["grid"]
-        version = self.version(session, track)
-        return self._get(("grid", tuple(datasets), tuple(settings), track), version, session,
-                         lambda s: (None, compute_snapshot(s, tuple(datasets), tuple(settings), track)["grid"]))  # fmt: skip
+        version, key = self.version(session, track), ("grid", tuple(datasets), tuple(settings), track)
+        return self._get(key, version, session, self._computer(key, version))
 
     def warm(self, tracks: tuple[str, ...] = ("private", "public")) -> None:
         """Compute the snapshots of large tracks now (the server calls this in a thread when it starts), so
@@ -233,7 +231,7 @@ class BoardCache:
         for track in tracks:
             try:
                 with self.session_factory() as session:
-                    if self._in_process(self.version(session, track)):
+                    if self._in_board_process(self.version(session, track)):
                         self.snapshot(session, track)
             except Exception:  # noqa: BLE001 - the first reader computes it instead
                 log.exception("warming the %s boards failed", track)
@@ -243,14 +241,26 @@ class BoardCache:
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
 
-    def _in_process(self, version: tuple[Any, ...]) -> bool:
+    def _in_board_process(self, version: tuple[Any, ...]) -> bool:
         return (
             bool(self.database_url) and self.process_from is not None and int(version[0]) >= self.process_from
         )
 
-    def _compute(self, track: str, version: tuple[Any, ...]) -> Callable[[Session], tuple[Any, Any]]:
+    def _computer(
+        self, key: tuple[Any, ...], version: tuple[Any, ...]
+    ) -> Callable[[Session], tuple[Any, Any]]:
+        """How to compute a slot's value (``key``: ``("snapshot" | "board" | "grid", …, track)``), as
+        (version computed at or None, value); the first reader and the background refresh share it."""
+        kind, track = key[0], key[-1]
+        if kind == "board":
+            return lambda s: (None, queries.leaderboard(s, key[1], key[2], track=track))
+        if kind == "grid":
+            return lambda s: (None, compute_snapshot(s, key[1], key[2], track)["grid"])
+        return self._compute_snapshot(track, version)
+
+    def _compute_snapshot(self, track: str, version: tuple[Any, ...]) -> Callable[[Session], tuple[Any, Any]]:
         """(version computed at or None, snapshot): in this thread, or in the board process."""
-        if not self._in_process(version):
+        if not self._in_board_process(version):
             return lambda s: (None, compute_snapshot(s, self.datasets, self.settings, track))
 
         def remote(_session: Session) -> tuple[Any, Any]:
@@ -320,13 +330,7 @@ class BoardCache:
                 # the version read first: a submission finishing meanwhile makes the next read refresh again
                 session.info.pop("board_versions", None)
                 version = board_version(session, track)
-                if key[0] == "snapshot":
-                    compute = self._compute(track, version)
-                elif key[0] == "board":
-                    compute = lambda s: (None, queries.leaderboard(s, key[1], key[2], track=track))  # noqa: E731
-                else:
-                    compute = lambda s: (None, compute_snapshot(s, key[1], key[2], track)["grid"])  # noqa: E731
-                self._store(key, version, compute, session)
+                self._store(key, version, self._computer(key, version), session)
         except Exception:  # noqa: BLE001 - readers keep the previous board; the next stale read retries
             log.exception("board refresh failed for %s", key)
         finally:

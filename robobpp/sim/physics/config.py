@@ -112,16 +112,10 @@ class PhysicsConfig:
             raise ValueError(f"physics gravity must be > 0, got {self.gravity!r}")
         if self.lateral_friction < 0 or self.restitution < 0 or self.restitution > 1:
             raise ValueError("friction must be >= 0 and restitution in [0, 1]")
-        if (
-            self.heightmap_resolution_cm < 0
-            or self.release_gap_cm < 0
-            or self.edge_tolerance_cm < 0
-            or self.wake_margin_cm < 0
-            or self.clear_gap_cm < 0
-            or self.heightmap_shrink_cm < 0
-            or self.pose_resolution_cm < 0
-        ):
-            raise ValueError("release gap, edge tolerance and wake margin must be >= 0")
+        lengths = ("heightmap_resolution_cm", "release_gap_cm", "edge_tolerance_cm", "wake_margin_cm",
+                   "clear_gap_cm", "heightmap_shrink_cm", "pose_resolution_cm")  # fmt: skip
+        if negative := [name for name in lengths if getattr(self, name) < 0]:
+            raise ValueError(f"physics lengths must be >= 0: {', '.join(negative)}")
         if min(self.solver_iterations, self.stability_steps, self.rest_steps, self.max_steps) < 1:
             raise ValueError("solver iterations and step counts must be >= 1")
         if self.box_mass_kg is not None and not (math.isfinite(self.box_mass_kg) and self.box_mass_kg > 0):

@@ -15,13 +15,14 @@ returns plain dicts ready for JSON or templates.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import exists, func, select, true
+from sqlalchemy import Select, exists, func, select, true
 from sqlalchemy.orm import Session, joinedload, selectinload
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
@@ -98,6 +99,16 @@ def queue_snapshot(session: Session) -> tuple[dict[str, int], dict[str, int], tu
     """What a /metrics scrape reads, in one statement (one round trip): episodes by queue status, active
     submissions by status, and :func:`last_finished`. Each part is an index lookup whose cost follows the
     queue, not the history."""
+    row = session.execute(_queue_statement()).one()
+    q, a = len(QUEUE_STATUSES), len(ACTIVE_SUBMISSION_STATUSES)
+    episodes = {s: int(n) for s, n in zip(QUEUE_STATUSES, row[:q], strict=True)}
+    active = {s: int(n) for s, n in zip(ACTIVE_SUBMISSION_STATUSES, row[q : q + a], strict=True)}
+    return episodes, active, tuple(row[q + a :])
+
+
+@functools.cache
+def _queue_statement() -> Select[Any]:
+    """Built once: assembling its eight subqueries cost more CPU than running them."""
     parts = [
         select(func.count()).select_from(EpisodeRow).where(EpisodeRow.status == s).scalar_subquery()
         for s in QUEUE_STATUSES
@@ -110,11 +121,7 @@ def queue_snapshot(session: Session) -> tuple[dict[str, int], dict[str, int], tu
         select(func.max(Submission.finished_at)).where(Submission.track == t).scalar_subquery()
         for t in TRACKS
     ]
-    row = session.execute(select(*parts)).one()
-    q, a = len(QUEUE_STATUSES), len(ACTIVE_SUBMISSION_STATUSES)
-    episodes = {s: int(n) for s, n in zip(QUEUE_STATUSES, row[:q], strict=True)}
-    active = {s: int(n) for s, n in zip(ACTIVE_SUBMISSION_STATUSES, row[q : q + a], strict=True)}
-    return episodes, active, tuple(row[q + a :])
+    return select(*parts)
 
 
 ACTIVE_SUBMISSION_STATUSES = ("queued", "running")
@@ -227,31 +234,48 @@ def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
     return submissions_progress(session, [submission_id])[submission_id]
 
 
-def submissions_progress(session: Session, submission_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
-    """:func:`submission_progress` of several submissions in one aggregate (a listed page of submissions
-    costs one query, not two per submission), plus one phase lookup per submission still running."""
+def episode_counts(session: Session, submission_ids: Sequence[int]) -> dict[int, dict[str, int]]:
+    """Each submission's episodes by status, in one aggregate."""
     counts: dict[int, dict[str, int]] = {i: {} for i in submission_ids}
-    if submission_ids:
+    if counts:
         for sid, status, n in session.execute(
             select(EpisodeRow.submission_id, EpisodeRow.status, func.count())
-            .where(EpisodeRow.submission_id.in_(list(submission_ids)))
+            .where(EpisodeRow.submission_id.in_(list(counts)))
             .group_by(EpisodeRow.submission_id, EpisodeRow.status)
         ):
             counts[sid][status] = n
-    return {sid: _progress(session, sid, c) for sid, c in counts.items()}
+    return counts
 
 
-def _progress(session: Session, submission_id: int, counts: dict[str, int]) -> dict[str, Any]:
-    running = (
-        session.execute(
-            select(EpisodeRow.dataset, EpisodeRow.setting)
-            .where(EpisodeRow.submission_id == submission_id, EpisodeRow.status.in_(("running", "pending")))
-            .order_by(EpisodeRow.id)
-            .limit(1)
-        ).first()
-        if counts.get("running") or counts.get("pending")
-        else None
-    )
+def submissions_progress(session: Session, submission_ids: Sequence[int],
+                         known: Mapping[int, dict[str, int]] | None = None) -> dict[int, dict[str, Any]]:  # fmt: skip
+    """:func:`submission_progress` of several submissions in two queries whatever their number: the
+    episodes by status (those not already ``known``, from :func:`episode_counts`), and the phase of those
+    still waiting or running (a page of 50 queued submissions once cost a phase lookup each, 50 round
+    trips; BENCHMARKS.md)."""
+    known = known or {}
+    counts = episode_counts(session, [i for i in submission_ids if i not in known])
+    counts.update({i: known[i] for i in submission_ids if i in known})
+    phases: dict[int, str] = {}
+    waiting = [sid for sid, c in counts.items() if c.get("running") or c.get("pending")]
+    if waiting:
+        # the phase is that of the first episode (creation order) still waiting or running
+        first = (
+            select(func.min(EpisodeRow.id).label("id"))
+            .where(EpisodeRow.submission_id.in_(waiting), EpisodeRow.status.in_(("running", "pending")))
+            .group_by(EpisodeRow.submission_id)
+            .subquery()
+        )
+        for sid, dataset, setting in session.execute(
+            select(EpisodeRow.submission_id, EpisodeRow.dataset, EpisodeRow.setting).join(
+                first, EpisodeRow.id == first.c.id
+            )
+        ):
+            phases[sid] = f"{setting}/{dataset}"
+    return {sid: _progress(c, phases.get(sid)) for sid, c in counts.items()}
+
+
+def _progress(counts: dict[str, int], phase: str | None) -> dict[str, Any]:
     total = sum(counts.values())
     finished = counts.get("done", 0) + counts.get("failed", 0)
     return {
@@ -261,7 +285,7 @@ def _progress(session: Session, submission_id: int, counts: dict[str, int]) -> d
         "episodes_pending": counts.get("pending", 0),
         "episodes_failed": counts.get("failed", 0),
         "episodes_cancelled": counts.get("cancelled", 0),
-        "phase": f"{running.setting}/{running.dataset}" if running else None,
+        "phase": phase,
     }
 
 
@@ -293,6 +317,41 @@ def runs_of(session: Session, submission_ids: Sequence[int]) -> dict[int, list[R
         for run in rows:
             out[run.submission_id].append(run)
     return out
+
+
+def participant_summaries(session: Session) -> list[dict[str, Any]]:
+    """Every participant with its active tokens and submissions counted, in one statement (the operator
+    page; reading participants as objects cost more CPU than the page's other work together)."""
+    return [{"id": i, "name": name, "builtin": builtin, "created_at": created, "tokens": t, "submissions": n}
+            for i, name, builtin, created, t, n in session.execute(_participants_statement())]  # fmt: skip
+
+
+@functools.cache
+def _participants_statement() -> Select[Any]:
+    tokens = (
+        select(ApiToken.participant_id, func.count().label("n"))
+        .where(ApiToken.revoked_at.is_(None))
+        .group_by(ApiToken.participant_id)
+        .subquery()
+    )
+    subs = (
+        select(Submission.participant_id, func.count().label("n"))
+        .group_by(Submission.participant_id)
+        .subquery()
+    )
+    return (
+        select(
+            Participant.id,
+            Participant.name,
+            Participant.is_builtin,
+            Participant.created_at,
+            func.coalesce(tokens.c.n, 0),
+            func.coalesce(subs.c.n, 0),
+        )  # fmt: skip
+        .outerjoin(tokens, tokens.c.participant_id == Participant.id)
+        .outerjoin(subs, subs.c.participant_id == Participant.id)
+        .order_by(Participant.id)
+    )
 
 
 def list_submission_keys(session: Session, participant_id: int | None, *, limit: int = 50,

@@ -65,6 +65,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         from robobpp.server.api.leaderboards import make_board_cache
 
         board_cache = app.state.board_cache = make_board_cache(runtime)
+        # the boards stored before a restart, served until recomputed (services/boards.py)
+        await _run_sync(board_cache.load_stored)
         # large tracks' boards computed now, in the background, not by the first readers
         threading.Thread(target=board_cache.warm, daemon=True, name="board-warm").start()
         executor = None

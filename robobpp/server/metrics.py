@@ -1,14 +1,22 @@
 """Prometheus ``/metrics``: request counts and latencies, plus the evaluation queue read from SQL.
 
-Each app has its own registry so several apps (tests) never clash over global collectors.
+Each app has its own registries so several apps (tests) never clash over global collectors.
+
+The request counters and latency histograms (a dozen lines per route, hundreds in all) cost milliseconds of
+CPU to render with ``prometheus_client``; they are rendered at most once per ``REQUEST_METRICS_MAX_AGE_S``
+and served from that rendering meanwhile (a route seen for the first time renders them again at once). A
+scraper polling every 15 s never sees the cache; a flood of scrapes no longer costs a rendering each. The
+queue and board gauges are read at every scrape.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+import prometheus_client
 from fastapi import FastAPI, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily
@@ -16,6 +24,9 @@ from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 FINISHED_SUBMISSIONS = ("completed", "failed", "cancelled")
+#: Request latency buckets (s): the 100 ms page target is one of the edges.
+LATENCY_BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
+REQUEST_METRICS_MAX_AGE_S = 1.0
 
 
 class _QueueCollector(Collector):
@@ -89,8 +100,10 @@ class _CountRequests:
     of its own and copies the body through a stream, a fixed cost on every request (BENCHMARKS.md).
     """
 
-    def __init__(self, app: ASGIApp, requests: Counter, latency: Histogram) -> None:
-        self.app, self.requests, self.latency = app, requests, latency
+    def __init__(
+        self, app: ASGIApp, requests: Counter, latency: Histogram, rendered: _RenderedRequests
+    ) -> None:
+        self.app, self.requests, self.latency, self.rendered = app, requests, latency, rendered
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -112,20 +125,46 @@ class _CountRequests:
             method = scope.get("method", "")
             self.requests.labels(method, path, str(status)).inc()
             self.latency.labels(method, path).observe(time.perf_counter() - started)
+            self.rendered.saw((method, path, status))
+
+
+class _RenderedRequests:
+    """The request metrics' text, rendered at most once per ``max_age_s`` unless a new label set appeared."""
+
+    def __init__(self, registry: CollectorRegistry, max_age_s: float = REQUEST_METRICS_MAX_AGE_S) -> None:
+        self.registry, self.max_age_s = registry, max_age_s
+        self._labels: set[tuple[str, str, int]] = set()
+        self._lock = threading.Lock()
+        self._text, self._at, self._labels_at = b"", -float("inf"), -1
+
+    def saw(self, labels: tuple[str, str, int]) -> None:
+        if labels not in self._labels:
+            self._labels.add(labels)
+
+    def text(self) -> bytes:
+        with self._lock:  # concurrent scrapes share one rendering
+            now = time.monotonic()
+            if now - self._at >= self.max_age_s or len(self._labels) != self._labels_at:
+                self._labels_at = len(self._labels)
+                self._text, self._at = generate_latest(self.registry), now
+            return self._text
 
 
 def install_metrics(app: FastAPI) -> None:
-    registry = CollectorRegistry()
+    # ``*_created`` timestamps: a line per label set that no dashboard here reads
+    prometheus_client.disable_created_metrics()
+    requests_registry, registry = CollectorRegistry(), CollectorRegistry()
     requests = Counter(
-        "robobpp_http_requests", "HTTP requests", ["method", "route", "status"], registry=registry
+        "robobpp_http_requests", "HTTP requests", ["method", "route", "status"], registry=requests_registry
     )
     latency = Histogram("robobpp_http_request_seconds", "HTTP request latency", ["method", "route"],
-                        registry=registry)  # fmt: skip
+                        buckets=LATENCY_BUCKETS, registry=requests_registry)  # fmt: skip
+    rendered = _RenderedRequests(requests_registry)
     registry.register(_QueueCollector(app))
     app.state.metrics_registry = registry
 
-    app.add_middleware(_CountRequests, requests=requests, latency=latency)
+    app.add_middleware(_CountRequests, requests=requests, latency=latency, rendered=rendered)
 
     @app.get("/metrics", include_in_schema=False)
     def metrics() -> Response:
-        return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+        return Response(rendered.text() + generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

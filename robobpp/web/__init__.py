@@ -62,6 +62,7 @@ def environment() -> jinja2.Environment:
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
         lstrip_blocks=True,
+        auto_reload=False,  # packaged templates: no stat() of every template file on every page
     )
     env.filters["num"] = fmt_num
     env.filters["pct"] = fmt_pct

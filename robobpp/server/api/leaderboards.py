@@ -34,7 +34,7 @@ def make_board_cache(runtime: Runtime) -> BoardCache:
     settings = runtime.settings
     return BoardCache(runtime.read_session, refresh_s=settings.board_refresh_s, datasets=tuple(settings.datasets),
                       settings=tuple(settings.enabled_settings), database_url=settings.sqlalchemy_url,
-                      process_from=settings.board_process_from)  # fmt: skip
+                      process_from=settings.board_process_from, store_dir=settings.state_dir)  # fmt: skip
 
 
 async def cached_body(request: Request, track: str, key: tuple[Any, ...],

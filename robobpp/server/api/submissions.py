@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from robobpp.db import queries, work
-from robobpp.db.models import Participant, RunRow, Submission
+from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
 from robobpp.schemas import (
     PULL_URL,
@@ -30,7 +30,7 @@ from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate
 from robobpp.server.problems import ProblemError
-from robobpp.server.services.submissions import FinishedViews, finished_views
+from robobpp.server.services.submissions import FinishedViews, finished_views, stamp
 from robobpp.server.urlsafety import (
     BUILTIN_SCHEME,
     CheckedURL,
@@ -164,17 +164,9 @@ async def list_submissions(
     views = finished_views(request.app.state)
 
     def listed(session: Session) -> bytes:
-        # the page's keys first (a few columns, no objects); the submissions not built yet are then read
-        # whole, with their runs and progress (one query each, not two per submission)
-        keys = queries.list_submission_keys(session, owner, limit=limit, offset=offset)
-        missing = [k.id for k in keys if not views.has(("api",), k)]
-        subs = queries.submissions_by_id(session, missing)
-        progress = queries.submissions_progress(session, missing)
-        runs = queries.runs_of(session, missing)
-        parts = [views.get(("api",), k, lambda k=k: _json(session, subs[k.id] if k.id in subs else session.get(Submission, k.id),
-                                                          progress.get(k.id), runs.get(k.id)))
-                 for k in keys]  # fmt: skip
-        return b"[" + b",".join(parts) + b"]"
+        return (
+            b"[" + b",".join(listed_forms(views, session, owner, limit, offset, ("api",), _view_json)) + b"]"
+        )
 
     return Response(await in_read_session(request, listed), media_type="application/json")
 
@@ -190,23 +182,42 @@ async def in_read_session(request: Request, work: Callable[[Session], T]) -> T:
     return await run_in_threadpool(run)
 
 
+def listed_forms(views: FinishedViews, session: Session, owner: int | None, limit: int, offset: int,
+                 kind: tuple[Any, ...], build: Callable[[dict[str, Any]], T]) -> list[T]:  # fmt: skip
+    """A page of submissions (newest first; ``owner``'s, or everyone's) as served forms, each ``build``
+    from its :func:`queries.submission_view` and kept in ``views`` under ``kind``.
+
+    The page's keys first (a few columns, no objects) and the episode counts of those not finished (one
+    aggregate): what tells whether a form built before is still current. Only the submissions without one
+    are then read whole, with their runs and progress (one query each, not two per submission)."""
+    keys = queries.list_submission_keys(session, owner, limit=limit, offset=offset)
+    counts = queries.episode_counts(session, [k.id for k in keys if stamp(k) is None])
+    missing = [k.id for k in keys if not views.has(kind, k, counts.get(k.id))]
+    subs = queries.submissions_by_id(session, missing)
+    progress = queries.submissions_progress(session, missing, counts)
+    runs = queries.runs_of(session, missing)
+
+    def view(sub_id: int) -> dict[str, Any]:
+        # evicted between the check and now: read on its own
+        sub = subs[sub_id] if sub_id in subs else session.get(Submission, sub_id)
+        return queries.submission_view(session, sub, progress.get(sub_id), runs.get(sub_id))
+
+    return [views.get(kind, k, lambda k=k: build(view(k.id)), counts.get(k.id)) for k in keys]
+
+
 def submission_models(views: FinishedViews, session: Session, principal: Principal, limit: int = 50,
                       offset: int = 0) -> list[SubmissionPublic]:  # fmt: skip
-    """The listed submissions as models (the account pages), with runs and progress read for the page;
-    finished ones built once (``views``)."""
+    """The listed submissions as models (the account pages); see :func:`listed_forms`."""
     owner = None if principal.admin else principal.participant_id
-    subs = queries.list_submissions(session, owner, limit=limit, offset=offset, with_runs=False)
-    missing = [s.id for s in subs if not views.has(("model",), s)]
-    progress = queries.submissions_progress(session, missing)
-    runs = queries.runs_of(session, missing)
-    return [views.get(("model",), s, lambda s=s: SubmissionPublic.model_validate(
-        queries.submission_view(session, s, progress.get(s.id), runs.get(s.id)))) for s in subs]  # fmt: skip
+    return listed_forms(views, session, owner, limit, offset, ("model",), SubmissionPublic.model_validate)
 
 
-def _json(session: Session, sub: Submission, progress: dict[str, Any] | None = None,
-          runs: list[RunRow] | None = None) -> bytes:  # fmt: skip
-    view = queries.submission_view(session, sub, progress, runs)
+def _view_json(view: dict[str, Any]) -> bytes:
     return SubmissionPublic.model_validate(view).model_dump_json().encode()
+
+
+def _json(session: Session, sub: Submission) -> bytes:
+    return _view_json(queries.submission_view(session, sub))
 
 
 @router.get("/submissions/{submission_id}", response_model=SubmissionPublic,

@@ -12,13 +12,24 @@ wait seconds, and it is current again as soon as that computation ends.
 
 ``refresh_s`` (``ROBOBPP_BOARD_REFRESH_S``, 1 s by default) bounds how often a process asks SQL for the
 version: a board may then lag a finished submission by that long, and a read costs no query at all.
+
+The board process also stores each snapshot it computes in the state directory (``boards-<track>.pickle``,
+written whole then renamed). A restarted server loads it before it answers anyone, serves it at once and
+recomputes in the background, always (the code or the data may have changed while it was down): a restart
+at 10,000 submissions no longer leaves readers waiting the minute a snapshot takes. The file is the
+server's own, as trusted as the SQLite database beside it; one that does not load, or was written by
+another version, database or board set, is ignored.
 """
 
 from __future__ import annotations
 
+import gc
+import hashlib
 import json
 import logging
+import math
 import multiprocessing
+import os
 import pickle
 import threading
 import time
@@ -27,14 +38,17 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import AbstractContextManager
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from robobpp import __version__
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.leaderboard import build_grid
+from robobpp.sim.physics.config import PHYSICS_VERSION
 
 log = logging.getLogger("robobpp.server")
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -83,15 +97,30 @@ def compute_snapshot(session: Session, datasets: tuple[str, ...], settings: tupl
 
 
 _CHILD_FACTORIES: dict[str, Any] = {}
+#: Bumped when a stored snapshot's layout changes (``_stored_key``).
+STORE_FORMAT = 1
 
 
-def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str, ...],
-                       track: str) -> tuple[tuple[Any, ...], list[bytes]]:  # fmt: skip
+def _stored_key(
+    url: str, datasets: tuple[str, ...], settings: tuple[str, ...], track: str
+) -> tuple[Any, ...]:
+    """What a stored snapshot must have been computed for to be served after a restart."""
+    database = hashlib.sha256(url.encode()).hexdigest()[:16]  # never the URL itself: it may hold a password
+    return STORE_FORMAT, __version__, PHYSICS_VERSION, database, datasets, settings, track
+
+
+def stored_path(store_dir: Path, track: str) -> Path:
+    return store_dir / f"boards-{track}.pickle"
+
+
+def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str, ...], track: str,
+                       store_dir: str | None = None) -> tuple[tuple[Any, ...], list[bytes]]:  # fmt: skip
     """:func:`compute_snapshot` in the board process: the version it read and the snapshot, pickled in parts
     (each board, the grid) so the serving process unpickles one part at a time, never holding its GIL for
-    the whole snapshot."""
+    the whole snapshot. Stored in ``store_dir`` too, for the next start (module docstring)."""
     from robobpp.db.session import is_sqlite, make_engine, make_session_factory
 
+    started = time.perf_counter()
     factory = _CHILD_FACTORIES.get(url)
     if factory is None:
         factory = _CHILD_FACTORIES[url] = make_session_factory(make_engine(url, read_only=True, pool_size=1))
@@ -102,7 +131,48 @@ def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str,
         snap = compute_snapshot(session, datasets, settings, track)
     parts = [pickle.dumps(("grid", snap["grid"]), protocol=pickle.HIGHEST_PROTOCOL)]
     parts += [pickle.dumps((key, b), protocol=pickle.HIGHEST_PROTOCOL) for key, b in snap["boards"].items()]
+    if store_dir is not None:
+        stored = {"key": _stored_key(url, datasets, settings, track), "version": version,
+                  "seconds": time.perf_counter() - started, "parts": parts}  # fmt: skip
+        path = stored_path(Path(store_dir), track)
+        try:
+            partial = path.with_name(f".{path.name}.{os.getpid()}")
+            partial.write_bytes(pickle.dumps(stored, protocol=pickle.HIGHEST_PROTOCOL))
+            os.replace(partial, path)  # readers of the file see the old one or the new one, whole
+        except OSError:
+            log.exception("storing the %s boards in %s failed", track, store_dir)
     return version, parts
+
+
+def _load_parts(parts: list[bytes]) -> dict[str, Any]:
+    """A snapshot from its pickled parts, one part at a time (the request threads run between parts)."""
+    snap: dict[str, Any] = {"boards": {}}
+    for part in parts:
+        key, value = pickle.loads(part)
+        if key == "grid":
+            snap["grid"] = value
+        else:
+            snap["boards"][key] = value
+        # part by part: the collector never gets to traverse a half-loaded snapshot either
+        _out_of_the_collectors_reach()
+        time.sleep(0)
+    if "grid" not in snap:
+        raise ValueError("a snapshot without its grid")
+    return snap
+
+
+def _out_of_the_collectors_reach() -> None:
+    """Move what was just unpickled into the permanent generation (``gc.freeze``).
+
+    A snapshot at 10,000 submissions is ~750,000 GC-tracked dicts and lists; every full collection of the
+    cycle collector traverses all of them, a pause of ~0.6 s in which no request of the API process moves
+    (BENCHMARKS.md). Boards hold no reference cycles (tests/server/test_scale.py), so frozen boards are
+    still freed by reference counting once a newer snapshot replaces them. A young-generation collection
+    first (milliseconds), so the short-lived garbage of request threads is not frozen with them; what
+    cyclic garbage sits in the oldest generation at that moment is kept — a bounded amount per snapshot.
+    """
+    gc.collect(1)
+    gc.freeze()
 
 
 class _Slot:
@@ -119,13 +189,15 @@ class BoardCache:
     ``datasets``/``settings`` are the boards a snapshot holds (a board outside them is computed on its own).
     ``database_url`` and ``process_from``: a track with at least ``process_from`` finished submissions is
     computed in a separate process (``_snapshot_in_child``), so the seconds of CPU it takes never hold the
-    serving process's GIL; smaller tracks are computed in the calling thread.
+    serving process's GIL; smaller tracks are computed in the calling thread. ``store_dir``: where the board
+    process stores each snapshot, and :meth:`load_stored` finds them after a restart.
     """
 
     def __init__(self, session_factory: SessionFactory | None = None, *, size: int = 64,
                  sync_limit_s: float = 0.25, refresh_s: float = 0.0,
                  datasets: tuple[str, ...] = queries.DATASETS_ORDER, settings: tuple[str, ...] = queries.SETTINGS_ORDER,
-                 database_url: str | None = None, process_from: int | None = None) -> None:  # fmt: skip
+                 database_url: str | None = None, process_from: int | None = None,
+                 store_dir: Path | None = None) -> None:  # fmt: skip
         self._slots: dict[tuple[Any, ...], _Slot] = {}
         self._lock = threading.Lock()
         self._computing: dict[tuple[Any, ...], threading.Lock] = {}
@@ -136,6 +208,7 @@ class BoardCache:
         self.datasets, self.settings = tuple(datasets), tuple(settings)
         self.database_url = database_url
         self.process_from = process_from
+        self.store_dir = store_dir
         self._pool: ProcessPoolExecutor | None = None
         self._versions: dict[str, tuple[float, tuple[Any, ...]]] = {}
         self._local = threading.local()  # the version of the data a body being built was read from
@@ -144,6 +217,8 @@ class BoardCache:
         #: Snapshots computed so far, and how long the last one took (``robobpp_board_*`` in /metrics).
         self.computed = 0
         self.last_seconds = 0.0
+        #: Snapshots loaded from ``store_dir`` at start.
+        self.loaded = 0
 
     def version(self, session: Session, track: str) -> tuple[Any, ...]:
         """The track's version, read from SQL at most every ``refresh_s`` seconds per process: within that
@@ -236,6 +311,34 @@ class BoardCache:
             except Exception:  # noqa: BLE001 - the first reader computes it instead
                 log.exception("warming the %s boards failed", track)
 
+    def load_stored(self, tracks: tuple[str, ...] = ("private", "public")) -> None:
+        """Serve the snapshots the board process stored before a restart until they are recomputed (the
+        server calls this before it answers anyone; :meth:`warm` then recomputes them in the background)."""
+        if self.store_dir is None or not self.database_url:
+            return
+        for track in tracks:
+            path = stored_path(self.store_dir, track)
+            if not path.is_file():
+                continue
+            try:
+                stored = pickle.loads(path.read_bytes())
+                if stored["key"] != _stored_key(self.database_url, self.datasets, self.settings, track):
+                    log.info("ignoring %s: written for another version, database or set of boards", path)
+                    continue
+                snap = _load_parts(stored["parts"])
+                # never equal to a version read from SQL: the first read starts the recomputation, and
+                # bodies built meanwhile are stored as built from this snapshot
+                version = ("stored", *stored["version"])
+            except Exception:  # noqa: BLE001 - a damaged file costs a recomputation, never the start
+                log.warning("ignoring %s: it does not load", path, exc_info=True)
+                continue
+            with self._lock:
+                # as if it took forever to compute: readers never wait for its successor
+                self._slots[("snapshot", self.datasets, self.settings, track)] = _Slot(
+                    version, snap, math.inf
+                )
+                self.loaded += 1
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)
@@ -271,17 +374,10 @@ class BoardCache:
                                                      max_tasks_per_child=1)  # fmt: skip
                 pool = self._pool
             assert self.database_url is not None
+            store = None if self.store_dir is None else str(self.store_dir)
             computed_at, parts = pool.submit(_snapshot_in_child, self.database_url, self.datasets,
-                                             self.settings, track).result()  # fmt: skip
-            snap: dict[str, Any] = {"boards": {}}
-            for part in parts:
-                key, value = pickle.loads(part)
-                if key == "grid":
-                    snap["grid"] = value
-                else:
-                    snap["boards"][key] = value
-                time.sleep(0)  # let the request threads run between parts
-            return computed_at, snap
+                                             self.settings, track, store).result()  # fmt: skip
+            return computed_at, _load_parts(parts)
 
         return remote
 

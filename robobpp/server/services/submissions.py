@@ -1,11 +1,15 @@
-"""Served forms of finished submissions, built once: a finished submission never changes.
+"""Served forms of submissions, built once per state of the submission.
 
 Once a submission is completed, failed or cancelled, its runs, episodes and progress are final (workers
 write only under a live lease, and finishing clears them); only a verification verdict may still be
 written onto it. So its API body, its episode list and its page's episode table are keyed by
 ``(id, status, finished_at, verification)`` — read with the submission's own row, which every route loads
-anyway to check who may see it — and built once per process. A submission still queued or running is
-built on every read.
+anyway to check who may see it — and built once per process.
+
+A submission still queued or running changes only when one of its episodes changes status (its progress,
+phase and runs all follow from that), so where a caller has its episode counts by status (a listed page
+reads them in one aggregate) its summary is keyed by them: a backlog of queued submissions is built once,
+not at every read of every page that lists it. Without the counts it is built on every read.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ from __future__ import annotations
 import json
 import threading
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
 from robobpp.db.models import Submission
@@ -22,11 +26,12 @@ T = TypeVar("T")
 FINISHED = ("completed", "failed", "cancelled")
 
 
-def stamp(sub: Submission | Any) -> tuple[Any, ...] | None:
-    """What a finished submission's served forms depend on, or None while it may still change. ``sub``: a
-    submission, or a row with its ``id, status, finished_at, verification``."""
+def stamp(sub: Submission | Any, counts: Mapping[str, int] | None = None) -> tuple[Any, ...] | None:
+    """What a submission's served forms depend on, or None when that is unknown. ``sub``: a submission, or
+    a row with its ``id, status, finished_at, verification``; ``counts``: its episodes by status, for one
+    not finished."""
     if sub.status not in FINISHED or sub.finished_at is None:
-        return None
+        return None if counts is None else (sub.id, sub.status, "waiting", tuple(sorted(counts.items())))
     return sub.id, sub.status, sub.finished_at, json.dumps(sub.verification, sort_keys=True, default=str)
 
 
@@ -42,15 +47,18 @@ class FinishedViews:
         self._bytes = 0
         self._lock = threading.Lock()
 
-    def has(self, kind: tuple[Any, ...], sub: Submission | Any) -> bool:
-        key = stamp(sub)
+    def has(
+        self, kind: tuple[Any, ...], sub: Submission | Any, counts: Mapping[str, int] | None = None
+    ) -> bool:
+        key = stamp(sub, counts)
         if key is None:
             return False
         with self._lock:
             return (*kind, *key) in self._items
 
-    def get(self, kind: tuple[Any, ...], sub: Submission | Any, build: Callable[[], T]) -> T:
-        key = stamp(sub)
+    def get(self, kind: tuple[Any, ...], sub: Submission | Any, build: Callable[[], T],
+            counts: Mapping[str, int] | None = None) -> T:  # fmt: skip
+        key = stamp(sub, counts)
         if key is None:
             return build()
         full = (*kind, *key)

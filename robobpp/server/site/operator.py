@@ -11,9 +11,9 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Path, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
-from sqlalchemy import func, select
 
-from robobpp.db.models import ApiToken, Participant, Submission
+from robobpp.db import queries
+from robobpp.db.models import Participant
 from robobpp.schemas import ParticipantCreate, TokenCreated
 from robobpp.server.api import participants as api_participants
 from robobpp.server.api import submissions as api_submissions
@@ -46,13 +46,7 @@ def _refuse_form(request: Request, csrf: str) -> Response | None:
 def _participants_page(request: Request, *, created: TokenCreated | None = None, error: str | None = None,
                        name: str = "", status_code: int = 200) -> Response:  # fmt: skip
     with request.app.state.runtime.read_session() as session:
-        tokens = dict(session.execute(select(ApiToken.participant_id, func.count()).where(ApiToken.revoked_at.is_(None))
-                                      .group_by(ApiToken.participant_id)).all())  # fmt: skip
-        subs = dict(session.execute(select(Submission.participant_id, func.count())
-                                    .group_by(Submission.participant_id)).all())  # fmt: skip
-        rows = [{"id": p.id, "name": p.name, "builtin": p.is_builtin, "created_at": p.created_at,
-                 "tokens": tokens.get(p.id, 0), "submissions": subs.get(p.id, 0)}
-                for p in session.execute(select(Participant).order_by(Participant.id)).scalars()]  # fmt: skip
+        rows = queries.participant_summaries(session)
     return render(request, "operator.html", status_code, title="Participants", nav="operator", rows=rows,
                   created=created, error=error, name=name)  # fmt: skip
 

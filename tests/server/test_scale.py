@@ -14,9 +14,9 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import event
+from sqlalchemy import event, select
 
-from robobpp.db.models import Submission
+from robobpp.db.models import Participant, Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
@@ -233,26 +233,36 @@ def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str
         app.state.runtime.dispose()
 
 
-def test_the_account_page_is_paged(scale_app, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("page", ["account", "operator-participant"])
+def test_pages_listing_submissions_are_paged(scale_app, monkeypatch: pytest.MonkeyPatch, page: str) -> None:
     import re
 
-    from robobpp.server.site import account
+    from robobpp.server.site import account, operator
 
     app, _client = scale_app
     names = [f"entry-{i}" for i in range(3)]
     for name in names:
         submit(app, "alice", "builtin:random", name=name)
+    submit(app, "bob", "builtin:random", name="someone-else")  # on the operator's account page only
     drain(app)
     monkeypatch.setattr(account, "ACCOUNT_PAGE_SIZE", 2)
+    monkeypatch.setattr(operator, "ACCOUNT_PAGE_SIZE", 2)
+    if page == "account":
+        names.append("someone-else")
+        path = "/account"
+    else:
+        with app.state.runtime.read_session() as s:
+            alice = s.execute(select(Participant.id).where(Participant.name == "alice")).scalar_one()
+        path = f"/operator/participants/{alice}"
     browser = TestClient(app)
     csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
     assert csrf is not None
     browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
-    first, second = browser.get("/account").text, browser.get("/account", params={"page": 2}).text
-    assert [n for n in names if n in first] == names[1:]  # newest first
+    first, second = browser.get(path).text, browser.get(path, params={"page": 2}).text
+    assert [n for n in names if n in first] == names[-2:]  # newest first
     assert 'href="?page=2"' in first and 'href="?page=1"' not in first
-    assert [n for n in names if n in second] == names[:1]
-    assert 'href="?page=1"' in second and 'href="?page=3"' not in second
+    assert [n for n in names if n in second] == names[-4:-2]
+    assert ('href="?page=3"' in second) == (len(names) > 4) and 'href="?page=1"' in second
 
 
 def test_a_restarted_server_serves_its_stored_boards_at_once(db_url: str, tmp_path: Path) -> None:

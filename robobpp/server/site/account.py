@@ -99,12 +99,13 @@ def _need_sign_in(request: Request) -> Response:
 # ---- your submissions ------------------------------------------------------------------------------------
 
 
-#: Submissions per page of the account page (newest first).
+#: Submissions per page of the account page and an operator's participant page (newest first).
 ACCOUNT_PAGE_SIZE = 50
+Page = Annotated[int, Query(ge=1, le=10**5)]
 
 
 @router.get("/account", response_class=HTMLResponse)
-def account_page(request: Request, page: Annotated[int, Query(ge=1, le=10**5)] = 1) -> Response:
+def account_page(request: Request, page: Page = 1) -> Response:
     who = viewer(request)
     principal = principal_of(request, who)
     if principal is None:

@@ -21,7 +21,7 @@ from robobpp.server.api.deps import Principal
 from robobpp.server.problems import ProblemError
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import session as web_session
-from robobpp.server.site.account import BAD_CSRF, Text, problem_page, problem_text
+from robobpp.server.site.account import ACCOUNT_PAGE_SIZE, BAD_CSRF, Page, Text, problem_page, problem_text
 from robobpp.server.site.render import not_found, redirect, refused, render
 from robobpp.server.site.session import load_viewer, viewer
 
@@ -73,25 +73,28 @@ def create_participant(request: Request, name: Text = "", csrf: Text = "") -> Re
 
 
 def _participant_page(request: Request, participant_id: int, *, created: TokenCreated | None = None,
-                      status_code: int = 200) -> Response:  # fmt: skip
+                      status_code: int = 200, page: int = 1) -> Response:  # fmt: skip
     with request.app.state.runtime.read_session() as session:
         participant = session.get(Participant, participant_id)
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")
         tokens = api_participants.list_tokens(session, ADMIN, participant_id=participant_id)
+        # one more than a page: whether an older page exists, without counting every submission
         subs = api_submissions.submission_models(finished_views(request.app.state), session,
-                                                 Principal(participant, admin=False), limit=200)  # fmt: skip
+                                                 Principal(participant, admin=False), limit=ACCOUNT_PAGE_SIZE + 1,
+                                                 offset=(page - 1) * ACCOUNT_PAGE_SIZE)  # fmt: skip
         info = {"id": participant.id, "name": participant.name, "builtin": participant.is_builtin,
                 "created_at": participant.created_at}  # fmt: skip
     return render(request, "operator_participant.html", status_code, title=f"Participant {info['name']}",
-                  nav="operator", participant=info, tokens=tokens, subs=subs, created=created)  # fmt: skip
+                  nav="operator", participant=info, tokens=tokens, subs=subs[:ACCOUNT_PAGE_SIZE], created=created,
+                  page=page, more=len(subs) > ACCOUNT_PAGE_SIZE)  # fmt: skip
 
 
 @router.get("/operator/participants/{participant_id}", response_class=HTMLResponse)
-def participant_page(request: Request, participant_id: Id) -> Response:
+def participant_page(request: Request, participant_id: Id, page: Page = 1) -> Response:
     if not _is_admin(request):
         return not_found(request, "There is no such page.")
-    return _participant_page(request, participant_id)
+    return _participant_page(request, participant_id, page=page)
 
 
 @router.post("/operator/participants/{participant_id}/tokens", response_class=HTMLResponse)

@@ -86,6 +86,34 @@ def test_board_process_snapshot_equals_the_in_process_one(db_url: str, tmp_path:
     assert _plain(far) == _plain(near)
 
 
+def test_api_processes_of_one_host_compute_each_snapshot_once(db_url: str, tmp_path: Path) -> None:
+    """Two board caches sharing a state directory (two ``uvicorn --workers`` processes) asked at the same
+    time: one computes the snapshot, the other waits for it and loads what it stored."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    app = make_app(db_url, tmp_path)
+    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
+        submit(app, who, url, name=url)
+    drain(app)
+    runtime = app.state.runtime
+    caches = [BoardCache(runtime.read_session, datasets=DATASETS, settings=("math",), store_dir=tmp_path,
+                         database_url=runtime.settings.sqlalchemy_url, process_from=0) for _ in range(2)]  # fmt: skip
+
+    def snapshot(cache: BoardCache) -> Any:
+        with runtime.read_session() as s:
+            return cache.snapshot(s, "private")
+
+    try:
+        with ThreadPoolExecutor(2) as pool:
+            first, second = pool.map(snapshot, caches)
+    finally:
+        for cache in caches:
+            cache.close()
+        runtime.dispose()
+    assert sorted(c.shared for c in caches) == [0, 1]
+    assert _plain(first) == _plain(second)
+
+
 def test_a_snapshot_holds_no_reference_cycles(scale_app) -> None:
     """The API process moves loaded snapshots out of the cycle collector's reach (``gc.freeze``, no pauses
     of the whole process at 10,000 entries); they are still freed when replaced only because a snapshot

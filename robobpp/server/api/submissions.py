@@ -192,17 +192,16 @@ def listed_forms(views: FinishedViews, session: Session, owner: int | None, limi
     are then read whole, with their runs and progress (one query each, not two per submission)."""
     keys = queries.list_submission_keys(session, owner, limit=limit, offset=offset)
     counts = queries.episode_counts(session, [k.id for k in keys if stamp(k) is None])
-    missing = [k.id for k in keys if not views.has(kind, k, counts.get(k.id))]
-    subs = queries.submissions_by_id(session, missing)
-    progress = queries.submissions_progress(session, missing, counts)
-    runs = queries.runs_of(session, missing)
 
-    def view(sub_id: int) -> dict[str, Any]:
-        # evicted between the check and now: read on its own
-        sub = subs[sub_id] if sub_id in subs else session.get(Submission, sub_id)
-        return queries.submission_view(session, sub, progress.get(sub_id), runs.get(sub_id))
+    def build_missing(missing: list[int]) -> list[T]:
+        subs = queries.submissions_by_id(session, missing)
+        progress = queries.submissions_progress(session, missing, counts)
+        runs = queries.runs_of(session, missing)
+        return [
+            build(queries.submission_view(session, subs[i], progress.get(i), runs.get(i))) for i in missing
+        ]
 
-    return [views.get(kind, k, lambda k=k: build(view(k.id)), counts.get(k.id)) for k in keys]
+    return views.get_many(kind, keys, build_missing, counts)
 
 
 def submission_models(views: FinishedViews, session: Session, principal: Principal, limit: int = 50,

@@ -34,9 +34,9 @@ import pickle
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, contextmanager
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -49,6 +49,11 @@ from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.leaderboard import build_grid
 from robobpp.sim.physics.config import PHYSICS_VERSION
+
+try:  # POSIX: the API processes of one host compute each snapshot once (BoardCache._host_lock)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows: each process computes its own
+    fcntl = None  # type: ignore[assignment]
 
 log = logging.getLogger("robobpp.server")
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -217,8 +222,9 @@ class BoardCache:
         #: Snapshots computed so far, and how long the last one took (``robobpp_board_*`` in /metrics).
         self.computed = 0
         self.last_seconds = 0.0
-        #: Snapshots loaded from ``store_dir`` at start.
+        #: Snapshots loaded from ``store_dir`` at start, and loaded there after another process computed them.
         self.loaded = 0
+        self.shared = 0
 
     def version(self, session: Session, track: str) -> tuple[Any, ...]:
         """The track's version, read from SQL at most every ``refresh_s`` seconds per process: within that
@@ -314,29 +320,21 @@ class BoardCache:
     def load_stored(self, tracks: tuple[str, ...] = ("private", "public")) -> None:
         """Serve the snapshots the board process stored before a restart until they are recomputed (the
         server calls this before it answers anyone; :meth:`warm` then recomputes them in the background)."""
-        if self.store_dir is None or not self.database_url:
-            return
         for track in tracks:
-            path = stored_path(self.store_dir, track)
-            if not path.is_file():
+            stored = self._read_stored(track)
+            if stored is None:
                 continue
             try:
-                stored = pickle.loads(path.read_bytes())
-                if stored["key"] != _stored_key(self.database_url, self.datasets, self.settings, track):
-                    log.info("ignoring %s: written for another version, database or set of boards", path)
-                    continue
                 snap = _load_parts(stored["parts"])
-                # never equal to a version read from SQL: the first read starts the recomputation, and
-                # bodies built meanwhile are stored as built from this snapshot
-                version = ("stored", *stored["version"])
-            except Exception:  # noqa: BLE001 - a damaged file costs a recomputation, never the start
-                log.warning("ignoring %s: it does not load", path, exc_info=True)
+            except Exception:  # noqa: BLE001 - as a file that does not load
+                log.warning("ignoring the stored %s boards: they do not load", track, exc_info=True)
                 continue
+            # never equal to a version read from SQL: the first read starts the recomputation, and bodies
+            # built meanwhile are stored as built from this snapshot; as if it took forever to compute, so
+            # readers never wait for its successor
+            slot = _Slot(("stored", *stored["version"]), snap, math.inf)
             with self._lock:
-                # as if it took forever to compute: readers never wait for its successor
-                self._slots[("snapshot", self.datasets, self.settings, track)] = _Slot(
-                    version, snap, math.inf
-                )
+                self._slots[("snapshot", self.datasets, self.settings, track)] = slot
                 self.loaded += 1
 
     def close(self) -> None:
@@ -374,12 +372,53 @@ class BoardCache:
                                                      max_tasks_per_child=1)  # fmt: skip
                 pool = self._pool
             assert self.database_url is not None
-            store = None if self.store_dir is None else str(self.store_dir)
-            computed_at, parts = pool.submit(_snapshot_in_child, self.database_url, self.datasets,
-                                             self.settings, track, store).result()  # fmt: skip
+            with self._host_lock(track):
+                # another API process of this host may have computed this very version while we waited
+                stored = self._read_stored(track)
+                if stored is not None and tuple(stored["version"]) == tuple(version):
+                    snap = _load_parts(stored["parts"])
+                    with self._lock:
+                        self.shared += 1
+                    return version, snap
+                store = None if self.store_dir is None else str(self.store_dir)
+                computed_at, parts = pool.submit(_snapshot_in_child, self.database_url, self.datasets,
+                                                 self.settings, track, store).result()  # fmt: skip
             return computed_at, _load_parts(parts)
 
         return remote
+
+    @contextmanager
+    def _host_lock(self, track: str) -> Iterator[None]:
+        """Held while a track's snapshot is computed: the API processes of one host (``uvicorn --workers``)
+        sharing ``store_dir`` compute each version once, the others load what it stored."""
+        if self.store_dir is None or fcntl is None:
+            yield
+            return
+        self.store_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.store_dir / f".boards-{track}.lock", "a+b") as handle:
+            fcntl.flock(handle, fcntl.LOCK_EX)  # released with the file, or by the OS if the process dies
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+    def _read_stored(self, track: str) -> dict[str, Any] | None:
+        """The track's stored snapshot when it was written for these boards, this database and this version
+        of robobpp, else None (a file that does not load is logged and ignored)."""
+        if self.store_dir is None or not self.database_url:
+            return None
+        path = stored_path(self.store_dir, track)
+        if not path.is_file():
+            return None
+        try:
+            stored = pickle.loads(path.read_bytes())
+            if stored["key"] != _stored_key(self.database_url, self.datasets, self.settings, track):
+                log.info("ignoring %s: written for another version, database or set of boards", path)
+                return None
+            return stored  # type: ignore[no-any-return]
+        except Exception:  # noqa: BLE001 - a damaged file costs a recomputation, never the start
+            log.warning("ignoring %s: it does not load", path, exc_info=True)
+            return None
 
     def _get(self, key: tuple[Any, ...], version: tuple[Any, ...], session: Session,
              compute: Callable[[Session], tuple[Any, Any]]) -> Any:  # fmt: skip

@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import threading
 from collections import OrderedDict
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TypeVar
 
 from robobpp.db.models import Submission
@@ -47,34 +47,38 @@ class FinishedViews:
         self._bytes = 0
         self._lock = threading.Lock()
 
-    def has(
-        self, kind: tuple[Any, ...], sub: Submission | Any, counts: Mapping[str, int] | None = None
-    ) -> bool:
-        key = stamp(sub, counts)
-        if key is None:
-            return False
-        with self._lock:
-            return (*kind, *key) in self._items
-
     def get(self, kind: tuple[Any, ...], sub: Submission | Any, build: Callable[[], T],
             counts: Mapping[str, int] | None = None) -> T:  # fmt: skip
-        key = stamp(sub, counts)
-        if key is None:
-            return build()
-        full = (*kind, *key)
+        """``sub``'s form ``kind``, built now unless kept (``counts``: its episodes by status, see ``stamp``)."""
+        return self.get_many(kind, [sub], lambda _missing: [build()], {sub.id: counts} if counts else None)[0]
+
+    def get_many(self, kind: tuple[Any, ...], subs: Sequence[Submission | Any],
+                 build: Callable[[list[int]], list[T]], counts: Mapping[int, Mapping[str, int]] | None = None) -> list[T]:  # fmt: skip
+        """The forms ``kind`` of several submissions (a listed page), with the lock taken twice in all, not
+        twice per submission: with 20 readers, a contended lock handed over 100 times per page cost each
+        page a GIL hand-off per acquisition (a list of 50 then took 150 ms instead of 3). ``build`` gets the
+        ids of those not kept, in page order, and returns their forms in that order."""
+        counts = counts or {}
+        keys = {sub.id: stamp(sub, counts.get(sub.id)) for sub in subs}
+        found: dict[int, T] = {}
         with self._lock:
-            if full in self._items:
-                self._items.move_to_end(full)
-                return self._items[full][1]  # type: ignore[no-any-return]
-        value = build()
-        cost = len(value) if isinstance(value, bytes | str) else self.OTHER_BYTES
+            for sub_id, key in keys.items():
+                if key is not None and (hit := self._items.get((*kind, *key))) is not None:
+                    self._items.move_to_end((*kind, *key))
+                    found[sub_id] = hit[1]
+        missing = [sub.id for sub in subs if sub.id not in found]
+        built = dict(zip(missing, build(missing) if missing else [], strict=True))
         with self._lock:
-            if full not in self._items:
-                self._items[full] = (cost, value)
+            for sub_id, value in built.items():
+                key = keys[sub_id]
+                if key is None or (*kind, *key) in self._items:
+                    continue
+                cost = len(value) if isinstance(value, bytes | str) else self.OTHER_BYTES
+                self._items[(*kind, *key)] = (cost, value)
                 self._bytes += cost
             while self._bytes > self.max_bytes and self._items:
                 self._bytes -= self._items.popitem(last=False)[1][0]
-        return value
+        return [found[sub.id] if sub.id in found else built[sub.id] for sub in subs]
 
 
 def finished_views(state: Any) -> FinishedViews:

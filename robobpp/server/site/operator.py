@@ -6,10 +6,12 @@ way the API shows it; afterwards only its prefix is listed.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path, Request
 from fastapi.responses import HTMLResponse, Response
+from markupsafe import Markup
 from pydantic import ValidationError
 
 from robobpp.db import queries
@@ -22,8 +24,9 @@ from robobpp.server.problems import ProblemError
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import session as web_session
 from robobpp.server.site.account import ACCOUNT_PAGE_SIZE, BAD_CSRF, Page, Text, problem_page, problem_text
-from robobpp.server.site.render import not_found, redirect, refused, render
+from robobpp.server.site.render import not_found, redirect, refused, render, root
 from robobpp.server.site.session import load_viewer, viewer
+from robobpp.web import environment
 
 router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
@@ -46,9 +49,16 @@ def _refuse_form(request: Request, csrf: str) -> Response | None:
 def _participants_page(request: Request, *, created: TokenCreated | None = None, error: str | None = None,
                        name: str = "", status_code: int = 200) -> Response:  # fmt: skip
     with request.app.state.runtime.read_session() as session:
-        rows = queries.participant_summaries(session)
-    return render(request, "operator.html", status_code, title="Participants", nav="operator", rows=rows,
-                  created=created, error=error, name=name)  # fmt: skip
+        rows = tuple(queries.participant_summaries(session))
+    return render(request, "operator.html", status_code, title="Participants", nav="operator",
+                  participants_table=_participants_table(root(request), rows), created=created, error=error,
+                  name=name)  # fmt: skip
+
+
+@lru_cache(maxsize=8)
+def _participants_table(base: str, rows: tuple[queries.ParticipantSummary, ...]) -> Markup:
+    """Rendered once per state of the rows (a hundred participants cost more to render than to read)."""
+    return Markup(environment().get_template("_participants.html").module.participants_table(rows, base))
 
 
 @router.get("/operator", response_class=HTMLResponse)

@@ -319,6 +319,22 @@ def runs_of(session: Session, submission_ids: Sequence[int]) -> dict[int, list[R
     return out
 
 
+def participants_version(session: Session) -> tuple[Any, ...]:
+    """Moves whenever :func:`participant_summaries` may change: a participant, token or submission is added
+    or a token revoked (none is ever deleted). Four lookups of a maximum, three of them on primary keys."""
+    return tuple(session.execute(_participants_version_statement()).one())
+
+
+@functools.cache
+def _participants_version_statement() -> Select[Any]:
+    return select(
+        select(func.max(Participant.id)).scalar_subquery(),
+        select(func.max(Submission.id)).scalar_subquery(),
+        select(func.max(ApiToken.id)).scalar_subquery(),
+        select(func.max(ApiToken.revoked_at)).scalar_subquery(),
+    )
+
+
 class ParticipantSummary(NamedTuple):
     id: int
     name: str

@@ -385,3 +385,29 @@ def test_a_waiting_submission_is_listed_from_its_form_until_an_episode_moves(
     done = listed()
     assert done["status"] == "completed" and done["progress"]["phase"] is None
     assert done["progress"]["episodes_done"] == done["progress"]["episodes_total"] == len(DATASETS) * GROUPS
+
+
+def test_the_operator_page_counts_follow_submissions_and_revoked_tokens(scale_app) -> None:
+    """The participants table is kept per version of what it counts: a new submission or a revoked token
+    shows at the next view, and nothing else rebuilds it."""
+    import re
+
+    app, client = scale_app
+    token = client.post("/api/v1/participants", json={"name": "carol"}).json()
+    browser = TestClient(app)
+    csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
+    assert csrf is not None
+    browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
+
+    def carol() -> tuple[int, int]:
+        row = re.search(r">carol</a></td>\s*<td>(\d+)</td><td>(\d+)</td>", browser.get("/operator").text)
+        assert row is not None
+        return int(row.group(1)), int(row.group(2))
+
+    assert carol() == (1, 0)
+    kept = app.state.operator_rows
+    assert carol() == (1, 0) and app.state.operator_rows is kept  # nothing changed: not read again
+    submit(app, "carol", "builtin:random")
+    assert carol() == (1, 1)
+    assert client.delete(f"/api/v1/tokens/{token['id']}").status_code == 200
+    assert carol() == (0, 1)

@@ -48,8 +48,15 @@ def _refuse_form(request: Request, csrf: str) -> Response | None:
 
 def _participants_page(request: Request, *, created: TokenCreated | None = None, error: str | None = None,
                        name: str = "", status_code: int = 200) -> Response:  # fmt: skip
-    with request.app.state.runtime.read_session() as session:
-        rows = tuple(queries.participant_summaries(session))
+    state = request.app.state
+    with state.runtime.read_session() as session:
+        # the counts change only with a new participant, token or submission, or a revoked token
+        version, kept = queries.participants_version(session), getattr(state, "operator_rows", None)
+        if kept is not None and kept[0] == version:
+            rows = kept[1]
+        else:
+            rows = tuple(queries.participant_summaries(session))
+            state.operator_rows = (version, rows)
     return render(request, "operator.html", status_code, title="Participants", nav="operator",
                   participants_table=_participants_table(root(request), rows), created=created, error=error,
                   name=name)  # fmt: skip

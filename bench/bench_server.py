@@ -11,7 +11,7 @@ computed from its episodes exactly as a worker writes them. 2 % of the submissio
 episode a policy error) and 2 % partial (Math Pack only), as on a real board.
 
     python bench/bench_server.py [--database-url URL] [--submissions 10000] [--readers 20] [--samples 60]
-        [--seed-only | --reuse [--cold]] [--accepts 40]
+        [--seed-only | --reuse [--cold]] [--accepts 40] [--state-dir DIR]
 """
 
 from __future__ import annotations
@@ -370,9 +370,12 @@ def main() -> None:
         "--cold", action="store_true", help="time the cold computation (default unless --reuse)"
     )
     parser.add_argument("--accepts", type=int, default=40)
+    parser.add_argument("--state-dir", default="", help="the server's state directory (default: a new one); "
+                        "reused, it holds the boards the last run stored, served at once after a restart")  # fmt: skip
     args = parser.parse_args()
 
-    tmp = Path(tempfile.mkdtemp(prefix="robobpp-bench-"))
+    tmp = Path(args.state_dir) if args.state_dir else Path(tempfile.mkdtemp(prefix="robobpp-bench-"))
+    tmp.mkdir(parents=True, exist_ok=True)
     url = args.database_url or f"sqlite:///{tmp / 'bench.sqlite3'}"
     settings = Settings(database_url=url, state_dir=tmp, admin_token=ADMIN, workers=0, evaluate_baselines=False,
                         settings=SETTINGS, groups=GROUPS, spec_provider="robobpp.worker.specs:offline_spec")  # fmt: skip
@@ -409,8 +412,9 @@ def main() -> None:
         warm_up(base, paths)
         scrape = httpx.get(f"{base}/metrics").text
         snapshot = re.search(r"^robobpp_board_snapshot_seconds ([0-9.e+-]+)$", scrape, re.M)
-        print(f"warm-up (the server computes each track's nine boards and grid when it starts, in its board "
-              f"process): {time.perf_counter() - t0:.0f} s; last snapshot "
+        print(f"warm-up (the server serves the boards it stored before a restart, if any, and computes each "
+              f"track's nine boards and grid when it starts, in its board process): {time.perf_counter() - t0:.0f} s; "
+              f"last snapshot "
               f"{float(snapshot.group(1)) if snapshot else float('nan'):.1f} s")  # fmt: skip
         alone = cpu_per_request(base, proc.pid, paths, 50)
         load0 = os.getloadavg()[0]

@@ -147,10 +147,12 @@ class EpisodeRow(Base):
     __table_args__ = (
         UniqueConstraint("submission_id", "dataset", "setting", "group", name="uq_episode"),
         Index("ix_episodes_claim", "status", "lease_expires_at"),
+        # a page's progress (episodes by status of 50 submissions) counted from the index alone (0006)
+        Index("ix_episodes_submission_status", "submission_id", "status"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    submission_id: Mapped[int] = mapped_column(ForeignKey("submissions.id", ondelete="CASCADE"), index=True)
+    submission_id: Mapped[int] = mapped_column(ForeignKey("submissions.id", ondelete="CASCADE"))
     run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
     dataset: Mapped[str] = mapped_column(String(32))
     setting: Mapped[str] = mapped_column(String(16))

@@ -234,6 +234,17 @@ def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
     return submissions_progress(session, [submission_id])[submission_id]
 
 
+def waiting_counts(session: Session, keys: Sequence[Any]) -> dict[int, dict[str, int]]:
+    """:func:`episode_counts` of the listed submissions not finished (``keys``: rows of
+    :func:`list_submission_keys`). A queued one has had no episode claimed — the claim of its first episode
+    makes it running, in the same transaction — so all its episodes are pending and it needs no count: a
+    backlog of queued submissions costs nothing here however many episodes wait."""
+    waiting = [k for k in keys if k.finished_at is None]
+    counts = episode_counts(session, [k.id for k in waiting if k.status != "queued"])
+    counts.update({k.id: {"pending": k.episodes_total} for k in waiting if k.status == "queued"})
+    return counts
+
+
 def episode_counts(session: Session, submission_ids: Sequence[int]) -> dict[int, dict[str, int]]:
     """Each submission's episodes by status, in one aggregate."""
     counts: dict[int, dict[str, int]] = {i: {} for i in submission_ids}
@@ -380,10 +391,17 @@ def _participants_statement() -> Select[Any]:
 
 def list_submission_keys(session: Session, participant_id: int | None, *, limit: int = 50,
                          offset: int = 0) -> list[Any]:  # fmt: skip
-    """The page of :func:`list_submissions` as rows of ``id, status, finished_at, verification`` only: what
-    tells whether a built form of each is still current (``server.services.submissions.stamp``)."""
+    """The page of :func:`list_submissions` as rows of ``id, status, finished_at, verification,
+    episodes_total`` only: what tells whether a built form of each is still current
+    (``server.services.submissions.stamp``, :func:`waiting_counts`)."""
     query = (
-        select(Submission.id, Submission.status, Submission.finished_at, Submission.verification)
+        select(
+            Submission.id,
+            Submission.status,
+            Submission.finished_at,
+            Submission.verification,
+            Submission.episodes_total,
+        )  # fmt: skip
         .order_by(Submission.id.desc())
         .limit(limit)
         .offset(offset)

@@ -57,6 +57,31 @@ def drain(app: Any) -> None:
         pass
 
 
+def wait_for_both_entries(client: TestClient, path: str) -> None:
+    """Until the board at ``path`` shows ``second-entry`` beside ``first-entry``; meanwhile it must show the
+    previous board (``first-entry`` alone), never an error."""
+    deadline = time.monotonic() + 120
+    names: list[str] = []
+    while time.monotonic() < deadline:
+        names = [e["name"] for e in client.get(path).json()["entries"]]
+        if "second-entry" in names:
+            break
+        assert names == ["first-entry"]
+        time.sleep(0.2)
+    assert sorted(names) == ["first-entry", "second-entry"]
+
+
+def operator_browser(app: Any) -> TestClient:
+    """A browser signed in as the operator, through the sign-in form."""
+    import re
+
+    browser = TestClient(app)
+    csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
+    assert csrf is not None
+    browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
+    return browser
+
+
 def _plain(value: Any) -> Any:
     """A snapshot without its numpy arrays, comparable with ==."""
     if isinstance(value, dict):
@@ -247,15 +272,7 @@ def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str
             cache.sync_limit_s = 0.0  # every snapshot counts as large: refreshed in the background
             submit(app, "bob", "builtin:dbl", name="second-entry")
             drain(app)
-            deadline = time.monotonic() + 120
-            names: list[str] = []
-            while time.monotonic() < deadline:
-                names = [e["name"] for e in client.get(path).json()["entries"]]
-                if "second-entry" in names:
-                    break
-                assert names == ["first-entry"]  # the previous board meanwhile, never an error
-                time.sleep(0.2)
-            assert sorted(names) == ["first-entry", "second-entry"]
+            wait_for_both_entries(client, path)
             assert cache.computed >= 2
     finally:
         app.state.runtime.dispose()
@@ -263,7 +280,6 @@ def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str
 
 @pytest.mark.parametrize("page", ["account", "operator-participant"])
 def test_pages_listing_submissions_are_paged(scale_app, monkeypatch: pytest.MonkeyPatch, page: str) -> None:
-    import re
 
     from robobpp.server.site import account, operator
 
@@ -282,10 +298,7 @@ def test_pages_listing_submissions_are_paged(scale_app, monkeypatch: pytest.Monk
         with app.state.runtime.read_session() as s:
             alice = s.execute(select(Participant.id).where(Participant.name == "alice")).scalar_one()
         path = f"/operator/participants/{alice}"
-    browser = TestClient(app)
-    csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
-    assert csrf is not None
-    browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
+    browser = operator_browser(app)
     first, second = browser.get(path).text, browser.get(path, params={"page": 2}).text
     assert [n for n in names if n in first] == names[-2:]  # newest first
     assert 'href="?page=2"' in first and 'href="?page=1"' not in first
@@ -316,14 +329,7 @@ def test_a_restarted_server_serves_its_stored_boards_at_once(db_url: str, tmp_pa
             assert cache.loaded == 1
             # at once: the stored board, not a minute's computation (nothing computed yet)
             assert [e["name"] for e in client.get(path).json()["entries"]] == ["first-entry"]
-            deadline = time.monotonic() + 120
-            names: list[str] = []
-            while time.monotonic() < deadline:
-                names = [e["name"] for e in client.get(path).json()["entries"]]
-                if len(names) == 2:
-                    break
-                time.sleep(0.2)
-            assert sorted(names) == ["first-entry", "second-entry"]
+            wait_for_both_entries(client, path)
             assert cache.computed >= 1
     finally:
         app.state.runtime.dispose()
@@ -394,10 +400,7 @@ def test_the_operator_page_counts_follow_submissions_and_revoked_tokens(scale_ap
 
     app, client = scale_app
     token = client.post("/api/v1/participants", json={"name": "carol"}).json()
-    browser = TestClient(app)
-    csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
-    assert csrf is not None
-    browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
+    browser = operator_browser(app)
 
     def carol() -> tuple[int, int]:
         row = re.search(r">carol</a></td>\s*<td>(\d+)</td><td>(\d+)</td>", browser.get("/operator").text)

@@ -30,7 +30,7 @@ from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate
 from robobpp.server.problems import ProblemError
-from robobpp.server.services.submissions import FinishedViews, finished_views, stamp
+from robobpp.server.services.submissions import FinishedViews, finished_views
 from robobpp.server.urlsafety import (
     BUILTIN_SCHEME,
     CheckedURL,
@@ -191,7 +191,7 @@ def listed_forms(views: FinishedViews, session: Session, owner: int | None, limi
     aggregate): what tells whether a form built before is still current. Only the submissions without one
     are then read whole, with their runs and progress (one query each, not two per submission)."""
     keys = queries.list_submission_keys(session, owner, limit=limit, offset=offset)
-    counts = queries.episode_counts(session, [k.id for k in keys if stamp(k) is None])
+    counts = queries.waiting_counts(session, keys)
 
     def build_missing(missing: list[int]) -> list[T]:
         subs = queries.submissions_by_id(session, missing)

@@ -23,6 +23,7 @@ from robobpp.core import Action, Observation
 from robobpp.db import work
 from robobpp.db.models import Participant
 from robobpp.policies.dbl import DBL
+from tests._orphans import with_parent_death
 
 PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
 ADMIN_TOKEN = "test-admin-token-0123456789abcdef"
@@ -92,8 +93,8 @@ class ServerProcess:
         ]
         out = self.log.open("ab")
         # Own session: a crash test can kill the server and its worker processes at once (killpg).
-        self.proc = subprocess.Popen(cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT, cwd=self.data_dir,
-                                     start_new_session=True)  # fmt: skip
+        self.proc = subprocess.Popen(with_parent_death(cmd), env=self.env, stdout=out, stderr=subprocess.STDOUT,
+                                     cwd=self.data_dir, start_new_session=True)  # fmt: skip
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:

@@ -22,6 +22,8 @@ from typing import Any
 import httpx
 import pytest
 
+from tests._orphans import with_parent_death
+
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 ADMIN_TOKEN = "web-tests-admin-token-0123456789"
@@ -119,8 +121,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     }
     log = (data_dir / "server.log").open("wb")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", "robobpp.server.app:create_app", "--factory",
-         "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"],
+        with_parent_death([sys.executable, "-m", "uvicorn", "robobpp.server.app:create_app", "--factory",
+                           "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"]),
         env=env, stdout=log, stderr=subprocess.STDOUT, cwd=data_dir,
     )  # fmt: skip
     srv = Server(f"http://127.0.0.1:{port}", data_dir)

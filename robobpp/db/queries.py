@@ -7,7 +7,7 @@ For page authors, the entry points are:
 * :func:`overall_grid` — every submission's score and rank on each of the 3 × 3 boards, and the Mean;
 * :func:`submission_view` / :func:`submission_progress` — one submission with its runs and progress;
 * :func:`episode_rows` / :func:`get_episode` — per-episode results (traces only on the public track);
-* :func:`list_submissions` — a participant's submissions, newest first.
+* :func:`list_submission_keys` / :func:`submissions_by_id` — a page of submissions, newest first.
 
 Each takes an open :class:`~sqlalchemy.orm.Session` (``with app.state.runtime.session() as s``) and
 returns plain dicts ready for JSON or templates.
@@ -23,7 +23,7 @@ from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
 from sqlalchemy import Select, exists, func, select, true
-from sqlalchemy.orm import Session, joinedload, selectinload
+from sqlalchemy.orm import Session, joinedload
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.leaderboard import build_board, build_grid
@@ -391,8 +391,8 @@ def _participants_statement() -> Select[Any]:
 
 def list_submission_keys(session: Session, participant_id: int | None, *, limit: int = 50,
                          offset: int = 0) -> list[Any]:  # fmt: skip
-    """The page of :func:`list_submissions` as rows of ``id, status, finished_at, verification,
-    episodes_total`` only: what tells whether a built form of each is still current
+    """A page of submissions (``participant_id``'s, or everyone's; newest first) as rows of ``id, status,
+    finished_at, verification, episodes_total`` only: what tells whether a built form of each is still current
     (``server.services.submissions.stamp``, :func:`waiting_counts`)."""
     query = (
         select(
@@ -417,23 +417,6 @@ def submissions_by_id(session: Session, ids: Sequence[int]) -> dict[int, Submiss
         return {}
     query = select(Submission).options(joinedload(Submission.participant)).where(Submission.id.in_(list(ids)))
     return {s.id: s for s in session.execute(query).scalars()}
-
-
-def list_submissions(
-    session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0, with_runs: bool = True
-) -> list[Submission]:
-    """A page of submissions, newest first, with their participant; ``with_runs``: their runs too (one
-    more query for the page, not one per listed submission)."""
-    query = (
-        select(Submission)
-        .options(*([selectinload(Submission.runs)] if with_runs else []), joinedload(Submission.participant))
-        .order_by(Submission.id.desc())
-        .limit(limit)
-        .offset(offset)
-    )
-    if participant_id is not None:
-        query = query.where(Submission.participant_id == participant_id)
-    return list(session.execute(query).scalars())
 
 
 def episode_summary(ep: EpisodeRow) -> dict[str, Any]:

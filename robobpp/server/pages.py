@@ -26,9 +26,8 @@ from robobpp.episode import TERMINATION_REASONS
 from robobpp.leaderboard import board_view, find_entry, grid_view
 from robobpp.metrics import METRICS
 from robobpp.scoring import WEIGHTS
-from robobpp.server.api.deps import SessionDep, SettingsDep
+from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body
-from robobpp.server.api.submissions import in_read_session
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root
@@ -81,12 +80,7 @@ async def _shared(request: Request, track: str, key: tuple[Any, ...],
     CSRF nonce is rendered for that viewer, in a worker thread."""
     who = viewer(request)
     if who.signed_in or who.nonce:
-
-        def personal() -> HTMLResponse:
-            with request.app.state.runtime.read_session() as session:
-                return build(session)
-
-        return await run_in_threadpool(personal)
+        return await in_read_session(request, build)
     return HTMLResponse(await cached_body(request, track, key, lambda s: bytes(build(s).body)))
 
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import hmac
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -17,6 +17,7 @@ from robobpp.db.models import Participant
 from robobpp.server.config import Settings
 from robobpp.server.problems import ProblemError
 
+T = TypeVar("T")
 _bearer = HTTPBearer(auto_error=False, description="An API token, or the admin token")
 
 
@@ -99,3 +100,14 @@ async def require_admin(principal: Annotated[Principal, Depends(get_principal)])
 
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
 AdminDep = Annotated[Principal, Depends(require_admin)]
+
+
+async def in_read_session(request: Request, work: Callable[[Session], T]) -> T:
+    """``work`` in one worker thread with one read-only transaction: a route that must read SQL costs one
+    thread hand-off, not one per dependency (the session's opening and closing, the handler)."""
+
+    def run() -> T:
+        with request.app.state.runtime.read_session() as session:
+            return work(session)
+
+    return await run_in_threadpool(run)

@@ -8,13 +8,12 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy.orm import Session
-from starlette.concurrency import run_in_threadpool
 
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.leaderboard import board_view, grid_view
 from robobpp.schemas import DatasetName, Leaderboard, OverallGrid, ServiceInfo, SettingName
 from robobpp.scoring import WEIGHTS
-from robobpp.server.api.deps import SettingsDep
+from robobpp.server.api.deps import SettingsDep, in_read_session
 from robobpp.server.runtime import Runtime
 from robobpp.server.services.boards import BoardCache, to_json
 
@@ -46,11 +45,9 @@ async def cached_body(request: Request, track: str, key: tuple[Any, ...],
     if body is not None:
         return body
 
-    def slow() -> bytes:
-        with request.app.state.runtime.read_session() as session:
-            return cache.response(session, track, key, lambda: build(session))
-
-    return await run_in_threadpool(slow)
+    return await in_read_session(
+        request, lambda session: cache.response(session, track, key, lambda: build(session))
+    )
 
 
 View = Annotated[

@@ -25,7 +25,14 @@ from robobpp.schemas import (
     SubmissionCreate,
     SubmissionPublic,
 )
-from robobpp.server.api.deps import AdminDep, Principal, PrincipalDep, SessionDep, SettingsDep
+from robobpp.server.api.deps import (
+    AdminDep,
+    Principal,
+    PrincipalDep,
+    SessionDep,
+    SettingsDep,
+    in_read_session,
+)
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate
@@ -169,17 +176,6 @@ async def list_submissions(
         )
 
     return Response(await in_read_session(request, listed), media_type="application/json")
-
-
-async def in_read_session(request: Request, work: Callable[[Session], T]) -> T:
-    """``work`` in one worker thread with one read-only transaction: a route that must read SQL costs one
-    thread hand-off, not one per dependency (the session's opening and closing, the handler)."""
-
-    def run() -> T:
-        with request.app.state.runtime.read_session() as session:
-            return work(session)
-
-    return await run_in_threadpool(run)
 
 
 def listed_forms(views: FinishedViews, session: Session, owner: int | None, limit: int, offset: int,

@@ -125,7 +125,6 @@ def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str,
     the whole snapshot. Stored in ``store_dir`` too, for the next start (module docstring)."""
     from robobpp.db.session import is_sqlite, make_engine, make_session_factory
 
-    started = time.perf_counter()
     factory = _CHILD_FACTORIES.get(url)
     if factory is None:
         factory = _CHILD_FACTORIES[url] = make_session_factory(make_engine(url, read_only=True, pool_size=1))
@@ -137,8 +136,7 @@ def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str,
     parts = [pickle.dumps(("grid", snap["grid"]), protocol=pickle.HIGHEST_PROTOCOL)]
     parts += [pickle.dumps((key, b), protocol=pickle.HIGHEST_PROTOCOL) for key, b in snap["boards"].items()]
     if store_dir is not None:
-        stored = {"key": _stored_key(url, datasets, settings, track), "version": version,
-                  "seconds": time.perf_counter() - started, "parts": parts}  # fmt: skip
+        stored = {"key": _stored_key(url, datasets, settings, track), "version": version, "parts": parts}
         path = stored_path(Path(store_dir), track)
         try:
             partial = path.with_name(f".{path.name}.{os.getpid()}")

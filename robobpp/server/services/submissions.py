@@ -47,10 +47,9 @@ class FinishedViews:
         self._bytes = 0
         self._lock = threading.Lock()
 
-    def get(self, kind: tuple[Any, ...], sub: Submission | Any, build: Callable[[], T],
-            counts: Mapping[str, int] | None = None) -> T:  # fmt: skip
-        """``sub``'s form ``kind``, built now unless kept (``counts``: its episodes by status, see ``stamp``)."""
-        return self.get_many(kind, [sub], lambda _missing: [build()], {sub.id: counts} if counts else None)[0]
+    def get(self, kind: tuple[Any, ...], sub: Submission | Any, build: Callable[[], T]) -> T:
+        """``sub``'s form ``kind``, built now unless kept (a submission not finished is built every time)."""
+        return self.get_many(kind, [sub], lambda _missing: [build()])[0]
 
     def get_many(self, kind: tuple[Any, ...], subs: Sequence[Submission | Any],
                  build: Callable[[list[int]], list[T]], counts: Mapping[int, Mapping[str, int]] | None = None) -> list[T]:  # fmt: skip

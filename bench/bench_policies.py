@@ -21,7 +21,7 @@ from robobpp.datasets import DATASETS, episode_specs
 from robobpp.episode import Episode, run_episode
 from robobpp.policies import BASELINES, load_policy
 
-#: Targets of BENCHMARK.md §7 (ms per decision).
+#: Targets of docs/benchmark.md, "Speed targets" (ms per decision).
 TARGET_MS = {"macs": 50.0, "sdfpack": 50.0}
 DEFAULT_TARGET_MS = 5.0
 #: The paper's decision times (s per box), where it reports them, as the reference.

@@ -1,4 +1,4 @@
-"""The eight metrics of BENCHMARK.md §4: definitions, per-episode computation, run aggregation."""
+"""The eight metrics of docs/benchmark.md, "Metrics": definitions, per-episode computation, run aggregation."""
 
 from __future__ import annotations
 
@@ -91,7 +91,7 @@ def _mean(values: Iterable[float | None]) -> float | None:
 
 
 def aggregate(episodes: Sequence[Mapping[str, float | None]], setting: str) -> dict[str, float | None]:
-    """A run's figures: the mean over its episodes, except the pooled ratios (BENCHMARK.md §4)."""
+    """A run's figures: the mean over its episodes, except the pooled ratios (docs/benchmark.md, "Metrics")."""
     out: dict[str, float | None] = {}
     for m in metrics_for(setting):
         if m.key in POOLED:

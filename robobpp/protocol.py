@@ -6,7 +6,7 @@ Schema (:func:`json_schema`) and the SDK server's OpenAPI document are generated
 
 Every model is strict because the other side is untrusted in both directions: unknown fields are
 rejected, numbers must be finite and inside generous bounds, and ``"1"`` is not a number. Units are cm,
-kg and seconds (BENCHMARK.md §1).
+kg and seconds (docs/benchmark.md, "Units and frames").
 
 Endpoints (all JSON, relative to the policy's base URL)::
 

@@ -1,4 +1,4 @@
-"""Leaderboard scoring (BENCHMARK.md §5): two scores, each with a bootstrap interval, and rank intervals.
+"""Leaderboard scoring (docs/benchmark.md, "Scoring and uncertainty"): two scores, each with a bootstrap interval, and rank intervals.
 
 * The **relative** score is the paper's: each metric min–max normalised over the valid complete entries of
   the board, weighted per setting. It ranks the board, and it moves when entries arrive or leave.

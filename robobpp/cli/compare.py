@@ -1,7 +1,7 @@
 """``robobpp compare``: score local results against each other exactly as the leaderboard does.
 
 Each ``robobpp evaluate --json FILE`` run is an entry; entries are compared board by board (dataset ×
-setting) with the leaderboard's scoring (BENCHMARK.md §5), only where they ran the same episodes. Every
+setting) with the leaderboard's scoring (docs/benchmark.md, "Scoring and uncertainty"), only where they ran the same episodes. Every
 figure carries its bootstrap 95 % interval over groups, every rank its rank interval; with two files the
 paired difference A − B of each metric and of the stable score is shown with its interval and a verdict.
 """

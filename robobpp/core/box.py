@@ -1,4 +1,4 @@
-"""Boxes, containers and placements, in centimetres (BENCHMARK.md §1)."""
+"""Boxes, containers and placements, in centimetres (docs/benchmark.md, "Units and frames")."""
 
 from __future__ import annotations
 

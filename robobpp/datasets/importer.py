@@ -49,7 +49,7 @@ from robobpp.datasets.sources import (
 
 Notify = Callable[[str], None]
 
-#: Counts the importer must find (BENCHMARK.md §2); a mismatch means our reader is wrong, so it stops.
+#: Counts the importer must find (docs/datasets.md, "Counts observed"); a mismatch means our reader is wrong, so it stops.
 EXPECTED = {
     "repetitive": {"records": 16_767, "test": 3_353, "duplicates": 58},
     "diverse": {"records": 6_849, "zero_rows": 48, "usable": 6_801},

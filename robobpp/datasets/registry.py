@@ -9,7 +9,7 @@ from robobpp.core import ContainerSpec
 
 Sampling = Literal["consecutive", "weighted", "uniform"]
 
-#: Boxes per episode (BENCHMARK.md §2).
+#: Boxes per episode (docs/benchmark.md, "Datasets").
 GROUP_SIZE = 80
 #: Groups per dataset in the evaluation set.
 EVAL_GROUPS = 30
@@ -26,7 +26,7 @@ class DatasetSpec:
     #: Density (kg/m³) used when the source has no masses; None when it has them.
     density_kg_m3: float | None
     description: str
-    #: Data file inside the packsim wheel the records come from (BENCHMARK.md §2).
+    #: Data file inside the packsim wheel the records come from (docs/benchmark.md, "Datasets").
     source: str = ""
     #: How the public/private pools are split (the rule is documented in docs/datasets.md).
     split_rule: str = ""

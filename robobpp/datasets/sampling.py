@@ -26,7 +26,7 @@ def group_seed(dataset: str, split: str, seed: int, group: int) -> int:
 
 
 def sample_indices(pool: Pool, sampling: str, rng: np.random.Generator, group_size: int) -> np.ndarray:
-    """Pool indices of one group under a sampling rule (BENCHMARK.md §2)."""
+    """Pool indices of one group under a sampling rule (docs/benchmark.md, "Datasets")."""
     n = len(pool)
     if sampling == "consecutive":
         if n < group_size:

@@ -19,7 +19,7 @@ PACKSIM_REQUIREMENT = "packsim==0.0.4"
 WHEEL_NAME = "packsim-0.0.4-py3-none-any.whl"
 WHEEL_SHA256 = "767e2d1704e5f0117ccdf5c52952733ed421cad24b8e0af95b5f2876fcab76be"
 
-#: Full sha256 of each data file we read (BENCHMARK.md §2 lists the first 12 hex digits).
+#: Full sha256 of each data file we read (docs/datasets.md, "Source and integrity", lists them).
 SOURCE_SHA256: dict[str, str] = {
     "packsim/data/time_series/pg.xlsx": "548c9e36bd37b6e464470059a692c1317dbbb30d012594b708b0d770d15570d7",
     "packsim/data/time_series/pg_train.xlsx": "d3794e285dc04ebed4b4a8f0757be84ae153b5621a86d95897867a2069ad68eb",

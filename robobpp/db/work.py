@@ -392,7 +392,7 @@ def finalize_run(session: Session, run_id: int) -> None:
 
 
 def run_figures(rows: Any, setting: str) -> tuple[dict[str, Any], dict[str, Any]]:
-    """A run's raw metrics (BENCHMARK.md §4 aggregation) and its side figures."""
+    """A run's raw metrics (docs/benchmark.md, "Metrics" aggregation) and its side figures."""
     merged = [{**(m or {}), **(c or {})} for m, c, _t, _b in rows]
     metrics = aggregate(merged, setting)
     terminations: dict[str, int] = {}

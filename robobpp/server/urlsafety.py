@@ -1,4 +1,4 @@
-"""Policy URL safety (DESIGN.md §6): the workers call URLs that strangers give us.
+"""Policy URL safety (docs/server.md, "Hostile participants"): the workers call URLs that strangers give us.
 
 Refused: non-http(s) schemes, credentials in the URL, hosts that resolve to private, loopback,
 link-local, multicast, reserved or unspecified addresses (unless the operator allows private addresses)

@@ -19,7 +19,7 @@ class StepOutcome:
 
     placement: Placement | None
     termination: Infeasible | None = None
-    #: Static stability R of this placement (Physics/Execution), BENCHMARK.md §4.
+    #: Static stability R of this placement (Physics/Execution), docs/benchmark.md, "Metrics".
     static_stability: float | None = None
     #: Whether this placement caused a collapse (any box displaced beyond the threshold or fallen off).
     collapsed: bool = False

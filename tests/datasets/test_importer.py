@@ -1,4 +1,4 @@
-"""The importer on the real packsim wheel: counts, splits, flags and conventions of BENCHMARK.md §2."""
+"""The importer on the real packsim wheel: counts, splits, flags and conventions of docs/datasets.md."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from robobpp.datasets.sources import SOURCE_SHA256
 
 pytestmark = pytest.mark.network
 
-# First 12 hex digits of each source's sha256 as BENCHMARK.md §2 lists them.
+# First 12 hex digits of each source's sha256 (docs/datasets.md, "Source and integrity", lists them in full).
 BENCHMARK_PREFIXES = {
     "pg.xlsx": "548c9e36bd37",
     "pg_train.xlsx": "d3794e285dc0",

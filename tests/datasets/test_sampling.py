@@ -1,4 +1,4 @@
-"""Group sampling: deterministic per seed and group, and each dataset's rule (BENCHMARK.md §2)."""
+"""Group sampling: deterministic per seed and group, and each dataset's rule (docs/benchmark.md, "Datasets")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Scoring (BENCHMARK.md §5): min–max per metric, direction, weights, ties, missing values; the stable
+"""Scoring (docs/benchmark.md, "Scoring and uncertainty"): min–max per metric, direction, weights, ties, missing values; the stable
 score; bootstrap intervals, rank intervals and paired differences."""
 
 from __future__ import annotations

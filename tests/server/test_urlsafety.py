@@ -1,4 +1,4 @@
-"""Policy URL checks (DESIGN.md §6): what the workers may call."""
+"""Policy URL checks (docs/server.md, "Hostile participants"): what the workers may call."""
 
 from __future__ import annotations
 

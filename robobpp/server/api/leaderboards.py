@@ -1,5 +1,5 @@
 """Leaderboards: raw metrics and per-group figures stored; scores, intervals and ranks computed once per
-change of the board and served from the cache, a page at a time (BENCHMARK.md §5)."""
+change of the board and served from the cache, a page at a time (docs/benchmark.md, "Scoring and uncertainty")."""
 
 from __future__ import annotations
 

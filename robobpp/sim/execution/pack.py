@@ -1,4 +1,4 @@
-"""Execution Pack (BENCHMARK.md §3): the Physics Pack with an IRB 6700 doing every placement.
+"""Execution Pack (docs/benchmark.md, "Settings"): the Physics Pack with an IRB 6700 doing every placement.
 
 Per box: suction grasp from the top at the conveyor (capacity check), vertical lift, a transfer planned
 with OMPL in a separate planning world (static copies of the placed boxes, the carried box attached),

@@ -1,4 +1,4 @@
-"""Physics Pack parameters (BENCHMARK.md §3). The defaults are the leaderboard's and stay fixed there.
+"""Physics Pack parameters (docs/benchmark.md, "Settings"). The defaults are the leaderboard's and stay fixed there.
 
 Every figure that changes a physical outcome lives here, so a run can record exactly what it simulated
 (``PhysicsConfig.to_dict``) and a participant's offline run matches the server's.

@@ -1,4 +1,4 @@
-"""Physics Pack (BENCHMARK.md §3): the box is released at rest just above where the *physical* pile lets it
+"""Physics Pack (docs/benchmark.md, "Settings"): the box is released at rest just above where the *physical* pile lets it
 rest, the world settles, and the policy sees where everything actually ended up."""
 
 from __future__ import annotations

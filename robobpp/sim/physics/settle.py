@@ -2,7 +2,7 @@
 
 After a box is let go (by the Physics Pack's "hand" or by the robot's suction cup), :class:`Settler` steps
 the world until everything is at rest or a cap, recording the largest linear and angular speeds over the
-first ``stability_steps`` steps for Static Stability (BENCHMARK.md §4). :func:`detect_collapse` then
+first ``stability_steps`` steps for Static Stability (docs/benchmark.md, "Metrics"). :func:`detect_collapse` then
 compares every placed box with its own target.
 
 Fast mode simulates only what can move. Every box starts frozen (static) except the released ones and the

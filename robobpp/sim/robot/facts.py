@@ -1,4 +1,4 @@
-"""The ABB IRB 6700-200/2.60 as published facts (BENCHMARK.md §3), plus our suction tool.
+"""The ABB IRB 6700-200/2.60 as published facts (docs/benchmark.md, "Settings"), plus our suction tool.
 
 Everything robot-specific lives here so the URDF, the forward kinematics and the OPW solver are all
 written from the same numbers and cannot drift apart.

@@ -1,10 +1,10 @@
-"""Fast mode (frozen far boxes, early stop at rest) against the full dynamic simulation (BENCHMARK.md §3).
+"""Fast mode (frozen far boxes, early stop at rest) against the full dynamic simulation (docs/benchmark.md, "Settings").
 
 A fixed set of DBL episodes with runs of identical boxes in a small pallet, so that a couple of dozen boxes
 already make three or four layers. The criterion is the fidelity bench's (docs/physics.md, "Fidelity";
 ``robobpp.sim.physics.fidelity.compare``): the same termination, boxes placed ±1 and Local Stability within
 5 mm. Physics version 3 meets it on all 20 (Local Stability within 0.05 mm); the test allows one miss, i.e.
-BENCHMARK.md's 95 %.
+95 % agreement.
 """
 
 from __future__ import annotations

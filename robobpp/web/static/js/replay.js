@@ -18,7 +18,7 @@ const VIRIDIS = ["#3b528b", "#2c728e", "#21918c", "#27ad81", "#5ec962", "#aadc32
   .map((hex) => { const c = new THREE.Color(hex); return [c.r, c.g, c.b]; });
 const COLLAPSE_COLOR = new THREE.Color("#e11d48");
 const PATH_COLOR = new THREE.Color("#8b5cf6");
-// Collapse thresholds of BENCHMARK.md §2 (cm): a box displaced further than this is drawn as collapsed.
+// Collapse thresholds of docs/benchmark.md, "Datasets" (cm): a box displaced further than this is drawn as collapsed.
 const THRESHOLDS = { repetitive: 7, diverse: 4, longboard: 7 };
 // Units of the compact box tracks (robobpp/sim/physics/recording.py).
 const TRACK_CM = 0.1; // mm -> cm

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -81,6 +81,9 @@ class EpisodeResult:
     #: ``Setting.physics_version`` of the setting that produced it (None: Math Pack, or recorded before
     #: versions existed).
     physics_version: str | None = None
+    #: How the episode was run: ``closed`` (the policy observed this setting's state at every step) or
+    #: ``paper`` (its Math Pack actions replayed open loop here, :mod:`robobpp.replay`).
+    protocol: str = "closed"
 
     def to_dict(self, trace: bool = True) -> dict[str, Any]:
         data = asdict(self)
@@ -288,8 +291,13 @@ def run_episode(
     time_budget_s: float | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
     clock: Callable[[], float] = time.perf_counter,
+    decision_times: Sequence[float] | None = None,
 ) -> EpisodeResult:
-    """Run one episode to its end. Policy failures end the episode with a reason; nothing escapes."""
+    """Run one episode to its end. Policy failures end the episode with a reason; nothing escapes.
+
+    ``decision_times``: recorded decision times (one per box, in order) that stand for the measured ones: a
+    replay's answers cost nothing, the decisions were made (and timed) when the actions were planned.
+    """
     episode = Episode(spec, setting, lookahead=lookahead)
     started = clock()
     try:
@@ -320,6 +328,8 @@ def run_episode(
             round_trip, network = step_timing(policy)
             if round_trip is not None and network is not None:
                 decision = max(0.0, round_trip - network)  # the network's share is not the policy's time
+            if decision_times is not None:
+                decision = decision_times[episode.index]
             record = episode.step(action, decision, round_trip=round_trip, network_estimate=network)
             if on_step is not None:
                 on_step(record)

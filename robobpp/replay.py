@@ -1,0 +1,181 @@
+"""The paper protocol: plan every action in Math Pack, then replay the action list open loop in a physical setting.
+
+This is how the paper's Physics and Execution tables were made (the reference simulator is a replayer: it reads
+the actions an algorithm computed offline on idealised geometry and executes them; physics never feeds back).
+robobpp's own protocol, ``closed``, lets the policy observe the physical state at every step instead
+(docs/benchmark.md, "Two protocols").
+
+The replay runs through the one episode loop (:func:`robobpp.episode.run_episode`) with a playback policy: the
+setting decides everything physical — a collapse, a box that would stand too high on the physical pile, a failed
+operation — exactly as it does in closed loop. Decision Time is the recorded one (no policy is called again).
+When the Math episode ended before its last box, the replay places what Math placed and then ends as Math ended,
+unless the setting ended it earlier.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from robobpp.core import Action, EpisodeInfo, EpisodeSpec, Observation
+from robobpp.episode import COMPLETED, EpisodeResult, run_episode
+from robobpp.policies.base import Policy, PolicyError
+from robobpp.sim import Setting
+
+#: How an episode in a physical setting is run; ``closed`` is the default everywhere.
+PROTOCOLS: tuple[str, ...] = ("closed", "paper")
+CLOSED, PAPER = PROTOCOLS
+#: The settings the paper protocol replays in (in Math Pack both protocols are the same episode).
+PAPER_SETTINGS: tuple[str, ...] = ("physics", "execution")
+
+PROTOCOL_DESCRIPTIONS: dict[str, str] = {
+    CLOSED: "closed loop: the policy observes the setting's state at every step",
+    PAPER: "the paper's protocol: the Math Pack actions replayed open loop in the setting",
+}
+
+
+def check_protocol(protocol: str) -> str:
+    """``protocol`` if it is known; otherwise a ``ValueError`` naming the known ones."""
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
+    return protocol
+
+
+class Playback:
+    """A policy that answers with recorded answers, in order, then ends the episode as the recording ended."""
+
+    def __init__(self, name: str, answers: Sequence[Action | None], termination: str, detail: str) -> None:
+        self.name = name
+        self.answers = tuple(answers)
+        self.termination = termination
+        self.detail = detail
+
+    def reset(self, info: EpisodeInfo) -> None:
+        return None
+
+    def act(self, obs: Observation) -> Action | None:
+        if obs.step < len(self.answers):
+            return self.answers[obs.step]
+        # The recording ended here (its last answer, if any, was placed): end as it ended.
+        raise PolicyError(self.termination, self.detail)
+
+    def close(self, reason: str) -> None:
+        return None
+
+
+def replay_episode(
+    spec: EpisodeSpec,
+    setting: Setting | str,
+    actions: Sequence[Action | None],
+    decision_times: Sequence[float],
+    *,
+    policy: str = "replay",
+    termination: str = COMPLETED,
+    termination_detail: str = "",
+) -> EpisodeResult:
+    """Replay recorded answers (one per box from the first; ``None``: no feasible placement) in ``setting``.
+
+    Each answer goes through the episode loop as a policy's would: the loop's bounds check refuses what is
+    out of the container, the setting decides the rest (too high on its pile, collapse, a failed operation) and
+    may end the episode at any box. ``decision_times[i]`` is box ``i``'s Decision Time. When the answers run
+    out before the boxes, the episode ends with ``termination`` and ``termination_detail`` (how the recorded
+    episode ended). The result carries ``protocol="paper"`` and the policy name ``policy``.
+    """
+    if len(actions) != len(decision_times):
+        raise ValueError(f"{len(actions)} actions but {len(decision_times)} decision times")
+    if len(actions) > len(spec.boxes):
+        raise ValueError(f"{len(actions)} actions for an episode of {len(spec.boxes)} boxes")
+    if termination == COMPLETED and len(actions) < len(spec.boxes):
+        raise ValueError(
+            f"a completed episode answers every box: {len(actions)} actions for {len(spec.boxes)} boxes"
+        )
+    playback = Playback(policy, actions, termination, termination_detail)
+    result = run_episode(spec, playback, setting, decision_times=decision_times)
+    result.protocol = PAPER
+    return result
+
+
+def recorded_answers(math: EpisodeResult) -> tuple[list[Action | None], list[float]]:
+    """The answers of a Math Pack episode to replay, and their decision times.
+
+    Every placed box's action; then, if the episode ended on a box with "no feasible placement", that answer
+    (the replay ends there exactly as Math did, its decision time counted). An action Math *refused* (out of
+    bounds, too high, malformed) is not replayed: the replay ends with Math's termination after the placed
+    boxes. Needs the per-step trace (``math.steps``).
+    """
+    answers: list[Action | None] = []
+    times: list[float] = []
+    for step in sorted(math.steps, key=lambda s: s.step):
+        if step.step != len(answers):
+            raise ValueError(f"{math.episode_id}: the trace skips from box {len(answers) - 1} to {step.step}")
+        placed = step.action is not None and step.placement is not None and step.termination is None
+        if placed:
+            assert step.action is not None
+            answers.append(
+                Action(step.action["x"], step.action["y"], int(step.action["orientation"]), step.compute_time)
+            )
+            times.append(step.decision_time)
+            continue
+        if step.action is None and step.termination is not None:
+            answers.append(None)
+            times.append(step.decision_time)
+        break
+    if len(answers) < math.boxes_placed:
+        raise ValueError(
+            f"{math.episode_id}: {math.boxes_placed} boxes placed but {len(answers)} steps in the trace "
+            "(a result without its per-step trace cannot be replayed)"
+        )
+    return answers, times
+
+
+def replay_math_result(math: EpisodeResult, spec: EpisodeSpec, setting: Setting | str) -> EpisodeResult:
+    """The paper protocol for one episode: ``math``'s actions and decision times replayed in ``setting``."""
+    if math.setting != "math":
+        raise ValueError(
+            f"{math.episode_id}: the paper protocol replays a Math Pack episode, not {math.setting}"
+        )
+    if math.episode_id != spec.episode_id:
+        raise ValueError(f"the Math episode {math.episode_id} is not episode {spec.episode_id}")
+    name = setting if isinstance(setting, str) else setting.name
+    if name not in PAPER_SETTINGS:
+        raise ValueError(f"the paper protocol replays in {' or '.join(PAPER_SETTINGS)}, not {name!r}")
+    answers, times = recorded_answers(math)
+    return replay_episode(spec, setting, answers, times, policy=math.policy, termination=math.termination,
+                          termination_detail=math.termination_detail)  # fmt: skip
+
+
+def run_paper_protocol(
+    spec: EpisodeSpec,
+    policy: Policy,
+    settings: Sequence[str],
+    *,
+    lookahead: int = 0,
+    time_budget_s: float | None = None,
+    math: EpisodeResult | None = None,
+) -> Mapping[str, EpisodeResult]:
+    """Run ``policy`` once in Math Pack (unless ``math`` already holds that episode), then replay it in each
+    physical setting of ``settings``. Returns ``{"math": ..., setting: ...}`` (the Math episode is closed
+    protocol: there both protocols coincide)."""
+    for name in settings:
+        if name not in PAPER_SETTINGS:
+            raise ValueError(f"the paper protocol replays in {' or '.join(PAPER_SETTINGS)}, not {name!r}")
+    if math is None:
+        math = run_episode(spec, policy, "math", lookahead=lookahead, time_budget_s=time_budget_s)
+    out: dict[str, EpisodeResult] = {"math": math}
+    for name in settings:
+        out[name] = replay_math_result(math, spec, name)
+    return out
+
+
+__all__ = [
+    "CLOSED",
+    "PAPER",
+    "PAPER_SETTINGS",
+    "PROTOCOLS",
+    "PROTOCOL_DESCRIPTIONS",
+    "Playback",
+    "check_protocol",
+    "recorded_answers",
+    "replay_episode",
+    "replay_math_result",
+    "run_paper_protocol",
+]

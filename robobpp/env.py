@@ -7,7 +7,8 @@
 (or ``gym.make("robobpp.env:robobpp/Pack-v0", ...)`` with no import at all).
 
 Observation: ``heightmap`` (cm, float32, the container's 1 cm grid), ``box`` (length, width, height, mass of the
-box to place) and ``lookahead`` (the next boxes, zero-padded). Action: ``(x, y, orientation)`` as a
+box to place) and, with ``lookahead=N > 0``, ``lookahead`` (the next N boxes, zero-padded; absent at the default
+``lookahead=0``: an empty (0, 4) array breaks stable-baselines3's observation handling). Action: ``(x, y, orientation)`` as a
 MultiDiscrete over the grid, or with ``actions="flat"`` one Discrete index ``(x * ny + y) * 2 + orientation``.
 
 Masks, for masked RL: ``action_mask()`` is the boolean (x, y, orientation) grid of feasible actions;
@@ -64,14 +65,16 @@ REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_
 
 def encode_observation(obs: Observation, lookahead: int) -> dict[str, np.ndarray]:
     """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays)."""
-    look = np.zeros((lookahead, 4), np.float32)
-    for i, b in enumerate(obs.lookahead[:lookahead]):
-        look[i] = (b.length, b.width, b.height, b.mass)
-    return {
+    encoded = {
         "heightmap": np.clip(obs.heightmap, 0, obs.container.height).astype(np.float32),
         "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
-        "lookahead": look,
     }
+    if lookahead > 0:  # no key at all without lookahead (module docstring)
+        look = np.zeros((lookahead, 4), np.float32)
+        for i, b in enumerate(obs.lookahead[:lookahead]):
+            look[i] = (b.length, b.width, b.height, b.mass)
+        encoded["lookahead"] = look
+    return encoded
 
 
 def feasible_mask(obs: Observation) -> np.ndarray:
@@ -118,13 +121,13 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             raise ValueError("all episode specs of one env must share a container")
         self.container = container
         nx, ny = container.grid_shape
-        self.observation_space = spaces.Dict(
-            {
-                "heightmap": spaces.Box(0.0, float(container.height), (nx, ny), np.float32),
-                "box": spaces.Box(0.0, _MAX_BOX, (4,), np.float32),
-                "lookahead": spaces.Box(0.0, _MAX_BOX, (lookahead, 4), np.float32),
-            }
-        )
+        observed: dict[str, spaces.Space[Any]] = {
+            "heightmap": spaces.Box(0.0, float(container.height), (nx, ny), np.float32),
+            "box": spaces.Box(0.0, _MAX_BOX, (4,), np.float32),
+        }
+        if lookahead > 0:
+            observed["lookahead"] = spaces.Box(0.0, _MAX_BOX, (lookahead, 4), np.float32)
+        self.observation_space = spaces.Dict(observed)
         self.grid_shape = (nx, ny, len(ORIENTATIONS))
         self.flat_actions = actions == "flat"
         self.action_space: spaces.Space[Any] = (
@@ -140,13 +143,15 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if obs is not None:
             return encode_observation(obs, self.lookahead)
         assert self._episode is not None  # terminal: the final heightmap, no box
-        return {
+        terminal = {
             "heightmap": np.clip(self._episode.setting.state().heightmap, 0, self.container.height).astype(
                 np.float32
             ),
             "box": np.zeros(4, np.float32),
-            "lookahead": np.zeros((self.lookahead, 4), np.float32),
         }
+        if self.lookahead > 0:
+            terminal["lookahead"] = np.zeros((self.lookahead, 4), np.float32)
+        return terminal
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None

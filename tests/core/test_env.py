@@ -166,3 +166,20 @@ def test_train_ppo_example_trains_plots_and_evaluates(real_data, tmp_path):
     assert (tmp_path / "learning_curve.png").read_bytes()[:4] == b"\x89PNG"
     result = json.loads((tmp_path / "eval-ppopolicy.json").read_text())
     assert result["policy"] == "ppo" and result["episodes"][0]["boxes_placed"] >= 1
+
+
+def test_maskable_ppo_predicts_on_the_default_dict_observation(specs):
+    """MaskablePPO on the env as made (lookahead=0, Dict observation): an empty lookahead array made
+    ``predict`` fail with "cannot reshape array of size 0 into shape (0,4)"."""
+    pytest.importorskip("sb3_contrib", reason="needs the learn extra: pip install -e '.[learn]'")
+    from sb3_contrib import MaskablePPO
+
+    env = gym.make("robobpp/Pack-v0", specs=specs[:1], actions="flat")
+    assert "lookahead" not in env.observation_space.spaces  # nothing to show: no empty array either
+    model = MaskablePPO("MultiInputPolicy", env, n_steps=16, batch_size=16, device="cpu", seed=0)
+    obs, _ = env.reset(seed=0)
+    action, _ = model.predict(obs, action_masks=env.unwrapped.action_masks(), deterministic=True)
+    assert env.unwrapped.action_masks()[int(action)]
+    model.learn(16)  # a rollout and an update on the same observation space
+    look = gym.make("robobpp/Pack-v0", specs=specs[:1], actions="flat", lookahead=2)
+    assert look.reset(seed=0)[0]["lookahead"].shape == (2, 4)

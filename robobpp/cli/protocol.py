@@ -64,15 +64,34 @@ def check_command(
     ] = None,
     boxes: Annotated[int, typer.Option(min=1, max=80, help="Boxes in the test episode.")] = 8,
     timeout: Annotated[float, typer.Option(min=0.01, help="Per-request time limit, seconds.")] = 10.0,
+    dataset: Annotated[
+        str | None,
+        typer.Option(help="Run the episode on this dataset's container and boxes (its first train group)."),
+    ] = None,
+    setting: Annotated[str, typer.Option(help="math, physics or execution: the episode's setting.")] = "math",
 ) -> None:
     """Run a short episode against a policy server and report every protocol violation."""
-    from robobpp.client.check import check_policy_server
+    from robobpp.client.check import check_policy_server, dataset_check_spec
+    from robobpp.datasets import DATASETS, DatasetError
+    from robobpp.sim import SETTINGS, require_setting
 
+    if setting not in SETTINGS:
+        fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")
+    require_setting(setting)  # a missing extra is one line naming the pip install
+    spec = None
+    if dataset is not None:
+        if dataset not in DATASETS:
+            fail(f"unknown dataset {dataset!r}; expected one of {', '.join(DATASETS)}")
+        try:
+            spec = dataset_check_spec(dataset, boxes)
+        except DatasetError as exc:
+            fail(str(exc))
     try:
-        report = check_policy_server(url, secret, boxes=boxes, step_timeout_s=timeout)
+        report = check_policy_server(url, secret, boxes=boxes, step_timeout_s=timeout, spec=spec, setting=setting)
     except ValueError as exc:  # a malformed URL
         fail(str(exc))
-    table = Table(title=f"robobpp/1 conformance of {url}", show_lines=False)
+    where = f"{dataset or 'Diverse container, fixed boxes'} · {setting}"
+    table = Table(title=f"robobpp/1 conformance of {url} ({where})", show_lines=False)
     table.add_column("", width=2)
     table.add_column("check", style="bold")
     table.add_column("finding")

@@ -1,12 +1,15 @@
 """Conformance check of a policy server: does it speak ``robobpp/1`` the way the evaluator will?
 
 It asks ``/info``, probes the signature handling (when a secret is given), sends one malformed request,
-then drives a short Math Pack episode exactly as the server's workers would and closes it. Every
+then drives a short episode exactly as the server's workers would and closes it: by default a fixed Math Pack
+episode in the Diverse container (no data needed); with ``dataset``/``setting`` the first boxes of that
+dataset's first train group in that setting, so a policy built for one container is checked on it. Every
 finding is kept, in plain words, so a participant sees all problems at once rather than one per run.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -62,6 +65,17 @@ def check_spec(boxes: int = 8) -> EpisodeSpec:
     return EpisodeSpec("protocol-check", "train", 0, items, ContainerSpec(120, 100, 170), 4.0, 0)
 
 
+def dataset_check_spec(dataset: str, boxes: int = 8) -> EpisodeSpec:
+    """The first ``boxes`` boxes of ``dataset``'s first train group (seed 0): its container, its boxes.
+
+    Raises :class:`~robobpp.datasets.DatasetError` for an unknown dataset or data that cannot be loaded.
+    """
+    from robobpp.datasets import episode_specs
+
+    spec = episode_specs(dataset, split="train", groups=1, seed=0)[0]
+    return dataclasses.replace(spec, boxes=spec.boxes[:boxes])
+
+
 def _probe(url: str, headers: dict[str, str], timeout_s: float, body: bytes = b"") -> httpx.Response | str:
     try:
         with httpx.Client(timeout=timeout_s, follow_redirects=False, trust_env=False) as client:
@@ -111,8 +125,12 @@ def check_policy_server(
     boxes: int = 8,
     step_timeout_s: float = 10.0,
     resolved_ip: str | None = None,
+    spec: EpisodeSpec | None = None,
+    setting: str = "math",
 ) -> CheckReport:
-    """Run every check against the policy server at ``url``; never raises for a misbehaving server."""
+    """Run every check against the policy server at ``url``; never raises for a misbehaving server.
+
+    The episode is ``spec`` (default :func:`check_spec`) in ``setting``."""
     report = CheckReport(url)
     policy = RemotePolicy(
         url, secret, step_timeout_s=step_timeout_s, resolved_ip=resolved_ip, check_info=False
@@ -130,17 +148,18 @@ def check_policy_server(
     else:
         report.add("warning", "signature", "no secret given: signature handling not checked")
     _check_malformed(report, base, secret, step_timeout_s)
-    _check_episode(report, policy, check_spec(boxes))
+    _check_episode(report, policy, spec or check_spec(boxes), setting)
     return report
 
 
-def _check_episode(report: CheckReport, policy: RemotePolicy, spec: EpisodeSpec) -> None:
-    episode = Episode(spec, "math", lookahead=1)
+def _check_episode(report: CheckReport, policy: RemotePolicy, spec: EpisodeSpec, setting: str) -> None:
+    episode = Episode(spec, setting, lookahead=1)
     try:
         policy.reset(episode.info)
     except PolicyError as exc:
         report.add("violation", "reset", exc.detail)
         policy.close("check")
+        episode.setting.close()
         return
     report.add("ok", "reset", "accepted /reset")
     try:
@@ -159,6 +178,8 @@ def _check_episode(report: CheckReport, policy: RemotePolicy, spec: EpisodeSpec)
                 report.add("violation", "act", f"step {record.step}: compute_time is not finite")
     except PolicyError as exc:
         episode.end(exc.reason, exc.detail)
+    finally:
+        episode.setting.close()  # a physics setting holds a simulator
     reason = episode.termination.reason if episode.termination else COMPLETED
     detail = episode.termination.detail if episode.termination else "every box was placed"
     if reason in _FAILURES:

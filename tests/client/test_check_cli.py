@@ -84,3 +84,26 @@ def test_example_policy_server_passes_the_check(random_spec) -> None:
         assert check_policy_server(server.url).ok
         result = run_episode(random_spec, RemotePolicy(server.url), "math")
     assert result.boxes_placed > 10
+
+
+class _RepetitiveOnly(DBL):
+    """A policy built for one container and setting, as a trained agent is (its input has that shape)."""
+
+    def reset(self, info) -> None:
+        if (info.container.length, info.container.width) != (134, 125) or info.setting != "physics":
+            raise ValueError(f"trained on Repetitive · physics, got {info.dataset} · {info.setting}")
+
+
+def test_check_runs_the_dataset_and_setting_asked_for(real_data) -> None:
+    """`--dataset`/`--setting` check the episode the policy will play; the default Diverse/Math one fails a
+    policy built for another container (the project's PPO example did)."""
+    with BackgroundServer(create_policy_app(_RepetitiveOnly())) as server:
+        default = _cli("protocol", "check", server.url, "--timeout", "30")
+        asked = _cli("protocol", "check", server.url, "--dataset", "repetitive", "--setting", "physics",
+                     "--boxes", "4", "--timeout", "30")  # fmt: skip
+    assert default.exit_code == 1 and "trained on Repetitive" in default.output
+    assert asked.exit_code == 0, asked.output
+    assert "repetitive · physics" in asked.output and "no violations" in asked.output
+    unknown = _cli("protocol", "check", "http://127.0.0.1:9", "--dataset", "nope")
+    assert unknown.exit_code == 2 and "unknown dataset 'nope'" in unknown.output
+    assert "unknown setting" in _cli("protocol", "check", "http://127.0.0.1:9", "--setting", "x").output

@@ -47,14 +47,18 @@ def agree(a: dict[str, float], b: dict[str, float]) -> bool:
 
 
 def start_verification(session: Session, original: Submission, groups: int) -> Submission:
-    """Queue the re-evaluation of ``original`` on the hold-out draw; the original shows it as running."""
+    """Queue the re-evaluation of ``original`` on the hold-out draw; the original shows it as running.
+
+    It runs in the original's mode: a pull submission's verification is a pull submission too, served when
+    the participant's client joins it (``robobpp connect --submission ID``); as a push job its URL would be
+    the placeholder ``pull:`` and every episode would fail."""
     from robobpp.db import work
 
     verify = work.create_submission(session, original.participant, name=original.name[:80],
                                     policy_url=original.policy_url, secret=original.secret,
                                     pinned_ip=original.pinned_ip, datasets=list(original.datasets),
                                     settings=list(original.settings), groups=groups, track="verify",
-                                    lookahead=original.lookahead)  # fmt: skip
+                                    lookahead=original.lookahead, mode=original.mode)  # fmt: skip
     verify.verifies_id = original.id
     original.verification = {"status": "running", "submission_id": verify.id}
     session.flush()

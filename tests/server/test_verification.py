@@ -99,3 +99,27 @@ def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, pol
     on_board = {e["submission_id"]: e["verification"] for e in board}
     assert set(checks.values()).isdisjoint(on_board)
     assert on_board[tuned] == "disagrees" and on_board[baseline] == "verified"
+
+
+def test_verifying_a_pull_submission_is_a_pull_submission_its_client_serves(make_server, tmp_path) -> None:
+    """The operator's re-check of a pull-mode entry used to be a *push* job to the URL ``pull:`` (every
+    episode failed: "policy URL must be http(s)://…"); it is a pull submission the participant's client joins."""
+    from robobpp.client.connect import connect
+
+    server = make_server(f"sqlite:///{tmp_path / 'pull-verify.sqlite3'}", ROBOBPP_GROUPS="2",
+                         ROBOBPP_DATASETS=f'["{DATASET}"]', ROBOBPP_SETTINGS='["math"]')  # fmt: skip
+    with server.client(ADMIN_TOKEN) as admin:
+        token = new_participant(admin, "natted")
+        played = connect(DBL(), server.url, token, secret="pull-secret-123", name="behind-nat", poll_s=0.3)
+        assert played.status == "completed"
+        r = admin.post(f"/submissions/{played.id}/verify")
+        assert r.status_code == 201, r.text
+        check = r.json()
+        assert (check["mode"], check["policy_url"], check["track"]) == ("pull", "pull:", "verify")
+        # The participant's client joins the verification as any pull submission (robobpp connect --submission).
+        done = connect(DBL(), server.url, token, submission=check["id"], secret="pull-secret-123", poll_s=0.3)
+        assert done.status == "completed"
+        verdict = admin.get(f"/submissions/{played.id}").json()["verification"]
+        episodes = admin.get(f"/submissions/{check['id']}/episodes").json()
+    assert verdict["status"] == "verified", verdict
+    assert all(e["status"] == "done" and e["termination"] != "policy_error" for e in episodes), episodes

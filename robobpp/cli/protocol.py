@@ -87,7 +87,9 @@ def check_command(
         except DatasetError as exc:
             fail(str(exc))
     try:
-        report = check_policy_server(url, secret, boxes=boxes, step_timeout_s=timeout, spec=spec, setting=setting)
+        report = check_policy_server(
+            url, secret, boxes=boxes, step_timeout_s=timeout, spec=spec, setting=setting
+        )
     except ValueError as exc:  # a malformed URL
         fail(str(exc))
     where = f"{dataset or 'Diverse container, fixed boxes'} · {setting}"

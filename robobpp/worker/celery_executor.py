@@ -76,8 +76,9 @@ class _Loop(threading.Thread):
     once when they start and once when they end (:class:`OutageLog`), not once per round.
     """
 
-    def __init__(self, name: str, interval: float) -> None:
+    def __init__(self, name: str, app: Celery, interval: float) -> None:
         super().__init__(name=name, daemon=True)
+        self.app = app
         self.interval = interval
         self.stopping = threading.Event()
         self.outages = OutageLog(log, name)
@@ -88,7 +89,13 @@ class _Loop(threading.Thread):
     def run(self) -> None:
         while not self.stopping.is_set():
             try:
-                self.outages.ok(*self.tick())
+                used = self.tick()
+                if "broker" in self.outages.down_since and "broker" not in used:
+                    # A round that had nothing to send does not say whether the broker is back: ask it, so
+                    # "reachable again" is logged when it is, not at the next send minutes later.
+                    queue_length(self.app)
+                    used = (*used, "broker")
+                self.outages.ok(*used)
             except Exception as exc:  # noqa: BLE001 - the database or broker blinked: try again next round
                 self.outages.failed(exc)
             self.stopping.wait(self.interval)
@@ -111,8 +118,7 @@ class LeaseSweeper(_Loop):
 
     def __init__(self, app: Celery, interval: float | None = None) -> None:
         options = options_of(app)
-        super().__init__("robobpp-lease-sweeper", interval or sweep_interval_s(options.lease_s))
-        self.app = app
+        super().__init__("robobpp-lease-sweeper", app, interval or sweep_interval_s(options.lease_s))
         self.options = options
         self.factory = _own_factory(options.database_url)
 
@@ -133,8 +139,7 @@ class CeleryExecutor(_Loop):
 
     def __init__(self, app: Celery, *, ping_every_s: float = 15.0) -> None:
         options = options_of(app)
-        super().__init__("robobpp-dispatcher", options.poll_interval_s)
-        self.app = app
+        super().__init__("robobpp-dispatcher", app, options.poll_interval_s)
         self.options = options
         self.factory = _own_factory(options.database_url)
         self._workers = 0
@@ -193,8 +198,16 @@ def delivery_timeout_s(lease_s: float) -> float:
 
 def queue_length(app: Celery) -> int:
     """Messages waiting in the episode queue (ready ones: not those reserved by a worker). A queue that does
-    not exist holds none (Redis drops an empty list)."""
-    with app.pool.acquire(block=True) as conn:
+    not exist holds none (Redis drops an empty list).
+
+    A fresh connection per call, never one from the app's pool: after a broker outage kombu hands a pooled
+    connection back *closed* (its transport connection ``None``), and every later ``channel()`` on it fails
+    with ``AttributeError: 'NoneType' object has no attribute '_used_channel_ids'`` (Redis) or ``... 'channel'``
+    (RabbitMQ) — for as long as nothing else happens to reconnect it, which is exactly when lost messages
+    wait to be re-sent. One connection per check costs a TCP handshake, once per poll at most.
+    """
+    with app.connection_for_read() as conn:
+        conn.ensure_connection(max_retries=1)
         try:
             with conn.channel() as channel:
                 return int(channel.queue_declare(queue=queue_of(app), passive=True).message_count)

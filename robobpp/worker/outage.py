@@ -22,11 +22,26 @@ def dependency_of(exc: BaseException) -> str | None:
     ):
         return "database"
     module = type(exc).__module__
-    if module.startswith(("kombu", "redis", "amqp", "celery")) or isinstance(
-        exc, ConnectionError | TimeoutError
-    ):
+    if module.startswith(_BROKER_LIBRARIES) or isinstance(exc, ConnectionError | TimeoutError):
+        return "broker"
+    if _raised_in_broker_library(exc):
+        # A client library left in a broken state by an outage fails with a plain AttributeError or the like
+        # (kombu's "'NoneType' object has no attribute '_used_channel_ids'"): still the broker, not our bug.
         return "broker"
     return None
+
+
+_BROKER_LIBRARIES = ("kombu", "redis", "amqp", "celery")
+
+
+def _raised_in_broker_library(exc: BaseException) -> bool:
+    tb = exc.__traceback__
+    if tb is None:
+        return False
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    module = str(tb.tb_frame.f_globals.get("__name__", ""))
+    return module.startswith(_BROKER_LIBRARIES)
 
 
 def _short(exc: BaseException) -> str:

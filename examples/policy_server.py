@@ -26,9 +26,9 @@ class LowestFirst(BasePolicy):
         best = None
         for c in candidate_maps(obs):  # one map per orientation
             z = c.z.copy()  # resting height of every (x, y)
-            z[~c.feasible] = float("inf")
+            z[~c.fits] = float("inf")
             x, y = divmod(int(z.argmin()), z.shape[1])
-            if c.feasible[x, y] and (best is None or z[x, y] < best[0]):
+            if c.fits[x, y] and (best is None or z[x, y] < best[0]):
                 best = (z[x, y], x, y, c.orientation)
         return None if best is None else Action(float(best[1]), float(best[2]), best[3])
 

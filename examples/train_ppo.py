@@ -34,7 +34,7 @@ import robobpp  # noqa: F401 - importing robobpp registers robobpp/Pack-v0
 from robobpp.core import ORIENTATIONS, Action, ContainerSpec, Observation
 from robobpp.env import encode_observation
 from robobpp.policies import BasePolicy
-from robobpp.policies.candidates import candidate_maps, first_supported
+from robobpp.policies.candidates import candidate_maps, first_placement
 
 try:
     import torch
@@ -92,14 +92,13 @@ class PPOPolicy(BasePolicy):
         self.model = MaskablePPO.load(path, device="cpu")
 
     def act(self, obs: Observation) -> Action | None:
-        # The agent's most probable placement that fits (bounds and height: cheap whole-grid arrays), walking
-        # down its ranking to the first that the support rule accepts: the greedy choice under the full mask,
-        # without testing support at every cell.
+        # The agent's most probable placement that fits (bounds and height: the env's action mask): the greedy
+        # choice under the mask it was trained with.
         shape = (*obs.container.grid_shape, len(ORIENTATIONS))
-        fits, z = np.zeros(shape, bool), np.zeros(shape)
+        fits = np.zeros(shape, bool)
         for cand in candidate_maps(obs):
             cx, cy = cand.fits.shape
-            fits[:cx, :cy, cand.orientation], z[:cx, :cy, cand.orientation] = cand.fits, cand.z
+            fits[:cx, :cy, cand.orientation] = cand.fits
         if not fits.any():
             return None
         x = features(encode_observation(obs, 0), obs.container)
@@ -109,7 +108,7 @@ class PPOPolicy(BasePolicy):
         ranked = np.argsort(-probs[0].numpy(), kind="stable")
         ranked = ranked[fits.ravel()[ranked]]
         xs, ys, orientations = np.unravel_index(ranked, shape)
-        return first_supported(obs, range(len(ranked)), xs, ys, orientations, z.ravel()[ranked])
+        return first_placement(range(len(ranked)), xs, ys, orientations)
 
 
 def evaluate(policy: str, args: argparse.Namespace, out: Path, extra_env: dict[str, str]) -> float:

@@ -11,12 +11,18 @@ box to place) and, with ``lookahead=N > 0``, ``lookahead`` (the next N boxes, ze
 ``lookahead=0``: an empty (0, 4) array breaks stable-baselines3's observation handling). Action: ``(x, y, orientation)`` as a
 MultiDiscrete over the grid, or with ``actions="flat"`` one Discrete index ``(x * ny + y) * 2 + orientation``.
 
-Masks, for masked RL: ``action_mask()`` is the boolean (x, y, orientation) grid of feasible actions;
-``action_masks()`` is the same in the action space's layout (what sb3-contrib's MaskablePPO calls): the
-flattened grid for ``actions="flat"``, and for the MultiDiscrete space the per-dimension masks MaskablePPO
-takes there (x, then y, then orientation values that occur in some feasible action — a superset, since one
-mask per dimension cannot say which combinations are feasible; use ``actions="flat"`` to mask exactly).
+Masks, for masked RL: ``action_mask()`` is the boolean (x, y, orientation) grid of feasible actions — what the
+environment accepts, in every setting, as the reference's: the box inside the container and its top below the
+container height; ``action_masks()`` is the same in the action space's layout (what sb3-contrib's MaskablePPO
+calls): the flattened grid for ``actions="flat"``, and for the MultiDiscrete space the per-dimension masks
+MaskablePPO takes there (x, then y, then orientation values that occur in some feasible action — a superset,
+since one mask per dimension cannot say which combinations are feasible; use ``actions="flat"`` to mask exactly).
 ``info["action_mask"]`` carries ``action_masks()`` after every reset and step.
+
+``support_mask()`` (and ``info["support_mask"]``, in the same layout as ``info["action_mask"]``) narrows the feasible
+actions to those the reference's support rule accepts on the observed state — extra information a policy may use
+(the reference's PCT restricts its candidates to it in Physics and Execution Pack), never enforced. On a Math Pack
+state it equals the action mask (no rule there, as in the reference).
 
 When no placement is feasible for the next box the episode ends there: ``terminated=True`` and
 ``info["termination"] == "no_feasible_placement"``, recorded like a policy's "no feasible placement".
@@ -77,13 +83,15 @@ def encode_observation(obs: Observation, lookahead: int) -> dict[str, np.ndarray
     return encoded
 
 
-def feasible_mask(obs: Observation) -> np.ndarray:
-    """Boolean (x, y, orientation) grid of the feasible actions for the observation's box."""
+def feasible_mask(obs: Observation, supported: bool = False) -> np.ndarray:
+    """Boolean (x, y, orientation) grid of the feasible actions for the observation's box: inside the container
+    and below its top; ``supported`` also applies the support rule of the observed state."""
     nx, ny = obs.container.grid_shape
     mask = np.zeros((nx, ny, len(ORIENTATIONS)), bool)
     for cand in candidate_maps(obs):
-        cx, cy = cand.feasible.shape
-        mask[:cx, :cy, cand.orientation] = cand.feasible
+        grid = cand.support_mask if supported else cand.fits
+        cx, cy = grid.shape
+        mask[:cx, :cy, cand.orientation] = grid
     return mask
 
 
@@ -138,6 +146,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._episode: Episode | None = None
         self._obs: Observation | None = None
         self._mask = np.zeros(self.grid_shape, bool)
+        self._support_mask = np.zeros(self.grid_shape, bool)
 
     def _encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
         if obs is not None:
@@ -165,13 +174,20 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         spec = self.specs[int(index)]
         self._episode = Episode(spec, self.setting_name, lookahead=self.lookahead)
         self._observe()
-        return self._encode(self._obs), {"episode_id": spec.episode_id, "action_mask": self.action_masks()}
+        return self._encode(self._obs), {
+            "episode_id": spec.episode_id,
+            "action_mask": self.action_masks(),
+            "support_mask": self._layout(self._support_mask),
+        }
 
     def _observe(self) -> None:
-        """The next box's observation and its feasible actions (computed once, read by every mask call)."""
+        """The next box's observation, its feasible and its supported actions (computed once, read by every mask
+        call)."""
         assert self._episode is not None
         self._obs = None if self._episode.done else self._episode.observe()
-        self._mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
+        none = np.zeros(self.grid_shape, bool)
+        self._mask = none if self._obs is None else feasible_mask(self._obs)
+        self._support_mask = none if self._obs is None else feasible_mask(self._obs, supported=True)
 
     def _grid_action(self, action: Any) -> tuple[int, int, int]:
         values = np.asarray(action).reshape(-1)
@@ -208,6 +224,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             term = self._episode.termination
             info["termination"] = term.reason if term else "completed"
         info["action_mask"] = self.action_masks()
+        info["support_mask"] = self._layout(self._support_mask)
         return self._encode(self._obs), reward, terminated, False, info
 
     def action_mask(self) -> np.ndarray:
@@ -216,11 +233,17 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def action_masks(self) -> np.ndarray:
         """The mask in the action space's layout, as sb3-contrib's MaskablePPO expects it (module docstring)."""
+        return self._layout(self._mask)
+
+    def support_mask(self) -> np.ndarray:
+        """Boolean (x, y, orientation) mask of the feasible actions the support rule accepts (module docstring)."""
+        return self._support_mask.copy()
+
+    def _layout(self, mask: np.ndarray) -> np.ndarray:
+        """A grid mask in the action space's layout: flattened, or one mask per MultiDiscrete dimension."""
         if self.flat_actions:
-            return self._mask.reshape(-1).copy()
-        return np.concatenate(
-            [self._mask.any(axis=(1, 2)), self._mask.any(axis=(0, 2)), self._mask.any(axis=(0, 1))]
-        )
+            return mask.reshape(-1).copy()
+        return np.concatenate([mask.any(axis=(1, 2)), mask.any(axis=(0, 2)), mask.any(axis=(0, 1))])
 
     def close(self) -> None:
         if self._episode is not None:

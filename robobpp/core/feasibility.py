@@ -1,4 +1,6 @@
-"""Whether an action may be executed: finite numbers, known orientation, inside the container, supported."""
+"""Whether an action may be executed — finite numbers, known orientation, inside the container, below its top
+(:func:`check_action`, what every setting enforces, as the reference's environment) — and the reference's support
+rule (:class:`SupportModel`), which no setting enforces: information a policy may use."""
 
 from __future__ import annotations
 
@@ -60,8 +62,9 @@ def check_action(
 
 # --- Support: the reference's geometric stability rule ---------------------------------------------------------
 #
-# The authors' environment (PCT's discrete packing env, shipped again inside packsim) accepts a box resting above
-# the floor only if a recursive centre-of-mass test passes; no physics is involved. In words:
+# The authors' PCT environment (shipped again inside packsim) generates its leaf nodes in the physical settings
+# only where a recursive centre-of-mass test passes (its step itself checks bounds and height only); no physics is
+# involved. In words:
 #
 # 1. The supports of a box are the placed boxes whose top is at the box's resting height and whose footprint
 #    overlaps its footprint with positive area; each overlap is a contact rectangle.

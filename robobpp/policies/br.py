@@ -6,7 +6,7 @@ import numpy as np
 
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.core.heightmap import cells_spanned
-from robobpp.policies.candidates import first_supported
+from robobpp.policies.candidates import first_placement
 from robobpp.policies.ems import EmsPolicy, ems_candidates
 
 #: Bonus when every known item type still fits the space (the reference's value).
@@ -52,4 +52,4 @@ class BR(EmsPolicy):
         space = ems.dx * ems.dy * ems.dz + fit + ALL_FIT_BONUS * (fit == len(items))
         score = space[cands.ems]
         order = np.lexsort((cands.orientation, cands.y, cands.x, ems.z0[cands.ems], -np.round(score, 6)))
-        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)
+        return first_placement(order, cands.x, cands.y, cands.orientation)

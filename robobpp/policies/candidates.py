@@ -1,12 +1,16 @@
 """Vectorised placement candidates on the heightmap, shared by the heightmap-based policies.
 
-Feasible means what the reference environment accepts: inside the container, below its height, and — in the
-physical settings — supported (:class:`robobpp.core.feasibility.SupportModel`). The reference (packsim) turns its
-stability check on for Physics and Execution Pack and off for Math Pack; a policy sees which from the state: boxes
-observed after physics carry their attitude (``Placement.quaternion``), Math Pack's never do. Bounds and height are
-cheap whole-grid arrays (``fits``); the support rule is a per-position test, so it is applied lazily: :func:`first_supported` walks a ranking until a
-supported placement turns up, and :attr:`CandidateMap.feasible` tests every position only when asked (the Gym
-env's action mask).
+Feasible means what the environment accepts, in every setting, as the reference's does: inside the container and
+below its height (``CandidateMap.fits``). The paper's heuristics choose among exactly these: the reference scores
+them without any support test, and its heuristic figures are reproduced that way (docs/baselines.md).
+
+The reference support rule (:class:`robobpp.core.feasibility.SupportModel`) is extra information a policy may use.
+:func:`support_model` gives it for the observed state — the rule on a physical state (boxes observed after physics
+carry their attitude, ``Placement.quaternion``; Math Pack's never do), no rule on a Math Pack state — as the
+reference's PCT environment applies it to its leaf nodes in Physics and Execution Pack only. PCT's leaves use it
+(:mod:`robobpp.policies.pct.leaves`), and the Gym env offers it as a second mask (``info["support_mask"]``). It is
+a per-position test, so it is applied lazily: :meth:`CandidateMap.supported` tests one position,
+:attr:`CandidateMap.support_mask` every position, only when asked.
 """
 
 from __future__ import annotations
@@ -64,7 +68,8 @@ class CandidateMap:
     """For one orientation: resting height and feasibility of every integer position (x, y).
 
     ``z[x, y]`` is where the box's bottom would rest with its min corner at (x, y) cm; ``fits`` says the box
-    then stays inside the container (bounds are implied by the map's shape); ``feasible`` adds the support rule.
+    then stays inside the container (bounds are implied by the map's shape): what the environment accepts.
+    ``support_mask`` adds the support rule of the observed state.
     """
 
     orientation: int
@@ -80,8 +85,8 @@ class CandidateMap:
         return self.support.supports(x, y, self.length, self.width, self.height, float(self.z[x, y]))
 
     @cached_property
-    def feasible(self) -> np.ndarray:
-        """``fits`` and supported, for every position."""
+    def support_mask(self) -> np.ndarray:
+        """``fits`` and supported, for every position (equal to ``fits`` on a Math Pack state)."""
         return self.support.mask(self.z, self.length, self.width, self.height, self.fits)
 
 
@@ -99,38 +104,18 @@ def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
         yield CandidateMap(orientation, length, width, height, z, z + height <= limit, support)
 
 
-def first_supported_index(
-    obs: Observation,
-    ranked: Sequence[int] | np.ndarray,
-    xs: np.ndarray,
-    ys: np.ndarray,
-    orientations: np.ndarray,
-    zs: np.ndarray,
-) -> int | None:
-    """The first index of ``ranked`` (into the parallel arrays) whose placement the support rule accepts."""
-    support = support_model(obs)
-    for k in ranked:
-        length, width, height = obs.box.dims(int(orientations[k]))
-        if support.supports(float(xs[k]), float(ys[k]), length, width, height, float(zs[k])):
-            return int(k)
-    return None
-
-
-def first_supported(
-    obs: Observation,
-    ranked: Sequence[int] | np.ndarray,
-    xs: np.ndarray,
-    ys: np.ndarray,
-    orientations: np.ndarray,
-    zs: np.ndarray,
+def first_placement(
+    ranked: Sequence[int] | np.ndarray, xs: np.ndarray, ys: np.ndarray, orientations: np.ndarray
 ) -> Action | None:
-    """The first candidate of ``ranked`` (indices into the parallel arrays) that the support rule accepts.
+    """The first candidate of ``ranked`` (indices into the parallel arrays), or None when there is none.
 
-    Every candidate must already fit the container; the reference scores only feasible placements and keeps
-    the best, which is the first feasible one in score order.
+    Every candidate must already fit the container; the reference scores only such placements and keeps the
+    best, which is the first in score order. This is the paper heuristics' choice in every setting.
     """
-    k = first_supported_index(obs, ranked, xs, ys, orientations, zs)
-    return None if k is None else Action(float(xs[k]), float(ys[k]), int(orientations[k]))
+    if len(ranked) == 0:
+        return None
+    k = int(ranked[0])
+    return Action(float(xs[k]), float(ys[k]), int(orientations[k]))
 
 
 def argmin_placement(
@@ -138,7 +123,7 @@ def argmin_placement(
     score: Callable[[CandidateMap, np.ndarray, np.ndarray], np.ndarray],
     allowed: Callable[[CandidateMap, np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> Action | None:
-    """The feasible position and orientation of least ``score(cand, xs, ys)`` over every candidate map.
+    """The position and orientation of least ``score(cand, xs, ys)`` over every candidate map's ``fits``.
 
     ``xs``/``ys`` are broadcastable column/row index arrays of the map's positions; ``allowed`` (same
     arguments) narrows the positions searched. Ties go as in the reference's loops (x outer, then y, then
@@ -152,12 +137,11 @@ def argmin_placement(
         ok = cand.fits if allowed is None else cand.fits & allowed(cand, xs, ys)
         px, py = np.nonzero(ok)
         cost = np.broadcast_to(score(cand, xs, ys), ok.shape)[px, py]
-        parts.append((cost, px, py, np.full(len(px), cand.orientation), cand.z[px, py]))
+        parts.append((cost, px, py, np.full(len(px), cand.orientation)))
     if not parts:
         return None
-    cost, px, py, po, pz = (np.concatenate(c) for c in zip(*parts, strict=True))
-    ranked = np.lexsort((po, py, px, cost))
-    return first_supported(obs, ranked, px, py, po, pz)
+    cost, px, py, po = (np.concatenate(c) for c in zip(*parts, strict=True))
+    return first_placement(np.lexsort((po, py, px, cost)), px, py, po)
 
 
 def unrotated_range(obs: Observation) -> Callable[[CandidateMap, np.ndarray, np.ndarray], np.ndarray]:

@@ -9,7 +9,7 @@ from robobpp.policies.candidates import argmin_placement, unrotated_range
 
 class DBL(BasePolicy):
     """Deep-bottom-left: over every 1 cm cell and both orientations, minimise ``100·z + x + y`` among the
-    feasible (supported) placements.
+    feasible placements (inside the container, below its top).
 
     The box goes as low as it can, then as far back (small x) and left (small y) as it can — "the lowest
     and most-left feasible position" of the paper. As in the reference's loops, ties go to the smaller x,

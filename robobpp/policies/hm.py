@@ -25,7 +25,7 @@ class HM(BasePolicy):
     placed ("selecting placements that minimize the increase in occupied volume"). The volume before is the
     same for every candidate, so the policy minimises the *added* volume, ``cells·(z + h) − Σ heightmap`` over
     the footprint: the box's own volume plus the gap it traps under itself. In cm³ that term dominates, so
-    ``x + y`` only breaks ties (back-left first). Candidates are the supported placements; ties and the
+    ``x + y`` only breaks ties (back-left first). Candidates are the feasible placements; ties and the
     position range follow the reference's loops, as for DBL.
     """
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from robobpp.core import Action, Observation
 from robobpp.core.feasibility import cell_rect
-from robobpp.policies.candidates import first_supported
+from robobpp.policies.candidates import first_placement
 from robobpp.policies.ems import EmsPolicy, ems_candidates
 
 
@@ -45,4 +45,4 @@ class LSAH(EmsPolicy):
         order = np.lexsort(
             (cands.orientation, cands.y, cands.x, ems.z0[cands.ems], np.round(slack, 9), np.round(score, 6))
         )
-        return first_supported(obs, order, cands.x, cands.y, cands.orientation, cands.z)
+        return first_placement(order, cands.x, cands.y, cands.orientation)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from robobpp.core import Action, Observation
-from robobpp.policies.candidates import first_supported
+from robobpp.policies.candidates import first_placement
 from robobpp.policies.ems import HEIGHT_EPS, EmsPolicy, ems_candidates
 
 
@@ -63,4 +63,4 @@ class MACS(EmsPolicy):
         ranked = np.lexsort(
             (corner, cands.orientation, cands.y, cands.x, ems.z0[cands.ems], -np.round(score, 6))
         )
-        return first_supported(obs, ranked, cands.x, cands.y, cands.orientation, cands.z)
+        return first_placement(ranked, cands.x, cands.y, cands.orientation)

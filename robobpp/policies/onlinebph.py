@@ -9,14 +9,14 @@ import numpy as np
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.core.heightmap import cells_spanned
-from robobpp.policies.candidates import support_model
 from robobpp.policies.ems import EmsPolicy
 
 
 class OnlineBPH(EmsPolicy):
     """First fit over the EMS in the reference's order: sort the spaces by floor height, then y, then x (their
     back-left-bottom corner, lowest first); take the first space and orientation (0, then 1) where the box,
-    dropped at the space's corner, is feasible — inside the container, below its top, supported.
+    dropped at the space's corner, is feasible — inside the container, below its top (no support test, as in
+    the reference).
 
     As in the reference, the box is not required to fit inside the space: it is dropped at the space's corner
     and rests wherever the heightmap under its footprint lets it. Ha et al. search bins × items × EMS ×
@@ -48,7 +48,6 @@ class OnlineBPH(EmsPolicy):
         s = self._smallest
         usable = np.flatnonzero((ems.dx >= s) & (ems.dy >= s) & (ems.dz >= s - 1e-6))
         order = usable[np.lexsort((ems.rects[usable, 0], ems.rects[usable, 1], ems.z0[usable]))]
-        support = support_model(obs)
         hm = obs.heightmap
         container = obs.container
         seen: set[tuple[int, int]] = set()
@@ -64,6 +63,5 @@ class OnlineBPH(EmsPolicy):
                 z = float(hm[x : x + cells_spanned(length), y : y + cells_spanned(width)].max())
                 if z + height > container.height + TOLERANCE_CM:
                     continue
-                if support.supports(x, y, length, width, height, z):
-                    return Action(float(x), float(y), orientation)
+                return Action(float(x), float(y), orientation)
         return None

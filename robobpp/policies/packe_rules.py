@@ -22,8 +22,8 @@ class PackERules(BasePolicy):
     4. extreme points — for every placed box, its right corner ``(x + l, y)`` and front corner ``(x, y + w)``,
        plus the container origin;
 
-    every candidate must be feasible (inside, below the top, supported). Not one of the paper's baselines; kept
-    as a stronger rule-based reference point. PackE lets a learned agent choose among the candidates;
+    every candidate must be feasible (inside, below the top; no support test, like the paper's heuristics). Not
+    one of the paper's baselines; kept as a stronger rule-based reference point. PackE lets a learned agent choose among the candidates;
     the fixed rule here takes the lowest resulting top ``z + h``, then the least volume trapped under the
     box, then the smallest ``x + y``, then orientation 0.
     """
@@ -33,7 +33,7 @@ class PackERules(BasePolicy):
     def act(self, obs: Observation) -> Action | None:
         picks: list[tuple[float, float, int, int, int, int]] = []  # (top, gap, x + y, orientation, x, y)
         for cand in candidate_maps(obs):
-            feasible = cand.feasible
+            feasible = cand.fits
             if not feasible.any():
                 continue
             nx, ny = cand.z.shape

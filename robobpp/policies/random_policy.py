@@ -8,16 +8,16 @@ import numpy as np
 
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.policies.base import BasePolicy
-from robobpp.policies.candidates import candidate_maps, first_supported
+from robobpp.policies.candidates import candidate_maps, first_placement
 
 
 class RandomPolicy(BasePolicy):
     """Pick uniformly among all feasible (x, y, orientation) on the 1 cm grid. Not from the paper: the floor
     of the scale (the reference's ``random`` does the same over its full coordinate grid).
 
-    The placements that fit are shuffled and the first supported one is taken, which is uniform over the
-    supported ones without testing them all. Seeded from ``seed`` and the episode id, so the same episode
-    gives the same placements.
+    The placements that fit (inside the container, below its top: the environment's action mask) are shuffled
+    and the first is taken. Seeded from ``seed`` and the episode id, so the same episode gives the same
+    placements.
     """
 
     name = "random"
@@ -37,4 +37,4 @@ class RandomPolicy(BasePolicy):
         if not parts:
             return None
         xs, ys, os_, zs = (np.concatenate(c) for c in zip(*parts, strict=True))
-        return first_supported(obs, self._rng.permutation(len(xs)), xs, ys, os_, zs)
+        return first_placement(self._rng.permutation(len(xs)), xs, ys, os_)

@@ -12,7 +12,7 @@ import numpy as np
 from robobpp.core import Action, Observation
 from robobpp.core.heightmap import cells_spanned
 from robobpp.policies.base import BasePolicy
-from robobpp.policies.candidates import candidate_maps, first_supported_index
+from robobpp.policies.candidates import candidate_maps, first_placement
 
 #: The reference searches every second centimetre along x and y (its loops step by 2 from 0).
 STEP = 2
@@ -71,8 +71,8 @@ class SDFPack(BasePolicy):
     centimetres, the scene points in metres in its world frame, all within 4.4 units of the origin — it
     is the distance from p to the container's origin corner, which is what we compute (docs/baselines.md).
 
-    Ties go to the first in the reference's loop order (orientation, then x, then y). In the physical
-    settings the first supported placement in score order is taken, like every policy here.
+    Ties go to the first in the reference's loop order (orientation, then x, then y). No support test, in any
+    setting, as the reference's.
     """
 
     name = "sdfpack"
@@ -107,5 +107,4 @@ class SDFPack(BasePolicy):
             return None
         xs, ys, orient, zs, score = (np.concatenate(c) for c in zip(*parts, strict=True))
         ranked = np.lexsort((ys, xs, orient, score))
-        k = first_supported_index(obs, ranked, xs, ys, orient, zs)
-        return None if k is None else Action(float(xs[k]), float(ys[k]), int(orient[k]))
+        return first_placement(ranked, xs, ys, orient)

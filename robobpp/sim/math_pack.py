@@ -1,9 +1,10 @@
 """Math Pack: pure geometry. A box drops onto the heightmap under its footprint and never moves.
 
 As in the reference's Math Pack (packsim runs its environment with the stability check off in setting 1), no
-support rule applies: the box rests on the highest cell under it, overhang and all. The support rule
-(:class:`robobpp.core.feasibility.SupportModel`) belongs to the physical settings' candidates; docs/baselines.md
-shows the experiment (the paper's Math Pack figures are reproduced without it and missed with it).
+support rule applies: the box rests on the highest cell under it, overhang and all. No setting enforces the
+support rule (:class:`robobpp.core.feasibility.SupportModel`), as in the reference, whose environment checks bounds
+and height only; PCT applies it to its leaves in the physical settings. docs/baselines.md shows the experiment (the
+paper's Math Pack figures are reproduced without it and missed with it).
 """
 
 from __future__ import annotations

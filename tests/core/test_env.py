@@ -183,3 +183,29 @@ def test_maskable_ppo_predicts_on_the_default_dict_observation(specs):
     model.learn(16)  # a rollout and an update on the same observation space
     look = gym.make("robobpp/Pack-v0", specs=specs[:1], actions="flat", lookahead=2)
     assert look.reset(seed=0)[0]["lookahead"].shape == (2, 4)
+
+
+@pytest.mark.parametrize("setting", ["math", "physics"])
+def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
+    # a 4 × 10 × 5 block at the back, then a 10 × 10 × 1 slab: with its min corner at x < 4 it rests on the block
+    # alone, its centre beyond the block's edge, which the reference's support rule refuses; at x ≥ 4 it lies
+    # on the floor. The environment accepts both (bounds and height, as the reference's); the rule is offered
+    # apart, in info["support_mask"], and only on a state observed after physics.
+    specs = [make_spec([(4, 10, 5), (10, 10, 1)], (20, 10, 20))]
+    env = gym.make("robobpp/Pack-v0", specs=specs, setting=setting, actions="flat").unwrapped
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step(np.ravel_multi_index((0, 0, 0), env.grid_shape))
+    assert info["placed"] and not terminated
+    mask, support = env.action_mask(), env.support_mask()
+    assert mask[:11, 0, 0].all()  # x = 0..10 fit (10 = 20 − 10)
+    np.testing.assert_array_equal(info["action_mask"], env.action_masks())
+    np.testing.assert_array_equal(info["support_mask"], support.reshape(-1))
+    assert not (support & ~mask).any()  # the support mask narrows the action mask
+    if setting == "math":
+        np.testing.assert_array_equal(support, mask)
+    else:
+        assert not support[:4, :, 0].any() and support[4:11, 0, 0].all()
+    # an action the rule refuses is still accepted and placed; gravity decides what happens to it
+    _, reward, _, _, info = env.step(np.ravel_multi_index((0, 0, 0), env.grid_shape))
+    assert info["placed"] and reward > 0 and info.get("termination") != "unsupported"
+    env.close()

@@ -6,6 +6,7 @@ import pytest
 
 from robobpp.core import Action
 from robobpp.policies import load_policy
+from robobpp.policies.candidates import support_model
 from tests.policies.scenes import scene
 
 
@@ -30,10 +31,13 @@ def test_hm_picks_the_least_added_heightmap_volume() -> None:
     obs = scene((8, 2, 10), [(0, 0, 2, 2, 3), (4, 0, 4, 2, 3)], (4, 2, 1))
     assert where(act("hm", obs)) == (4, 0, 0)
     assert where(act("dbl", obs)) == (0, 0, 0)
-    # after physics the support rule applies: at x = 0 the box rests on [0, 2] alone, its centre 2 outside the
-    # shrunk contact [0.1, 1.9]; at x = 1 the contacts [1, 2] and [4, 5] span its centre 3: DBL takes x = 1.
+    # after physics the choice is the same: the reference's heuristics apply no support rule in any setting
+    # (at x = 0 the box rests on [0, 2] alone, its centre 2 outside the shrunk contact [0.1, 1.9]; the rule
+    # would move it to x = 1, where the contacts [1, 2] and [4, 5] span its centre 3)
     physical = scene((8, 2, 10), [(0, 0, 2, 2, 3), (4, 0, 4, 2, 3)], (4, 2, 1), physical=True)
-    assert where(act("dbl", physical)) == (1, 0, 0)
+    assert where(act("dbl", physical)) == (0, 0, 0)
+    assert not support_model(physical).supports(0, 0, 4, 2, 1, 3.0)
+    assert support_model(physical).supports(1, 0, 4, 2, 1, 3.0)
 
 
 def test_hm_breaks_ties_back_left() -> None:

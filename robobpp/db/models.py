@@ -44,8 +44,14 @@ class Base(DeclarativeBase):
 
 # Status vocabularies (strings, so reports and SQL read alike).
 SUBMISSION_STATUSES = ("queued", "running", "completed", "failed", "cancelled")
-EPISODE_STATUSES = ("pending", "running", "done", "failed", "cancelled")
+#: ``waiting``: a paper-protocol episode whose Math Pack episode has not finished yet (nothing to replay);
+#: it becomes ``pending`` (or ``failed``) in the transaction that records that Math episode.
+EPISODE_STATUSES = ("waiting", "pending", "running", "done", "failed", "cancelled")
 TERMINAL_EPISODE = ("done", "failed", "cancelled")
+#: How a run's episodes are played (docs/benchmark.md, "Protocols"): ``closed`` — the policy is asked at every
+#: step and sees this setting's real pile (the benchmark) — or ``paper`` — the submission's Math Pack actions
+#: and decision times replayed open loop in a physical setting (the paper's procedure; no policy call).
+PROTOCOLS = ("closed", "paper")
 
 
 class Participant(Base):
@@ -119,14 +125,16 @@ class RunRow(Base):
 
     __tablename__ = "runs"
     __table_args__ = (
-        UniqueConstraint("submission_id", "dataset", "setting", name="uq_run"),
-        Index("ix_runs_board", "dataset", "setting", "status"),
+        UniqueConstraint("submission_id", "dataset", "setting", "protocol", name="uq_run"),
+        Index("ix_runs_board", "dataset", "setting", "protocol", "status"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
     submission_id: Mapped[int] = mapped_column(ForeignKey("submissions.id", ondelete="CASCADE"), index=True)
     dataset: Mapped[str] = mapped_column(String(32))
     setting: Mapped[str] = mapped_column(String(16))
+    #: One of :data:`PROTOCOLS` (0007; rows stored before are ``closed``).
+    protocol: Mapped[str] = mapped_column(String(8), default="closed", server_default="closed")
     status: Mapped[str] = mapped_column(String(16), default="pending")
     episodes_total: Mapped[int] = mapped_column(default=0)
     metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
@@ -145,7 +153,7 @@ class EpisodeRow(Base):
 
     __tablename__ = "episodes"
     __table_args__ = (
-        UniqueConstraint("submission_id", "dataset", "setting", "group", name="uq_episode"),
+        UniqueConstraint("submission_id", "dataset", "setting", "group", "protocol", name="uq_episode"),
         Index("ix_episodes_claim", "status", "lease_expires_at"),
         # a page's progress (episodes by status of 50 submissions) counted from the index alone (0006)
         Index("ix_episodes_submission_status", "submission_id", "status"),
@@ -158,6 +166,8 @@ class EpisodeRow(Base):
     setting: Mapped[str] = mapped_column(String(16))
     split: Mapped[str] = mapped_column(String(16))
     group: Mapped[int] = mapped_column(Integer)
+    #: One of :data:`PROTOCOLS` (0007; rows stored before are ``closed``).
+    protocol: Mapped[str] = mapped_column(String(8), default="closed", server_default="closed")
     status: Mapped[str] = mapped_column(String(16), default="pending")
     attempts: Mapped[int] = mapped_column(default=0)
     worker: Mapped[str | None] = mapped_column(String(128), default=None)
@@ -180,4 +190,8 @@ class EpisodeRow(Base):
     counters: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     #: Per-step trace; kept for the public track only (private episodes have no replay).
     trace: Mapped[dict[str, Any] | None] = mapped_column(default=None)
+    #: A paper-protocol episode's input: its Math Pack episode's actions and decision times
+    #: (``robobpp.worker.paper.plan_of``), written when that episode is recorded, cleared when the replay is.
+    #: Every track has one (a private episode keeps no trace); never served.
+    plan: Mapped[dict[str, Any] | None] = mapped_column(default=None, deferred=True)
     error: Mapped[str | None] = mapped_column(Text, default=None)

@@ -24,7 +24,7 @@ from sqlalchemy import and_, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
-from robobpp.metrics import aggregate
+from robobpp.metrics import PHYSICAL, aggregate
 from robobpp.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
 
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
@@ -53,6 +53,8 @@ class Claim:
     lookahead: int
     keep_trace: bool
     mode: str = "push"
+    #: ``paper``: replay the plan stored on the episode (:func:`episode_plan`), no policy involved.
+    protocol: str = "closed"
 
 
 def create_submission(
@@ -72,22 +74,79 @@ def create_submission(
 ) -> Submission:
     """The submission with one run per (dataset, setting) and one episode per group, in one transaction."""
     split = SPLIT_OF_TRACK[track]
+    boards = [(d, s, "closed") for d in datasets for s in settings]
+    boards += [(d, s, "paper") for d in datasets for s in paper_settings(settings, track)]
     sub = Submission(participant=participant, name=name, policy_url=policy_url, secret=secret,
                      pinned_ip=pinned_ip, track=track, mode=mode, datasets=list(datasets), settings=list(settings),
-                     lookahead=lookahead, status="queued", episodes_total=len(datasets) * len(settings) * groups)  # fmt: skip
+                     lookahead=lookahead, status="queued", episodes_total=len(boards) * groups)  # fmt: skip
     session.add(sub)
     session.flush()
-    for dataset in datasets:
-        for setting in settings:
-            run = RunRow(submission_id=sub.id, dataset=dataset, setting=setting, episodes_total=groups)
-            session.add(run)
-            session.flush()
-            session.execute(insert(EpisodeRow), [  # one bulk INSERT: submitting stays cheap
-                {"submission_id": sub.id, "run_id": run.id, "dataset": dataset, "setting": setting, "split": split,
-                 "group": g, "status": "pending", "attempts": 0, "step": 0} for g in range(groups)
-            ])  # fmt: skip
+    for dataset, setting, protocol in boards:
+        run = RunRow(submission_id=sub.id, dataset=dataset, setting=setting, protocol=protocol, episodes_total=groups)
+        session.add(run)
+        session.flush()
+        # a replay waits for its Math Pack episode (``waiting`` is never claimed): see ``_settle_replays``
+        status = "pending" if protocol == "closed" else "waiting"
+        session.execute(insert(EpisodeRow), [  # one bulk INSERT: submitting stays cheap
+            {"submission_id": sub.id, "run_id": run.id, "dataset": dataset, "setting": setting, "split": split,
+             "group": g, "protocol": protocol, "status": status, "attempts": 0, "step": 0} for g in range(groups)
+        ])  # fmt: skip
     session.flush()
     return sub
+
+
+#: Tracks whose submissions get the paper protocol (a verification is compared on closed loop only).
+PAPER_TRACKS = ("private", "public")
+
+
+def paper_settings(settings: list[str], track: str) -> list[str]:
+    """The physical settings a submission also gets under the paper protocol (docs/server.md, "The paper
+    protocol"): those it chose, when it chose Math Pack too (the plan is its Math episodes' actions)."""
+    if "math" not in settings or track not in PAPER_TRACKS:
+        return []
+    return [s for s in settings if s in PHYSICAL]
+
+
+def plan_of(result: dict[str, Any]) -> dict[str, Any]:
+    """What a paper-protocol replay needs of a Math Pack episode's result: each step's action (None: the
+    policy found no placement) and its timing, and how the episode ended. A few numbers a box: stored for
+    every track, where a private episode keeps no trace."""
+    keys = ("step", "box", "action", "decision_time", "compute_time", "round_trip", "network_estimate",
+            "termination")  # fmt: skip
+    return {
+        "steps": [{k: step.get(k) for k in keys} for step in result.get("steps", [])],
+        **{k: result.get(k) for k in ("termination", "termination_detail", "boxes_placed", "policy", "seed")},
+    }
+
+
+def _settle_replays(session: Session, math_episode_id: int, *, plan: dict[str, Any] | None = None,
+                    failure: tuple[str, str] | None = None) -> None:  # fmt: skip
+    """A Math Pack episode was recorded: its paper-protocol replays (same submission, dataset and group;
+    ``waiting`` until now) become ``pending`` with its ``plan``, or — when it ``failure`` (termination,
+    detail) — ``failed`` too, their runs finalised. In the caller's transaction: the replays are released
+    exactly when the episode is recorded, never twice, never lost."""
+    ep = session.execute(
+        select(EpisodeRow.submission_id, EpisodeRow.dataset, EpisodeRow.group, EpisodeRow.setting,
+               EpisodeRow.protocol).where(EpisodeRow.id == math_episode_id)
+    ).one()  # fmt: skip
+    if ep.setting != "math" or ep.protocol != "closed":
+        return
+    replays = and_(EpisodeRow.submission_id == ep.submission_id, EpisodeRow.dataset == ep.dataset,
+                   EpisodeRow.group == ep.group, EpisodeRow.protocol == "paper", EpisodeRow.status == "waiting")  # fmt: skip
+    if failure is None:
+        session.execute(update(EpisodeRow).where(replays).values(status="pending", plan=plan)
+                        .execution_options(synchronize_session=False))  # fmt: skip
+        return
+    runs = session.execute(
+        update(EpisodeRow)
+        .where(replays)
+        .values(status="failed", termination=failure[0], finished_at=utcnow(),
+                termination_detail=f"its Math Pack episode could not be evaluated: {failure[1]}"[:4000])
+        .returning(EpisodeRow.run_id)
+        .execution_options(synchronize_session=False)
+    ).scalars().all()  # fmt: skip
+    for run_id in sorted(set(runs)):
+        finalize_run(session, run_id)
 
 
 def take_unsent(
@@ -176,6 +235,7 @@ def reap_expired(session: Session, max_attempts: int, now: datetime | None = Non
         .with_for_update(skip_locked=True)
     ).all()
     for episode_id, run_id in rows:
+        detail = f"no worker finished the episode in {max_attempts} attempts"
         session.execute(
             update(EpisodeRow)
             .where(EpisodeRow.id == episode_id, _expired(now))
@@ -184,10 +244,11 @@ def reap_expired(session: Session, max_attempts: int, now: datetime | None = Non
                 termination=WORKER_LOST,
                 finished_at=now,
                 lease_token=None,
-                termination_detail=f"no worker finished the episode in {max_attempts} attempts",
+                termination_detail=detail,
             )  # fmt: skip
         )
         finalize_run(session, run_id)
+        _settle_replays(session, episode_id, failure=(WORKER_LOST, detail))
     return len(rows)
 
 
@@ -257,7 +318,7 @@ def claim_episode(
                 sub.status = "running"
             return Claim(ep.id, token, ep.attempts, sub.id, ep.dataset, ep.setting, ep.split, ep.group,
                          sub.policy_url, sub.secret, sub.pinned_ip, sub.lookahead, sub.track == "public",
-                         sub.mode)  # fmt: skip
+                         sub.mode, ep.protocol)  # fmt: skip
     return None
 
 
@@ -275,10 +336,18 @@ def heartbeat(
     return result.rowcount == 1
 
 
+def episode_plan(session: Session, episode_id: int) -> dict[str, Any] | None:
+    """A paper-protocol episode's plan (:func:`plan_of` of its Math Pack episode)."""
+    return session.execute(select(EpisodeRow.plan).where(EpisodeRow.id == episode_id)).scalar_one_or_none()
+
+
 def complete_episode(
     session: Session, episode_id: int, token: str, result: dict[str, Any], *, keep_trace: bool
 ) -> bool:
-    """Record an episode's result under its claim. Returns ``False`` (and writes nothing) otherwise."""
+    """Record an episode's result under its claim. Returns ``False`` (and writes nothing) otherwise.
+
+    ``result`` is the whole ``EpisodeResult.to_dict()``, steps included: the trace is stored only with
+    ``keep_trace``, but a Math Pack episode's plan is handed to its paper-protocol replays on every track."""
     values: dict[str, Any] = {
         "status": "done",
         "finished_at": utcnow(),
@@ -298,6 +367,7 @@ def complete_episode(
         }
         if keep_trace
         else None,  # fmt: skip
+        "plan": None,  # a replay's input, spent
     }
     done = session.execute(
         update(EpisodeRow)
@@ -309,6 +379,7 @@ def complete_episode(
         return False
     run_id = session.execute(select(EpisodeRow.run_id).where(EpisodeRow.id == episode_id)).scalar_one()
     finalize_run(session, run_id)
+    _settle_replays(session, episode_id, plan=plan_of(result))
     return True
 
 
@@ -332,6 +403,7 @@ def release_episode(
         ep.finished_at = utcnow()
         session.flush()
         finalize_run(session, ep.run_id)
+        _settle_replays(session, ep.id, failure=("evaluation_error", error))
     else:
         ep.status = "pending"
         ep.lease_expires_at = None
@@ -439,8 +511,9 @@ def _finalize_submission(session: Session, submission_id: int, now: datetime) ->
 
 def _policy_failed_runs(session: Session, submission_id: int) -> list[str]:
     """The boards (``setting/dataset``) where the policy failed beyond the allowed share (never ranked)."""
-    runs = session.execute(
-        select(RunRow.dataset, RunRow.setting, RunRow.extras).where(RunRow.submission_id == submission_id)
+    runs = session.execute(  # closed loop: a replay repeats its Math episode's policy failures
+        select(RunRow.dataset, RunRow.setting, RunRow.extras)
+        .where(RunRow.submission_id == submission_id, RunRow.protocol == "closed")
     ).all()
     return [f"{setting}/{dataset}" for dataset, setting, extras in runs
             if extras and run_failed(extras.get("terminations"), int(extras.get("episodes") or 0))]  # fmt: skip
@@ -454,7 +527,7 @@ def cancel_submission(session: Session, sub: Submission) -> bool:
     now = utcnow()
     session.execute(
         update(EpisodeRow)
-        .where(EpisodeRow.submission_id == sub.id, EpisodeRow.status.in_(("pending", "running")))
+        .where(EpisodeRow.submission_id == sub.id, EpisodeRow.status.in_(("waiting", "pending", "running")))
         .values(status="cancelled", lease_token=None, finished_at=now)
         .execution_options(synchronize_session=False)
     )

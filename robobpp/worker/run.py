@@ -19,7 +19,8 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from robobpp.db import work
 from robobpp.db.work import Claim
-from robobpp.episode import StepRecord, run_episode
+from robobpp.core import EpisodeSpec
+from robobpp.episode import EpisodeResult, StepRecord, run_episode
 from robobpp.policies import load_policy
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.outage import OutageLog
@@ -110,6 +111,8 @@ class _Lease(threading.Thread):
 
 def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOptions) -> bool:
     """Run a claimed episode and record it. Returns whether this call recorded the result."""
+    if claim.protocol == "paper":
+        return replay_claimed(factory, claim, settings)
     try:
         spec = episode_spec(claim.dataset, claim.split, claim.group, groups=settings.groups,
                             private_dir=settings.private_dir, provider=settings.spec_provider)  # fmt: skip
@@ -153,9 +156,56 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
     finally:
         lease.done.set()
         lease.join(timeout=5)
-    data = result.to_dict(trace=claim.keep_trace)
+    data = result.to_dict()  # steps included: a Math episode's plan is kept on every track (complete_episode)
     with factory() as s, s.begin():
         return work.complete_episode(s, claim.episode_id, claim.token, data, keep_trace=claim.keep_trace)
+
+
+def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOptions) -> bool:
+    """A paper-protocol episode: its Math Pack episode's actions and decision times (the plan recorded with
+    that episode) replayed open loop in the claim's physical setting. No policy is called; under the same
+    lease as any episode, so a crash hands it to the next worker and a late result is dropped."""
+    lease = _Lease(factory, claim, settings.lease_s)
+    try:
+        spec = episode_spec(claim.dataset, claim.split, claim.group, groups=settings.groups,
+                            private_dir=settings.private_dir, provider=settings.spec_provider)  # fmt: skip
+        with factory() as s:
+            plan = work.episode_plan(s, claim.episode_id)
+        if plan is None:
+            raise RuntimeError("the paper-protocol episode has no plan (its Math Pack episode left none)")
+        from robobpp.replay import replay_math_result
+
+        lease.start()
+        result = replay_math_result(math_result_of(plan, spec), spec, claim.setting)
+    except Exception as exc:  # noqa: BLE001 - a crash of the simulator: record it, bounded retries
+        detail = "".join(traceback.format_exception_only(exc)).strip()
+        with factory() as s, s.begin():
+            work.release_episode(s, claim.episode_id, claim.token, detail, max_attempts=settings.max_attempts)
+        log.exception("paper-protocol episode %s crashed", claim.episode_id)
+        return False
+    finally:
+        lease.done.set()
+        if lease.is_alive():
+            lease.join(timeout=5)
+    if lease.lost.is_set():
+        log.info("episode %s: claim lost (cancelled or taken over); result dropped", claim.episode_id)
+        return False
+    with factory() as s, s.begin():
+        return work.complete_episode(s, claim.episode_id, claim.token, result.to_dict(),
+                                     keep_trace=claim.keep_trace)  # fmt: skip
+
+
+def math_result_of(plan: dict[str, Any], spec: EpisodeSpec) -> EpisodeResult:
+    """The Math Pack episode a plan was taken from, as the replay reads it (actions, timings, ending)."""
+    steps = [StepRecord(**{k: v for k, v in step.items() if v is not None or k == "action"})
+             for step in plan["steps"]]  # fmt: skip
+    return EpisodeResult(
+        episode_id=spec.episode_id, dataset=spec.dataset, split=spec.split, group=spec.group, setting="math",
+        policy=plan.get("policy") or "", seed=int(plan.get("seed") or spec.seed), boxes_total=len(spec.boxes),
+        boxes_placed=int(plan.get("boxes_placed") or 0), termination=plan.get("termination") or "",
+        termination_detail=plan.get("termination_detail") or "", metrics={}, counters={},
+        container={}, steps=steps,
+    )  # fmt: skip
 
 
 def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worker: str) -> bool | None:

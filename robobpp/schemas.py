@@ -24,6 +24,14 @@ SubmissionMode = Literal["push", "pull"]
 PULL_URL = "pull:"
 
 
+#: How a physical setting's episodes were played (``robobpp.replay.PROTOCOLS``).
+ProtocolName = Literal["closed", "paper"]
+PROTOCOL_HELP = (
+    "closed: closed loop, the policy asked at every step (the benchmark); paper: the paper's protocol, the "
+    "submission's Math Pack actions replayed open loop (a Math Pack board is the same under both)"
+)
+
+
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -106,6 +114,7 @@ class Progress(BaseModel):
 class RunPublic(BaseModel):
     dataset: str
     setting: str
+    protocol: ProtocolName = "closed"
     status: str
     episodes_total: int
     metrics: dict[str, float | None] | None
@@ -139,6 +148,7 @@ class EpisodePublic(BaseModel):
     id: int
     dataset: str
     setting: str
+    protocol: ProtocolName = "closed"
     split: str
     group: int
     status: str
@@ -206,6 +216,7 @@ class Leaderboard(BaseModel):
     dataset: str
     setting: str
     track: str
+    protocol: ProtocolName = Field("closed", description=PROTOCOL_HELP)
     metrics: list[str]
     weights: dict[str, float]
     ranked_by: str = Field(description="Which score orders the board: relative (the paper's min–max)")
@@ -263,6 +274,7 @@ class OverallGrid(BaseModel):
     datasets: list[str]
     settings: list[str]
     track: str
+    protocol: ProtocolName = Field("closed", description=PROTOCOL_HELP)
     boards: int
     ranked_by: str
     view: Literal["best", "all"]

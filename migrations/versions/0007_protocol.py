@@ -30,15 +30,19 @@ def upgrade() -> None:
         batch.add_column(sa.Column("protocol", sa.String(length=8), nullable=False, server_default="closed"))
         batch.add_column(sa.Column("plan", sa.JSON(), nullable=True))
         batch.drop_constraint("uq_episode", type_="unique")
-        batch.create_unique_constraint("uq_episode", ["submission_id", "dataset", "setting", "group", "protocol"])
+        batch.create_unique_constraint(
+            "uq_episode", ["submission_id", "dataset", "setting", "group", "protocol"]
+        )
 
 
 def downgrade() -> None:
     # Paper-protocol rows have no place in the old schema (they would break its unique keys): removed.
     op.execute("DELETE FROM episodes WHERE protocol <> 'closed'")
     op.execute("DELETE FROM runs WHERE protocol <> 'closed'")
-    op.execute("UPDATE submissions SET episodes_total = "
-               "(SELECT count(*) FROM episodes WHERE episodes.submission_id = submissions.id)")
+    op.execute(
+        "UPDATE submissions SET episodes_total = "
+        "(SELECT count(*) FROM episodes WHERE episodes.submission_id = submissions.id)"
+    )
     with op.batch_alter_table("episodes") as batch:
         batch.drop_constraint("uq_episode", type_="unique")
         batch.create_unique_constraint("uq_episode", ["submission_id", "dataset", "setting", "group"])

@@ -48,10 +48,9 @@ SUBMISSION_STATUSES = ("queued", "running", "completed", "failed", "cancelled")
 #: it becomes ``pending`` (or ``failed``) in the transaction that records that Math episode.
 EPISODE_STATUSES = ("waiting", "pending", "running", "done", "failed", "cancelled")
 TERMINAL_EPISODE = ("done", "failed", "cancelled")
-#: How a run's episodes are played (docs/benchmark.md, "Protocols"): ``closed`` — the policy is asked at every
-#: step and sees this setting's real pile (the benchmark) — or ``paper`` — the submission's Math Pack actions
-#: and decision times replayed open loop in a physical setting (the paper's procedure; no policy call).
-PROTOCOLS = ("closed", "paper")
+#: A run's and an episode's ``protocol`` is one of ``robobpp.replay.PROTOCOLS`` (docs/benchmark.md): ``closed``,
+#: the policy asked at every step and seeing this setting's real pile (the benchmark), or ``paper``, the
+#: submission's Math Pack actions and decision times replayed open loop in a physical setting (no policy call).
 
 
 class Participant(Base):

@@ -165,7 +165,13 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
     return int(day), int(active)
 
 
-def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> list[dict[str, Any]]:
+def board_protocol(setting: str, protocol: str) -> str:
+    """The protocol whose runs a board shows: in Math Pack both protocols are the same episodes (closed)."""
+    return protocol if setting in PHYSICAL else "closed"
+
+
+def _entry_rows(session: Session, dataset: str, setting: str, track: str,
+                protocol: str = "closed") -> list[dict[str, Any]]:  # fmt: skip
     """Every completed run on the board of a finished submission (failed ones too: they are shown apart)."""
     # A physical setting's board shows only runs whose every episode ran the current physics version.
     other_physics = exists().where(
@@ -191,6 +197,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str) -> lis
         .where(
             RunRow.dataset == dataset,
             RunRow.setting == setting,
+            RunRow.protocol == board_protocol(setting, protocol),
             RunRow.status == "completed",
             Submission.track == track,
             Submission.status.in_(("completed", "failed")),
@@ -210,22 +217,34 @@ def _verdict(verification: dict[str, Any] | None) -> str | None:
     return status if status in ("verified", "disagrees", "failed") else None
 
 
-def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private") -> dict[str, Any]:
-    """One board, computed now (the server reads it through its cache): see :func:`robobpp.leaderboard.build_board`."""
-    return build_board(_entry_rows(session, dataset, setting, track), dataset, setting, track)
+def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private",
+                protocol: str = "closed") -> dict[str, Any]:  # fmt: skip
+    """One board, computed now (the server reads it through its cache): see :func:`robobpp.leaderboard.build_board`.
+
+    ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
+    board is the same under both."""
+    protocol = board_protocol(setting, protocol)
+    board = build_board(_entry_rows(session, dataset, setting, track, protocol), dataset, setting, track)
+    board["protocol"] = protocol
+    return board
 
 
 def overall_grid(
     session: Session, *, datasets: tuple[str, ...] = DATASETS_ORDER, settings: tuple[str, ...] = SETTINGS_ORDER,
-    track: str = "private", board: Callable[[str, str], dict[str, Any]] | None = None,
+    track: str = "private", board: Callable[[str, str], dict[str, Any]] | None = None, protocol: str = "closed",
 ) -> dict[str, Any]:  # fmt: skip
-    """The paper's overall table (see :func:`robobpp.leaderboard.build_grid`).
+    """The paper's overall table (see :func:`robobpp.leaderboard.build_grid`); ``protocol="paper"``: its
+    physical columns under the paper protocol (the Mean then averages those).
 
     ``board(dataset, setting)`` supplies each board (the server passes its cache); default: computed here.
     """
-    get_board = board or (lambda dataset, setting: leaderboard(session, dataset, setting, track=track))
+    get_board = board or (
+        lambda dataset, setting: leaderboard(session, dataset, setting, track=track, protocol=protocol)
+    )
     boards = {f"{s}/{d}": get_board(d, s) for s in settings for d in datasets}
-    return build_grid(boards, datasets, settings, track)
+    grid = build_grid(boards, datasets, settings, track)
+    grid["protocol"] = protocol
+    return grid
 
 
 def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:
@@ -293,7 +312,8 @@ def _progress(counts: dict[str, int], phase: str | None) -> dict[str, Any]:
         "episodes_total": total,
         "episodes_done": finished,
         "episodes_running": counts.get("running", 0),
-        "episodes_pending": counts.get("pending", 0),
+        # a paper-protocol replay waiting for its Math Pack episode is pending work like any other
+        "episodes_pending": counts.get("pending", 0) + counts.get("waiting", 0),
         "episodes_failed": counts.get("failed", 0),
         "episodes_cancelled": counts.get("cancelled", 0),
         "phase": phase,
@@ -311,7 +331,7 @@ def submission_view(session: Session, sub: Submission, progress: dict[str, Any] 
         "datasets": sub.datasets, "settings": sub.settings, "lookahead": sub.lookahead, "status": sub.status,
         "created_at": sub.created_at, "finished_at": sub.finished_at, "error": shown_text(sub.error),
         "progress": progress if progress is not None else submission_progress(session, sub.id),
-        "runs": [{"dataset": r.dataset, "setting": r.setting, "status": r.status,
+        "runs": [{"dataset": r.dataset, "setting": r.setting, "protocol": r.protocol, "status": r.status,
                   "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
                   "completed_at": r.completed_at} for r in (sub.runs if runs is None else runs)],
         "verification": sub.verification,
@@ -421,7 +441,8 @@ def submissions_by_id(session: Session, ids: Sequence[int]) -> dict[int, Submiss
 
 def episode_summary(ep: EpisodeRow) -> dict[str, Any]:
     return {
-        "id": ep.id, "dataset": ep.dataset, "setting": ep.setting, "split": ep.split, "group": ep.group,
+        "id": ep.id, "dataset": ep.dataset, "setting": ep.setting, "protocol": ep.protocol, "split": ep.split,
+        "group": ep.group,
         "status": ep.status, "attempts": ep.attempts, "step": ep.step, "termination": ep.termination,
         "termination_detail": shown_text(ep.termination_detail), "boxes_total": ep.boxes_total,
         "boxes_placed": ep.boxes_placed, "metrics": ep.metrics, "counters": ep.counters,

@@ -69,7 +69,7 @@ def run_interval(session: Session, submission_id: int, dataset: str, setting: st
     """The run's :data:`METRIC` with its 95 % interval, or ``None`` when the run did not complete."""
     run = session.execute(
         select(RunRow).where(RunRow.submission_id == submission_id, RunRow.dataset == dataset,
-                             RunRow.setting == setting, RunRow.status == "completed")
+                             RunRow.setting == setting, RunRow.protocol == "closed", RunRow.status == "completed")
     ).scalar_one_or_none()  # fmt: skip
     if run is None:
         return None
@@ -91,6 +91,7 @@ def _values(session: Session, submission_id: int, dataset: str, setting: str) ->
             EpisodeRow.submission_id == submission_id,
             EpisodeRow.dataset == dataset,
             EpisodeRow.setting == setting,
+            EpisodeRow.protocol == "closed",
             EpisodeRow.status == "done",
         )
     ).scalars()

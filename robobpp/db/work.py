@@ -82,7 +82,9 @@ def create_submission(
     session.add(sub)
     session.flush()
     for dataset, setting, protocol in boards:
-        run = RunRow(submission_id=sub.id, dataset=dataset, setting=setting, protocol=protocol, episodes_total=groups)
+        run = RunRow(
+            submission_id=sub.id, dataset=dataset, setting=setting, protocol=protocol, episodes_total=groups
+        )
         session.add(run)
         session.flush()
         # a replay waits for its Math Pack episode (``waiting`` is never claimed): see ``_settle_replays``
@@ -112,7 +114,7 @@ def plan_of(result: dict[str, Any]) -> dict[str, Any]:
     policy found no placement) and its timing, and how the episode ended. A few numbers a box: stored for
     every track, where a private episode keeps no trace."""
     keys = ("step", "box", "action", "decision_time", "compute_time", "round_trip", "network_estimate",
-            "termination")  # fmt: skip
+            "placement", "termination")  # fmt: skip
     return {
         "steps": [{k: step.get(k) for k in keys} for step in result.get("steps", [])],
         **{k: result.get(k) for k in ("termination", "termination_detail", "boxes_placed", "policy", "seed")},
@@ -512,8 +514,9 @@ def _finalize_submission(session: Session, submission_id: int, now: datetime) ->
 def _policy_failed_runs(session: Session, submission_id: int) -> list[str]:
     """The boards (``setting/dataset``) where the policy failed beyond the allowed share (never ranked)."""
     runs = session.execute(  # closed loop: a replay repeats its Math episode's policy failures
-        select(RunRow.dataset, RunRow.setting, RunRow.extras)
-        .where(RunRow.submission_id == submission_id, RunRow.protocol == "closed")
+        select(RunRow.dataset, RunRow.setting, RunRow.extras).where(
+            RunRow.submission_id == submission_id, RunRow.protocol == "closed"
+        )
     ).all()
     return [f"{setting}/{dataset}" for dataset, setting, extras in runs
             if extras and run_failed(extras.get("terminations"), int(extras.get("episodes") or 0))]  # fmt: skip

@@ -17,9 +17,9 @@ from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from robobpp.core import EpisodeSpec
 from robobpp.db import work
 from robobpp.db.work import Claim
-from robobpp.core import EpisodeSpec
 from robobpp.episode import EpisodeResult, StepRecord, run_episode
 from robobpp.policies import load_policy
 from robobpp.worker.options import WorkerOptions

@@ -11,7 +11,15 @@ from sqlalchemy.orm import Session
 
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.leaderboard import board_view, grid_view
-from robobpp.schemas import DatasetName, Leaderboard, OverallGrid, ServiceInfo, SettingName
+from robobpp.schemas import (
+    PROTOCOL_HELP,
+    DatasetName,
+    Leaderboard,
+    OverallGrid,
+    ProtocolName,
+    ServiceInfo,
+    SettingName,
+)
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SettingsDep, in_read_session
 from robobpp.server.runtime import Runtime
@@ -54,6 +62,7 @@ View = Annotated[
     Literal["best", "all"],
     Query(description="best: each participant's best entry (default); all: every entry"),
 ]
+Protocol = Annotated[ProtocolName, Query(description=PROTOCOL_HELP)]
 Limit = Annotated[int, Query(ge=1, le=500)]
 Offset = Annotated[int, Query(ge=0, le=10**7)]
 
@@ -61,10 +70,11 @@ Offset = Annotated[int, Query(ge=0, le=10**7)]
 @router.get("/leaderboards", response_model=OverallGrid,
             summary="The overall grid: every board's score and rank, and the Mean with intervals")  # fmt: skip
 async def overall(request: Request, settings: SettingsDep, track: Track = "private", view: View = "best",
-                  limit: Limit = 50, offset: Offset = 0) -> Response:  # fmt: skip
+                  limit: Limit = 50, offset: Offset = 0, protocol: Protocol = "closed") -> Response:  # fmt: skip
     cache, boards = board_cache(request), (tuple(settings.datasets), tuple(settings.enabled_settings))
-    body = await cached_body(request, track, ("api-grid", *boards, track, view, limit, offset),
-                             lambda s: to_json(grid_view(cache.grid(s, *boards, track), view, limit, offset)))  # fmt: skip
+    body = await cached_body(request, track, ("api-grid", *boards, track, view, limit, offset, protocol),
+                             lambda s: to_json(grid_view(cache.grid(s, *boards, track, protocol), view, limit,
+                                                         offset)))  # fmt: skip
     return Response(body, media_type="application/json")
 
 
@@ -73,11 +83,12 @@ async def overall(request: Request, settings: SettingsDep, track: Track = "priva
 async def board(request: Request, dataset: DatasetName, setting: SettingName, track: Track = "private",
                 view: View = "best", limit: Limit = 50, offset: Offset = 0,
                 submission: Annotated[int | None, Query(ge=1, le=2**62, description="Only this submission")] = None,
-                ) -> Response:  # fmt: skip
+                protocol: Protocol = "closed") -> Response:  # fmt: skip
     cache = board_cache(request)
-    body = await cached_body(request, track, ("api-board", dataset, setting, track, view, limit, offset, submission),
-                             lambda s: to_json(board_view(cache.board(s, dataset, setting, track), view, limit,
-                                                          offset, submission)))  # fmt: skip
+    key = ("api-board", dataset, setting, track, view, limit, offset, submission, protocol)
+    body = await cached_body(request, track, key,
+                             lambda s: to_json(board_view(cache.board(s, dataset, setting, track, protocol), view,
+                                                          limit, offset, submission)))  # fmt: skip
     return Response(body, media_type="application/json")
 
 

@@ -48,6 +48,8 @@ from robobpp import __version__
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.leaderboard import build_grid
+from robobpp.metrics import PHYSICAL
+from robobpp.replay import CLOSED, PAPER, PROTOCOLS
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
 try:  # POSIX: the API processes of one host compute each snapshot once (BoardCache._host_lock)
@@ -91,19 +93,33 @@ def to_json(data: Any) -> bytes:
 
 def compute_snapshot(session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
                      track: str) -> dict[str, Any]:  # fmt: skip
-    """Every board of a track and its overall grid, computed now: ``{"boards": {(dataset, setting): board},
-    "grid": grid}``. The boards lose the resample arrays only the grid needs (tens of MB at 10,000 entries)."""
-    boards = {(d, st): queries.leaderboard(session, d, st, track=track) for st in settings for d in datasets}
-    grid = build_grid({f"{st}/{d}": b for (d, st), b in boards.items()}, datasets, settings, track)
+    """Every board of a track and its overall grids, computed now: ``{"boards": {(dataset, setting): board,
+    (dataset, setting, "paper"): board}, "grid": grid, "grid-paper": grid}`` — closed loop, and the physical
+    settings under the paper protocol (a Math Pack board is the same under both). The boards lose the resample
+    arrays only the grids need (tens of MB at 10,000 entries)."""
+    boards: dict[tuple[str, ...], dict[str, Any]] = {
+        (d, st): queries.leaderboard(session, d, st, track=track) for st in settings for d in datasets
+    }
+    for st in settings:
+        for d in datasets:
+            if st in PHYSICAL:
+                boards[(d, st, PAPER)] = queries.leaderboard(session, d, st, track=track, protocol=PAPER)
+    grids = {}
+    for protocol in PROTOCOLS:
+        shown = {f"{st}/{d}": boards[(d, st, protocol) if (d, st, protocol) in boards else (d, st)]
+                 for st in settings for d in datasets}  # fmt: skip
+        grids[protocol] = build_grid(shown, datasets, settings, track) | {"protocol": protocol}
     for b in boards.values():
         b.pop("_samples", None)
         b.pop("_stable_samples", None)
-    return {"boards": boards, "grid": grid}
+    return {"boards": boards, "grid": grids[CLOSED], "grid-paper": grids[PAPER]}
 
 
 _CHILD_FACTORIES: dict[str, Any] = {}
-#: Bumped when a stored snapshot's layout changes (``_stored_key``).
-STORE_FORMAT = 1
+#: A snapshot's grids, by protocol (``compute_snapshot``).
+GRID_KEYS = ("grid", "grid-paper")
+#: Bumped when a stored snapshot's layout changes (``_stored_key``). 2: paper-protocol boards and grid.
+STORE_FORMAT = 2
 
 
 def _stored_key(
@@ -133,7 +149,7 @@ def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str,
             session.connection(execution_options={"isolation_level": "REPEATABLE READ"})
         version = board_version(session, track)
         snap = compute_snapshot(session, datasets, settings, track)
-    parts = [pickle.dumps(("grid", snap["grid"]), protocol=pickle.HIGHEST_PROTOCOL)]
+    parts = [pickle.dumps((key, snap[key]), protocol=pickle.HIGHEST_PROTOCOL) for key in GRID_KEYS]
     parts += [pickle.dumps((key, b), protocol=pickle.HIGHEST_PROTOCOL) for key, b in snap["boards"].items()]
     if store_dir is not None:
         stored = {"key": _stored_key(url, datasets, settings, track), "version": version, "parts": parts}
@@ -152,15 +168,15 @@ def _load_parts(parts: list[bytes]) -> dict[str, Any]:
     snap: dict[str, Any] = {"boards": {}}
     for part in parts:
         key, value = pickle.loads(part)
-        if key == "grid":
-            snap["grid"] = value
+        if key in GRID_KEYS:
+            snap[key] = value
         else:
             snap["boards"][key] = value
         # part by part: the collector never gets to traverse a half-loaded snapshot either
         _out_of_the_collectors_reach()
         time.sleep(0)
-    if "grid" not in snap:
-        raise ValueError("a snapshot without its grid")
+    if any(key not in snap for key in GRID_KEYS):
+        raise ValueError("a snapshot without its grids")
     return snap
 
 
@@ -287,19 +303,25 @@ class BoardCache:
         key = ("snapshot", self.datasets, self.settings, track)
         return self._get(key, version, session, self._computer(key, version))
 
-    def board(self, session: Session, dataset: str, setting: str, track: str = "private") -> dict[str, Any]:
-        """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``."""
+    def board(self, session: Session, dataset: str, setting: str, track: str = "private",
+              protocol: str = CLOSED) -> dict[str, Any]:  # fmt: skip
+        """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``. ``protocol``:
+        ``closed`` (the benchmark) or ``paper`` (a physical setting's Math actions replayed)."""
+        protocol = queries.board_protocol(setting, protocol)
         if dataset in self.datasets and setting in self.settings:
-            return self.snapshot(session, track)["boards"][(dataset, setting)]
-        version, key = self.version(session, track), ("board", dataset, setting, track)
+            boards = self.snapshot(session, track)["boards"]
+            return boards[(dataset, setting) if protocol == CLOSED else (dataset, setting, protocol)]
+        version, key = self.version(session, track), ("board", dataset, setting, protocol, track)
         return self._get(key, version, session, self._computer(key, version))
 
     def grid(self, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
-             track: str = "private") -> dict[str, Any]:  # fmt: skip
-        """The overall grid; page it with ``grid_view``."""
+             track: str = "private", protocol: str = CLOSED) -> dict[str, Any]:  # fmt: skip
+        """The overall grid (``protocol``: of its physical columns); page it with ``grid_view``."""
+        grid_key = "grid" if protocol == CLOSED else f"grid-{protocol}"
         if tuple(datasets) == self.datasets and tuple(settings) == self.settings:
-            return self.snapshot(session, track)["grid"]
-        version, key = self.version(session, track), ("grid", tuple(datasets), tuple(settings), track)
+            return self.snapshot(session, track)[grid_key]
+        version = self.version(session, track)
+        key = ("grid", tuple(datasets), tuple(settings), protocol, track)
         return self._get(key, version, session, self._computer(key, version))
 
     def warm(self, tracks: tuple[str, ...] = ("private", "public")) -> None:
@@ -352,9 +374,10 @@ class BoardCache:
         (version computed at or None, value); the first reader and the background refresh share it."""
         kind, track = key[0], key[-1]
         if kind == "board":
-            return lambda s: (None, queries.leaderboard(s, key[1], key[2], track=track))
+            return lambda s: (None, queries.leaderboard(s, key[1], key[2], track=track, protocol=key[3]))
         if kind == "grid":
-            return lambda s: (None, compute_snapshot(s, key[1], key[2], track)["grid"])
+            grid_key = "grid" if key[3] == CLOSED else f"grid-{key[3]}"
+            return lambda s: (None, compute_snapshot(s, key[1], key[2], track)[grid_key])
         return self._compute_snapshot(track, version)
 
     def _compute_snapshot(self, track: str, version: tuple[Any, ...]) -> Callable[[Session], tuple[Any, Any]]:

@@ -50,12 +50,13 @@ def _finished_submission(factory, name: str, version: str | None) -> None:  # ty
             s.flush()
         work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
                                settings=["math", "physics"], groups=1)  # fmt: skip
-    for setting in ("math", "physics"):
+    # closed loop, then the paper protocol's replay of the Math episode (docs/server.md)
+    for setting, protocol in (("math", "closed"), ("physics", "closed"), ("physics", "paper")):
         with transaction(factory) as s:
             claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
             assert claim is not None
             row = s.get(EpisodeRow, claim.episode_id)
-            assert row is not None and row.setting == setting
+            assert row is not None and (row.setting, row.protocol) == (setting, protocol)
             metrics = {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01}
             if setting == "physics":
                 metrics |= {"local_stability": 0.01, "static_stability": 0.4}

@@ -1,0 +1,196 @@
+"""The paper protocol on the server: every submission with Math Pack episodes gets its physical settings again
+as the paper made them — the Math actions and decision times replayed open loop — stored as runs and episodes
+of protocol ``paper`` beside the closed-loop ones, under the same leases (docs/server.md, "The paper protocol")."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+from alembic import command
+from alembic.autogenerate import compare_metadata
+from alembic.migration import MigrationContext
+from sqlalchemy import select
+
+from robobpp.db import work
+from robobpp.db.migrate import alembic_config, upgrade
+from robobpp.db.models import Base, EpisodeRow, Participant, RunRow, Submission, utcnow
+from robobpp.db.session import make_engine, make_session_factory, transaction
+from robobpp.worker.options import WorkerOptions
+from robobpp.worker.run import claim_and_run
+from tests.server.conftest import OFFLINE
+
+
+@pytest.fixture
+def factory(db_url: str):  # type: ignore[no-untyped-def]
+    engine = make_engine(db_url)
+    upgrade(db_url, engine=engine)
+    yield make_session_factory(engine)
+    engine.dispose()
+
+
+def _submit(factory, settings=("math", "physics"), groups: int = 2, track: str = "public",
+            datasets=("diverse",)) -> int:  # type: ignore[no-untyped-def]  # fmt: skip
+    with transaction(factory) as s:
+        p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
+        if p is None:
+            p = Participant(name="p", is_builtin=True)
+            s.add(p)
+            s.flush()
+        return work.create_submission(s, p, name="dbl", policy_url="builtin:dbl", datasets=list(datasets),
+                                      settings=list(settings), groups=groups, track=track).id  # fmt: skip
+
+
+def _episodes(factory, sid: int) -> list[EpisodeRow]:  # type: ignore[no-untyped-def]
+    with factory() as s:
+        rows = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sid).order_by(EpisodeRow.id))
+        return list(rows.scalars())
+
+
+def _drain(factory, db_url: str) -> int:  # type: ignore[no-untyped-def]
+    options = WorkerOptions(database_url=db_url, spec_provider=OFFLINE, groups=2, lease_s=30)
+    n = 0
+    while claim_and_run(factory, options, "local:test:1") is not None:
+        n += 1
+    return n
+
+
+def test_runs_and_waiting_replays_are_created_with_the_submission(factory) -> None:
+    sid = _submit(factory, settings=("math", "physics", "execution"), groups=2)
+    with factory() as s:
+        runs = {(r.setting, r.protocol): r.status for r in s.execute(select(RunRow)).scalars()}
+        sub = s.get(Submission, sid)
+        assert sub is not None and sub.episodes_total == 2 * 5
+    assert runs == {("math", "closed"): "pending", ("physics", "closed"): "pending",
+                    ("execution", "closed"): "pending", ("physics", "paper"): "pending",
+                    ("execution", "paper"): "pending"}  # fmt: skip
+    statuses = {(e.setting, e.protocol, e.group): e.status for e in _episodes(factory, sid)}
+    assert statuses[("physics", "paper", 0)] == "waiting" and statuses[("math", "closed", 1)] == "pending"
+    # no Math Pack, nothing to replay; a verification is compared on closed loop only
+    assert work.paper_settings(["physics", "execution"], "private") == []
+    assert work.paper_settings(["math", "physics"], "verify") == []
+    assert work.paper_settings(["math", "execution"], "private") == ["execution"]
+
+
+def test_waiting_replays_are_never_claimed_before_their_math_episode(factory) -> None:
+    _submit(factory, settings=("math", "physics"), groups=1)
+    with transaction(factory) as s:
+        first = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
+        second = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
+        third = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
+    assert first is not None and (first.setting, first.protocol) == ("math", "closed")
+    assert second is not None and (second.setting, second.protocol) == ("physics", "closed")
+    assert third is None  # the replay waits for the Math episode
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("track", ["public", "private"])
+def test_replays_play_exactly_the_math_actions(factory, db_url: str, track: str) -> None:
+    sid = _submit(factory, settings=("math", "physics"), groups=2, track=track)
+    assert _drain(factory, db_url) == 6  # 2 Math, 2 closed-loop Physics, 2 replays
+    episodes = _episodes(factory, sid)
+    assert all(e.status == "done" for e in episodes), [(e.setting, e.status, e.error) for e in episodes]
+    with factory() as s:
+        sub = s.get(Submission, sid)
+        assert sub is not None and sub.status == "completed"
+        runs = {(r.setting, r.protocol): r for r in s.execute(select(RunRow)).scalars()}
+        assert runs[("physics", "paper")].status == "completed" and runs[("physics", "paper")].figures
+        plans = s.execute(select(EpisodeRow.plan).where(EpisodeRow.protocol == "paper")).scalars().all()
+        assert plans == [None, None]  # spent once the replay is recorded
+    if track == "private":  # no trace kept: the replay read its plan, which is never served
+        assert all(e.trace is None for e in episodes)
+        return
+    for group in (0, 1):
+        math = next(e for e in episodes if (e.setting, e.group) == ("math", group))
+        replay = next(e for e in episodes if (e.setting, e.protocol, e.group) == ("physics", "paper", group))
+        closed = next(e for e in episodes if (e.setting, e.protocol, e.group) == ("physics", "closed", group))
+        assert replay.physics_version is not None and replay.trace is not None and math.trace is not None
+        played = [(s["action"], s["decision_time"]) for s in replay.trace["steps"]]
+        planned = [(s["action"], s["decision_time"]) for s in math.trace["steps"]][: len(played)]
+        assert played == planned and played  # the Math answers, in order, with their decision times
+        assert replay.boxes_placed <= math.boxes_placed
+        assert replay.trace["steps"] != closed.trace["steps"] or replay.metrics == closed.metrics
+
+
+def test_a_failed_math_episode_fails_its_replays(factory) -> None:
+    sid = _submit(factory, settings=("math", "physics"), groups=1)
+    now = utcnow()
+    for attempt in range(2):  # the Math episode's worker dies twice: worker_lost
+        with transaction(factory) as s:
+            claim = work.claim_episode(
+                s, "w", lease_s=10, max_attempts=2, now=now + timedelta(seconds=11 * attempt)
+            )
+            assert claim is not None and claim.setting == "math"
+    with transaction(factory) as s:
+        work.reap_expired(s, 2, now + timedelta(seconds=40))
+    replay = next(e for e in _episodes(factory, sid) if e.protocol == "paper")
+    assert (replay.status, replay.termination) == ("failed", work.WORKER_LOST)
+    with factory() as s:
+        run = s.get(RunRow, replay.run_id)
+        assert run is not None and run.status == "failed"
+
+
+def test_a_completed_math_episode_releases_its_replays_once(factory) -> None:
+    sid = _submit(factory, settings=("math", "physics"), groups=1)
+    with transaction(factory) as s:
+        claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
+    assert claim is not None and claim.setting == "math"
+    step = {"step": 0, "box": {"length": 1, "width": 1, "height": 1, "mass": 1}, "action": None,
+            "decision_time": 0.25, "termination": "no_feasible_placement"}  # fmt: skip
+    result = {"termination": "no_feasible_placement", "termination_detail": "none", "boxes_total": 12,
+              "boxes_placed": 0, "metrics": {"space_utilization": 0.0}, "counters": {}, "steps": [step]}  # fmt: skip
+    for _ in range(2):  # a repeated completion (a duplicate message) changes nothing
+        with transaction(factory) as s:
+            work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
+    replay = next(e for e in _episodes(factory, sid) if e.protocol == "paper")
+    assert replay.status == "pending"
+    with factory() as s:
+        plan = work.episode_plan(s, replay.id)
+    assert plan is not None and plan["termination"] == "no_feasible_placement"
+    assert [(p["action"], p["decision_time"]) for p in plan["steps"]] == [(None, 0.25)]
+
+
+def test_cancel_cancels_waiting_replays(factory) -> None:
+    sid = _submit(factory, settings=("math", "physics"), groups=1)
+    with transaction(factory) as s:
+        sub = s.get(Submission, sid)
+        assert sub is not None and work.cancel_submission(s, sub)
+    assert {e.status for e in _episodes(factory, sid)} == {"cancelled"}
+
+
+def test_migration_round_trip_keeps_rows_closed(db_url: str) -> None:
+    cfg = alembic_config(db_url)
+    command.upgrade(cfg, "0006")
+    engine = make_engine(db_url)
+    try:
+        with engine.begin() as conn:  # a row stored before the protocol existed
+            conn.exec_driver_sql("INSERT INTO participants (name, is_builtin, created_at) "
+                                 "VALUES ('old', false, CURRENT_TIMESTAMP)")  # fmt: skip
+            conn.exec_driver_sql(
+                "INSERT INTO submissions (participant_id, name, policy_url, track, mode, datasets, settings, "
+                "lookahead, status, episodes_total, created_at) VALUES (1, 'old', 'builtin:dbl', 'private', "
+                "'push', '[\"diverse\"]', '[\"physics\"]', 0, 'completed', 1, CURRENT_TIMESTAMP)"
+            )
+            conn.exec_driver_sql("INSERT INTO runs (submission_id, dataset, setting, status, episodes_total) "
+                                 "VALUES (1, 'diverse', 'physics', 'completed', 1)")  # fmt: skip
+        command.upgrade(cfg, "head")
+        with engine.connect() as conn:
+            assert conn.exec_driver_sql("SELECT protocol FROM runs").scalars().all() == ["closed"]
+            # the models and the migrated schema agree (nothing for autogenerate to add or drop)
+            diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
+            assert diff == [], diff
+        with (
+            make_session_factory(engine)() as s,
+            s.begin(),
+        ):  # a paper run beside the closed one fits the keys
+            s.add(
+                RunRow(
+                    submission_id=1, dataset="diverse", setting="physics", protocol="paper", status="pending"
+                )
+            )
+        command.downgrade(cfg, "0006")
+        with engine.connect() as conn:
+            assert conn.exec_driver_sql("SELECT count(*) FROM runs").scalar_one() == 1
+        command.upgrade(cfg, "head")
+    finally:
+        engine.dispose()

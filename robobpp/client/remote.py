@@ -42,6 +42,16 @@ PROBE_TIMEOUT_S = 2.0
 M = TypeVar("M", bound=BaseModel)
 
 
+class SignatureMismatch(PolicyError):
+    """The evaluator and the policy server disagree on the shared secret: the server refused the request's
+    signature (HTTP 401/403), or the answer is unsigned or signed with another key. ``refused`` tells which
+    side: True when the server refused the request."""
+
+    def __init__(self, reason: str, detail: str, *, refused: bool) -> None:
+        super().__init__(reason, detail)
+        self.refused = refused
+
+
 class Transport(Protocol):
     """How requests reach the policy: :class:`wire.Connection` (push) or the server's pull relay."""
 
@@ -329,7 +339,9 @@ class RemotePolicy:
                 P.verify_answer(self.secret, answer.headers, answer.body, episode_id=episode_id,
                                 step=payload.get("step") if payload else None, request_signature=request_signature)  # fmt: skip
             except P.SignatureError as exc:
-                raise PolicyError(PROTOCOL_VIOLATION, f"the answer to {what} is refused: {exc}") from None
+                raise SignatureMismatch(
+                    PROTOCOL_VIOLATION, f"the answer to {what} is refused: {exc}", refused=False
+                ) from None
         return parsed
 
     def _parse(self, what: str, answer: wire.Answer, model: type[M]) -> M:
@@ -341,8 +353,10 @@ class RemotePolicy:
                 f"{what} answered a redirect (HTTP {status} to {_short(location)}); redirects are not followed",
             )
         if status in (401, 403):
-            raise PolicyError(
-                POLICY_ERROR, f"the policy server refused {what} (HTTP {status}): check the shared secret"
+            raise SignatureMismatch(
+                POLICY_ERROR,
+                f"the policy server refused {what} (HTTP {status}): check the shared secret",
+                refused=True,
             )
         if status != 200:
             snippet = content[:300].decode("utf-8", "replace")

@@ -109,15 +109,36 @@ def probe_policy(
     the whole exchange (connect, send, every byte of the answer), a size cap, no redirects, the strict
     ``InfoResponse`` model (``protocol`` must be ``robobpp/1``) and, with a secret, a signed answer.
     """
-    from robobpp.client.remote import RemotePolicy
+    from robobpp.client.remote import RemotePolicy, SignatureMismatch
     from robobpp.policies.base import PolicyError
 
     policy = RemotePolicy(checked.url, secret, step_timeout_s=timeout_s, connect_timeout_s=timeout_s,
                           max_response_bytes=cap_bytes, resolved_ip=checked.pinned_ip, check_info=False)  # fmt: skip
     try:
         info = policy.fetch_info()
+    except SignatureMismatch as exc:  # reached, and it answered: only the secrets disagree
+        raise UnsafeURLError("policy-signature", signature_advice(checked.url, secret, exc)) from None
     except PolicyError as exc:
         raise UnsafeURLError("policy-unreachable", f"GET {checked.url}/info: {exc.detail}") from None
     finally:
         policy.close()
     return info.model_dump()
+
+
+def signature_advice(url: str, secret: str | None, exc: object) -> str:
+    """What is wrong with the secrets of a submission whose policy answered ``/info``, and what to do."""
+    from robobpp.client.remote import SignatureMismatch
+
+    assert isinstance(exc, SignatureMismatch)
+    check = f"`robobpp protocol check {url} --secret ...` tests a secret before submitting"
+    if exc.refused and secret is None:
+        what = ("the policy server requires signed requests, and this submission has no secret: submit "
+                "with the secret the policy server was started with (--secret or ROBOBPP_POLICY_SECRET)")  # fmt: skip
+    elif exc.refused:
+        what = ("the policy server refused this submission's signature: its secret is not the one the policy "
+                "server was started with; submit with that secret (--secret or ROBOBPP_POLICY_SECRET)")  # fmt: skip
+    else:
+        what = ("the policy server's answer is not signed with this submission's secret: start the policy "
+                "server with the same secret (robobpp policy serve --secret, serve(policy, secret=...)) or "
+                "submit without one")  # fmt: skip
+    return f"GET {url}/info answered, but {what}; {check} ({exc.detail})"

@@ -203,7 +203,7 @@ def test_errors_are_one_line_with_the_status(
         (("nope", "submissions", "list"), 1, "error: 401: Unauthorized: the API token is not valid"),
         ((token, "submissions", "show", "999999"), 1, "error: 404: Not found: no submission 999999"),
         ((token, "submit", f"http://127.0.0.1:{free_port()}"), 1, "error: 422: Policy unreachable:"),
-        ((token, "submit", fast.url, "--secret", "not-the-secret"), 1, "error: 422: Policy unreachable:"),
+        ((token, "submit", fast.url, "--secret", "not-the-secret"), 1, "error: 422: Signature mismatch:"),
         ((token, "submit", fast.url, "--dataset", "moon"), 2, "error: unknown dataset moon"),
         ((token, "submit", fast.url, "--track", "secret"), 2, "error: unknown track 'secret'"),
     ]

@@ -88,13 +88,31 @@ def test_bad_submissions_get_clear_problems_and_write_nothing(api: TestClient, p
         "policy_url": policy_server(secret="the-real-secret").url,
         "secret": "a-wrong-secret",
     }
-    assert_problem(
-        api.post("/api/v1/submissions", json=wrong_secret, headers=alice), 422, "policy-unreachable"
-    )
+    assert_problem(api.post("/api/v1/submissions", json=wrong_secret, headers=alice), 422, "policy-signature")
     assert row_counts(api) == before
     r = api.post("/api/v1/submissions", json=good, headers=alice)
     assert r.status_code == 201, r.text
     assert row_counts(api) == (before[0] + 1, before[1] + 1, before[2] + 2)
+
+
+def test_a_signature_mismatch_says_which_side_and_what_to_do(api: TestClient, policy_server) -> None:
+    """A policy that answers but under another secret was reported as "Policy unreachable": it is a
+    signature mismatch, named as such, with what to change on which side."""
+    alice = participant(api, "alice")
+    signed, unsigned = policy_server(secret="the-real-secret").url, policy_server(secret=None).url
+    cases = [
+        ({"policy_url": signed, "secret": "a-wrong-secret"}, "refused this submission's signature"),
+        ({"policy_url": signed}, "requires signed requests, and this submission has no secret"),
+        (
+            {"policy_url": unsigned, "secret": "a-wrong-secret"},
+            "start the policy server with the same secret",
+        ),
+    ]
+    for fields, advice in cases:
+        r = api.post("/api/v1/submissions", json={"name": "s", **fields}, headers=alice)
+        body = assert_problem(r, 422, "policy-signature")
+        assert body["title"] == "Signature mismatch" and "unreachable" not in body["detail"]
+        assert advice in body["detail"] and "robobpp protocol check" in body["detail"], body["detail"]
 
 
 def test_tokens_and_ownership(api: TestClient, policy_server) -> None:

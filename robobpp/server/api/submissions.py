@@ -94,7 +94,8 @@ async def _check_url(
     try:
         checked = await gate.run(f"participant-{principal.participant_id or 'admin'}", check)
     except UnsafeURLError as exc:
-        title = {"policy-url-forbidden": "Policy URL refused", "policy-unreachable": "Policy unreachable"}
+        title = {"policy-url-forbidden": "Policy URL refused", "policy-unreachable": "Policy unreachable",
+                 "policy-signature": "Signature mismatch"}  # fmt: skip
         raise ProblemError(422, exc.kind, title.get(exc.kind, "Invalid policy URL"), exc.detail) from None
     return checked.url, checked.pinned_ip
 

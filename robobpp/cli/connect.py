@@ -7,7 +7,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from robobpp.cli.common import fail, import_from_cwd, table_console
+from robobpp.cli.common import fail, import_from_cwd
 from robobpp.cli.submit import (
     DATASETS,
     SETTINGS,
@@ -50,7 +50,7 @@ def connect_command(
 ) -> None:
     """Evaluate a policy in pull mode: open outbound connections to the server and serve its episodes
     through them until the submission finishes (works behind NAT and firewalls; no port to open)."""
-    from robobpp.cli.submit import _finish, _standings_table
+    from robobpp.cli.submit import _finish, _print_results
     from robobpp.client.api import ServerClient, ServerError
     from robobpp.client.connect import connect
     from robobpp.policies import PolicyLoadError, load_policy
@@ -75,7 +75,7 @@ def connect_command(
                         datasets=datasets, settings=settings, track=_track(track), lookahead=lookahead,
                         parallel=parallel, on_event=lambda m: err.print(escape(m), soft_wrap=True))  # fmt: skip
         with ServerClient(server, token) as client:
-            table_console().print(_standings_table(final, client.standings(final)))
+            _print_results(client, final)
     except ServerError as exc:
         fail(escape(str(exc)), code=1)
     except KeyboardInterrupt:

@@ -151,8 +151,24 @@ def submit(
             print(sub.id)
             return
         final = _follow(client, sub, poll)
-        table_console().print(_standings_table(final, client.standings(final)))
+        _print_results(client, final)
     _finish(final)
+
+
+#: How long ``submit --wait`` and ``connect`` wait for the boards to include a finished submission.
+BOARD_WAIT_S = 30.0
+
+
+def _print_results(client: ServerClient, sub: SubmissionPublic, wait_s: float = BOARD_WAIT_S) -> None:
+    """The finished submission's table with its score and rank: boards are recomputed in the background a
+    moment after a submission finishes, so wait (bounded) until they include it, and say so if they do not."""
+    standings = client.standings(sub, wait_s=wait_s)
+    table_console().print(_standings_table(sub, standings))
+    late = [s.board for s in standings if s.status == "completed" and s.board_status is None]
+    if late and sub.status in ("completed", "failed"):
+        err.print(f"the board{'s' * (len(late) > 1)} {', '.join(late)} did not include #{sub.id} within "
+                  f"{wait_s:g} s (boards are recomputed in the background); `robobpp submissions show {sub.id}` "
+                  "shows its score and rank once they do", soft_wrap=True)  # fmt: skip
 
 
 def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> SubmissionPublic:
@@ -198,7 +214,7 @@ def _standings_table(sub: SubmissionPublic, standings: list[Standing]) -> Table:
     table.add_column("score", justify="right")
     table.add_column("rank", justify="right")
     for s in standings:
-        rank = f"{s.rank} / {s.entries}" if s.rank is not None else "—"
+        rank = f"{s.rank} / {s.entries}" if s.rank is not None else s.board_status or "—"
         style = "bold green" if s.rank == 1 else None
         table.add_row(s.board, s.status, *(_fmt(s.metrics.get(k)) if k in s.metrics else "" for k in keys),
                       _fmt(s.score, 3), rank, style=style)  # fmt: skip

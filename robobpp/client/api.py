@@ -83,6 +83,9 @@ class Standing:
     rank: int | None
     score: float | None
     entries: int
+    #: ``ranked``, ``failed`` or ``partial`` once the board includes the run; None while it does not (yet):
+    #: boards are recomputed in the background, a moment after a submission finishes.
+    board_status: str | None = None
 
     @property
     def board(self) -> str:
@@ -321,21 +324,35 @@ class ServerClient:
                 )
             time.sleep(poll_s)
 
-    def standings(self, submission: SubmissionPublic) -> list[Standing]:
-        """Each run of ``submission`` with its rank and score on its board (``None`` while not ranked)."""
-        out = []
-        for run in submission.runs:
-            track: Track = "public" if submission.track == "public" else "private"
-            board = self.leaderboard(
-                run.dataset, run.setting, track=track, view="all", submission=submission.id
-            )
-            entry: LeaderboardEntry | None = next(
-                (e for e in board.entries if e.submission_id == submission.id), None
-            )
-            metrics = dict(entry.metrics if entry else run.metrics or {})
-            rank, score = (entry.rank, entry.score) if entry else (None, None)
-            out.append(Standing(dataset=run.dataset, setting=run.setting, status=run.status, metrics=metrics,
-                                metric_keys=list(board.metrics), rank=rank, score=score,
-                                entries=self.leaderboard(run.dataset, run.setting, track=track, view="all",
-                                                         limit=1).total))  # fmt: skip
-        return out
+    def standings(
+        self, submission: SubmissionPublic, *, wait_s: float = 0.0, poll_s: float = 0.5
+    ) -> list[Standing]:
+        """Each run of ``submission`` with its rank and score on its board (``None`` while not ranked).
+
+        Boards are recomputed in the background, so a submission that has just finished may not be on them
+        for a moment: ``wait_s`` > 0 polls, up to that long, until every completed run of a finished
+        submission is on its board (ranked or listed apart); :attr:`Standing.board_status` says which ones
+        still are not when it gives up.
+        """
+        deadline = time.monotonic() + max(0.0, wait_s)
+        while True:
+            out = [self._standing(submission, run) for run in submission.runs]
+            awaited = submission.status in ("completed", "failed")
+            missing = [s for s in out if awaited and s.status == "completed" and s.board_status is None]
+            if not missing or time.monotonic() + poll_s > deadline:
+                return out
+            time.sleep(poll_s)
+
+    def _standing(self, submission: SubmissionPublic, run: Any) -> Standing:
+        track: Track = "public" if submission.track == "public" else "private"
+        board = self.leaderboard(run.dataset, run.setting, track=track, view="all", submission=submission.id)
+        entry: LeaderboardEntry | None = next(
+            (e for e in board.entries if e.submission_id == submission.id), None
+        )
+        apart = next((e for e in board.unranked if e.submission_id == submission.id), None)
+        metrics = dict(entry.metrics if entry else run.metrics or {})
+        rank, score = (entry.rank, entry.score) if entry else (None, None)
+        return Standing(dataset=run.dataset, setting=run.setting, status=run.status, metrics=metrics,
+                        metric_keys=list(board.metrics), rank=rank, score=score,
+                        entries=self.leaderboard(run.dataset, run.setting, track=track, view="all", limit=1).total,
+                        board_status="ranked" if entry else apart.status if apart else None)  # fmt: skip

@@ -120,6 +120,44 @@ def test_submit_wait_prints_the_results_with_rank_per_board(
     assert baseline.metrics["space_utilization"] == pytest.approx(standing.metrics["space_utilization"])
 
 
+def test_submit_wait_and_connect_show_the_rank_the_board_gets_a_moment_later(
+    tmp_path_factory: pytest.TempPathFactory, fast: BackgroundServer
+) -> None:
+    """Boards are recomputed a moment after a submission finishes (here: the version is re-read every 4 s,
+    and someone reads the board all along), so the result table printed score — and rank — every time; the
+    headline now waits, bounded, for the board that includes the submission."""
+    state = tmp_path_factory.mktemp("lagging")
+    env = server_env(state, f"sqlite:///{state / 'lag.sqlite3'}", ROBOBPP_BOARD_REFRESH_S="4")
+    server = ServerProcess(env, state).start()
+    try:
+        with server.client() as admin:
+            token = new_participant(admin, "bob")
+        runs = {
+            "submit": robobpp("submit", fast.url, "--secret", SECRET, "--name", "lag push", "--dataset", "diverse",
+                              "--wait", "--poll", "0.3"),
+            "connect": robobpp("connect", "dbl", "--name", "lag pull", "--dataset", "diverse"),
+        }  # fmt: skip
+        with ServerClient(server.url, token, timeout=30) as reader:
+            for label, args in runs.items():
+                proc = subprocess.Popen(args, env=cli_env(server, token), stdout=subprocess.PIPE,
+                                        stderr=subprocess.PIPE, text=True)  # fmt: skip
+                try:
+                    while proc.poll() is None:  # a page open on the board keeps its version fresh in cache
+                        reader.leaderboard("diverse", "math")
+                        time.sleep(0.2)
+                    out, errs = proc.communicate(timeout=60)
+                finally:
+                    if proc.poll() is None:
+                        proc.kill()
+                assert proc.returncode == 0, (label, errs + out)
+                match = RANK.search(out)
+                assert match, (label, out)
+                assert int(match[1]) >= 1 and int(match[2]) >= 2, (label, out)  # the baseline and this one
+                assert "did not include" not in errs, (label, errs)
+    finally:
+        server.crash()
+
+
 def test_client_submit_wait_episodes_boards_and_grid(api: ServerClient, fast: BackgroundServer) -> None:
     me = api.me()
     assert me.participant is not None and me.participant.name == "alice" and not me.admin

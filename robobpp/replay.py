@@ -28,8 +28,8 @@ CLOSED, PAPER = PROTOCOLS
 PAPER_SETTINGS: tuple[str, ...] = ("physics", "execution")
 
 PROTOCOL_DESCRIPTIONS: dict[str, str] = {
-    CLOSED: "closed loop: the policy observes the setting's state at every step",
-    PAPER: "the paper's protocol: the Math Pack actions replayed open loop in the setting",
+    CLOSED: "the policy observes the setting's state at every step (closed loop)",
+    PAPER: "the policy plans in Math Pack, its actions are replayed open loop in the setting, as in the paper",
 }
 
 
@@ -146,23 +146,24 @@ def replay_math_result(math: EpisodeResult, spec: EpisodeSpec, setting: Setting 
 def run_paper_protocol(
     spec: EpisodeSpec,
     policy: Policy,
-    settings: Sequence[str],
+    settings: Sequence[Setting | str],
     *,
     lookahead: int = 0,
     time_budget_s: float | None = None,
     math: EpisodeResult | None = None,
 ) -> Mapping[str, EpisodeResult]:
     """Run ``policy`` once in Math Pack (unless ``math`` already holds that episode), then replay it in each
-    physical setting of ``settings``. Returns ``{"math": ..., setting: ...}`` (the Math episode is closed
-    protocol: there both protocols coincide)."""
-    for name in settings:
+    physical setting of ``settings`` (names, or instances set up some other way). Returns
+    ``{"math": ..., setting name: ...}``; the Math episode is closed protocol (there both protocols coincide)."""
+    names = [s if isinstance(s, str) else s.name for s in settings]
+    for name in names:
         if name not in PAPER_SETTINGS:
             raise ValueError(f"the paper protocol replays in {' or '.join(PAPER_SETTINGS)}, not {name!r}")
     if math is None:
         math = run_episode(spec, policy, "math", lookahead=lookahead, time_budget_s=time_budget_s)
     out: dict[str, EpisodeResult] = {"math": math}
-    for name in settings:
-        out[name] = replay_math_result(math, spec, name)
+    for name, setting in zip(names, settings, strict=True):
+        out[name] = replay_math_result(math, spec, setting)
     return out
 
 

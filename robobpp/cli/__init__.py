@@ -22,6 +22,7 @@ def _register() -> None:
         datasets,
         evaluate,
         protocol,
+        reproduce,
         server,
         submit,
         view,
@@ -32,6 +33,7 @@ def _register() -> None:
     evaluate.register(app)
     compare.register(app)
     protocol.register(app)
+    reproduce.register(app)
     server.register(app)
     submit.register(app)
     connect.register(app)

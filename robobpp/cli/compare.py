@@ -35,8 +35,14 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
             payload = json.loads(path.read_text())
             episodes = payload["episodes"]
             for run in payload["runs"]:
+                # closed loop and the paper protocol are different boards (files from before protocols: closed)
+                protocol = str(run.get("protocol", "closed"))
                 mine = [
-                    e for e in episodes if e["dataset"] == run["dataset"] and e["setting"] == run["setting"]
+                    e
+                    for e in episodes
+                    if e["dataset"] == run["dataset"]
+                    and e["setting"] == run["setting"]
+                    and e.get("protocol", "closed") == protocol
                 ]
                 figures = stats.group_figures(
                     (
@@ -46,7 +52,8 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
                     run["setting"],
                 )
                 entries.append({"policy": str(payload["policy"]), "file": str(path), "dataset": run["dataset"],
-                                "setting": run["setting"], "metrics": dict(run["metrics"]), "figures": figures,
+                                "setting": run["setting"], "protocol": protocol,
+                                "metrics": dict(run["metrics"]), "figures": figures,
                                 "episodes": sorted(e["episode_id"] for e in mine)})  # fmt: skip
         except OSError as exc:
             fail(f"{path}: cannot read ({exc.strerror})")
@@ -55,12 +62,13 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
     return entries
 
 
-def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
-    """Scored entries per board, best first, with intervals. Entries of a board must have run the same episodes."""
-    boards: dict[tuple[str, str], list[dict[str, Any]]] = {}
+def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str, str], list[dict[str, Any]]]:
+    """Scored entries per board (dataset, setting, protocol), best first, with intervals. Entries of a board
+    must have run the same episodes."""
+    boards: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     for entry in entries:
-        boards.setdefault((entry["dataset"], entry["setting"]), []).append(entry)
-    for (dataset, setting), rows in boards.items():
+        boards.setdefault((entry["dataset"], entry["setting"], entry["protocol"]), []).append(entry)
+    for (dataset, setting, _protocol), rows in boards.items():
         reference = rows[0]
         for row in rows[1:]:
             if row["episodes"] != reference["episodes"]:
@@ -105,10 +113,9 @@ def compare(
         fail("give at least two result files: scores are relative to the other entries")
     boards = score_boards(load_entries(results))
     out = table_console()
-    for (dataset, setting), rows in boards.items():
-        table = Table(
-            title=f"{dataset} · {setting}", caption="[dim]brackets: bootstrap 95 % interval over groups[/]"
-        )
+    for (dataset, setting, protocol), rows in boards.items():
+        board = f"{dataset} · {setting}" + (f" · protocol {protocol}" if protocol != "closed" else "")
+        table = Table(title=board, caption="[dim]brackets: bootstrap 95 % interval over groups[/]")
         table.add_column("rank", justify="right")
         table.add_column("policy")
         table.add_column("score ↑", justify="right")
@@ -133,9 +140,7 @@ def compare(
         paired = rows[0].get("paired")
         if paired:
             a, b = paired["a"], paired["b"]
-            diff = Table(
-                title=f"{dataset} · {setting}: paired difference {escape(a)} − {escape(b)} on the same groups"
-            )
+            diff = Table(title=f"{board}: paired difference {escape(a)} − {escape(b)} on the same groups")
             for name in ("figure", "difference", "95 % interval", "verdict"):
                 diff.add_column(name, justify="left" if name in ("figure", "verdict") else "right")
             for key, d in paired["differences"].items():
@@ -145,7 +150,9 @@ def compare(
                              escape(verdict(a, b, key, d)))  # fmt: skip
             out.print(diff)
     if json_out is not None:
-        payload = [{"dataset": d, "setting": s, "entries": rows} for (d, s), rows in boards.items()]
+        payload = [
+            {"dataset": d, "setting": s, "protocol": p, "entries": rows} for (d, s, p), rows in boards.items()
+        ]
         json_out.write_text(json.dumps(payload, indent=1, allow_nan=False))
 
 

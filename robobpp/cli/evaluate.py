@@ -44,15 +44,30 @@ def evaluate(
     jobs: Annotated[
         int, typer.Option(min=1, max=256, help="Worker processes running episodes side by side.")
     ] = 1,
+    protocol: Annotated[
+        str,
+        typer.Option(
+            help="closed: the policy observes each setting's state at every step. paper: the paper's "
+            "protocol, the policy plans in Math Pack and its actions are replayed open loop in physics "
+            "and execution (docs/benchmark.md, 'Two protocols')."
+        ),
+    ] = "closed",
 ) -> None:
     """Evaluate a policy locally and print a results table. Exit code 3: every episode ended in a policy failure."""
     from robobpp.client.loading import PolicyLoadError, load_policy
     from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
     from robobpp.episode import run_episode
+    from robobpp.replay import PAPER, PAPER_SETTINGS, PROTOCOLS, run_paper_protocol
     from robobpp.sim import SETTINGS, require_setting
 
     datasets = parse_choices(dataset, DATASETS, "dataset")
     settings = parse_choices(setting, SETTINGS, "setting")
+    if protocol not in PROTOCOLS:
+        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
+    replayed = [name for name in settings if name in PAPER_SETTINGS]
+    if protocol == PAPER and not replayed:
+        fail("--protocol paper replays the Math Pack actions in physics or execution; in Math Pack both "
+             "protocols are the same episode: add --setting physics or execution, or use --protocol closed")  # fmt: skip
     for name in settings:
         require_setting(name)  # before any work: a missing extra is one line naming the pip install
     if split not in SPLITS:
@@ -67,32 +82,46 @@ def evaluate(
         specs = {name: episode_specs(name, split=split, groups=groups, seed=seed) for name in datasets}
     except DatasetError as exc:
         fail(str(exc))
-    tasks = [(spec, setting_name) for name in datasets for setting_name in settings for spec in specs[name]]
-    runs: dict[tuple[str, str], list] = {}
+    if protocol == PAPER:
+        # One task per group: the Math Pack episode, then its replay in each physical setting asked for.
+        tasks = [(spec, tuple(replayed)) for name in datasets for spec in specs[name]]
+    else:
+        tasks = [(spec, (s,)) for name in datasets for s in settings for spec in specs[name]]
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=False) as progress:
         bar = progress.add_task(agent.name, total=len(tasks))
         if jobs == 1:
             results = []
-            for spec, setting_name in tasks:
-                progress.update(bar, description=f"{agent.name} · {spec.dataset} · {setting_name}")
-                results.append(run_episode(spec, agent, setting_name, lookahead=lookahead))
+            for spec, names in tasks:
+                progress.update(
+                    bar, description=f"{agent.name} · {spec.dataset} · {protocol} · {','.join(names)}"
+                )
+                if protocol == PAPER:
+                    results.append(list(run_paper_protocol(spec, agent, names, lookahead=lookahead).values()))
+                else:
+                    results.append([run_episode(spec, agent, names[0], lookahead=lookahead)])
                 progress.advance(bar)
         else:
             from robobpp.cli.parallel import run_parallel
 
-            progress.update(bar, description=f"{agent.name} · {jobs} processes")
-            results = list(run_parallel(policy, kwargs, tasks, jobs=jobs, lookahead=lookahead,
+            progress.update(bar, description=f"{agent.name} · {protocol} · {jobs} processes")
+            results = list(run_parallel(policy, kwargs, tasks, jobs=jobs, lookahead=lookahead, protocol=protocol,
                                         on_done=lambda _i: progress.advance(bar)))  # fmt: skip
-    for (spec, setting_name), result in zip(tasks, results, strict=True):
-        runs.setdefault((spec.dataset, setting_name), []).append(result)
+    runs: dict[tuple[str, str], list] = {}
+    for result in (r for group in results for r in group):
+        if result.setting in settings:  # the paper protocol's Math plan is shown when Math Pack was asked for
+            runs.setdefault((result.dataset, result.setting), []).append(result)
+    runs = {
+        key: runs[key] for key in sorted(runs, key=lambda k: (datasets.index(k[0]), settings.index(k[1])))
+    }
+    results = [r for rs in runs.values() for r in rs]
     summary = _summarise(runs)
     out = table_console()
-    out.print(_table(agent.name, summary))
+    out.print(_table(agent.name, summary, protocol))
     for note in failure_notes(runs):
         console.print(note, markup=False, highlight=False)
     if json_out is not None:
-        payload = {"policy": agent.name, "split": split, "seed": seed, "runs": summary,
+        payload = {"policy": agent.name, "split": split, "seed": seed, "protocol": protocol, "runs": summary,
                    "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs]}  # fmt: skip
         _write_json(json_out, payload)
     if trace is not None:
@@ -132,7 +161,7 @@ def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:
         for r in results:
             terminations[r.termination] = terminations.get(r.termination, 0) + 1
         out.append({
-            "dataset": dataset, "setting": setting, "episodes": len(results),
+            "dataset": dataset, "setting": setting, "protocol": results[0].protocol, "episodes": len(results),
             "boxes_placed": sum(r.boxes_placed for r in results) / len(results),
             "metrics": aggregate([{**r.metrics, **r.counters} for r in results], setting),
             "terminations": terminations,
@@ -140,11 +169,15 @@ def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:
     return out
 
 
-def _table(policy: str, summary: list[dict]) -> Table:
+def _table(policy: str, summary: list[dict], protocol: str = "closed") -> Table:
+    from robobpp.replay import PROTOCOL_DESCRIPTIONS
+
     keys = [m for m in metrics_for("execution") if any(m.key in row["metrics"] for row in summary)]
-    table = Table(title=f"robobpp evaluate · {policy}")
+    table = Table(title=f"robobpp evaluate · {policy} · protocol {protocol}",
+                  caption=f"{protocol}: {PROTOCOL_DESCRIPTIONS[protocol]}")  # fmt: skip
     table.add_column("dataset")
     table.add_column("setting")
+    table.add_column("protocol")
     table.add_column("episodes", justify="right")
     table.add_column("boxes placed", justify="right")
     for m in keys:
@@ -152,7 +185,8 @@ def _table(policy: str, summary: list[dict]) -> Table:
         table.add_column(f"{m.label} {arrow}" + (f" ({m.unit})" if m.unit else ""), justify="right")
     table.add_column("terminations", min_width=28)
     for row in summary:
-        cells = [row["dataset"], row["setting"], str(row["episodes"]), f"{row['boxes_placed']:.1f}"]
+        cells = [row["dataset"], row["setting"], row["protocol"], str(row["episodes"]),
+                 f"{row['boxes_placed']:.1f}"]  # fmt: skip
         for m in keys:
             value = row["metrics"].get(m.key)
             cells.append("—" if value is None else f"{value:.4f}")

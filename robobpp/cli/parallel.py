@@ -14,6 +14,7 @@ from typing import Any
 
 from robobpp.core import EpisodeSpec
 from robobpp.episode import EpisodeResult, run_episode
+from robobpp.replay import CLOSED, PAPER, run_paper_protocol
 
 _policy: Any = None
 
@@ -27,28 +28,37 @@ def _load(name: str, kwargs: dict[str, Any]) -> None:
     _policy = load_policy(name, **kwargs)
 
 
-def _run(spec: EpisodeSpec, setting: str, lookahead: int) -> dict[str, Any]:
-    return run_episode(spec, _policy, setting, lookahead=lookahead).to_dict()
+def _run(spec: EpisodeSpec, settings: tuple[str, ...], lookahead: int, protocol: str) -> list[dict[str, Any]]:
+    if protocol == PAPER:
+        results = run_paper_protocol(spec, _policy, settings, lookahead=lookahead).values()
+    else:
+        results = [run_episode(spec, _policy, setting, lookahead=lookahead) for setting in settings]
+    return [r.to_dict() for r in results]
 
 
 def run_parallel(
     policy: str,
     policy_kwargs: dict[str, Any],
-    tasks: Sequence[tuple[EpisodeSpec, str]],
+    tasks: Sequence[tuple[EpisodeSpec, tuple[str, ...]]],
     *,
     jobs: int,
     lookahead: int = 0,
+    protocol: str = CLOSED,
     on_done: Callable[[int], None] | None = None,
-) -> Iterator[EpisodeResult]:
-    """Results of ``tasks`` ((spec, setting) pairs), in order; ``on_done(i)`` as each one finishes."""
+) -> Iterator[list[EpisodeResult]]:
+    """Results of ``tasks`` ((spec, settings) pairs), in order; ``on_done(i)`` as each one finishes.
+
+    Closed protocol: one episode per setting. Paper protocol: the Math Pack episode, then its replay in each
+    (physical) setting, all in the same worker (:func:`robobpp.replay.run_paper_protocol`).
+    """
     # spawn, not fork: a forked child would inherit whatever simulator state the parent holds.
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(
         jobs, mp_context=context, initializer=_load, initargs=(policy, policy_kwargs)
     ) as pool:
-        futures = [pool.submit(_run, spec, setting, lookahead) for spec, setting in tasks]
+        futures = [pool.submit(_run, spec, settings, lookahead, protocol) for spec, settings in tasks]
         if on_done is not None:
             for i, future in enumerate(futures):
                 future.add_done_callback(lambda _f, i=i: on_done(i))
         for future in futures:
-            yield EpisodeResult.from_dict(future.result())
+            yield [EpisodeResult.from_dict(r) for r in future.result()]

@@ -24,7 +24,7 @@ from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.leaderboard import board_view, find_entry, grid_view
-from robobpp.metrics import METRICS
+from robobpp.metrics import METRICS, PHYSICAL
 from robobpp.scoring import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body
@@ -40,6 +40,8 @@ router.include_router(account.router)
 router.include_router(operator.router)
 
 Track = Literal["private", "public"]
+#: ``closed`` (the benchmark, the default) or ``paper``: the physical boards under the paper protocol.
+Protocol = Literal["closed", "paper"]
 DatasetPath = Annotated[str, Path(max_length=32)]
 SettingPath = Annotated[str, Path(max_length=16)]
 #: Termination reasons that are not the policy's fault or are plain endings, for colouring badges.
@@ -60,17 +62,18 @@ Page = Annotated[int, Query(ge=1, le=10**5)]
 
 @router.get("/", response_class=HTMLResponse)
 async def overall_page(request: Request, settings: SettingsDep, track: Track = "private", view: View = "best",
-                       page: Page = 1):  # fmt: skip
+                       page: Page = 1, protocol: Protocol = "closed"):  # fmt: skip
     datasets, setting_names = _board_names(settings)
 
     def build(session: Session) -> HTMLResponse:
-        shown = grid_view(board_cache(request).grid(session, datasets, setting_names, track), view,
+        shown = grid_view(board_cache(request).grid(session, datasets, setting_names, track, protocol), view,
                           tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)  # fmt: skip
         return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
                       table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
-                      pages=tables.pages(shown, page))  # fmt: skip
+                      pages=tables.pages(shown, page), protocol=protocol,
+                      has_physical=bool(set(setting_names) & set(PHYSICAL)))  # fmt: skip
 
-    return await _shared(request, track, ("home", root(request), track, view, page), build)
+    return await _shared(request, track, ("home", root(request), track, view, page, protocol), build)
 
 
 async def _shared(request: Request, track: str, key: tuple[Any, ...],
@@ -99,22 +102,27 @@ async def _static(request: Request, key: tuple[Any, ...], build: Callable[[], HT
 
 @router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
 async def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, settings: SettingsDep,
-                     track: Track = "private", view: View = "best", page: Page = 1):  # fmt: skip
+                     track: Track = "private", view: View = "best", page: Page = 1,
+                     protocol: Protocol = "closed"):  # fmt: skip
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
+    protocol = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
 
     def build(session: Session) -> HTMLResponse:
-        shown = board_view(board_cache(request).board(session, dataset, setting, track), view, tables.PAGE_SIZE,
-                           (page - 1) * tables.PAGE_SIZE)  # fmt: skip
-        return render(request, "board.html", title=f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}",
-                      nav="leaderboard", dataset=DATASETS[dataset], setting=setting, track=track, view=view,
-                      table=tables.board_table(shown), weights=WEIGHTS[setting], top=tables.TOP,
-                      pages=tables.pages(shown, page), board=shown,
+        shown = board_view(board_cache(request).board(session, dataset, setting, track, protocol), view,
+                           tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)  # fmt: skip
+        title = f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}"
+        if protocol != "closed":
+            title += " · paper protocol"
+        return render(request, "board.html", title=title, nav="leaderboard", dataset=DATASETS[dataset],
+                      setting=setting, track=track, view=view, table=tables.board_table(shown),
+                      weights=WEIGHTS[setting], top=tables.TOP, pages=tables.pages(shown, page), board=shown,
+                      protocol=protocol, has_physical=setting in PHYSICAL,
                       other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
 
     return await _shared(
-        request, track, ("board-page", root(request), dataset, setting, track, view, page), build
+        request, track, ("board-page", root(request), dataset, setting, track, view, page, protocol), build
     )
 
 
@@ -157,7 +165,8 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
     view = _page_view(request, session, sub, owner)
     cache = board_cache(request)
     boards = {
-        (r["dataset"], r["setting"]): cache.board(session, r["dataset"], r["setting"], sub.track)
+        (r["dataset"], r["setting"], r["protocol"]): cache.board(session, r["dataset"], r["setting"], sub.track,
+                                                                 r["protocol"])
         for r in view["runs"] if r["status"] == "completed"
     }  # fmt: skip
     ranks = {}
@@ -165,6 +174,7 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
         entry = find_entry(board, sub.id)
         if entry is not None:
             ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": len(board["entries"])}
+    closed = [r for r in view["runs"] if r["protocol"] == "closed"]  # the radar: the benchmark's boards
     public = sub.track == "public"
     reasons = {**TERMINATION_REASONS, **EXTRA_REASONS}
     views = finished_views(request.app.state)
@@ -180,7 +190,8 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
         return Markup(html), tables.histogram([u for u in utilisation if u is not None])
 
     table, histogram = views.get(("page-episodes", owner, public, root(request)), sub, episode_table)
-    charts = {"radar": tables.radar_groups(view["runs"], boards, sub.id), "utilization": histogram}
+    closed_boards = {(d, s): b for (d, s, p), b in boards.items() if p == "closed"}
+    charts = {"radar": tables.radar_groups(closed, closed_boards, sub.id), "utilization": histogram}
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
     return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,

@@ -18,6 +18,8 @@ TEMPLATES_DIR = WEB_DIR / "templates"
 STATIC_DIR = WEB_DIR / "static"
 
 SETTING_TITLES = {"math": "Math Pack", "physics": "Physics Pack", "execution": "Execution Pack"}
+#: How each protocol is labelled wherever a physical setting's figures are shown (docs/web.md).
+PROTOCOL_TITLES = {"closed": "closed loop (the benchmark)", "paper": "paper protocol (plan in Math, replay)"}
 
 
 def fmt_num(value: Any, digits: int = 3) -> str:
@@ -68,4 +70,5 @@ def environment() -> jinja2.Environment:
     env.filters["pct"] = fmt_pct
     env.filters["metric"] = fmt_metric
     env.globals["SETTING_TITLES"] = SETTING_TITLES
+    env.globals["PROTOCOL_TITLES"] = PROTOCOL_TITLES
     return env

@@ -194,3 +194,81 @@ def test_migration_round_trip_keeps_rows_closed(db_url: str) -> None:
         command.upgrade(cfg, "head")
     finally:
         engine.dispose()
+
+
+@pytest.fixture
+def protocol_app(db_url: str, tmp_path):  # type: ignore[no-untyped-def]
+    from fastapi.testclient import TestClient
+
+    from robobpp.server.app import create_app
+    from robobpp.server.bootstrap import bootstrap
+    from robobpp.server.config import Settings
+
+    settings = Settings(database_url=db_url, state_dir=tmp_path, admin_token="paper-admin-token-0123456789abcdef",
+                        workers=0, evaluate_baselines=False, settings=("math", "physics"), datasets=("diverse",),
+                        groups=2, board_refresh_s=0, spec_provider=OFFLINE)  # fmt: skip
+    app = create_app(settings, start_workers=False)
+    bootstrap(app.state.runtime)
+    with TestClient(app) as client:
+        yield app, client
+    app.state.runtime.dispose()
+
+
+@pytest.mark.slow
+def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: str) -> None:
+    app, client = protocol_app
+    factory = app.state.runtime.session_factory
+    ids = []
+    for name in ("dbl", "hm", "lsah"):
+        with transaction(factory) as s:
+            p = Participant(name=f"baseline-{name}", is_builtin=True)
+            s.add(p)
+            s.flush()
+            ids.append(work.create_submission(s, p, name=name, policy_url=f"builtin:{name}", datasets=["diverse"],
+                                              settings=["math", "physics"], groups=2).id)  # fmt: skip
+    assert _drain(factory, db_url) == 3 * 6
+    boards = {}
+    for protocol in (None, "closed", "paper"):
+        params = {"view": "all"} | ({"protocol": protocol} if protocol else {})
+        board = client.get("/api/v1/leaderboards/diverse/physics", params=params).json()
+        boards[protocol] = board
+        assert board["protocol"] == (protocol or "closed")  # closed is the default: old URLs unchanged
+        assert {e["submission_id"] for e in board["entries"]} == set(ids) and board["groups"] == 2
+        for e in board["entries"]:
+            assert e["score_low"] <= e["score"] + 1e-9 <= e["score_high"] + 2e-9
+            lo, hi = e["intervals"]["space_utilization"]
+            assert lo <= e["metrics"]["space_utilization"] <= hi
+    assert boards[None] == boards["closed"]
+    closed = {e["submission_id"]: e["metrics"] for e in boards["closed"]["entries"]}
+    paper = {e["submission_id"]: e["metrics"] for e in boards["paper"]["entries"]}
+    with factory() as s:  # each board shows its own protocol's runs
+        for sid in ids:
+            for protocol, shown in (("closed", closed), ("paper", paper)):
+                run = s.execute(select(RunRow).where(RunRow.submission_id == sid, RunRow.setting == "physics",
+                                                     RunRow.protocol == protocol)).scalar_one()  # fmt: skip
+                assert run.metrics == shown[sid]
+    math = client.get("/api/v1/leaderboards/diverse/math", params={"protocol": "paper"}).json()
+    assert math["protocol"] == "closed" and len(math["entries"]) == 3  # Math Pack: one board for both
+    assert client.get("/api/v1/leaderboards/diverse/physics", params={"protocol": "open"}).status_code == 422
+    grid = client.get("/api/v1/leaderboards", params={"protocol": "paper", "view": "all"}).json()
+    assert grid["protocol"] == "paper" and len(grid["rows"]) == 3
+    for row in grid["rows"]:
+        cell = row["cells"]["physics/diverse"]
+        entry = next(e for e in boards["paper"]["entries"] if e["submission_id"] == row["submission_id"])
+        assert (cell["score"], cell["score_low"], cell["score_high"]) == (
+            entry["score"], entry["score_low"], entry["score_high"])  # fmt: skip
+        assert row["mean_low"] - 1e-6 <= row["mean"] <= row["mean_high"] + 1e-6  # bounds to 6 decimals
+    assert client.get("/api/v1/leaderboards").json()["protocol"] == "closed"
+    admin = {"Authorization": "Bearer paper-admin-token-0123456789abcdef"}
+    runs = client.get(f"/api/v1/submissions/{ids[0]}", headers=admin).json()["runs"]
+    assert sorted((r["setting"], r["protocol"]) for r in runs) == [
+        ("math", "closed"), ("physics", "closed"), ("physics", "paper")]  # fmt: skip
+
+    page = client.get("/boards/diverse/physics", params={"protocol": "paper"}).text
+    assert "paper protocol (plan in Math, replay)" in page and "· paper protocol" in page
+    assert 'href="?view=best">closed loop (the benchmark)' in page
+    home = client.get("/", params={"protocol": "paper"}).text
+    assert 'data-role="protocol-note"' in home and "/boards/diverse/physics?protocol=paper" in home
+    assert 'data-role="protocol-note"' not in client.get("/").text
+    sub_page = client.get(f"/submissions/{ids[0]}").text
+    assert 'data-protocol="paper"' in sub_page and "/boards/diverse/physics?protocol=paper" in sub_page

@@ -16,12 +16,13 @@ RUN apt-get update \
 RUN useradd --create-home --uid 10001 robobpp
 WORKDIR /app
 
-# Dependencies first (cached layer), then the code.
+# Editable: the code runs from /app, where robobpp/db/migrate.py finds migrations/ next to the package (a
+# plain install copies the package alone into site-packages and the server cannot migrate at start).
 COPY pyproject.toml README.md ./
 COPY robobpp ./robobpp
 COPY migrations ./migrations
 COPY alembic.ini ./
-RUN pip install ".[all]" \
+RUN pip install -e ".[all]" \
  && mkdir -p /app/datasets_private /data \
  && chown -R robobpp:robobpp /app/datasets_private /data
 

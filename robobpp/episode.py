@@ -34,7 +34,9 @@ TERMINATION_REASONS: dict[str, str] = {
     "policy_timeout": "the policy did not answer within the per-step time limit",
     "protocol_violation": "the remote policy broke protocol robobpp/1",
     EPISODE_TIMEOUT: "the episode exceeded its total time budget",
-    "grasp_failed": "the suction gripper could not hold the box",
+    "failed_grasp": "the suction gripper could not hold the box",
+    "place_plan_failed": "the robot could not start its place move (no IK solution, or the arm in collision)",
+    "dangerous_operations": "the robot's third dangerous operation",
 }
 
 

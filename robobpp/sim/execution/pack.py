@@ -55,10 +55,36 @@ class ExecutionConfig:
     #: (and the row behind it) by centimetres, which the Physics Pack's release does not; with the
     #: margin the robot delivers the box and the release resolves the overlap as in the Physics Pack.
     carried_margin_cm: float = 0.5
+    #: The pre-place pose, where the planned transfer ends and the vertical descent begins, has the TCP
+    #: (the top of the carried box) this high (m) above the target's centre, as the reference plans its
+    #: place move (its tool tip to the target's centre + 0.35 m); at least ``Layout.approach`` above the
+    #: release pose. Where the arm cannot reach that high (the top of the 1.7 m Diverse stack), the
+    #: highest reachable height in 5 cm steps is used: the layout reaches every placement, and a failed
+    #: place plan must mean the robot cannot place the box, not that the pre-place pose is out of reach.
+    place_height_m: float = 0.35
+    #: A place plan that cannot even start ends the episode, the box not placed, as the reference's
+    #: "Move_ee_to fail" does: no IK solution (``unreachable``), or the arm with its box in collision at
+    #: the pre-place pose or at the start (``no_path:goal_invalid``, ``no_path:start_invalid``). False:
+    #: such an operation is only dangerous and the box is still placed (physics version 3's rule).
+    end_on_failed_place: bool = True
+    #: The episode ends at this many dangerous operations, the last box not counted (the reference ends
+    #: at its third); 0 never ends it. Failed grasps do not count towards it (a policy can change
+    #: neither a box's mass nor its top area; the reference has no grasp capacity), only the robot's
+    #: motion: no path within the budget, a blocked descent, a slow operation.
+    dangerous_limit: int = 3
+    #: Experiment only: False stops the robot at the pre-place pose and lets the box go there, the
+    #: Physics Pack then releasing it at its target, as the reference teleports the released box and
+    #: lowers it onto the pile. The benchmark's robot descends (BENCHMARK.md §3).
+    descend: bool = True
+    #: Experiment only: the carried box is turned by this yaw (degrees) on the tool during the transfer.
+    #: The reference grasps with the tool turned by its first yaw try (90°) and plans its place move with
+    #: the tool unturned, so its box hangs 90° off its target until the teleport; only with ``descend``
+    #: False (a turned box cannot be lowered into its slot).
+    carried_yaw_deg: float = 0.0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
 
     def __post_init__(self) -> None:
-        for name in ("safe_time_s", "cartesian_speed", "capacity_kg_m2"):
+        for name in ("safe_time_s", "cartesian_speed", "capacity_kg_m2", "place_height_m"):
             value = getattr(self, name)
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"execution {name} must be finite and > 0, got {value!r}")
@@ -66,6 +92,10 @@ class ExecutionConfig:
             raise ValueError(
                 f"execution carried_margin_cm must be in [0, 2] cm, got {self.carried_margin_cm!r}"
             )
+        if self.carried_yaw_deg and self.descend:
+            raise ValueError("execution carried_yaw_deg needs descend=False (a turned box cannot be lowered)")
+        if not isinstance(self.dangerous_limit, int) or self.dangerous_limit < 0:
+            raise ValueError(f"execution dangerous_limit must be an int >= 0, got {self.dangerous_limit!r}")
 
     def to_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -103,6 +133,20 @@ class Operation:
     def dangerous(self) -> bool:
         return bool(self.reasons)
 
+    @property
+    def place_failed(self) -> bool:
+        """The place plan could not start: no IK solution, or the start or the pre-place pose in collision."""
+        return any(r in PLACE_FAILURES for r in self.reasons)
+
+    @property
+    def motion_dangerous(self) -> bool:
+        """Dangerous because of the robot's motion (what counts towards ``dangerous_limit``)."""
+        return any(r != "failed_grasp" for r in self.reasons)
+
+
+#: Dangerous reasons that mean the place plan could not start (the reference's "Move_ee_to fail").
+PLACE_FAILURES = frozenset({"unreachable", "no_path:goal_invalid", "no_path:start_invalid"})
+
 
 class ExecutionPack(PhysicsPack):
     """Physics Pack + robot. Options: :class:`PhysicsConfig` and :class:`ExecutionConfig` field names."""
@@ -129,6 +173,7 @@ class ExecutionPack(PhysicsPack):
         #: The replay's record of the current operation (``extra["motion"]``), when recording.
         self.motion_record: dict[str, object] | None = None
         self._cell_recorded = False
+        self._dangerous_count = 0
 
     # -- lifecycle -----------------------------------------------------------------------------------
     def reset(self, spec: EpisodeSpec) -> None:
@@ -138,6 +183,7 @@ class ExecutionPack(PhysicsPack):
             raise ValueError("the layout was made for another container")
         self.layout = layout
         self._cell_recorded = False
+        self._dangerous_count = 0
         world = self._world()
         cid = world.client
         base_quat = p.getQuaternionFromEuler((0, 0, layout.base_yaw))
@@ -195,8 +241,16 @@ class ExecutionPack(PhysicsPack):
         self.motion_record = None
         if self.recorder is not None:
             self.recorder.discard()
-        operation, carried, disturbed = self._operate(box, planned)
+        operation = self.plan_operation(box, planned)
         self.last_operation = operation
+        if operation.place_failed and self.execution.end_on_failed_place:
+            # Nothing moved: the box is not placed and the operation not counted (dangerous None).
+            reasons = ", ".join(r for r in operation.reasons if r in PLACE_FAILURES)
+            detail = f"the robot cannot place box {index} ({reasons})"
+            extra = {"plan_status": operation.plan_status, "plan_checks": operation.plan_checks,
+                     "planner_seed": operation.seed, "dangerous_reasons": list(operation.reasons)}  # fmt: skip
+            return StepOutcome(None, Infeasible("place_plan_failed", detail), extra=extra)
+        carried, disturbed = self._operate(box, operation)
         # Release: the kinematic carried box gives way to the dynamic one, exactly at the release pose.
         if carried is not None:
             p.removeBody(carried, physicsClientId=world.client)
@@ -227,8 +281,21 @@ class ExecutionPack(PhysicsPack):
                 self._cell_recorded = True
             if self.motion_record is not None:
                 extra["motion"] = self.motion_record
-        return self.finish_placement(report, trajectory_length_m=operation.tcp_length_m,
-                                     dangerous=operation.dangerous, extra=extra)  # fmt: skip
+        outcome = self.finish_placement(report, trajectory_length_m=operation.tcp_length_m,
+                                        dangerous=operation.dangerous, extra=extra)  # fmt: skip
+        limit = self.execution.dangerous_limit
+        if operation.motion_dangerous:
+            self._dangerous_count += 1
+            if limit and self._dangerous_count >= limit and outcome.termination is None:
+                # The reference checks collapse first, then ends on its third dangerous operation and
+                # drops that box from its count.
+                self.withdraw_last()
+                outcome.placement = None
+                outcome.termination = Infeasible(
+                    "dangerous_operations",
+                    f"dangerous operation number {self._dangerous_count} (the limit) placing box {index}",
+                )
+        return outcome
 
     def plan_operation(self, box: Box, planned: Placement) -> Operation:
         """Grasp check, IK and planning for one box, without touching the physical world."""
@@ -248,21 +315,35 @@ class ExecutionPack(PhysicsPack):
         cx, cy, cz = planned.center
         release_centre = np.array([cx, cy, cz + self.config.release_gap_cm]) * CM
         tcp_release = release_centre + np.array([0.0, 0.0, planned.height * CM / 2])
-        tcp_pre = tcp_release + np.array([0.0, 0.0, layout.approach])
         tcp_lift = tcp_pick + np.array([0.0, 0.0, layout.lift])
         lift = None if q_grasp is None else motion.cartesian_line(layout, q_grasp, tcp_lift)
-        place = None if lift is None else layout.place_ik(tcp_pre, planned.orientation, lift[-1])
-        descent = None if place is None else motion.cartesian_line(layout, place[0], tcp_release, 0.01)
+        tcp_pre, place = tcp_release + np.array([0.0, 0.0, layout.approach]), None
+        if lift is not None:
+            # From the release TCP: the target centre is half a box height and the release gap below it.
+            highest = cfg.place_height_m - (planned.height / 2 + self.config.release_gap_cm) * CM
+            heights = np.arange(highest, layout.approach - 1e-9, -0.05)
+            for up in [*heights, layout.approach] if len(heights) else [layout.approach]:
+                tcp_pre = tcp_release + np.array([0.0, 0.0, up])
+                place = layout.place_ik(tcp_pre, planned.orientation, lift[-1])
+                if place is not None:
+                    break
+        descent = None
+        if place is not None:
+            descent = (
+                motion.cartesian_line(layout, place[0], tcp_release, 0.01) if cfg.descend else place[0][None]
+            )
         straight = float(
-            np.linalg.norm(tcp_release - tcp_pick) + layout.lift + layout.approach
+            np.linalg.norm(tcp_release - tcp_pick) + layout.lift + (tcp_pre[2] - tcp_release[2])
         )  # used when the robot cannot even reach: a lower bound of the path it would need
         if q_grasp is None or lift is None or place is None or descent is None:
-            reasons.append("unreachable")
+            # The reference ignores a failed pick (its box is teleported to the target after release); a
+            # target the arm cannot reach ends its episode.
+            reasons.append("grasp_unreachable" if q_grasp is None or lift is None else "unreachable")
             return Operation(None, straight, math.inf, failed_grasp, reasons, "unreachable", 0, 0.0, seed)
         # Planning world: static copies of the placed boxes at their actual poses; the box on the tool.
         centers, quats, halves = self._world().poses_cm(list(self.boxes))
         planning.set_obstacles(list(zip(centers * CM, quats, halves * CM, strict=True)))
-        r_box = rot("z", yaw)
+        r_box = rot("z", yaw + math.radians(cfg.carried_yaw_deg))
         offset = r_pick.T @ (centre - tcp_pick)
         planning.attach(self._carried_half_extents(box), offset, r_pick.T @ r_box)
         candidates = self._over_the_pile(box, tcp_lift, tcp_pre, lift[-1], place[0])
@@ -273,12 +354,13 @@ class ExecutionPack(PhysicsPack):
             reasons.append(f"no_path:{result.status}")
             if candidates:
                 path = candidates[0]
-        elif not planning.segment_free(descent[0], descent[-1]) or any(
-            planning.in_collision(q) for q in descent[1:]
-        ):
+        elif cfg.descend and not all(
+            planning.segment_free(a, b) for a, b in zip(descent[:-1], descent[1:], strict=True)
+        ):  # each 1 cm leg as the arm drives it (joint-interpolated), densely
             reasons.append("descent_blocked")
         planning.detach()
-        trajectory = motion.build([(lift, True), (path, False), (descent, True)], cfg.cartesian_speed)
+        segments = [(lift, True), (path, False)] + ([(descent, True)] if cfg.descend else [])
+        trajectory = motion.build(segments, cfg.cartesian_speed)
         duration = trajectory.duration
         if duration > cfg.safe_time_s:
             reasons.append("slow")
@@ -314,11 +396,10 @@ class ExecutionPack(PhysicsPack):
         out.append(np.concatenate([q_lift[None, :], down]))
         return out
 
-    def _operate(self, box: Box, planned: Placement) -> tuple[Operation, int | None, list[WorldBox]]:
-        """Plan, then drive the arm and the carried box through the physical world."""
-        operation = self.plan_operation(box, planned)
+    def _operate(self, box: Box, operation: Operation) -> tuple[int | None, list[WorldBox]]:
+        """Drive the arm and the carried box along the planned operation through the physical world."""
         if operation.trajectory is None:
-            return operation, None, []
+            return None, []
         world = self._world()
         cid = world.client
         layout = self.layout
@@ -331,13 +412,13 @@ class ExecutionPack(PhysicsPack):
         p_tcp, r_tcp = tcp_pose(q_grasp)
         r_world = layout.base_rotation @ r_tcp
         offset = r_world.T @ (centre - layout.to_world(p_tcp))
-        r_local = r_world.T @ rot("z", yaw)
+        r_local = r_world.T @ rot("z", yaw + math.radians(self.execution.carried_yaw_deg))
         if self.recorder is not None:
             self.motion_record = recording.motion_record(operation.trajectory, layout, self.config.dt,
                                                          self.execution.cartesian_speed, (offset, r_local))  # fmt: skip
             self.recorder.begin(self.motion_record["grip"][0])
         disturbed = self._drive(operation.trajectory, carried, offset, r_local)
-        return operation, carried, disturbed
+        return carried, disturbed
 
     def _drive(
         self, trajectory: motion.Trajectory, carried: int, offset: np.ndarray, r_local: np.ndarray

@@ -32,7 +32,10 @@ Mode = Literal["full", "fast"]
 #: 1 mm like the heightmap (docs/physics.md, "Creep" and "Fidelity").
 #: 4: the simulation is version 3's; the baselines' figures in it change: the paper's heuristics no longer apply
 #: the support rule to their candidates (the reference's do not), so a board's version-3 baseline runs go
-#: (docs/baselines.md, "Feasibility").
+#: (docs/baselines.md, "Feasibility"). The Execution Pack ends where the reference ends: a place move that cannot
+#: start (no IK solution, or the arm with its box in collision at the pre-place pose, now the reference's: the
+#: box's top 0.35 m above its target's centre) and the third dangerous operation, its box not counted
+#: (docs/execution.md, "Against the reference implementation").
 PHYSICS_VERSION = "4"
 
 

@@ -138,6 +138,15 @@ class PhysicsPack(Setting):
         self._state = None
         return self._settler.run([new, *disturbed], self.recorder)
 
+    def withdraw_last(self) -> None:
+        """Take the last released box out of the world and out of the episode's count: the reference ends
+        an episode on an operation it does not count (its third dangerous operation) this way."""
+        world = self._world()
+        box = self._boxes.pop()
+        self._planned.pop()
+        world.remove_box(box)
+        self._state = None
+
     def _clearance(self, planned: Placement) -> tuple[float, float]:
         """Horizontal shift (cm) that releases ``planned`` clear of the placed boxes reaching into its
         footprint above its resting height (by less than the edge tolerance, which ``resting_height``

@@ -136,6 +136,11 @@ class PhysicsWorld:
         self.boxes.append(box)
         return box
 
+    def remove_box(self, box: WorldBox) -> None:
+        """Take a box out of the world."""
+        p.removeBody(box.body, physicsClientId=self.client)
+        self.boxes.remove(box)
+
     def freeze(self, box: WorldBox) -> None:
         """Make the box static where it stands (zero mass); it still collides but no longer moves."""
         if not box.frozen:

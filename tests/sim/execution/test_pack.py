@@ -61,28 +61,88 @@ def test_a_wall_of_boxes_forces_a_longer_path() -> None:
     assert behind.extra["execution_time_s"] > alone.extra["execution_time_s"]
 
 
-def test_enclosed_goal_is_dangerous() -> None:
-    # A slot on the floor behind a 95 cm wall: the wrist cannot come down into it.
+def test_enclosed_goal_ends_the_episode_as_a_failed_place_plan() -> None:
+    # A slot on the floor behind a 95 cm wall on the robot's side: with its box 35 cm above the slot (the
+    # reference's pre-place pose) the arm lies on the wall. The reference ends the episode there
+    # ("Move_ee_to fail"), the box not placed and the operation not counted.
     boxes = [Box(134, 50, 95, 30.0), Box(20, 15, 10, 1.0)]
+    actions = [Action(0, 75, 0), Action(57, 58, 0)]
     pack = ExecutionPack()
     try:
-        _, outcome = _run(pack, boxes, [Action(0, 75, 0), Action(57, 58, 0)])
+        _, outcome = _run(pack, boxes, actions)
+        kept = pack.final_boxes()
     finally:
         pack.close()
-    assert outcome.dangerous is True
-    reasons = outcome.extra["dangerous_reasons"]
-    assert any(r.startswith("no_path") or r == "descent_blocked" for r in reasons), reasons
+    assert outcome.termination is not None and outcome.termination.reason == "place_plan_failed"
+    assert "no_path:goal_invalid" in outcome.termination.detail
+    assert outcome.placement is None and outcome.dangerous is None and len(kept) == 1
+    # Physics version 3's rule: only dangerous, and the robot moves unchecked.
+    pack = ExecutionPack(end_on_failed_place=False)
+    try:
+        _, outcome = _run(pack, boxes, actions)
+    finally:
+        pack.close()
+    assert outcome.dangerous is True and outcome.placement is not None
+    assert "no_path:goal_invalid" in outcome.extra["dangerous_reasons"]
 
 
-def test_unreachable_goal_is_dangerous_and_the_box_still_lands() -> None:
+def test_unreachable_goal_ends_the_episode() -> None:
     layout = Layout(CONTAINER, floor_z=-PALLET_HEIGHT_M, standoff=3.0)  # pallet out of the arm's reach
     pack = ExecutionPack(layout=layout)
     try:
         (outcome,) = _run(pack, [Box(30, 30, 20, 3.0)], [Action(10, 10, 0)])
     finally:
         pack.close()
+    assert outcome.termination is not None and outcome.termination.reason == "place_plan_failed"
+    assert "unreachable" in outcome.termination.detail and outcome.placement is None
+    pack = ExecutionPack(layout=layout, end_on_failed_place=False)
+    try:
+        (outcome,) = _run(pack, [Box(30, 30, 20, 3.0)], [Action(10, 10, 0)])
+    finally:
+        pack.close()
     assert outcome.dangerous is True and "unreachable" in outcome.extra["dangerous_reasons"]
     assert outcome.placement is not None and outcome.trajectory_length_m > 0
+
+
+def test_pre_place_pose_comes_down_where_the_arm_cannot_reach_35_cm_above() -> None:
+    # The far top corner of the 1.7 m Diverse stack: 35 cm above it is out of reach, the placement is not.
+    diverse = ContainerSpec(120, 100, 170)
+    layout = Layout(diverse, floor_z=-PALLET_HEIGHT_M)
+    top = np.array([0.10, 0.10, 1.70])
+    assert layout.place_ik(top + [0, 0, 0.35], 0, layout.home) is None
+    assert layout.place_ik(top + [0, 0, 0.25], 0, layout.home) is not None
+    boxes = (Box(20, 20, 80, 5.0), Box(20, 20, 80, 5.0), Box(20, 20, 10, 1.0))  # two posts and a lid
+    pack = ExecutionPack()
+    try:
+        pack.reset(EpisodeSpec("handmade", "train", 0, boxes, diverse, 4.0, 0))
+        outcomes = [pack.apply(b, Action(0, 0, 0), i) for i, b in enumerate(boxes)]
+    finally:
+        pack.close()
+    assert all(o.termination is None and o.placement is not None for o in outcomes)
+    assert outcomes[-1].placement.z == pytest.approx(160, abs=1)  # type: ignore[union-attr]
+
+
+def test_the_third_dangerous_operation_ends_the_episode_without_its_box() -> None:
+    # Every operation takes over 1 cs: each is dangerous ("slow"); the third ends the episode, and its box
+    # is not counted (the reference drops it from its packed boxes).
+    boxes = [Box(30, 30, 20, 3.0), Box(30, 30, 20, 3.0), Box(30, 30, 20, 3.0), Box(30, 30, 20, 3.0)]
+    actions = [Action(0, 0, 0), Action(40, 0, 0), Action(80, 0, 0), Action(0, 40, 0)]
+    pack = ExecutionPack(safe_time_s=0.01)
+    try:
+        outcomes = _run(pack, boxes[:3], actions[:3])
+        kept = pack.final_boxes()
+    finally:
+        pack.close()
+    assert all(o.dangerous and "slow" in o.extra["dangerous_reasons"] for o in outcomes)
+    assert [o.termination for o in outcomes[:2]] == [None, None]
+    assert outcomes[2].termination is not None and outcomes[2].termination.reason == "dangerous_operations"
+    assert outcomes[2].placement is None and [f.planned.index for f in kept] == [0, 1]
+    unlimited = ExecutionPack(safe_time_s=0.01, dangerous_limit=0)
+    try:
+        outcomes = _run(unlimited, boxes, actions)
+    finally:
+        unlimited.close()
+    assert all(o.termination is None and o.dangerous for o in outcomes)
 
 
 def test_box_over_suction_capacity_is_a_failed_grasp() -> None:
@@ -96,6 +156,13 @@ def test_box_over_suction_capacity_is_a_failed_grasp() -> None:
     assert over.dangerous is True and over.extra["failed_grasp"] is True
     assert "failed_grasp" in over.extra["dangerous_reasons"]
     assert under.extra["failed_grasp"] is False
+    # Failed grasps are dangerous but do not count towards the dangerous-operation limit.
+    pack = ExecutionPack()
+    try:
+        outcomes = _run(pack, [heavy] * 3, [Action(0, 0, 0), Action(40, 0, 0), Action(80, 0, 0)])
+    finally:
+        pack.close()
+    assert all(o.dangerous and o.termination is None for o in outcomes)
     strict = ExecutionPack(end_on_failed_grasp=True)
     try:
         (ended,) = _run(strict, [heavy], [Action(0, 0, 0)])

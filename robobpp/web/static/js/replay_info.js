@@ -11,7 +11,9 @@ export const TERMINATION_TEXT = {
   policy_timeout: "policy timeout",
   protocol_violation: "protocol violation",
   episode_timeout: "episode time budget exceeded",
-  grasp_failed: "suction grasp failed",
+  failed_grasp: "suction grasp failed",
+  place_plan_failed: "the robot could not start its place move",
+  dangerous_operations: "third dangerous operation",
   invalid_action: "invalid action",
 };
 const PHASE_TEXT = { pick: "pick", transfer: "transfer", retreat: "retreat" };

@@ -15,7 +15,7 @@ from typing import Any
 from robobpp import metrics as M
 from robobpp.core import Action, EpisodeInfo, EpisodeSpec, Infeasible, Observation, Placement, check_action
 from robobpp.policies.base import Policy, PolicyError
-from robobpp.sim import Setting, make_setting
+from robobpp.sim import MATH_RULES_VERSION, Setting, make_setting
 
 #: Termination codes. Feasibility and settings add their own (``out_of_bounds``, ``too_high``, ``collapse``...).
 COMPLETED = "completed"
@@ -83,6 +83,10 @@ class EpisodeResult:
     #: ``Setting.physics_version`` of the setting that produced it (None: Math Pack, or recorded before
     #: versions existed).
     physics_version: str | None = None
+    #: ``robobpp.sim.MATH_RULES_VERSION`` of the rules it ran under (None: recorded before versions existed).
+    rules_version: str | None = None
+    #: ``EpisodeSpec.sampler_version``: the sampler that drew its boxes (None: boxes not drawn by it).
+    sampler_version: str | None = None
     #: How the episode was run: ``closed`` (the policy observed this setting's state at every step) or
     #: ``paper`` (its Math Pack actions replayed open loop here, :mod:`robobpp.replay`).
     protocol: str = "closed"
@@ -260,6 +264,8 @@ class Episode:
             counters=dict(self.counters),
             container={"length": container.length, "width": container.width, "height": container.height},
             physics_version=self.setting.physics_version,
+            rules_version=MATH_RULES_VERSION,
+            sampler_version=self.spec.sampler_version,
             steps=self.steps,
             final=[
                 {

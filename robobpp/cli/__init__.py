@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import typer
 
 app = typer.Typer(
@@ -13,6 +15,29 @@ app = typer.Typer(
 )
 
 
+def _show_version(value: bool) -> None:
+    if value:
+        from robobpp.provenance import version_line
+
+        typer.echo(version_line())
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            callback=_show_version,
+            is_eager=True,
+            help="Print robobpp's version (and git commit when run from a checkout) and exit.",
+        ),
+    ] = False,  # fmt: skip
+) -> None:
+    """Closed-loop benchmark and evaluation service for robotic online 3D bin packing."""
+
+
 def _register() -> None:
     # Imported here so `robobpp --help` stays fast and each area owns its own module.
     from robobpp.cli import (
@@ -21,6 +46,7 @@ def _register() -> None:
         connect,
         datasets,
         evaluate,
+        export,
         protocol,
         reproduce,
         server,
@@ -32,6 +58,7 @@ def _register() -> None:
     app.add_typer(datasets.app, name="datasets")
     evaluate.register(app)
     compare.register(app)
+    export.register(app)
     protocol.register(app)
     reproduce.register(app)
     server.register(app)

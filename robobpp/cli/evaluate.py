@@ -8,11 +8,15 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from robobpp import stats
 from robobpp.cli.common import DatasetOpt, fail, import_from_cwd, parse_choices, table_console
 from robobpp.metrics import aggregate, metrics_for
+from robobpp.provenance import of_results, one_line
+from robobpp.scoring import score_board
 from robobpp.stats import POLICY_FAILURES
 
 console = Console(stderr=True)
@@ -37,6 +41,9 @@ def evaluate(
     ] = None,
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write summary and per-episode metrics here.")
+    ] = None,
+    csv_out: Annotated[
+        Path | None, typer.Option("--csv", help="Write one row per group (episode) here, with provenance.")
     ] = None,
     trace: Annotated[
         Path | None, typer.Option(help="Write full per-step traces here (for `robobpp view`).")
@@ -116,14 +123,20 @@ def evaluate(
     }
     results = [r for rs in runs.values() for r in rs]
     summary = _summarise(runs)
+    provenance = of_results(results, protocol=protocol, split=split, seed=seed, groups=groups)
     out = table_console()
-    out.print(_table(agent.name, summary, protocol))
+    out.print(_table(agent.name, summary, protocol, provenance))
     for note in failure_notes(runs):
         console.print(note, markup=False, highlight=False)
+    payload = {"policy": agent.name, "split": split, "seed": seed, "groups": groups, "protocol": protocol,
+               "confidence": stats.CONFIDENCE, "resamples": stats.RESAMPLES, "provenance": provenance,
+               "runs": summary, "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs]}  # fmt: skip
     if json_out is not None:
-        payload = {"policy": agent.name, "split": split, "seed": seed, "protocol": protocol, "runs": summary,
-                   "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs]}  # fmt: skip
         _write_json(json_out, payload)
+    if csv_out is not None:
+        from robobpp.export import group_csv
+
+        _write_text(csv_out, group_csv(payload))
     if trace is not None:
         _write_json(
             trace, {"policy": agent.name, "episodes": [r.to_dict() for rs in runs.values() for r in rs]}
@@ -155,26 +168,45 @@ def failure_notes(runs: dict[tuple[str, str], list]) -> list[str]:
 
 
 def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:
+    """Each (dataset, setting): its figures with the board's 95 % bootstrap intervals over groups
+    (:func:`robobpp.scoring.score_board` on this run alone) and its stable score with interval."""
     out = []
     for (dataset, setting), results in runs.items():
         terminations: dict[str, int] = {}
         for r in results:
             terminations[r.termination] = terminations.get(r.termination, 0) + 1
+        episodes = [{**r.metrics, **r.counters, "group": r.group} for r in results]
+        metrics = aggregate(episodes, setting)
+        scored = score_board(
+            [{"metrics": metrics, "figures": stats.group_figures(episodes, setting)}], setting
+        )
         out.append({
             "dataset": dataset, "setting": setting, "protocol": results[0].protocol, "episodes": len(results),
             "boxes_placed": sum(r.boxes_placed for r in results) / len(results),
-            "metrics": aggregate([{**r.metrics, **r.counters} for r in results], setting),
+            "metrics": metrics,
+            "intervals": {k: list(v) if v else None for k, v in scored.metric_ci[0].items()},
+            "stable": scored.stable[0], "stable_interval": list(scored.stable_ci[0]),
             "terminations": terminations,
         })  # fmt: skip
     return out
 
 
-def _table(policy: str, summary: list[dict], protocol: str = "closed") -> Table:
+def _with_interval(value: float | None, interval: list[float] | None, digits: int = 4) -> str:
+    if value is None:
+        return "—"
+    text = f"{value:.{digits}f}"
+    return text + (f" [dim][{interval[0]:.{digits}f}, {interval[1]:.{digits}f}][/]" if interval else "")
+
+
+def _table(
+    policy: str, summary: list[dict], protocol: str = "closed", provenance: dict | None = None
+) -> Table:
     from robobpp.replay import PROTOCOL_DESCRIPTIONS
 
     keys = [m for m in metrics_for("execution") if any(m.key in row["metrics"] for row in summary)]
-    table = Table(title=f"robobpp evaluate · {policy} · protocol {protocol}",
-                  caption=f"{protocol}: {PROTOCOL_DESCRIPTIONS[protocol]}")  # fmt: skip
+    table = Table(title=f"robobpp evaluate · {escape(policy)} · protocol {protocol}",
+                  caption=f"{protocol}: {PROTOCOL_DESCRIPTIONS[protocol]}\n[dim]brackets: bootstrap "
+                          f"{100 * stats.CONFIDENCE:.0f} % interval over groups · {escape(one_line(provenance or {}))}[/]")  # fmt: skip
     table.add_column("dataset")
     table.add_column("setting")
     table.add_column("protocol")
@@ -183,21 +215,26 @@ def _table(policy: str, summary: list[dict], protocol: str = "closed") -> Table:
     for m in keys:
         arrow = "↑" if m.better == "up" else "↓"
         table.add_column(f"{m.label} {arrow}" + (f" ({m.unit})" if m.unit else ""), justify="right")
+    table.add_column("stable score ↑", justify="right")
     table.add_column("terminations", min_width=28)
     for row in summary:
         cells = [row["dataset"], row["setting"], row["protocol"], str(row["episodes"]),
                  f"{row['boxes_placed']:.1f}"]  # fmt: skip
         for m in keys:
-            value = row["metrics"].get(m.key)
-            cells.append("—" if value is None else f"{value:.4f}")
+            cells.append(_with_interval(row["metrics"].get(m.key), row["intervals"].get(m.key)))
+        cells.append(_with_interval(row["stable"], row["stable_interval"], 3))
         cells.append(", ".join(f"{k}: {v}" for k, v in sorted(row["terminations"].items())))
         table.add_row(*cells)
     return table
 
 
 def _write_json(path: Path, payload: dict) -> None:
+    _write_text(path, json.dumps(payload, indent=1, allow_nan=False))
+
+
+def _write_text(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False))
+    tmp.write_text(text, encoding="utf-8")
     tmp.replace(path)
     console.print(f"wrote {path}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -318,12 +319,24 @@ def leaderboard(
     view: Annotated[
         str, typer.Option(help="best: each participant's best entry; all: every entry.")
     ] = "best",
+    fmt: Annotated[
+        str | None,
+        typer.Option("--format", help="One board as csv (per entry, interval ends in columns), md or latex."),
+    ] = None,
+    out: Annotated[Path | None, typer.Option(help="With --format: write here instead of stdout.")] = None,
     server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
 ) -> None:
     """One leaderboard (metrics, score, rank), or the overall grid when no board is given."""
     if (dataset is None) != (setting is None):
         fail("give both --dataset and --setting for one board, or neither for the overall grid")
+    if fmt is not None:
+        from robobpp.export import FORMATS
+
+        if fmt not in FORMATS:
+            fail(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
+        if dataset is None:
+            fail("--format exports one board: give --dataset and --setting")
     if view not in ("best", "all"):
         fail(f"unknown view {view!r}; expected best or all")
     if dataset is not None and dataset not in DATASETS:
@@ -337,6 +350,13 @@ def leaderboard(
         print(data.model_dump_json(indent=2))
         return
     from robobpp.schemas import Leaderboard
+
+    if fmt is not None:
+        from robobpp.cli.export import write
+        from robobpp.export import render_board
+
+        write(render_board(data.model_dump(mode="json"), fmt), out)
+        return
 
     table_console().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))
 

@@ -18,6 +18,9 @@ class EpisodeSpec:
     collapse_threshold_cm: float
     #: Seed the group was sampled with; also seeds anything random inside the episode (planner, Random).
     seed: int = 0
+    #: ``robobpp.datasets.sampling.SAMPLER_VERSION`` of the sampler that drew the group (None: hand-built or
+    #: synthetic boxes, or a set written before the version existed). Recorded with every result.
+    sampler_version: str | None = None
 
     @property
     def episode_id(self) -> str:

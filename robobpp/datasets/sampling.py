@@ -16,6 +16,11 @@ from robobpp.core import EpisodeSpec
 from robobpp.datasets.pool import Pool, load_pool
 from robobpp.datasets.registry import GROUP_SIZE, check_split
 
+#: Version of the group sampler (the per-group seeds of :func:`group_seed` and the rules of
+#: :func:`sample_indices`). Every result records it (``EpisodeResult.sampler_version``) and a board never mixes
+#: versions: a change that draws other boxes for the same (dataset, split, seed, group) is a new version.
+SAMPLER_VERSION = "1"
+
 
 def group_seed(dataset: str, split: str, seed: int, group: int) -> int:
     """The 63-bit seed of one group (stable across numpy versions: SeedSequence's hash is specified)."""
@@ -72,7 +77,14 @@ def episode_specs(
         indices = sample_indices(pool, spec.sampling, np.random.default_rng(gseed), group_size)
         out.append(
             EpisodeSpec(
-                dataset, split, group, pool.boxes(indices), spec.container, spec.collapse_threshold_cm, gseed
-            )
+                dataset,
+                split,
+                group,
+                pool.boxes(indices),
+                spec.container,
+                spec.collapse_threshold_cm,
+                gseed,
+                SAMPLER_VERSION,
+            )  # fmt: skip
         )
     return out

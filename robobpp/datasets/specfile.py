@@ -47,6 +47,7 @@ def to_json(specs: Sequence[EpisodeSpec]) -> dict[str, Any]:
         "split": first.split,
         "container": {"length": c.length, "width": c.width, "height": c.height},
         "collapse_threshold_cm": first.collapse_threshold_cm,
+        **({"sampler": first.sampler_version} if first.sampler_version is not None else {}),
         "groups": [
             {
                 "group": s.group,
@@ -92,6 +93,9 @@ def from_json(document: Any, source: str) -> list[EpisodeSpec]:
     groups = document.get("groups")
     if not isinstance(groups, list) or not groups:
         raise SpecFileError(f"{source}: 'groups' must be a non-empty list")
+    sampler = document.get("sampler")
+    if sampler is not None and (not isinstance(sampler, str) or not sampler):
+        raise SpecFileError(f"{source}: 'sampler' must be a non-empty string (the sampler version)")
     out = []
     for position, group in enumerate(groups):
         where = f"{source}: group {position}"
@@ -103,7 +107,9 @@ def from_json(document: Any, source: str) -> list[EpisodeSpec]:
                 raise SpecFileError(f"{where}: {key} must be an integer >= 0, got {value!r}")
         boxes = tuple(_box(raw, f"{where} box {i}") for i, raw in enumerate(group["boxes"]))
         out.append(
-            EpisodeSpec(document["dataset"], document["split"], number, boxes, container, threshold, seed)
+            EpisodeSpec(
+                document["dataset"], document["split"], number, boxes, container, threshold, seed, sampler
+            )
         )
     return out
 

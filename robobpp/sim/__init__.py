@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from robobpp.extras import require
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
+from robobpp.sim.math_pack import MATH_RULES_VERSION
 
 SETTINGS: tuple[str, ...] = ("math", "physics", "execution")
 
@@ -46,4 +47,12 @@ def make_setting(name: str, **options: object) -> Setting:
     raise ValueError(f"unknown setting {name!r}; expected one of {', '.join(SETTINGS)}")
 
 
-__all__ = ["SETTINGS", "FinalBox", "Setting", "StepOutcome", "make_setting", "require_setting"]
+__all__ = [
+    "MATH_RULES_VERSION",
+    "SETTINGS",
+    "FinalBox",
+    "Setting",
+    "StepOutcome",
+    "make_setting",
+    "require_setting",
+]

@@ -12,6 +12,12 @@ from __future__ import annotations
 from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 
+#: Version of the Math Pack rules: which actions are accepted (``robobpp.core.check_action``: bounds,
+#: orientations, finite numbers), where a box comes to rest (the drop onto the heightmap) and when it is too
+#: high. Every setting applies them, every result records the version (``EpisodeResult.rules_version``) and
+#: a board never mixes versions: a change that can alter any figure is a new version, as for physics.
+MATH_RULES_VERSION = "1"
+
 
 class MathPack(Setting):
     name = "math"

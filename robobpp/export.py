@@ -1,0 +1,213 @@
+"""Results as files for papers and spreadsheets: per-group CSV, summary tables in Markdown and LaTeX.
+
+Two sources, one layout: a local run (the payload ``robobpp evaluate --json`` writes) and a board (the API's
+``Leaderboard``, as a dict). Every figure keeps its 95 % bootstrap interval over groups and every file its
+provenance (robobpp/provenance.py): a table's note names the versions, protocol, split, seed and groups it
+was made with; the CSVs carry them in columns.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from robobpp.metrics import METRIC_BY_KEY, METRICS, metrics_for
+from robobpp.provenance import FIELDS, merge, one_line
+
+FORMATS = ("csv", "md", "latex")
+
+
+@dataclass(slots=True)
+class Sheet:
+    """A table: a title, column headers, rows of text cells and a note (provenance, interval method)."""
+
+    title: str
+    headers: list[str]
+    rows: list[list[str]] = field(default_factory=list)
+    note: str = ""
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, list):
+        return ",".join(map(str, value))
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def _figure(value: float | None, interval: Sequence[float] | None, digits: int = 4) -> str:
+    if value is None:
+        return "—"
+    text = f"{value:.{digits}f}"
+    return text + (f" [{interval[0]:.{digits}f}, {interval[1]:.{digits}f}]" if interval else "")
+
+
+def _label(key: str) -> str:
+    m = METRIC_BY_KEY[key]
+    return f"{m.label} {'↑' if m.better == 'up' else '↓'}" + (f" ({m.unit})" if m.unit else "")
+
+
+# -- a local run ------------------------------------------------------------------------------------------
+def group_csv(payload: Mapping[str, Any]) -> str:
+    """One row per group (episode) of a ``robobpp evaluate --json`` payload: what it ran, how it ended, its
+    metrics, and the provenance (the episode's own versions, the run's installation and data)."""
+    episodes = payload.get("episodes") or []
+    settings = {e["setting"] for e in episodes}
+    keys = [m.key for m in METRICS if any(s in m.settings for s in settings)]
+    run = payload.get("provenance") or {}
+    head = ["policy", "dataset", "setting", "protocol", "split", "group", "episode_id", "group_seed",
+            "termination", "boxes_placed", "boxes_total", *keys, "physics", "math_rules", "sampler",
+            "robobpp", "commit", "datasets_manifest_sha256", "anchors", "seed", "groups"]  # fmt: skip
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(head)
+    for e in sorted(episodes, key=lambda e: (e["dataset"], e["setting"], e.get("protocol", ""), e["group"])):
+        metrics = e.get("metrics") or {}
+        writer.writerow([_cell(v) for v in (
+            payload.get("policy"), e["dataset"], e["setting"], e.get("protocol", "closed"), e["split"], e["group"],
+            e["episode_id"], e.get("seed"), e["termination"], e["boxes_placed"], e["boxes_total"],
+            *(metrics.get(k) for k in keys), e.get("physics_version"), e.get("rules_version"),
+            e.get("sampler_version"), run.get("robobpp"), run.get("commit"), run.get("datasets_manifest_sha256"),
+            run.get("anchors"), payload.get("seed"), payload.get("groups"),
+        )])  # fmt: skip
+    return out.getvalue()
+
+
+def run_sheet(payload: Mapping[str, Any]) -> Sheet:
+    """The summary of a local run: each (dataset, setting) with its figures and intervals."""
+    runs = payload.get("runs") or []
+    keys = [m.key for m in METRICS if any(m.key in (r.get("metrics") or {}) for r in runs)]
+    sheet = Sheet(f"robobpp evaluate · {payload.get('policy')}",
+                  ["dataset", "setting", "episodes", *(_label(k) for k in keys), "stable score ↑"])  # fmt: skip
+    for r in runs:
+        intervals = r.get("intervals") or {}
+        sheet.rows.append([r["dataset"], r["setting"], str(r["episodes"]),
+                           *(_figure((r.get("metrics") or {}).get(k), intervals.get(k)) for k in keys),
+                           _figure(r.get("stable"), r.get("stable_interval"), 3)])  # fmt: skip
+    confidence = float(payload.get("confidence") or 0.95)
+    sheet.note = (f"Brackets: bootstrap {100 * confidence:.0f} % interval over groups. "
+                  + one_line(payload.get("provenance") or {}))  # fmt: skip
+    return sheet
+
+
+# -- a board ----------------------------------------------------------------------------------------------
+SPLIT_OF_TRACK = {"private": "test", "public": "train"}
+
+
+def board_provenance(board: Mapping[str, Any]) -> dict[str, Any]:
+    """What produced a board's entries (their runs' provenance, merged) and how the board was drawn."""
+    rows = [(e.get("extras") or {}).get("provenance") or {} for e in board.get("entries") or []]
+    produced = {k: v for k, v in merge(rows).items() if k in FIELDS}
+    return {**produced, "anchors": board.get("anchors"), "protocol": board.get("protocol", "closed"),
+            "split": SPLIT_OF_TRACK.get(str(board.get("track")), board.get("track")), "groups": board.get("groups")}  # fmt: skip
+
+
+def board_csv(board: Mapping[str, Any]) -> str:
+    """One row per ranked entry, then the entries listed apart: ranks, scores and metrics with their interval
+    ends in their own columns, and each entry's provenance."""
+    keys = list(board.get("metrics") or [m.key for m in metrics_for(str(board["setting"]))])
+    head = ["dataset", "setting", "track", "protocol", "status", "rank", "rank_low", "rank_high", "submission_id",
+            "name", "participant", "baseline", "entries_submitted", "score", "score_low", "score_high", "stable",
+            "stable_low", "stable_high"]  # fmt: skip
+    for k in keys:
+        head += [k, f"{k}_low", f"{k}_high"]
+    head += [f for f in FIELDS if f not in ("anchors", "protocol", "split", "groups")] + ["anchors", "groups"]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(head)
+    common = [board["dataset"], board["setting"], board.get("track"), board.get("protocol", "closed")]
+    for status, entries in (("ranked", board.get("entries") or []), (None, board.get("unranked") or [])):
+        for e in entries:
+            intervals = e.get("intervals") or {}
+            row = [*common, status or e.get("status"), e.get("rank"), e.get("rank_low"), e.get("rank_high"),
+                   e["submission_id"], e["name"], e["participant"], e["baseline"], e.get("entries_submitted"),
+                   e.get("score"), e.get("score_low"), e.get("score_high"), e.get("stable"), e.get("stable_low"),
+                   e.get("stable_high")]  # fmt: skip
+            for k in keys:
+                ci = intervals.get(k) or (None, None)
+                row += [(e.get("metrics") or {}).get(k), ci[0], ci[1]]
+            prov = (e.get("extras") or {}).get("provenance") or {}
+            row += [prov.get(f) for f in FIELDS if f not in ("anchors", "protocol", "split", "groups")]
+            row += [board.get("anchors"), board.get("groups")]
+            writer.writerow([_cell(v) for v in row])
+    return out.getvalue()
+
+
+def board_sheet(board: Mapping[str, Any]) -> Sheet:
+    """A board as a summary table: rank (interval), entry, metrics, both scores with their intervals."""
+    keys = list(board.get("metrics") or [])
+    sheet = Sheet(f"{board['setting']}/{board['dataset']} · {board.get('track')} track",
+                  ["rank", "entry", *(_label(k) for k in keys), "score ↑", "stable score ↑"])  # fmt: skip
+    for e in board.get("entries") or []:
+        lo, hi, rank = e.get("rank_low"), e.get("rank_high"), e.get("rank")
+        shown = str(rank) if lo == hi == rank else f"{rank} ({lo}–{hi})"
+        name = f"{e['name']} ({e['participant']}{', baseline' if e.get('baseline') else ''})"
+        intervals = e.get("intervals") or {}
+        sheet.rows.append([shown, name, *(_figure((e.get("metrics") or {}).get(k), intervals.get(k)) for k in keys),
+                           _figure(e.get("score"), (e.get("score_low"), e.get("score_high")), 3),
+                           _figure(e.get("stable"), (e.get("stable_low"), e.get("stable_high")), 3)])  # fmt: skip
+    confidence = float(board.get("confidence") or 0.95)
+    sheet.note = (f"Brackets: bootstrap {100 * confidence:.0f} % interval over groups; rank (interval) in "
+                  f"{100 * confidence:.0f} % of resamples. Ranked by the {board.get('ranked_by', 'relative')} score, "
+                  "which depends on the other entries; the stable score does not. " + one_line(board_provenance(board)))  # fmt: skip
+    return sheet
+
+
+# -- rendering --------------------------------------------------------------------------------------------
+def markdown(sheet: Sheet) -> str:
+    def esc(text: str) -> str:
+        return text.replace("|", "\\|")
+
+    lines = [f"**{esc(sheet.title)}**", "", "| " + " | ".join(map(esc, sheet.headers)) + " |",
+             "|" + "|".join("---" if i < 2 else "---:" for i in range(len(sheet.headers))) + "|"]  # fmt: skip
+    lines += ["| " + " | ".join(map(esc, row)) + " |" for row in sheet.rows]
+    if sheet.note:
+        lines += ["", esc(sheet.note)]
+    return "\n".join(lines) + "\n"
+
+
+_LATEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
+          "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "↑": r"$\uparrow$",
+          "↓": r"$\downarrow$", "—": "---", "–": "--", "·": r"$\cdot$"}  # fmt: skip
+
+
+def latex_escape(text: str) -> str:
+    return "".join(_LATEX.get(ch, ch) for ch in text)
+
+
+def latex(sheet: Sheet) -> str:
+    """A ``table`` with a ``tabular`` (booktabs rules: ``\\usepackage{booktabs}``) and the note as caption."""
+    spec = "ll" + "r" * (len(sheet.headers) - 2)
+    lines = [r"\begin{table}", r"\centering", r"\small", rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
+             " & ".join(latex_escape(h) for h in sheet.headers) + r" \\", r"\midrule"]  # fmt: skip
+    lines += [" & ".join(latex_escape(c) for c in row) + r" \\" for row in sheet.rows]
+    lines += [r"\bottomrule", r"\end{tabular}",
+              rf"\caption{{{latex_escape(sheet.title)}. {latex_escape(sheet.note)}}}", r"\end{table}"]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def render_run(payload: Mapping[str, Any], fmt: str) -> str:
+    """A local run in ``fmt``: ``csv`` (per group), ``md`` or ``latex`` (summary)."""
+    if fmt == "csv":
+        return group_csv(payload)
+    return _render(run_sheet(payload), fmt)
+
+
+def render_board(board: Mapping[str, Any], fmt: str) -> str:
+    """A board in ``fmt``: ``csv`` (per entry), ``md`` or ``latex`` (summary)."""
+    if fmt == "csv":
+        return board_csv(board)
+    return _render(board_sheet(board), fmt)
+
+
+def _render(sheet: Sheet, fmt: str) -> str:
+    if fmt == "md":
+        return markdown(sheet)
+    if fmt == "latex":
+        return latex(sheet)
+    raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")

@@ -1,0 +1,161 @@
+"""What a researcher publishes from a local run: `robobpp --version`, provenance on every result, the board's
+95 % intervals beside each figure of `robobpp evaluate`, per-group CSV and Markdown/LaTeX tables."""
+
+import csv
+import io
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+import robobpp
+from robobpp import provenance
+from robobpp.datasets.private import build_private, load_private
+from robobpp.datasets.sampling import SAMPLER_VERSION
+from robobpp.export import latex_escape
+from robobpp.scoring import ANCHORS_VERSION
+from robobpp.sim import MATH_RULES_VERSION
+from tests.cli.test_evaluate import robobpp as run_cli
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_version_names_the_release_and_the_checkouts_commit():
+    proc = run_cli("--version")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith(f"robobpp {robobpp.__version__}")
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True)
+    if head.returncode == 0:  # run from a checkout (CI, a clone): the commit is named
+        assert f"(commit {head.stdout.strip()}" in proc.stdout
+
+
+def test_the_datasets_fingerprint_ignores_when_and_how_the_cache_was_written(tmp_path, monkeypatch):
+    """Two caches converted from the same wheel agree, though their creation times and archives differ."""
+    from robobpp.datasets.cache import CACHE_FORMAT, CONVERTED_DIR
+
+    def cache(root: Path, created: str, archive_sha: str, wheel_sha: str) -> str | None:
+        (root / CONVERTED_DIR).mkdir(parents=True)
+        manifest = {"format": CACHE_FORMAT, "created": created, "source": {"sha256": wheel_sha},
+                    "files": {"diverse.npz": {"sha256": archive_sha}}, "datasets": {"diverse": {"boxes": 3}}}  # fmt: skip
+        (root / CONVERTED_DIR / "manifest.json").write_text(json.dumps(manifest))
+        return provenance.datasets_manifest_sha256(root)
+
+    a = cache(tmp_path / "a", "2026-01-01", "aa", "wheel")
+    b = cache(tmp_path / "b", "2026-02-02", "bb", "wheel")
+    c = cache(tmp_path / "c", "2026-01-01", "aa", "another wheel")
+    assert a == b and a is not None and len(a) == 64 and c != a
+    assert provenance.datasets_manifest_sha256(tmp_path / "none") is None
+
+
+def test_spec_files_and_the_private_set_keep_the_sampler_version(real_data, tmp_path):
+    build_private(tmp_path, seed=7, groups=2, datasets=["diverse"])
+    specs = load_private("diverse", tmp_path)
+    assert {s.sampler_version for s in specs} == {SAMPLER_VERSION}
+
+
+@pytest.fixture
+def evaluated(real_data, tmp_path):
+    out, table = tmp_path / "dbl.json", tmp_path / "dbl.csv"
+    proc = run_cli("evaluate", "--policy", "dbl", "--dataset", "diverse", "--groups", "5", "--seed", "3",
+                   "--json", str(out), "--csv", str(table), env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    return proc, json.loads(out.read_text()), table
+
+
+@pytest.mark.network
+def test_evaluate_records_its_provenance(evaluated, real_data):
+    _proc, payload, _csv = evaluated
+    got = payload["provenance"]
+    assert list(got) == list(provenance.FIELDS)
+    assert got["robobpp"] == robobpp.__version__ and got["commit"] == provenance.git_commit()
+    assert got["datasets_manifest_sha256"] == provenance.datasets_manifest_sha256(real_data)
+    assert got["physics"] is None  # Math Pack: no physics
+    assert (got["math_rules"], got["sampler"], got["anchors"]) == (
+        MATH_RULES_VERSION,
+        SAMPLER_VERSION,
+        ANCHORS_VERSION,
+    )
+    assert (got["protocol"], got["split"], got["seed"], got["groups"]) == ("closed", "train", 3, 5)
+    for e in payload["episodes"]:  # each episode carries what produced it
+        assert (e["rules_version"], e["sampler_version"], e["protocol"]) == (
+            MATH_RULES_VERSION,
+            SAMPLER_VERSION,
+            "closed",
+        )
+
+
+@pytest.mark.network
+def test_evaluate_prints_and_writes_the_boards_intervals(evaluated, tmp_path):
+    """Beside each figure its 95 % bootstrap interval: the same numbers the board and `compare` compute."""
+    proc, payload, _csv = evaluated
+    (run,) = payload["runs"]
+    assert payload["confidence"] == 0.95 and payload["resamples"] == 1000
+    for key in ("space_utilization", "occupancy", "decision_time"):
+        low, high = run["intervals"][key]
+        assert low <= run["metrics"][key] <= high and low < high
+    low, high = run["stable_interval"]
+    assert low <= run["stable"] <= high
+    su = run["metrics"]["space_utilization"]
+    s_low, s_high = run["intervals"]["space_utilization"]
+    assert f"{su:.4f} [{s_low:.4f}, {s_high:.4f}]" in proc.stdout
+    assert "bootstrap 95 % interval over groups" in proc.stdout
+    # the board's code: `compare` (score_board over the same groups) gives each entry the same intervals
+    twin = tmp_path / "twin.json"
+    twin.write_text(json.dumps({**payload, "policy": "dbl-again"}))
+    source = tmp_path / "source.json"
+    source.write_text(json.dumps(payload))
+    scored = tmp_path / "scored.json"
+    assert run_cli("compare", str(source), str(twin), "--json", str(scored)).returncode == 0
+    (board,) = json.loads(scored.read_text())
+    for entry in board["entries"]:
+        assert entry["intervals"] == run["intervals"]
+        assert entry["stable_ci"] == run["stable_interval"]
+
+
+@pytest.mark.network
+def test_per_group_csv_and_summary_tables(evaluated, tmp_path):
+    _proc, payload, table = evaluated
+    rows = list(csv.DictReader(io.StringIO(table.read_text())))
+    assert [int(r["group"]) for r in rows] == [0, 1, 2, 3, 4]
+    for row, episode in zip(rows, payload["episodes"], strict=True):
+        assert float(row["space_utilization"]) == episode["metrics"]["space_utilization"]  # full precision
+        assert row["episode_id"] == episode["episode_id"] and row["termination"] == episode["termination"]
+        assert (row["math_rules"], row["sampler"], row["seed"], row["groups"]) == (
+            MATH_RULES_VERSION,
+            SAMPLER_VERSION,
+            "3",
+            "5",
+        )
+        assert row["datasets_manifest_sha256"] == payload["provenance"]["datasets_manifest_sha256"]
+    source = tmp_path / "run.json"
+    source.write_text(json.dumps(payload))
+    (run,) = payload["runs"]
+    low, high = run["intervals"]["space_utilization"]
+    figure = f"{run['metrics']['space_utilization']:.4f} [{low:.4f}, {high:.4f}]"
+    md = run_cli("export", str(source), "--format", "md")
+    assert md.returncode == 0, md.stderr
+    assert "| diverse | math | 5 | " + figure in md.stdout and "sampler 1" in md.stdout
+    tex = tmp_path / "run.tex"
+    assert run_cli("export", str(source), "--format", "latex", "--out", str(tex)).returncode == 0
+    text = tex.read_text()
+    assert text.startswith("\\begin{table}") and "\\toprule" in text and figure in text
+    assert "datasets\\_manifest\\_sha256" in text and "95 \\% interval" in text
+    again = run_cli("export", str(source), "--format", "csv")
+    assert again.stdout == table.read_text()
+    bad = run_cli("export", str(source), "--format", "docx")
+    assert bad.returncode == 2 and "unknown format 'docx'" in bad.stderr
+
+
+def test_export_refuses_what_is_not_an_evaluate_file(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"runs": [{"dataset": 1}]}')
+    proc = run_cli("export", str(bad))
+    assert proc.returncode == 2 and "not a `robobpp evaluate --json` file" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_latex_escapes_what_tex_would_read_as_commands():
+    assert latex_escape("a_b & 50 % #1 {x} ~^\\ ↑") == (
+        r"a\_b \& 50 \% \#1 \{x\} \textasciitilde{}\textasciicircum{}\textbackslash{} $\uparrow$"
+    )

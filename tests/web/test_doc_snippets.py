@@ -119,8 +119,11 @@ def _parse_cli(args: list[str]) -> None:
     command = _cli()
     ctx = command.context_class(command, info_name="robobpp")
     rest = list(args)
-    while hasattr(command, "get_command"):  # a group (ours take no options): walk down to the command
+    while hasattr(command, "get_command"):  # a group: walk down to the command
         assert rest, "a command group with no command"
+        if rest[0].startswith("-"):  # the root's own options (--version): eager, they end the command
+            assert any(rest[0] in p.opts for p in command.params), f"no option {rest[0]!r}"
+            return
         name, rest = rest[0], rest[1:]
         sub = command.get_command(ctx, name)
         assert sub is not None, f"no command {name!r}"

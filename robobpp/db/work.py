@@ -254,6 +254,40 @@ def reap_expired(session: Session, max_attempts: int, now: datetime | None = Non
     return len(rows)
 
 
+def _fair_order(query: Any) -> Any:
+    """Order candidate episodes fairly: participants' work before the baselines' (built-in participants), then
+    the participant with the fewest episodes running, then the one whose last episode started longest ago (one
+    that never started first), then the oldest episode.
+
+    So a participant's episodes get a free slot only while no participant with fewer running ones waits: one
+    participant holds the whole pool only while nobody else has work, and loses it one slot per finished
+    episode once someone does (the second participant starts within one episode-time). The last start breaks
+    ties round-robin: a participant whose episodes all finished at once does not take every freed slot back
+    ahead of one that is still waiting. Only active submissions count, so the history stays out of the query.
+    """
+    load = (
+        select(
+            Submission.participant_id.label("pid"),
+            func.count().filter(EpisodeRow.status == "running").label("running"),
+            func.max(EpisodeRow.started_at).label("last_start"),
+        )
+        .join(EpisodeRow, EpisodeRow.submission_id == Submission.id)
+        .where(Submission.status.in_(ACTIVE_SUBMISSION))
+        .group_by(Submission.participant_id)
+        .subquery()
+    )
+    return (
+        query.join(Participant, Participant.id == Submission.participant_id)
+        .outerjoin(load, load.c.pid == Submission.participant_id)
+        .order_by(
+            Participant.is_builtin,
+            func.coalesce(load.c.running, 0),
+            load.c.last_start.asc().nullsfirst(),
+            EpisodeRow.id,
+        )  # fmt: skip
+    )
+
+
 def claim_episode(
     session: Session,
     worker: str,
@@ -264,38 +298,58 @@ def claim_episode(
     episode_id: int | None = None,
     max_running_per_participant: int | None = None,
 ) -> Claim | None:
-    """Lease the oldest runnable episode (pending, or running with an expired lease) to ``worker``.
+    """Lease the fairest runnable episode (pending, or running with an expired lease) to ``worker``.
 
-    ``episode_id`` restricts the claim to that one episode (the Celery executor: a message names it).
+    Fair: :func:`_fair_order`. ``episode_id`` is the episode a broker message was sent for (the Celery
+    executor). The message is a ticket for one claim: it takes the fairest episode that has a message out
+    (``enqueued_at`` set), which need not be its own — the queue is first come, first served, the claim is not,
+    and every message still yields one claim, so none is lost. Only when no other such episode is free does it
+    claim its own, waiting for the row (its sender may not have committed yet).
     ``max_running_per_participant`` bounds how many episodes of one participant's remote policies run at
     once (outbound calls to one participant's server), whatever the number of workers."""
     fixed_now = now
     now = now or utcnow()
     reap_expired(session, max_attempts, now)
     runnable = or_(EpisodeRow.status == "pending", and_(_expired(now), EpisodeRow.attempts < max_attempts))
-    if episode_id is not None:
-        runnable = and_(EpisodeRow.id == episode_id, runnable)
     eligible = runnable
     if max_running_per_participant is not None:  # checked at select time: two racing claims may pass it both
         eligible = and_(runnable, or_(Submission.policy_url.startswith("builtin:"),
                                       Submission.participant_id.not_in(_busy_participants(max_running_per_participant))))  # fmt: skip
+    if episode_id is None:
+        picks = [(eligible, True)]
+    else:
+        picks = [(and_(eligible, EpisodeRow.enqueued_at.is_not(None)), True),
+                 (and_(eligible, EpisodeRow.id == episode_id), False)]  # fmt: skip
+    for where, skip_locked in picks:
+        claim = _claim_one(session, worker, where, runnable, skip_locked=skip_locked, lease_s=lease_s,
+                           now=fixed_now)  # fmt: skip
+        if claim is not None:
+            return claim
+    return None
+
+
+def _claim_one(
+    session: Session, worker: str, where: Any, runnable: Any, *, skip_locked: bool, lease_s: float,
+    now: datetime | None,
+) -> Claim | None:  # fmt: skip
     for _ in range(
         5
     ):  # another claimer may win the row between select and update (SQLite has no SKIP LOCKED)
         row = session.execute(
-            select(EpisodeRow.id)
-            .join(Submission, Submission.id == EpisodeRow.submission_id)
-            .where(eligible, Submission.status.in_(ACTIVE_SUBMISSION))
-            .order_by(EpisodeRow.id)
+            _fair_order(
+                select(EpisodeRow.id)
+                .join(Submission, Submission.id == EpisodeRow.submission_id)
+                .where(where, Submission.status.in_(ACTIVE_SUBMISSION))
+            )
             .limit(1)
             # Any episode: skip rows another claimer holds. One named episode: wait for the row instead. Its
             # sender publishes inside the transaction that marks it sent, so a fast worker can get the
             # message before that commit; skipping the row then would turn the message into a no-op.
-            .with_for_update(skip_locked=episode_id is None, of=EpisodeRow)
+            .with_for_update(skip_locked=skip_locked, of=EpisodeRow)
         ).first()
         if row is None:
             return None
-        taken_at = fixed_now or utcnow()  # after any wait for the row: the lease starts now, not before
+        taken_at = now or utcnow()  # after any wait for the row: the lease starts now, not before
         token = secrets.token_hex(16)
         claimed = session.execute(
             update(EpisodeRow)

@@ -1,10 +1,11 @@
 """The Celery task: one message = one episode row id, run by the shared execution unit.
 
-The task adds no evaluation logic of its own. It claims *that* episode through the same SQL lease as the
-local executor (:func:`robobpp.db.work.claim_episode`), runs it with the same unit
-(:func:`robobpp.worker.run.run_claimed`) and lets that unit record the result under the lease. So a copy
-of a message — redelivered by the broker after a worker died, or re-enqueued by a sweeper — finds the
-episode done, or leased by a live worker, and acknowledges itself without touching anything.
+The task adds no evaluation logic of its own. A message is a ticket for one claim through the same SQL lease
+as the local executor (:func:`robobpp.db.work.claim_episode`): the fairest episode that has a message out,
+its own when no other is free, so the broker's first-come order does not decide who runs first. It runs the
+claim with the same unit (:func:`robobpp.worker.run.run_claimed`), which records the result under the lease.
+A copy of a message — redelivered by the broker after a worker died, or re-enqueued by a sweeper — claims
+early what another message would have claimed, or finds nothing to do and acknowledges itself.
 """
 
 from __future__ import annotations
@@ -92,11 +93,12 @@ def execute(app: Celery, episode_id: int, worker: str | None = None) -> str:
         log.info("episode %s: nothing to do here (%s)", episode_id,
                  "its participant is at its limit; sent again later" if later else "finished or held by another worker")  # fmt: skip
         return "skipped"
-    log.info("episode %s: attempt %s on %s", episode_id, claim.attempt, me)
+    log.info("episode %s: attempt %s on %s (message for episode %s)", claim.episode_id, claim.attempt, me,
+             episode_id)  # fmt: skip
     if run_claimed(factory, claim, options):
         return "recorded"
     with factory() as s, s.begin():  # handed back for another attempt: it needs a new message, sent once
-        enqueue(app, work.take_unsent(s, stale_after_s=0, ids=[episode_id]), countdown=RETRY_DELAY_S)
+        enqueue(app, work.take_unsent(s, stale_after_s=0, ids=[claim.episode_id]), countdown=RETRY_DELAY_S)
     return "dropped"
 
 

@@ -170,6 +170,63 @@ def test_a_participant_gets_at_most_its_share_of_running_episodes(factory) -> No
     assert nxt is not None and nxt.submission_id == greedy
 
 
+def _builtin(factory, name: str, groups: int) -> int:  # type: ignore[no-untyped-def]
+    with transaction(factory) as s:
+        p = Participant(name=name, is_builtin=True)
+        s.add(p)
+        s.flush()
+        return work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
+                                      settings=["math"], groups=groups).id  # fmt: skip
+
+
+def test_claims_are_fair_across_participants_and_baselines_come_last(factory) -> None:
+    """Least running first, then oldest; the baselines (built-in participant) after every participant's work,
+    although they were submitted first. First come, first served would give ``greedy`` its five episodes
+    before ``late`` got one."""
+    baseline = _builtin(factory, "baselines", groups=2)
+    greedy = _remote(factory, "greedy", "http://203.0.113.7:9000", groups=5)
+    late = _remote(factory, "late", "http://203.0.113.8:9000", groups=2)
+    order = [c.submission_id for c in (_claim(factory) for _ in range(9)) if c is not None]
+    assert order == [greedy, late, greedy, late, greedy, greedy, greedy, baseline, baseline]
+
+
+def test_a_participant_whose_episodes_all_finished_does_not_take_every_freed_slot_back(factory) -> None:
+    """Both of greedy's running episodes finish at once (so it has none running, like the newcomer): the freed
+    slots go round-robin by last start, not both to greedy's older episodes."""
+    greedy = _remote(factory, "greedy", "http://203.0.113.7:9000", groups=4)
+    first = [_claim(factory), _claim(factory)]
+    late = _remote(factory, "late", "http://203.0.113.8:9000", groups=1)
+    for claim in first:
+        assert _complete(factory, claim)
+    assert [_claim(factory).submission_id for _ in range(2)] == [late, greedy]
+
+
+def test_a_message_claims_the_fairest_episode_that_has_one_out(factory) -> None:
+    """Celery: the broker hands messages out in the order they were sent, but a message is a ticket for the
+    fairest episode with a message out; an episode with no message out is not taken, and a message claims
+    its own episode when no other is free."""
+    greedy = _remote(factory, "greedy", "http://203.0.113.7:9000", groups=3)
+    late = _remote(factory, "late", "http://203.0.113.8:9000", groups=1)
+    unsent = _remote(factory, "unsent", "http://203.0.113.9:9000", groups=1)
+    with transaction(factory) as s:
+        ids = {sub: [e.id for e in s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sub)
+                                             .order_by(EpisodeRow.id)).scalars()] for sub in (greedy, late, unsent)}  # fmt: skip
+        work.take_unsent(s, stale_after_s=3600, ids=ids[greedy] + ids[late])
+
+    def by_message(episode_id: int):  # type: ignore[no-untyped-def]
+        with transaction(factory) as s:
+            return work.claim_episode(s, "w", lease_s=30, max_attempts=3, episode_id=episode_id)
+
+    first = by_message(ids[greedy][0])  # greedy's messages were sent first
+    second = by_message(ids[greedy][1])
+    assert (first.episode_id, second.episode_id) == (ids[greedy][0], ids[late][0])
+    third = by_message(ids[greedy][2])
+    assert third.episode_id == ids[greedy][1]
+    last = by_message(ids[unsent][0])  # no other episode with a message out is free: its own
+    assert last.episode_id == ids[greedy][2]
+    assert by_message(ids[unsent][0]).episode_id == ids[unsent][0]
+
+
 def test_pending_episodes_are_sent_once_and_lost_messages_again(factory) -> None:
     sub = _remote(factory, "p", "builtin:dbl", groups=3)
     with transaction(factory) as s:

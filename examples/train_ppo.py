@@ -1,15 +1,19 @@
 """Train a masked PPO agent on Math Pack Repetitive (train split), plot its learning curve, evaluate it.
 
-    pip install -e '.[learn]'                    # CPU PyTorch, sb3-contrib (MaskablePPO), matplotlib, tqdm
+    pip install torch --index-url https://download.pytorch.org/whl/cpu   # the CPU build: no CUDA wheels
+    pip install -e '.[learn]'                    # sb3-contrib (MaskablePPO), matplotlib, tqdm; keeps that torch
     python examples/train_ppo.py --steps 100000 --out runs/ppo
+
+On a terminal it shows a progress bar; otherwise (a batch job, output to a file) it prints a progress line at
+most every ``--progress-s`` seconds.
 
 The agent acts in ``robobpp/Pack-v0`` with ``actions="flat"``: one Discrete action per (x, y, orientation)
 cell, masked by the env's ``action_masks()`` to the feasible ones, so every action it takes is a valid
 placement. Its input is the heightmap and the box, scaled to [0, 1] (:func:`features`); the reward is the
 placed box's share of the container volume, so an episode's return is its Space Utilization.
 
-Writes to ``--out``: ``model.zip`` (the trained agent), ``curve.csv`` and ``learning_curve.png`` (Space
-Utilization of every training episode and its running mean), then evaluates the agent, Random and DBL with
+Writes to ``--out``: ``curve.csv`` (Space Utilization of every training episode, a row as each ends),
+``model.zip`` (the trained agent) and ``learning_curve.png`` (the curve and its running mean), then evaluates the agent, Random and DBL with
 ``robobpp evaluate`` on the same train groups (``eval-*.json``) and draws their figures on the plot.
 :class:`PPOPolicy` is the trained agent as a robobpp policy::
 
@@ -68,18 +72,44 @@ class Features(gym.ObservationWrapper):
 
 
 class Curve(BaseCallback):
-    """Records (timestep, CPU s, Space Utilization) of every finished episode; stops at a time budget."""
+    """Records (timestep, CPU s, Space Utilization) of every finished episode as it ends: appended to ``path``
+    at once (a long run's curve can be read while it trains), and, when ``progress_s`` is set, a progress
+    line on stdout at most every ``progress_s`` seconds (batch jobs have no terminal for a progress bar).
+    Stops training at a time budget."""
 
-    def __init__(self, cpu_s: float, wall_s: float) -> None:
+    def __init__(self, cpu_s: float, wall_s: float, path: Path, total: int, progress_s: float | None) -> None:
         super().__init__()
         self.points: list[tuple[int, float, float]] = []
         self.budget = (time.process_time() + cpu_s, time.monotonic() + wall_s)
+        self.total, self.progress_s = total, progress_s
+        self.started, self.last_line = time.monotonic(), -float("inf")
+        self.file = path.open("w", newline="")
+        self.csv = csv.writer(self.file)
+        self.csv.writerow(("timestep", "cpu_s", "space_utilization"))
+        self.file.flush()
 
     def _on_step(self) -> bool:
         for info in self.locals["infos"]:
             if "episode" in info:  # added by sb3's Monitor at the end of an episode: r = the return
-                self.points.append((self.num_timesteps, time.process_time(), float(info["episode"]["r"])))
+                point = (self.num_timesteps, time.process_time(), float(info["episode"]["r"]))
+                self.points.append(point)
+                self.csv.writerow(point)
+                self.file.flush()
+                self._progress()
         return time.process_time() < self.budget[0] and time.monotonic() < self.budget[1]
+
+    def _progress(self) -> None:
+        now = time.monotonic()
+        if self.progress_s is None or now - self.last_line < self.progress_s:
+            return
+        self.last_line = now
+        recent = [p[2] for p in self.points[-20:]]
+        print(f"step {self.num_timesteps}/{self.total}  episodes {len(self.points)}  Space Utilization: last "
+              f"{recent[-1]:.3f}, mean of last {len(recent)} {np.mean(recent):.3f}  "
+              f"{(now - self.started) / 60:.1f} min", flush=True)  # fmt: skip
+
+    def _on_training_end(self) -> None:
+        self.file.close()
 
 
 class PPOPolicy(BasePolicy):
@@ -163,6 +193,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/ppo"))
     parser.add_argument("--no-baselines", action="store_true", help="evaluate only the agent, not Random/DBL")
+    parser.add_argument("--progress-s", type=float, default=30.0,
+                        help="without a terminal: a progress line at most this often (seconds; 0: every episode)")  # fmt: skip
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -176,11 +208,13 @@ def main() -> None:
                         device="cpu", verbose=0)  # fmt: skip
     torch.set_num_threads(1)  # one core: the figures in docs are per CPU-minute
     start = time.process_time()
-    curve = Curve(60 * args.cpu_minutes, 60 * args.wall_minutes)
-    model.learn(total_timesteps=args.steps, callback=curve, progress_bar=sys.stderr.isatty())
+    # On a terminal a progress bar; otherwise (batch jobs, logs) progress lines on stdout.
+    terminal = sys.stderr.isatty()
+    print(f"training {args.steps} steps; curve in {args.out / 'curve.csv'} as it goes", flush=True)
+    curve = Curve(60 * args.cpu_minutes, 60 * args.wall_minutes, args.out / "curve.csv", args.steps,
+                  None if terminal else args.progress_s)  # fmt: skip
+    model.learn(total_timesteps=args.steps, callback=curve, progress_bar=terminal)
     model.save(args.out / "model.zip")
-    with (args.out / "curve.csv").open("w", newline="") as fh:
-        csv.writer(fh).writerows([("timestep", "cpu_s", "space_utilization"), *curve.points])
     print(f"trained {model.num_timesteps} steps, {len(curve.points)} episodes in "
           f"{(time.process_time() - start) / 60:.1f} CPU-minutes; model in {args.out / 'model.zip'}")  # fmt: skip
 

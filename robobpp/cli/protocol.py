@@ -48,9 +48,7 @@ def serve_command(
         agent = load_policy(policy)
     except PolicyLoadError as exc:
         fail(str(exc))
-    signed = "signed requests only" if secret else "no secret: anyone who can reach it may call it"
-    console.print(f"serving [bold]{name or agent.name}[/] on http://{host}:{port} ({signed}); Ctrl-C stops")
-    serve(agent, host=host, port=port, secret=secret, name=name)
+    serve(agent, host=host, port=port, secret=secret, name=name)  # prints where it listens once it does
 
 
 @protocol_app.command("check")

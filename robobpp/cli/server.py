@@ -52,10 +52,10 @@ def serve(
         "itsdangerous",
     ):
         require(package, "server", "robobpp serve")
-    import uvicorn
     from pydantic import ValidationError
 
     from robobpp.cli.common import fail, settings_problem
+    from robobpp.client.serve import run_server
     from robobpp.server.app import create_app
     from robobpp.server.config import Settings
 
@@ -79,8 +79,11 @@ def serve(
         fail(f"invalid settings: {settings_problem(exc)}")
     app = create_app(settings)
     where = "ROBOBPP_ADMIN_TOKEN" if settings.admin_token else str(settings.state_dir / "admin_token")
-    typer.echo(f"robobpp: serving on http://{host}:{port} (API docs /docs); admin token: {where}")
-    uvicorn.run(app, host=host, port=port, log_level="info", access_log=False)
+
+    def ready(url: str) -> None:  # after migrations, baselines and workers: a reader may connect at once
+        typer.echo(f"robobpp: serving on {url} (API docs {url}/docs); admin token: {where}")
+
+    run_server(app, host, port, ready, log_level="info", access_log=False)
 
 
 @db_app.command("upgrade")

@@ -16,6 +16,7 @@ import socket
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -192,6 +193,24 @@ def create_policy_app(
     return app
 
 
+def run_server(app: Any, host: str, port: int, on_ready: Callable[[str], None], **config: Any) -> None:
+    """Serve ``app`` with uvicorn in this thread until interrupted; ``on_ready(url)`` is called once the
+    socket accepts connections (after the app's start-up), with the port actually bound (``port=0``: a free one).
+
+    Saying "serving on" earlier sends a reader who connects at once to a refused connection.
+    """
+    import uvicorn
+
+    class _Announcing(uvicorn.Server):
+        async def startup(self, sockets: list[socket.socket] | None = None) -> None:
+            await super().startup(sockets=sockets)
+            if self.started:
+                bound = self.servers[0].sockets[0].getsockname()[1]
+                on_ready(f"http://{f'[{host}]' if ':' in host else host}:{bound}")
+
+    _Announcing(uvicorn.Config(app, host=host, port=port, **config)).run()
+
+
 def serve(
     policy: Policy | type,
     host: str = "127.0.0.1",
@@ -201,11 +220,19 @@ def serve(
     name: str | None = None,
     log_level: str = "warning",
 ) -> None:
-    """Serve ``policy`` until interrupted (Ctrl-C). Bind ``host="0.0.0.0"`` to accept other machines."""
-    import uvicorn
+    """Serve ``policy`` until interrupted (Ctrl-C). Bind ``host="0.0.0.0"`` to accept other machines.
 
+    Prints one line on stdout once it accepts connections: the policy's name and the URL to give
+    ``robobpp evaluate --policy``, ``robobpp protocol check`` or ``robobpp submit``.
+    """
     app = create_policy_app(policy, secret, name=name)
-    uvicorn.run(app, host=host, port=port, log_level=log_level, access_log=False)
+    label = name or getattr(policy, "name", None) or getattr(policy, "__name__", "policy")
+    signed = "signed requests only" if secret else "no secret: anyone who can reach it may call it"
+
+    def ready(url: str) -> None:
+        print(f"robobpp: serving policy {label!r} on {url} ({signed}); Ctrl-C stops", flush=True)
+
+    run_server(app, host, port, ready, log_level=log_level, access_log=False)
 
 
 class BackgroundServer:

@@ -145,23 +145,40 @@ def test_registered_on_import_robobpp_with_a_step_limit():
 
 @pytest.mark.network
 def test_train_ppo_example_trains_plots_and_evaluates(real_data, tmp_path):
-    """A few hundred MaskablePPO steps end to end: model, learning curve, `robobpp evaluate` of the agent."""
+    """A few hundred MaskablePPO steps end to end: model, learning curve, `robobpp evaluate` of the agent.
+
+    Without a terminal (stdout a pipe, as in a batch job) it prints progress lines while it trains, and the
+    curve file already holds the episodes a progress line counts when that line appears."""
     pytest.importorskip("sb3_contrib", reason="needs the learn extra: pip install -e '.[learn]'")
     import csv
     import json
     import os
+    import re
     import subprocess
     import sys
     from pathlib import Path
 
     example = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
     cmd = [sys.executable, str(example), "--steps", "256", "--n-steps", "128", "--groups", "2",
-           "--eval-groups", "1", "--no-baselines", "--out", str(tmp_path)]  # fmt: skip
+           "--eval-groups", "1", "--no-baselines", "--progress-s", "0", "--out", str(tmp_path)]  # fmt: skip
     env = {**os.environ, "ROBOBPP_DATA_DIR": str(real_data), "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    err = (tmp_path / "stderr.txt").open("w")  # a file, not a pipe nobody reads while stdout is read
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=env)
+    progress, written = [], []
+    assert proc.stdout is not None
+    for line in proc.stdout:  # read as printed: the curve on disk is checked at each progress line
+        m = re.match(r"step (\d+)/256  episodes (\d+)  Space Utilization: last ([\d.]+)", line)
+        if m:
+            progress.append(line)
+            written.append((int(m.group(2)), len((tmp_path / "curve.csv").read_text().splitlines()) - 1))
+    proc.wait(timeout=300)
+    err.close()
+    assert proc.returncode == 0, (tmp_path / "stderr.txt").read_text()[-2000:]
+    assert len(progress) >= 2, progress
+    assert all(on_disk >= counted for counted, on_disk in written), written
     rows = list(csv.DictReader((tmp_path / "curve.csv").open()))
     assert len(rows) >= 2 and all(0 < float(r["space_utilization"]) <= 1 for r in rows)
+    assert len(rows) >= written[-1][0]
     assert (tmp_path / "model.zip").stat().st_size > 0
     assert (tmp_path / "learning_curve.png").read_bytes()[:4] == b"\x89PNG"
     result = json.loads((tmp_path / "eval-ppopolicy.json").read_text())

@@ -1,15 +1,19 @@
-"""The paper's baseline table, reproduced: Space Utilization of every paper heuristic × dataset, paper vs ours.
+"""The paper's baseline table with robobpp's experiment switches: Space Utilization per heuristic × dataset, ours
+beside the paper's.
 
-For each dataset the first ``--groups`` train groups (80 boxes each, seed 0) are run with each of the paper's
-seven heuristics through the one episode loop (``run_episode``) in ``--setting`` (math, physics or execution).
-The mean Space Utilization is set beside the paper's figure (its appendix tables, one per pack), with the
-Spearman rank correlation of the seven heuristics and the mean absolute difference per dataset.
+A thin wrapper over the package's reproduction (:mod:`robobpp.reproduction`, the paper's figures in
+``robobpp/data/paper_tables.json``): ``robobpp reproduce`` is the product command (the paper protocol, every
+metric, PCT too); this script keeps the experiments one switch each, the closed-loop runs (the default here) and
+the evidence per heuristic (how its episodes ended, the robot's figures). For each dataset the first ``--groups``
+train groups (80 boxes each, seed 0) are run with each heuristic through the one episode loop in ``--setting``;
+the mean Space Utilization is set beside the paper's (its appendix tables), with Spearman's rank correlation and
+the mean absolute difference per dataset.
 
     python bench/paper_table.py --setting math --groups 30 [--json out.json] [--datasets ...] [--policies ...]
-    nice python bench/paper_table.py --setting physics --groups 10
+    nice python bench/paper_table.py --setting physics --groups 10                # closed loop
+    nice python bench/paper_table.py --setting physics --groups 10 --open-loop    # the paper protocol (= reproduce)
     python bench/paper_table.py --setting math --support      # experiment: Math Pack with the support rule
-    nice python bench/paper_table.py --setting physics --groups 10 --no-support   # experiment: candidates unchecked
-    nice python bench/paper_table.py --setting physics --groups 10 --open-loop    # experiment: packsim's replay
+    nice python bench/paper_table.py --setting physics --groups 10 --no-support   # experiment: PCT's leaves unchecked
     python bench/paper_table.py --policies sdfpack --sdfpack-step 1   # experiment: SDFPack on the 1 cm grid
     python bench/paper_table.py --policies sdfpack --sdfpack-corner 4.4,0.7,2.4   # experiment: distances from there
     nice python bench/paper_table.py --policies sdfpack --groups 10 --sdfpack-scene   # experiment: true distances
@@ -39,57 +43,13 @@ from typing import Any
 import numpy as np
 from _common import machine
 
+from robobpp.paper import PAPER_HEURISTICS, paper_tables
+from robobpp.replay import CLOSED, PAPER
+from robobpp.reproduction import compare, markdown
+
 DATASETS = ("repetitive", "diverse", "longboard")
-#: The paper's seven heuristics, in its order.
-POLICIES = ("dbl", "hm", "lsah", "onlinebph", "br", "macs", "sdfpack")
-
-#: Space Utilization from the paper's appendix tables (test split, 30 sequences): Repetitive, Diverse, Long Board.
-PAPER: dict[str, dict[str, tuple[float, float, float]]] = {
-    "math": {
-        "dbl": (0.617, 0.549, 0.520),
-        "hm": (0.579, 0.423, 0.355),
-        "lsah": (0.619, 0.569, 0.474),
-        "onlinebph": (0.500, 0.474, 0.428),
-        "br": (0.587, 0.524, 0.363),
-        "macs": (0.445, 0.352, 0.232),
-        "sdfpack": (0.586, 0.543, 0.274),
-    },
-    "physics": {
-        "dbl": (0.385, 0.257, 0.349),
-        "hm": (0.398, 0.330, 0.255),
-        "lsah": (0.373, 0.285, 0.254),
-        "onlinebph": (0.116, 0.120, 0.277),
-        "br": (0.222, 0.258, 0.169),
-        "macs": (0.070, 0.134, 0.135),
-        "sdfpack": (0.150, 0.259, 0.155),
-    },
-    "execution": {
-        "dbl": (0.359, 0.183, 0.285),
-        "hm": (0.083, 0.143, 0.214),
-        "lsah": (0.304, 0.091, 0.187),
-        "onlinebph": (0.118, 0.097, 0.240),
-        "br": (0.121, 0.067, 0.124),
-        "macs": (0.047, 0.125, 0.123),
-        "sdfpack": (0.098, 0.100, 0.119),
-    },
-}
-
-
-def ranks(values: list[float]) -> np.ndarray:
-    """Ranks 1..n, ties given their average rank (as Spearman's rho needs)."""
-    a = np.asarray(values, dtype=np.float64)
-    order = np.argsort(a, kind="stable")
-    out = np.empty(len(a))
-    out[order] = np.arange(1, len(a) + 1)
-    for v in np.unique(a):
-        tied = a == v
-        out[tied] = out[tied].mean()
-    return out
-
-
-def spearman(x: list[float], y: list[float]) -> float:
-    rx, ry = ranks(x), ranks(y)
-    return float(np.corrcoef(rx, ry)[0, 1])
+#: The paper's seven heuristics, in its order (``--policies pct`` adds its learned policy).
+POLICIES = PAPER_HEURISTICS
 
 
 def switch_on_support_in_math() -> None:
@@ -193,38 +153,6 @@ def make_policy(name: str, spec: Any, item_set: bool = False) -> Any:
     return policy
 
 
-class Replay:
-    """Plays back a fixed list of actions (then says "no feasible placement"): packsim's open loop."""
-
-    name = "replay"
-
-    def __init__(self, actions: list[Any]) -> None:
-        self.actions = list(actions)
-
-    def reset(self, info: Any) -> None:
-        return None
-
-    def act(self, obs: Any) -> Any:
-        return self.actions.pop(0) if self.actions else None
-
-    def close(self, reason: str) -> None:
-        return None
-
-
-def open_loop(spec: Any, policy: str, setting: str) -> Any:
-    """Experiment: plan every action in Math Pack, then replay them in ``setting`` — what the reference does
-    (packsim replays actions computed offline on idealised geometry; physics never feeds back)."""
-    from robobpp.core import Action
-    from robobpp.episode import run_episode
-    from robobpp.policies import load_policy
-
-    planned = run_episode(spec, load_policy(policy), "math")
-    actions = [
-        Action(s.action["x"], s.action["y"], s.action["orientation"]) for s in planned.steps if s.action
-    ]
-    return run_episode(spec, Replay(actions), make_setting(setting))  # type: ignore[arg-type]
-
-
 def episode_record(r: Any) -> dict[str, Any]:
     """One episode's figures for the JSON: what the table needs, and the evidence for the gaps (how it ended,
     collapses, the execution's dangerous operations and the boxes its motion disturbed)."""
@@ -300,16 +228,16 @@ def run(
     item_set: bool = False,
     first_group: int = 0,
 ) -> dict[str, Any]:
+    """One (dataset, heuristic) cell through the package's runner, with this script's experiment hooks."""
     from robobpp.datasets import episode_specs
-    from robobpp.episode import run_episode
+    from robobpp.reproduction import run_baselines
 
     cpu0 = time.process_time()
     # A group's boxes depend on its index only, so groups first_group.. are the same as in a longer run.
     specs = episode_specs(dataset, split, first_group + groups)[first_group:]
-    if replay:
-        results = [open_loop(s, policy, setting) for s in specs]
-    else:
-        results = [run_episode(s, make_policy(policy, s, item_set), make_setting(setting)) for s in specs]
+    episodes = run_baselines(specs, policy, [setting], protocol=PAPER if replay else CLOSED,
+                             load=lambda name, spec: make_policy(name, spec, item_set), setting_for=make_setting)  # fmt: skip
+    results = [r for rs in episodes for r in rs]
     return summarise([episode_record(r) for r in results], time.process_time() - cpu0)
 
 
@@ -345,7 +273,7 @@ def main() -> None:
     parser.add_argument(
         "--open-loop",
         action="store_true",
-        help="experiment: plan in Math Pack, replay the actions in --setting (packsim's open loop)",
+        help="the paper protocol: plan in Math Pack, replay the actions in --setting (packsim's open loop)",
     )
     parser.add_argument(
         "--sdfpack-step", type=int, help="experiment: SDFPack's search grid step (cm; the reference's is 2)"
@@ -424,7 +352,6 @@ def main() -> None:
                 ours[dataset][policy] = summarise(
                     mine["episodes"] + fig["episodes"], mine["cpu_s"] + fig["cpu_s"]
                 )
-    paper = PAPER[args.setting]
     for dataset in datasets:
         ours.setdefault(dataset, {})
         for policy in policies:
@@ -446,10 +373,9 @@ def main() -> None:
             if args.json:  # as it goes: a run stopped early keeps its finished cells
                 write_json(args.json, args, ours, {})
 
-    col = {d: DATASETS.index(d) for d in datasets}
     rule = " with the support rule (experiment)" if args.support else ""
     rule = " without the support rule in the candidates (experiment)" if args.no_support else rule
-    rule += ", open loop: planned in Math Pack, replayed (experiment)" if args.open_loop else ""
+    rule += ", the paper protocol: planned in Math Pack, replayed open loop" if args.open_loop else ""
     rule += f", SDFPack grid step {args.sdfpack_step} cm (experiment)" if args.sdfpack_step else ""
     rule += f", SDFPack distances from {args.sdfpack_corner} (experiment)" if args.sdfpack_corner else ""
     rule += ", SDFPack distances to the scene (experiment)" if args.sdfpack_scene else ""
@@ -461,28 +387,15 @@ def main() -> None:
     groups = " / ".join(f"{d} {'–'.join(map(str, counts[d]))}" for d in datasets)
     print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, groups: {groups} (seed 0); "
           f"paper: its test-split tables. {machine()}\n")  # fmt: skip
-    print("| heuristic | " + " | ".join(f"{d} paper | {d} ours | diff" for d in datasets) + " |")
-    print("|---|" + "---:|" * (3 * len(datasets)))
-    for policy in policies:
-        cells = []
-        for d in datasets:
-            p, o = paper[policy][col[d]], ours[d][policy]["space_utilization"]
-            cells += [f"{p:.3f}", f"{o:.3f}", f"{o - p:+.3f}"]
-        print(f"| {policy} | " + " | ".join(cells) + " |")
-    summary = {}
-    for d in datasets:
-        p = [paper[q][col[d]] for q in policies]
-        o = [ours[d][q]["space_utilization"] for q in policies]
-        summary[d] = {
-            "spearman": spearman(p, o) if len(policies) > 2 else float("nan"),
-            "mean_abs_diff": float(np.mean(np.abs(np.subtract(o, p)))),
-        }
-    print("| **Spearman** | " + " | ".join(f" | {summary[d]['spearman']:.2f} | " for d in datasets) + " |")
-    print(
-        "| **mean abs diff** | "
-        + " | ".join(f" | {summary[d]['mean_abs_diff']:.3f} | " for d in datasets)
-        + " |"
-    )
+    figures = {(args.setting, d, q, "space_utilization"): ours[d][q]["space_utilization"]
+               for d in datasets for q in policies}  # fmt: skip
+    comparison = compare(figures, metrics=["space_utilization"])
+    print(markdown(comparison))
+    summary = {
+        d: {"spearman": a.spearman, "mean_abs_diff": a.mean_abs_diff}
+        for d in datasets
+        if (a := comparison.agreement_of(args.setting, d, "space_utilization")) is not None
+    }
     if args.json:
         write_json(args.json, args, ours, summary)
     if args.setting == "execution" or args.verbose:
@@ -492,8 +405,17 @@ def main() -> None:
 def write_json(path: str, args: argparse.Namespace, ours: dict[str, Any], summary: dict[str, Any]) -> None:
     with open(path, "w") as fh:
         json.dump({"setting": args.setting, "groups": args.groups, "first_group": args.first_group,
-                   "open_loop": args.open_loop, "ours": ours, "paper": PAPER[args.setting],
+                   "open_loop": args.open_loop, "ours": ours, "paper": paper_figures(args.setting),
                    "summary": summary}, fh, indent=1)  # fmt: skip
+
+
+def paper_figures(setting: str) -> dict[str, dict[str, float]]:
+    """The paper's Space Utilization per dataset and method in ``setting`` (package data)."""
+    out: dict[str, dict[str, float]] = {}
+    for v in paper_tables().values:
+        if v.setting == setting and v.metric == "space_utilization":
+            out.setdefault(v.dataset, {})[v.method] = v.value
+    return out
 
 
 def count(episodes: list[dict[str, Any]], key: str) -> str:

@@ -292,3 +292,48 @@ class ServiceInfo(BaseModel):
     groups: int
     weights: dict[str, dict[str, float]]
     termination_reasons: dict[str, str]
+
+
+class ReproductionRun(BaseModel):
+    """A stored baseline run the Reproduction compares (Math Pack closed; Physics and Execution paper)."""
+
+    setting: str
+    dataset: str
+    policy: str
+    protocol: ProtocolName
+    submission_id: int
+    groups: int
+
+
+class ReproductionCell(BaseModel):
+    setting: str
+    dataset: str
+    policy: str
+    metric: str
+    ours: float | None
+    paper: float | None = Field(description="The paper's published figure (null: not tabulated)")
+    diff: float | None = Field(description="ours − paper")
+    table: str | None = Field(description="The paper table the figure is from (its LaTeX label)")
+
+
+class ReproductionAgreement(BaseModel):
+    setting: str
+    dataset: str
+    metric: str
+    policies: list[str]
+    spearman: float | None = Field(
+        description="Spearman's rank correlation, ours vs the paper (null: under 3)"
+    )
+    mean_abs_diff: float | None
+
+
+class Reproduction(BaseModel):
+    """The paper's baselines under the paper protocol (stored runs of this server) beside the paper's tables."""
+
+    track: str
+    protocol: ProtocolName
+    paper: str
+    tables: dict[str, str] = Field(description="The paper's table labels and captions")
+    runs: list[ReproductionRun]
+    cells: list[ReproductionCell]
+    agreement: list[ReproductionAgreement]

@@ -22,7 +22,7 @@ from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
-from sqlalchemy import Select, exists, func, select, true
+from sqlalchemy import Select, and_, exists, func, or_, select, true
 from sqlalchemy.orm import Session, joinedload
 
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
@@ -461,3 +461,27 @@ def get_episode(session: Session, submission_id: int, episode_id: int) -> Episod
     return session.execute(
         select(EpisodeRow).where(EpisodeRow.id == episode_id, EpisodeRow.submission_id == submission_id)
     ).scalar_one_or_none()
+
+
+def baseline_runs(session: Session, track: str) -> list[dict[str, Any]]:
+    """The built-in baselines' completed runs as the paper made its tables: Math Pack, and the physical
+    settings under the paper protocol (current physics version only, as on a board), of finished submissions,
+    oldest first (a later run of the same policy and board replaces an earlier one for the caller)."""
+    current = ~exists().where(
+        EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
+    )
+    rows = session.execute(
+        select(RunRow.submission_id, RunRow.dataset, RunRow.setting, RunRow.protocol, RunRow.metrics,
+               RunRow.extras, Submission.policy_url)
+        .join(Submission, Submission.id == RunRow.submission_id)
+        .join(Participant, Participant.id == Submission.participant_id)
+        .where(
+            Participant.is_builtin.is_(True), Submission.track == track,
+            Submission.status.in_(("completed", "failed")), RunRow.status == "completed",
+            or_(and_(RunRow.setting == "math", RunRow.protocol == "closed"),
+                and_(RunRow.setting.in_(PHYSICAL), RunRow.protocol == "paper", current)),
+        )
+        .order_by(RunRow.submission_id)
+    ).all()  # fmt: skip
+    keys = ("submission_id", "dataset", "setting", "protocol", "metrics", "extras", "policy_url")
+    return [dict(zip(keys, r, strict=True)) for r in rows]

@@ -254,6 +254,22 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
                   crumbs=crumbs)  # fmt: skip
 
 
+@router.get("/reproduction", response_class=HTMLResponse)
+async def reproduction_page(request: Request, track: Track = "private"):
+    from robobpp.paper import paper_tables
+    from robobpp.policies import TITLES
+    from robobpp.server.services.reproduction import reproduction
+
+    def build(session: Session) -> HTMLResponse:
+        data = reproduction(session, track)
+        titles = {**paper_tables().methods, **TITLES}
+        return render(request, "reproduction.html", title="Reproduction", nav="reproduction", track=track,
+                      data=data, tables=tables.reproduction_tables(data, titles), titles=titles,
+                      table_captions=paper_tables().tables)  # fmt: skip
+
+    return await _shared(request, track, ("reproduction-page", root(request), track), build)
+
+
 @router.get("/datasets", response_class=HTMLResponse)
 async def datasets_page(request: Request):
     return await _static(request, ("datasets",), lambda: _datasets_page(request))

@@ -20,6 +20,8 @@ STATIC_DIR = WEB_DIR / "static"
 SETTING_TITLES = {"math": "Math Pack", "physics": "Physics Pack", "execution": "Execution Pack"}
 #: How each protocol is labelled wherever a physical setting's figures are shown (docs/web.md).
 PROTOCOL_TITLES = {"closed": "closed loop (the benchmark)", "paper": "paper protocol (plan in Math, replay)"}
+#: The same, where a table cell has little room (the full title goes in its tooltip).
+PROTOCOL_SHORT = {"closed": "closed loop", "paper": "paper protocol"}
 
 
 def fmt_num(value: Any, digits: int = 3) -> str:
@@ -35,6 +37,12 @@ def fmt_num(value: Any, digits: int = 3) -> str:
     if number != 0 and abs(number) < 10 ** (-digits):
         return f"{number:.{max(1, digits - 1)}g}"
     return f"{number:.{digits}f}"
+
+
+def fmt_signed(value: Any, digits: int = 3) -> str:
+    """A difference with its sign (+0.012, −0.030); a dash where there is none."""
+    text = fmt_num(value, digits)
+    return text if text == "—" or text.startswith("-") else "+" + text
 
 
 def fmt_pct(value: Any, digits: int = 1) -> str:
@@ -68,7 +76,9 @@ def environment() -> jinja2.Environment:
     )
     env.filters["num"] = fmt_num
     env.filters["pct"] = fmt_pct
+    env.filters["signed"] = fmt_signed
     env.filters["metric"] = fmt_metric
     env.globals["SETTING_TITLES"] = SETTING_TITLES
     env.globals["PROTOCOL_TITLES"] = PROTOCOL_TITLES
+    env.globals["PROTOCOL_SHORT"] = PROTOCOL_SHORT
     return env

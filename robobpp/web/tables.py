@@ -191,3 +191,37 @@ def histogram(values: Sequence[float], bins: int = 10, lo: float = 0.0, hi: floa
         counts[i] += 1
     labels = [f"{100 * (lo + i * width):.0f}–{100 * (lo + (i + 1) * width):.0f}%" for i in range(bins)]
     return {"labels": labels, "counts": counts}
+
+
+def reproduction_tables(data: Mapping[str, Any], titles: Mapping[str, str]) -> list[dict[str, Any]]:
+    """The Reproduction page from ``server.services.reproduction.reproduction``: one table per setting and
+    metric (in the comparison's order: utilisation first), the paper's baselines down, per dataset the paper's
+    figure, ours and the difference across, then Spearman and mean |diff| per dataset. ``titles``: policy names
+    as shown."""
+    cells = list(data.get("cells") or [])
+    agreement = {(a["setting"], a["dataset"], a["metric"]): a for a in data.get("agreement") or []}
+    groups = {(r["setting"], r["dataset"], r["policy"]): r["groups"] for r in data.get("runs") or []}
+    out: list[dict[str, Any]] = []
+    by_table: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
+    for c in cells:
+        by_table.setdefault((c["setting"], c["metric"]), []).append(c)
+    for (setting, metric), group in by_table.items():
+        datasets = list(dict.fromkeys(c["dataset"] for c in group))
+        policies = list(dict.fromkeys(c["policy"] for c in group))
+        found = {(c["dataset"], c["policy"]): c for c in group}
+        rows = []
+        for p in policies:
+            row = []
+            for d in datasets:
+                c = found.get((d, p))
+                row.append({"paper": c and c["paper"], "ours": c and c["ours"], "diff": c and c["diff"],
+                            "groups": groups.get((setting, d, p)), "table": c and c["table"]})  # fmt: skip
+            rows.append({"policy": p, "title": titles.get(p, p), "cells": row})
+        tables = [agreement.get((setting, d, metric)) or {} for d in datasets]
+        metric_def = METRIC_BY_KEY.get(metric)
+        out.append({
+            "setting": setting, "metric": metric, "label": metric_def.label if metric_def else metric.upper(),
+            "better": metric_def.better if metric_def else "up", "datasets": datasets, "rows": rows,
+            "spearman": [a.get("spearman") for a in tables], "mean_abs_diff": [a.get("mean_abs_diff") for a in tables],
+        })  # fmt: skip
+    return out

@@ -272,3 +272,33 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
     assert 'data-role="protocol-note"' not in client.get("/").text
     sub_page = client.get(f"/submissions/{ids[0]}").text
     assert 'data-protocol="paper"' in sub_page and "/boards/diverse/physics?protocol=paper" in sub_page
+
+    # the Reproduction: those baselines' Math runs and paper-protocol runs beside the paper's tables
+    from robobpp.paper import paper_tables
+    from robobpp.reproduction import spearman
+
+    data = client.get("/api/v1/reproduction").json()
+    assert data["track"] == "private" and data["protocol"] == "paper"
+    assert sorted((r["setting"], r["protocol"], r["policy"]) for r in data["runs"]) == sorted(
+        [("math", "closed", p) for p in ("dbl", "hm", "lsah")] + [("physics", "paper", p) for p in ("dbl", "hm", "lsah")]
+    )  # fmt: skip
+    cells = {(c["setting"], c["policy"], c["metric"]): c for c in data["cells"] if c["dataset"] == "diverse"}
+    by_name = dict(zip(("dbl", "hm", "lsah"), ids, strict=True))
+    for policy, sid in by_name.items():
+        cell = cells[("physics", policy, "space_utilization")]
+        assert cell["ours"] == paper[sid]["space_utilization"]  # the paper-protocol run, not the closed one
+        published = paper_tables().get("physics", "diverse", policy, "space_utilization")
+        assert published is not None and (cell["paper"], cell["table"]) == (published.value, published.table)
+        assert cell["diff"] == pytest.approx(cell["ours"] - cell["paper"])
+    (agreement,) = [a for a in data["agreement"]
+                    if (a["setting"], a["dataset"], a["metric"]) == ("physics", "diverse", "space_utilization")]  # fmt: skip
+    column = [cells[("physics", p, "space_utilization")] for p in ("dbl", "hm", "lsah")]
+    assert agreement["spearman"] == spearman([c["ours"] for c in column], [c["paper"] for c in column])
+    assert agreement["mean_abs_diff"] == pytest.approx(sum(abs(c["diff"]) for c in column) / 3)
+    assert {m for s, _p, m in cells if s == "physics"} >= {"space_utilization", "static_stability"}
+    page = client.get("/reproduction").text
+    assert 'data-role="protocol-explained"' in page and 'href="/reproduction"' in page
+    assert 'data-setting="physics" data-metric="space_utilization"' in page and "Spearman" in page
+    assert page.index('data-metric="space_utilization"') < page.index(
+        'data-metric="occupancy"'
+    )  # utilisation first

@@ -151,20 +151,22 @@ def test_submission_page_shows_results_charts_and_episodes(server: Server, probe
     sid = server.ids["public"]
     probe.page.goto(f"{server.url}/submissions/{sid}")
     assert probe.page.locator("[data-role=status]").inner_text() == "completed"
-    assert probe.page.locator("#runs tbody tr").count() == 6  # 3 datasets × math, physics
-    assert probe.page.locator("#episodes tbody tr").count() == 12
+    # 3 datasets × math, physics closed loop, physics under the paper protocol (Math actions replayed)
+    assert probe.page.locator("#runs tbody tr").count() == 9
+    assert probe.page.locator("#runs tbody tr[data-protocol=paper]").count() == 3
+    assert probe.page.locator("#episodes tbody tr").count() == 18
     assert "completed" in probe.page.locator("#episodes tbody").inner_text()
     radars = probe.page.locator("canvas[data-radar]")
-    assert radars.count() == 2  # one per setting
+    assert radars.count() == 2  # one per setting (the benchmark's closed-loop boards)
     probe.page.wait_for_function(
         "() => window.Chart && Chart.getChart(document.getElementById('util-chart'))"
     )
     counts = probe.page.evaluate(
         "() => Chart.getChart(document.getElementById('util-chart')).data.datasets[0].data"
     )
-    assert sum(counts) == 12
+    assert sum(counts) == 18
     replay_links = probe.page.locator("#episodes a", has_text="3D replay")
-    assert replay_links.count() == 12
+    assert replay_links.count() == 18
     assert "policy_url" not in probe.page.content() and "builtin:" not in probe.page.content()
     assert "min–max normalisation needs at least two entries" in probe.page.locator("main").inner_text()
     probe.assert_clean()
@@ -263,6 +265,30 @@ def test_protocol_page(server: Server, probe: PageProbe) -> None:
     probe.assert_clean()
 
 
+def test_reproduction_page(server: Server, probe: PageProbe) -> None:
+    """The server's baselines under the paper protocol beside the paper's tables, linked from the navigation."""
+    probe.page.goto(server.url + "/")
+    probe.page.locator("nav.site-nav a", has_text="Reproduction").click()
+    probe.page.wait_for_url("**/reproduction")
+    assert "open loop" in probe.page.locator("[data-role=protocol-explained]").inner_text()
+    table = probe.page.locator("table[data-setting=physics][data-metric=space_utilization]")
+    assert table.count() == 1
+    policies = table.locator("tbody tr[data-policy]").evaluate_all(
+        "(rows) => rows.map((r) => r.dataset.policy)"
+    )
+    assert policies == ["dbl", "hm", "lsah", "onlinebph"]  # the paper's baselines the server ran, its order
+    first = table.locator("tbody tr[data-policy=dbl] td").all_inner_texts()
+    assert len(first) == 1 + 3 * 3 and first[0] == "DBL"
+    paper, ours, diff = (float(first[1]), float(first[2]), float(first[3]))
+    assert abs((ours - paper) - diff) < 2e-3  # each to 3 decimals
+    spearman = table.locator("tr.summary").first.locator("td").all_inner_texts()
+    assert spearman[0] == "Spearman" and all(-1 <= float(v) <= 1 for v in spearman[1:])
+    # Math Pack is compared too; every table's column order: paper | ours | diff per dataset
+    assert probe.page.locator("table[data-setting=math][data-metric=space_utilization]").count() == 1
+    probe.shot("reproduction")
+    probe.assert_clean()
+
+
 def test_missing_things_answer_404_pages(server: Server) -> None:
     for path in ("/submissions/999999", "/boards/nope/math", "/boards/repetitive/quantum",
                  "/submissions/1/episodes/999999/replay"):  # fmt: skip
@@ -309,7 +335,8 @@ def test_tables_fit_their_container_at_1280_px(server: Server, browser: Any) -> 
     wide = {}
     try:
         sign_in(page, server, ADMIN_TOKEN)  # the owner's view has the widest episode table (details)
-        for path in ("/", "/boards/repetitive/physics", "/boards/longboard/math", "/submissions/1",
+        for path in ("/", "/boards/repetitive/physics", "/boards/longboard/math", "/submissions/1", "/reproduction",
+                     "/?protocol=paper", "/boards/diverse/physics?protocol=paper",
                      f"/submissions/{server.ids['hostile']}", f"/submissions/{server.ids['public']}"):  # fmt: skip
             page.goto(server.url + path)
             sizes = page.evaluate(

@@ -17,6 +17,7 @@ from robobpp.schemas import (
     Leaderboard,
     OverallGrid,
     ProtocolName,
+    Reproduction,
     ServiceInfo,
     SettingName,
 )
@@ -89,6 +90,16 @@ async def board(request: Request, dataset: DatasetName, setting: SettingName, tr
     body = await cached_body(request, track, key,
                              lambda s: to_json(board_view(cache.board(s, dataset, setting, track, protocol), view,
                                                           limit, offset, submission)))  # fmt: skip
+    return Response(body, media_type="application/json")
+
+
+@router.get("/reproduction", response_model=Reproduction,
+            summary="The paper's baselines under the paper protocol beside the paper's published tables")  # fmt: skip
+async def reproduction_route(request: Request, track: Track = "private") -> Response:
+    from robobpp.server.services.reproduction import reproduction
+
+    body = await cached_body(request, track, ("api-reproduction", track),
+                             lambda s: to_json(reproduction(s, track)))  # fmt: skip
     return Response(body, media_type="application/json")
 
 

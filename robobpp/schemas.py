@@ -122,6 +122,22 @@ class RunPublic(BaseModel):
     completed_at: datetime | None
 
 
+class QueuePlace(BaseModel):
+    """Where a queued submission stands in the fair-share order (docs/server.md, "Evaluation")."""
+
+    position: int | None = Field(
+        description="1: its first episode is the next one claimed (None: beyond the replay limit)"
+    )
+    ahead: int | None = Field(
+        description="episodes claimed before its first one, if nothing finished meanwhile"
+    )
+    running: int = Field(description="episodes running now, across all participants")
+    estimated_start_s: float | None = Field(
+        description="seconds until its first episode starts, from the recent mean episode time (None: no history)"
+    )
+    estimated_start: datetime | None
+
+
 class SubmissionPublic(BaseModel):
     id: int
     name: str
@@ -142,6 +158,8 @@ class SubmissionPublic(BaseModel):
     #: Re-evaluation on the hold-out draw (docs/server.md, threat model): ``status`` (running, verified,
     #: disagrees, failed, cancelled), the verification's ``submission_id``, and per board both intervals.
     verification: dict[str, Any] | None = None
+    #: Only while queued, and only on the one-submission answers (``GET /submissions/{id}``, its page).
+    queue: QueuePlace | None = None
 
 
 class EpisodePublic(BaseModel):

@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from robobpp.datasets import DATASETS
-from robobpp.db import queries
+from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.leaderboard import board_view, find_entry, grid_view
@@ -149,6 +149,7 @@ def _page_view(request: Request, session: Session, sub: Submission, owner: bool)
     )
     if not owner:
         view.pop("policy_url", None)
+    view["queue"] = waiting.queue_place(session, sub)
     return view
 
 
@@ -218,8 +219,11 @@ def _submission_status(request: Request, session: Session, submission_id: int) -
         ("view",), sub, lambda: queries.submission_view(session, sub)
     )
     runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
-    return JSONResponse({"id": sub.id, "status": view["status"], "progress": view["progress"], "runs": runs},
-                        headers={"Cache-Control": "no-store"})  # fmt: skip
+    queue = waiting.queue_place(session, sub)
+    if queue is not None and queue["estimated_start"] is not None:
+        queue = {**queue, "estimated_start": queue["estimated_start"].isoformat()}
+    return JSONResponse({"id": sub.id, "status": view["status"], "progress": view["progress"], "runs": runs,
+                         "queue": queue}, headers={"Cache-Control": "no-store"})  # fmt: skip
 
 
 @router.get("/submissions/{submission_id}/episodes/{episode_id}/replay", response_class=HTMLResponse)

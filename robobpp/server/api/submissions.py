@@ -13,7 +13,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
-from robobpp.db import queries, work
+from robobpp.db import queries, waiting, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
 from robobpp.schemas import (
@@ -213,7 +213,7 @@ def _view_json(view: dict[str, Any]) -> bytes:
 
 
 def _json(session: Session, sub: Submission) -> bytes:
-    return _view_json(queries.submission_view(session, sub))
+    return _view_json({**queries.submission_view(session, sub), "queue": waiting.queue_place(session, sub)})
 
 
 @router.get("/submissions/{submission_id}", response_model=SubmissionPublic,

@@ -61,6 +61,14 @@
         bar.style.width = `${p.episodes_total ? (100 * p.episodes_done) / p.episodes_total : 0}%`;
         badge.textContent = s.status;
         badge.className = `badge status-${s.status}`;
+        const queue = document.querySelector('[data-role="queue"]');
+        if (queue && !s.queue) queue.remove();
+        else if (queue && s.queue.position) {
+          let q = `Queued: position ${s.queue.position} in the fair-share order (${s.queue.ahead} episode${s.queue.ahead === 1 ? "" : "s"} of others or earlier submissions first, ${s.queue.running} running now)`;
+          const eta = s.queue.estimated_start_s;
+          if (eta !== null) q += eta < 60 ? "; estimated start within a minute" : `; estimated start in about ${Math.ceil(eta / 60)} min`;
+          queue.textContent = q + ".";
+        }
         if (s.status !== "queued" && s.status !== "running") {
           live.textContent = "Finished — loading the results…";
           window.setTimeout(() => window.location.reload(), 600);

@@ -7,6 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from robobpp.datasets import episode_specs
+from robobpp.policies import load_policy
+from robobpp.replay import run_paper_protocol
 from tests.cli.test_evaluate import robobpp
 
 
@@ -44,19 +47,26 @@ def test_reproduce_one_group_end_to_end_and_merge(real_data: Path, tmp_path: Pat
 @pytest.mark.network
 def test_evaluate_protocol_reaches_the_json(real_data: Path, tmp_path: Path) -> None:
     out = tmp_path / "e.json"
+    # two worker processes: each runs a group's Math plan and its replay
     proc = robobpp("evaluate", "--policy", "dbl", "--dataset", "diverse", "--setting", "physics",
-                   "--groups", "1", "--protocol", "paper", "--json", str(out),
+                   "--groups", "2", "--protocol", "paper", "--jobs", "2", "--json", str(out),
                    env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert "protocol paper" in proc.stdout
     data = json.loads(out.read_text())
     assert data["protocol"] == "paper" and [r["protocol"] for r in data["runs"]] == ["paper"]
-    # the Math plan was run but Math Pack was not asked for: only the replay is reported
-    assert [(e["setting"], e["protocol"]) for e in data["episodes"]] == [("physics", "paper")]
+    # the Math plan was run but Math Pack was not asked for: only the replays are reported
+    assert [(e["setting"], e["protocol"]) for e in data["episodes"]] == [("physics", "paper")] * 2
+    specs = episode_specs("diverse", groups=2)
+    local = [run_paper_protocol(s, load_policy("dbl"), ["physics"])["physics"] for s in specs]
+    for got, want in zip(data["episodes"], local, strict=True):
+        assert got["episode_id"] == want.episode_id and got["termination"] == want.termination
+        assert got["boxes_placed"] == want.boxes_placed
+        assert got["metrics"]["space_utilization"] == pytest.approx(want.metrics["space_utilization"])
     # `robobpp compare` never ranks a closed-loop run against a paper-protocol one: two boards
     closed = tmp_path / "c.json"
     proc = robobpp("evaluate", "--policy", "dbl", "--dataset", "diverse", "--setting", "physics",
-                   "--groups", "1", "--json", str(closed), env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+                   "--groups", "2", "--json", str(closed), env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert json.loads(closed.read_text())["protocol"] == "closed"
     boards = tmp_path / "boards.json"

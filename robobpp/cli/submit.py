@@ -324,10 +324,21 @@ def leaderboard(
         typer.Option("--format", help="One board as csv (per entry, interval ends in columns), md or latex."),
     ] = None,
     out: Annotated[Path | None, typer.Option(help="With --format: write here instead of stdout.")] = None,
+    protocol: Annotated[
+        str,
+        typer.Option(
+            help="Physics/Execution as closed (closed loop, the benchmark) or paper (the paper's "
+            "protocol: the Math Pack actions replayed)."
+        ),
+    ] = "closed",  # fmt: skip
     server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
 ) -> None:
     """One leaderboard (metrics, score, rank), or the overall grid when no board is given."""
+    from robobpp.replay import PROTOCOLS
+
+    if protocol not in PROTOCOLS:
+        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
     if (dataset is None) != (setting is None):
         fail("give both --dataset and --setting for one board, or neither for the overall grid")
     if fmt is not None:
@@ -344,8 +355,8 @@ def leaderboard(
     if setting is not None and setting not in SETTINGS:
         fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")
     with _client(server, token, need_token=False) as client:
-        data = (client.leaderboard(dataset, setting, _track(track), view=view) if dataset and setting
-                else client.grid(_track(track), view=view))  # fmt: skip
+        data = (client.leaderboard(dataset, setting, _track(track), view=view, protocol=protocol)
+                if dataset and setting else client.grid(_track(track), view=view, protocol=protocol))  # fmt: skip
     if as_json:
         print(data.model_dump_json(indent=2))
         return
@@ -375,7 +386,8 @@ def _rank(rank: int | None, low: int | None, high: int | None) -> str:
 
 def _board_table(board: Leaderboard) -> Table:
     """Ranks with their 95 % rank interval, scores with their bootstrap interval, failed/partial apart."""
-    table = Table(title=f"{board.setting}/{board.dataset} · {board.track} track · {board.view} "
+    protocol = " · paper protocol" if board.protocol == "paper" else ""
+    table = Table(title=f"{board.setting}/{board.dataset}{protocol} · {board.track} track · {board.view} "
                         f"({board.total} ranked, by the {board.ranked_by} score)")  # fmt: skip
     table.add_column("rank", justify="right")
     table.add_column("submission")
@@ -408,7 +420,8 @@ def _board_table(board: Leaderboard) -> Table:
 
 def _grid_table(grid: OverallGrid) -> Table:
     """Score (rank) per board and the Mean with intervals; partial or failed submissions after, unranked."""
-    table = Table(title=f"overall · {grid.track} track · {grid.view}")
+    protocol = " · Physics/Execution under the paper protocol" if grid.protocol == "paper" else ""
+    table = Table(title=f"overall{protocol} · {grid.track} track · {grid.view}")
     table.add_column("rank", justify="right")
     table.add_column("submission")
     boards = [f"{s}/{d}" for s in grid.settings for d in grid.datasets]

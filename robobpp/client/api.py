@@ -256,20 +256,38 @@ class ServerClient:
         return self._get(f"/submissions/{int(submission_id)}/episodes/{int(episode_id)}", EpisodeDetail)
 
     def leaderboard(self, dataset: str, setting: str, track: Track = "private", *, view: str = "best",
-                    limit: int = 50, offset: int = 0, submission: int | None = None) -> Leaderboard:  # fmt: skip
-        """One page of a board: each participant's best entry (``view="best"``) or ``"all"`` entries."""
+                    limit: int = 50, offset: int = 0, submission: int | None = None,
+                    protocol: str = "closed") -> Leaderboard:  # fmt: skip
+        """One page of a board: each participant's best entry (``view="best"``) or ``"all"`` entries;
+        ``protocol="paper"``: a physical setting's board under the paper protocol (docs/server.md)."""
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
         if submission is not None:
             params["submission"] = submission
-        return self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
+        if protocol != "closed":  # the default goes unsaid: a server from before protocols answers alike
+            params["protocol"] = protocol
+        board = self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
+        if setting != "math":
+            self._check_protocol(board.protocol, protocol)
+        return board
 
     def grid(
-        self, track: Track = "private", *, view: str = "best", limit: int = 50, offset: int = 0
-    ) -> OverallGrid:
+        self, track: Track = "private", *, view: str = "best", limit: int = 50, offset: int = 0,
+        protocol: str = "closed",
+    ) -> OverallGrid:  # fmt: skip
         """The overall grid: ranked rows (a score and rank per ``setting/dataset`` board, and the Mean) and
-        the partial or failed ones apart."""
-        return self._get("/leaderboards", OverallGrid, params={"track": track, "view": view, "limit": limit,
-                                                               "offset": offset})  # fmt: skip
+        the partial or failed ones apart; ``protocol="paper"``: its physical columns under the paper protocol."""
+        params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
+        if protocol != "closed":
+            params["protocol"] = protocol
+        grid = self._get("/leaderboards", OverallGrid, params=params)
+        self._check_protocol(grid.protocol, protocol)
+        return grid
+
+    def _check_protocol(self, served: str, asked: str) -> None:
+        """A server from before protocols ignores ``protocol=paper`` and serves closed-loop boards: say so."""
+        if served != asked:
+            raise ServerError(None, "Protocol not offered", f"the server at {self.base_url} served the {served} "
+                              f"protocol, not {asked} (it predates the paper protocol)", kind="protocol")  # fmt: skip
 
     def create_participant(self, name: str) -> TokenCreated:
         """(Admin) A new participant and its first API token — the only time the token is shown."""

@@ -296,12 +296,12 @@ def submissions_progress(session: Session, submission_ids: Sequence[int],
             .group_by(EpisodeRow.submission_id)
             .subquery()
         )
-        for sid, dataset, setting in session.execute(
-            select(EpisodeRow.submission_id, EpisodeRow.dataset, EpisodeRow.setting).join(
-                first, EpisodeRow.id == first.c.id
-            )
+        for sid, dataset, setting, protocol in session.execute(
+            select(
+                EpisodeRow.submission_id, EpisodeRow.dataset, EpisodeRow.setting, EpisodeRow.protocol
+            ).join(first, EpisodeRow.id == first.c.id)
         ):
-            phases[sid] = f"{setting}/{dataset}"
+            phases[sid] = f"{setting}/{dataset}" + (" (paper protocol)" if protocol != "closed" else "")
     return {sid: _progress(c, phases.get(sid)) for sid, c in counts.items()}
 
 

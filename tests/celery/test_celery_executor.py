@@ -212,3 +212,39 @@ def _serve_and_check(fleet: Fleet, own: Any, tmp_path: Path) -> None:
     with own() as s:
         ran = s.execute(select(EpisodeRow.status, EpisodeRow.worker)).all()
     assert len(ran) >= 4 and all(st == "done" and w.startswith("celery:") for st, w in ran), ran
+
+
+def test_celery_workers_replay_math_episodes_under_the_paper_protocol(fleet: Fleet, factory: Any) -> None:
+    """A submission with Math Pack and Physics Pack: the Celery workers run its replays too, each a message of
+    its own once its Math episode is recorded, each recorded once, with exactly the Math actions."""
+    from robobpp.db import work
+    from robobpp.db.models import Participant
+
+    name = f"paper-{fleet.env['ROBOBPP_CELERY_QUEUE']}"
+    with factory() as s, s.begin():
+        participant = Participant(name=name)
+        s.add(participant)
+        s.flush()
+        sub = work.create_submission(s, participant, name=name, policy_url="builtin:tests.celery.helpers:PacedDBL",
+                                     datasets=["diverse"], settings=["math", "physics"], groups=2,
+                                     track="public").id  # fmt: skip
+    _app_, executor = _start(fleet, 2)
+    try:
+        wait_for(lambda: submission_status(factory, sub) == "completed", 180, "the submission",
+                 lambda: episode_states(factory, sub) + "\n" + fleet.logs())  # fmt: skip
+    finally:
+        executor.stop()
+    rows = episodes(factory, sub)
+    assert sorted((r.setting, r.protocol) for r in rows) == sorted(
+        [("math", "closed")] * 2 + [("physics", "closed")] * 2 + [("physics", "paper")] * 2)  # fmt: skip
+    assert all(r.status == "done" and r.attempts == 1 for r in rows), episode_states(factory, sub)
+    for replay in (r for r in rows if r.protocol == "paper"):
+        assert (replay.worker or "").startswith("celery:")
+        with factory() as s:
+            assert work.episode_plan(s, replay.id) is None  # spent
+        math = next(r for r in rows if (r.setting, r.group) == ("math", replay.group))
+        played = [(st["action"], st["decision_time"]) for st in replay.trace["steps"]]
+        assert (
+            played
+            and played == [(st["action"], st["decision_time"]) for st in math.trace["steps"]][: len(played)]
+        )

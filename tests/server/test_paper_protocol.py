@@ -302,3 +302,50 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
     assert page.index('data-metric="space_utilization"') < page.index(
         'data-metric="occupancy"'
     )  # utilisation first
+
+    # the CLI: robobpp leaderboard --protocol paper, against the same server over HTTP
+    import json
+
+    from typer.testing import CliRunner
+
+    from robobpp.cli import _register
+    from robobpp.cli import app as cli_app
+    from robobpp.client.serve import BackgroundServer
+
+    _register()
+    cli = CliRunner()
+    with BackgroundServer(app) as served:
+        shown = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics", "--protocol",
+                                     "paper", "--view", "all", "--server", served.url])  # fmt: skip
+        assert shown.exit_code == 0, shown.output
+        assert "physics/diverse · paper protocol" in shown.stdout
+        as_json = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics", "--protocol",
+                                       "paper", "--view", "all", "--json", "--server", served.url])  # fmt: skip
+        served_board = json.loads(as_json.stdout)
+        assert served_board["protocol"] == "paper"
+        assert {e["submission_id"]: e["metrics"] for e in served_board["entries"]} == paper
+        grid_shown = cli.invoke(cli_app, ["leaderboard", "--protocol", "paper", "--server", served.url])
+        assert grid_shown.exit_code == 0 and "Physics/Execution under the paper protocol" in grid_shown.stdout
+        closed_shown = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics",
+                                            "--server", served.url])  # fmt: skip
+        assert closed_shown.exit_code == 0 and "paper protocol" not in closed_shown.stdout
+    bad = cli.invoke(cli_app, ["leaderboard", "--protocol", "open"])
+    assert bad.exit_code == 2 and "unknown protocol 'open'" in bad.output
+
+
+def test_the_client_says_when_a_server_has_no_paper_protocol() -> None:
+    """A server from before protocols ignores ``protocol=paper``: its closed-loop board is never taken for one."""
+    from fastapi import FastAPI
+
+    from robobpp.client.api import ServerClient, ServerError
+    from robobpp.client.serve import BackgroundServer
+
+    old = FastAPI()
+    board = {"dataset": "diverse", "setting": "physics", "track": "private", "metrics": [], "weights": {},
+             "ranked_by": "relative", "anchors": "a", "groups": 0, "resamples": 0, "confidence": 0.95, "view": "best",
+             "total": 0, "limit": 50, "offset": 0, "entries": [], "unranked_total": 0, "unranked": []}  # fmt: skip
+    old.get("/api/v1/leaderboards/{dataset}/{setting}")(lambda dataset, setting: board)
+    with BackgroundServer(old) as served, ServerClient(served.url) as client:
+        assert client.leaderboard("diverse", "physics").protocol == "closed"
+        with pytest.raises(ServerError, match="served the closed protocol, not paper"):
+            client.leaderboard("diverse", "physics", protocol="paper")

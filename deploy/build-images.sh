@@ -15,7 +15,7 @@
 # Needs root, Debian's docker.io and debootstrap packages, a running daemon (deploy/dockerd.sh start) and a
 # Python with pip on the host of the images' exact version (Debian bookworm's python3, 3.11.2).
 # Environment: PYTHON (default /usr/bin/python3), DEBIAN_MIRROR, ROBOBPP_IMAGE_TAG (default debian),
-# ROBOBPP_BUILD_DIR (default deploy/.build; the wheels stay there for the next build), REBUILD_BASE=1.
+# ROBOBPP_BUILD_DIR (default deploy/.build), REBUILD_BASE=1 (debootstrap again).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -60,6 +60,8 @@ have="$("$PYTHON" -c 'import platform; print(platform.python_version())')"
 [ "$want" = "$have" ] || { echo "$PYTHON is Python $have; the images run $want: set PYTHON to a $want with pip" >&2; exit 1; }
 
 say "wheels of robobpp[all] (requirements/ci.txt) into $BUILD/wheels"
+# Afresh each time (pip's cache makes it quick), so the directory holds exactly one resolved set.
+rm -rf "$BUILD/wheels" "$BUILD/data"
 mkdir -p "$BUILD/wheels" "$BUILD/data"
 "$PYTHON" -m pip wheel -q -c requirements/ci.txt -w "$BUILD/wheels" ".[all]" setuptools wheel
 # The image installs the project itself editable from its source (migrations/ sits next to the package).
@@ -69,6 +71,7 @@ packsim="$(sed -n 's/^PACKSIM_REQUIREMENT = "\(.*\)"$/\1/p' robobpp/datasets/sou
 
 say "robobpp:$TAG"
 docker build -q --network none -f deploy/Dockerfile.debian --build-arg BASE="$BASE" \
+  --label "org.robobpp.source=$("$PYTHON" deploy/source_hash.py)" \
   --build-arg WHEELS="$BUILD/wheels" --build-arg DATA="$BUILD/data" -t "robobpp:$TAG" . >/dev/null
 say "robobpp-postgres:$TAG, robobpp-redis:$TAG"
 docker build -q --network none -f deploy/postgres/Dockerfile --build-arg BASE="$BASE" -t "robobpp-postgres:$TAG" deploy/postgres >/dev/null

@@ -18,7 +18,7 @@ from packaging.utils import canonicalize_name
 
 ROOT = Path(__file__).resolve().parents[2]
 SCANNED = ("tests", "bench", "examples")
-OWN = {"robobpp", "tests", "bench", "_common", "conftest"}
+OWN = {"robobpp", "tests", "bench", "deploy", "_common", "conftest"}
 
 
 def declared_distributions() -> set[str]:

@@ -212,8 +212,11 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str,
 
 
 def _verdict(verification: dict[str, Any] | None) -> str | None:
-    """What a board shows of a verification: only a finished verdict."""
+    """What a board shows of a verification: its verdict, or ``pending`` while the hold-out re-run runs
+    (nothing when the operator cancelled it)."""
     status = (verification or {}).get("status")
+    if status == "running":
+        return "pending"
     return status if status in ("verified", "disagrees", "failed") else None
 
 

@@ -197,7 +197,8 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
     columns = [m for m in METRICS if ran & set(m.settings)]
     return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
                   has_pph="execution" in ran, owner=owner, site=str(request.base_url).rstrip("/"),
-                  can_cancel=owner and view["status"] in ("queued", "running"), episodes_table=table,
+                  can_cancel=owner and view["status"] in ("queued", "running")
+                  and (sub.track != "verify" or viewer(request).admin), episodes_table=table,
                   ranks=ranks, charts=charts, metrics=columns, public=public, reasons=reasons,
                   neutral=NEUTRAL_ENDINGS)  # fmt: skip
 

@@ -107,6 +107,7 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
             "name": e.get("name", ""),
             "participant": e.get("participant", ""),
             "baseline": bool(e.get("baseline")),
+            "verification": e.get("verification"),
             "cells": [{"key": c.key, "value": metrics.get(c.key), "place": places[c.key][i],
                        "ci": span(*(intervals.get(c.key) or (None, None)), digits=4),
                        "normalized": (e.get("normalized") or {}).get(c.key)} for c in columns],

@@ -123,3 +123,64 @@ def test_verifying_a_pull_submission_is_a_pull_submission_its_client_serves(make
         episodes = admin.get(f"/submissions/{check['id']}/episodes").json()
     assert verdict["status"] == "verified", verdict
     assert all(e["status"] == "done" and e["termination"] != "policy_error" for e in episodes), episodes
+
+
+def test_only_the_operator_controls_a_verification(make_server, policy_server, tmp_path) -> None:
+    """The re-run is the operator's: its participant cannot cancel it (before: 200, and the original's verdict
+    became ``cancelled`` and vanished from the board), the board shows ``pending`` while it runs, and the
+    operator can still cancel it."""
+    url = f"sqlite:///{tmp_path / 'own.sqlite3'}"
+    server = make_server(url, ROBOBPP_GROUPS="2", ROBOBPP_DATASETS=f'["{DATASET}"]', ROBOBPP_EVALUATE_BASELINES="0",
+                         ROBOBPP_WORKERS="1")  # fmt: skip
+    policy = policy_server(SlowDBLVerify)
+    with server.client(ADMIN_TOKEN) as admin, server.client(new_participant(admin, "owner")) as owner:
+        r = owner.post(
+            "/submissions", json={"name": "mine", "policy_url": policy.url, "secret": "policy-secret-123"}
+        )
+        assert r.status_code == 201, r.text
+        original = r.json()["id"]
+        wait_for(lambda: owner.get(f"/submissions/{original}").json()["status"] == "completed", 180)
+        r = admin.post(f"/submissions/{original}/verify")
+        assert r.status_code == 201, r.text
+        check = r.json()["id"]
+        listed = {s["id"]: s for s in owner.get("/submissions").json()}
+        r = owner.post(f"/submissions/{check}/cancel")
+        assert r.status_code == 403 and "operator" in r.json()["detail"], r.text
+        assert owner.get(f"/submissions/{original}").json()["verification"]["status"] == "running"
+        (entry,) = admin.get(f"/leaderboards/{DATASET}/math").json()["entries"]
+        assert entry["submission_id"] == original and entry["verification"] == "pending"
+        import httpx
+
+        page = httpx.get(f"{server.url}/boards/{DATASET}/math", timeout=30).text
+        assert "hold-out: pending" in page
+        if check in listed:  # the owner sees the re-run, but its page offers no cancel button
+            html = _signed_in_page(
+                server.url, owner.headers["Authorization"].split()[1], f"/submissions/{check}"
+            )
+            assert f"/submissions/{check}/cancel" not in html
+        r = admin.post(f"/submissions/{check}/cancel")
+        assert r.status_code == 200 and r.json()["status"] == "cancelled"
+        (entry,) = admin.get(f"/leaderboards/{DATASET}/math").json()["entries"]
+        assert entry["verification"] is None
+
+
+class SlowDBLVerify(DBL):
+    """Slow enough that the verification is still running while the test acts."""
+
+    def act(self, obs: Observation) -> Action | None:
+        import time
+
+        time.sleep(0.3)
+        return super().act(obs)
+
+
+def _signed_in_page(base: str, token: str, path: str) -> str:
+    import re
+
+    import httpx
+
+    with httpx.Client(base_url=base, timeout=30) as browser:
+        csrf = re.search(r'name="csrf" value="([^"]+)"', browser.get("/sign-in").text)
+        assert csrf is not None
+        browser.post("/sign-in", data={"token": token, "csrf": csrf.group(1)})
+        return browser.get(path).text

@@ -234,6 +234,10 @@ def cancel(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> S
         raise ProblemError(
             404, "not-found", "Not found", f"no submission {submission_id} visible to this token"
         )
+    if sub.track == "verify" and not principal.admin:  # its participant must not erase its own verdict
+        raise ProblemError(403, "forbidden", "The operator's verification",
+                           f"submission {submission_id} re-evaluates your entry on the hold-out draw; only the "
+                           "operator can cancel it")  # fmt: skip
     if not work.cancel_submission(session, sub):
         raise ProblemError(409, "conflict", "Already finished", f"submission {submission_id} is {sub.status}")
     session.flush()

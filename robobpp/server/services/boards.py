@@ -63,7 +63,7 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 
 def board_version(session: Session, track: str) -> tuple[Any, ...]:
     """Changes whenever a submission of ``track`` (or, for ``private``, a verification) finishes or is
-    removed (ix_submissions_track_finished).
+    removed (ix_submissions_track_finished), and for ``private`` when a verification starts.
 
     Read once per session (one request): a page showing several boards checks the version once.
     """
@@ -78,6 +78,10 @@ def board_version(session: Session, track: str) -> tuple[Any, ...]:
                 )
             ).one()
         )
+        if track == "private":  # a verification starting shows "pending" on its entry at once
+            known[track] += (
+                session.execute(select(func.count()).where(Submission.track == "verify")).scalar_one(),
+            )
     return known[track]
 
 

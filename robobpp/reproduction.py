@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -127,10 +127,18 @@ class Agreement:
     mean_abs_diff: float | None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Comparison:
     cells: tuple[Cell, ...]
     agreement: tuple[Agreement, ...]
+    _cells: dict[Key, Cell] = field(init=False, repr=False, compare=False)
+    _agreement: dict[tuple[str, str, str], Agreement] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:  # lookups by key: a renderer asks for every cell of a table
+        object.__setattr__(
+            self, "_cells", {(c.setting, c.dataset, c.policy, c.metric): c for c in self.cells}
+        )
+        object.__setattr__(self, "_agreement", {(a.setting, a.dataset, a.metric): a for a in self.agreement})
 
     @property
     def settings(self) -> tuple[str, ...]:
@@ -146,16 +154,10 @@ class Comparison:
         return _ordered({c.metric for c in self.cells if c.setting == setting}, compared_metrics(setting))
 
     def cell(self, setting: str, dataset: str, policy: str, metric: str) -> Cell | None:
-        for c in self.cells:
-            if (c.setting, c.dataset, c.policy, c.metric) == (setting, dataset, policy, metric):
-                return c
-        return None
+        return self._cells.get((setting, dataset, policy, metric))
 
     def agreement_of(self, setting: str, dataset: str, metric: str) -> Agreement | None:
-        for a in self.agreement:
-            if (a.setting, a.dataset, a.metric) == (setting, dataset, metric):
-                return a
-        return None
+        return self._agreement.get((setting, dataset, metric))
 
     def to_dict(self) -> dict[str, Any]:
         tables = paper_tables()
@@ -167,8 +169,13 @@ class Comparison:
         }
 
 
+def _place(item: str, order: Sequence[str]) -> tuple[int, str]:
+    """Sort key: ``order``'s items first, in its order, then the rest by name."""
+    return (order.index(item) if item in order else len(order), item)
+
+
 def _ordered(items: Iterable[str], order: Sequence[str]) -> tuple[str, ...]:
-    return tuple(sorted(items, key=lambda x: (order.index(x) if x in order else len(order), x)))
+    return tuple(sorted(items, key=lambda x: _place(x, order)))
 
 
 def ranks(values: Sequence[float]) -> np.ndarray:
@@ -211,29 +218,19 @@ def compare(ours: Mapping[Key, float | None], metrics: Sequence[str] | None = No
             ours_value = None if value is None or not math.isfinite(value) else float(value)
             cells.append(Cell(setting, dataset, policy, metric, ours_value,
                               theirs.value if theirs else None, theirs.table if theirs else None))  # fmt: skip
-    comparison = Comparison(tuple(cells), ())
-    position = {
-        (s, d, p, m): i
-        for i, (s, d, p, m) in enumerate(
-            (s, d, p, m)
-            for s in comparison.settings
-            for d in comparison.datasets(s)
-            for p in comparison.policies(s)
-            for m in comparison.metrics(s)
-        )
-    }
-    cells.sort(key=lambda c: position[(c.setting, c.dataset, c.policy, c.metric)])
-    agreement: list[Agreement] = []
-    for s in comparison.settings:
-        for d in comparison.datasets(s):
-            for m in comparison.metrics(s):
-                both = [
-                    c for c in cells if (c.setting, c.dataset, c.metric) == (s, d, m) and c.diff is not None
-                ]
-                o = [c.ours for c in both]
-                p = [c.paper for c in both]
-                mad = float(np.mean([abs(c.diff) for c in both])) if both else None  # type: ignore[arg-type]
-                agreement.append(Agreement(s, d, m, tuple(c.policy for c in both), spearman(o, p), mad))  # type: ignore[arg-type]
+    cells.sort(key=lambda c: (_place(c.setting, SETTING_ORDER), _place(c.dataset, DATASET_ORDER),
+                              _place(c.policy, PAPER_BASELINES), _place(c.metric, compared_metrics(c.setting))))  # fmt: skip
+    columns: dict[tuple[str, str, str], list[Cell]] = {}
+    for c in cells:
+        columns.setdefault((c.setting, c.dataset, c.metric), [])
+        if c.ours is not None and c.paper is not None:
+            columns[(c.setting, c.dataset, c.metric)].append(c)
+    agreement = [
+        Agreement(s, d, m, tuple(c.policy for c in both),
+                  spearman([c.ours for c in both], [c.paper for c in both]),  # type: ignore[misc]
+                  float(np.mean([abs(c.ours - c.paper) for c in both])) if both else None)  # type: ignore[operator]
+        for (s, d, m), both in columns.items()
+    ]  # fmt: skip
     return Comparison(tuple(cells), tuple(agreement))
 
 

@@ -83,7 +83,9 @@ def serve(
     def ready(url: str) -> None:  # after migrations, baselines and workers: a reader may connect at once
         typer.echo(f"robobpp: serving on {url} (API docs {url}/docs); admin token: {where}")
 
-    run_server(app, host, port, ready, log_level="info", access_log=False)
+    from robobpp.server.connections import server_config
+
+    run_server(app, host, port, ready, log_level="info", access_log=False, **server_config(settings))
 
 
 @db_app.command("upgrade")

@@ -242,7 +242,7 @@ class BackgroundServer:
     closes its connections.
     """
 
-    def __init__(self, app: Any, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(self, app: Any, host: str = "127.0.0.1", port: int = 0, **config: Any) -> None:
         import uvicorn
 
         self._sock = socket.socket(
@@ -252,9 +252,8 @@ class BackgroundServer:
         self._sock.bind((host, port))
         self.host, self.port = self._sock.getsockname()[:2]
         self.url = f"http://{self.host}:{self.port}"
-        config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off",
-                                timeout_graceful_shutdown=2)  # fmt: skip
-        self.server = uvicorn.Server(config)
+        self.server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off",
+                                                    timeout_graceful_shutdown=2, **config))  # fmt: skip
         self._thread = threading.Thread(target=self._run, name="robobpp-policy-server", daemon=True)
 
     def _run(self) -> None:

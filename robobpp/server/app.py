@@ -108,7 +108,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
 
     app.state.probe_gate = ProbeGate(settings.probe_concurrency, settings.probe_per_participant,
                                      min(settings.probe_timeout_s, settings.step_timeout_s))  # fmt: skip
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
     problems.install(app)
     install_metrics(app)
 

@@ -99,6 +99,18 @@ class Settings(BaseSettings):
     probe_per_participant: int = Field(default=1, ge=1, le=64)
     quota_submissions_per_day: int = Field(default=10, ge=0)
     quota_concurrent: int = Field(default=2, ge=0)
+    # connection limits (server/connections.py; docs/deploy.md, "Reverse proxy and limits")
+    #: Open connections of the API process (HTTP and WebSocket); over it a new one is answered 503 and closed.
+    max_connections: int = Field(default=1000, ge=1)
+    #: Open connections from one client address (0: none; behind a reverse proxy, let the proxy limit them).
+    max_connections_per_client: int = Field(default=64, ge=0)
+    #: A request's headers must be complete this long after its connection opened or its previous response.
+    header_timeout_s: float = Field(default=10.0, gt=0, le=600)
+    #: A request's body must be complete this long after its headers (else 408).
+    body_timeout_s: float = Field(default=30.0, gt=0, le=3600)
+    #: Pull-mode client connections (robobpp connect) open at once per submission and per participant.
+    pull_max_per_submission: int = Field(default=64, ge=1, le=10_000)
+    pull_max_per_participant: int = Field(default=128, ge=1, le=10_000)
 
     @model_validator(mode="after")
     def _refuse_weak_secrets(self) -> Settings:

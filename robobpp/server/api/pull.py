@@ -45,6 +45,7 @@ REFUSED = 4003  # bad token, not a pull submission, or not a running episode und
 NO_CLIENT = 4004  # no client of the submission connected within the worker's wait
 FINISHED = 4010  # the submission is over: the client may stop
 TOO_LARGE = 4009  # the client's answer passed the size cap
+TOO_MANY = 4029  # the submission or the participant has as many client connections open as allowed
 #: Slack over the answer cap for the frame's envelope line.
 ENVELOPE_BYTES = 4096
 MAX_WAIT_S = 300.0
@@ -67,6 +68,30 @@ class PullHub:
     def __init__(self) -> None:
         self._idle: defaultdict[int, deque[ClientConnection]] = defaultdict(deque)
         self._waiting: defaultdict[int, deque[asyncio.Future[ClientConnection]]] = defaultdict(deque)
+        #: Open client connections (idle or busy) per submission and per participant: the caps' counts.
+        self.open_per_submission: defaultdict[int, int] = defaultdict(int)
+        self.open_per_participant: defaultdict[int, int] = defaultdict(int)
+
+    def admit(
+        self, submission_id: int, participant_id: int, per_submission: int, per_participant: int
+    ) -> bool:
+        """Count a new client connection in, unless its submission or participant is at its cap (a flood of
+        idle sockets costs file handles and memory, and serves nothing: one per episode served at once)."""
+        if (self.open_per_submission[submission_id] >= per_submission
+                or self.open_per_participant[participant_id] >= per_participant):  # fmt: skip
+            return False
+        self.open_per_submission[submission_id] += 1
+        self.open_per_participant[participant_id] += 1
+        return True
+
+    def leave(self, submission_id: int, participant_id: int) -> None:
+        for table, key in (
+            (self.open_per_submission, submission_id),
+            (self.open_per_participant, participant_id),
+        ):
+            table[key] -= 1
+            if table[key] <= 0:
+                del table[key]
 
     def connected(self, submission_id: int) -> int:
         """Idle connections of a submission (busy ones serve an episode)."""
@@ -116,7 +141,7 @@ def hub_of(ws: WebSocket) -> PullHub:
     return hub
 
 
-def _client_submission(ws: WebSocket, token: str, submission_id: int) -> int:
+def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[int, int]:
     principal = principal_for_token(ws, token)  # type: ignore[arg-type]  # a WebSocket has .app like a Request
     if principal is None:
         raise ProblemError(
@@ -131,7 +156,7 @@ def _client_submission(ws: WebSocket, token: str, submission_id: int) -> int:
                                f"submission {submission_id} is in {sub.mode} mode")  # fmt: skip
         if sub.status not in ACTIVE_SUBMISSION:
             raise ProblemError(410, "finished", "Finished", f"submission {submission_id} is {sub.status}")
-        return sub.id
+        return sub.id, sub.participant_id
 
 
 def _worker_submission(runtime: Any, episode_id: int, lease: str) -> int | None:
@@ -158,27 +183,37 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
     try:
         if not token:
             raise ProblemError(401, "unauthorized", "Unauthorized", "send 'Authorization: Bearer <token>'")
-        submission_id = await run_in_threadpool(_client_submission, ws, token, submission)
+        submission_id, participant_id = await run_in_threadpool(_client_submission, ws, token, submission)
     except ProblemError as exc:
         await ws.close(FINISHED if exc.status == 410 else REFUSED, f"{exc.title}: {exc.detail}"[:120])
         return
     settings = ws.app.state.settings
-    cap = settings.response_cap_bytes + ENVELOPE_BYTES
-    await ws.send_text(json.dumps({"type": "welcome", "submission": submission_id, "protocol": P.PROTOCOL}))
     hub = hub_of(ws)
-    conn = ClientConnection(ws, submission_id)
-    hub.release(conn)
+    if not hub.admit(submission_id, participant_id, settings.pull_max_per_submission,
+                     settings.pull_max_per_participant):  # fmt: skip
+        await ws.close(TOO_MANY, f"too many connections: at most {settings.pull_max_per_submission} per submission "
+                                 f"and {settings.pull_max_per_participant} per participant")  # fmt: skip
+        return
     try:
-        while True:
-            message = await ws.receive()
-            if message["type"] == "websocket.disconnect":
-                break
-            frame = message.get("bytes")
-            if frame is None or not conn.busy:
-                continue  # text frames carry nothing for a worker; an idle connection has no one to answer
-            conn.inbox.put_nowait(TOO_LARGE if len(frame) > cap else frame)
+        cap = settings.response_cap_bytes + ENVELOPE_BYTES
+        await ws.send_text(
+            json.dumps({"type": "welcome", "submission": submission_id, "protocol": P.PROTOCOL})
+        )
+        conn = ClientConnection(ws, submission_id)
+        hub.release(conn)
+        try:
+            while True:
+                message = await ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                frame = message.get("bytes")
+                if frame is None or not conn.busy:
+                    continue  # text frames carry nothing for a worker; an idle connection has no one to answer
+                conn.inbox.put_nowait(TOO_LARGE if len(frame) > cap else frame)
+        finally:
+            hub.drop(conn)
     finally:
-        hub.drop(conn)
+        hub.leave(submission_id, participant_id)
 
 
 async def _to_client(ws: WebSocket, conn: ClientConnection) -> int | None:

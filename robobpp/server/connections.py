@@ -1,0 +1,120 @@
+"""Limits on connections, below the ASGI app: how many are open (overall and per client address) and how
+long a client may take to send a request's headers.
+
+Uvicorn has neither. Without them 4,000 connections that each sent half a header all stayed open (the
+process's file handles went from 37 to 5,064): every one costs a file handle and memory until the client
+leaves, and the application never sees them (it only sees complete headers). The guard is a subclass of
+uvicorn's HTTP protocol, the one place that sees a connection from its first byte:
+
+- a connection over ``max_connections`` open, or over ``max_per_client`` from one address, is answered
+  ``503`` (``Retry-After``) and closed at once, before anything is parsed;
+- the request's headers must be complete ``header_timeout_s`` after the connection opened or after the
+  previous response on it; otherwise the connection is closed. The body's deadline is the ASGI
+  middleware's (:class:`robobpp.server.limits.BodySizeLimit`), since only the application knows when a
+  body is complete.
+
+WebSocket connections (pull mode) are counted too: the transport stays in the table until it closes, even
+after uvicorn hands it to its WebSocket protocol.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+from typing import Any
+
+REFUSAL = (
+    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: text/plain; charset=utf-8\r\nretry-after: 5\r\n"
+    b"connection: close\r\ncontent-length: 33\r\n\r\ntoo many connections; retry later\n"
+)
+
+
+@dataclass(frozen=True, slots=True)
+class ConnectionLimits:
+    max_connections: int = 1000
+    #: 0: no per-address limit (behind a reverse proxy every connection comes from the proxy's address).
+    max_per_client: int = 64
+    header_timeout_s: float = 10.0
+
+
+class _Table:
+    """Open transports of one server and their client addresses."""
+
+    def __init__(self) -> None:
+        self.open: dict[asyncio.BaseTransport, str] = {}
+
+    def prune(self) -> None:
+        for transport in [t for t in self.open if t.is_closing()]:
+            del self.open[transport]
+
+    def count(self, address: str) -> tuple[int, int]:
+        return len(self.open), sum(1 for a in self.open.values() if a == address)
+
+
+def guarded_protocol(limits: ConnectionLimits) -> type[asyncio.Protocol]:
+    """Uvicorn's HTTP protocol class with ``limits`` applied (pass as ``uvicorn.Config(http=...)``)."""
+    from uvicorn.protocols.http.auto import AutoHTTPProtocol
+
+    table = _Table()
+    base: Any = AutoHTTPProtocol
+
+    class Guarded(base):  # type: ignore[misc, valid-type]
+        _refused = False
+        _header_timer: asyncio.TimerHandle | None = None
+
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            peer = transport.get_extra_info("peername")
+            address = str(peer[0]) if isinstance(peer, tuple) and peer else ""
+            table.prune()
+            total, mine = table.count(address)
+            if total >= limits.max_connections or (limits.max_per_client and mine >= limits.max_per_client):
+                self._refused = True
+                transport.write(REFUSAL)
+                transport.close()
+                return
+            table.open[transport] = address
+            super().connection_made(transport)
+            self._arm()
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._disarm()
+            table.open.pop(getattr(self, "transport", None), None)  # type: ignore[arg-type]
+            if not self._refused:
+                super().connection_lost(exc)
+
+        def data_received(self, data: bytes) -> None:
+            if not self._refused:
+                super().data_received(data)
+
+        def on_response_complete(self) -> None:
+            super().on_response_complete()
+            self._arm()  # the next request on this connection has its own header deadline
+
+        def _arm(self) -> None:
+            self._disarm()
+            self._header_timer = self.loop.call_later(limits.header_timeout_s, self._headers_overdue)
+
+        def _disarm(self) -> None:
+            if self._header_timer is not None:
+                self._header_timer.cancel()
+                self._header_timer = None
+
+        def _headers_overdue(self) -> None:
+            self._header_timer = None
+            transport = self.transport
+            if transport.is_closing() or transport.get_protocol() is not self:  # closed, or now a WebSocket
+                return
+            cycle = self.cycle
+            if cycle is not None and not cycle.response_complete:  # headers came: the request is the app's
+                return
+            transport.close()
+
+    return Guarded
+
+
+def server_config(settings: Any) -> dict[str, Any]:
+    """The uvicorn options ``robobpp serve`` runs with (``settings``: :class:`robobpp.server.config.Settings`)."""
+    limits = ConnectionLimits(max_connections=settings.max_connections,
+                              max_per_client=settings.max_connections_per_client,
+                              header_timeout_s=settings.header_timeout_s)  # fmt: skip
+    return {"http": guarded_protocol(limits), "timeout_keep_alive": 5, "backlog": 2048}

@@ -17,9 +17,10 @@ packsim), with the Leaf Node Expansion Scheme "EMS" the weights were trained wit
   ``[x0, y0, z_space, x1, y1, H, 0, 0]`` (the space's floor, not the resting height, and the container
   height H, as the reference writes them); next item ``[density = 1, 0, 0, its three sides ascending]``.
 
-Support: the reference's rule as every policy applies it (:func:`robobpp.policies.candidates.support_model`):
-in the physical settings a leaf must pass the recursive centre-of-mass test; in Math Pack, as in the
-reference's Math Pack, there is no such check.
+Support: the reference's rule as the reference's PCT environment applies it to its leaves
+(:func:`robobpp.policies.candidates.support_model`): in the physical settings a leaf must pass the recursive
+centre-of-mass test; in Math Pack, as in the reference's Math Pack, there is no such check. (The paper's heuristics
+never apply it, and no setting enforces it.)
 """
 
 from __future__ import annotations
@@ -153,7 +154,7 @@ def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) 
         pick = (orient == o) & (xs >= 0) & (ys >= 0) & (xs < z_map.shape[0]) & (ys < z_map.shape[1])
         z[pick] = z_map[xs[pick], ys[pick]]
     fits = z + size[:, 2] <= container.height + TOLERANCE_CM
-    # The support rule as every policy applies it (none in Math Pack), tested in the shuffled order in batches
+    # The support rule as the reference's PCT applies it (none in Math Pack), tested in the shuffled order in batches
     # (the model tests a batch of positions of one orientation together) until 50 leaves are found.
     support = support_model(obs)
     candidates, accepted = np.flatnonzero(fits), 0

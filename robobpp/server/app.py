@@ -15,7 +15,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.staticfiles import StaticFiles
 
 from robobpp.server import problems
@@ -130,14 +130,23 @@ def _include_docs(app: FastAPI) -> None:
     from fastapi.responses import HTMLResponse
 
     @app.get("/docs", include_in_schema=False)
-    async def docs() -> HTMLResponse:
-        return get_swagger_ui_html(
+    async def docs(request: Request) -> HTMLResponse:
+        page = get_swagger_ui_html(
             openapi_url="/openapi.json",
             title=f"{app.title} — API",
             swagger_js_url="/static/vendor/swagger-ui/swagger-ui-bundle.js",
             swagger_css_url="/static/vendor/swagger-ui/swagger-ui.css",
             swagger_favicon_url="/static/vendor/swagger-ui/favicon-32x32.png",
         )
+        # Swagger UI's page is not one of ours: a bar in the site's colours leads back to it.
+        base = str(request.scope.get("root_path", "")).rstrip("/")
+        bar = (
+            '<nav data-role="site-bar" aria-label="Site" style="background:#0f172a;padding:0.6rem 1.5rem;'
+            f'font:15px system-ui,sans-serif"><a href="{base}/" style="color:#fff;font-weight:700;'
+            f'text-decoration:none">← robobpp</a> <a href="{base}/" style="color:#cbd5e1;margin-left:1rem">'
+            f'Leaderboard</a> <a href="{base}/protocol" style="color:#cbd5e1;margin-left:1rem">Take part</a></nav>'
+        )
+        return HTMLResponse(bytes(page.body).decode().replace("<body>", "<body>" + bar, 1))
 
 
 async def _run_sync(fn, *args):  # type: ignore[no-untyped-def]

@@ -14,6 +14,7 @@ from typing import Any
 
 from robobpp.leaderboard import find_entry
 from robobpp.metrics import METRIC_BY_KEY, metrics_for
+from robobpp.web import fmt_metric
 
 #: How many of a column's best entries are highlighted (the paper highlights its top methods).
 TOP = 4
@@ -74,6 +75,14 @@ def span(low: Any, high: Any, digits: int = 3) -> str:
     return f"{low:.{digits}f}–{high:.{digits}f}"
 
 
+def metric_span(low: Any, high: Any, key: str) -> str:
+    """A metric's interval in the unit its value is printed in ("45.5%–55.5%" under "50.5%"); empty when
+    unknown."""
+    if not (_finite(low) and _finite(high)):
+        return ""
+    return f"{fmt_metric(low, key)}–{fmt_metric(high, key)}"
+
+
 def rank_span(rank: Any, low: Any, high: Any) -> str:
     """A rank with its interval: "3 (2–5)", or just "3" when the interval is that rank alone."""
     if rank is None:
@@ -109,7 +118,7 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
             "baseline": bool(e.get("baseline")),
             "verification": e.get("verification"),
             "cells": [{"key": c.key, "value": metrics.get(c.key), "place": places[c.key][i],
-                       "ci": span(*(intervals.get(c.key) or (None, None)), digits=4),
+                       "ci": metric_span(*(intervals.get(c.key) or (None, None)), c.key),
                        "normalized": (e.get("normalized") or {}).get(c.key)} for c in columns],
             "pph": extras.get("pph"),
             "boxes_placed": extras.get("boxes_placed_mean"),

@@ -193,6 +193,14 @@ def test_collapse_danger_and_tool_path_are_drawn(trace_file: Path, tmp_path: Pat
     assert "collapse" in probe.page.locator("[data-role=overlay]").inner_text()
     assert "Collapse" in probe.page.locator("[data-role=step-info]").inner_text()
     assert changed_fraction(probe, before, canvas_image(probe)) > 0.002
+    # An episode a collapse ended: its final state names the collapse once ("collapse — collapse!" before).
+    episode["termination"] = "collapse"
+    episode["steps"][-1]["collapsed"] = True
+    page_file.write_text(render_standalone(episodes_from(episode), source="exec.json"))
+    probe.page.goto(page_file.as_uri())
+    probe.page.locator("[data-role=slider]").fill(str(len(episode["steps"])))
+    overlay = probe.page.locator("[data-role=overlay]").inner_text()
+    assert "final state" in overlay and overlay.lower().count("collapse") == 1, overlay
     probe.assert_clean()
 
 

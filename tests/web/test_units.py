@@ -122,7 +122,8 @@ def test_dense_top_shares_places_and_skips_missing() -> None:
 def _board() -> dict:
     entries = [
         {"rank": 1, "score": 0.9, "submission_id": 1, "name": "a", "participant": "p", "baseline": True,
-         "metrics": {"space_utilization": 0.5, "occupancy": 0.8, "decision_time": 0.01},
+         "metrics": {"space_utilization": 0.505, "occupancy": 0.8, "decision_time": 0.01},
+         "intervals": {"space_utilization": [0.4553, 0.5551], "decision_time": [0.008, 0.0125]},
          "normalized": {"space_utilization": 1.0, "occupancy": 1.0, "decision_time": 0.0}, "extras": {}},
         {"rank": 2, "score": 0.2, "submission_id": 2, "name": "<b>", "participant": "q", "baseline": False,
          "metrics": {"space_utilization": 0.4, "occupancy": 0.6, "decision_time": 0.001},
@@ -137,6 +138,10 @@ def test_board_table_columns_and_places() -> None:
     assert [c.arrow for c in table["columns"]] == ["↑", "↑", "↓"]
     first, second = table["rows"]
     assert first["cells"][0]["place"] == 1 and second["cells"][0]["place"] == 2
+    # An interval is printed in its value's unit: a percentage under a percentage, seconds under seconds.
+    assert fmt_metric(first["cells"][0]["value"], "space_utilization") == "50.5%"
+    assert first["cells"][0]["ci"] == "45.5%–55.5%" and first["cells"][2]["ci"] == "0.0080–0.0125"
+    assert second["cells"][0]["ci"] == ""
     assert first["cells"][2]["place"] == 2 and second["cells"][2]["place"] == 1  # lower time is better
     assert not table["has_pph"]
 

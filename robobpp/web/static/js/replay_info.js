@@ -6,7 +6,7 @@ export const TERMINATION_TEXT = {
   no_feasible_placement: "no feasible placement",
   out_of_bounds: "footprint outside the container",
   too_high: "box top above the container",
-  collapse: "collapse",
+  collapse: "a collapse (a box moved beyond the threshold)",
   policy_error: "policy error",
   policy_timeout: "policy timeout",
   protocol_violation: "protocol violation",
@@ -69,7 +69,9 @@ export function overlayText(ep, frame, phase, ms, suction) {
   } else if (frame === frames) text += ` — final state: ${TERMINATION_TEXT[ep.termination] || ep.termination}`;
   if (s.dangerous) text += " — dangerous operation";
   const fallen = s.collapsed && (ms === null || phase === "settle" || phase === "retreat");
-  if (fallen) text += " — collapse!";
+  // Said once: the final state of an episode that a collapse ended already names it.
+  const saidEnded = frame === frames && ms === null && ep.termination === "collapse";
+  if (fallen && !saidEnded) text += " — boxes collapsed";
   const ended = s.termination && s.termination !== "completed" && ms === null;
   return { text, alarm: Boolean(fallen || s.dangerous || ended) };
 }

@@ -74,7 +74,7 @@ class ExecutionConfig:
     dangerous_limit: int = 3
     #: Experiment only: False stops the robot at the pre-place pose and lets the box go there, the
     #: Physics Pack then releasing it at its target, as the reference teleports the released box and
-    #: lowers it onto the pile. The benchmark's robot descends (BENCHMARK.md §3).
+    #: lowers it onto the pile. The benchmark's robot descends (docs/benchmark.md, "Settings").
     descend: bool = True
     #: Experiment only: the carried box is turned by this yaw (degrees) on the tool during the transfer.
     #: The reference grasps with the tool turned by its first yaw try (90°) and plans its place move with

@@ -349,3 +349,29 @@ def test_the_client_says_when_a_server_has_no_paper_protocol() -> None:
         assert client.leaderboard("diverse", "physics").protocol == "closed"
         with pytest.raises(ServerError, match="served the closed protocol, not paper"):
             client.leaderboard("diverse", "physics", protocol="paper")
+
+
+@pytest.mark.slow
+def test_a_replay_whose_worker_died_is_taken_over_and_recorded_once(factory, db_url: str) -> None:
+    import time
+
+    sid = _submit(factory, settings=("math", "physics"), groups=1)
+    options = WorkerOptions(database_url=db_url, spec_provider=OFFLINE, groups=1, lease_s=30)
+    assert claim_and_run(factory, options, "local:test:1")  # the Math episode, which releases its replay
+    claims = []
+    for _ in range(2):  # a worker takes both Physics episodes, then dies: its leases run out
+        with transaction(factory) as s:
+            claims.append(work.claim_episode(s, "local:dead:2", lease_s=0.05, max_attempts=3))
+    (dead,) = [c for c in claims if c is not None and c.protocol == "paper"]
+    time.sleep(0.2)
+    assert _drain(factory, db_url) == 2  # the closed-loop Physics episode, and the replay taken over
+    late = {"termination": "completed", "termination_detail": "", "boxes_total": 1, "boxes_placed": 1,
+            "metrics": {"space_utilization": 1.0}, "counters": {}, "steps": []}  # fmt: skip
+    with transaction(factory) as s:  # the dead worker's result arrives late: nothing is written
+        assert not work.complete_episode(s, dead.episode_id, dead.token, late, keep_trace=False)
+    replay = next(e for e in _episodes(factory, sid) if e.protocol == "paper")
+    assert (replay.status, replay.attempts, replay.worker) == ("done", 2, "local:test:1")
+    assert replay.metrics is not None and replay.metrics["space_utilization"] != 1.0
+    with factory() as s:
+        run = s.get(RunRow, replay.run_id)
+        assert run is not None and run.status == "completed" and run.extras["episodes"] == 1

@@ -78,7 +78,8 @@ def test_no_table_is_cut_on_the_served_pages(server: Server, browser: Any, width
     seen = 0
     try:
         public = ["/", "/?track=public&view=all", "/boards/repetitive/math", "/boards/diverse/physics",
-                  "/boards/longboard/physics?view=all", "/datasets", "/protocol",
+                  "/boards/longboard/physics?view=all", "/datasets", "/protocol", "/reproduction",
+                  "/?protocol=paper", "/boards/diverse/physics?protocol=paper",
                   f"/submissions/{server.ids['public']}"]  # fmt: skip
         signed = ["/account", "/operator", "/submit", f"/submissions/{server.ids['hostile']}"]
         for path in public:

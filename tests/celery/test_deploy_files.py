@@ -12,6 +12,7 @@ import shlex
 import tomllib
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import pytest
 import typer.main
@@ -130,6 +131,13 @@ def test_service_environment_validates_as_production_settings(
 def test_only_the_server_holds_the_admin_token(compose: dict[str, Any]) -> None:
     assert "ROBOBPP_ADMIN_TOKEN" in _env(compose["services"]["server"])
     assert "ROBOBPP_ADMIN_TOKEN" not in _env(compose["services"]["worker"])
+
+
+def test_workers_reach_the_servers_pull_relay(compose: dict[str, Any]) -> None:
+    relay = urlsplit(_env(compose["services"]["worker"])["ROBOBPP_PULL_RELAY_URL"])
+    assert (relay.hostname, relay.port) == ("server", 8000), "pull episodes must reach the server's relay"
+    assert "--port" in compose["services"]["server"]["command"]
+    assert compose["services"]["server"]["command"][-1] == "8000"
 
 
 def test_server_runs_no_local_workers_when_a_broker_is_set(compose: dict[str, Any]) -> None:

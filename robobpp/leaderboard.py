@@ -74,13 +74,19 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
         if not stats.run_failed((r.get("extras") or {}).get("terminations"), n)
     ]
     groups = max(valid, default=0)
+    # How many entries each participant has on this board: the best of many runs of a stochastic policy is
+    # an optimistic figure, so its count is shown beside it (docs/benchmark.md, "Who is ranked").
+    submitted: dict[str, int] = {}
+    for row in rows:
+        submitted[participant_key(row)] = submitted.get(participant_key(row), 0) + 1
     ranked_rows, unranked = [], []
     for row in rows:
         status, reason = _classify(row, groups)
         if status == "ranked":
             ranked_rows.append(row)
         else:
-            unranked.append({**_public(row), "status": status, "reason": reason})
+            unranked.append({**_public(row), "status": status, "reason": reason,
+                             "entries_submitted": submitted[participant_key(row)]})  # fmt: skip
     scores = score_board(ranked_rows, setting)
     entries = []
     for i, row in enumerate(ranked_rows):
@@ -90,7 +96,7 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
             "score": s.score, "score_low": scores.score_ci[i][0], "score_high": scores.score_ci[i][1],
             "stable": scores.stable[i], "stable_low": scores.stable_ci[i][0], "stable_high": scores.stable_ci[i][1],
             "normalized": s.normalized, "intervals": {k: list(v) if v else None for k, v in scores.metric_ci[i].items()},
-            "_column": i,
+            "entries_submitted": submitted[participant_key(row)], "_column": i,
         })  # fmt: skip
     _mark_best(entries, scores.samples)
     order = sorted(range(len(entries)), key=lambda i: (entries[i]["rank"], entries[i]["submission_id"]))

@@ -160,6 +160,10 @@ class SubmissionPublic(BaseModel):
     verification: dict[str, Any] | None = None
     #: Only while queued, and only on the one-submission answers (``GET /submissions/{id}``, its page).
     queue: QueuePlace | None = None
+    #: What produced its results and what it ran (docs/benchmark.md, "Provenance"): robobpp version and
+    #: commit, datasets manifest sha256, physics, Math rules, sampler and anchors versions, protocol, split,
+    #: seed (null: the secret test draw), groups. A version that differs between episodes is a list.
+    provenance: dict[str, Any] | None = None
 
 
 class EpisodePublic(BaseModel):
@@ -205,6 +209,10 @@ class LeaderboardEntry(BaseModel):
     participant: str
     baseline: bool
     best: bool = Field(description="Whether this is its participant's best entry on the board")
+    entries_submitted: int = Field(
+        1, description="How many entries its participant has on this board (ranked or not): a best of many "
+        "runs of a stochastic policy is optimistic"
+    )  # fmt: skip
     metrics: dict[str, float | None]
     intervals: dict[str, list[float] | None] = Field(description="Each metric's 95 % interval [low, high]")
     normalized: dict[str, float]
@@ -223,6 +231,7 @@ class UnrankedEntry(BaseModel):
     name: str
     participant: str
     baseline: bool
+    entries_submitted: int = 1
     metrics: dict[str, float | None]
     extras: dict[str, Any]
     completed_at: datetime | None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Annotated, Any
@@ -85,6 +86,7 @@ def evaluate(
         agent = load_policy(policy, **kwargs)
     except PolicyLoadError as exc:
         fail(str(exc))
+    _name_served(agent)
     try:
         specs = {name: episode_specs(name, split=split, groups=groups, seed=seed) for name in datasets}
     except DatasetError as exc:
@@ -151,6 +153,17 @@ def evaluate(
 #: Exit code when every episode ended in a policy failure (unreachable policy, errors, garbage answers,
 #: timeouts, protocol violations): scripts and CI must not mistake such a run for a result. 2 is a usage error.
 EXIT_POLICY_FAILED = 3
+
+
+def _name_served(agent: Any) -> None:
+    """A served policy is labelled by its ``/info`` name and version, not its URL; a server that does not
+    answer keeps its URL, and its episodes say what went wrong."""
+    from robobpp.client.remote import RemotePolicy
+    from robobpp.policies.base import PolicyError
+
+    if isinstance(agent, RemotePolicy):
+        with contextlib.suppress(PolicyError):
+            agent.fetch_info()
 
 
 def failure_notes(runs: dict[tuple[str, str], list]) -> list[str]:

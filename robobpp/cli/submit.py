@@ -402,7 +402,12 @@ def _board_table(board: Leaderboard) -> Table:
         cells = [_fmt(e.metrics.get(k)) for k in board.metrics]
         if pph:
             cells.append(_fmt(e.extras.get("pph"), 1))
-        table.add_row(_rank(e.rank, e.rank_low, e.rank_high), f"#{e.submission_id} " + _who(e.name, e.participant, e.baseline),
+        of = (
+            f" [dim]({'best' if e.best else 'one'} of {e.entries_submitted})[/]"
+            if e.entries_submitted > 1
+            else ""
+        )
+        table.add_row(_rank(e.rank, e.rank_low, e.rank_high), f"#{e.submission_id} " + _who(e.name, e.participant, e.baseline) + of,
                       *cells, _fmt(e.score, 3) + _ci(e.score_low, e.score_high), _fmt(e.stable, 3),
                       style="bold green" if e.rank == 1 else None)  # fmt: skip
     for u in board.unranked:

@@ -42,6 +42,11 @@ PROBE_TIMEOUT_S = 2.0
 M = TypeVar("M", bound=BaseModel)
 
 
+def label(info: P.InfoResponse) -> str:
+    """A served policy's label in results: ``/info``'s name and version ("lowest-first 1.2")."""
+    return f"{info.name} {info.version}" if info.version else info.name
+
+
 class SignatureMismatch(PolicyError):
     """The evaluator and the policy server disagree on the shared secret: the server refused the request's
     signature (HTTP 401/403), or the answer is unsigned or signed with another key. ``refused`` tells which
@@ -156,7 +161,9 @@ class RemotePolicy:
         if resolved_ip is not None:
             resolved_ip = str(ipaddress.ip_address(resolved_ip))  # ValueError on anything but an address
         self.url = url.rstrip("/")
+        #: The URL until ``/info`` names the policy (:meth:`fetch_info`), unless ``name`` is given.
         self.name = name or self.url
+        self._named = name is not None
         self.secret = secret
         self.step_timeout_s = float(step_timeout_s)
         self.reset_timeout_s = float(reset_timeout_s if reset_timeout_s is not None else step_timeout_s)
@@ -255,6 +262,8 @@ class RemotePolicy:
     def fetch_info(self) -> P.InfoResponse:
         """``GET /info``; checks the server speaks ``robobpp/1``."""
         self.info = self._call("GET", "/info", None, P.InfoResponse, self.reset_timeout_s, use_episode=False)
+        if not self._named:  # results are labelled by what the policy says it is, not where it runs
+            self.name = label(self.info)
         return self.info
 
     @property

@@ -64,16 +64,21 @@ def create_policy_app(
     secret: str | None = None,
     *,
     name: str | None = None,
-    version: str = "0",
+    version: str | None = None,
     replay_window_s: float = P.DEFAULT_REPLAY_WINDOW_S,
 ) -> FastAPI:
-    """A FastAPI app serving ``policy`` over ``robobpp/1`` (a class is instantiated without arguments)."""
+    """A FastAPI app serving ``policy`` over ``robobpp/1`` (a class is instantiated without arguments).
+
+    ``/info`` names it ``name`` (default: the policy's ``name`` attribute, else its class) at ``version``
+    (default: the policy's ``version`` attribute, else "0"): what ``robobpp evaluate`` and ``compare`` label
+    its results with."""
     if isinstance(policy, type):
         policy = policy()
     if not callable(getattr(policy, "act", None)):
         raise TypeError(f"{type(policy).__name__} has no act(observation) method")
-    shown_name = (name or getattr(policy, "name", None) or type(policy).__name__)[: P.MAX_TEXT]
-    info = {"protocol": P.PROTOCOL, "name": shown_name, "version": version[: P.MAX_TEXT]}
+    shown_name = str(name or getattr(policy, "name", None) or type(policy).__name__)[: P.MAX_TEXT]
+    version = str(version or getattr(policy, "version", None) or "0")[: P.MAX_TEXT]
+    info = {"protocol": P.PROTOCOL, "name": shown_name, "version": version}
     # Per episode: its container (from /reset) and its last observation (for the incremental heightmap).
     episodes: OrderedDict[str, tuple[ContainerSpec, Observation | None]] = OrderedDict()
 
@@ -218,14 +223,16 @@ def serve(
     secret: str | None = None,
     *,
     name: str | None = None,
+    version: str | None = None,
     log_level: str = "warning",
 ) -> None:
     """Serve ``policy`` until interrupted (Ctrl-C). Bind ``host="0.0.0.0"`` to accept other machines.
 
     Prints one line on stdout once it accepts connections: the policy's name and the URL to give
-    ``robobpp evaluate --policy``, ``robobpp protocol check`` or ``robobpp submit``.
+    ``robobpp evaluate --policy``, ``robobpp protocol check`` or ``robobpp submit``. ``/info`` carries the
+    policy's ``name`` and ``version`` attributes unless ``name``/``version`` are given.
     """
-    app = create_policy_app(policy, secret, name=name)
+    app = create_policy_app(policy, secret, name=name, version=version)
     label = name or getattr(policy, "name", None) or getattr(policy, "__name__", "policy")
     signed = "signed requests only" if secret else "no secret: anyone who can reach it may call it"
 

@@ -185,6 +185,10 @@ class EpisodeRow(Base):
     boxes_placed: Mapped[int | None] = mapped_column(default=None)
     #: ``EpisodeResult.physics_version`` (None: Math Pack); a board shows only the current version's runs.
     physics_version: Mapped[str | None] = mapped_column(String(32), default=None)
+    #: What produced the result (``robobpp.provenance``): robobpp version and commit, datasets manifest sha256,
+    #: Math rules and sampler versions (None: recorded before 0008, version 1 of both). Merged per run into
+    #: ``RunRow.extras["provenance"]``; a board shows only the current Math rules and sampler versions.
+    provenance: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     counters: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     #: Per-step trace; kept for the public track only (private episodes have no replay).

@@ -25,9 +25,13 @@ from typing import Any, NamedTuple
 from sqlalchemy import Select, and_, exists, func, or_, select, true
 from sqlalchemy.orm import Session, joinedload
 
+from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.leaderboard import build_board, build_grid
 from robobpp.metrics import PHYSICAL
+from robobpp.provenance import merge, merged
+from robobpp.scoring import ANCHORS_VERSION
+from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
 SETTINGS_ORDER = ("math", "physics", "execution")
@@ -208,7 +212,15 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str,
     keys = ("submission_id", "metrics", "extras", "figures", "episodes_total", "completed_at", "name",
             "submission_status", "participant", "baseline", "verification")  # fmt: skip
     return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": _verdict(r[10])}
-            for r in rows]  # fmt: skip
+            for r in rows if current_rules(r[2])]  # fmt: skip
+
+
+def current_rules(extras: Mapping[str, Any] | None) -> bool:
+    """Whether a run ran the current Math rules and sampler (a board never mixes versions). A run recorded
+    before they were versioned has none: it ran version 1 of both."""
+    recorded = (extras or {}).get("provenance") or {}
+    return all(recorded.get(key) in (None, version) for key, version in
+               (("math_rules", MATH_RULES_VERSION), ("sampler", SAMPLER_VERSION)))  # fmt: skip
 
 
 def _verdict(verification: dict[str, Any] | None) -> str | None:
@@ -327,6 +339,7 @@ def submission_view(session: Session, sub: Submission, progress: dict[str, Any] 
                     runs: Sequence[RunRow] | None = None) -> dict[str, Any]:  # fmt: skip
     """``progress`` (its entry of :func:`submissions_progress`) and ``runs`` (of :func:`runs_of`) when
     already looked up for several submissions."""
+    runs = sub.runs if runs is None else runs
     return {
         "id": sub.id, "name": sub.name, "participant": sub.participant.name,
         "baseline": sub.participant.is_builtin, "policy_url": sub.policy_url, "track": sub.track,
@@ -336,8 +349,24 @@ def submission_view(session: Session, sub: Submission, progress: dict[str, Any] 
         "progress": progress if progress is not None else submission_progress(session, sub.id),
         "runs": [{"dataset": r.dataset, "setting": r.setting, "protocol": r.protocol, "status": r.status,
                   "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
-                  "completed_at": r.completed_at} for r in (sub.runs if runs is None else runs)],
+                  "completed_at": r.completed_at} for r in runs],
         "verification": sub.verification,
+        "provenance": submission_provenance(sub, runs),
+    }  # fmt: skip
+
+
+def submission_provenance(sub: Submission, runs: Sequence[RunRow]) -> dict[str, Any]:
+    """What produced a submission's results (its completed runs' provenance, merged; docs/benchmark.md,
+    "Provenance") and what it ran: protocol, split, seed (the public groups' 0; the test draw's is secret),
+    groups."""
+    from robobpp.db.work import SPLIT_OF_TRACK
+
+    produced = merge((r.extras or {}).get("provenance") or {} for r in runs if r.status == "completed")
+    return {
+        **{k: v for k, v in produced.items() if k not in ("protocol", "split", "seed", "groups")},
+        "anchors": ANCHORS_VERSION, "protocol": merged(r.protocol for r in runs) or "closed",
+        "split": SPLIT_OF_TRACK.get(sub.track, sub.track), "seed": 0 if sub.track == "public" else None,
+        "groups": max((r.episodes_total for r in runs), default=0),
     }  # fmt: skip
 
 

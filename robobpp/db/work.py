@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.metrics import PHYSICAL, aggregate
+from robobpp.provenance import environment, merge, merged
 from robobpp.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
 
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
@@ -413,6 +414,12 @@ def complete_episode(
         "boxes_total": result["boxes_total"],
         "boxes_placed": result["boxes_placed"],
         "physics_version": result.get("physics_version"),
+        # the recording process is the worker that ran it: its installation and data produced the result
+        "provenance": {
+            **environment(),
+            "math_rules": result.get("rules_version"),
+            "sampler": result.get("sampler_version"),
+        },  # fmt: skip
         "step": len(result.get("steps", ())) or result["boxes_placed"],
         "metrics": result["metrics"],
         "counters": result["counters"],
@@ -506,12 +513,16 @@ def finalize_run(session: Session, run_id: int) -> None:
     else:
         rows = session.execute(
             select(EpisodeRow.metrics, EpisodeRow.counters, EpisodeRow.termination, EpisodeRow.boxes_placed,
-                   EpisodeRow.group)
+                   EpisodeRow.group, EpisodeRow.provenance, EpisodeRow.physics_version)
             .where(EpisodeRow.run_id == run_id)
         ).all()  # fmt: skip
         run.metrics, run.extras = run_figures([r[:4] for r in rows], run.setting)
+        run.extras["provenance"] = {
+            **merge(p or {} for *_x, p, _v in rows), "physics": merged(v for *_x, v in rows),
+            "protocol": run.protocol,
+        }  # fmt: skip
         run.figures = group_figures(
-            ({**(m or {}), **(c or {}), "group": g} for m, c, _t, _b, g in rows), run.setting
+            ({**(m or {}), **(c or {}), "group": g} for m, c, _t, _b, g, *_p in rows), run.setting
         )
         run.status = "completed"
     run.completed_at = now

@@ -117,6 +117,8 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
             "participant": e.get("participant", ""),
             "baseline": bool(e.get("baseline")),
             "verification": e.get("verification"),
+            "entries_submitted": e.get("entries_submitted") or 1,
+            "best": bool(e.get("best")),
             "cells": [{"key": c.key, "value": metrics.get(c.key), "place": places[c.key][i],
                        "ci": metric_span(*(intervals.get(c.key) or (None, None)), c.key),
                        "normalized": (e.get("normalized") or {}).get(c.key)} for c in columns],

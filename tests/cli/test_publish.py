@@ -108,9 +108,9 @@ def test_evaluate_prints_and_writes_the_boards_intervals(evaluated, tmp_path):
     scored = tmp_path / "scored.json"
     assert run_cli("compare", str(source), str(twin), "--json", str(scored)).returncode == 0
     (board,) = json.loads(scored.read_text())
-    for entry in board["entries"]:
-        assert entry["intervals"] == run["intervals"]
-        assert entry["stable_ci"] == run["stable_interval"]
+    for entry in board["entries"]:  # equal up to the summation order of a matrix product
+        assert entry["intervals"] == {k: pytest.approx(v, rel=1e-12) for k, v in run["intervals"].items()}
+        assert entry["stable_ci"] == pytest.approx(run["stable_interval"], rel=1e-12)
 
 
 @pytest.mark.network
@@ -159,3 +159,41 @@ def test_latex_escapes_what_tex_would_read_as_commands():
     assert latex_escape("a_b & 50 % #1 {x} ~^\\ ↑") == (
         r"a\_b \& 50 \% \#1 \{x\} \textasciitilde{}\textasciicircum{}\textbackslash{} $\uparrow$"
     )
+
+
+class _Named:
+    """A served policy that says who it is."""
+
+    name = "lowest-first"
+    version = "2.1"
+
+    def __init__(self) -> None:
+        from robobpp.policies.dbl import DBL
+
+        self._dbl = DBL()
+
+    def act(self, obs):  # type: ignore[no-untyped-def]
+        return self._dbl.act(obs)
+
+
+@pytest.mark.network
+def test_a_served_policy_is_named_by_its_info_not_its_url(real_data, tmp_path):
+    """`serve(policy)` answers the policy's name and version in /info (it said "0"), and `evaluate` labels
+    the results with them (it used the URL)."""
+    import httpx
+
+    from robobpp.client.serve import BackgroundServer, create_policy_app
+
+    with BackgroundServer(create_policy_app(_Named())) as server:
+        info = httpx.get(server.url + "/info").json()
+        assert (info["name"], info["version"]) == ("lowest-first", "2.1")
+        out = tmp_path / "served.json"
+        proc = run_cli("evaluate", "--policy", server.url, "--dataset", "diverse", "--groups", "1", "--json", str(out),
+                       env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    payload = json.loads(out.read_text())
+    assert payload["policy"] == "lowest-first 2.1" and server.url not in proc.stdout
+    assert {e["policy"] for e in payload["episodes"]} == {"lowest-first 2.1"}
+    assert "lowest-first 2.1" in proc.stdout
+    with BackgroundServer(create_policy_app(_Named(), name="given", version="3")) as server:
+        assert httpx.get(server.url + "/info").json()["version"] == "3"

@@ -45,11 +45,13 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from robobpp import __version__
+from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.leaderboard import build_grid
 from robobpp.metrics import PHYSICAL
 from robobpp.replay import CLOSED, PAPER, PROTOCOLS
+from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
 try:  # POSIX: the API processes of one host compute each snapshot once (BoardCache._host_lock)
@@ -131,7 +133,17 @@ def _stored_key(
 ) -> tuple[Any, ...]:
     """What a stored snapshot must have been computed for to be served after a restart."""
     database = hashlib.sha256(url.encode()).hexdigest()[:16]  # never the URL itself: it may hold a password
-    return STORE_FORMAT, __version__, PHYSICS_VERSION, database, datasets, settings, track
+    return (
+        STORE_FORMAT,
+        __version__,
+        PHYSICS_VERSION,
+        MATH_RULES_VERSION,
+        SAMPLER_VERSION,
+        database,
+        datasets,
+        settings,
+        track,
+    )
 
 
 def stored_path(store_dir: Path, track: str) -> Path:

@@ -67,7 +67,7 @@ def test_overall_grid_highlights_top_four_and_links_boards(server: Server, probe
         """() => {
             const rows = Array.from(document.querySelectorAll('#overall tbody tr'));
             const out = [];
-            for (let c = 2; c <= 7; c += 1) {  // 0: rank, 1: method
+            for (let c = 4; c <= 9; c += 1) {  // 0: rank, 1: method, 2: Mean, 3: Stable
                 out.push(rows.map((r) => [r.cells[c].className, parseFloat(r.cells[c].textContent)]));
             }
             return out;

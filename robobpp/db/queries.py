@@ -67,7 +67,8 @@ def active_token(session: Session, token: str) -> ApiToken | None:
 
 #: The episode statuses ``/metrics`` counts: the queue. Finished episodes are history (millions of rows);
 #: counting them per scrape cost 0.6 s at 2.7 M rows, while the queue is read from ix_episodes_claim.
-QUEUE_STATUSES = ("pending", "running")
+#: ``waiting``: paper-protocol replays whose Math Pack episode is still to come (docs/server.md).
+QUEUE_STATUSES = ("waiting", "pending", "running")
 
 
 def episode_status_counts(session: Session) -> dict[str, int]:

@@ -44,7 +44,9 @@ class _QueueCollector(Collector):
         from robobpp.db import queries
 
         episodes = GaugeMetricFamily(
-            "robobpp_episodes", "Episodes queued (pending) or running", labels=["status"]
+            "robobpp_episodes",
+            "Episodes queued (waiting for their Math episode, pending) or running",
+            labels=["status"],
         )
         submissions = GaugeMetricFamily("robobpp_submissions", "Submissions by status", labels=["status"])
         try:

@@ -226,7 +226,13 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
             s.flush()
             ids.append(work.create_submission(s, p, name=name, policy_url=f"builtin:{name}", datasets=["diverse"],
                                               settings=["math", "physics"], groups=2).id)  # fmt: skip
+    queue = client.get("/metrics").text  # the replays wait for their Math episodes
+    assert (
+        'robobpp_episodes{status="waiting"} 6.0' in queue
+        and 'robobpp_episodes{status="pending"} 12.0' in queue
+    )
     assert _drain(factory, db_url) == 3 * 6
+    assert 'robobpp_episodes{status="waiting"} 0.0' in client.get("/metrics").text
     boards = {}
     for protocol in (None, "closed", "paper"):
         params = {"view": "all"} | ({"protocol": protocol} if protocol else {})

@@ -165,11 +165,20 @@ def _print_results(client: ServerClient, sub: SubmissionPublic, wait_s: float = 
     moment after a submission finishes, so wait (bounded) until they include it, and say so if they do not."""
     standings = client.standings(sub, wait_s=wait_s)
     table_console().print(_standings_table(sub, standings))
+    _print_provenance(sub)
     late = [s.board for s in standings if s.status == "completed" and s.board_status is None]
     if late and sub.status in ("completed", "failed"):
         err.print(f"the board{'s' * (len(late) > 1)} {', '.join(late)} did not include #{sub.id} within "
                   f"{wait_s:g} s (boards are recomputed in the background); `robobpp submissions show {sub.id}` "
                   "shows its score and rank once they do", soft_wrap=True)  # fmt: skip
+
+
+def _print_provenance(sub: SubmissionPublic) -> None:
+    """The submission's provenance in one line under its table (docs/benchmark.md, "Provenance")."""
+    from robobpp.provenance import one_line
+
+    if sub.provenance:
+        err.print(f"[dim]provenance: {escape(one_line(sub.provenance))}[/]", soft_wrap=True)
 
 
 def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> SubmissionPublic:
@@ -267,6 +276,7 @@ def show_command(
     if sub.error:
         err.print(f"[red]{escape(sub.error)}[/]")
     table_console().print(_standings_table(sub, standings))
+    _print_provenance(sub)
 
 
 @submissions_app.command("cancel")

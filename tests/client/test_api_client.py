@@ -13,6 +13,7 @@ from collections.abc import Iterator
 import pytest
 from typer.testing import CliRunner, Result
 
+from robobpp import __version__ as robobpp_version
 from robobpp.client.api import ServerClient, ServerError, default_name
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.policies.dbl import DBL
@@ -158,6 +159,10 @@ def test_submit_wait_and_connect_show_the_rank_the_board_gets_a_moment_later(
                 assert match, (label, out)
                 assert int(match[1]) >= 1 and int(match[2]) >= 2, (label, out)  # the baseline and this one
                 assert "did not include" not in errs, (label, errs)
+                assert f"provenance: robobpp {robobpp_version}" in errs and "math_rules" in errs, (
+                    label,
+                    errs,
+                )
     finally:
         server.crash()
 

@@ -381,3 +381,43 @@ def test_a_replay_whose_worker_died_is_taken_over_and_recorded_once(factory, db_
     with factory() as s:
         run = s.get(RunRow, replay.run_id)
         assert run is not None and run.status == "completed" and run.extras["episodes"] == 1
+
+
+#: Boxes of :func:`real_spec` (a real train group, cut short: the test stays a few seconds).
+REAL_BOXES = 20
+
+
+def real_spec(dataset: str, split: str, group: int, groups: int):  # type: ignore[no-untyped-def]
+    """The real public train group (seed 0), its first :data:`REAL_BOXES` boxes (a spec provider)."""
+    import dataclasses
+
+    from robobpp.datasets import sampling
+
+    spec = sampling.episode_specs(dataset, "train", groups=groups, seed=0)[group]
+    return dataclasses.replace(spec, boxes=spec.boxes[:REAL_BOXES])
+
+
+@pytest.mark.slow
+def test_the_server_replay_equals_the_local_paper_protocol(tmp_path, real_data) -> None:
+    """The workers' paper-protocol episode is the one ``robobpp evaluate --protocol paper`` plays locally."""
+    from robobpp.policies import load_policy
+    from robobpp.replay import run_paper_protocol
+
+    url = f"sqlite:///{tmp_path / 'real.sqlite3'}"
+    engine = make_engine(url)
+    upgrade(url, engine=engine)
+    factory = make_session_factory(engine)
+    sid = _submit(factory, settings=("math", "physics"), groups=1, datasets=("longboard",))
+    options = WorkerOptions(database_url=url, spec_provider=f"{__name__}:real_spec", groups=1, lease_s=60)
+    while claim_and_run(factory, options, "local:test:1") is not None:
+        pass
+    replay = next(e for e in _episodes(factory, sid) if e.protocol == "paper")
+    local = run_paper_protocol(real_spec("longboard", "train", 0, 1), load_policy("dbl"), ["physics"])[
+        "physics"
+    ]
+    assert replay.status == "done" and local.protocol == "paper"
+    assert (replay.termination, replay.boxes_placed, replay.physics_version) == (
+        local.termination, local.boxes_placed, local.physics_version)  # fmt: skip
+    for key in ("space_utilization", "occupancy", "local_stability", "static_stability"):
+        assert replay.metrics[key] == local.metrics[key], key
+    engine.dispose()

@@ -158,6 +158,57 @@ def board_sheet(board: Mapping[str, Any]) -> Sheet:
     return sheet
 
 
+# -- the overall grid ------------------------------------------------------------------------------------
+def _grid_boards(grid: Mapping[str, Any]) -> list[str]:
+    return [f"{s}/{d}" for s in grid.get("settings") or [] for d in grid.get("datasets") or []]
+
+
+def grid_csv(grid: Mapping[str, Any]) -> str:
+    """One row per submission of the overall grid (ranked, then apart): the Mean and stable score with their
+    intervals, the rank with its interval, and each board's score and rank."""
+    boards = _grid_boards(grid)
+    head = ["track", "protocol", "status", "rank", "rank_low", "rank_high", "submission_id", "name", "participant",
+            "baseline", "mean", "mean_low", "mean_high", "stable", "stable_low", "stable_high"]  # fmt: skip
+    for b in boards:
+        head += [f"{b}_score", f"{b}_rank"]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(head)
+    for r in [*(grid.get("rows") or []), *(grid.get("apart") or [])]:
+        row = [grid.get("track"), grid.get("protocol", "closed"), r.get("status"), r.get("rank"), r.get("rank_low"),
+               r.get("rank_high"), r["submission_id"], r["name"], r["participant"], r["baseline"], r.get("mean"),
+               r.get("mean_low"), r.get("mean_high"), r.get("stable"), r.get("stable_low"), r.get("stable_high")]  # fmt: skip
+        for b in boards:
+            cell = (r.get("cells") or {}).get(b) or {}
+            row += [cell.get("score"), cell.get("rank") or (r.get("unranked") or {}).get(b)]
+        writer.writerow([_cell(v) for v in row])
+    return out.getvalue()
+
+
+def grid_sheet(grid: Mapping[str, Any]) -> Sheet:
+    """The overall grid as the paper's table: each board's score (rank), the Mean with its interval."""
+    boards = _grid_boards(grid)
+    sheet = Sheet(f"overall · {grid.get('track')} track · protocol {grid.get('protocol', 'closed')}",
+                  ["rank", "entry", *boards, "mean ↑", "stable score ↑"])  # fmt: skip
+    for r in [*(grid.get("rows") or []), *(grid.get("apart") or [])]:
+        lo, hi, rank = r.get("rank_low"), r.get("rank_high"), r.get("rank")
+        shown = (
+            r.get("status", "") if rank is None else str(rank) if lo == hi == rank else f"{rank} ({lo}–{hi})"
+        )
+        cells = []
+        for b in boards:
+            c = (r.get("cells") or {}).get(b)
+            cells.append(f"{c['score']:.3f} ({c['rank']})" if c else (r.get("unranked") or {}).get(b, "—"))
+        sheet.rows.append([shown, f"{r['name']} ({r['participant']}{', baseline' if r.get('baseline') else ''})",
+                           *cells, _figure(r.get("mean"), (r.get("mean_low"), r.get("mean_high")), 3),
+                           _figure(r.get("stable"), (r.get("stable_low"), r.get("stable_high")), 3)])  # fmt: skip
+    split = SPLIT_OF_TRACK.get(str(grid.get("track")), grid.get("track"))
+    sheet.note = (f"Each board: relative score (rank). Mean over {grid.get('boards')} boards with its bootstrap 95 % "
+                  f"interval; rank (interval) in 95 % of resamples; split {split}. Each board's provenance: "
+                  "robobpp leaderboard --dataset D --setting S --format csv.")  # fmt: skip
+    return sheet
+
+
 # -- rendering --------------------------------------------------------------------------------------------
 def markdown(sheet: Sheet) -> str:
     def esc(text: str) -> str:
@@ -203,6 +254,13 @@ def render_board(board: Mapping[str, Any], fmt: str) -> str:
     if fmt == "csv":
         return board_csv(board)
     return _render(board_sheet(board), fmt)
+
+
+def render_grid(grid: Mapping[str, Any], fmt: str) -> str:
+    """The overall grid in ``fmt``: ``csv`` (per submission), ``md`` or ``latex`` (the paper's table)."""
+    if fmt == "csv":
+        return grid_csv(grid)
+    return _render(grid_sheet(grid), fmt)
 
 
 def _render(sheet: Sheet, fmt: str) -> str:

@@ -331,7 +331,9 @@ def leaderboard(
     ] = "best",
     fmt: Annotated[
         str | None,
-        typer.Option("--format", help="One board as csv (per entry, interval ends in columns), md or latex."),
+        typer.Option(
+            "--format", help="csv (per entry, interval ends in columns), md or latex: a board or the grid."
+        ),
     ] = None,
     out: Annotated[Path | None, typer.Option(help="With --format: write here instead of stdout.")] = None,
     protocol: Annotated[
@@ -356,8 +358,6 @@ def leaderboard(
 
         if fmt not in FORMATS:
             fail(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
-        if dataset is None:
-            fail("--format exports one board: give --dataset and --setting")
     if view not in ("best", "all"):
         fail(f"unknown view {view!r}; expected best or all")
     if dataset is not None and dataset not in DATASETS:
@@ -374,9 +374,10 @@ def leaderboard(
 
     if fmt is not None:
         from robobpp.cli.export import write
-        from robobpp.export import render_board
+        from robobpp.export import render_board, render_grid
 
-        write(render_board(data.model_dump(mode="json"), fmt), out)
+        render = render_board if isinstance(data, Leaderboard) else render_grid
+        write(render(data.model_dump(mode="json"), fmt), out)
         return
 
     table_console().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))

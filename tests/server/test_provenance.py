@@ -132,5 +132,12 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
     assert md.startswith("**math/diverse · private track**") and "| rank | entry |" in md
     assert "math_rules 1" in md and "split test" in md and "anchors " + ANCHORS_VERSION in md
     assert "\\begin{tabular}" in export("latex")
-    bad = runner.invoke(app, ["leaderboard", "--format", "md"], env=env)
-    assert bad.exit_code == 2 and "give --dataset and --setting" in bad.output
+    grid = runner.invoke(app, ["leaderboard", "--format", "md"], env=env)
+    assert grid.exit_code == 0, grid.output
+    assert "| rank | entry | math/diverse | mean ↑ | stable score ↑ |" in grid.stdout
+    grid_rows = list(
+        csv.DictReader(io.StringIO(runner.invoke(app, ["leaderboard", "--format", "csv"], env=env).stdout))
+    )
+    assert {r["status"] for r in grid_rows} == {"ranked"} and all(r["math/diverse_rank"] for r in grid_rows)
+    bad = runner.invoke(app, ["leaderboard", "--format", "docx"], env=env)
+    assert bad.exit_code == 2 and "unknown format 'docx'" in bad.output

@@ -141,7 +141,8 @@ def board_csv(board: Mapping[str, Any]) -> str:
 def board_sheet(board: Mapping[str, Any]) -> Sheet:
     """A board as a summary table: rank (interval), entry, metrics, both scores with their intervals."""
     keys = list(board.get("metrics") or [])
-    sheet = Sheet(f"{board['setting']}/{board['dataset']} · {board.get('track')} track",
+    protocol = " · paper protocol" if board.get("protocol") == "paper" else ""  # closed loop goes unsaid
+    sheet = Sheet(f"{board['setting']}/{board['dataset']}{protocol} · {board.get('track')} track",
                   ["rank", "entry", *(_label(k) for k in keys), "score ↑", "stable score ↑"])  # fmt: skip
     for e in board.get("entries") or []:
         lo, hi, rank = e.get("rank_low"), e.get("rank_high"), e.get("rank")

@@ -330,6 +330,9 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
         served_board = json.loads(as_json.stdout)
         assert served_board["protocol"] == "paper"
         assert {e["submission_id"]: e["metrics"] for e in served_board["entries"]} == paper
+        exported = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics", "--protocol",
+                                        "paper", "--format", "md", "--server", served.url])  # fmt: skip
+        assert exported.exit_code == 0 and "physics/diverse · paper protocol" in exported.stdout
         grid_shown = cli.invoke(cli_app, ["leaderboard", "--protocol", "paper", "--server", served.url])
         assert grid_shown.exit_code == 0 and "Physics/Execution under the paper protocol" in grid_shown.stdout
         closed_shown = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics",

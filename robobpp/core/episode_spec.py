@@ -21,7 +21,10 @@ class EpisodeSpec:
     #: ``robobpp.datasets.sampling.SAMPLER_VERSION`` of the sampler that drew the group (None: hand-built or
     #: synthetic boxes, or a set written before the version existed). Recorded with every result.
     sampler_version: str | None = None
+    #: What the policy is told the episode is called, when not the readable default: the service gives each
+    #: evaluated episode an opaque one, since ``repetitive-test-001`` names the split and the group.
+    label: str | None = None
 
     @property
     def episode_id(self) -> str:
-        return f"{self.dataset}-{self.split}-{self.group:03d}"
+        return self.label or f"{self.dataset}-{self.split}-{self.group:03d}"

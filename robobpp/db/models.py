@@ -81,6 +81,21 @@ class ApiToken(Base):
     participant: Mapped[Participant] = relationship(back_populates="tokens")
 
 
+class WebSession(Base):
+    """A signed-in browser (migration 0009): its cookie names this row, so signing out — or revoking the
+    token it signed in with — ends it on the server, whatever copies of the cookie exist."""
+
+    __tablename__ = "web_sessions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    #: The participant's token it signed in with (``None``: the operator, signed in with the admin token).
+    token_id: Mapped[int | None] = mapped_column(ForeignKey("api_tokens.id", ondelete="CASCADE"), index=True,
+                                                 default=None)  # fmt: skip
+    admin: Mapped[bool] = mapped_column(default=False)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(default=None)
+
+
 class Submission(Base):
     __tablename__ = "submissions"
 

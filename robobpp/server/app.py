@@ -20,6 +20,7 @@ from fastapi.staticfiles import StaticFiles
 
 from robobpp.server import problems
 from robobpp.server.config import Settings
+from robobpp.server.headers import SecurityHeaders
 from robobpp.server.limits import BodySizeLimit
 from robobpp.server.metrics import install_metrics
 
@@ -109,6 +110,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
     app.state.probe_gate = ProbeGate(settings.probe_concurrency, settings.probe_per_participant,
                                      min(settings.probe_timeout_s, settings.step_timeout_s))  # fmt: skip
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
+    app.add_middleware(SecurityHeaders)
     problems.install(app)
     install_metrics(app)
 

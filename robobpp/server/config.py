@@ -99,6 +99,10 @@ class Settings(BaseSettings):
     probe_per_participant: int = Field(default=1, ge=1, le=64)
     quota_submissions_per_day: int = Field(default=10, ge=0)
     quota_concurrent: int = Field(default=2, ge=0)
+    #: Wrong tokens (API, sign-in, pull) one client address may send per minute before it is refused (429).
+    auth_failures_per_minute: int = Field(default=10, ge=1, le=100_000)
+    #: ``/metrics`` without the admin token (e.g. a Prometheus on a private network that cannot send one).
+    metrics_public: bool = False
     # connection limits (server/connections.py; docs/deploy.md, "Reverse proxy and limits")
     #: Open connections of the API process (HTTP and WebSocket); over it a new one is answered 503 and closed.
     max_connections: int = Field(default=1000, ge=1)

@@ -11,13 +11,14 @@ queue and board gauges are read at every scrape.
 
 from __future__ import annotations
 
+import hmac
 import threading
 import time
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 import prometheus_client
-from fastapi import FastAPI, Response
+from fastapi import FastAPI, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.registry import Collector
@@ -168,5 +169,17 @@ def install_metrics(app: FastAPI) -> None:
     app.add_middleware(_CountRequests, requests=requests, latency=latency, rendered=rendered)
 
     @app.get("/metrics", include_in_schema=False)
-    def metrics() -> Response:
+    def metrics(request: Request) -> Response:
+        # The queue's size, request counts and latencies per route are the operator's: they map activity
+        # (who submits when, what is slow) for anyone else. Public only when ROBOBPP_METRICS_PUBLIC says so.
+        settings = request.app.state.settings
+        if not settings.metrics_public and not _is_admin(request, settings.effective_admin_token):
+            return Response("metrics need the admin token (Authorization: Bearer …)\n", status_code=401,
+                            media_type="text/plain", headers={"WWW-Authenticate": "Bearer"})  # fmt: skip
         return Response(rendered.text() + generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+
+
+def _is_admin(request: Request, admin_token: str) -> bool:
+    auth = request.headers.get("authorization", "")
+    token = auth[7:].strip() if auth.lower().startswith("bearer ") else ""
+    return 0 < len(token) <= 256 and hmac.compare_digest(token.encode(), admin_token.encode())

@@ -232,12 +232,11 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
                 episode_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep):  # fmt: skip
     sub = _submission(session, submission_id)
     ep = queries.get_episode(session, submission_id, episode_id) if sub is not None else None
-    if sub is None or ep is None:
-        return not_found(request, f"There is no episode {episode_id} in submission {submission_id}.")
-    if sub.track != "public" or ep.trace is None:
-        return not_found(
-            request, "Only public-track episodes have a replay: the private test split is never shown."
-        )
+    if sub is None or ep is None or sub.track != "public" or ep.trace is None:
+        # One answer for missing and hidden alike (a private-track episode, one without a trace): a distinct
+        # one mapped episode ids to tracks.
+        return not_found(request, f"There is no replay of episode {episode_id} in submission {submission_id}. "
+                                  "Only public-track episodes have one.")  # fmt: skip
     summary = queries.episode_summary(ep)
     owner = _is_owner(viewer(request), sub)
     if not owner:  # a public replay shows how the episode ended, not the policy's own words

@@ -8,8 +8,10 @@ never written twice.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
+import secrets
 import socket
 import threading
 import traceback
@@ -116,6 +118,9 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
     try:
         spec = episode_spec(claim.dataset, claim.split, claim.group, groups=settings.groups,
                             private_dir=settings.private_dir, provider=settings.spec_provider)  # fmt: skip
+        # The id the policy sees names neither split nor group, and differs per episode and attempt: a
+        # remote policy must not learn which test group it is playing (docs/server.md, threat model).
+        spec = dataclasses.replace(spec, label=f"ep-{secrets.token_hex(8)}")
         policy = make_policy(claim, settings)
     except Exception as exc:  # noqa: BLE001 - an evaluation problem, not the policy's: retry, then fail
         with factory() as s, s.begin():

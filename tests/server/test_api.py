@@ -158,7 +158,8 @@ def test_quotas(api: TestClient, policy_server) -> None:
 
 def test_health_metrics_docs_and_boards(api: TestClient) -> None:
     assert api.get("/healthz").json()["database"] == "ok"
-    assert "robobpp_episodes" in api.get("/metrics").text
+    assert api.get("/metrics").status_code == 401  # the operator's (ROBOBPP_METRICS_PUBLIC opens it)
+    assert "robobpp_episodes" in api.get("/metrics", headers=ADMIN).text
     assert api.get("/docs").status_code == 200
     assert "/api/v1/submissions" in api.get("/openapi.json").json()["paths"]
     board = api.get("/api/v1/leaderboards/diverse/math").json()

@@ -148,10 +148,10 @@ def test_best_entry_per_participant_is_the_default_view(board_app) -> None:
 def test_metrics_endpoint_counts_the_queue(board_app) -> None:
     app, client = board_app
     submit(app, "a", "builtin:dbl")
-    text = client.get("/metrics").text
+    text = client.get("/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text
     assert f'robobpp_episodes{{status="pending"}} {float(2 * GROUPS)}' in text
     drain(app)
-    text = client.get("/metrics").text
+    text = client.get("/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text
     assert 'robobpp_episodes{status="pending"} 0.0' in text
     assert 'robobpp_submissions{status="completed"} 1.0' in text
 

@@ -227,7 +227,7 @@ def _statements(app: Any, client: TestClient) -> list[str]:
 
     event.listen(engine, "before_cursor_execute", record)
     try:
-        assert client.get("/metrics").status_code == 200
+        assert client.get("/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).status_code == 200
     finally:
         event.remove(engine, "before_cursor_execute", record)
     return seen
@@ -251,7 +251,7 @@ def test_metrics_scrape_costs_the_same_with_more_history(scale_app) -> None:
     assert all(" where " in s for s in large), large
     # something finished: its counts are read once more, then cached again
     assert len(after_finish) > len(large)
-    text = client.get("/metrics").text
+    text = client.get("/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text
     assert 'robobpp_submissions{status="completed"} 4.0' in text
     assert 'robobpp_submissions{status="queued"} 0.0' in text
     assert 'robobpp_episodes{status="pending"} 0.0' in text

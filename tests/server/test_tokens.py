@@ -74,7 +74,7 @@ def test_metrics_route_label_is_the_full_path_template(api: TestClient) -> None:
     api.get("/api/v1/leaderboards/diverse/math")
     api.get("/api/v1/submissions/12345", headers=alice)
     api.get("/api/v1/nothing-here")
-    text = api.get("/metrics").text
+    text = api.get("/metrics", headers=ADMIN).text
     routes = set(re.findall(r'robobpp_http_requests_total\{method="[A-Z]+",route="([^"]*)"', text))
     assert "/api/v1/leaderboards/{dataset}/{setting}" in routes
     assert "/api/v1/submissions/{submission_id}" in routes  # a template, not the id the client sent

@@ -305,7 +305,7 @@ def test_private_episodes_have_no_replay(server: Server) -> None:
     assert private and not any(e["has_trace"] for e in private)
     r = server.get(f"/submissions/1/episodes/{private[0]['id']}/replay")
     assert r.status_code == 404
-    assert "private test split is never shown" in r.text
+    assert "Only public-track episodes have one" in r.text  # the same answer as for a missing episode
 
 
 def test_api_docs_render_offline(server: Server, probe: PageProbe) -> None:

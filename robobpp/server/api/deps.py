@@ -16,6 +16,7 @@ from robobpp.db import queries
 from robobpp.db.models import Participant
 from robobpp.server.config import Settings
 from robobpp.server.problems import ProblemError
+from robobpp.server.ratelimit import FailureLimit, client_address
 
 T = TypeVar("T")
 _bearer = HTTPBearer(auto_error=False, description="An API token, or the admin token")
@@ -58,20 +59,40 @@ def _unauthorized(detail: str) -> ProblemError:
     return ProblemError(401, "unauthorized", "Unauthorized", detail, headers={"WWW-Authenticate": "Bearer"})
 
 
+def auth_limit(request: Request) -> FailureLimit:
+    limit = getattr(request.app.state, "auth_limit", None)
+    if limit is None:
+        settings: Settings = request.app.state.settings
+        limit = request.app.state.auth_limit = FailureLimit(settings.auth_failures_per_minute, 60.0)
+    return limit
+
+
+def auth_refused_for(request: Request) -> float:
+    """Seconds this client must wait before its next token is even looked at (too many wrong ones); 0: none."""
+    return auth_limit(request).retry_after(client_address(request))
+
+
+def too_many_failures(wait_s: float) -> ProblemError:
+    return ProblemError(429, "too-many-failures", "Too many failed authentications",
+                        f"too many wrong tokens from this address; retry in {wait_s:.0f} s",
+                        headers={"Retry-After": str(max(1, round(wait_s)))})  # fmt: skip
+
+
 def principal_for_token(request: Request, token: str) -> Principal | None:
     """Who holds ``token`` (the admin token or a live API token), or None. Shared by the API's bearer
-    auth and the pages' sign-in, so both accept exactly the same tokens."""
+    auth, the pages' sign-in and the pull relay, so all accept exactly the same tokens — and count every
+    wrong one against the client's address (:mod:`robobpp.server.ratelimit`)."""
     settings: Settings = request.app.state.settings
-    if not token or len(token) > 256:
-        return None
-    if hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
-        return Principal(None, admin=True)
-    # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
-    with request.app.state.runtime.read_session() as session:
-        row = queries.active_token(session, token)
-        if row is None:
-            return None
-        return Principal(row.participant, token_id=row.id)
+    if token and len(token) <= 256:
+        if hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
+            return Principal(None, admin=True)
+        # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
+        with request.app.state.runtime.read_session() as session:
+            row = queries.active_token(session, token)
+            if row is not None:
+                return Principal(row.participant, token_id=row.id)
+    auth_limit(request).failed(client_address(request))
+    return None
 
 
 async def get_principal(
@@ -82,6 +103,9 @@ async def get_principal(
     worker thread (every request re-reads it, so a revoked token stops working at once)."""
     if credentials is None or not credentials.credentials:
         raise _unauthorized("send an API token as 'Authorization: Bearer <token>'")
+    wait = auth_refused_for(request)
+    if wait:
+        raise too_many_failures(wait)
     token = credentials.credentials
     settings: Settings = request.app.state.settings
     if 0 < len(token) <= 256 and hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):

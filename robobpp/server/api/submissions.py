@@ -250,16 +250,29 @@ def cancel(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> S
 async def episodes(request: Request, submission_id: Id, principal: PrincipalDep) -> Response:
     def listed(session: Session) -> bytes:
         sub = _visible(session, principal, submission_id)
+        public = _seen_by_public(sub, principal)
         return finished_views(request.app.state).get(
-            ("api-episodes",),
+            ("api-episodes", public),
             sub,
-            lambda: _EPISODES.dump_json(_EPISODES.validate_python(queries.episode_rows(session, sub.id))),
-        )
+            lambda: _EPISODES.dump_json(_EPISODES.validate_python(
+                [_public_episode(e) if public else e for e in queries.episode_rows(session, sub.id)])),
+        )  # fmt: skip
 
     return Response(await in_read_session(request, listed), media_type="application/json")
 
 
 _EPISODES = TypeAdapter(list[EpisodePublic])
+
+
+def _seen_by_public(sub: Submission, principal: Principal) -> bool:
+    """A baseline's episodes as every participant sees them (not its owner: the operator)."""
+    return not principal.admin and sub.participant_id != principal.participant_id
+
+
+def _public_episode(summary: dict[str, Any]) -> dict[str, Any]:
+    """How an episode ended, without the simulator's words: a private-track detail ("box top at Z cm") is a
+    number per test episode, and the pages never showed it to anyone but the owner either."""
+    return {**summary, "termination_detail": ""}
 
 
 @router.get("/submissions/{submission_id}/episodes/{episode_id}", response_model=EpisodeDetail,
@@ -275,7 +288,10 @@ async def episode(
                 404, "not-found", "Not found", f"no episode {episode_id} in submission {submission_id}"
             )
         trace = ep.trace if sub.track == "public" else None
-        return EpisodeDetail.model_validate({**queries.episode_summary(ep), "trace": trace})
+        summary = queries.episode_summary(ep)
+        if _seen_by_public(sub, principal):
+            summary = _public_episode(summary)
+        return EpisodeDetail.model_validate({**summary, "trace": trace})
 
     return await in_read_session(request, one)
 

@@ -19,7 +19,7 @@ from robobpp.db.models import Participant
 from robobpp.schemas import SubmissionCreate
 from robobpp.server.api import participants as api_participants
 from robobpp.server.api import submissions as api_submissions
-from robobpp.server.api.deps import Principal, principal_for_token
+from robobpp.server.api.deps import Principal, auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import session as web_session
@@ -74,6 +74,12 @@ def sign_in_page(request: Request) -> Response:
 def sign_in(request: Request, token: Text = "", csrf: Text = "") -> Response:
     if not web_session.csrf_ok(request, csrf):
         return render(request, "sign_in.html", 403, title="Sign in", nav="account", form=True, error=BAD_CSRF)
+    wait = auth_refused_for(request)
+    if wait:
+        page = render(request, "sign_in.html", 429, title="Sign in", nav="account", form=True,
+                      error=f"Too many wrong tokens from your address; try again in {wait:.0f} s.")  # fmt: skip
+        page.headers["Retry-After"] = str(max(1, round(wait)))
+        return page
     principal = principal_for_token(request, token.strip())
     if principal is None or (principal.participant is not None and principal.participant.is_builtin):
         return render(request, "sign_in.html", 401, title="Sign in", nav="account", form=True,

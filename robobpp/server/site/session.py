@@ -1,9 +1,10 @@
 """Browser sessions: a signed, HttpOnly cookie that names an API token's row (never the token itself).
 
-The cookie holds ``{"n": csrf nonce, "t": token id}`` (a participant) or ``{"n", "a": 1}`` (the
-operator), signed with itsdangerous under a key derived from the admin token: rotating the admin token
-signs every browser out. Each request re-reads the token row, so revoking a token ends its sessions at
-once. Forms carry the nonce as a CSRF token; a POST without the matching nonce (or from another origin)
+The cookie holds ``{"n": csrf nonce, "s": session id}`` (``web_sessions``: a participant's, naming the token
+it signed in with, or the operator's), signed with itsdangerous under a key derived from the admin token:
+rotating the admin token signs every browser out. Each request re-reads the session row and the token row,
+so signing out (which revokes the row) or revoking the token ends the session at once, for every copy of
+the cookie. Forms carry the nonce as a CSRF token; a POST without the matching nonce (or from another origin)
 is refused. SameSite=Lax keeps the cookie off cross-site POSTs as a second line of defence.
 """
 
@@ -13,6 +14,7 @@ import hashlib
 import hmac
 import secrets
 from dataclasses import dataclass
+from datetime import datetime, timedelta
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -20,7 +22,7 @@ from fastapi import Request, Response
 from itsdangerous import BadSignature, URLSafeTimedSerializer
 from starlette.concurrency import run_in_threadpool
 
-from robobpp.db.models import ApiToken
+from robobpp.db.models import ApiToken, WebSession, utcnow
 from robobpp.server.config import Settings
 
 COOKIE = "robobpp_session"
@@ -37,6 +39,7 @@ class Viewer:
     name: str | None = None
     token_id: int | None = None
     admin: bool = False
+    session_id: int | None = None
 
     @property
     def signed_in(self) -> bool:
@@ -64,43 +67,51 @@ def _load(request: Request) -> dict[str, Any]:
 
 
 def viewer(request: Request) -> Viewer:
-    """The request's viewer, looked up once per request (the token row decides, not the cookie alone)."""
+    """The request's viewer, looked up once per request (the session row and the token row decide, not the
+    cookie alone)."""
     cached = getattr(request.state, "viewer", None)
     if cached is not None:
         return cached
     data = _load(request)
     nonce = data.get("n") if isinstance(data.get("n"), str) else ""
     found = Viewer(nonce=nonce)
-    if data.get("a") == 1:
-        found = Viewer(nonce=nonce, admin=True, name="operator")
-    elif isinstance(data.get("t"), int):
+    if isinstance(data.get("s"), int):
         with request.app.state.runtime.read_session() as session:
-            row = session.get(ApiToken, data["t"])
-            if row is not None and row.revoked_at is None and not row.participant.is_builtin:
-                found = Viewer(nonce=nonce, participant_id=row.participant_id, name=row.participant.name,
-                               token_id=row.id)  # fmt: skip
+            row = session.get(WebSession, data["s"])
+            if row is not None and row.revoked_at is None and _fresh(row.created_at):
+                if row.admin:
+                    found = Viewer(nonce=nonce, admin=True, name="operator", session_id=row.id)
+                elif row.token_id is not None:
+                    token = session.get(ApiToken, row.token_id)
+                    if token is not None and token.revoked_at is None and not token.participant.is_builtin:
+                        found = Viewer(nonce=nonce, participant_id=token.participant_id,
+                                       name=token.participant.name, token_id=token.id, session_id=row.id)  # fmt: skip
     request.state.viewer = found
     return found
+
+
+def _fresh(created_at: datetime) -> bool:
+    return utcnow() - created_at < timedelta(seconds=MAX_AGE_S)
 
 
 async def load_viewer(request: Request) -> Viewer:
     """Router dependency: resolve (and cache) the viewer before the handler opens its own transaction.
 
-    Async, so an anonymous visitor or the operator (whose cookie alone decides) costs no worker thread;
-    a participant's session reads its token row in one."""
-    if getattr(request.state, "viewer", None) is None and isinstance(_load(request).get("t"), int):
+    Async, so an anonymous visitor (whose cookie alone decides) costs no worker thread; a signed-in one's
+    session and token rows are read in one."""
+    if getattr(request.state, "viewer", None) is None and isinstance(_load(request).get("s"), int):
         return await run_in_threadpool(viewer, request)
     return viewer(request)
 
 
 def start(request: Request, response: Response, *, token_id: int | None = None, admin: bool = False) -> None:
-    """Sign in: a fresh session (new nonce, so a nonce seen before sign-in is worth nothing after)."""
-    data: dict[str, Any] = {"n": secrets.token_urlsafe(24)}
-    if admin:
-        data["a"] = 1
-    else:
-        data["t"] = token_id
-    _write(request, response, data)
+    """Sign in: a new session row and a fresh nonce (a nonce seen before sign-in is worth nothing after)."""
+    with request.app.state.runtime.session() as session:
+        row = WebSession(token_id=None if admin else token_id, admin=admin)
+        session.add(row)
+        session.flush()
+        session_id = row.id
+    _write(request, response, {"n": secrets.token_urlsafe(24), "s": session_id})
 
 
 def ensure_nonce(request: Request, response: Response) -> str:
@@ -115,6 +126,14 @@ def ensure_nonce(request: Request, response: Response) -> str:
 
 
 def end(request: Request, response: Response) -> None:
+    """Sign out: the session row is revoked, so a copy of the cookie (another tab, a stolen one) stops
+    working too; the browser's cookie is deleted."""
+    session_id = viewer(request).session_id
+    if session_id is not None:
+        with request.app.state.runtime.session() as session:
+            row = session.get(WebSession, session_id)
+            if row is not None and row.revoked_at is None:
+                row.revoked_at = utcnow()
     response.delete_cookie(COOKIE, path=_path(request), secure=_https(request), httponly=True, samesite="lax")
 
 

@@ -375,7 +375,7 @@ def test_execution_results_and_radar_fit_at_1280_px(server: Server, browser: Any
     now = datetime(2026, 1, 1)
     sub = {"id": 7, "name": "a-rather-long-policy-name v12", "participant": "participant-with-a-long-name",
            "baseline": False, "policy_url": "https://policy.example.org:9000/" + "p" * 60, "track": "public",
-           "status": "completed", "created_at": now, "finished_at": now, "error": None, "runs": runs,
+           "status": "completed", "created_at": now, "finished_at": now, "error": None, "runs": runs, "queue": None,
            "progress": {"episodes_total": 270, "episodes_done": 270, "episodes_running": 0, "episodes_failed": 0,
                         "phase": None}}  # fmt: skip
     episodes = [{"id": 100000 + i, "dataset": "longboard", "setting": "execution", "group": i, "status": "done",

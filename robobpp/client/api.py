@@ -86,10 +86,12 @@ class Standing:
     #: ``ranked``, ``failed`` or ``partial`` once the board includes the run; None while it does not (yet):
     #: boards are recomputed in the background, a moment after a submission finishes.
     board_status: str | None = None
+    #: ``closed`` or ``paper`` (a physical setting's Math Pack actions replayed; docs/server.md).
+    protocol: str = "closed"
 
     @property
     def board(self) -> str:
-        return f"{self.setting}/{self.dataset}"
+        return f"{self.setting}/{self.dataset}" + (" (paper protocol)" if self.protocol != "closed" else "")
 
 
 def _one_line(text: str, limit: int = 200) -> str:
@@ -363,7 +365,9 @@ class ServerClient:
 
     def _standing(self, submission: SubmissionPublic, run: Any) -> Standing:
         track: Track = "public" if submission.track == "public" else "private"
-        board = self.leaderboard(run.dataset, run.setting, track=track, view="all", submission=submission.id)
+        protocol = run.protocol
+        board = self.leaderboard(run.dataset, run.setting, track=track, view="all", submission=submission.id,
+                                 protocol=protocol)  # fmt: skip
         entry: LeaderboardEntry | None = next(
             (e for e in board.entries if e.submission_id == submission.id), None
         )
@@ -372,5 +376,7 @@ class ServerClient:
         rank, score = (entry.rank, entry.score) if entry else (None, None)
         return Standing(dataset=run.dataset, setting=run.setting, status=run.status, metrics=metrics,
                         metric_keys=list(board.metrics), rank=rank, score=score,
-                        entries=self.leaderboard(run.dataset, run.setting, track=track, view="all", limit=1).total,
-                        board_status="ranked" if entry else apart.status if apart else None)  # fmt: skip
+                        entries=self.leaderboard(run.dataset, run.setting, track=track, view="all", limit=1,
+                                                 protocol=protocol).total,
+                        board_status="ranked" if entry else apart.status if apart else None,
+                        protocol=protocol)  # fmt: skip

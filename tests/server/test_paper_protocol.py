@@ -335,6 +335,14 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
         assert exported.exit_code == 0 and "physics/diverse · paper protocol" in exported.stdout
         grid_shown = cli.invoke(cli_app, ["leaderboard", "--protocol", "paper", "--server", served.url])
         assert grid_shown.exit_code == 0 and "Physics/Execution under the paper protocol" in grid_shown.stdout
+        from robobpp.client.api import ServerClient
+
+        with ServerClient(served.url, "paper-admin-token-0123456789abcdef") as api:
+            standings = {s.board: s for s in api.standings(api.submission(ids[0]))}
+        assert set(standings) == {"math/diverse", "physics/diverse", "physics/diverse (paper protocol)"}
+        mine = standings["physics/diverse (paper protocol)"]  # stands on the paper-protocol board
+        assert mine.protocol == "paper" and mine.metrics == paper[ids[0]] and mine.entries == 3
+        assert mine.rank is not None and standings["physics/diverse"].metrics == closed[ids[0]]
         closed_shown = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics",
                                             "--server", served.url])  # fmt: skip
         assert closed_shown.exit_code == 0 and "paper protocol" not in closed_shown.stdout

@@ -176,6 +176,10 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
         if entry is not None:
             ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": len(board["entries"])}
     closed = [r for r in view["runs"] if r["protocol"] == "closed"]  # the radar: the benchmark's boards
+    # the results table lists a paper-protocol run right under its closed-loop run
+    place = {(r["dataset"], r["setting"]): i for i, r in enumerate(closed)}
+    view = {**view, "runs": sorted(view["runs"], key=lambda r: (place.get((r["dataset"], r["setting"]), len(place)),
+                                                               r["protocol"] != "closed"))}  # fmt: skip
     public = sub.track == "public"
     reasons = {**TERMINATION_REASONS, **EXTRA_REASONS}
     views = finished_views(request.app.state)

@@ -226,13 +226,14 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
             s.flush()
             ids.append(work.create_submission(s, p, name=name, policy_url=f"builtin:{name}", datasets=["diverse"],
                                               settings=["math", "physics"], groups=2).id)  # fmt: skip
-    queue = client.get("/metrics").text  # the replays wait for their Math episodes
+    admin = {"Authorization": "Bearer paper-admin-token-0123456789abcdef"}
+    queue = client.get("/metrics", headers=admin).text  # the replays wait for their Math episodes
     assert (
         'robobpp_episodes{status="waiting"} 6.0' in queue
         and 'robobpp_episodes{status="pending"} 12.0' in queue
     )
     assert _drain(factory, db_url) == 3 * 6
-    assert 'robobpp_episodes{status="waiting"} 0.0' in client.get("/metrics").text
+    assert 'robobpp_episodes{status="waiting"} 0.0' in client.get("/metrics", headers=admin).text
     boards = {}
     for protocol in (None, "closed", "paper"):
         params = {"view": "all"} | ({"protocol": protocol} if protocol else {})
@@ -265,7 +266,6 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
             entry["score"], entry["score_low"], entry["score_high"])  # fmt: skip
         assert row["mean_low"] - 1e-6 <= row["mean"] <= row["mean_high"] + 1e-6  # bounds to 6 decimals
     assert client.get("/api/v1/leaderboards").json()["protocol"] == "closed"
-    admin = {"Authorization": "Bearer paper-admin-token-0123456789abcdef"}
     runs = client.get(f"/api/v1/submissions/{ids[0]}", headers=admin).json()["runs"]
     assert sorted((r["setting"], r["protocol"]) for r in runs) == [
         ("math", "closed"), ("physics", "closed"), ("physics", "paper")]  # fmt: skip

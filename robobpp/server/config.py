@@ -107,7 +107,7 @@ class Settings(BaseSettings):
     #: Open connections of the API process (HTTP and WebSocket); over it a new one is answered 503 and closed.
     max_connections: int = Field(default=1000, ge=1)
     #: Open connections from one client address (0: none; behind a reverse proxy, let the proxy limit them).
-    max_connections_per_client: int = Field(default=64, ge=0)
+    max_connections_per_client: int = Field(default=160, ge=0)
     #: A request's headers must be complete this long after its connection opened or its previous response.
     header_timeout_s: float = Field(default=10.0, gt=0, le=600)
     #: A request's body must be complete this long after its headers (else 408).

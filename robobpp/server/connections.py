@@ -33,7 +33,7 @@ REFUSAL = (
 class ConnectionLimits:
     max_connections: int = 1000
     #: 0: no per-address limit (behind a reverse proxy every connection comes from the proxy's address).
-    max_per_client: int = 64
+    max_per_client: int = 160
     header_timeout_s: float = 10.0
 
 

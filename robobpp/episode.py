@@ -22,6 +22,13 @@ COMPLETED = "completed"
 NO_FEASIBLE_PLACEMENT = "no_feasible_placement"
 POLICY_ERROR = "policy_error"
 EPISODE_TIMEOUT = "episode_timeout"
+COLLAPSE = "collapse"
+
+#: How an episode in a physical setting is run (docs/benchmark.md, "Two protocols"): ``closed`` (the policy
+#: observes the setting at every step; the default) or ``paper`` (Math Pack actions replayed open loop,
+#: :mod:`robobpp.replay`), which also counts as the reference counts (:meth:`Episode.result`).
+PROTOCOLS: tuple[str, ...] = ("closed", "paper")
+CLOSED, PAPER = PROTOCOLS
 
 TERMINATION_REASONS: dict[str, str] = {
     COMPLETED: "every box was placed",
@@ -29,7 +36,7 @@ TERMINATION_REASONS: dict[str, str] = {
     "invalid_action": "the action was malformed (non-finite number, wrong type, unknown orientation)",
     "out_of_bounds": "the footprint lay outside the container",
     "too_high": "the box top would exceed the container height",
-    "collapse": "a placed box moved beyond the dataset's collapse threshold or fell off",
+    COLLAPSE: "a placed box moved beyond the dataset's collapse threshold or fell off",
     POLICY_ERROR: "the policy raised an error or answered garbage",
     "policy_timeout": "the policy did not answer within the per-step time limit",
     "protocol_violation": "the remote policy broke protocol robobpp/1",
@@ -116,8 +123,13 @@ def placement_dict(p: Placement) -> dict[str, Any]:
 class Episode:
     """Step-wise episode: call :meth:`observe`, then :meth:`step` with the policy's answer, until done."""
 
-    def __init__(self, spec: EpisodeSpec, setting: Setting | str, *, lookahead: int = 0) -> None:
+    def __init__(
+        self, spec: EpisodeSpec, setting: Setting | str, *, lookahead: int = 0, protocol: str = CLOSED
+    ) -> None:
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
         self.spec = spec
+        self.protocol = protocol
         self.setting = make_setting(setting) if isinstance(setting, str) else setting
         self.lookahead = lookahead
         self.setting.reset(spec)
@@ -222,12 +234,21 @@ class Episode:
         return record
 
     def result(self, policy_name: str) -> EpisodeResult:
-        final = self.setting.final_boxes()
+        final = world = self.setting.final_boxes()
         container = self.spec.container
+        decision, static = self._decision, self._static
+        utilization = M.space_utilization(final, container)
+        if self.protocol == PAPER and self.termination is not None and self.termination.reason == COLLAPSE:
+            # Counted as the reference counts (its Feasible Num and utilisation): the box whose placement
+            # collapsed is not placed (nor its decision time, nor its static stability), and every box
+            # packed before it is, displaced or not — the paper's tables mean that. The trace keeps it
+            # (``final`` below is every box in the world).
+            final, decision, static = final[:-1], decision[:-1], static[:-1]
+            utilization = M.placed_volume(final) / container.volume
         metrics: dict[str, float | None] = {
-            "space_utilization": M.space_utilization(final, container),
+            "space_utilization": utilization,
             "occupancy": M.occupancy(final, container),
-            "decision_time": sum(self._decision) / len(self._decision) if self._decision else None,
+            "decision_time": sum(decision) / len(decision) if decision else None,
         }
         if self._round_trip:  # a remote policy: the raw figures beside the decision time they gave
             metrics["round_trip"] = sum(self._round_trip) / len(self._round_trip)
@@ -235,7 +256,7 @@ class Episode:
             metrics["network_estimate"] = sum(self._network) / len(self._network)
         if self.setting.name in M.PHYSICAL:
             metrics["local_stability"] = M.local_stability_m(final)
-            metrics["static_stability"] = sum(self._static) / len(self._static) if self._static else None
+            metrics["static_stability"] = sum(static) / len(static) if static else None
         if self.setting.name == "execution":
             metrics["trajectory_length"] = (
                 sum(self._trajectory) / len(self._trajectory) if self._trajectory else None
@@ -266,6 +287,7 @@ class Episode:
             physics_version=self.setting.physics_version,
             rules_version=MATH_RULES_VERSION,
             sampler_version=self.spec.sampler_version,
+            protocol=self.protocol,
             steps=self.steps,
             final=[
                 {
@@ -273,7 +295,7 @@ class Episode:
                     "actual": placement_dict(f.actual),
                     "in_place": f.in_place,
                 }
-                for f in final
+                for f in world
             ],  # fmt: skip
         )
 
@@ -300,13 +322,15 @@ def run_episode(
     on_step: Callable[[StepRecord], None] | None = None,
     clock: Callable[[], float] = time.perf_counter,
     decision_times: Sequence[float] | None = None,
+    protocol: str = CLOSED,
 ) -> EpisodeResult:
     """Run one episode to its end. Policy failures end the episode with a reason; nothing escapes.
 
     ``decision_times``: recorded decision times (one per box, in order) that stand for the measured ones: a
     replay's answers cost nothing, the decisions were made (and timed) when the actions were planned.
+    ``protocol``: recorded with the result; ``paper`` also counts as the reference does (:meth:`Episode.result`).
     """
-    episode = Episode(spec, setting, lookahead=lookahead)
+    episode = Episode(spec, setting, lookahead=lookahead, protocol=protocol)
     started = clock()
     try:
         try:

@@ -54,7 +54,13 @@ def static_stability(max_linear_speed: float, max_angular_speed: float) -> float
 
 
 def space_utilization(final: Sequence[FinalBox], container: ContainerSpec) -> float:
-    return sum(f.planned.volume for f in final if f.in_place) / container.volume
+    """Volume of the boxes still in place over the container's (the closed loop's reading)."""
+    return placed_volume(f for f in final if f.in_place) / container.volume
+
+
+def placed_volume(final: Iterable[FinalBox]) -> float:
+    """Planned volume of ``final``'s boxes, in place or not (cm³)."""
+    return sum(f.planned.volume for f in final)
 
 
 def on_pallet(p: Placement, container: ContainerSpec) -> bool:

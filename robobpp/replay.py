@@ -5,25 +5,27 @@ the actions an algorithm computed offline on idealised geometry and executes the
 robobpp's own protocol, ``closed``, lets the policy observe the physical state at every step instead
 (docs/benchmark.md, "Two protocols").
 
-The replay runs through the one episode loop (:func:`robobpp.episode.run_episode`) with a playback policy: the
-setting decides everything physical — a collapse, a box that would stand too high on the physical pile, a failed
-operation — exactly as it does in closed loop. Decision Time is the recorded one (no policy is called again).
-When the Math episode ended before its last box, the replay places what Math placed and then ends as Math ended,
-unless the setting ended it earlier.
+The replay runs through the one episode loop (:func:`robobpp.episode.run_episode`) with a playback policy, and
+ends and counts as the reference does (docs/benchmark.md, "Two protocols"): an action is checked against the
+container on the plan's idealised pile (:class:`OpenLoop`: bounds and height, as the reference's environment
+step), never against the pile as it physically stands; the setting decides the rest — a collapse, a failed
+operation. On a collapse the box that caused it is not counted (boxes placed, utilisation); every box packed
+before it is, displaced or not. Decision Time is the recorded one (no policy is called again). When the Math
+episode ended before its last box, the replay places what Math placed and then ends as Math ended, unless the
+setting ended it earlier.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from robobpp.core import Action, EpisodeInfo, EpisodeSpec, Observation
-from robobpp.episode import COMPLETED, EpisodeResult, run_episode
+from robobpp.core import Action, Box, ContainerState, EpisodeInfo, EpisodeSpec, Observation
+from robobpp.episode import CLOSED, COMPLETED, PAPER, PROTOCOLS, EpisodeResult, run_episode
 from robobpp.policies.base import Policy, PolicyError
-from robobpp.sim import Setting
+from robobpp.sim import Setting, make_setting
+from robobpp.sim.base import FinalBox, StepOutcome
+from robobpp.sim.math_pack import MathPack
 
-#: How an episode in a physical setting is run; ``closed`` is the default everywhere.
-PROTOCOLS: tuple[str, ...] = ("closed", "paper")
-CLOSED, PAPER = PROTOCOLS
 #: The settings the paper protocol replays in (in Math Pack both protocols are the same episode).
 PAPER_SETTINGS: tuple[str, ...] = ("physics", "execution")
 
@@ -62,6 +64,49 @@ class Playback:
         return None
 
 
+class OpenLoop(Setting):
+    """A physical setting as the reference replays into it: each action first goes onto the idealised (Math
+    Pack) pile, where the reference's environment step checks it (bounds and height: ``too_high`` there ends
+    the replay); the physical setting then executes it without its own check of the height on the physical
+    pile (``height_check`` off): a box may come to stand a little above the container, as in the reference,
+    whose only other height check (its container's ``add_new_box``) reads the same idealised heights."""
+
+    def __init__(self, setting: Setting) -> None:
+        self.inner = setting
+        self.name = setting.name
+        self.ideal = MathPack()
+        self._height_check = getattr(setting, "height_check", None)
+
+    @property
+    def physics_version(self) -> str | None:
+        return self.inner.physics_version
+
+    def reset(self, spec: EpisodeSpec) -> None:
+        if self._height_check is not None:
+            self.inner.height_check = False  # type: ignore[attr-defined]
+        self.ideal.reset(spec)
+        self.inner.reset(spec)
+
+    def state(self) -> ContainerState:
+        return self.inner.state()
+
+    def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
+        planned = self.ideal.apply(box, action, index)
+        if planned.termination is not None:
+            return planned
+        return self.inner.apply(box, action, index)
+
+    def final_boxes(self) -> list[FinalBox]:
+        return self.inner.final_boxes()
+
+    def close(self) -> None:
+        try:
+            self.inner.close()
+        finally:
+            if self._height_check is not None:
+                self.inner.height_check = self._height_check  # type: ignore[attr-defined]
+
+
 def replay_episode(
     spec: EpisodeSpec,
     setting: Setting | str,
@@ -75,8 +120,9 @@ def replay_episode(
     """Replay recorded answers (one per box from the first; ``None``: no feasible placement) in ``setting``.
 
     Each answer goes through the episode loop as a policy's would: the loop's bounds check refuses what is
-    out of the container, the setting decides the rest (too high on its pile, collapse, a failed operation) and
-    may end the episode at any box. ``decision_times[i]`` is box ``i``'s Decision Time. When the answers run
+    out of the container, the plan's idealised pile what is too high (:class:`OpenLoop`), the setting decides
+    the rest (collapse, a failed operation) and may end the episode at any box; counted as the reference
+    counts (:meth:`robobpp.episode.Episode.result`). ``decision_times[i]`` is box ``i``'s Decision Time. When the answers run
     out before the boxes, the episode ends with ``termination`` and ``termination_detail`` (how the recorded
     episode ended). The result carries ``protocol="paper"`` and the policy name ``policy``.
     """
@@ -89,9 +135,8 @@ def replay_episode(
             f"a completed episode answers every box: {len(actions)} actions for {len(spec.boxes)} boxes"
         )
     playback = Playback(policy, actions, termination, termination_detail)
-    result = run_episode(spec, playback, setting, decision_times=decision_times)
-    result.protocol = PAPER
-    return result
+    physical = OpenLoop(make_setting(setting) if isinstance(setting, str) else setting)
+    return run_episode(spec, playback, physical, decision_times=decision_times, protocol=PAPER)
 
 
 def recorded_answers(math: EpisodeResult) -> tuple[list[Action | None], list[float]]:
@@ -170,6 +215,7 @@ def run_paper_protocol(
 __all__ = [
     "CLOSED",
     "PAPER",
+    "OpenLoop",
     "PAPER_SETTINGS",
     "PROTOCOLS",
     "PROTOCOL_DESCRIPTIONS",

@@ -32,6 +32,10 @@ class PhysicsPack(Setting):
     #: Record how boxes move during each step (``extra["track"]``) for the replay; reading poses only,
     #: it changes no outcome. Off saves the samples' small cost where no trace is kept.
     record_tracks: bool = True
+    #: Refuse a placement whose top would stand above the container on the pile *as it physically is*
+    #: (``too_high``). The paper protocol turns it off: there, as in the reference, the height was checked on
+    #: the plan's idealised pile (``robobpp.replay.OpenLoop``) and the box goes where the pile takes it.
+    height_check: bool = True
 
     def __init__(self, config: PhysicsConfig | None = None, **options: object) -> None:
         known = {f.name for f in fields(PhysicsConfig)}
@@ -104,13 +108,14 @@ class PhysicsPack(Setting):
 
     def target_placement(self, box: Box, action: Action, index: int) -> Placement | Infeasible:
         """The planned placement: the action's (x, y) at the resting height the *physical* pile offers,
-        or ``Infeasible("too_high")`` when the box's top would then stand above the container."""
+        or ``Infeasible("too_high")`` when the box's top would then stand above the container (unless
+        ``height_check`` is off)."""
         self._world()  # refuses before reset
         spec = self.spec
         assert spec is not None
         length, width, height = box.dims(action.orientation)
         z = self.resting_height(action.x, action.y, length, width)
-        if z + height > spec.container.height + self.config.too_high_slack_cm:
+        if self.height_check and z + height > spec.container.height + self.config.too_high_slack_cm:
             detail = (f"box top at {z + height:g} cm would exceed the container height "
                       f"{spec.container.height:g} cm")  # fmt: skip
             return Infeasible("too_high", detail)

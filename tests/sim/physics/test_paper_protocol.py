@@ -57,7 +57,7 @@ def test_the_replay_plays_exactly_the_math_actions_and_times() -> None:
     assert physics.to_dict()["protocol"] == PAPER
 
 
-def test_a_collapse_ends_the_replay_at_that_box() -> None:
+def test_a_collapse_ends_the_replay_at_that_box_and_counts_as_the_reference() -> None:
     # A heavy cube released on top of a thin pillar, far off its centre: both fall; the third action is never
     # used although it would be feasible.
     spec = make_spec([(8, 8, 40), (30, 30, 20), (10, 10, 10)], container=(80, 80, 100), threshold=4.0)
@@ -66,8 +66,36 @@ def test_a_collapse_ends_the_replay_at_that_box() -> None:
     assert result.termination == "collapse", result.termination_detail
     assert [s.step for s in result.steps] == [0, 1]
     assert result.steps[-1].collapsed and result.counters["placements_collapsed"] == 1
-    assert result.metrics["decision_time"] == pytest.approx(0.15)
     assert result.protocol == PAPER
+    # The reference's count: the collapse at box 1 leaves 1 box placed; box 1 is out of the utilisation, its
+    # decision time and static stability out of the means; the pillar counts although it fell.
+    assert result.boxes_placed == 1
+    assert result.metrics["space_utilization"] == pytest.approx(8 * 8 * 40 / (80 * 80 * 100))
+    assert result.metrics["decision_time"] == pytest.approx(0.1)
+    assert result.metrics["static_stability"] == pytest.approx(result.steps[0].static_stability)
+    assert len(result.final) == 2 and not any(f["in_place"] for f in result.final)  # the trace keeps both
+    # The closed loop counts what is still in place at the end: both boxes placed, none in place.
+    closed = run_episode(spec, Scripted(actions), "physics")
+    assert (closed.termination, closed.boxes_placed, closed.metrics["space_utilization"]) == (
+        "collapse",
+        2,
+        0.0,
+    )
+
+
+def test_the_replay_checks_the_height_on_the_planned_pile_not_on_the_physical_one() -> None:
+    # A plank overhanging a block tips (its near end rises above the block's top); the third box, planned on
+    # the block's top where the idealised pile has it end 3 cm under the lid, would stand above the container
+    # on the tipped plank. The reference checks the height only on the idealised pile: the replay places it
+    # (its weight rights the plank); the closed loop, which plans on the physical pile, refuses it.
+    spec = make_spec([(20, 40, 10), (50, 40, 2), (20, 40, 10)], container=(60, 40, 25), threshold=50.0)
+    actions = [Action(0, 0, 0)] * 3
+    closed = run_episode(spec, Scripted(actions), "physics")
+    assert closed.termination == "too_high" and closed.boxes_placed == 2, closed.termination_detail
+    paper = replay_episode(spec, "physics", actions, [0.0] * 3)
+    assert paper.termination == "completed" and paper.boxes_placed == 3, paper.termination_detail
+    assert [s.termination for s in paper.steps] == [None, None, None]
+    assert paper.metrics["space_utilization"] == pytest.approx((8000 + 4000 + 8000) / (60 * 40 * 25))
 
 
 @pytest.mark.parametrize(
@@ -75,7 +103,8 @@ def test_a_collapse_ends_the_replay_at_that_box() -> None:
     [
         # the second box's footprint would stick out of the 40 cm container
         ([Action(0, 0, 0), Action(30, 0, 0), Action(0, 20, 0)], "out_of_bounds", 2),
-        # the second box would stand on the first one, its top above the 45 cm container
+        # the second box would stand on the first one, its top above the 45 cm container on the planned
+        # (idealised) pile, where the reference checks it
         ([Action(0, 0, 0), Action(0, 0, 0), Action(0, 20, 0)], "too_high", 2),
     ],
 )

@@ -20,11 +20,16 @@ from rich.table import Table
 from robobpp import stats
 from robobpp.cli.common import fail, table_console
 from robobpp.metrics import METRIC_BY_KEY, metrics_for
+from robobpp.provenance import merged
 from robobpp.scoring import score_board
 
 
 def register(root: typer.Typer) -> None:
     root.command("compare")(compare)
+
+
+#: Per-episode version fields a comparison checks (``EpisodeResult``), by provenance name.
+VERSIONED = {"physics": "physics_version", "math_rules": "rules_version", "sampler": "sampler_version"}
 
 
 def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
@@ -51,10 +56,13 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
                     ),
                     run["setting"],
                 )
+                # what the episodes ran under (files from before versions: unknown, not checked)
+                versions = {key: merged(e.get(field) for e in mine) for key, field in VERSIONED.items()}
                 entries.append({"policy": str(payload["policy"]), "file": str(path), "dataset": run["dataset"],
                                 "setting": run["setting"], "protocol": protocol,
                                 "metrics": dict(run["metrics"]), "figures": figures,
-                                "episodes": sorted(e["episode_id"] for e in mine)})  # fmt: skip
+                                "episodes": sorted(e["episode_id"] for e in mine), "versions": versions,
+                                "provenance": payload.get("provenance")})  # fmt: skip
         except OSError as exc:
             fail(f"{path}: cannot read ({exc.strerror})")
         except (ValueError, KeyError, TypeError) as exc:
@@ -74,6 +82,11 @@ def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str, str], li
             if row["episodes"] != reference["episodes"]:
                 fail(f"{dataset}/{setting}: {row['file']} and {reference['file']} ran different episodes "
                      "(use the same --split, --seed and --groups)")  # fmt: skip
+            for key, mine in row["versions"].items():  # a board never mixes versions (docs/benchmark.md)
+                theirs = reference["versions"].get(key)
+                if mine is not None and theirs is not None and mine != theirs:
+                    fail(f"{dataset}/{setting}: {row['file']} ran {key} version {mine}, {reference['file']} "
+                         f"version {theirs}: not comparable; evaluate both with one robobpp")  # fmt: skip
         scores = score_board(rows, setting)
         for i, row in enumerate(rows):
             s = scores.scored[i]

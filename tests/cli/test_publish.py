@@ -197,3 +197,23 @@ def test_a_served_policy_is_named_by_its_info_not_its_url(real_data, tmp_path):
     assert "lowest-first 2.1" in proc.stdout
     with BackgroundServer(create_policy_app(_Named(), name="given", version="3")) as server:
         assert httpx.get(server.url + "/info").json()["version"] == "3"
+
+
+@pytest.mark.network
+def test_compare_refuses_results_of_different_versions(evaluated, tmp_path):
+    """As a board keeps versions apart, `compare` refuses two runs whose episodes ran other Math rules."""
+    _proc, payload, _csv = evaluated
+    older = {
+        **payload,
+        "policy": "older",
+        "episodes": [{**e, "rules_version": "0"} for e in payload["episodes"]],
+    }
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps(payload))
+    b.write_text(json.dumps(older))
+    proc = run_cli("compare", str(a), str(b))
+    assert proc.returncode == 2 and "math_rules version 0" in proc.stderr and "not comparable" in proc.stderr
+    legacy = {**payload, "policy": "legacy", "episodes": [{k: v for k, v in e.items() if k != "rules_version"}
+                                                          for e in payload["episodes"]]}  # fmt: skip
+    b.write_text(json.dumps(legacy))
+    assert run_cli("compare", str(a), str(b)).returncode == 0  # a file from before versions: not checked

@@ -121,6 +121,7 @@ def print_table(cells: dict[str, dict[str, dict[str, Any]]]) -> None:
                 f"| {endings(eps, 'paper')} "
                 f"| {endings(eps, 'closed')} | {tilted} ({share:.3f}) |"
             )
+    agreement(cells)
     dbl = cells.get("longboard", {}).get("dbl")
     if dbl:
         m, c = mean(dbl["episodes"], "math"), mean(dbl["episodes"], "closed")
@@ -128,6 +129,30 @@ def print_table(cells: dict[str, dict[str, dict[str, Any]]]) -> None:
         print(
             f"\nLong Board DBL: closed loop {c:.3f} vs Math {m:.3f}: {c / m:.2f} × Math (target ≥ 0.8: {verdict})"
         )
+
+
+def agreement(cells: dict[str, dict[str, dict[str, Any]]]) -> None:
+    """Per dataset and protocol: Spearman and mean |diff| against the paper's Physics Pack figures."""
+    from robobpp.paper import paper_tables
+    from robobpp.reproduction import spearman
+
+    tables = paper_tables()
+    print("\n| dataset | protocol | policies | Spearman with the paper | mean abs diff |")
+    print("|---|---|---:|---:|---:|")
+    for dataset, figures in cells.items():
+        for protocol in ("paper", "closed"):
+            pairs = []
+            for policy, cell in figures.items():
+                theirs = tables.get("physics", dataset, policy, "space_utilization")
+                ours = mean(cell["episodes"], protocol)
+                if theirs is not None and not math.isnan(ours):
+                    pairs.append((ours, theirs.value))
+            if len(pairs) >= 3:
+                rho = spearman([o for o, _ in pairs], [t for _, t in pairs])
+                diff = statistics.mean(abs(o - t) for o, t in pairs)
+                print(
+                    f"| {dataset} | {protocol} | {len(pairs)} | {rho if rho is None else f'{rho:.2f}'} | {diff:.3f} |"
+                )
 
 
 def explain(cells: dict[str, dict[str, dict[str, Any]]], worst: int) -> None:

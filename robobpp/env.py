@@ -19,10 +19,12 @@ MaskablePPO takes there (x, then y, then orientation values that occur in some f
 since one mask per dimension cannot say which combinations are feasible; use ``actions="flat"`` to mask exactly).
 ``info["action_mask"]`` carries ``action_masks()`` after every reset and step.
 
-``support_mask()`` (and ``info["support_mask"]``, in the same layout as ``info["action_mask"]``) narrows the feasible
-actions to those the reference's support rule accepts on the observed state — extra information a policy may use
-(the reference's PCT restricts its candidates to it in Physics and Execution Pack), never enforced. On a Math Pack
-state it equals the action mask (no rule there, as in the reference).
+``support_mask()`` narrows the feasible actions to those the reference's support rule accepts on the observed
+state — extra information a policy may use (the reference's PCT restricts its candidates to it in Physics and
+Execution Pack), never enforced. On a Math Pack state it equals the action mask (no rule there, as in the
+reference). It tests every position, up to about a second per step late in a physical episode, so it is computed
+only when asked; ``support_info=True`` also puts it in ``info["support_mask"]`` (same layout as
+``info["action_mask"]``) after every reset and step.
 
 When no placement is feasible for the next box the episode ends there: ``terminated=True`` and
 ``info["termination"] == "no_feasible_placement"``, recorded like a policy's "no feasible placement".
@@ -109,6 +111,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         specs: Sequence[EpisodeSpec] | None = None,
         data_seed: int = 0,
         actions: str = "grid",
+        support_info: bool = False,
     ) -> None:
         if reward not in REWARDS:
             raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)}")
@@ -146,7 +149,8 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._episode: Episode | None = None
         self._obs: Observation | None = None
         self._mask = np.zeros(self.grid_shape, bool)
-        self._support_mask = np.zeros(self.grid_shape, bool)
+        self._support_mask: np.ndarray | None = None  # computed when first asked, per observation
+        self.support_info = support_info
 
     def _encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
         if obs is not None:
@@ -174,20 +178,17 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         spec = self.specs[int(index)]
         self._episode = Episode(spec, self.setting_name, lookahead=self.lookahead)
         self._observe()
-        return self._encode(self._obs), {
-            "episode_id": spec.episode_id,
-            "action_mask": self.action_masks(),
-            "support_mask": self._layout(self._support_mask),
-        }
+        info = {"episode_id": spec.episode_id, "action_mask": self.action_masks()}
+        if self.support_info:
+            info["support_mask"] = self._layout(self.support_mask())
+        return self._encode(self._obs), info
 
     def _observe(self) -> None:
-        """The next box's observation, its feasible and its supported actions (computed once, read by every mask
-        call)."""
+        """The next box's observation and its feasible actions (computed once, read by every mask call)."""
         assert self._episode is not None
         self._obs = None if self._episode.done else self._episode.observe()
-        none = np.zeros(self.grid_shape, bool)
-        self._mask = none if self._obs is None else feasible_mask(self._obs)
-        self._support_mask = none if self._obs is None else feasible_mask(self._obs, supported=True)
+        self._mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
+        self._support_mask = None
 
     def _grid_action(self, action: Any) -> tuple[int, int, int]:
         values = np.asarray(action).reshape(-1)
@@ -224,7 +225,8 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             term = self._episode.termination
             info["termination"] = term.reason if term else "completed"
         info["action_mask"] = self.action_masks()
-        info["support_mask"] = self._layout(self._support_mask)
+        if self.support_info:
+            info["support_mask"] = self._layout(self.support_mask())
         return self._encode(self._obs), reward, terminated, False, info
 
     def action_mask(self) -> np.ndarray:
@@ -237,6 +239,13 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def support_mask(self) -> np.ndarray:
         """Boolean (x, y, orientation) mask of the feasible actions the support rule accepts (module docstring)."""
+        if self._support_mask is None:
+            obs = self._obs
+            self._support_mask = (
+                feasible_mask(obs, supported=True)
+                if obs is not None and self._mask.any()
+                else self._mask.copy()
+            )
         return self._support_mask.copy()
 
     def _layout(self, mask: np.ndarray) -> np.ndarray:

@@ -209,8 +209,11 @@ def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
     # on the floor. The environment accepts both (bounds and height, as the reference's); the rule is offered
     # apart, in info["support_mask"], and only on a state observed after physics.
     specs = [make_spec([(4, 10, 5), (10, 10, 1)], (20, 10, 20))]
-    env = gym.make("robobpp/Pack-v0", specs=specs, setting=setting, actions="flat").unwrapped
-    env.reset(seed=0)
+    env = gym.make(
+        "robobpp/Pack-v0", specs=specs, setting=setting, actions="flat", support_info=True
+    ).unwrapped
+    _, info = env.reset(seed=0)
+    np.testing.assert_array_equal(info["support_mask"], info["action_mask"])  # nothing placed: all supported
     _, _, terminated, _, info = env.step(np.ravel_multi_index((0, 0, 0), env.grid_shape))
     assert info["placed"] and not terminated
     mask, support = env.action_mask(), env.support_mask()
@@ -226,3 +229,8 @@ def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
     _, reward, _, _, info = env.step(np.ravel_multi_index((0, 0, 0), env.grid_shape))
     assert info["placed"] and reward > 0 and info.get("termination") != "unsupported"
     env.close()
+    # by default the support mask is computed only when asked (it tests every position): not in info
+    plain = gym.make("robobpp/Pack-v0", specs=specs, setting=setting).unwrapped
+    _, info = plain.reset(seed=0)
+    assert "support_mask" not in info and plain.support_mask().any()
+    plain.close()

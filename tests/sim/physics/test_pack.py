@@ -189,3 +189,32 @@ def test_observation_does_not_flip_on_a_tenth_of_a_millimetre(noise: float) -> N
     # Outcomes and metrics keep the measured pose.
     assert pack.final_boxes()[0].actual.x == pytest.approx(45.0 + noise, abs=1e-3)
     pack.close()
+
+
+def test_a_board_that_tilts_in_place_counts_as_placed() -> None:
+    """A 100 cm board over a 40 cm box: it tips about the box's edge until its far end rests on the deck. Its
+    centre moves far less than the threshold horizontally, so — as in the reference, whose collapse rule reads
+    only |dx| and |dy| of the centre — it is no collapse and counts as in place, tilted and all."""
+    import math
+
+    from robobpp import metrics as M
+
+    base, board = Box(40, 20, 10, 5.0), Box(100, 20, 2, 5.0)
+    pack = _pack([base, board])
+    assert pack.apply(base, Action(0, 30, 0), 0).termination is None
+    out = pack.apply(board, Action(0, 30, 0), 1)
+    assert not out.collapsed and out.termination is None
+    final = pack.final_boxes()
+    assert [f.in_place for f in final] == [True, True]
+    planned, actual = final[1].planned, final[1].actual
+    assert actual.quaternion is not None
+    tilt = math.degrees(2 * math.acos(min(1.0, abs(actual.quaternion[3]))))
+    assert 5 < tilt < 15  # it leans: from 10 cm over the box's edge down to the deck, over 60 cm
+    assert actual.center[2] < planned.center[2] - 1  # its centre dropped (10 cm from the edge: ≈ 1.7 cm)
+    assert max(abs(a - b) for a, b in zip(actual.center[:2], planned.center[:2], strict=True)) < 7
+    # a seesaw on the box's edge: the end over the box rose, and the observed heightmap (a tilted box claims its
+    # bounds' top) shows it above the planned top of 12 cm
+    assert pack.state().heightmap[0:5, 35:45].max() > 12 + 3
+    volume = (40 * 20 * 10 + 100 * 20 * 2) / pack.spec.container.volume  # type: ignore[union-attr]
+    assert M.space_utilization(final, pack.spec.container) == pytest.approx(volume)  # type: ignore[union-attr]
+    pack.close()

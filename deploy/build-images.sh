@@ -27,7 +27,7 @@ BASE=robobpp-debian:bookworm
 SUITE=bookworm
 PACKAGES=python3,python3-venv,libgomp1,curl,ca-certificates,postgresql-15,redis-server,redis-tools
 
-say() { printf '== %s\n' "$*"; }
+say() { printf "== [%4d s] %s\n" "$(( $(date +%s) - started ))" "$*"; }
 started=$(date +%s)
 
 docker info >/dev/null 2>&1 || { echo "no Docker daemon answers (start one: deploy/dockerd.sh start)" >&2; exit 1; }
@@ -70,12 +70,12 @@ packsim="$(sed -n 's/^PACKSIM_REQUIREMENT = "\(.*\)"$/\1/p' robobpp/datasets/sou
 "$PYTHON" -m pip download -q --no-deps -d "$BUILD/data" "$packsim"
 
 say "robobpp:$TAG"
-docker build -q --network none -f deploy/Dockerfile.debian --build-arg BASE="$BASE" \
+docker build -q --force-rm --network none -f deploy/Dockerfile.debian --build-arg BASE="$BASE" \
   --label "org.robobpp.source=$("$PYTHON" deploy/source_hash.py)" \
   --build-arg WHEELS="$BUILD/wheels" --build-arg DATA="$BUILD/data" -t "robobpp:$TAG" . >/dev/null
 say "robobpp-postgres:$TAG, robobpp-redis:$TAG"
-docker build -q --network none -f deploy/postgres/Dockerfile --build-arg BASE="$BASE" -t "robobpp-postgres:$TAG" deploy/postgres >/dev/null
-docker build -q --network none -f deploy/redis/Dockerfile --build-arg BASE="$BASE" -t "robobpp-redis:$TAG" deploy/redis >/dev/null
+docker build -q --force-rm --network none -f deploy/postgres/Dockerfile --build-arg BASE="$BASE" -t "robobpp-postgres:$TAG" deploy/postgres >/dev/null
+docker build -q --force-rm --network none -f deploy/redis/Dockerfile --build-arg BASE="$BASE" -t "robobpp-redis:$TAG" deploy/redis >/dev/null
 
 docker image ls --format '{{.Repository}}:{{.Tag}}  {{.Size}}' | grep -E "^(robobpp[^:]*:$TAG|$BASE) " || true
-say "done in $(( $(date +%s) - started )) s"
+say "done"

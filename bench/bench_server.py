@@ -1,5 +1,6 @@
 """Evaluation server at scale: every page and API route under 20 concurrent readers, with 10,000 submissions
-(90,000 runs, 2.7 M episode rows) in the database, and submissions accepted per second.
+(147,600 runs, 4.4 M episode rows: each submission with Math Pack also has Physics and Execution under the
+paper protocol, as the server creates them) in the database, and submissions accepted per second.
 
 The server runs for real in a subprocess (uvicorn, ``--server-workers`` processes — one, as ``robobpp serve``
 runs it — no evaluation workers); the readers are a separate load-generator process (``_load.py``) over
@@ -39,7 +40,7 @@ from _load import read_concurrently
 from sqlalchemy import insert, text
 
 from robobpp.client.serve import BackgroundServer, create_policy_app
-from robobpp.db import queries
+from robobpp.db import queries, work
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.work import run_figures
 from robobpp.leaderboard import build_grid
@@ -57,7 +58,7 @@ GROUPS = 30
 TEAMS = 100
 EPISODE_COLUMNS = ("id", "submission_id", "run_id", "dataset", "setting", "split", "group", "status", "attempts",
                    "step", "termination", "termination_detail", "boxes_total", "boxes_placed", "metrics", "counters",
-                   "finished_at", "physics_version")  # fmt: skip
+                   "finished_at", "physics_version", "protocol")  # fmt: skip
 
 
 QUOTED = ", ".join(f'"{c}"' for c in EPISODE_COLUMNS)  # "group" is an SQL keyword
@@ -106,15 +107,18 @@ def seed_rows(runtime: Any, n: int) -> int:
     for i in range(n):
         kind = "failed" if i % 50 == 7 else "partial" if i % 50 == 23 else "ok"
         settings = ("math",) if kind == "partial" else SETTINGS
+        # the server's runs: every setting closed loop, and the physical ones again under the paper protocol
+        boards = [(st, "closed") for st in settings] + [(st, "paper") for st in work.paper_settings(list(settings),
+                                                                                                   "private")]  # fmt: skip
         quality = rng.random()
         sub_id = i + 1
         subs.append({"id": sub_id, "participant_id": teams[i % TEAMS], "name": f"policy-{i}",
                      "policy_url": "https://example.org", "track": "private", "datasets": list(DATASETS),
-                     "settings": list(settings), "lookahead": 0, "episodes_total": GROUPS * 3 * len(settings),
+                     "settings": list(settings), "lookahead": 0, "episodes_total": GROUPS * 3 * len(boards),
                      "status": "failed" if kind == "failed" else "completed", "created_at": now - timedelta(days=1),
                      "finished_at": now - timedelta(seconds=n - i)})  # fmt: skip
         for d in DATASETS:
-            for st in settings:
+            for st, protocol in boards:
                 run_id += 1
                 rows = []
                 for g in range(GROUPS):
@@ -123,10 +127,12 @@ def seed_rows(runtime: Any, n: int) -> int:
                     term = "policy_error" if kind == "failed" else "completed"
                     rows.append((m, c, term, 40, g))
                     batch.append((episode_id, sub_id, run_id, d, st, "test", g, "done", 1, 40, term, "", 80, 40,
-                                  json.dumps(m), json.dumps(c), now, None if st == "math" else PHYSICS_VERSION))  # fmt: skip
+                                  json.dumps(m), json.dumps(c), now, None if st == "math" else PHYSICS_VERSION,
+                                  protocol))  # fmt: skip
                 metrics, extras = run_figures([r[:4] for r in rows], st)
                 figures = group_figures(({**m, **c, "group": g} for m, c, _t, _b, g in rows), st)
-                runs.append({"id": run_id, "submission_id": sub_id, "dataset": d, "setting": st, "status": "completed",
+                runs.append({"id": run_id, "submission_id": sub_id, "dataset": d, "setting": st, "protocol": protocol,
+                             "status": "completed",
                              "episodes_total": GROUPS, "metrics": metrics, "extras": extras, "figures": figures,
                              "completed_at": now})  # fmt: skip
                 episodes += GROUPS
@@ -198,6 +204,9 @@ def routes(sub_ids: list[int], cookie: str, episode_id: int) -> list[tuple[str, 
         ("GET / (home: overall grid, best entries)", "/", anonymous),
         ("GET /?view=all&page=100", "/?view=all&page=100", anonymous),
         ("GET /boards/diverse/math", "/boards/diverse/math", anonymous),
+        ("GET /?protocol=paper (grid under the paper protocol)", "/?protocol=paper", anonymous),
+        ("GET /boards/diverse/physics?protocol=paper", "/boards/diverse/physics?protocol=paper", anonymous),
+        ("GET /reproduction", "/reproduction", anonymous),
         ("GET /boards/repetitive/execution?view=all&page=50", "/boards/repetitive/execution?view=all&page=50",
          anonymous),
         ("GET /submissions/{id} (page, signed in)", f"/submissions/{sid}", owner),
@@ -211,6 +220,8 @@ def routes(sub_ids: list[int], cookie: str, episode_id: int) -> list[tuple[str, 
         ("GET /api/v1/leaderboards (grid)", "/api/v1/leaderboards", api),
         ("GET /api/v1/leaderboards?view=all&offset=5000", "/api/v1/leaderboards?view=all&offset=5000", api),
         ("GET /api/v1/leaderboards/diverse/math", "/api/v1/leaderboards/diverse/math", api),
+        ("GET /api/v1/leaderboards/longboard/execution?protocol=paper",
+         "/api/v1/leaderboards/longboard/execution?protocol=paper", api),
         ("GET /api/v1/leaderboards/longboard/physics?view=all&offset=9000",
          "/api/v1/leaderboards/longboard/physics?view=all&offset=9000", api),
         ("GET /api/v1/leaderboards/repetitive/execution?submission={id}",
@@ -347,6 +358,17 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
         t0, c0 = time.perf_counter(), time.process_time()
         build_grid(boards, DATASETS, SETTINGS, "private")
         out.append(("overall grid from the nine boards", time.perf_counter() - t0, time.process_time() - c0))
+        for st in SETTINGS[1:]:  # the physical boards again, under the paper protocol
+            for d in DATASETS:
+                t0, c0 = time.perf_counter(), time.process_time()
+                boards[f"{st}/{d}"] = queries.leaderboard(s, d, st, protocol="paper")
+                out.append((f"board {st}/{d}, paper protocol ({len(boards[f'{st}/{d}']['entries'])} ranked)",
+                            time.perf_counter() - t0, time.process_time() - c0))  # fmt: skip
+        t0, c0 = time.perf_counter(), time.process_time()
+        build_grid(boards, DATASETS, SETTINGS, "private")
+        out.append(
+            ("overall grid under the paper protocol", time.perf_counter() - t0, time.process_time() - c0)
+        )
     return out
 
 
@@ -413,7 +435,7 @@ def main() -> None:
         scrape = httpx.get(f"{base}/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text
         snapshot = re.search(r"^robobpp_board_snapshot_seconds ([0-9.e+-]+)$", scrape, re.M)
         print(f"warm-up (the server serves the boards it stored before a restart, if any, and computes each "
-              f"track's nine boards and grid when it starts, in its board process): {time.perf_counter() - t0:.0f} s; "
+              f"track's fifteen boards and two grids when it starts, in its board process): {time.perf_counter() - t0:.0f} s; "
               f"last snapshot "
               f"{float(snapshot.group(1)) if snapshot else float('nan'):.1f} s")  # fmt: skip
         alone = cpu_per_request(base, proc.pid, paths, 50)
@@ -454,10 +476,14 @@ def main() -> None:
                     remote = {"name": "bench", "policy_url": policy.url, "secret": "bench-secret-123"}
                     rate_remote = accepts_per_second(client, remote, args.accepts, 1)
             print("\n| submission | clients | accepted per second |\n|---|---|---|")
-            print(f"| builtin policy (no URL probe), 270 episode rows each | 1 | {rate_builtin:.1f} |")
-            print(f"| builtin policy (no URL probe), 270 episode rows each | 4 | {rate_builtin_4:.1f} |")
             print(
-                f"| policy URL (resolve, pin, signed GET /info), 270 episode rows each | 1 | {rate_remote:.1f} |"
+                f"| builtin policy (no URL probe), 450 episode rows each (270 closed loop, 180 paper protocol) | 1 | {rate_builtin:.1f} |"
+            )
+            print(
+                f"| builtin policy (no URL probe), 450 episode rows each (270 closed loop, 180 paper protocol) | 4 | {rate_builtin_4:.1f} |"
+            )
+            print(
+                f"| policy URL (resolve, pin, signed GET /info), 450 episode rows each (270 closed loop, 180 paper protocol) | 1 | {rate_remote:.1f} |"
             )
     finally:
         proc.terminate()

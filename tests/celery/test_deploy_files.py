@@ -1,4 +1,4 @@
-"""docker-compose.yml and the Dockerfile agree with the code (Docker itself cannot run in CI).
+"""docker-compose.yml and the Dockerfile agree with the code, read without Docker (tests/deploy runs them).
 
 Each check is one way a deployment breaks on first start: a command the CLI does not know, an environment
 variable the settings object silently ignores (``extra="ignore"``), a worker that cannot be scaled, a value

@@ -255,6 +255,8 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
                       message=f"This episode's trace cannot be drawn: {exc}")  # fmt: skip
     base = root(request)
     heading = f"{sub.name} · {ep.dataset} · {ep.setting} · group {ep.group}"
+    if ep.protocol != "closed":  # the Math Pack actions replayed
+        heading += " · paper protocol"
     crumbs = [("Leaderboard", f"{base}/")]
     if owner or sub.participant.is_builtin:
         crumbs.append((f"Submission {sub.id}", f"{base}/submissions/{sub.id}"))

@@ -167,8 +167,11 @@ def test_submission_page_shows_results_charts_and_episodes(server: Server, probe
     assert sum(counts) == 18
     replay_links = probe.page.locator("#episodes a", has_text="3D replay")
     assert replay_links.count() == 18
+    replay_of_a_replay = replay_links.last.get_attribute("href")  # the last episodes: the paper protocol's
     assert "policy_url" not in probe.page.content() and "builtin:" not in probe.page.content()
     assert "min–max normalisation needs at least two entries" in probe.page.locator("main").inner_text()
+    probe.page.goto(server.url + replay_of_a_replay)
+    assert "physics · group 1 · paper protocol" in probe.page.locator("h1").inner_text()
     probe.assert_clean()
 
 

@@ -55,8 +55,9 @@ def start_server(env: dict[str, str], tmp: Path) -> tuple[subprocess.Popen[bytes
 
     port = free_port()
     compose = _compose()
+    # robobpp's own settings of the server (FORWARDED_ALLOW_IPS is uvicorn's, for a proxy in front)
     own = {k: str(v) for k, v in compose["services"]["server"]["environment"].items()
-           if k not in compose["x-robobpp-env"] and k != "ROBOBPP_ADMIN_TOKEN"}  # fmt: skip
+           if k.startswith("ROBOBPP_") and k not in compose["x-robobpp-env"] and k != "ROBOBPP_ADMIN_TOKEN"}  # fmt: skip
     assert own == {"ROBOBPP_WORKERS": "0"}  # the server runs no episodes itself; the workers do
     server_env = {**env, **own, "ROBOBPP_ADMIN_TOKEN": ADMIN}
     log = (tmp / "server.log").open("ab")

@@ -222,12 +222,16 @@ def _standings_table(sub: SubmissionPublic, standings: list[Standing]) -> Table:
     for k in keys:
         table.add_column(_label(k), justify="right")
     table.add_column("score", justify="right")
+    table.add_column("stable", justify="right")
     table.add_column("rank", justify="right")
     for s in standings:
         rank = f"{s.rank} / {s.entries}" if s.rank is not None else s.board_status or "—"
         style = "bold green" if s.rank == 1 else None
         table.add_row(s.board, s.status, *(_fmt(s.metrics.get(k)) if k in s.metrics else "" for k in keys),
-                      _fmt(s.score, 3), rank, style=style)  # fmt: skip
+                      _fmt(s.score, 3), _fmt(s.stable, 3), rank, style=style)  # fmt: skip
+    # Alone on a board the relative score is 0 by construction: say which figure to read then.
+    table.caption = ("score: relative to the board's other entries (0 when alone on it); "
+                     "stable: against fixed anchors, it never moves when others arrive")  # fmt: skip
     return table
 
 

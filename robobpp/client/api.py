@@ -88,6 +88,9 @@ class Standing:
     board_status: str | None = None
     #: ``closed`` or ``paper`` (a physical setting's Math Pack actions replayed; docs/server.md).
     protocol: str = "closed"
+    #: The score against fixed anchors (never moves when others arrive; None while not ranked): alone on a
+    #: board, the relative ``score`` is 0 by construction, and this is the figure that says how well it did.
+    stable: float | None = None
 
     @property
     def board(self) -> str:
@@ -373,10 +376,10 @@ class ServerClient:
         )
         apart = next((e for e in board.unranked if e.submission_id == submission.id), None)
         metrics = dict(entry.metrics if entry else run.metrics or {})
-        rank, score = (entry.rank, entry.score) if entry else (None, None)
+        rank, score, stable = (entry.rank, entry.score, entry.stable) if entry else (None, None, None)
         return Standing(dataset=run.dataset, setting=run.setting, status=run.status, metrics=metrics,
                         metric_keys=list(board.metrics), rank=rank, score=score,
                         entries=self.leaderboard(run.dataset, run.setting, track=track, view="all", limit=1,
                                                  protocol=protocol).total,
                         board_status="ranked" if entry else apart.status if apart else None,
-                        protocol=protocol)  # fmt: skip
+                        protocol=protocol, stable=stable)  # fmt: skip

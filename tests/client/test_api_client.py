@@ -119,6 +119,9 @@ def test_submit_wait_prints_the_results_with_rank_per_board(
     assert standing.board == "math/diverse" and standing.rank is not None
     assert (int(match[1]), int(match[2])) == (standing.rank, standing.entries)
     assert f"{standing.metrics['space_utilization']:.4f}" in done.stdout
+    # the stable score too: alone on a board the relative score is 0, and the stable one says how well it did
+    assert standing.stable is not None and re.search(rf"\s{standing.stable:.3f}\s.*\s{match[1]} / ", match[0])
+    assert "stable: against fixed anchors" in " ".join(done.stdout.split())  # the caption, maybe wrapped
     # the DBL baseline ran in-process on the same episodes: same geometry as the remote DBL
     assert baseline.metrics["space_utilization"] == pytest.approx(standing.metrics["space_utilization"])
 

@@ -10,11 +10,11 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from robobpp import stats
 from robobpp.cli.common import DatasetOpt, fail, import_from_cwd, parse_choices, table_console
+from robobpp.cli.progress import LineProgress
 from robobpp.metrics import aggregate, metrics_for
 from robobpp.provenance import of_results, one_line
 from robobpp.scoring import score_board
@@ -96,8 +96,7 @@ def evaluate(
         tasks = [(spec, tuple(replayed)) for name in datasets for spec in specs[name]]
     else:
         tasks = [(spec, (s,)) for name in datasets for s in settings for spec in specs[name]]
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=False) as progress:
+    with LineProgress(console) as progress:
         bar = progress.add_task(agent.name, total=len(tasks))
         if jobs == 1:
             results = []

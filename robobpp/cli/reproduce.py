@@ -8,10 +8,10 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from robobpp.cli.common import fail, parse_choices, table_console
+from robobpp.cli.progress import LineProgress
 
 console = Console(stderr=True)
 
@@ -129,8 +129,7 @@ def _run(
     # A group's boxes depend on its index only, so groups first_group.. are those of a longer run.
     specs = {d: episode_specs(d, split, first_group + groups, seed=seed)[first_group:] for d in datasets}
     results: list[Any] = []
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=False) as progress:
+    with LineProgress(console) as progress:
         bar = progress.add_task("reproduce", total=len(datasets) * len(names) * groups)
         for d in datasets:
             for name in names:

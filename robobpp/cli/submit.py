@@ -183,10 +183,9 @@ def _print_provenance(sub: SubmissionPublic) -> None:
 
 def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> SubmissionPublic:
     """Poll with a progress bar (episodes finished / total, current phase) until the submission ends."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from robobpp.cli.progress import LineProgress
 
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=err, transient=False) as progress:
+    with LineProgress(err) as progress:
         task = progress.add_task(f"#{sub.id} queued", total=sub.progress.episodes_total or None)
 
         def show(s: SubmissionPublic) -> None:

@@ -68,7 +68,7 @@ class OpenLoop(Setting):
     """A physical setting as the reference replays into it: each action first goes onto the idealised (Math
     Pack) pile, where the reference's environment step checks it (bounds and height: ``too_high`` there ends
     the replay); the physical setting then executes it without its own check of the height on the physical
-    pile (``height_check`` off): a box may come to stand a little above the container, as in the reference,
+    pile (``height_check`` off): a box may come to stand above the container, as in the reference,
     whose only other height check (its container's ``add_new_box``) reads the same idealised heights."""
 
     def __init__(self, setting: Setting) -> None:

@@ -255,38 +255,60 @@ def reap_expired(session: Session, max_attempts: int, now: datetime | None = Non
     return len(rows)
 
 
-def _fair_order(query: Any) -> Any:
-    """Order candidate episodes fairly: participants' work before the baselines' (built-in participants), then
-    the participant with the fewest episodes running, then the one whose last episode started longest ago (one
-    that never started first), then the oldest episode.
+@dataclass(frozen=True, slots=True)
+class Load:
+    """One participant with active submissions, as the fair order sees it."""
+
+    participant_id: int
+    builtin: bool
+    running: int
+    last_start: datetime | None
+    first_submission: int
+
+
+def participant_loads(session: Session) -> list[Load]:
+    """Every participant with an active submission, fairest first (:func:`fair_key`).
+
+    Reads the active submissions and only the episodes of theirs that ever started (by the submission-status
+    index), never the pending backlog: the cost does not grow with the number of episodes waiting."""
+    active = (
+        select(Submission.participant_id.label("pid"), func.min(Submission.id).label("first"))
+        .where(Submission.status.in_(ACTIVE_SUBMISSION))
+        .group_by(Submission.participant_id)
+        .subquery()
+    )
+    started = (
+        select(
+            Submission.participant_id.label("pid"),
+            func.count().filter(EpisodeRow.status == "running").label("running"),
+            func.max(EpisodeRow.started_at).label("last"),
+        )
+        .join(EpisodeRow, EpisodeRow.submission_id == Submission.id)
+        .where(Submission.status.in_(ACTIVE_SUBMISSION), EpisodeRow.status.in_(("running", "done", "failed")))
+        .group_by(Submission.participant_id)
+        .subquery()
+    )
+    rows = session.execute(
+        select(active.c.pid, Participant.is_builtin, func.coalesce(started.c.running, 0), started.c.last,
+               active.c.first)
+        .join(Participant, Participant.id == active.c.pid)
+        .outerjoin(started, started.c.pid == active.c.pid)
+    ).all()  # fmt: skip
+    return sorted((Load(pid, bool(b), int(n), last, first) for pid, b, n, last, first in rows), key=fair_key)
+
+
+def fair_key(load: Load) -> tuple[Any, ...]:
+    """Participants' work before the baselines' (built-in participants), then the participant with the fewest
+    episodes running, then the one whose last episode started longest ago (one that never started first),
+    then the one whose oldest active submission is oldest.
 
     So a participant's episodes get a free slot only while no participant with fewer running ones waits: one
     participant holds the whole pool only while nobody else has work, and loses it one slot per finished
     episode once someone does (the second participant starts within one episode-time). The last start breaks
     ties round-robin: a participant whose episodes all finished at once does not take every freed slot back
-    ahead of one that is still waiting. Only active submissions count, so the history stays out of the query.
-    """
-    load = (
-        select(
-            Submission.participant_id.label("pid"),
-            func.count().filter(EpisodeRow.status == "running").label("running"),
-            func.max(EpisodeRow.started_at).label("last_start"),
-        )
-        .join(EpisodeRow, EpisodeRow.submission_id == Submission.id)
-        .where(Submission.status.in_(ACTIVE_SUBMISSION))
-        .group_by(Submission.participant_id)
-        .subquery()
-    )
-    return (
-        query.join(Participant, Participant.id == Submission.participant_id)
-        .outerjoin(load, load.c.pid == Submission.participant_id)
-        .order_by(
-            Participant.is_builtin,
-            func.coalesce(load.c.running, 0),
-            load.c.last_start.asc().nullsfirst(),
-            EpisodeRow.id,
-        )  # fmt: skip
-    )
+    ahead of one that is still waiting."""
+    started = load.last_start is not None
+    return (load.builtin, load.running, started, load.last_start if started else 0, load.first_submission)
 
 
 def claim_episode(
@@ -299,13 +321,14 @@ def claim_episode(
     episode_id: int | None = None,
     max_running_per_participant: int | None = None,
 ) -> Claim | None:
-    """Lease the fairest runnable episode (pending, or running with an expired lease) to ``worker``.
+    """Lease the fairest runnable episode (pending, or running with an expired lease) to ``worker``: the
+    oldest of the fairest participant that has one (:func:`fair_key`).
 
-    Fair: :func:`_fair_order`. ``episode_id`` is the episode a broker message was sent for (the Celery
-    executor). The message is a ticket for one claim: it takes the fairest episode that has a message out
-    (``enqueued_at`` set), which need not be its own — the queue is first come, first served, the claim is not,
-    and every message still yields one claim, so none is lost. Only when no other such episode is free does it
-    claim its own, waiting for the row (its sender may not have committed yet).
+    ``episode_id`` is the episode a broker message was sent for (the Celery executor). The message is a
+    ticket for one claim: it takes the fairest episode that has a message out (``enqueued_at`` set), which
+    need not be its own — the queue is first come, first served, the claim is not, and every message still
+    yields one claim, so none is lost. Only when no other such episode is free does it claim its own,
+    waiting for the row (its sender may not have committed yet).
     ``max_running_per_participant`` bounds how many episodes of one participant's remote policies run at
     once (outbound calls to one participant's server), whatever the number of workers."""
     fixed_now = now
@@ -316,17 +339,22 @@ def claim_episode(
     if max_running_per_participant is not None:  # checked at select time: two racing claims may pass it both
         eligible = and_(runnable, or_(Submission.policy_url.startswith("builtin:"),
                                       Submission.participant_id.not_in(_busy_participants(max_running_per_participant))))  # fmt: skip
+    fair = eligible if episode_id is None else and_(eligible, EpisodeRow.enqueued_at.is_not(None))
+    for load in participant_loads(session):
+        # Submission by submission (oldest first; a participant has a few active ones), each through the
+        # (submission, status) index: a backlog of others' pending episodes is never scanned.
+        for submission_id in session.execute(
+            select(Submission.id).where(Submission.participant_id == load.participant_id,
+                                        Submission.status.in_(ACTIVE_SUBMISSION)).order_by(Submission.id)
+        ).scalars():  # fmt: skip
+            claim = _claim_one(session, worker, and_(fair, EpisodeRow.submission_id == submission_id), runnable,
+                               skip_locked=True, lease_s=lease_s, now=fixed_now)  # fmt: skip
+            if claim is not None:
+                return claim
     if episode_id is None:
-        picks = [(eligible, True)]
-    else:
-        picks = [(and_(eligible, EpisodeRow.enqueued_at.is_not(None)), True),
-                 (and_(eligible, EpisodeRow.id == episode_id), False)]  # fmt: skip
-    for where, skip_locked in picks:
-        claim = _claim_one(session, worker, where, runnable, skip_locked=skip_locked, lease_s=lease_s,
-                           now=fixed_now)  # fmt: skip
-        if claim is not None:
-            return claim
-    return None
+        return None
+    return _claim_one(session, worker, and_(eligible, EpisodeRow.id == episode_id), runnable, skip_locked=False,
+                      lease_s=lease_s, now=fixed_now)  # fmt: skip
 
 
 def _claim_one(
@@ -337,11 +365,13 @@ def _claim_one(
         5
     ):  # another claimer may win the row between select and update (SQLite has no SKIP LOCKED)
         row = session.execute(
-            _fair_order(
-                select(EpisodeRow.id)
-                .join(Submission, Submission.id == EpisodeRow.submission_id)
-                .where(where, Submission.status.in_(ACTIVE_SUBMISSION))
+            select(EpisodeRow.id)
+            .join(Submission, Submission.id == EpisodeRow.submission_id)
+            # the status list repeats what ``where`` implies, in a form the (submission, status) index serves
+            .where(
+                where, EpisodeRow.status.in_(("pending", "running")), Submission.status.in_(ACTIVE_SUBMISSION)
             )
+            .order_by(EpisodeRow.id)
             .limit(1)
             # Any episode: skip rows another claimer holds. One named episode: wait for the row instead. Its
             # sender publishes inside the transaction that marks it sent, so a fast worker can get the

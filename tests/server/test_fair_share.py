@@ -69,9 +69,11 @@ def test_second_participant_starts_within_one_episode_time(make_server, policy_s
     assert left >= 6, "first come, first served would have run the slow participant's episodes first"
     if shown["status"] == "queued":  # almost always: it waits for a slot to free
         queue = shown["queue"]
-        assert queue["position"] == 1 and queue["ahead"] == 0 and queue["running"] == 2, queue
+        # running: 2, or 1 when one of the slow episodes finished just before the look (its slot goes to this one)
+        assert queue["position"] == 1 and queue["ahead"] == 0 and queue["running"] in (1, 2), queue
         assert 0 < queue["estimated_start_s"] <= 2 * episode_s, (queue, episode_s)
-        assert status["queue"]["position"] in (1, None) or status["status"] != "queued"
-        if status["status"] == "queued":
+        if status["status"] == "queued":  # the page's poll and the page, a moment later: still queued?
+            assert status["queue"]["position"] == 1, status
+        if 'data-role="queue"' in html:
             assert "Queued: position 1 in the fair-share order" in html
     assert second.get(f"/submissions/{mine}").json()["queue"] is None  # only while queued

@@ -118,9 +118,12 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
     try:
         spec = episode_spec(claim.dataset, claim.split, claim.group, groups=settings.groups,
                             private_dir=settings.private_dir, provider=settings.spec_provider)  # fmt: skip
-        # The id the policy sees names neither split nor group, and differs per episode and attempt: a
-        # remote policy must not learn which test group it is playing (docs/server.md, threat model).
-        spec = dataclasses.replace(spec, label=f"ep-{secrets.token_hex(8)}")
+        if not claim.policy_url.startswith("builtin:"):
+            # The id a participant's policy sees names neither split nor group, and differs per episode and
+            # attempt: it must not learn which test group it is playing (docs/server.md, threat model). The
+            # built-in policies keep the readable id: they seed from it (Random, PCT), so their figures
+            # stay the same on every run.
+            spec = dataclasses.replace(spec, label=f"ep-{secrets.token_hex(8)}")
         policy = make_policy(claim, settings)
     except Exception as exc:  # noqa: BLE001 - an evaluation problem, not the policy's: retry, then fail
         with factory() as s, s.begin():

@@ -190,16 +190,26 @@ class Recorder(DBL):
 
 
 def test_the_ids_a_policy_sees_name_neither_split_nor_group(app: Any) -> None:
-    sid = _submission(
-        app, "erin", track="private", policy="builtin:tests.server.test_sessions_and_pages:Recorder"
-    )
+    """A participant's policy (here served over HTTP, as any remote one) is told an opaque id per episode; the
+    built-in policies keep the readable one, which Random and PCT seed from (same figures on every run)."""
+    from robobpp.client.serve import BackgroundServer, create_policy_app
+
     options = WorkerOptions(database_url=app.state.settings.sqlalchemy_url, groups=2, spec_provider=OFFLINE)
-    Recorder.seen.clear()
     factory = app.state.runtime.session_factory
+    with BackgroundServer(create_policy_app(Recorder, None)) as remote:
+        Recorder.seen.clear()
+        sid = _submission(app, "erin", track="private", policy=remote.url)
+        while claim_and_run(factory, options, "test:worker") is not None:
+            pass
+        remote_ids = list(Recorder.seen)
+    Recorder.seen.clear()
+    _submission(app, "baselines", track="private", builtin=True,
+                policy="builtin:tests.server.test_sessions_and_pages:Recorder")  # fmt: skip
     while claim_and_run(factory, options, "test:worker") is not None:
         pass
-    assert len(Recorder.seen) == 2 and len(set(Recorder.seen)) == 2
-    for seen in Recorder.seen:
+    assert sorted(Recorder.seen) == ["diverse-test-000", "diverse-test-001"]
+    assert len(remote_ids) == 2 and len(set(remote_ids)) == 2
+    for seen in remote_ids:
         assert re.fullmatch(r"ep-[0-9a-f]{16}", seen), seen  # was "diverse-test-000"
     with app.state.runtime.session() as s:
         assert set(s.execute(select(EpisodeRow.status).where(EpisodeRow.submission_id == sid)).scalars()) == {

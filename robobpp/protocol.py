@@ -40,6 +40,7 @@ import time
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from robobpp.core import Action, Box, ContainerSpec, ContainerState, EpisodeInfo, Observation, Placement
@@ -276,7 +277,11 @@ def observation_from_act(
         raise ValueError(f"no container known for episode {req.episode_id!r}: send /reset first")
     placements = [_placement(p, i) for i, p in enumerate(req.placed)]
     known = len(previous.placed) if previous is not None else 0
-    if (
+    if any(p.quaternion is not None for p in placements):
+        state = ContainerState(container)
+        state.placements = placements
+        state.heightmap = _physical_heightmap(state.heightmap.shape, placements)
+    elif (
         previous is not None
         and previous.container == container
         and known <= len(placements)
@@ -301,6 +306,25 @@ def observation_from_act(
         lookahead=tuple(Box(b.length, b.width, b.height, b.mass) for b in req.lookahead),
         orientations=tuple(req.orientations),
     )
+
+
+def _physical_heightmap(shape: tuple[int, int], placements: list[Placement]) -> np.ndarray:
+    """The heightmap of a Physics or Execution Pack observation, rebuilt as the setting builds it
+    (``PhysicsPack.state``): each box's actual, possibly tilted bounds (corner + quaternion), shrunk and
+    rounded as the setting's defaults say. Taking each box as axis-aligned at its corner, as Math Pack's
+    rebuild does, showed a served policy a pile up to tens of cm off the one an in-process policy sees (a
+    tilted Long Board panel stands cm higher; the shrink moves every box edge by a cell), so the same policy
+    packed differently, and ended on too_high, when served."""
+    from robobpp.sim.physics.config import PhysicsConfig  # numpy only: no pybullet
+    from robobpp.sim.physics.geometry import heightmap_from_boxes
+
+    config = PhysicsConfig()
+    halves = np.array([(p.length, p.width, p.height) for p in placements], dtype=np.float64) / 2
+    centers = np.array([(p.x, p.y, p.z) for p in placements], dtype=np.float64) + halves
+    quaternions = np.array([p.quaternion or (0.0, 0.0, 0.0, 1.0) for p in placements], dtype=np.float64)
+    heightmap = heightmap_from_boxes(shape, centers, quaternions, halves, config.heightmap_shrink_cm)
+    res = config.heightmap_resolution_cm
+    return np.round(heightmap / res) * res if res > 0 else heightmap
 
 
 def action_from_response(resp: ActResponse) -> Action | None:

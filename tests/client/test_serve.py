@@ -102,16 +102,22 @@ def test_wire_round_trip_keeps_odd_floats_and_tilted_boxes() -> None:
         Placement(0.1, 0.2, 0.0, 10.333333333333334, 20.1, 5.7, 0, 0),
         Placement(3.0000000000000004, 7.5, 5.7, 12.0, 9.0, 3.0, 1, 1, (0.01, -0.02, 0.0, 0.9997499)),
     )
-    from robobpp.core import ContainerState
+    from robobpp.sim.physics.config import PhysicsConfig
+    from robobpp.sim.physics.geometry import heightmap_from_boxes
 
-    state = ContainerState.from_placements(container, placed)
-    obs = Observation(
-        "e-1", 2, container, placed, state.heightmap, Box(1.5, 2.5, 3.5, 0.7), (Box(4, 5, 6, 1),)
-    )
+    # a tilted box is a physical state: its heightmap is the physical settings' (actual bounds, shrunk, rounded)
+    halves = np.array([(p.length, p.width, p.height) for p in placed]) / 2
+    centers = np.array([(p.x, p.y, p.z) for p in placed]) + halves
+    quats = np.array([p.quaternion or (0, 0, 0, 1) for p in placed])
+    config = PhysicsConfig()
+    bounds = heightmap_from_boxes(container.grid_shape, centers, quats, halves, config.heightmap_shrink_cm)
+    heightmap = np.round(bounds / config.heightmap_resolution_cm) * config.heightmap_resolution_cm
+    obs = Observation("e-1", 2, container, placed, heightmap, Box(1.5, 2.5, 3.5, 0.7), (Box(4, 5, 6, 1),))
     wire = P.ActRequest.model_validate_json(json.dumps(P.act_payload(obs)))
     back = P.observation_from_act(wire)
     assert back.placed == obs.placed and back.box == obs.box and back.lookahead == obs.lookahead
     np.testing.assert_array_equal(back.heightmap, obs.heightmap)
+    assert back.heightmap.max() > 5.7 + 3.0  # the tilted box's top corner stands above its nominal top
 
 
 # The headers are made when the test runs, not at collection: a suite that reaches this test more than the 300 s

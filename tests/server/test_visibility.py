@@ -393,7 +393,7 @@ def test_submit_form_goes_through_the_api_handler(world: World, policy_server) -
         short = browser.post("/submit", data={**base, "secret": "s3cret"})
         assert short.status_code == 422 and "secret" in short.text and "at least 8" in short.text
         wrong = browser.post("/submit", data={**base, "secret": "not-the-secret"})
-        assert wrong.status_code == 422 and "Policy unreachable" in wrong.text
+        assert wrong.status_code == 422 and "Signature mismatch" in wrong.text
         assert browser.get("/api/v1/submissions", headers=bearer).json() == []  # nothing written
         ok = browser.post("/submit", data={**base, "secret": "form-secret-123"}, follow_redirects=False)
         assert ok.status_code == 303, ok.text

@@ -8,6 +8,7 @@ every number and string.
 
 from __future__ import annotations
 
+import re
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
@@ -15,6 +16,15 @@ from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_vali
 
 Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=64,
                                         pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._\-]*$")]  # fmt: skip
+
+
+def clean_name(raw: str, fallback: str = "policy") -> str:
+    """``raw`` made a valid :data:`Name` (other characters become "-"; at most 64), else ``fallback``."""
+    name = re.sub(r"[^A-Za-z0-9 ._-]+", "-", raw.strip())
+    name = re.sub(r"^[^A-Za-z0-9]+", "", name)[:64].rstrip()
+    return name or fallback
+
+
 DatasetName = Literal["repetitive", "diverse", "longboard"]
 SettingName = Literal["math", "physics", "execution"]
 #: ``push``: the workers call the policy's URL. ``pull``: the participant's client connects out to the server
@@ -73,7 +83,10 @@ class Me(BaseModel):
 
 
 class SubmissionCreate(Strict):
-    name: Name
+    name: Name | None = Field(
+        default=None,
+        description="Name on the leaderboard; default: the policy's /info name and version (push mode)",
+    )
     mode: SubmissionMode = Field(
         default="push",
         description="push: the workers call policy_url. pull: no URL; the policy connects out to this server "

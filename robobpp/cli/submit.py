@@ -127,7 +127,10 @@ def submit(
         str | None,
         typer.Option(envvar="ROBOBPP_POLICY_SECRET", help="HMAC secret the workers sign requests with."),
     ] = None,
-    name: Annotated[str | None, typer.Option(help="Name on the leaderboard (default: from the URL).")] = None,
+    name: Annotated[
+        str | None,
+        typer.Option(help="Name on the leaderboard (default: the policy's /info name and version)."),
+    ] = None,
     dataset: BoardDatasetsOpt = None,
     setting: BoardSettingsOpt = None,
     track: TrackOpt = "private",

@@ -32,6 +32,7 @@ from robobpp.schemas import (
     SubmissionPublic,
     TokenCreated,
     TokenPublic,
+    clean_name,
 )
 
 API_PREFIX = "/api/v1"
@@ -125,8 +126,7 @@ def default_name(policy_url: str) -> str:
     """A submission name from the URL (``host-port-path``), within the server's name rules."""
     parts = urlsplit(policy_url.strip())
     raw = "-".join(p for p in (parts.hostname or "", str(parts.port or ""), parts.path.strip("/")) if p)
-    name = re.sub(r"[^A-Za-z0-9._-]+", "-", raw).strip("-._")[:64]
-    return name or "policy"
+    return clean_name(re.sub(r"[^A-Za-z0-9._-]+", "-", raw).strip("-._"))
 
 
 class ServerClient:
@@ -227,8 +227,10 @@ class ServerClient:
 
         ``mode="pull"`` (no URL): the policy connects out to the server instead
         (:func:`robobpp.client.connect.connect` does both steps)."""
-        body: dict[str, Any] = {"name": name or default_name(policy_url or "pull"), "mode": mode,
-                                "track": track, "lookahead": lookahead}  # fmt: skip
+        # without a name, the server names a push submission after its policy's /info (name and version)
+        body: dict[str, Any] = {"mode": mode, "track": track, "lookahead": lookahead}
+        if name or mode == "pull":
+            body["name"] = name or default_name("pull")
         if policy_url is not None:
             body["policy_url"] = policy_url
         if secret:

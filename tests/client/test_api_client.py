@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner, Result
 
 from robobpp import __version__ as robobpp_version
-from robobpp.client.api import ServerClient, ServerError, default_name
+from robobpp.client.api import ServerClient, ServerError
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.policies.dbl import DBL
 from robobpp.schemas import SubmissionPublic
@@ -174,7 +174,7 @@ def test_client_submit_wait_episodes_boards_and_grid(api: ServerClient, fast: Ba
     me = api.me()
     assert me.participant is not None and me.participant.name == "alice" and not me.admin
     sub = api.submit(fast.url, SECRET, None, ["longboard"], ["math"], "public")
-    assert sub.name == default_name(fast.url) and sub.status == "queued" and sub.track == "public"
+    assert sub.name == "dbl 0" and sub.status == "queued" and sub.track == "public"
     seen: list[tuple[str, int, int]] = []
 
     def note(s: SubmissionPublic) -> None:

@@ -178,3 +178,18 @@ def test_settings_refuse_default_secrets_outside_dev(tmp_path) -> None:  # type:
     assert Settings(env="prod", admin_token="x" * 32).env == "prod"
     dev = Settings(state_dir=tmp_path)
     assert len(dev.effective_admin_token) >= 32 and (tmp_path / "admin_token").stat().st_mode & 0o077 == 0
+
+
+def test_a_submission_without_a_name_is_named_after_its_policys_info(api: TestClient) -> None:
+    """`robobpp submit URL` named the submission after its URL ("127.0.0.1-29317"): without a name it takes
+    the policy's /info name and version, as `robobpp evaluate` labels it; a given name still wins."""
+    from robobpp.client.serve import BackgroundServer, create_policy_app
+    from robobpp.policies.dbl import DBL
+
+    alice = participant(api, "alice")
+    with BackgroundServer(create_policy_app(DBL, None, name="lowest-first", version="1.2")) as srv:
+        named = api.post("/api/v1/submissions", json={"policy_url": srv.url}, headers=alice)
+        assert named.status_code == 201, named.text
+        assert named.json()["name"] == "lowest-first 1.2"
+        given = api.post("/api/v1/submissions", json={"name": "mine", "policy_url": srv.url}, headers=alice)
+        assert given.status_code == 201 and given.json()["name"] == "mine"

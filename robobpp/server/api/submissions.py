@@ -13,6 +13,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from robobpp import protocol as P
 from robobpp.db import queries, waiting, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
@@ -24,6 +25,7 @@ from robobpp.schemas import (
     SettingName,
     SubmissionCreate,
     SubmissionPublic,
+    clean_name,
 )
 from robobpp.server.api.deps import (
     AdminDep,
@@ -66,11 +68,12 @@ def _visible(session: SessionDep, principal: PrincipalDep, submission_id: int) -
 
 async def _check_url(
     request: Request, body: SubmissionCreate, principal: Principal, settings: Settings
-) -> tuple[str, str | None]:
-    """(policy URL, pinned address). Runs before any row is written; the only outbound call of the API,
-    made through the probe gate (deadline, size cap, bounded concurrency; server/probes.py)."""
+) -> tuple[str, str | None, str]:
+    """(policy URL, pinned address, name: ``body.name``, else the policy's ``/info`` label as ``robobpp
+    evaluate`` shows it). Runs before any row is written; the only outbound call of the API, made through
+    the probe gate (deadline, size cap, bounded concurrency; server/probes.py)."""
     if body.mode == "pull":  # nothing to reach: the participant's client connects to us
-        return PULL_URL, None
+        return PULL_URL, None, body.name or "pull"
     assert body.policy_url is not None  # the schema demands it in push mode
     url = body.policy_url.strip()
     if url.startswith(BUILTIN_SCHEME):
@@ -81,23 +84,26 @@ async def _check_url(
             raise ProblemError(
                 422, "policy-url-invalid", "Invalid policy URL", f"unknown built-in policy {url!r}"
             )
-        return url, None
+        return url, None, body.name or clean_name(url[len(BUILTIN_SCHEME) :])
     gate: ProbeGate = request.app.state.probe_gate
 
-    def check() -> CheckedURL:
+    def check() -> tuple[CheckedURL, str]:
+        # the SDK side, loaded only by the route (as probe_policy does)
+        from robobpp.client.remote import label
+
         checked = check_policy_url(url, allow_private=settings.allow_private_policy_urls)
-        probe_policy(
+        info = probe_policy(
             checked, secret=body.secret, timeout_s=gate.deadline_s, cap_bytes=settings.response_cap_bytes
         )
-        return checked
+        return checked, label(P.InfoResponse.model_validate(info))
 
     try:
-        checked = await gate.run(f"participant-{principal.participant_id or 'admin'}", check)
+        checked, shown = await gate.run(f"participant-{principal.participant_id or 'admin'}", check)
     except UnsafeURLError as exc:
         title = {"policy-url-forbidden": "Policy URL refused", "policy-unreachable": "Policy unreachable",
                  "policy-signature": "Signature mismatch"}  # fmt: skip
         raise ProblemError(422, exc.kind, title.get(exc.kind, "Invalid policy URL"), exc.detail) from None
-    return checked.url, checked.pinned_ip
+    return checked.url, checked.pinned_ip, body.name or clean_name(shown)
 
 
 def _check_quota(
@@ -137,7 +143,7 @@ async def create_submission(
             raise ProblemError(422, "setting-unavailable", "Setting unavailable",
                                f"setting {s!r} is not offered here (offered: {', '.join(settings.enabled_settings)})")  # fmt: skip
     await run_in_threadpool(_check_quota, request, principal, settings)  # no outbound call over quota
-    url, pinned_ip = await _check_url(request, body, principal, settings)
+    url, pinned_ip, name = await _check_url(request, body, principal, settings)
 
     def create() -> SubmissionPublic:
         with request.app.state.runtime.session() as session:
@@ -151,7 +157,7 @@ async def create_submission(
                     select(Participant).where(Participant.id == principal.participant.id).with_for_update()
                 ).scalar_one()  # the row lock serialises quota checks of one participant
                 _check_quota(request, principal, settings, lock=session)
-            sub = work.create_submission(session, participant, name=body.name, policy_url=url, secret=body.secret,
+            sub = work.create_submission(session, participant, name=name, policy_url=url, secret=body.secret,
                                          pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
                                          groups=settings.groups, track=body.track, lookahead=body.lookahead,
                                          mode=body.mode)  # fmt: skip

@@ -25,7 +25,9 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
-from paper_table import DATASETS, PAPER, POLICIES, spearman
+from paper_table import DATASETS, POLICIES, paper_figures
+
+from robobpp.reproduction import spearman
 
 #: Reasons meaning the place plan could not start (robobpp.sim.execution.pack.PLACE_FAILURES).
 PLACE_FAILURES = {"unreachable", "no_path:goal_invalid", "no_path:start_invalid"}
@@ -86,10 +88,10 @@ def main() -> None:
                     )
                 figures[name] = float(np.mean(values))
             table.setdefault(dataset, {})[policy] = figures
+    published = paper_figures("execution")
     for dataset, cells in table.items():
-        column = DATASETS.index(dataset)
         policies = list(cells)
-        paper = [PAPER["execution"][q][column] for q in policies]
+        paper = [published[dataset][q] for q in policies]
         print(
             f"\n{dataset} ({len(runs[dataset][policies[0]])} groups): Space Utilization, paper vs ours as run and cut"
         )
@@ -97,16 +99,10 @@ def main() -> None:
         print("|---|---:|" + "---:|" * len(rules))
         for q, p in zip(policies, paper, strict=True):
             print(f"| {q} | {p:.3f} | " + " | ".join(f"{cells[q][r]:.3f}" for r in rules) + " |")
-        for label, fn in (
-            ("Spearman", spearman),
-            ("mean abs diff", lambda a, b: float(np.mean(np.abs(np.subtract(b, a))))),
-        ):
-            values = [fn(paper, [cells[q][r] for q in policies]) for r in rules]
-            print(
-                f"| **{label}** | | "
-                + " | ".join(f"{v:.2f}" if label == "Spearman" else f"{v:.3f}" for v in values)
-                + " |"
-            )
+        rho = [spearman(paper, [cells[q][r] for q in policies]) for r in rules]
+        diff = [float(np.mean(np.abs(np.subtract([cells[q][r] for q in policies], paper)))) for r in rules]
+        print("| **Spearman** | | " + " | ".join("–" if v is None else f"{v:.2f}" for v in rho) + " |")
+        print("| **mean abs diff** | | " + " | ".join(f"{v:.3f}" for v in diff) + " |")
     print(
         "\n| dataset | heuristic | endings | dangerous reasons | collapses after a dangerous op / collapses |"
     )

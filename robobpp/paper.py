@@ -17,6 +17,8 @@ from importlib import resources
 #: The paper's seven heuristics, in its order, then its learned policy that robobpp ships (PCT).
 PAPER_HEURISTICS: tuple[str, ...] = ("dbl", "hm", "lsah", "onlinebph", "br", "macs", "sdfpack")
 PAPER_BASELINES: tuple[str, ...] = (*PAPER_HEURISTICS, "pct")
+#: Groups (episodes) behind each of the paper's figures: 30 of its private test pool per dataset.
+PAPER_GROUPS = 30
 #: Metrics the paper tabulates beyond robobpp's eight (docs/benchmark.md, "Metrics").
 EXTRA_METRICS: dict[str, str] = {
     "pph": "theoretical picks per hour, 3600 / (Decision Time + Trajectory Length / 0.34 m/s + 2 s)",

@@ -119,7 +119,8 @@ async def board_page(request: Request, dataset: DatasetPath, setting: SettingPat
                       setting=setting, track=track, view=view, table=tables.board_table(shown),
                       weights=WEIGHTS[setting], top=tables.TOP, pages=tables.pages(shown, page), board=shown,
                       protocol=protocol, has_physical=setting in PHYSICAL,
-                      other_boards=[(d, s) for s in setting_names for d in datasets])  # fmt: skip
+                      other_boards=[(d, s, f"{DATASETS[d].title} · {SETTING_TITLES[s]}")  # as the titles read
+                                    for s in setting_names for d in datasets])  # fmt: skip
 
     return await _shared(
         request, track, ("board-page", root(request), dataset, setting, track, view, page, protocol), build

@@ -24,25 +24,34 @@ PROTOCOL_TITLES = {"closed": "closed loop (the benchmark)", "paper": "paper prot
 PROTOCOL_SHORT = {"closed": "closed loop", "paper": "paper protocol"}
 
 
-def fmt_num(value: Any, digits: int = 3) -> str:
-    """A metric value for a table cell; a dash where there is none."""
+def _number(value: Any) -> float | None:
     if value is None or isinstance(value, bool):
-        return "—"
+        return None
     try:
         number = float(value)
     except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+def fmt_num(value: Any, digits: int = 3) -> str:
+    """A metric value for a table cell, always with ``digits`` decimals (never scientific notation: an
+    interval reads "<0.0001–0.0024", not "1.58e-05–0.0024"); a dash where there is none. A positive value
+    too small to show is "<0.001", so that it does not read as zero."""
+    number = _number(value)
+    if number is None:
         return "—"
-    if not math.isfinite(number):
-        return "—"
-    if number != 0 and abs(number) < 10 ** (-digits):
-        return f"{number:.{max(1, digits - 1)}g}"
-    return f"{number:.{digits}f}"
+    text = f"{number:.{digits}f}"
+    if number > 0 and float(text) == 0:
+        return f"<{10**-digits:.{digits}f}"
+    return text if float(text) != 0 else f"{0:.{digits}f}"  # no "-0.000"
 
 
 def fmt_signed(value: Any, digits: int = 3) -> str:
-    """A difference with its sign (+0.012, −0.030); a dash where there is none."""
-    text = fmt_num(value, digits)
-    return text if text == "—" or text.startswith("-") else "+" + text
+    """A difference with its sign and ``digits`` decimals (+0.012, -0.030, +0.001 — not "+0.00082"); a
+    dash where there is none."""
+    number = _number(value)
+    return "—" if number is None else f"{number:+.{digits}f}"
 
 
 def fmt_pct(value: Any, digits: int = 1) -> str:

@@ -14,6 +14,7 @@ from typing import Any
 
 from robobpp.leaderboard import find_entry
 from robobpp.metrics import METRIC_BY_KEY, metrics_for
+from robobpp.paper import PAPER_GROUPS
 from robobpp.web import fmt_metric
 
 #: How many of a column's best entries are highlighted (the paper highlights its top methods).
@@ -205,6 +206,13 @@ def histogram(values: Sequence[float], bins: int = 10, lo: float = 0.0, hi: floa
     return {"labels": labels, "counts": counts}
 
 
+def _count_text(counts: Sequence[int]) -> str:
+    """Groups behind a table's figures of ours: "2", or "2–30" when its figures differ."""
+    if not counts:
+        return "0"
+    return str(counts[0]) if counts[0] == counts[-1] else f"{counts[0]}–{counts[-1]}"
+
+
 def reproduction_tables(data: Mapping[str, Any], titles: Mapping[str, str]) -> list[dict[str, Any]]:
     """The Reproduction page from ``server.services.reproduction.reproduction``: one table per setting and
     metric (in the comparison's order: utilisation first), the paper's baselines down, per dataset the paper's
@@ -231,9 +239,13 @@ def reproduction_tables(data: Mapping[str, Any], titles: Mapping[str, str]) -> l
             rows.append({"policy": p, "title": titles.get(p, p), "cells": row})
         tables = [agreement.get((setting, d, metric)) or {} for d in datasets]
         metric_def = METRIC_BY_KEY.get(metric)
+        counts = sorted({c["groups"] for r in rows for c in r["cells"] if c["groups"]})
         out.append({
             "setting": setting, "metric": metric, "label": metric_def.label if metric_def else metric.upper(),
             "better": metric_def.better if metric_def else "up", "datasets": datasets, "rows": rows,
             "spearman": [a.get("spearman") for a in tables], "mean_abs_diff": [a.get("mean_abs_diff") for a in tables],
+            "groups": _count_text(counts), "paper_groups": PAPER_GROUPS,
+            # a figure over a few groups is far noisier than the paper's: say so beside the table, not on hover
+            "few_groups": bool(counts) and counts[-1] * 3 <= PAPER_GROUPS,
         })  # fmt: skip
     return out

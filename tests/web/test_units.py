@@ -180,6 +180,22 @@ def test_formatting() -> None:
     assert fmt_metric(0.00012, "decision_time") == "0.0001"
 
 
+def test_numbers_keep_fixed_decimals() -> None:
+    """An Execution board showed "1.58e-05–0.0024" and the Reproduction page "+0.00082": fixed decimals
+    per metric, never scientific notation; a positive value too small to show is not printed as zero."""
+    from robobpp.web import fmt_signed
+    from robobpp.web.tables import metric_span
+
+    assert metric_span(1.58e-05, 0.0024, "decision_time") == "<0.0001–0.0024"
+    assert (
+        fmt_signed(0.00082) == "+0.001"
+        and fmt_signed(-0.03) == "-0.030"
+        and fmt_signed(0.00082, 4) == "+0.0008"
+    )
+    assert fmt_num(-0.00001) == "0.000" and fmt_num(0) == "0.000" and fmt_num(2e-9, 4) == "<0.0001"
+    assert "e-" not in fmt_num(3e-7) + fmt_signed(-3e-7) + fmt_metric(3e-7, "decision_time")
+
+
 # ---- datasets ------------------------------------------------------------------------------------------
 
 
@@ -288,3 +304,52 @@ def test_view_cli_serves_the_viewer(tmp_path: Path) -> None:
         proc.terminate()
         out = proc.communicate(timeout=20)[0].decode()
     assert f"http://127.0.0.1:{port}/" in out
+
+
+def _board_page(entries: list, groups: int, protocol: str = "closed") -> str:
+    from robobpp.datasets import DATASETS
+
+    board = {**_board(), "entries": entries}
+    return environment().get_template("board.html").render(
+        root="", static="/static", title="t", nav="", dataset=DATASETS["diverse"], setting="physics", track="private",
+        table=board_table(board), weights={"a": 1.0}, top=4, protocol=protocol, has_physical=True,
+        other_boards=[("repetitive", "math", "Repetitive · Math Pack"), ("diverse", "physics", "Diverse · Physics Pack")],
+        SETTING_TITLES={"math": "Math Pack", "physics": "Physics Pack"}, view="best", pages=pages({"total": len(entries), "limit": 50}, 1),
+        board={"anchors": "anchors-v1", "confidence": 0.95, "groups": groups, "resamples": 1000},
+    )  # fmt: skip
+
+
+def test_an_empty_board_says_so_plainly_and_links_boards_by_title() -> None:
+    """An empty paper-protocol board read "interval over the board's 0 groups"; the "Other boards" links
+    read "repetitive / math" where every title reads "Repetitive · Math Pack"."""
+    empty = _board_page([], 0, "paper")
+    assert "0 groups" not in empty and 'data-role="no-groups"' in empty
+    assert "No completed entry on this board yet. Under the paper protocol" in empty
+    full = _board_page(_board()["entries"], 30)
+    assert "over the board's 30 groups" in full and 'data-role="no-groups"' not in full
+    links = re.findall(r'<a href="/boards/[^"]+">([^<]+)</a>', full.split('data-role="other-boards"')[1])
+    assert links == ["Repetitive · Math Pack", "Diverse · Physics Pack"]
+
+
+def test_reproduction_tables_say_how_many_groups_are_behind_ours() -> None:
+    """The groups behind "ours" were only in a tooltip (the demo compares 2 groups with the paper's 30)."""
+    from robobpp.web.tables import reproduction_tables
+
+    cell = {"setting": "physics", "metric": "space_utilization", "policy": "dbl", "paper": 0.5, "ours": 0.48,
+            "diff": -0.02, "table": "T1"}  # fmt: skip
+    data = {"cells": [{**cell, "dataset": "diverse"}, {**cell, "dataset": "longboard"}],
+            "runs": [{"setting": "physics", "dataset": d, "policy": "dbl", "groups": 2} for d in ("diverse", "longboard")]}  # fmt: skip
+    (table,) = reproduction_tables(data, {"dbl": "DBL"})
+    assert table["groups"] == "2" and table["paper_groups"] == 30 and table["few_groups"]
+    html = environment().get_template("reproduction.html").render(
+        root="", static="/static", title="t", nav="", track="private", tables=[table], table_captions={},
+        data={"paper": "the paper"}, PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
+        SETTING_TITLES={"physics": "Physics Pack"},
+    )  # fmt: skip
+    text = re.sub(r"<[^>]+>", "", html.split('data-role="groups"')[1].split("</p>")[0])
+    assert "Ours: 2 groups per figure; the paper’s: 30." in text and "Far fewer groups" in text
+    many = {**data, "runs": [{**r, "groups": 30} for r in data["runs"]]}
+    assert (
+        not reproduction_tables(many, {})[0]["few_groups"]
+        and reproduction_tables(many, {})[0]["groups"] == "30"
+    )

@@ -30,13 +30,19 @@ class Sheet:
     note: str = ""
 
 
-def _cell(value: Any) -> str:
+#: Decimals of every figure in a board's or the grid's CSV: the precision scores and ranks are computed at
+#: (robobpp/scoring.py rounds to 12 so that ties tie), so a Mean is not printed to 16 digits beside them.
+SUMMARY_DECIMALS = 12
+
+
+def _cell(value: Any, decimals: int | None = None) -> str:
+    """A CSV cell: a float in full (per-group measurements) or rounded to ``decimals`` (summary figures)."""
     if value is None:
         return ""
     if isinstance(value, list):
         return ",".join(map(str, value))
     if isinstance(value, float):
-        return repr(value)
+        return repr(value if decimals is None else round(value, decimals) + 0.0)  # + 0.0: no "-0.0"
     return str(value)
 
 
@@ -134,7 +140,7 @@ def board_csv(board: Mapping[str, Any]) -> str:
             prov = (e.get("extras") or {}).get("provenance") or {}
             row += [prov.get(f) for f in FIELDS if f not in ("anchors", "protocol", "split", "groups")]
             row += [board.get("anchors"), board.get("groups")]
-            writer.writerow([_cell(v) for v in row])
+            writer.writerow([_cell(v, SUMMARY_DECIMALS) for v in row])
     return out.getvalue()
 
 
@@ -182,7 +188,7 @@ def grid_csv(grid: Mapping[str, Any]) -> str:
         for b in boards:
             cell = (r.get("cells") or {}).get(b) or {}
             row += [cell.get("score"), cell.get("rank") or (r.get("unranked") or {}).get(b)]
-        writer.writerow([_cell(v) for v in row])
+        writer.writerow([_cell(v, SUMMARY_DECIMALS) for v in row])
     return out.getvalue()
 
 

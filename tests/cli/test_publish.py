@@ -217,3 +217,25 @@ def test_compare_refuses_results_of_different_versions(evaluated, tmp_path):
                                                           for e in payload["episodes"]]}  # fmt: skip
     b.write_text(json.dumps(legacy))
     assert run_cli("compare", str(a), str(b)).returncode == 0  # a file from before versions: not checked
+
+
+def test_grid_and_board_csvs_print_every_figure_at_one_precision():
+    """The grid CSV printed a Mean as 0.5806950457624445 beside scores of 12 decimals: every figure of a
+    board's or the grid's CSV has at most 12 decimals (the precision scores are ranked at)."""
+    from robobpp.export import board_csv, grid_csv
+
+    row = {"status": "ranked", "rank": 1, "rank_low": 1, "rank_high": 2, "submission_id": 7, "name": "a",
+           "participant": "p", "baseline": False, "mean": 0.5806950457624445, "mean_low": 1 / 3, "mean_high": 0.7,
+           "stable": -1e-17, "stable_low": 0.1, "stable_high": 0.9, "cells": {"math/diverse": {"score": 2 / 3, "rank": 1}}}  # fmt: skip
+    grid = {"track": "private", "settings": ["math"], "datasets": ["diverse"], "rows": [row]}
+    line = dict(zip(*csv.reader(io.StringIO(grid_csv(grid))), strict=True))
+    assert (
+        line["mean"] == "0.580695045762" and line["mean_low"] == "0.333333333333" and line["stable"] == "0.0"
+    )
+    assert line["math/diverse_score"] == "0.666666666667" and line["rank"] == "1"
+    entry = {"rank": 1, "submission_id": 7, "name": "a", "participant": "p", "baseline": False, "score": 1 / 7,
+             "metrics": {"space_utilization": 0.5806950457624445}, "intervals": {"space_utilization": [0.1, 2 / 3]}}  # fmt: skip
+    board = {"dataset": "diverse", "setting": "math", "metrics": ["space_utilization"], "entries": [entry]}
+    line = dict(zip(*csv.reader(io.StringIO(board_csv(board))), strict=True))
+    assert line["score"] == "0.142857142857" and line["space_utilization"] == "0.580695045762"
+    assert line["space_utilization_high"] == "0.666666666667"

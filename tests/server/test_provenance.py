@@ -20,6 +20,7 @@ from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, RunRow
 from robobpp.db.queries import leaderboard
 from robobpp.db.session import make_engine, make_session_factory, transaction
+from robobpp.export import SUMMARY_DECIMALS
 from robobpp.scoring import ANCHORS_VERSION
 from robobpp.sim import MATH_RULES_VERSION
 from tests.server.conftest import ADMIN_TOKEN, new_participant, wait_for
@@ -124,8 +125,13 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
     assert sorted(r["name"] for r in rows) == sorted(e["name"] for e in board["entries"])
     for row, entry in zip(sorted(rows, key=lambda r: r["submission_id"]),
                           sorted(board["entries"], key=lambda e: e["submission_id"]), strict=True):  # fmt: skip
-        assert float(row["space_utilization"]) == entry["metrics"]["space_utilization"]
-        assert float(row["space_utilization_low"]) == entry["intervals"]["space_utilization"][0]
+        # figures at the one precision of a board's CSV (SUMMARY_DECIMALS, the precision scores rank at)
+        assert float(row["space_utilization"]) == round(
+            entry["metrics"]["space_utilization"], SUMMARY_DECIMALS
+        )
+        assert float(row["space_utilization_low"]) == round(
+            entry["intervals"]["space_utilization"][0], SUMMARY_DECIMALS
+        )
         assert int(row["rank"]) == entry["rank"] and row["math_rules"] == MATH_RULES_VERSION
         assert int(row["entries_submitted"]) == entry["entries_submitted"]
     md = export("md")

@@ -13,7 +13,16 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from robobpp import metrics as M
-from robobpp.core import Action, EpisodeInfo, EpisodeSpec, Infeasible, Observation, Placement, check_action
+from robobpp.core import (
+    Action,
+    EpisodeInfo,
+    EpisodeSpec,
+    Infeasible,
+    Observation,
+    Placement,
+    box_label,
+    check_action,
+)
 from robobpp.policies.base import Policy, PolicyError
 from robobpp.sim import MATH_RULES_VERSION, Setting, make_setting
 
@@ -199,7 +208,7 @@ class Episode:
         )
         self.steps.append(record)
         if action is None:
-            self.end(NO_FEASIBLE_PLACEMENT, f"no feasible placement for box {self.index} "
+            self.end(NO_FEASIBLE_PLACEMENT, f"no feasible placement for {box_label(self.index)} "
                      f"({box.length:g} × {box.width:g} × {box.height:g} cm)")  # fmt: skip
             record.termination = NO_FEASIBLE_PLACEMENT
             return record

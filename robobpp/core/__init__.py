@@ -3,7 +3,7 @@
 Nothing here imports pybullet or the web stack; every other layer builds on it.
 """
 
-from robobpp.core.box import ORIENTATIONS, Box, ContainerSpec, Placement, oriented_dims
+from robobpp.core.box import ORIENTATIONS, Box, ContainerSpec, Placement, box_label, oriented_dims
 from robobpp.core.container import ContainerState
 from robobpp.core.episode_spec import EpisodeSpec
 from robobpp.core.feasibility import Infeasible, SupportModel, check_action, check_support, is_supported
@@ -23,6 +23,7 @@ __all__ = [
     "Placement",
     "SupportModel",
     "check_action",
+    "box_label",
     "check_support",
     "drop_height_map",
     "footprint_cells",

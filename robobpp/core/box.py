@@ -9,6 +9,14 @@ from dataclasses import dataclass
 ORIENTATIONS: tuple[int, ...] = (0, 1)
 
 
+def box_label(index: int) -> str:
+    """A box of an episode in user-facing text: its index (0-based, as in traces and the API) and its place in
+    the sequence, which is what "38 / 80 boxes placed" counts: ``box_label(37)`` is "box #37 (the 38th)"."""
+    n = index + 1
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"box #{index} (the {n}{suffix})"
+
+
 @dataclass(frozen=True, slots=True)
 class Box:
     """One item to pack: dimensions in cm, mass in kg."""

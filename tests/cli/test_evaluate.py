@@ -83,7 +83,7 @@ def test_policy_failures_are_explained_under_the_table():
     runs = {("diverse", "math"): [
         result("diverse-train-000", "policy_error", "refused GET /info (HTTP 401): check the shared secret"),
         result("diverse-train-001", "policy_error", "refused GET /info (HTTP 401): check the shared secret"),
-        result("diverse-train-002", "no_feasible_placement", "no feasible placement for box 9"),
+        result("diverse-train-002", "no_feasible_placement", "no feasible placement for box #9 (the 10th)"),
     ]}  # fmt: skip
     notes = failure_notes(runs)
     assert notes == [

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 import pybullet as p
 
-from robobpp.core import Action, Box, EpisodeSpec, Infeasible, Placement
+from robobpp.core import Action, Box, EpisodeSpec, Infeasible, Placement, box_label
 from robobpp.sim.base import StepOutcome
 from robobpp.sim.execution import motion, recording
 from robobpp.sim.execution.layout import Layout
@@ -246,7 +246,7 @@ class ExecutionPack(PhysicsPack):
         if operation.place_failed and self.execution.end_on_failed_place:
             # Nothing moved: the box is not placed and the operation not counted (dangerous None).
             reasons = ", ".join(r for r in operation.reasons if r in PLACE_FAILURES)
-            detail = f"the robot cannot place box {index} ({reasons})"
+            detail = f"the robot cannot place {box_label(index)} ({reasons})"
             extra = {"plan_status": operation.plan_status, "plan_checks": operation.plan_checks,
                      "planner_seed": operation.seed, "dangerous_reasons": list(operation.reasons)}  # fmt: skip
             return StepOutcome(None, Infeasible("place_plan_failed", detail), extra=extra)
@@ -293,7 +293,7 @@ class ExecutionPack(PhysicsPack):
                 outcome.placement = None
                 outcome.termination = Infeasible(
                     "dangerous_operations",
-                    f"dangerous operation number {self._dangerous_count} (the limit) placing box {index}",
+                    f"dangerous operation number {self._dangerous_count} (the limit) placing {box_label(index)}",
                 )
         return outcome
 

@@ -8,7 +8,7 @@ from dataclasses import fields, replace
 
 import numpy as np
 
-from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement
+from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement, box_label
 from robobpp.sim.base import FinalBox, Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
 from robobpp.sim.physics.geometry import aabbs, clear_shift, heightmap_from_boxes, surface_height
@@ -193,10 +193,10 @@ class PhysicsPack(Setting):
         termination = None
         if moved:
             worst = max(moved, key=lambda d: (d.fell, d.horizontal_cm))
-            termination = Infeasible(
+            others = f"; {len(moved)} boxes in all moved past the threshold or fell" if len(moved) > 1 else ""
+            termination = Infeasible(  # the worst box first: "after placing box #37 (the 38th), box #12 ..."
                 "collapse",
-                f"{worst.describe()} (threshold {spec.collapse_threshold_cm:g} cm); "
-                f"{len(moved)} box(es) beyond it after placing box {index}",
+                f"after placing {box_label(index)}, {worst.describe(spec.collapse_threshold_cm)}{others}",
             )
             info["collapsed_boxes"] = [d.index for d in moved]
         return StepOutcome(

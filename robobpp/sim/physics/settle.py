@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
+from robobpp.core import box_label
 from robobpp.metrics import static_stability
 from robobpp.sim.physics.geometry import aabbs
 from robobpp.sim.physics.recording import PoseRecorder
@@ -52,10 +53,12 @@ class Displacement:
     horizontal_cm: float
     fell: bool
 
-    def describe(self) -> str:
+    def describe(self, threshold_cm: float) -> str:
+        """What happened to this box, against the collapse threshold, for a newcomer to read."""
         if self.fell:
-            return f"box {self.index} fell off the pallet"
-        return f"box {self.index} moved {self.horizontal_cm:.1f} cm along x or y from its target"
+            return f"{box_label(self.index)} fell off the pallet"
+        return (f"{box_label(self.index)} moved {self.horizontal_cm:.1f} cm along x or y from where it was placed, "
+                f"more than the collapse threshold of {threshold_cm:g} cm")  # fmt: skip
 
 
 class Settler:

@@ -128,6 +128,9 @@ def test_board_reads_without_javascript(server: Server, browser: Any) -> None:
         assert ranks == sorted(ranks) and ranks[0] == 1
         assert page.locator("#board thead button").count() == 0  # no dead sort buttons without JS
         assert "%" in page.locator("#board tbody tr").first.inner_text()
+        # the other boards by their titles, as every heading reads them ("repetitive / math" before)
+        links = page.locator("[data-role=other-boards] a").all_inner_texts()
+        assert "Repetitive · Math Pack" in links and "Long Board · Physics Pack" in links, links
     finally:
         context.close()
 
@@ -285,6 +288,11 @@ def test_reproduction_page(server: Server, probe: PageProbe) -> None:
     assert len(first) == 1 + 3 * 3 and first[0] == "DBL"
     paper, ours, diff = (float(first[1]), float(first[2]), float(first[3]))
     assert abs((ours - paper) - diff) < 2e-3  # each to 3 decimals
+    assert "e-" not in " ".join(first)  # fixed decimals: "+0.001", never "+0.00082" or "1.58e-05"
+    # how many groups stand behind ours, visible beside the table (it was a tooltip): 2 here, the paper's 30
+    groups = table.locator("xpath=../preceding-sibling::p[@data-role='groups'][1]")
+    assert "Ours: 2 groups per figure; the paper’s: 30." in groups.inner_text() and groups.is_visible()
+    assert "Far fewer groups" in groups.inner_text()
     spearman = table.locator("tr.summary").first.locator("td").all_inner_texts()
     assert spearman[0] == "Spearman" and all(-1 <= float(v) <= 1 for v in spearman[1:])
     # Math Pack is compared too; every table's column order: paper | ours | diff per dataset

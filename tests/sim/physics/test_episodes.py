@@ -9,6 +9,7 @@ from robobpp.core import ContainerSpec
 from robobpp.datasets.synthetic import synthetic_episode_specs
 from robobpp.episode import TERMINATION_REASONS, run_episode
 from robobpp.policies import load_policy
+from robobpp.replay import run_paper_protocol
 
 SMALL = ContainerSpec(80, 60, 100)
 
@@ -36,7 +37,7 @@ def _full():  # type: ignore[no-untyped-def]
 @pytest.mark.slow
 @pytest.mark.parametrize("source", ["uniform", "runs"])
 def test_dbl_runs_an_80_box_group(source: str) -> None:
-    """Uniform synthetic sizes (DBL soon builds something that tips) and runs of identical boxes (it fills)."""
+    """Uniform synthetic sizes (DBL soon builds something that tips) and runs of identical boxes."""
     if source == "uniform":
         spec = synthetic_episode_specs(1, seed=7, container="repetitive")[0]
     else:
@@ -46,7 +47,13 @@ def test_dbl_runs_an_80_box_group(source: str) -> None:
     assert result.setting == "physics"
     assert result.termination in TERMINATION_REASONS
     if source == "runs":
-        assert result.termination == "completed" and result.boxes_placed == 80
+        # Physics version 3's DBL kept to supported positions and filled all 80. The reference's DBL tests no
+        # support: box 34 goes where it tips off the pallet. Seeing the pile, it does as well as its Math plan
+        # replayed blind (the paper protocol), which ends there too.
+        blind = run_paper_protocol(spec, load_policy("dbl"), ["physics"])["physics"]
+        assert result.termination == blind.termination == "collapse" and result.boxes_placed >= 30
+        utilisation = result.metrics["space_utilization"]
+        assert utilisation is not None and utilisation >= blind.metrics["space_utilization"] - 0.03
     assert result.boxes_placed >= 5
     m = result.metrics
     assert set(m) == {

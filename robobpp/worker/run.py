@@ -111,6 +111,17 @@ class _Lease(threading.Thread):
                 return
 
 
+def _release_crashed(
+    factory: sessionmaker[Session], claim: Claim, settings: WorkerOptions, exc: BaseException, what: str
+) -> bool:
+    """Record a simulator crash on the claimed episode (bounded retries); the caller returns what this returns."""
+    detail = "".join(traceback.format_exception_only(exc)).strip()
+    with factory() as s, s.begin():
+        work.release_episode(s, claim.episode_id, claim.token, detail, max_attempts=settings.max_attempts)
+    log.exception("%s %s crashed", what, claim.episode_id)
+    return False
+
+
 def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOptions) -> bool:
     """Run a claimed episode and record it. Returns whether this call recorded the result."""
     if claim.protocol == "paper":
@@ -156,11 +167,7 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
         log.info("episode %s: claim lost (cancelled or taken over); result dropped", claim.episode_id)
         return False
     except Exception as exc:  # noqa: BLE001 - a crash of the simulator: record it, bounded retries
-        detail = "".join(traceback.format_exception_only(exc)).strip()
-        with factory() as s, s.begin():
-            work.release_episode(s, claim.episode_id, claim.token, detail, max_attempts=settings.max_attempts)
-        log.exception("episode %s crashed", claim.episode_id)
-        return False
+        return _release_crashed(factory, claim, settings, exc, "episode")
     finally:
         lease.done.set()
         lease.join(timeout=5)
@@ -186,11 +193,7 @@ def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: Worke
         lease.start()
         result = replay_math_result(math_result_of(plan, spec), spec, claim.setting)
     except Exception as exc:  # noqa: BLE001 - a crash of the simulator: record it, bounded retries
-        detail = "".join(traceback.format_exception_only(exc)).strip()
-        with factory() as s, s.begin():
-            work.release_episode(s, claim.episode_id, claim.token, detail, max_attempts=settings.max_attempts)
-        log.exception("paper-protocol episode %s crashed", claim.episode_id)
-        return False
+        return _release_crashed(factory, claim, settings, exc, "paper-protocol episode")
     finally:
         lease.done.set()
         if lease.is_alive():

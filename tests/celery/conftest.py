@@ -200,6 +200,16 @@ def new_submission(factory: Any, *, policy: str, datasets: list[str], groups: in
         return sub.id
 
 
+def cancel_active_submissions(factory: Any) -> None:
+    """Cancel what the module's earlier tests left unfinished: a Celery message is a ticket for the fairest
+    episode with one out, so a claim by id may take a leftover instead of the test's own episode."""
+    with factory() as s, s.begin():
+        for left in s.execute(
+            select(Submission).where(Submission.status.in_(work.ACTIVE_SUBMISSION))
+        ).scalars():
+            work.cancel_submission(s, left)
+
+
 def wait_for(predicate: Callable[[], Any], timeout: float, what: str, logs: Callable[[], str]) -> Any:
     """Poll until ``predicate`` is truthy (a deadline against hangs, not a timing assertion)."""
     deadline = time.monotonic() + timeout

@@ -22,7 +22,7 @@ from robobpp.worker.celery_app import (
 from robobpp.worker.celery_executor import requeue_expired
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.tasks import parse_episode_id
-from tests.celery.conftest import new_submission
+from tests.celery.conftest import cancel_active_submissions, new_submission
 
 
 def test_config_acks_late_prefetch_one_json_only_and_a_long_visibility_timeout() -> None:
@@ -139,6 +139,7 @@ def test_the_last_allowed_attempt_is_recorded_failed_not_resent(
 ) -> None:
     url, queue = broker
     app = make_celery(url, WorkerOptions(database_url=pg_url, max_attempts=1), queue=queue)
+    cancel_active_submissions(factory)
     sub = new_submission(factory, policy="dbl", datasets=["repetitive"], groups=1, name=f"last-{queue}")
     with factory() as s:
         episode_id = s.execute(select(EpisodeRow.id).where(EpisodeRow.submission_id == sub)).scalar_one()

@@ -13,7 +13,7 @@ from datetime import timedelta
 from typing import Any
 
 import pytest
-from sqlalchemy import select, update
+from sqlalchemy import update
 
 from robobpp.db import work
 from robobpp.db.models import EpisodeRow, Submission, utcnow
@@ -21,7 +21,15 @@ from robobpp.worker.celery_app import make_celery
 from robobpp.worker.celery_executor import CeleryExecutor, queue_length, resend_lost
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.tasks import enqueue
-from tests.celery.conftest import LEASE_S, Fleet, episodes, new_submission, submission_status, wait_for
+from tests.celery.conftest import (
+    LEASE_S,
+    Fleet,
+    cancel_active_submissions,
+    episodes,
+    new_submission,
+    submission_status,
+    wait_for,
+)
 
 pytestmark = [pytest.mark.postgres, pytest.mark.redis, pytest.mark.rabbitmq]
 POLICY = "tests.celery.helpers:PacedDBL"
@@ -134,11 +142,7 @@ def test_a_claim_by_id_waits_for_the_senders_commit(fleet: Fleet, factory: Any) 
     """The sender publishes inside the transaction that marks the episode; a worker fast enough to get the
     message before that commit must claim the episode, not skip the still-locked row (which used to turn
     the message into a no-op and a delayed copy that a worker holds in memory)."""
-    with factory() as s, s.begin():  # a message is a ticket for any episode with one out: none of the
-        for left in s.execute(
-            select(Submission).where(Submission.status.in_(work.ACTIVE_SUBMISSION))
-        ).scalars():
-            work.cancel_submission(s, left)  # module's earlier tests' may be left for it to take instead
+    cancel_active_submissions(factory)
     sub = new_submission(factory, policy=POLICY, datasets=["repetitive"], groups=1,
                          name=f"commit-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
     (row,) = episodes(factory, sub)

@@ -78,7 +78,14 @@ class CandidateMap:
     height: float
     z: np.ndarray
     fits: np.ndarray
-    support: SupportModel
+    #: The observed boxes; the support rule over them is built only when asked (:attr:`support`): the paper
+    #: heuristics never ask, so their decisions don't pay for it.
+    placed: tuple[Placement, ...]
+
+    @cached_property
+    def support(self) -> SupportModel:
+        """The support rule of the observed state (shared by every map of that state)."""
+        return _support_model(self.placed)
 
     def supported(self, x: int, y: int) -> bool:
         """Whether the support rule accepts the box at (x, y) (bounds are not re-checked)."""
@@ -93,7 +100,7 @@ class CandidateMap:
 def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
     """One :class:`CandidateMap` per allowed orientation (skipping ones where the box cannot fit at all)."""
     limit = obs.container.height + TOLERANCE_CM
-    support = support_model(obs)
+    placed = tuple(obs.placed)
     for orientation in obs.orientations:
         length, width, height = obs.box.dims(orientation)
         if length > obs.container.length + TOLERANCE_CM or width > obs.container.width + TOLERANCE_CM:
@@ -101,7 +108,7 @@ def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
         z = drop_height_map(obs.heightmap, length, width)
         if z.size == 0:
             continue
-        yield CandidateMap(orientation, length, width, height, z, z + height <= limit, support)
+        yield CandidateMap(orientation, length, width, height, z, z + height <= limit, placed)
 
 
 def first_placement(

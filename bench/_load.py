@@ -43,8 +43,13 @@ async def _read_response(reader: asyncio.StreamReader) -> tuple[int, int]:
             return status, size
 
 
-async def _run(base: str, routes: Sequence[Route], readers: int, samples: int, warm: int,
-               ) -> dict[str, object]:  # fmt: skip
+async def _run(
+    base: str,
+    routes: Sequence[Route],
+    readers: int,
+    samples: int,
+    warm: int,
+) -> dict[str, object]:
     split = urlsplit(base)
     host, port = split.hostname or "127.0.0.1", split.port or 80
     out: dict[str, list[float]] = {label: [] for label, _, _ in routes}
@@ -101,8 +106,13 @@ def _cpu() -> float:
     return u.ru_utime + u.ru_stime
 
 
-def read_concurrently(base: str, routes: Sequence[Route], readers: int, samples: int, warm: int = 1,
-                      ) -> dict[str, object]:  # fmt: skip
+def read_concurrently(
+    base: str,
+    routes: Sequence[Route],
+    readers: int,
+    samples: int,
+    warm: int = 1,
+) -> dict[str, object]:
     """Run in a child process: per-route latencies (s), errors, the measured phase's wall time and this
     process's CPU time over it."""
     return asyncio.run(_run(base, routes, readers, samples, warm))

@@ -19,9 +19,28 @@ from _common import machine
 
 def run(jobs: int, groups: int, out: Path) -> float:
     started = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "robobpp.cli", "evaluate", "--policy", "dbl", "--dataset", "all",
-                    "--setting", "physics", "--groups", str(groups), "--jobs", str(jobs), "--json", str(out)],
-                   check=True, capture_output=True)  # fmt: skip
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "robobpp.cli",
+            "evaluate",
+            "--policy",
+            "dbl",
+            "--dataset",
+            "all",
+            "--setting",
+            "physics",
+            "--groups",
+            str(groups),
+            "--jobs",
+            str(jobs),
+            "--json",
+            str(out),
+        ],
+        check=True,
+        capture_output=True,
+    )
     return time.perf_counter() - started
 
 
@@ -36,8 +55,10 @@ def main() -> None:
         tn = run(args.jobs, args.groups, many)
 
         def figures(path: Path) -> list:
-            return [(e["episode_id"], e["boxes_placed"], e["metrics"]["space_utilization"])
-                    for e in json.loads(path.read_text())["episodes"]]  # fmt: skip
+            return [
+                (e["episode_id"], e["boxes_placed"], e["metrics"]["space_utilization"])
+                for e in json.loads(path.read_text())["episodes"]
+            ]
 
         same = figures(one) == figures(many)
     print(f"machine: {machine()}")

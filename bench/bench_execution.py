@@ -94,8 +94,10 @@ def main() -> None:
     args = parser.parse_args()
     compare: list[str] = []
     print(f"machine: {machine()}")
-    print("| dataset | boxes placed | CPU s/box (mean / median) | vs reference 5.8 | planning p50 / p95 (s) "
-          "| plan status | traj. length (m) | dangerous | utilization | termination |")  # fmt: skip
+    print(
+        "| dataset | boxes placed | CPU s/box (mean / median) | vs reference 5.8 | planning p50 / p95 (s) "
+        "| plan status | traj. length (m) | dangerous | utilization | termination |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for dataset in args.datasets.split(","):
         r = run(dataset, args.groups, args.synthetic)
@@ -109,8 +111,10 @@ def main() -> None:
         if args.compare_physics:
             physics = physics_placed(dataset, args.groups, args.synthetic)
             execution = r["placed_each"]
-            compare.append(f"| {dataset} | {statistics.mean(physics):.1f} ({', '.join(map(str, physics))}) | "
-                           f"{statistics.mean(execution):.1f} ({', '.join(map(str, execution))}) |")  # fmt: skip
+            compare.append(
+                f"| {dataset} | {statistics.mean(physics):.1f} ({', '.join(map(str, physics))}) | "
+                f"{statistics.mean(execution):.1f} ({', '.join(map(str, execution))}) |"
+            )
     if compare:
         print("\nDBL boxes placed per episode\n\n| dataset | Physics Pack | Execution Pack |\n|---|---|---|")
         print("\n".join(compare))

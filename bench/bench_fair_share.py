@@ -32,9 +32,15 @@ def main() -> None:
         s.add_all(people)
         s.flush()
         for i in range(SUBMISSIONS):
-            work.create_submission(s, people[i % PARTICIPANTS], name=f"s{i}", policy_url="builtin:dbl",
-                                   datasets=["diverse", "repetitive", "longboard"], settings=["math", "physics"],
-                                   groups=30)  # fmt: skip
+            work.create_submission(
+                s,
+                people[i % PARTICIPANTS],
+                name=f"s{i}",
+                policy_url="builtin:dbl",
+                datasets=["diverse", "repetitive", "longboard"],
+                settings=["math", "physics"],
+                groups=30,
+            )
     with factory() as s, s.begin():
         for _ in range(20):
             work.claim_episode(s, "bench", lease_s=60, max_attempts=3, max_running_per_participant=4)

@@ -52,11 +52,15 @@ def main() -> None:
     wall_ms = [1000 * t for t in wall]
     print(f"Machine: {machine()}; {args.dataset}, {args.groups} train groups\n")
     build_ms = [1000 * t for t in build]
-    print("| decisions | CPU median (ms) | CPU p95 (ms) | of which support model, median (ms) | wall median (ms) "
-          "| wall p95 (ms) | Space Utilization |")  # fmt: skip
+    print(
+        "| decisions | CPU median (ms) | CPU p95 (ms) | of which support model, median (ms) | wall median (ms) "
+        "| wall p95 (ms) | Space Utilization |"
+    )
     print("|---|---|---|---|---|---|---|")
-    print(f"| {len(ms)} | {median(ms):.2f} | {percentile(ms, 95):.2f} | {median(build_ms):.2f} | "
-          f"{median(wall_ms):.2f} | {percentile(wall_ms, 95):.2f} | {statistics.mean(utils):.3f} |")  # fmt: skip
+    print(
+        f"| {len(ms)} | {median(ms):.2f} | {percentile(ms, 95):.2f} | {median(build_ms):.2f} | "
+        f"{median(wall_ms):.2f} | {percentile(wall_ms, 95):.2f} | {statistics.mean(utils):.3f} |"
+    )
 
 
 if __name__ == "__main__":

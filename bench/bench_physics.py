@@ -49,13 +49,20 @@ def _worker(dataset: str, mode: str, groups: int, synthetic: bool, out: Any) -> 
             per_box.append(time.process_time() - t0)
         result = episode.result("dbl")
         episode.setting.close()
-        rows.append({
-            "group": spec.group, "steps": len(per_box), "cpu": time.process_time() - cpu0,
-            "wall": time.perf_counter() - wall0, "median": statistics.median(per_box) if per_box else 0.0,
-            "termination": result.termination, "placed": result.boxes_placed,
-            "ls_mm": (result.metrics.get("local_stability") or 0.0) * 1000,
-            "static": result.metrics.get("static_stability"), "util": result.metrics["space_utilization"],
-        })  # fmt: skip
+        rows.append(
+            {
+                "group": spec.group,
+                "steps": len(per_box),
+                "cpu": time.process_time() - cpu0,
+                "wall": time.perf_counter() - wall0,
+                "median": statistics.median(per_box) if per_box else 0.0,
+                "termination": result.termination,
+                "placed": result.boxes_placed,
+                "ls_mm": (result.metrics.get("local_stability") or 0.0) * 1000,
+                "static": result.metrics.get("static_stability"),
+                "util": result.metrics["space_utilization"],
+            }
+        )
     out.put({"rows": rows, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024})
 
 
@@ -80,8 +87,10 @@ def main() -> None:
     from robobpp.datasets import DATASETS
 
     print(f"machine: {machine()}")
-    print("| dataset | mode | boxes | CPU s/box (mean) | CPU s/box (median) | peak RSS (MB) | termination | "
-          "placed | Local Stab. (mm) | Static Stab. | Util. |")  # fmt: skip
+    print(
+        "| dataset | mode | boxes | CPU s/box (mean) | CPU s/box (median) | peak RSS (MB) | termination | "
+        "placed | Local Stab. (mm) | Static Stab. | Util. |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in DATASETS:
         results = {}
@@ -97,8 +106,11 @@ def main() -> None:
             ls = statistics.mean(r["ls_mm"] for r in rows)
             ss = statistics.mean(r["static"] or 0.0 for r in rows)
             util = statistics.mean(r["util"] for r in rows)
-            print(f"| {name} | {mode} | {steps} | {cpu / max(1, steps):.4f} | {med:.4f} | {data['rss_mb']:.0f} | "
-                  f"{term} | {placed:.1f} | {ls:.2f} | {ss:.3f} | {util:.3f} |", flush=True)  # fmt: skip
+            print(
+                f"| {name} | {mode} | {steps} | {cpu / max(1, steps):.4f} | {med:.4f} | {data['rss_mb']:.0f} | "
+                f"{term} | {placed:.1f} | {ls:.2f} | {ss:.3f} | {util:.3f} |",
+                flush=True,
+            )
         if args.full:
             fast, full = results["fast"]["rows"], results["full"]["rows"]
             ratio = (sum(r["cpu"] for r in full) / sum(r["steps"] for r in full)) / (

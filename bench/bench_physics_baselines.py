@@ -58,8 +58,10 @@ def main() -> None:
     parser.add_argument("--policies", default=",".join(BASELINES))
     args = parser.parse_args()
     print(f"machine: {machine()}")
-    print("| dataset | policy | Space Util. ↑ | Occupancy ↑ | Decision Time (ms) ↓ | Local Stab. (m) ↓ "
-          "| Static Stab. ↑ | boxes placed | episodes ended by | CPU s |")  # fmt: skip
+    print(
+        "| dataset | policy | Space Util. ↑ | Occupancy ↑ | Decision Time (ms) ↓ | Local Stab. (m) ↓ "
+        "| Static Stab. ↑ | boxes placed | episodes ended by | CPU s |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for dataset in args.datasets.split(","):
         for name in args.policies.split(","):

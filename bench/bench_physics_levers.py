@@ -38,8 +38,9 @@ def sleeping() -> Iterator[None]:
 
     def add_box(self: PhysicsWorld, *args: Any, **kwargs: Any) -> Any:
         box = original(self, *args, **kwargs)
-        p.changeDynamics(box.body, -1, activationState=p.ACTIVATION_STATE_ENABLE_SLEEPING,
-                         physicsClientId=self.client)  # fmt: skip
+        p.changeDynamics(
+            box.body, -1, activationState=p.ACTIVATION_STATE_ENABLE_SLEEPING, physicsClientId=self.client
+        )
         return box
 
     PhysicsWorld.add_box = add_box  # type: ignore[method-assign]
@@ -88,8 +89,11 @@ def main() -> None:
         with patch():
             result, per_box = run(spec, args.policy, options)
         ls = (result.metrics.get("local_stability") or 0.0) * 1000
-        print(f"| {name} | {median(per_box):.4f} | {sum(per_box) / len(per_box):.4f} | {result.termination} "
-              f"| {result.boxes_placed} | {ls:.1f} |", flush=True)  # fmt: skip
+        print(
+            f"| {name} | {median(per_box):.4f} | {sum(per_box) / len(per_box):.4f} | {result.termination} "
+            f"| {result.boxes_placed} | {ls:.1f} |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -76,13 +76,28 @@ class PullRig:
         self.url = f"http://127.0.0.1:{self.port}"
         db = f"sqlite:///{state_dir}/bench.sqlite3"
         env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
-        env.update({"ROBOBPP_STATE_DIR": state_dir, "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": self.ADMIN,
-                    "ROBOBPP_WORKERS": "0", "ROBOBPP_EVALUATE_BASELINES": "0", "ROBOBPP_GROUPS": "1",
-                    "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
-                    "ROBOBPP_LEASE_S": "3600"})  # fmt: skip
+        env.update(
+            {
+                "ROBOBPP_STATE_DIR": state_dir,
+                "ROBOBPP_DATABASE_URL": db,
+                "ROBOBPP_ADMIN_TOKEN": self.ADMIN,
+                "ROBOBPP_WORKERS": "0",
+                "ROBOBPP_EVALUATE_BASELINES": "0",
+                "ROBOBPP_GROUPS": "1",
+                "ROBOBPP_SETTINGS": '["math"]',
+                "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
+                "ROBOBPP_LEASE_S": "3600",
+            }
+        )
         code = "import sys; from robobpp.cli import main; sys.argv = ['robobpp', *sys.argv[1:]]; main()"
-        self.procs = [subprocess.Popen([sys.executable, "-c", code, "serve", "--port", str(self.port)],
-                                       env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]  # fmt: skip
+        self.procs = [
+            subprocess.Popen(
+                [sys.executable, "-c", code, "serve", "--port", str(self.port)],
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        ]
         deadline = time.monotonic() + 60
         while True:
             try:
@@ -102,9 +117,14 @@ class PullRig:
         client_env = dict(os.environ, ROBOBPP_TOKEN=token, ROBOBPP_SERVER=self.url)
         if secret:
             client_env["ROBOBPP_POLICY_SECRET"] = secret
-        self.procs.append(subprocess.Popen([sys.executable, "-c", code, "connect", "dbl", "--submission",
-                                            str(self.submission)], env=client_env,
-                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
+        self.procs.append(
+            subprocess.Popen(
+                [sys.executable, "-c", code, "connect", "dbl", "--submission", str(self.submission)],
+                env=client_env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        )
         from robobpp.db import work
         from robobpp.db.session import make_engine, make_session_factory
 

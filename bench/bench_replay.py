@@ -70,8 +70,15 @@ def sizes(data: dict[str, Any]) -> dict[str, int]:
     steps = data["episodes"][0]["steps"]
     part = lambda key: sum(len(json.dumps(s["extra"][key])) for s in steps if key in s.get("extra", {}))  # noqa: E731
     text = json.dumps(data)
-    return {"json": len(text), "gzip": len(gzip.compress(text.encode())), "motion": part("motion"),
-            "track": part("track"), "poses": part("poses"), "cell": part("cell"), "steps": len(steps)}  # fmt: skip
+    return {
+        "json": len(text),
+        "gzip": len(gzip.compress(text.encode())),
+        "motion": part("motion"),
+        "track": part("track"),
+        "poses": part("poses"),
+        "cell": part("cell"),
+        "steps": len(steps),
+    }
 
 
 def screenshot(page_file: Path, out: Path, at: float) -> None:
@@ -138,9 +145,11 @@ def main() -> None:
     data = json.loads(args.trace.read_text())
     s = sizes(data)
     print(f"machine: {machine()}")
-    print(f"trace: {s['steps']} steps, {s['json'] / 1e3:.0f} kB JSON, {s['gzip'] / 1e3:.0f} kB gzip; "
-          f"motion {s['motion'] / 1e3:.0f} kB, tracks {s['track'] / 1e3:.0f} kB, poses {s['poses'] / 1e3:.0f} kB, "
-          f"cell {s['cell'] / 1e3:.1f} kB")  # fmt: skip
+    print(
+        f"trace: {s['steps']} steps, {s['json'] / 1e3:.0f} kB JSON, {s['gzip'] / 1e3:.0f} kB gzip; "
+        f"motion {s['motion'] / 1e3:.0f} kB, tracks {s['track'] / 1e3:.0f} kB, poses {s['poses'] / 1e3:.0f} kB, "
+        f"cell {s['cell'] / 1e3:.1f} kB"
+    )
 
     from robobpp.web.trace import read_trace
     from robobpp.web.viewer import render_standalone

@@ -56,9 +56,27 @@ DATASETS = ("repetitive", "diverse", "longboard")
 SETTINGS = ("math", "physics", "execution")
 GROUPS = 30
 TEAMS = 100
-EPISODE_COLUMNS = ("id", "submission_id", "run_id", "dataset", "setting", "split", "group", "status", "attempts",
-                   "step", "termination", "termination_detail", "boxes_total", "boxes_placed", "metrics", "counters",
-                   "finished_at", "physics_version", "protocol")  # fmt: skip
+EPISODE_COLUMNS = (
+    "id",
+    "submission_id",
+    "run_id",
+    "dataset",
+    "setting",
+    "split",
+    "group",
+    "status",
+    "attempts",
+    "step",
+    "termination",
+    "termination_detail",
+    "boxes_total",
+    "boxes_placed",
+    "metrics",
+    "counters",
+    "finished_at",
+    "physics_version",
+    "protocol",
+)
 
 
 QUOTED = ", ".join(f'"{c}"' for c in EPISODE_COLUMNS)  # "group" is an SQL keyword
@@ -69,16 +87,23 @@ def episode_figures(
 ) -> tuple[dict[str, float], dict[str, int]]:
     """One episode's metrics and counters around a submission's quality (0..1)."""
     u = min(1.0, max(0.0, rng.gauss(0.45 + 0.3 * quality, 0.08)))
-    m = {"space_utilization": round(u, 5), "occupancy": round(min(1.0, u + 0.2 + rng.random() * 0.1), 5),
-         "decision_time": round(0.001 + rng.random() * 0.01 * (2 - quality), 6)}  # fmt: skip
+    m = {
+        "space_utilization": round(u, 5),
+        "occupancy": round(min(1.0, u + 0.2 + rng.random() * 0.1), 5),
+        "decision_time": round(0.001 + rng.random() * 0.01 * (2 - quality), 6),
+    }
     c: dict[str, int] = {}
     if setting != "math":
         m["local_stability"] = round(rng.random() * 0.01, 6)
         m["static_stability"] = round(0.8 + 0.2 * rng.random(), 5)
     if setting == "execution":
         m["trajectory_length"] = round(3 + 2 * rng.random(), 4)
-        c = {"placements_attempted": 40, "placements_collapsed": rng.randrange(4), "operations": 40,
-             "operations_dangerous": rng.randrange(3)}  # fmt: skip
+        c = {
+            "placements_attempted": 40,
+            "placements_collapsed": rng.randrange(4),
+            "operations": 40,
+            "operations_dangerous": rng.randrange(3),
+        }
     return m, c
 
 
@@ -108,15 +133,27 @@ def seed_rows(runtime: Any, n: int) -> int:
         kind = "failed" if i % 50 == 7 else "partial" if i % 50 == 23 else "ok"
         settings = ("math",) if kind == "partial" else SETTINGS
         # the server's runs: every setting closed loop, and the physical ones again under the paper protocol
-        boards = [(st, "closed") for st in settings] + [(st, "paper") for st in work.paper_settings(list(settings),
-                                                                                                   "private")]  # fmt: skip
+        boards = [(st, "closed") for st in settings] + [
+            (st, "paper") for st in work.paper_settings(list(settings), "private")
+        ]
         quality = rng.random()
         sub_id = i + 1
-        subs.append({"id": sub_id, "participant_id": teams[i % TEAMS], "name": f"policy-{i}",
-                     "policy_url": "https://example.org", "track": "private", "datasets": list(DATASETS),
-                     "settings": list(settings), "lookahead": 0, "episodes_total": GROUPS * 3 * len(boards),
-                     "status": "failed" if kind == "failed" else "completed", "created_at": now - timedelta(days=1),
-                     "finished_at": now - timedelta(seconds=n - i)})  # fmt: skip
+        subs.append(
+            {
+                "id": sub_id,
+                "participant_id": teams[i % TEAMS],
+                "name": f"policy-{i}",
+                "policy_url": "https://example.org",
+                "track": "private",
+                "datasets": list(DATASETS),
+                "settings": list(settings),
+                "lookahead": 0,
+                "episodes_total": GROUPS * 3 * len(boards),
+                "status": "failed" if kind == "failed" else "completed",
+                "created_at": now - timedelta(days=1),
+                "finished_at": now - timedelta(seconds=n - i),
+            }
+        )
         for d in DATASETS:
             for st, protocol in boards:
                 run_id += 1
@@ -126,15 +163,46 @@ def seed_rows(runtime: Any, n: int) -> int:
                     m, c = episode_figures(rng, quality, st)
                     term = "policy_error" if kind == "failed" else "completed"
                     rows.append((m, c, term, 40, g))
-                    batch.append((episode_id, sub_id, run_id, d, st, "test", g, "done", 1, 40, term, "", 80, 40,
-                                  json.dumps(m), json.dumps(c), now, None if st == "math" else PHYSICS_VERSION,
-                                  protocol))  # fmt: skip
+                    batch.append(
+                        (
+                            episode_id,
+                            sub_id,
+                            run_id,
+                            d,
+                            st,
+                            "test",
+                            g,
+                            "done",
+                            1,
+                            40,
+                            term,
+                            "",
+                            80,
+                            40,
+                            json.dumps(m),
+                            json.dumps(c),
+                            now,
+                            None if st == "math" else PHYSICS_VERSION,
+                            protocol,
+                        )
+                    )
                 metrics, extras = run_figures([r[:4] for r in rows], st)
                 figures = group_figures(({**m, **c, "group": g} for m, c, _t, _b, g in rows), st)
-                runs.append({"id": run_id, "submission_id": sub_id, "dataset": d, "setting": st, "protocol": protocol,
-                             "status": "completed",
-                             "episodes_total": GROUPS, "metrics": metrics, "extras": extras, "figures": figures,
-                             "completed_at": now})  # fmt: skip
+                runs.append(
+                    {
+                        "id": run_id,
+                        "submission_id": sub_id,
+                        "dataset": d,
+                        "setting": st,
+                        "protocol": protocol,
+                        "status": "completed",
+                        "episodes_total": GROUPS,
+                        "metrics": metrics,
+                        "extras": extras,
+                        "figures": figures,
+                        "completed_at": now,
+                    }
+                )
                 episodes += GROUPS
         if len(batch) >= 200_000:
             insert_parents(runtime, subs, runs)
@@ -180,8 +248,14 @@ def write_episodes(engine: Any, rows: list[tuple[Any, ...]], postgres: bool) -> 
     else:
         keys = EPISODE_COLUMNS
         with engine.begin() as c:
-            c.execute(insert(EpisodeRow), [dict(zip(keys, r, strict=True)) | {
-                "metrics": json.loads(r[14]), "counters": json.loads(r[15])} for r in rows])  # fmt: skip
+            c.execute(
+                insert(EpisodeRow),
+                [
+                    dict(zip(keys, r, strict=True))
+                    | {"metrics": json.loads(r[14]), "counters": json.loads(r[15])}
+                    for r in rows
+                ],
+            )
 
 
 def _copy_field(v: Any) -> str:
@@ -207,8 +281,11 @@ def routes(sub_ids: list[int], cookie: str, episode_id: int) -> list[tuple[str, 
         ("GET /?protocol=paper (grid under the paper protocol)", "/?protocol=paper", anonymous),
         ("GET /boards/diverse/physics?protocol=paper", "/boards/diverse/physics?protocol=paper", anonymous),
         ("GET /reproduction", "/reproduction", anonymous),
-        ("GET /boards/repetitive/execution?view=all&page=50", "/boards/repetitive/execution?view=all&page=50",
-         anonymous),
+        (
+            "GET /boards/repetitive/execution?view=all&page=50",
+            "/boards/repetitive/execution?view=all&page=50",
+            anonymous,
+        ),
         ("GET /submissions/{id} (page, signed in)", f"/submissions/{sid}", owner),
         ("GET /submissions/{id}/status.json (signed in)", f"/submissions/{sid}/status.json", owner),
         ("GET /account (signed in: all submissions, newest 50)", "/account", owner),
@@ -220,22 +297,34 @@ def routes(sub_ids: list[int], cookie: str, episode_id: int) -> list[tuple[str, 
         ("GET /api/v1/leaderboards (grid)", "/api/v1/leaderboards", api),
         ("GET /api/v1/leaderboards?view=all&offset=5000", "/api/v1/leaderboards?view=all&offset=5000", api),
         ("GET /api/v1/leaderboards/diverse/math", "/api/v1/leaderboards/diverse/math", api),
-        ("GET /api/v1/leaderboards/longboard/execution?protocol=paper",
-         "/api/v1/leaderboards/longboard/execution?protocol=paper", api),
-        ("GET /api/v1/leaderboards/longboard/physics?view=all&offset=9000",
-         "/api/v1/leaderboards/longboard/physics?view=all&offset=9000", api),
-        ("GET /api/v1/leaderboards/repetitive/execution?submission={id}",
-         f"/api/v1/leaderboards/repetitive/execution?view=all&submission={sid}", api),
+        (
+            "GET /api/v1/leaderboards/longboard/execution?protocol=paper",
+            "/api/v1/leaderboards/longboard/execution?protocol=paper",
+            api,
+        ),
+        (
+            "GET /api/v1/leaderboards/longboard/physics?view=all&offset=9000",
+            "/api/v1/leaderboards/longboard/physics?view=all&offset=9000",
+            api,
+        ),
+        (
+            "GET /api/v1/leaderboards/repetitive/execution?submission={id}",
+            f"/api/v1/leaderboards/repetitive/execution?view=all&submission={sid}",
+            api,
+        ),
         ("GET /api/v1/submissions/{id}", f"/api/v1/submissions/{sid}", api),
         ("GET /api/v1/submissions/{id}/episodes", f"/api/v1/submissions/{sid}/episodes", api),
-        ("GET /api/v1/submissions/{id}/episodes/{episode_id}", f"/api/v1/submissions/{sid}/episodes/{episode_id}",
-         api),
+        (
+            "GET /api/v1/submissions/{id}/episodes/{episode_id}",
+            f"/api/v1/submissions/{sid}/episodes/{episode_id}",
+            api,
+        ),
         ("GET /api/v1/submissions (list)", "/api/v1/submissions", api),
         ("GET /api/v1/me", "/api/v1/me", api),
         ("GET /api/v1/info", "/api/v1/info", api),
         ("GET /healthz", "/healthz", anonymous),
         ("GET /metrics", "/metrics", api),  # the operator's (ROBOBPP_METRICS_PUBLIC opens it)
-    ]  # fmt: skip
+    ]
 
 
 def sign_in(base: str) -> str:
@@ -272,15 +361,40 @@ def cpu_per_request(
 
 
 def start_server(url: str, state: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
-    env = {**os.environ, "ROBOBPP_DATABASE_URL": url, "ROBOBPP_STATE_DIR": str(state), "ROBOBPP_ADMIN_TOKEN": ADMIN,
-           "ROBOBPP_WORKERS": "0", "ROBOBPP_EVALUATE_BASELINES": "0", "ROBOBPP_SETTINGS": json.dumps(list(SETTINGS)),
-           "ROBOBPP_GROUPS": str(GROUPS), "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1",
-           "ROBOBPP_QUOTA_CONCURRENT": "1000000", "ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY": "1000000",
-           "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec"}  # fmt: skip
+    env = {
+        **os.environ,
+        "ROBOBPP_DATABASE_URL": url,
+        "ROBOBPP_STATE_DIR": str(state),
+        "ROBOBPP_ADMIN_TOKEN": ADMIN,
+        "ROBOBPP_WORKERS": "0",
+        "ROBOBPP_EVALUATE_BASELINES": "0",
+        "ROBOBPP_SETTINGS": json.dumps(list(SETTINGS)),
+        "ROBOBPP_GROUPS": str(GROUPS),
+        "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1",
+        "ROBOBPP_QUOTA_CONCURRENT": "1000000",
+        "ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY": "1000000",
+        "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
+    }
     port = _free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "uvicorn", "robobpp.server.app:create_app", "--factory",
-                             "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
-                             "--log-level", "warning", "--no-access-log"], env=env)  # fmt: skip
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "uvicorn",
+            "robobpp.server.app:create_app",
+            "--factory",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--workers",
+            str(workers),
+            "--log-level",
+            "warning",
+            "--no-access-log",
+        ],
+        env=env,
+    )
     base = f"http://127.0.0.1:{port}"
     for _ in range(600):
         try:
@@ -353,8 +467,13 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
             for d in DATASETS:
                 t0, c0 = time.perf_counter(), time.process_time()
                 boards[f"{st}/{d}"] = queries.leaderboard(s, d, st)
-                out.append((f"board {st}/{d} ({len(boards[f'{st}/{d}']['entries'])} ranked)",
-                            time.perf_counter() - t0, time.process_time() - c0))  # fmt: skip
+                out.append(
+                    (
+                        f"board {st}/{d} ({len(boards[f'{st}/{d}']['entries'])} ranked)",
+                        time.perf_counter() - t0,
+                        time.process_time() - c0,
+                    )
+                )
         t0, c0 = time.perf_counter(), time.process_time()
         build_grid(boards, DATASETS, SETTINGS, "private")
         out.append(("overall grid from the nine boards", time.perf_counter() - t0, time.process_time() - c0))
@@ -362,8 +481,13 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
             for d in DATASETS:
                 t0, c0 = time.perf_counter(), time.process_time()
                 boards[f"{st}/{d}"] = queries.leaderboard(s, d, st, protocol="paper")
-                out.append((f"board {st}/{d}, paper protocol ({len(boards[f'{st}/{d}']['entries'])} ranked)",
-                            time.perf_counter() - t0, time.process_time() - c0))  # fmt: skip
+                out.append(
+                    (
+                        f"board {st}/{d}, paper protocol ({len(boards[f'{st}/{d}']['entries'])} ranked)",
+                        time.perf_counter() - t0,
+                        time.process_time() - c0,
+                    )
+                )
         t0, c0 = time.perf_counter(), time.process_time()
         build_grid(boards, DATASETS, SETTINGS, "private")
         out.append(
@@ -374,8 +498,10 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
 
 def _ms(values: list[float]) -> str:
     """p50 | p95 | p99 | max, in ms: the tail shows pauses (a garbage collection) that p95 can hide."""
-    return " | ".join(f"{x * 1e3:.1f}" for x in (median(values), percentile(values, 95), percentile(values, 99),
-                                                  max(values)))  # fmt: skip
+    return " | ".join(
+        f"{x * 1e3:.1f}"
+        for x in (median(values), percentile(values, 95), percentile(values, 99), max(values))
+    )
 
 
 def main() -> None:
@@ -392,15 +518,27 @@ def main() -> None:
         "--cold", action="store_true", help="time the cold computation (default unless --reuse)"
     )
     parser.add_argument("--accepts", type=int, default=40)
-    parser.add_argument("--state-dir", default="", help="the server's state directory (default: a new one); "
-                        "reused, it holds the boards the last run stored, served at once after a restart")  # fmt: skip
+    parser.add_argument(
+        "--state-dir",
+        default="",
+        help="the server's state directory (default: a new one); "
+        "reused, it holds the boards the last run stored, served at once after a restart",
+    )
     args = parser.parse_args()
 
     tmp = Path(args.state_dir) if args.state_dir else Path(tempfile.mkdtemp(prefix="robobpp-bench-"))
     tmp.mkdir(parents=True, exist_ok=True)
     url = args.database_url or f"sqlite:///{tmp / 'bench.sqlite3'}"
-    settings = Settings(database_url=url, state_dir=tmp, admin_token=ADMIN, workers=0, evaluate_baselines=False,
-                        settings=SETTINGS, groups=GROUPS, spec_provider="robobpp.worker.specs:offline_spec")  # fmt: skip
+    settings = Settings(
+        database_url=url,
+        state_dir=tmp,
+        admin_token=ADMIN,
+        workers=0,
+        evaluate_baselines=False,
+        settings=SETTINGS,
+        groups=GROUPS,
+        spec_provider="robobpp.worker.specs:offline_spec",
+    )
     app = create_app(settings, start_workers=False)
     runtime = app.state.runtime
     bootstrap(runtime)
@@ -412,8 +550,10 @@ def main() -> None:
         n_eps = s.execute(text("SELECT count(*) FROM episodes")).scalar_one()
         sub_ids = [i for (i,) in s.execute(text("SELECT id FROM submissions ORDER BY id"))]
     seeded = f"seeded in {time.perf_counter() - t0:.0f} s" if episodes else "reused"
-    print(f"{n_subs:,} submissions ({n_waiting:,} not finished), {n_eps:,} episode rows ({seeded}); database: "
-          f"{runtime.engine.url.get_backend_name()}; {machine()}")  # fmt: skip
+    print(
+        f"{n_subs:,} submissions ({n_waiting:,} not finished), {n_eps:,} episode rows ({seeded}); database: "
+        f"{runtime.engine.url.get_backend_name()}; {machine()}"
+    )
     if args.seed_only:
         runtime.dispose()
         return
@@ -434,10 +574,12 @@ def main() -> None:
         warm_up(base, paths)
         scrape = httpx.get(f"{base}/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text
         snapshot = re.search(r"^robobpp_board_snapshot_seconds ([0-9.e+-]+)$", scrape, re.M)
-        print(f"warm-up (the server serves the boards it stored before a restart, if any, and computes each "
-              f"track's fifteen boards and two grids when it starts, in its board process): {time.perf_counter() - t0:.0f} s; "
-              f"last snapshot "
-              f"{float(snapshot.group(1)) if snapshot else float('nan'):.1f} s")  # fmt: skip
+        print(
+            f"warm-up (the server serves the boards it stored before a restart, if any, and computes each "
+            f"track's fifteen boards and two grids when it starts, in its board process): {time.perf_counter() - t0:.0f} s; "
+            f"last snapshot "
+            f"{float(snapshot.group(1)) if snapshot else float('nan'):.1f} s"
+        )
         alone = cpu_per_request(base, proc.pid, paths, 50)
         load0 = os.getloadavg()[0]
         server0 = cpu_seconds(proc.pid)
@@ -449,15 +591,19 @@ def main() -> None:
         samples: dict[str, list[float]] = result["latencies"]
         total = sum(len(v) for v in samples.values())
         elapsed = result["elapsed"]
-        print(f"\n{args.readers} concurrent readers (one load-generator process), {args.server_workers} server "
-              f"process(es): {total} requests in {elapsed:.1f} s ({total / elapsed:.0f} per second); server CPU "
-              f"{server_cpu:.1f} s ({1e3 * server_cpu / total:.2f} ms per request), load generator CPU "
-              f"{result['cpu']:.1f} s ({1e3 * result['cpu'] / total:.2f} ms per request); load average "
-              f"{load0:.1f} before, {os.getloadavg()[0]:.1f} after")  # fmt: skip
+        print(
+            f"\n{args.readers} concurrent readers (one load-generator process), {args.server_workers} server "
+            f"process(es): {total} requests in {elapsed:.1f} s ({total / elapsed:.0f} per second); server CPU "
+            f"{server_cpu:.1f} s ({1e3 * server_cpu / total:.2f} ms per request), load generator CPU "
+            f"{result['cpu']:.1f} s ({1e3 * result['cpu'] / total:.2f} ms per request); load average "
+            f"{load0:.1f} before, {os.getloadavg()[0]:.1f} after"
+        )
         with httpx.Client(base_url=base, timeout=60) as client:
             sizes = {label: len(client.get(path, headers=headers).content) for label, path, headers in paths}
-        print("\n| route | n | p50 (ms) | p95 (ms) | p99 (ms) | max (ms) | server CPU alone (ms) | body (kB) |\n"
-              "|---|---|---|---|---|---|---|---|")  # fmt: skip
+        print(
+            "\n| route | n | p50 (ms) | p95 (ms) | p99 (ms) | max (ms) | server CPU alone (ms) | body (kB) |\n"
+            "|---|---|---|---|---|---|---|---|"
+        )
         for label, values in samples.items():
             print(
                 f"| {label} | {len(values)} | {_ms(values)} | {alone[label] * 1e3:.1f} | {sizes[label] / 1e3:.1f} |"

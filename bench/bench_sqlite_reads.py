@@ -36,12 +36,26 @@ def start_server(state: Path, workers: int) -> tuple[subprocess.Popen[bytes], st
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
-    env.update({"ROBOBPP_STATE_DIR": str(state), "ROBOBPP_ADMIN_TOKEN": ADMIN, "ROBOBPP_WORKERS": str(workers),
-                "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec", "ROBOBPP_SETTINGS": '["math"]',
-                "ROBOBPP_GROUPS": "30", "ROBOBPP_EVALUATE_BASELINES": "0", "ROBOBPP_POLL_INTERVAL_S": "0.2"})  # fmt: skip
+    env.update(
+        {
+            "ROBOBPP_STATE_DIR": str(state),
+            "ROBOBPP_ADMIN_TOKEN": ADMIN,
+            "ROBOBPP_WORKERS": str(workers),
+            "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
+            "ROBOBPP_SETTINGS": '["math"]',
+            "ROBOBPP_GROUPS": "30",
+            "ROBOBPP_EVALUATE_BASELINES": "0",
+            "ROBOBPP_POLL_INTERVAL_S": "0.2",
+        }
+    )
     log = (state / "server.log").open("ab")
-    proc = subprocess.Popen([sys.executable, "-c", "from robobpp.cli import main; main()", "serve", "--port",
-                             str(port)], env=env, stdout=log, stderr=subprocess.STDOUT, cwd=state)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from robobpp.cli import main; main()", "serve", "--port", str(port)],
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        cwd=state,
+    )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
@@ -117,8 +131,10 @@ def main() -> None:
             proc.wait(30)
     ms = [x * 1000 for x in latencies]
     print(f"machine: {machine()}; load {os.getloadavg()[0]:.1f}")
-    print(f"{len(ms)} reads by {args.readers} readers in {args.seconds:g} s while {args.workers} workers "
-          f"completed {done} episodes")  # fmt: skip
+    print(
+        f"{len(ms)} reads by {args.readers} readers in {args.seconds:g} s while {args.workers} workers "
+        f"completed {done} episodes"
+    )
     print("| reads begin | readers | reads | episodes written | p50 (ms) | p99 (ms) | max (ms) |")
     print(
         f"| {args.begin} | {args.readers} | {len(ms)} | {done} | {median(ms):.1f} | {percentile(ms, 99):.1f} | {max(ms):.1f} |"

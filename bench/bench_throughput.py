@@ -56,16 +56,42 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
             who = Participant(name="bench")
             s.add(who)
             s.flush()
-            sub = work.create_submission(s, who, name="bench", policy_url="builtin:dbl", datasets=["repetitive"],
-                                         settings=[setting], groups=episodes, track="public").id  # fmt: skip
+            sub = work.create_submission(
+                s,
+                who,
+                name="bench",
+                policy_url="builtin:dbl",
+                datasets=["repetitive"],
+                settings=[setting],
+                groups=episodes,
+                track="public",
+            ).id
         env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
-        env.update(ROBOBPP_DATABASE_URL=url, ROBOBPP_BROKER_URL=broker, ROBOBPP_CELERY_QUEUE=queue,
-                   ROBOBPP_GROUPS=str(episodes), ROBOBPP_ENV="dev")  # fmt: skip
+        env.update(
+            ROBOBPP_DATABASE_URL=url,
+            ROBOBPP_BROKER_URL=broker,
+            ROBOBPP_CELERY_QUEUE=queue,
+            ROBOBPP_GROUPS=str(episodes),
+            ROBOBPP_ENV="dev",
+        )
         for i in range(workers):
-            cmd = [sys.executable, "-c", "from robobpp.cli import main; main()", "worker", "--concurrency", "1",
-                   "--loglevel", "warning", "--hostname", f"bench{i}-{queue}@local"]  # fmt: skip
-            procs.append(subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                                          start_new_session=True))  # fmt: skip
+            cmd = [
+                sys.executable,
+                "-c",
+                "from robobpp.cli import main; main()",
+                "worker",
+                "--concurrency",
+                "1",
+                "--loglevel",
+                "warning",
+                "--hostname",
+                f"bench{i}-{queue}@local",
+            ]
+            procs.append(
+                subprocess.Popen(
+                    cmd, env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+                )
+            )
         app = make_celery(broker, WorkerOptions(database_url=url, groups=episodes), queue=queue)
         deadline = time.monotonic() + 120
         while count_workers(app, timeout=0.5) < workers:
@@ -87,8 +113,11 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
             durations = [(r.finished_at - r.started_at).total_seconds() for r in rows if r.status == "done"]
         if status != "completed" or len(durations) != episodes:
             raise RuntimeError(f"submission ended {status} with {len(durations)}/{episodes} episodes done")
-        return {"elapsed_s": elapsed, "per_min": episodes / elapsed * 60,
-                "episode_s": sum(durations) / len(durations)}  # fmt: skip
+        return {
+            "elapsed_s": elapsed,
+            "per_min": episodes / elapsed * 60,
+            "episode_s": sum(durations) / len(durations),
+        }
     finally:
         if executor is not None:
             executor.stop()
@@ -134,8 +163,10 @@ def main() -> None:
         two = _measure(setting, 2, episodes, args.broker)
         for n, r in ((1, one), (2, two)):
             ratio = f"{two['per_min'] / one['per_min']:.2f}" if n == 2 else ""
-            print(f"| {setting} | {episodes} | {n} | {r['elapsed_s']:.1f} | {r['per_min']:.1f} | "
-                  f"{r['episode_s']:.2f} | {ratio} |")  # fmt: skip
+            print(
+                f"| {setting} | {episodes} | {n} | {r['elapsed_s']:.1f} | {r['per_min']:.1f} | "
+                f"{r['episode_s']:.2f} | {ratio} |"
+            )
     print(f"load average at end {os.getloadavg()[0]:.2f}")
 
 

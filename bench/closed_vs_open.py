@@ -232,8 +232,11 @@ def main() -> None:
                 cell = run_cell(dataset, policy, args.groups, args.first_group, args.tilt, protocols)
                 cells.setdefault(dataset, {})[policy] = cell
                 eps = cell["episodes"]
-                print(f"# {dataset} {policy}: math {mean(eps, 'math'):.3f} paper {mean(eps, 'paper'):.3f} "
-                      f"closed {mean(eps, 'closed'):.3f} ({cell['cpu_s']:.0f} CPU-s)", flush=True)  # fmt: skip
+                print(
+                    f"# {dataset} {policy}: math {mean(eps, 'math'):.3f} paper {mean(eps, 'paper'):.3f} "
+                    f"closed {mean(eps, 'closed'):.3f} ({cell['cpu_s']:.0f} CPU-s)",
+                    flush=True,
+                )
                 if args.json:
                     with open(args.json, "w") as fh:
                         json.dump({"tilt_deg": args.tilt, "cells": cells}, fh, indent=1)

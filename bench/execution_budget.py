@@ -63,13 +63,18 @@ def main() -> None:
                 operations += r.counters["operations"]
                 placed.append(r.boxes_placed)
                 utilization.append(r.metrics["space_utilization"])
-        print(f"| {budget} | {operations} | {', '.join(f'{k} {v}' for k, v in status.most_common())} "
-              f"| {', '.join(f'{k} {v}' for k, v in reasons.most_common()) or '–'} "
-              f"| {statistics.mean(placed):.1f} | {statistics.mean(utilization):.3f} |", flush=True)  # fmt: skip
+        print(
+            f"| {budget} | {operations} | {', '.join(f'{k} {v}' for k, v in status.most_common())} "
+            f"| {', '.join(f'{k} {v}' for k, v in reasons.most_common()) or '–'} "
+            f"| {statistics.mean(placed):.1f} | {statistics.mean(utilization):.3f} |",
+            flush=True,
+        )
 
         q = np.percentile
-        times.append(f"| {budget} | {q(seconds, 50):.2f} / {q(seconds, 95):.2f} / {max(seconds):.2f} "
-                     f"| {q(checks, 50):.0f} / {q(checks, 95):.0f} / {max(checks)} |")  # fmt: skip
+        times.append(
+            f"| {budget} | {q(seconds, 50):.2f} / {q(seconds, 95):.2f} / {max(seconds):.2f} "
+            f"| {q(checks, 50):.0f} / {q(checks, 95):.0f} / {max(checks)} |"
+        )
     print(
         "\n| budget (checks) | execution time p50 / p95 / max (s) | checks per planning call p50 / p95 / max |"
     )

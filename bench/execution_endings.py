@@ -115,9 +115,11 @@ def main() -> None:
             for e in episodes:
                 reasons.update(e.get("dangerous_reasons", {}))
             collapses = [m for e in episodes for m in e.get("marked_steps", []) if m[3]]
-            print(f"| {dataset} | {policy} | {', '.join(f'{k} {v}' for k, v in sorted(endings.items()))} "
-                  f"| {', '.join(f'{k} {v}' for k, v in reasons.most_common()) or '–'} "
-                  f"| {sum(1 for m in collapses if m[1])} / {len(collapses)} |")  # fmt: skip
+            print(
+                f"| {dataset} | {policy} | {', '.join(f'{k} {v}' for k, v in sorted(endings.items()))} "
+                f"| {', '.join(f'{k} {v}' for k, v in reasons.most_common()) or '–'} "
+                f"| {sum(1 for m in collapses if m[1])} / {len(collapses)} |"
+            )
 
 
 if __name__ == "__main__":

@@ -48,10 +48,13 @@ def run_one(spec: Any, policy: str, run: str) -> dict[str, Any]:
     clock = CpuPerStep()
     result: EpisodeResult = run_episode(spec, load_policy(policy), PhysicsPack(**RUNS[run]), on_step=clock)
     return {
-        "termination": result.termination, "placed": result.boxes_placed,
-        "ls": result.metrics.get("local_stability"), "util": result.metrics.get("space_utilization"),
-        "static": result.metrics.get("static_stability"), "cpu_per_box": clock.per_box,
-    }  # fmt: skip
+        "termination": result.termination,
+        "placed": result.boxes_placed,
+        "ls": result.metrics.get("local_stability"),
+        "util": result.metrics.get("space_utilization"),
+        "static": result.metrics.get("static_stability"),
+        "cpu_per_box": clock.per_box,
+    }
 
 
 def summarize(lines: list[dict[str, Any]]) -> str:
@@ -70,8 +73,11 @@ def summarize(lines: list[dict[str, Any]]) -> str:
         for name, (a, b) in pairs.items():
             got = [compare(outcome(r["runs"][a]), outcome(r["runs"][b])) for r in rows]
             n = len(got)
-            cols = [sum(g.same_termination for g in got), sum(g.same_boxes for g in got),
-                    sum(g.same_local_stability for g in got)]  # fmt: skip
+            cols = [
+                sum(g.same_termination for g in got),
+                sum(g.same_boxes for g in got),
+                sum(g.same_local_stability for g in got),
+            ]
             both = sum(g.agree for g in got)
             if ds == "all":
                 flags[name] = [g.agree for g in got]
@@ -88,17 +94,21 @@ def summarize(lines: list[dict[str, Any]]) -> str:
     # likely; H1: fast disagrees more often (one-sided exact McNemar = binomial test on b of b + c).
     p_value = mcnemar_one_sided(fast_only, noise_only)
     out.append("")
-    out.append(f"discordant episodes: only fast vs full disagrees {fast_only}, only full+0.1mm vs full "
-               f"disagrees {noise_only}; exact one-sided McNemar p = {p_value:.3f} "
-               f"({'pass' if p_value >= 0.05 else 'FAIL'} at 0.05)")  # fmt: skip
+    out.append(
+        f"discordant episodes: only fast vs full disagrees {fast_only}, only full+0.1mm vs full "
+        f"disagrees {noise_only}; exact one-sided McNemar p = {p_value:.3f} "
+        f"({'pass' if p_value >= 0.05 else 'FAIL'} at 0.05)"
+    )
     out.append("")
     out.append("| dataset | boxes | fast CPU-s/box median | fast p95 | full CPU-s/box median | full p95 |")
     out.append("|---|---|---|---|---|---|")
     for ds, rows in by_ds.items():
         fast = [c for r in rows for c in r["runs"]["fast"]["cpu_per_box"]]
         full = [c for r in rows for c in r["runs"]["full"]["cpu_per_box"]]
-        out.append(f"| {ds} | {len(fast)} / {len(full)} | {median(fast):.4f} | {percentile(fast, 95):.4f} "
-                   f"| {median(full):.4f} | {percentile(full, 95):.4f} |")  # fmt: skip
+        out.append(
+            f"| {ds} | {len(fast)} / {len(full)} | {median(fast):.4f} | {percentile(fast, 95):.4f} "
+            f"| {median(full):.4f} | {percentile(full, 95):.4f} |"
+        )
     return "\n".join(out)
 
 
@@ -131,8 +141,10 @@ def main() -> None:
                     fh.write(json.dumps(line) + "\n")
                     fh.flush()
                     lines.append(line)
-                    brief = " / ".join(f"{r['termination']} {r['placed']} {(r['ls'] or 0) * 1000:.1f}mm"
-                                       for r in runs.values())  # fmt: skip
+                    brief = " / ".join(
+                        f"{r['termination']} {r['placed']} {(r['ls'] or 0) * 1000:.1f}mm"
+                        for r in runs.values()
+                    )
                     print(
                         f"# {ds} {policy} group {spec.group}: fast / full / full+0.1mm = {brief}", flush=True
                     )

@@ -235,8 +235,14 @@ def run(
     cpu0 = time.process_time()
     # A group's boxes depend on its index only, so groups first_group.. are the same as in a longer run.
     specs = episode_specs(dataset, split, first_group + groups)[first_group:]
-    episodes = run_baselines(specs, policy, [setting], protocol=PAPER if replay else CLOSED,
-                             load=lambda name, spec: make_policy(name, spec, item_set), setting_for=make_setting)  # fmt: skip
+    episodes = run_baselines(
+        specs,
+        policy,
+        [setting],
+        protocol=PAPER if replay else CLOSED,
+        load=lambda name, spec: make_policy(name, spec, item_set),
+        setting_for=make_setting,
+    )
     results = [r for rs in episodes for r in rs]
     return summarise([episode_record(r) for r in results], time.process_time() - cpu0)
 
@@ -368,8 +374,11 @@ def main() -> None:
                 args.first_group,
             )
             fig = ours[dataset][policy]
-            print(f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
-                  f"({fig['boxes_placed']:.1f} boxes, {fig['terminations']}, {fig['cpu_s']:.0f} s)", flush=True)  # fmt: skip
+            print(
+                f"# {args.setting} {dataset} {policy}: {fig['space_utilization']:.3f} "
+                f"({fig['boxes_placed']:.1f} boxes, {fig['terminations']}, {fig['cpu_s']:.0f} s)",
+                flush=True,
+            )
             if args.json:  # as it goes: a run stopped early keeps its finished cells
                 write_json(args.json, args, ours, {})
 
@@ -385,10 +394,15 @@ def main() -> None:
         d: sorted({len(ours[d][q].get("groups", ())) or args.groups for q in policies}) for d in datasets
     }
     groups = " / ".join(f"{d} {'–'.join(map(str, counts[d]))}" for d in datasets)
-    print(f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, groups: {groups} (seed 0); "
-          f"paper: its test-split tables. {machine()}\n")  # fmt: skip
-    figures = {(args.setting, d, q, "space_utilization"): ours[d][q]["space_utilization"]
-               for d in datasets for q in policies}  # fmt: skip
+    print(
+        f"\n{args.setting.capitalize()} Pack{rule}, Space Utilization, {args.split} split, groups: {groups} (seed 0); "
+        f"paper: its test-split tables. {machine()}\n"
+    )
+    figures = {
+        (args.setting, d, q, "space_utilization"): ours[d][q]["space_utilization"]
+        for d in datasets
+        for q in policies
+    }
     comparison = compare(figures, metrics=["space_utilization"])
     print(markdown(comparison))
     summary = {
@@ -404,9 +418,19 @@ def main() -> None:
 
 def write_json(path: str, args: argparse.Namespace, ours: dict[str, Any], summary: dict[str, Any]) -> None:
     with open(path, "w") as fh:
-        json.dump({"setting": args.setting, "groups": args.groups, "first_group": args.first_group,
-                   "open_loop": args.open_loop, "ours": ours, "paper": paper_figures(args.setting),
-                   "summary": summary}, fh, indent=1)  # fmt: skip
+        json.dump(
+            {
+                "setting": args.setting,
+                "groups": args.groups,
+                "first_group": args.first_group,
+                "open_loop": args.open_loop,
+                "ours": ours,
+                "paper": paper_figures(args.setting),
+                "summary": summary,
+            },
+            fh,
+            indent=1,
+        )
 
 
 def paper_figures(setting: str) -> dict[str, dict[str, float]]:
@@ -432,8 +456,10 @@ def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str
     robot = setting == "execution"
     head = "| dataset | heuristic | episodes | boxes placed | endings | collapsed placements | steps moving a box > 1 cm |"
     if robot:
-        head += (" dangerous ops / ops | dangerous reasons | boxes woken by the motion (steps) "
-                 "| collapses on a dangerous op |")  # fmt: skip
+        head += (
+            " dangerous ops / ops | dangerous reasons | boxes woken by the motion (steps) "
+            "| collapses on a dangerous op |"
+        )
     print("\n" + head)
     print("|---|---|---:|---:|---|---:|---:|" + ("---:|---|---:|---:|" if robot else ""))
     for d in datasets:
@@ -446,12 +472,16 @@ def print_evidence(ours: dict[str, Any], datasets: list[str], policies: list[str
                 c.update(e["counters"])
                 reasons.update(e.get("dangerous_reasons", {}))
             endings = ", ".join(f"{k} {v}" for k, v in sorted(fig["terminations"].items()))
-            row = (f"| {d} | {q} | {len(eps)} | {fig['boxes_placed']:.1f} | {endings} "
-                   f"| {c['placements_collapsed']} / {c['placements_attempted']} "
-                   f"| {count(eps, 'steps_shifting_1cm')} |")  # fmt: skip
+            row = (
+                f"| {d} | {q} | {len(eps)} | {fig['boxes_placed']:.1f} | {endings} "
+                f"| {c['placements_collapsed']} / {c['placements_attempted']} "
+                f"| {count(eps, 'steps_shifting_1cm')} |"
+            )
             if robot:
-                disturbed = (f"{sum(e.get('disturbed_boxes', 0) for e in eps)} "
-                             f"({sum(e.get('steps_disturbing', 0) for e in eps)})")  # fmt: skip
+                disturbed = (
+                    f"{sum(e.get('disturbed_boxes', 0) for e in eps)} "
+                    f"({sum(e.get('steps_disturbing', 0) for e in eps)})"
+                )
                 why = ", ".join(f"{k} {v}" for k, v in reasons.most_common()) or "–"
                 marked = [e for e in eps if "marked_steps" in e]
                 collapses = [m for e in marked for m in e["marked_steps"] if m[3]]

@@ -80,8 +80,11 @@ def config_for(base: PhysicsConfig, changes: dict[str, Any], divisor: int) -> Ph
 
 def record_actions(spec: Any, policy: str) -> list[Action]:
     result = run_episode(spec, load_policy(policy), PhysicsPack())
-    print(f"# recorded in the default physics: {result.termination} after {result.boxes_placed} boxes: "
-          f"{result.termination_detail}", flush=True)  # fmt: skip
+    print(
+        f"# recorded in the default physics: {result.termination} after {result.boxes_placed} boxes: "
+        f"{result.termination_detail}",
+        flush=True,
+    )
     return [
         Action(s.action["x"], s.action["y"], int(s.action["orientation"])) for s in result.steps if s.action
     ]
@@ -133,12 +136,17 @@ def replay(spec: Any, actions: list[Action], name: str, boxes: int) -> dict[str,
     box0_mm = float(np.linalg.norm(centers[0, :2] - targets[0, :2]) * 10)
     rest_drift = rest_creep(world, cfg, seconds=2.0)
     return {
-        "variant": name, "placed": placed, "collapse_at": collapse_at,
+        "variant": name,
+        "placed": placed,
+        "collapse_at": collapse_at,
         "far_drift_median_um": float(np.median(far_drift)) if far_drift else None,
         "far_drift_mean_um": float(np.mean(far_drift)) if far_drift else None,
-        "box0_mm": box0_mm, "ls_mm": ls_mm, "rest_drift_um": rest_drift, "cpu_s": cpu,
+        "box0_mm": box0_mm,
+        "ls_mm": ls_mm,
+        "rest_drift_um": rest_drift,
+        "cpu_s": cpu,
         "collapse": detail,
-    }  # fmt: skip
+    }
 
 
 def rest_creep(world: PhysicsWorld, cfg: PhysicsConfig, seconds: float) -> float:
@@ -162,10 +170,16 @@ def main() -> None:
     args = parser.parse_args()
     spec = episode_specs(args.dataset, groups=args.group + 1)[args.group]
     actions = record_actions(spec, args.policy)
-    print(f"# {args.dataset} group {args.group} {args.policy}: {len(actions)} recorded actions, replaying "
-          f"{min(len(actions), args.boxes)}", flush=True)  # fmt: skip
-    print("| variant | placed | collapse at | far drift per placement median / mean (µm) | box 0 (mm) | LS (mm) "
-          "| rest drift 2 s (µm) | CPU s |", flush=True)  # fmt: skip
+    print(
+        f"# {args.dataset} group {args.group} {args.policy}: {len(actions)} recorded actions, replaying "
+        f"{min(len(actions), args.boxes)}",
+        flush=True,
+    )
+    print(
+        "| variant | placed | collapse at | far drift per placement median / mean (µm) | box 0 (mm) | LS (mm) "
+        "| rest drift 2 s (µm) | CPU s |",
+        flush=True,
+    )
     print("|---|---|---|---|---|---|---|---|", flush=True)
     for name in args.variants.split(","):
         row = replay(spec, actions, name, args.boxes)
@@ -177,9 +191,12 @@ def main() -> None:
         def f(v: float | None, fmt: str = ".1f") -> str:
             return "–" if v is None else format(v, fmt)
 
-        print(f"| {name} | {row['placed']} | {row['collapse_at'] if row['collapse_at'] is not None else '–'} "
-              f"| {f(row['far_drift_median_um'])} / {f(row['far_drift_mean_um'])} | {row['box0_mm']:.2f} "
-              f"| {row['ls_mm']:.2f} | {row['rest_drift_um']:.1f} | {row['cpu_s']:.0f} |", flush=True)  # fmt: skip
+        print(
+            f"| {name} | {row['placed']} | {row['collapse_at'] if row['collapse_at'] is not None else '–'} "
+            f"| {f(row['far_drift_median_um'])} / {f(row['far_drift_mean_um'])} | {row['box0_mm']:.2f} "
+            f"| {row['ls_mm']:.2f} | {row['rest_drift_um']:.1f} | {row['cpu_s']:.0f} |",
+            flush=True,
+        )
         if row["collapse"]:
             print(f"#   {name}: {row['collapse']}", flush=True)
 

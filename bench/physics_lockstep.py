@@ -41,22 +41,36 @@ def main() -> None:
         if keys["fast"] != keys["full"]:
             diff = obs["fast"].heightmap - obs["full"].heightmap
             cells = np.argwhere(np.abs(diff) > 1e-9)
-            some = [(tuple(int(v) for v in c), float(obs["fast"].heightmap[tuple(c)]),
-                     float(obs["full"].heightmap[tuple(c)])) for c in cells[:4]]  # fmt: skip
-            print(f"{args.dataset} {args.policy} group {args.group}: first different action at step {step}: "
-                  f"fast {keys['fast']}, full {keys['full']}")  # fmt: skip
-            print(f"  heightmap cells that differ: {len(cells)}, max {np.abs(diff).max():.2f} cm, e.g. "
-                  f"(cell, fast cm, full cm) {some}")  # fmt: skip
+            some = [
+                (
+                    tuple(int(v) for v in c),
+                    float(obs["fast"].heightmap[tuple(c)]),
+                    float(obs["full"].heightmap[tuple(c)]),
+                )
+                for c in cells[:4]
+            ]
+            print(
+                f"{args.dataset} {args.policy} group {args.group}: first different action at step {step}: "
+                f"fast {keys['fast']}, full {keys['full']}"
+            )
+            print(
+                f"  heightmap cells that differ: {len(cells)}, max {np.abs(diff).max():.2f} cm, e.g. "
+                f"(cell, fast cm, full cm) {some}"
+            )
             fast = np.array([[p.x, p.y, p.z] for p in obs["fast"].placed])
             full = np.array([[p.x, p.y, p.z] for p in obs["full"].placed])
-            print("  observed placements, max |fast - full| per box (mm):",
-                  np.round(np.abs(fast - full).max(axis=1) * 10, 2).tolist())  # fmt: skip
+            print(
+                "  observed placements, max |fast - full| per box (mm):",
+                np.round(np.abs(fast - full).max(axis=1) * 10, 2).tolist(),
+            )
             return
         for mode, episode in episodes.items():
             episode.step(acts[mode], 0.0)
         if any(e.done for e in episodes.values()):
-            print(f"{args.dataset} {args.policy} group {args.group}: the same actions until step {step}; "
-                  f"fast {episodes['fast'].termination}, full {episodes['full'].termination}")  # fmt: skip
+            print(
+                f"{args.dataset} {args.policy} group {args.group}: the same actions until step {step}; "
+                f"fast {episodes['fast'].termination}, full {episodes['full'].termination}"
+            )
             return
 
 

@@ -56,10 +56,21 @@ def main() -> None:
             target: np.ndarray, quat: tuple[float, ...], start: np.ndarray | list[float]
         ) -> np.ndarray | None:
             set_q(start)
-            q = np.float32(p.calculateInverseKinematics(
-                arm, TIP, target.tolist(), list(quat), lowerLimits=lower, upperLimits=upper,
-                jointRanges=[u - lo for u, lo in zip(upper, lower, strict=True)], restPoses=home,
-                maxNumIterations=100, residualThreshold=1e-5, physicsClientId=client))  # fmt: skip
+            q = np.float32(
+                p.calculateInverseKinematics(
+                    arm,
+                    TIP,
+                    target.tolist(),
+                    list(quat),
+                    lowerLimits=lower,
+                    upperLimits=upper,
+                    jointRanges=[u - lo for u, lo in zip(upper, lower, strict=True)],
+                    restPoses=home,
+                    maxNumIterations=100,
+                    residualThreshold=1e-5,
+                    physicsClientId=client,
+                )
+            )
             q[2:] = (q[2:] + np.pi) % (2 * np.pi) - np.pi
             set_q(q)
             got = np.array(p.getLinkState(arm, TIP, computeForwardKinematics=True, physicsClientId=client)[4])

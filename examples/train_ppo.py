@@ -104,9 +104,12 @@ class Curve(BaseCallback):
             return
         self.last_line = now
         recent = [p[2] for p in self.points[-20:]]
-        print(f"step {self.num_timesteps}/{self.total}  episodes {len(self.points)}  Space Utilization: last "
-              f"{recent[-1]:.3f}, mean of last {len(recent)} {np.mean(recent):.3f}  "
-              f"{(now - self.started) / 60:.1f} min", flush=True)  # fmt: skip
+        print(
+            f"step {self.num_timesteps}/{self.total}  episodes {len(self.points)}  Space Utilization: last "
+            f"{recent[-1]:.3f}, mean of last {len(recent)} {np.mean(recent):.3f}  "
+            f"{(now - self.started) / 60:.1f} min",
+            flush=True,
+        )
 
     def _on_training_end(self) -> None:
         self.file.close()
@@ -144,8 +147,20 @@ class PPOPolicy(BasePolicy):
 def evaluate(policy: str, args: argparse.Namespace, out: Path, extra_env: dict[str, str]) -> float:
     """Mean Space Utilization of ``robobpp evaluate`` for one policy on the evaluation groups."""
     target = out / f"eval-{policy.split(':')[-1].lower()}.json"
-    cmd = ["robobpp", "evaluate", "--policy", policy, "--dataset", args.dataset, "--setting", "math",
-           "--groups", str(args.eval_groups), "--json", str(target)]  # fmt: skip
+    cmd = [
+        "robobpp",
+        "evaluate",
+        "--policy",
+        policy,
+        "--dataset",
+        args.dataset,
+        "--setting",
+        "math",
+        "--groups",
+        str(args.eval_groups),
+        "--json",
+        str(target),
+    ]
     print("$", " ".join(cmd), flush=True)
     subprocess.run(cmd, check=True, env={**os.environ, **extra_env})
     return float(json.loads(target.read_text())["runs"][0]["metrics"]["space_utilization"])
@@ -193,8 +208,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/ppo"))
     parser.add_argument("--no-baselines", action="store_true", help="evaluate only the agent, not Random/DBL")
-    parser.add_argument("--progress-s", type=float, default=30.0,
-                        help="without a terminal: a progress line at most this often (seconds; 0: every episode)")  # fmt: skip
+    parser.add_argument(
+        "--progress-s",
+        type=float,
+        default=30.0,
+        help="without a terminal: a progress line at most this often (seconds; 0: every episode)",
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -204,23 +223,40 @@ def main() -> None:
         "robobpp/Pack-v0", dataset=args.dataset, setting="math", groups=args.groups, actions="flat"
     )
     env = Monitor(Features(env))
-    model = MaskablePPO("MlpPolicy", env, n_steps=args.n_steps, batch_size=64, gamma=1.0, seed=args.seed,
-                        device="cpu", verbose=0)  # fmt: skip
+    model = MaskablePPO(
+        "MlpPolicy",
+        env,
+        n_steps=args.n_steps,
+        batch_size=64,
+        gamma=1.0,
+        seed=args.seed,
+        device="cpu",
+        verbose=0,
+    )
     torch.set_num_threads(1)  # one core: the figures in docs are per CPU-minute
     start = time.process_time()
     # On a terminal a progress bar; otherwise (batch jobs, logs) progress lines on stdout.
     terminal = sys.stderr.isatty()
     print(f"training {args.steps} steps; curve in {args.out / 'curve.csv'} as it goes", flush=True)
-    curve = Curve(60 * args.cpu_minutes, 60 * args.wall_minutes, args.out / "curve.csv", args.steps,
-                  None if terminal else args.progress_s)  # fmt: skip
+    curve = Curve(
+        60 * args.cpu_minutes,
+        60 * args.wall_minutes,
+        args.out / "curve.csv",
+        args.steps,
+        None if terminal else args.progress_s,
+    )
     model.learn(total_timesteps=args.steps, callback=curve, progress_bar=terminal)
     model.save(args.out / "model.zip")
-    print(f"trained {model.num_timesteps} steps, {len(curve.points)} episodes in "
-          f"{(time.process_time() - start) / 60:.1f} CPU-minutes; model in {args.out / 'model.zip'}")  # fmt: skip
+    print(
+        f"trained {model.num_timesteps} steps, {len(curve.points)} episodes in "
+        f"{(time.process_time() - start) / 60:.1f} CPU-minutes; model in {args.out / 'model.zip'}"
+    )
 
     examples = str(Path(__file__).resolve().parent)
-    agent_env = {"ROBOBPP_PPO_MODEL": str(args.out / "model.zip"),
-                 "PYTHONPATH": os.pathsep.join(filter(None, [examples, os.environ.get("PYTHONPATH")]))}  # fmt: skip
+    agent_env = {
+        "ROBOBPP_PPO_MODEL": str(args.out / "model.zip"),
+        "PYTHONPATH": os.pathsep.join(filter(None, [examples, os.environ.get("PYTHONPATH")])),
+    }
     lines = {"PPO": evaluate("train_ppo:PPOPolicy", args, args.out, agent_env)}
     if not args.no_baselines:
         lines |= {name: evaluate(name.lower(), args, args.out, {}) for name in ("Random", "DBL")}

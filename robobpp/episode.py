@@ -124,9 +124,16 @@ class EpisodeResult:
 
 def placement_dict(p: Placement) -> dict[str, Any]:
     return {
-        "x": p.x, "y": p.y, "z": p.z, "length": p.length, "width": p.width, "height": p.height,
-        "orientation": p.orientation, "index": p.index, "quaternion": p.quaternion,
-    }  # fmt: skip
+        "x": p.x,
+        "y": p.y,
+        "z": p.z,
+        "length": p.length,
+        "width": p.width,
+        "height": p.height,
+        "orientation": p.orientation,
+        "index": p.index,
+        "quaternion": p.quaternion,
+    }
 
 
 class Episode:
@@ -145,8 +152,12 @@ class Episode:
         self.index = 0
         self.termination: Infeasible | None = None
         self.steps: list[StepRecord] = []
-        self.counters = {"placements_attempted": 0, "placements_collapsed": 0, "operations": 0,
-                         "operations_dangerous": 0}  # fmt: skip
+        self.counters = {
+            "placements_attempted": 0,
+            "placements_collapsed": 0,
+            "operations": 0,
+            "operations_dangerous": 0,
+        }
         self._static: list[float] = []
         self._trajectory: list[float] = []
         self._decision: list[float] = []
@@ -155,8 +166,13 @@ class Episode:
 
     @property
     def info(self) -> EpisodeInfo:
-        return EpisodeInfo(self.spec.episode_id, self.spec.dataset, self.setting.name, self.spec.container,
-                           lookahead=self.lookahead)  # fmt: skip
+        return EpisodeInfo(
+            self.spec.episode_id,
+            self.spec.dataset,
+            self.setting.name,
+            self.spec.container,
+            lookahead=self.lookahead,
+        )
 
     @property
     def done(self) -> bool:
@@ -208,8 +224,11 @@ class Episode:
         )
         self.steps.append(record)
         if action is None:
-            self.end(NO_FEASIBLE_PLACEMENT, f"no feasible placement for {box_label(self.index)} "
-                     f"({box.length:g} × {box.width:g} × {box.height:g} cm)")  # fmt: skip
+            self.end(
+                NO_FEASIBLE_PLACEMENT,
+                f"no feasible placement for {box_label(self.index)} "
+                f"({box.length:g} × {box.width:g} × {box.height:g} cm)",
+            )
             record.termination = NO_FEASIBLE_PLACEMENT
             return record
         record.action = {"x": action.x, "y": action.y, "orientation": action.orientation}
@@ -305,7 +324,7 @@ class Episode:
                     "in_place": f.in_place,
                 }
                 for f in world
-            ],  # fmt: skip
+            ],
         )
 
 

@@ -66,21 +66,62 @@ def group_csv(payload: Mapping[str, Any]) -> str:
     settings = {e["setting"] for e in episodes}
     keys = [m.key for m in METRICS if any(s in m.settings for s in settings)]
     run = payload.get("provenance") or {}
-    head = ["policy", "dataset", "setting", "protocol", "split", "group", "episode_id", "group_seed",
-            "termination", "boxes_placed", "boxes_total", *keys, "physics", "math_rules", "sampler",
-            "robobpp", "commit", "datasets_manifest_sha256", "anchors", "seed", "groups"]  # fmt: skip
+    head = [
+        "policy",
+        "dataset",
+        "setting",
+        "protocol",
+        "split",
+        "group",
+        "episode_id",
+        "group_seed",
+        "termination",
+        "boxes_placed",
+        "boxes_total",
+        *keys,
+        "physics",
+        "math_rules",
+        "sampler",
+        "robobpp",
+        "commit",
+        "datasets_manifest_sha256",
+        "anchors",
+        "seed",
+        "groups",
+    ]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(head)
     for e in sorted(episodes, key=lambda e: (e["dataset"], e["setting"], e.get("protocol", ""), e["group"])):
         metrics = e.get("metrics") or {}
-        writer.writerow([_cell(v) for v in (
-            payload.get("policy"), e["dataset"], e["setting"], e.get("protocol", "closed"), e["split"], e["group"],
-            e["episode_id"], e.get("seed"), e["termination"], e["boxes_placed"], e["boxes_total"],
-            *(metrics.get(k) for k in keys), e.get("physics_version"), e.get("rules_version"),
-            e.get("sampler_version"), run.get("robobpp"), run.get("commit"), run.get("datasets_manifest_sha256"),
-            run.get("anchors"), payload.get("seed"), payload.get("groups"),
-        )])  # fmt: skip
+        writer.writerow(
+            [
+                _cell(v)
+                for v in (
+                    payload.get("policy"),
+                    e["dataset"],
+                    e["setting"],
+                    e.get("protocol", "closed"),
+                    e["split"],
+                    e["group"],
+                    e["episode_id"],
+                    e.get("seed"),
+                    e["termination"],
+                    e["boxes_placed"],
+                    e["boxes_total"],
+                    *(metrics.get(k) for k in keys),
+                    e.get("physics_version"),
+                    e.get("rules_version"),
+                    e.get("sampler_version"),
+                    run.get("robobpp"),
+                    run.get("commit"),
+                    run.get("datasets_manifest_sha256"),
+                    run.get("anchors"),
+                    payload.get("seed"),
+                    payload.get("groups"),
+                )
+            ]
+        )
     return out.getvalue()
 
 
@@ -88,16 +129,25 @@ def run_sheet(payload: Mapping[str, Any]) -> Sheet:
     """The summary of a local run: each (dataset, setting) with its figures and intervals."""
     runs = payload.get("runs") or []
     keys = [m.key for m in METRICS if any(m.key in (r.get("metrics") or {}) for r in runs)]
-    sheet = Sheet(f"robobpp evaluate · {payload.get('policy')}",
-                  ["dataset", "setting", "episodes", *(_label(k) for k in keys), "stable score ↑"])  # fmt: skip
+    sheet = Sheet(
+        f"robobpp evaluate · {payload.get('policy')}",
+        ["dataset", "setting", "episodes", *(_label(k) for k in keys), "stable score ↑"],
+    )
     for r in runs:
         intervals = r.get("intervals") or {}
-        sheet.rows.append([r["dataset"], r["setting"], str(r["episodes"]),
-                           *(_figure((r.get("metrics") or {}).get(k), intervals.get(k)) for k in keys),
-                           _figure(r.get("stable"), r.get("stable_interval"), 3)])  # fmt: skip
+        sheet.rows.append(
+            [
+                r["dataset"],
+                r["setting"],
+                str(r["episodes"]),
+                *(_figure((r.get("metrics") or {}).get(k), intervals.get(k)) for k in keys),
+                _figure(r.get("stable"), r.get("stable_interval"), 3),
+            ]
+        )
     confidence = float(payload.get("confidence") or 0.95)
-    sheet.note = (f"Brackets: bootstrap {100 * confidence:.0f} % interval over groups. "
-                  + one_line(payload.get("provenance") or {}))  # fmt: skip
+    sheet.note = f"Brackets: bootstrap {100 * confidence:.0f} % interval over groups. " + one_line(
+        payload.get("provenance") or {}
+    )
     return sheet
 
 
@@ -109,17 +159,40 @@ def board_provenance(board: Mapping[str, Any]) -> dict[str, Any]:
     """What produced a board's entries (their runs' provenance, merged) and how the board was drawn."""
     rows = [(e.get("extras") or {}).get("provenance") or {} for e in board.get("entries") or []]
     produced = {k: v for k, v in merge(rows).items() if k in FIELDS}
-    return {**produced, "anchors": board.get("anchors"), "protocol": board.get("protocol", "closed"),
-            "split": SPLIT_OF_TRACK.get(str(board.get("track")), board.get("track")), "groups": board.get("groups")}  # fmt: skip
+    return {
+        **produced,
+        "anchors": board.get("anchors"),
+        "protocol": board.get("protocol", "closed"),
+        "split": SPLIT_OF_TRACK.get(str(board.get("track")), board.get("track")),
+        "groups": board.get("groups"),
+    }
 
 
 def board_csv(board: Mapping[str, Any]) -> str:
     """One row per ranked entry, then the entries listed apart: ranks, scores and metrics with their interval
     ends in their own columns, and each entry's provenance."""
     keys = list(board.get("metrics") or [m.key for m in metrics_for(str(board["setting"]))])
-    head = ["dataset", "setting", "track", "protocol", "status", "rank", "rank_low", "rank_high", "submission_id",
-            "name", "participant", "baseline", "entries_submitted", "score", "score_low", "score_high", "stable",
-            "stable_low", "stable_high"]  # fmt: skip
+    head = [
+        "dataset",
+        "setting",
+        "track",
+        "protocol",
+        "status",
+        "rank",
+        "rank_low",
+        "rank_high",
+        "submission_id",
+        "name",
+        "participant",
+        "baseline",
+        "entries_submitted",
+        "score",
+        "score_low",
+        "score_high",
+        "stable",
+        "stable_low",
+        "stable_high",
+    ]
     for k in keys:
         head += [k, f"{k}_low", f"{k}_high"]
     head += [f for f in FIELDS if f not in ("anchors", "protocol", "split", "groups")] + ["anchors", "groups"]
@@ -130,10 +203,24 @@ def board_csv(board: Mapping[str, Any]) -> str:
     for status, entries in (("ranked", board.get("entries") or []), (None, board.get("unranked") or [])):
         for e in entries:
             intervals = e.get("intervals") or {}
-            row = [*common, status or e.get("status"), e.get("rank"), e.get("rank_low"), e.get("rank_high"),
-                   e["submission_id"], e["name"], e["participant"], e["baseline"], e.get("entries_submitted"),
-                   e.get("score"), e.get("score_low"), e.get("score_high"), e.get("stable"), e.get("stable_low"),
-                   e.get("stable_high")]  # fmt: skip
+            row = [
+                *common,
+                status or e.get("status"),
+                e.get("rank"),
+                e.get("rank_low"),
+                e.get("rank_high"),
+                e["submission_id"],
+                e["name"],
+                e["participant"],
+                e["baseline"],
+                e.get("entries_submitted"),
+                e.get("score"),
+                e.get("score_low"),
+                e.get("score_high"),
+                e.get("stable"),
+                e.get("stable_low"),
+                e.get("stable_high"),
+            ]
             for k in keys:
                 ci = intervals.get(k) or (None, None)
                 row += [(e.get("metrics") or {}).get(k), ci[0], ci[1]]
@@ -148,20 +235,30 @@ def board_sheet(board: Mapping[str, Any]) -> Sheet:
     """A board as a summary table: rank (interval), entry, metrics, both scores with their intervals."""
     keys = list(board.get("metrics") or [])
     protocol = " · paper protocol" if board.get("protocol") == "paper" else ""  # closed loop goes unsaid
-    sheet = Sheet(f"{board['setting']}/{board['dataset']}{protocol} · {board.get('track')} track",
-                  ["rank", "entry", *(_label(k) for k in keys), "score ↑", "stable score ↑"])  # fmt: skip
+    sheet = Sheet(
+        f"{board['setting']}/{board['dataset']}{protocol} · {board.get('track')} track",
+        ["rank", "entry", *(_label(k) for k in keys), "score ↑", "stable score ↑"],
+    )
     for e in board.get("entries") or []:
         lo, hi, rank = e.get("rank_low"), e.get("rank_high"), e.get("rank")
         shown = str(rank) if lo == hi == rank else f"{rank} ({lo}–{hi})"
         name = f"{e['name']} ({e['participant']}{', baseline' if e.get('baseline') else ''})"
         intervals = e.get("intervals") or {}
-        sheet.rows.append([shown, name, *(_figure((e.get("metrics") or {}).get(k), intervals.get(k)) for k in keys),
-                           _figure(e.get("score"), (e.get("score_low"), e.get("score_high")), 3),
-                           _figure(e.get("stable"), (e.get("stable_low"), e.get("stable_high")), 3)])  # fmt: skip
+        sheet.rows.append(
+            [
+                shown,
+                name,
+                *(_figure((e.get("metrics") or {}).get(k), intervals.get(k)) for k in keys),
+                _figure(e.get("score"), (e.get("score_low"), e.get("score_high")), 3),
+                _figure(e.get("stable"), (e.get("stable_low"), e.get("stable_high")), 3),
+            ]
+        )
     confidence = float(board.get("confidence") or 0.95)
-    sheet.note = (f"Brackets: bootstrap {100 * confidence:.0f} % interval over groups; rank (interval) in "
-                  f"{100 * confidence:.0f} % of resamples. Ranked by the {board.get('ranked_by', 'relative')} score, "
-                  "which depends on the other entries; the stable score does not. " + one_line(board_provenance(board)))  # fmt: skip
+    sheet.note = (
+        f"Brackets: bootstrap {100 * confidence:.0f} % interval over groups; rank (interval) in "
+        f"{100 * confidence:.0f} % of resamples. Ranked by the {board.get('ranked_by', 'relative')} score, "
+        "which depends on the other entries; the stable score does not. " + one_line(board_provenance(board))
+    )
     return sheet
 
 
@@ -174,17 +271,48 @@ def grid_csv(grid: Mapping[str, Any]) -> str:
     """One row per submission of the overall grid (ranked, then apart): the Mean and stable score with their
     intervals, the rank with its interval, and each board's score and rank."""
     boards = _grid_boards(grid)
-    head = ["track", "protocol", "status", "rank", "rank_low", "rank_high", "submission_id", "name", "participant",
-            "baseline", "mean", "mean_low", "mean_high", "stable", "stable_low", "stable_high"]  # fmt: skip
+    head = [
+        "track",
+        "protocol",
+        "status",
+        "rank",
+        "rank_low",
+        "rank_high",
+        "submission_id",
+        "name",
+        "participant",
+        "baseline",
+        "mean",
+        "mean_low",
+        "mean_high",
+        "stable",
+        "stable_low",
+        "stable_high",
+    ]
     for b in boards:
         head += [f"{b}_score", f"{b}_rank"]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(head)
     for r in [*(grid.get("rows") or []), *(grid.get("apart") or [])]:
-        row = [grid.get("track"), grid.get("protocol", "closed"), r.get("status"), r.get("rank"), r.get("rank_low"),
-               r.get("rank_high"), r["submission_id"], r["name"], r["participant"], r["baseline"], r.get("mean"),
-               r.get("mean_low"), r.get("mean_high"), r.get("stable"), r.get("stable_low"), r.get("stable_high")]  # fmt: skip
+        row = [
+            grid.get("track"),
+            grid.get("protocol", "closed"),
+            r.get("status"),
+            r.get("rank"),
+            r.get("rank_low"),
+            r.get("rank_high"),
+            r["submission_id"],
+            r["name"],
+            r["participant"],
+            r["baseline"],
+            r.get("mean"),
+            r.get("mean_low"),
+            r.get("mean_high"),
+            r.get("stable"),
+            r.get("stable_low"),
+            r.get("stable_high"),
+        ]
         for b in boards:
             cell = (r.get("cells") or {}).get(b) or {}
             row += [cell.get("score"), cell.get("rank") or (r.get("unranked") or {}).get(b)]
@@ -195,8 +323,10 @@ def grid_csv(grid: Mapping[str, Any]) -> str:
 def grid_sheet(grid: Mapping[str, Any]) -> Sheet:
     """The overall grid as the paper's table: each board's score (rank), the Mean with its interval."""
     boards = _grid_boards(grid)
-    sheet = Sheet(f"overall · {grid.get('track')} track · protocol {grid.get('protocol', 'closed')}",
-                  ["rank", "entry", *boards, "mean ↑", "stable score ↑"])  # fmt: skip
+    sheet = Sheet(
+        f"overall · {grid.get('track')} track · protocol {grid.get('protocol', 'closed')}",
+        ["rank", "entry", *boards, "mean ↑", "stable score ↑"],
+    )
     for r in [*(grid.get("rows") or []), *(grid.get("apart") or [])]:
         lo, hi, rank = r.get("rank_low"), r.get("rank_high"), r.get("rank")
         shown = (
@@ -206,13 +336,21 @@ def grid_sheet(grid: Mapping[str, Any]) -> Sheet:
         for b in boards:
             c = (r.get("cells") or {}).get(b)
             cells.append(f"{c['score']:.3f} ({c['rank']})" if c else (r.get("unranked") or {}).get(b, "—"))
-        sheet.rows.append([shown, f"{r['name']} ({r['participant']}{', baseline' if r.get('baseline') else ''})",
-                           *cells, _figure(r.get("mean"), (r.get("mean_low"), r.get("mean_high")), 3),
-                           _figure(r.get("stable"), (r.get("stable_low"), r.get("stable_high")), 3)])  # fmt: skip
+        sheet.rows.append(
+            [
+                shown,
+                f"{r['name']} ({r['participant']}{', baseline' if r.get('baseline') else ''})",
+                *cells,
+                _figure(r.get("mean"), (r.get("mean_low"), r.get("mean_high")), 3),
+                _figure(r.get("stable"), (r.get("stable_low"), r.get("stable_high")), 3),
+            ]
+        )
     split = SPLIT_OF_TRACK.get(str(grid.get("track")), grid.get("track"))
-    sheet.note = (f"Each board: relative score (rank). Mean over {grid.get('boards')} boards with its bootstrap 95 % "
-                  f"interval; rank (interval) in 95 % of resamples; split {split}. Each board's provenance: "
-                  "robobpp leaderboard --dataset D --setting S --format csv.")  # fmt: skip
+    sheet.note = (
+        f"Each board: relative score (rank). Mean over {grid.get('boards')} boards with its bootstrap 95 % "
+        f"interval; rank (interval) in 95 % of resamples; split {split}. Each board's provenance: "
+        "robobpp leaderboard --dataset D --setting S --format csv."
+    )
     return sheet
 
 
@@ -221,17 +359,35 @@ def markdown(sheet: Sheet) -> str:
     def esc(text: str) -> str:
         return text.replace("|", "\\|")
 
-    lines = [f"**{esc(sheet.title)}**", "", "| " + " | ".join(map(esc, sheet.headers)) + " |",
-             "|" + "|".join("---" if i < 2 else "---:" for i in range(len(sheet.headers))) + "|"]  # fmt: skip
+    lines = [
+        f"**{esc(sheet.title)}**",
+        "",
+        "| " + " | ".join(map(esc, sheet.headers)) + " |",
+        "|" + "|".join("---" if i < 2 else "---:" for i in range(len(sheet.headers))) + "|",
+    ]
     lines += ["| " + " | ".join(map(esc, row)) + " |" for row in sheet.rows]
     if sheet.note:
         lines += ["", esc(sheet.note)]
     return "\n".join(lines) + "\n"
 
 
-_LATEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
-          "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "↑": r"$\uparrow$",
-          "↓": r"$\downarrow$", "—": "---", "–": "--", "·": r"$\cdot$"}  # fmt: skip
+_LATEX = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "↑": r"$\uparrow$",
+    "↓": r"$\downarrow$",
+    "—": "---",
+    "–": "--",
+    "·": r"$\cdot$",
+}
 
 
 def latex_escape(text: str) -> str:
@@ -241,11 +397,22 @@ def latex_escape(text: str) -> str:
 def latex(sheet: Sheet) -> str:
     """A ``table`` with a ``tabular`` (booktabs rules: ``\\usepackage{booktabs}``) and the note as caption."""
     spec = "ll" + "r" * (len(sheet.headers) - 2)
-    lines = [r"\begin{table}", r"\centering", r"\small", rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
-             " & ".join(latex_escape(h) for h in sheet.headers) + r" \\", r"\midrule"]  # fmt: skip
+    lines = [
+        r"\begin{table}",
+        r"\centering",
+        r"\small",
+        rf"\begin{{tabular}}{{{spec}}}",
+        r"\toprule",
+        " & ".join(latex_escape(h) for h in sheet.headers) + r" \\",
+        r"\midrule",
+    ]
     lines += [" & ".join(latex_escape(c) for c in row) + r" \\" for row in sheet.rows]
-    lines += [r"\bottomrule", r"\end{tabular}",
-              rf"\caption{{{latex_escape(sheet.title)}. {latex_escape(sheet.note)}}}", r"\end{table}"]  # fmt: skip
+    lines += [
+        r"\bottomrule",
+        r"\end{tabular}",
+        rf"\caption{{{latex_escape(sheet.title)}. {latex_escape(sheet.note)}}}",
+        r"\end{table}",
+    ]
     return "\n".join(lines) + "\n"
 
 

@@ -85,36 +85,64 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
         if status == "ranked":
             ranked_rows.append(row)
         else:
-            unranked.append({**_public(row), "status": status, "reason": reason,
-                             "entries_submitted": submitted[participant_key(row)]})  # fmt: skip
+            unranked.append(
+                {
+                    **_public(row),
+                    "status": status,
+                    "reason": reason,
+                    "entries_submitted": submitted[participant_key(row)],
+                }
+            )
     scores = score_board(ranked_rows, setting)
     entries = []
     for i, row in enumerate(ranked_rows):
         s = scores.scored[i]
-        entries.append({
-            **_public(row), "rank": s.rank, "rank_low": scores.rank_ci[i][0], "rank_high": scores.rank_ci[i][1],
-            "score": s.score, "score_low": scores.score_ci[i][0], "score_high": scores.score_ci[i][1],
-            "stable": scores.stable[i], "stable_low": scores.stable_ci[i][0], "stable_high": scores.stable_ci[i][1],
-            "normalized": s.normalized, "intervals": {k: list(v) if v else None for k, v in scores.metric_ci[i].items()},
-            "entries_submitted": submitted[participant_key(row)], "_column": i,
-        })  # fmt: skip
+        entries.append(
+            {
+                **_public(row),
+                "rank": s.rank,
+                "rank_low": scores.rank_ci[i][0],
+                "rank_high": scores.rank_ci[i][1],
+                "score": s.score,
+                "score_low": scores.score_ci[i][0],
+                "score_high": scores.score_ci[i][1],
+                "stable": scores.stable[i],
+                "stable_low": scores.stable_ci[i][0],
+                "stable_high": scores.stable_ci[i][1],
+                "normalized": s.normalized,
+                "intervals": {k: list(v) if v else None for k, v in scores.metric_ci[i].items()},
+                "entries_submitted": submitted[participant_key(row)],
+                "_column": i,
+            }
+        )
     _mark_best(entries, scores.samples)
     order = sorted(range(len(entries)), key=lambda i: (entries[i]["rank"], entries[i]["submission_id"]))
     unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
-    best = [{**e, "rank": e["best_rank"], "rank_low": e["best_rank_low"], "rank_high": e["best_rank_high"]}
-            for e in entries if e["best"]]  # fmt: skip
+    best = [
+        {**e, "rank": e["best_rank"], "rank_low": e["best_rank_low"], "rank_high": e["best_rank_high"]}
+        for e in entries
+        if e["best"]
+    ]
     best.sort(key=lambda e: (e["rank"], e["submission_id"]))
     return {
-        "dataset": dataset, "setting": setting, "track": track, "metrics": [m.key for m in metrics_for(setting)],
-        "weights": WEIGHTS[setting], "ranked_by": RANKED_BY, "anchors": ANCHORS_VERSION, "groups": groups,
-        "resamples": stats.RESAMPLES, "confidence": stats.CONFIDENCE,
-        "entries": [entries[i] for i in order], "unranked": unranked,
+        "dataset": dataset,
+        "setting": setting,
+        "track": track,
+        "metrics": [m.key for m in metrics_for(setting)],
+        "weights": WEIGHTS[setting],
+        "ranked_by": RANKED_BY,
+        "anchors": ANCHORS_VERSION,
+        "groups": groups,
+        "resamples": stats.RESAMPLES,
+        "confidence": stats.CONFIDENCE,
+        "entries": [entries[i] for i in order],
+        "unranked": unranked,
         # copies: a slice would keep the full resample arrays alive in the cache
         "_best": best,  # the default view, ready to page
         "_index": {entries[i]["submission_id"]: k for k, i in enumerate(order)},  # position in "entries"
         "_samples": scores.samples[:GRID_RESAMPLES].copy(),
         "_stable_samples": scores.stable_samples[:GRID_RESAMPLES].copy(),
-    }  # fmt: skip
+    }
 
 
 def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray, score: str = "score") -> None:
@@ -147,8 +175,13 @@ def find_entry(board: Mapping[str, Any], submission_id: int) -> Mapping[str, Any
     return entries[i] if i is not None else None
 
 
-def board_view(board: Mapping[str, Any], view: str = "best", limit: int = 50, offset: int = 0,
-               submission_id: int | None = None) -> dict[str, Any]:  # fmt: skip
+def board_view(
+    board: Mapping[str, Any],
+    view: str = "best",
+    limit: int = 50,
+    offset: int = 0,
+    submission_id: int | None = None,
+) -> dict[str, Any]:
     """One page of a board as served: ``best`` (each participant's best entry, ranked among them) or
     ``all`` entries; ``submission_id`` narrows to one submission (ranked or not)."""
     entries: Sequence[Mapping[str, Any]] = board["_best"] if view == "best" else board["entries"]
@@ -159,27 +192,42 @@ def board_view(board: Mapping[str, Any], view: str = "best", limit: int = 50, of
         unranked = [e for e in unranked if e["submission_id"] == submission_id]
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
     return {
-        **head, "view": view, "total": len(entries), "limit": limit, "offset": offset,
+        **head,
+        "view": view,
+        "total": len(entries),
+        "limit": limit,
+        "offset": offset,
         "entries": [_served(e) for e in entries[offset : offset + limit]],
-        "unranked_total": len(unranked), "unranked": [dict(e) for e in unranked[:limit]],
-    }  # fmt: skip
+        "unranked_total": len(unranked),
+        "unranked": [dict(e) for e in unranked[:limit]],
+    }
 
 
 def _served(entry: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in entry.items() if not k.startswith("_") and not k.startswith("best_")}
 
 
-def build_grid(boards: Mapping[str, Mapping[str, Any]], datasets: Sequence[str], settings: Sequence[str],
-               track: str) -> dict[str, Any]:  # fmt: skip
+def build_grid(
+    boards: Mapping[str, Mapping[str, Any]], datasets: Sequence[str], settings: Sequence[str], track: str
+) -> dict[str, Any]:
     """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
     interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board."""
     keys = [f"{s}/{d}" for s in settings for d in datasets]
     rows: dict[int, dict[str, Any]] = {}
 
     def row_for(e: Mapping[str, Any]) -> dict[str, Any]:
-        return rows.setdefault(e["submission_id"], {"submission_id": e["submission_id"], "name": e["name"],
-                               "participant": e["participant"], "baseline": e["baseline"], "cells": {},
-                               "unranked": {}, "_columns": {}})  # fmt: skip
+        return rows.setdefault(
+            e["submission_id"],
+            {
+                "submission_id": e["submission_id"],
+                "name": e["name"],
+                "participant": e["participant"],
+                "baseline": e["baseline"],
+                "cells": {},
+                "unranked": {},
+                "_columns": {},
+            },
+        )
 
     for key in keys:
         for e in boards[key]["entries"]:
@@ -210,18 +258,43 @@ def build_grid(boards: Mapping[str, Mapping[str, Any]], datasets: Sequence[str],
         if r["submission_id"] not in ranked_ids:
             r["status"] = "failed" if "failed" in r["unranked"].values() else "partial"
             r["boards"] = len(r["cells"])
-            r.update(dict.fromkeys(("mean", "mean_low", "mean_high", "stable", "stable_low", "stable_high",
-                                    "rank", "rank_low", "rank_high")), best=False)  # fmt: skip
+            r.update(
+                dict.fromkeys(
+                    (
+                        "mean",
+                        "mean_low",
+                        "mean_high",
+                        "stable",
+                        "stable_low",
+                        "stable_high",
+                        "rank",
+                        "rank_low",
+                        "rank_high",
+                    )
+                ),
+                best=False,
+            )
             apart.append(r)
     complete.sort(key=lambda r: (r["rank"], r["submission_id"]))
     apart.sort(key=lambda r: (r["status"], -r["boards"], r["submission_id"]))
-    best = [{**r, "rank": r["best_rank"], "rank_low": r["best_rank_low"], "rank_high": r["best_rank_high"]}
-            for r in complete if r["best"]]  # fmt: skip
+    best = [
+        {**r, "rank": r["best_rank"], "rank_low": r["best_rank_low"], "rank_high": r["best_rank_high"]}
+        for r in complete
+        if r["best"]
+    ]
     best.sort(key=lambda r: (r["rank"], r["submission_id"]))
     ranked = {participant_key(r) for r in best}
-    return {"datasets": list(datasets), "settings": list(settings), "track": track, "boards": len(keys),
-            "ranked_by": RANKED_BY, "rows": complete, "apart": apart, "_best": best,
-            "_best_apart": [r for r in apart if participant_key(r) not in ranked]}  # fmt: skip
+    return {
+        "datasets": list(datasets),
+        "settings": list(settings),
+        "track": track,
+        "boards": len(keys),
+        "ranked_by": RANKED_BY,
+        "rows": complete,
+        "apart": apart,
+        "_best": best,
+        "_best_apart": [r for r in apart if participant_key(r) not in ranked],
+    }
 
 
 def _grid_means(
@@ -248,9 +321,19 @@ def _grid_means(
     # the samples are float32 (memory of a 10,000-entry cache): 6 decimals is their precision
     lo, hi, slo, shi = (np.round(a, 6) for a in (lo, hi, slo, shi))
     for i, r in enumerate(rows):
-        r.update(status="ranked", boards=len(keys), mean=means[i], mean_low=float(lo[i]), mean_high=float(hi[i]),
-                 stable=stables[i], stable_low=float(slo[i]), stable_high=float(shi[i]), rank=ranks[i],
-                 rank_low=int(rlo[i]), rank_high=int(rhi[i]))  # fmt: skip
+        r.update(
+            status="ranked",
+            boards=len(keys),
+            mean=means[i],
+            mean_low=float(lo[i]),
+            mean_high=float(hi[i]),
+            stable=stables[i],
+            stable_low=float(slo[i]),
+            stable_high=float(shi[i]),
+            rank=ranks[i],
+            rank_low=int(rlo[i]),
+            rank_high=int(rhi[i]),
+        )
     _mark_best(rows, rel, score="mean")
 
 
@@ -261,6 +344,13 @@ def grid_view(
     rows: list[Mapping[str, Any]] = grid["_best"] if view == "best" else grid["rows"]
     apart: list[Mapping[str, Any]] = grid["_best_apart"] if view == "best" else grid["apart"]
     head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
-    return {**head, "view": view, "total": len(rows), "limit": limit, "offset": offset,
-            "rows": [_served(r) for r in rows[offset : offset + limit]], "apart_total": len(apart),
-            "apart": [_served(r) for r in apart[:limit]]}  # fmt: skip
+    return {
+        **head,
+        "view": view,
+        "total": len(rows),
+        "limit": limit,
+        "offset": offset,
+        "rows": [_served(r) for r in rows[offset : offset + limit]],
+        "apart_total": len(apart),
+        "apart": [_served(r) for r in apart[:limit]],
+    }

@@ -209,9 +209,15 @@ def box_dict(box: Box) -> dict[str, float]:
 
 def placed_dict(p: Placement) -> dict[str, Any]:
     data: dict[str, Any] = {
-        "x": p.x, "y": p.y, "z": p.z, "length": p.length, "width": p.width, "height": p.height,
-        "orientation": p.orientation, "index": p.index,
-    }  # fmt: skip
+        "x": p.x,
+        "y": p.y,
+        "z": p.z,
+        "length": p.length,
+        "width": p.width,
+        "height": p.height,
+        "orientation": p.orientation,
+        "index": p.index,
+    }
     if p.quaternion is not None:
         data["quaternion"] = list(p.quaternion)
     return data

@@ -43,10 +43,20 @@ def git_commit() -> str | None:
     if not (root / ".git").exists():
         return None
     try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
-                              timeout=10, check=True).stdout.strip()  # fmt: skip
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()  # fmt: skip
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return None
     return f"{head}-dirty" if dirty else head or None
@@ -131,8 +141,12 @@ def current_versions() -> dict[str, str]:
     from robobpp.sim.math_pack import MATH_RULES_VERSION
     from robobpp.sim.physics.config import PHYSICS_VERSION
 
-    return {"physics": PHYSICS_VERSION, "math_rules": MATH_RULES_VERSION, "sampler": SAMPLER_VERSION,
-            "anchors": ANCHORS_VERSION}  # fmt: skip
+    return {
+        "physics": PHYSICS_VERSION,
+        "math_rules": MATH_RULES_VERSION,
+        "sampler": SAMPLER_VERSION,
+        "anchors": ANCHORS_VERSION,
+    }
 
 
 def one_line(provenance: Mapping[str, Any]) -> str:

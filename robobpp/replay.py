@@ -184,8 +184,15 @@ def replay_math_result(math: EpisodeResult, spec: EpisodeSpec, setting: Setting 
     if name not in PAPER_SETTINGS:
         raise ValueError(f"the paper protocol replays in {' or '.join(PAPER_SETTINGS)}, not {name!r}")
     answers, times = recorded_answers(math)
-    return replay_episode(spec, setting, answers, times, policy=math.policy, termination=math.termination,
-                          termination_detail=math.termination_detail)  # fmt: skip
+    return replay_episode(
+        spec,
+        setting,
+        answers,
+        times,
+        policy=math.policy,
+        termination=math.termination,
+        termination_detail=math.termination_detail,
+    )
 
 
 def run_paper_protocol(

@@ -216,21 +216,41 @@ def compare(ours: Mapping[Key, float | None], metrics: Sequence[str] | None = No
             value = ours.get((setting, dataset, policy, metric))
             theirs = tables.get(setting, dataset, policy, metric)
             ours_value = None if value is None or not math.isfinite(value) else float(value)
-            cells.append(Cell(setting, dataset, policy, metric, ours_value,
-                              theirs.value if theirs else None, theirs.table if theirs else None))  # fmt: skip
-    cells.sort(key=lambda c: (_place(c.setting, SETTING_ORDER), _place(c.dataset, DATASET_ORDER),
-                              _place(c.policy, PAPER_BASELINES), _place(c.metric, compared_metrics(c.setting))))  # fmt: skip
+            cells.append(
+                Cell(
+                    setting,
+                    dataset,
+                    policy,
+                    metric,
+                    ours_value,
+                    theirs.value if theirs else None,
+                    theirs.table if theirs else None,
+                )
+            )
+    cells.sort(
+        key=lambda c: (
+            _place(c.setting, SETTING_ORDER),
+            _place(c.dataset, DATASET_ORDER),
+            _place(c.policy, PAPER_BASELINES),
+            _place(c.metric, compared_metrics(c.setting)),
+        )
+    )
     columns: dict[tuple[str, str, str], list[Cell]] = {}
     for c in cells:
         columns.setdefault((c.setting, c.dataset, c.metric), [])
         if c.ours is not None and c.paper is not None:
             columns[(c.setting, c.dataset, c.metric)].append(c)
     agreement = [
-        Agreement(s, d, m, tuple(c.policy for c in both),
-                  spearman([c.ours for c in both], [c.paper for c in both]),  # type: ignore[misc]
-                  float(np.mean([abs(c.ours - c.paper) for c in both])) if both else None)  # type: ignore[operator]
+        Agreement(
+            s,
+            d,
+            m,
+            tuple(c.policy for c in both),
+            spearman([c.ours for c in both], [c.paper for c in both]),  # type: ignore[misc]
+            float(np.mean([abs(c.ours - c.paper) for c in both])) if both else None,
+        )  # type: ignore[operator]
         for (s, d, m), both in columns.items()
-    ]  # fmt: skip
+    ]
     return Comparison(tuple(cells), tuple(agreement))
 
 

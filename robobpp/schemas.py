@@ -14,8 +14,12 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
-Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=64,
-                                        pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._\-]*$")]  # fmt: skip
+Name = Annotated[
+    str,
+    StringConstraints(
+        strip_whitespace=True, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._\-]*$"
+    ),
+]
 
 
 def clean_name(raw: str, fallback: str = "policy") -> str:
@@ -223,9 +227,10 @@ class LeaderboardEntry(BaseModel):
     baseline: bool
     best: bool = Field(description="Whether this is its participant's best entry on the board")
     entries_submitted: int = Field(
-        1, description="How many entries its participant has on this board (ranked or not): a best of many "
-        "runs of a stochastic policy is optimistic"
-    )  # fmt: skip
+        1,
+        description="How many entries its participant has on this board (ranked or not): a best of many "
+        "runs of a stochastic policy is optimistic",
+    )
     metrics: dict[str, float | None]
     intervals: dict[str, list[float] | None] = Field(description="Each metric's 95 % interval [low, high]")
     normalized: dict[str, float]

@@ -176,8 +176,13 @@ def _min_max_rows(samples: np.ndarray, better: str) -> np.ndarray:
     return np.where(np.isfinite(out) & (span > 0), out, 0.0)
 
 
-def score_board(entries: Sequence[Mapping[str, Any]], setting: str, *, resamples: int = stats.RESAMPLES,
-                seed: int = stats.SEED) -> BoardScores:  # fmt: skip
+def score_board(
+    entries: Sequence[Mapping[str, Any]],
+    setting: str,
+    *,
+    resamples: int = stats.RESAMPLES,
+    seed: int = stats.SEED,
+) -> BoardScores:
     """Score valid complete entries (``{"metrics", "figures"}``) with intervals and rank intervals.
 
     Entries whose ``figures`` are missing or cover other groups than the first entry's keep their point

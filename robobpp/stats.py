@@ -154,8 +154,9 @@ def groups_needed(
     return max(2, int(np.ceil(((z_alpha + z_power) * sd_difference / difference) ** 2)))
 
 
-def paired_difference(a: Mapping[str, Any], b: Mapping[str, Any], key: str,
-                      resamples: int = RESAMPLES, seed: int = SEED) -> dict[str, Any]:  # fmt: skip
+def paired_difference(
+    a: Mapping[str, Any], b: Mapping[str, Any], key: str, resamples: int = RESAMPLES, seed: int = SEED
+) -> dict[str, Any]:
     """A − B on ``key`` over their common groups: point difference and bootstrap interval."""
     common = sorted(set(a["ids"]) & set(b["ids"]))
     if not common:
@@ -167,8 +168,12 @@ def paired_difference(a: Mapping[str, Any], b: Mapping[str, Any], key: str,
     diff = both[:, 0] - both[:, 1]
     lo, hi = interval(diff[1:, None])
     point = float(diff[0])
-    return {"difference": None if np.isnan(point) else point, "low": _opt(lo[0]), "high": _opt(hi[0]),
-            "groups": len(common)}  # fmt: skip
+    return {
+        "difference": None if np.isnan(point) else point,
+        "low": _opt(lo[0]),
+        "high": _opt(hi[0]),
+        "groups": len(common),
+    }
 
 
 def _select(figures: Mapping[str, Any], ids: Sequence[int]) -> dict[str, Any]:

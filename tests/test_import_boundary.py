@@ -15,8 +15,18 @@ from importlinter.cli import lint_imports
 ROOT = Path(__file__).resolve().parents[1]
 
 #: What `pip install robobpp` (no extras) does not bring.
-EXTRAS_ONLY = ("pybullet", "ompl", "sqlalchemy", "alembic", "celery", "kombu", "psycopg", "redis",
-               "prometheus_client", "multipart")  # fmt: skip
+EXTRAS_ONLY = (
+    "pybullet",
+    "ompl",
+    "sqlalchemy",
+    "alembic",
+    "celery",
+    "kombu",
+    "psycopg",
+    "redis",
+    "prometheus_client",
+    "multipart",
+)
 
 _BLOCKER = """
 import importlib.abc, sys
@@ -32,8 +42,14 @@ sys.meta_path.insert(0, Block())
 def _run_without_extras(body: str, blocked: tuple[str, ...] = EXTRAS_ONLY) -> subprocess.CompletedProcess:
     script = _BLOCKER + textwrap.dedent(body)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([sys.executable, "-c", script, ",".join(blocked)], capture_output=True, text=True,
-                          env=env, cwd=ROOT, timeout=120)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-c", script, ",".join(blocked)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=ROOT,
+        timeout=120,
+    )
 
 
 def test_import_contracts_hold(monkeypatch: pytest.MonkeyPatch) -> None:

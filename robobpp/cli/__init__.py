@@ -33,7 +33,7 @@ def _root(
             is_eager=True,
             help="Print robobpp's version (and git commit when run from a checkout) and exit.",
         ),
-    ] = False,  # fmt: skip
+    ] = False,
 ) -> None:
     """Closed-loop benchmark and evaluation service for robotic online 3D bin packing."""
 

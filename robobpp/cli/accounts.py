@@ -42,8 +42,10 @@ def _show_new_token(created: object, as_json: bool) -> None:
 @participants_app.command("create")
 def create_command(
     name: Annotated[str, typer.Argument(help="The participant's public name (shown on the leaderboard).")],
-    as_json: JsonOpt = False, server: ServerOpt = SERVER, token: TokenOpt = None,
-) -> None:  # fmt: skip
+    as_json: JsonOpt = False,
+    server: ServerOpt = SERVER,
+    token: TokenOpt = None,
+) -> None:
     """Create a participant and print its first API token (admin token needed)."""
     with _client(server, token) as client:
         created = client.create_participant(name)
@@ -53,8 +55,10 @@ def create_command(
 @participants_app.command("new-token")
 def new_token_command(
     participant_id: Annotated[int, typer.Argument(min=1, max=2**31 - 1, help="Participant id.")],
-    as_json: JsonOpt = False, server: ServerOpt = SERVER, token: TokenOpt = None,
-) -> None:  # fmt: skip
+    as_json: JsonOpt = False,
+    server: ServerOpt = SERVER,
+    token: TokenOpt = None,
+) -> None:
     """Issue another API token for a participant (admin token needed)."""
     with _client(server, token) as client:
         created = client.issue_token(participant_id)
@@ -82,9 +86,12 @@ def list_command(as_json: JsonOpt = False, server: ServerOpt = SERVER, token: To
 
 @tokens_app.command("revoke")
 def revoke_command(
-    token_id: Annotated[int, typer.Argument(min=1, max=2**31 - 1, help="Token id (see `robobpp tokens list`).")],
-    server: ServerOpt = SERVER, token: TokenOpt = None,
-) -> None:  # fmt: skip
+    token_id: Annotated[
+        int, typer.Argument(min=1, max=2**31 - 1, help="Token id (see `robobpp tokens list`).")
+    ],
+    server: ServerOpt = SERVER,
+    token: TokenOpt = None,
+) -> None:
     """Revoke a token: it stops working at once."""
     with _client(server, token) as client:
         row = client.revoke_token(token_id)

@@ -58,11 +58,20 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
                 )
                 # what the episodes ran under (files from before versions: unknown, not checked)
                 versions = {key: merged(e.get(field) for e in mine) for key, field in VERSIONED.items()}
-                entries.append({"policy": str(payload["policy"]), "file": str(path), "dataset": run["dataset"],
-                                "setting": run["setting"], "protocol": protocol,
-                                "metrics": dict(run["metrics"]), "figures": figures,
-                                "episodes": sorted(e["episode_id"] for e in mine), "versions": versions,
-                                "provenance": payload.get("provenance")})  # fmt: skip
+                entries.append(
+                    {
+                        "policy": str(payload["policy"]),
+                        "file": str(path),
+                        "dataset": run["dataset"],
+                        "setting": run["setting"],
+                        "protocol": protocol,
+                        "metrics": dict(run["metrics"]),
+                        "figures": figures,
+                        "episodes": sorted(e["episode_id"] for e in mine),
+                        "versions": versions,
+                        "provenance": payload.get("provenance"),
+                    }
+                )
         except OSError as exc:
             fail(f"{path}: cannot read ({exc.strerror})")
         except (ValueError, KeyError, TypeError) as exc:
@@ -80,24 +89,41 @@ def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str, str], li
         reference = rows[0]
         for row in rows[1:]:
             if row["episodes"] != reference["episodes"]:
-                fail(f"{dataset}/{setting}: {row['file']} and {reference['file']} ran different episodes "
-                     "(use the same --split, --seed and --groups)")  # fmt: skip
+                fail(
+                    f"{dataset}/{setting}: {row['file']} and {reference['file']} ran different episodes "
+                    "(use the same --split, --seed and --groups)"
+                )
             for key, mine in row["versions"].items():  # a board never mixes versions (docs/benchmark.md)
                 theirs = reference["versions"].get(key)
                 if mine is not None and theirs is not None and mine != theirs:
-                    fail(f"{dataset}/{setting}: {row['file']} ran {key} version {mine}, {reference['file']} "
-                         f"version {theirs}: not comparable; evaluate both with one robobpp")  # fmt: skip
+                    fail(
+                        f"{dataset}/{setting}: {row['file']} ran {key} version {mine}, {reference['file']} "
+                        f"version {theirs}: not comparable; evaluate both with one robobpp"
+                    )
         scores = score_board(rows, setting)
         for i, row in enumerate(rows):
             s = scores.scored[i]
-            row.update(score=s.score, rank=s.rank, normalized=s.normalized, score_ci=list(scores.score_ci[i]),
-                       rank_ci=list(scores.rank_ci[i]), stable=scores.stable[i], stable_ci=list(scores.stable_ci[i]),
-                       intervals={k: list(v) if v else None for k, v in scores.metric_ci[i].items()})  # fmt: skip
+            row.update(
+                score=s.score,
+                rank=s.rank,
+                normalized=s.normalized,
+                score_ci=list(scores.score_ci[i]),
+                rank_ci=list(scores.rank_ci[i]),
+                stable=scores.stable[i],
+                stable_ci=list(scores.stable_ci[i]),
+                intervals={k: list(v) if v else None for k, v in scores.metric_ci[i].items()},
+            )
         if len(rows) == 2:
             diff = scores.stable_samples[:, 0].astype(np.float64) - scores.stable_samples[:, 1]
             lo, hi = stats.interval(diff[:, None])
-            paired = {"stable": {"difference": scores.stable[0] - scores.stable[1], "low": float(lo[0]),
-                                 "high": float(hi[0]), "groups": len(rows[0]["figures"]["ids"])}}  # fmt: skip
+            paired = {
+                "stable": {
+                    "difference": scores.stable[0] - scores.stable[1],
+                    "low": float(lo[0]),
+                    "high": float(hi[0]),
+                    "groups": len(rows[0]["figures"]["ids"]),
+                }
+            }
             for m in metrics_for(setting):
                 paired[m.key] = stats.paired_difference(rows[0]["figures"], rows[1]["figures"], m.key)
             for row in rows:
@@ -147,8 +173,13 @@ def compare(
                     if value is None
                     else f"{value:.4f}" + (f" [dim][{ci[0]:.4f}, {ci[1]:.4f}][/]" if ci else "")
                 )
-            table.add_row(rank, escape(row["policy"]), _with_ci(row["score"], row["score_ci"]),
-                          _with_ci(row["stable"], row["stable_ci"]), *cells)  # fmt: skip
+            table.add_row(
+                rank,
+                escape(row["policy"]),
+                _with_ci(row["score"], row["score_ci"]),
+                _with_ci(row["stable"], row["stable_ci"]),
+                *cells,
+            )
         out.print(table)
         paired = rows[0].get("paired")
         if paired:
@@ -158,9 +189,12 @@ def compare(
                 diff.add_column(name, justify="left" if name in ("figure", "verdict") else "right")
             for key, d in paired["differences"].items():
                 label = "Stable score" if key == "stable" else METRIC_BY_KEY[key].label
-                diff.add_row(label, "—" if d["difference"] is None else f"{d['difference']:+.4f}",
-                             "—" if d["low"] is None else f"[{d['low']:+.4f}, {d['high']:+.4f}]",
-                             escape(verdict(a, b, key, d)))  # fmt: skip
+                diff.add_row(
+                    label,
+                    "—" if d["difference"] is None else f"{d['difference']:+.4f}",
+                    "—" if d["low"] is None else f"[{d['low']:+.4f}, {d['high']:+.4f}]",
+                    escape(verdict(a, b, key, d)),
+                )
             out.print(diff)
     if json_out is not None:
         payload = [

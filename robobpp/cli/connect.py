@@ -33,7 +33,7 @@ def connect_command(
             min=1,
             max=2**31 - 1,
             help="Join this pull submission (e.g. after a restart) instead of creating one.",
-        ),  # fmt: skip
+        ),
     ] = None,
     parallel: Annotated[int, typer.Option(min=1, max=64, help="Episodes served at once (connections).")] = 1,
     secret: Annotated[
@@ -71,9 +71,20 @@ def connect_command(
         return load_policy(policy)
 
     try:
-        final = connect(factory, server, token or "", submission=submission, secret=secret, name=name,
-                        datasets=datasets, settings=settings, track=_track(track), lookahead=lookahead,
-                        parallel=parallel, on_event=lambda m: err.print(escape(m), soft_wrap=True))  # fmt: skip
+        final = connect(
+            factory,
+            server,
+            token or "",
+            submission=submission,
+            secret=secret,
+            name=name,
+            datasets=datasets,
+            settings=settings,
+            track=_track(track),
+            lookahead=lookahead,
+            parallel=parallel,
+            on_event=lambda m: err.print(escape(m), soft_wrap=True),
+        )
         with ServerClient(server, token) as client:
             _print_results(client, final)
     except ServerError as exc:

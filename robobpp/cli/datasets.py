@@ -71,8 +71,14 @@ def fetch(
         if "unplaceable" in facts:
             notes.append(f"{facts['unplaceable']} unplaceable panels excluded from the pools")
         usable = facts.get("usable", facts["records"])
-        table.add_row(name, f"{facts['records']:,}", f"{usable:,}", f"{facts['train']:,}", f"{facts['test']:,}",
-                      "; ".join(notes))  # fmt: skip
+        table.add_row(
+            name,
+            f"{facts['records']:,}",
+            f"{usable:,}",
+            f"{facts['train']:,}",
+            f"{facts['test']:,}",
+            "; ".join(notes),
+        )
     table_console().print(table)
 
 
@@ -115,9 +121,14 @@ def info(
                 labels = {"unplaceable": "unplaceable, excluded"}  # fit in no orientation: not in the pool
                 notes = [f"{labels.get(k, k.replace('_', ' '))}: {v}" for k, v in pool.notes.items() if v]
                 table.add_row(
-                    name, split, f"{pool.records:,}", f"{len(pool):,}", f"{distinct:,}",
-                    *(_quartiles(pool.dims[:, i]) for i in range(3)), ", ".join(notes),
-                )  # fmt: skip
+                    name,
+                    split,
+                    f"{pool.records:,}",
+                    f"{len(pool):,}",
+                    f"{distinct:,}",
+                    *(_quartiles(pool.dims[:, i]) for i in range(3)),
+                    ", ".join(notes),
+                )
     except DatasetError as exc:
         _fail(exc)
     table_console().print(table)

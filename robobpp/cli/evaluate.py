@@ -74,8 +74,10 @@ def evaluate(
         fail(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
     replayed = [name for name in settings if name in PAPER_SETTINGS]
     if protocol == PAPER and not replayed:
-        fail("--protocol paper replays the Math Pack actions in physics or execution; in Math Pack both "
-             "protocols are the same episode: add --setting physics or execution, or use --protocol closed")  # fmt: skip
+        fail(
+            "--protocol paper replays the Math Pack actions in physics or execution; in Math Pack both "
+            "protocols are the same episode: add --setting physics or execution, or use --protocol closed"
+        )
     for name in settings:
         require_setting(name)  # before any work: a missing extra is one line naming the pip install
     if split not in SPLITS:
@@ -113,8 +115,17 @@ def evaluate(
             from robobpp.cli.parallel import run_parallel
 
             progress.update(bar, description=f"{agent.name} · {protocol} · {jobs} processes")
-            results = list(run_parallel(policy, kwargs, tasks, jobs=jobs, lookahead=lookahead, protocol=protocol,
-                                        on_done=lambda _i: progress.advance(bar)))  # fmt: skip
+            results = list(
+                run_parallel(
+                    policy,
+                    kwargs,
+                    tasks,
+                    jobs=jobs,
+                    lookahead=lookahead,
+                    protocol=protocol,
+                    on_done=lambda _i: progress.advance(bar),
+                )
+            )
     runs: dict[tuple[str, str], list] = {}
     for result in (r for group in results for r in group):
         if result.setting in settings:  # the paper protocol's Math plan is shown when Math Pack was asked for
@@ -129,9 +140,18 @@ def evaluate(
     out.print(_table(agent.name, summary, protocol, provenance))
     for note in failure_notes(runs):
         console.print(note, markup=False, highlight=False)
-    payload = {"policy": agent.name, "split": split, "seed": seed, "groups": groups, "protocol": protocol,
-               "confidence": stats.CONFIDENCE, "resamples": stats.RESAMPLES, "provenance": provenance,
-               "runs": summary, "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs]}  # fmt: skip
+    payload = {
+        "policy": agent.name,
+        "split": split,
+        "seed": seed,
+        "groups": groups,
+        "protocol": protocol,
+        "confidence": stats.CONFIDENCE,
+        "resamples": stats.RESAMPLES,
+        "provenance": provenance,
+        "runs": summary,
+        "episodes": [r.to_dict(trace=False) for rs in runs.values() for r in rs],
+    }
     if json_out is not None:
         _write_json(json_out, payload)
     if csv_out is not None:
@@ -192,14 +212,20 @@ def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:
         scored = score_board(
             [{"metrics": metrics, "figures": stats.group_figures(episodes, setting)}], setting
         )
-        out.append({
-            "dataset": dataset, "setting": setting, "protocol": results[0].protocol, "episodes": len(results),
-            "boxes_placed": sum(r.boxes_placed for r in results) / len(results),
-            "metrics": metrics,
-            "intervals": {k: list(v) if v else None for k, v in scored.metric_ci[0].items()},
-            "stable": scored.stable[0], "stable_interval": list(scored.stable_ci[0]),
-            "terminations": terminations,
-        })  # fmt: skip
+        out.append(
+            {
+                "dataset": dataset,
+                "setting": setting,
+                "protocol": results[0].protocol,
+                "episodes": len(results),
+                "boxes_placed": sum(r.boxes_placed for r in results) / len(results),
+                "metrics": metrics,
+                "intervals": {k: list(v) if v else None for k, v in scored.metric_ci[0].items()},
+                "stable": scored.stable[0],
+                "stable_interval": list(scored.stable_ci[0]),
+                "terminations": terminations,
+            }
+        )
     return out
 
 
@@ -216,9 +242,11 @@ def _table(
     from robobpp.replay import PROTOCOL_DESCRIPTIONS
 
     keys = [m for m in metrics_for("execution") if any(m.key in row["metrics"] for row in summary)]
-    table = Table(title=f"robobpp evaluate · {escape(policy)} · protocol {protocol}",
-                  caption=f"{protocol}: {PROTOCOL_DESCRIPTIONS[protocol]}\n[dim]brackets: bootstrap "
-                          f"{100 * stats.CONFIDENCE:.0f} % interval over groups · {escape(one_line(provenance or {}))}[/]")  # fmt: skip
+    table = Table(
+        title=f"robobpp evaluate · {escape(policy)} · protocol {protocol}",
+        caption=f"{protocol}: {PROTOCOL_DESCRIPTIONS[protocol]}\n[dim]brackets: bootstrap "
+        f"{100 * stats.CONFIDENCE:.0f} % interval over groups · {escape(one_line(provenance or {}))}[/]",
+    )
     table.add_column("dataset")
     table.add_column("setting")
     table.add_column("protocol")
@@ -230,8 +258,13 @@ def _table(
     table.add_column("stable score ↑", justify="right")
     table.add_column("terminations", min_width=28)
     for row in summary:
-        cells = [row["dataset"], row["setting"], row["protocol"], str(row["episodes"]),
-                 f"{row['boxes_placed']:.1f}"]  # fmt: skip
+        cells = [
+            row["dataset"],
+            row["setting"],
+            row["protocol"],
+            str(row["episodes"]),
+            f"{row['boxes_placed']:.1f}",
+        ]
         for m in keys:
             cells.append(_with_interval(row["metrics"].get(m.key), row["intervals"].get(m.key)))
         cells.append(_with_interval(row["stable"], row["stable_interval"], 3))

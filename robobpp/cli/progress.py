@@ -39,5 +39,9 @@ class LineProgress(Progress):
         self._last = now
         for task in self.tasks:
             total = f"/{task.total:g}" if task.total is not None else ""
-            self.console.print(f"{task.description}: {task.completed:g}{total} · {task.elapsed or 0:.0f} s",
-                               markup=False, highlight=False, soft_wrap=True)  # fmt: skip
+            self.console.print(
+                f"{task.description}: {task.completed:g}{total} · {task.elapsed or 0:.0f} s",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,
+            )

@@ -56,9 +56,7 @@ def check_command(
     url: Annotated[str, typer.Argument(help="Base URL of the policy server, e.g. http://127.0.0.1:9000.")],
     secret: Annotated[
         str | None,
-        typer.Option(
-            help="The secret the server expects; enables the signature checks.", envvar=_SECRET_ENV
-        ),  # fmt: skip
+        typer.Option(help="The secret the server expects; enables the signature checks.", envvar=_SECRET_ENV),
     ] = None,
     boxes: Annotated[int, typer.Option(min=1, max=80, help="Boxes in the test episode.")] = 8,
     timeout: Annotated[float, typer.Option(min=0.01, help="Per-request time limit, seconds.")] = 10.0,

@@ -103,9 +103,13 @@ def reproduce(
         for s in comparison.settings:
             out.print(_table(comparison, s, heading, TITLES))
     if json_out is not None:
-        payload = {**meta, "settings": settings, "groups": counts,
-                   "episodes": [r.to_dict(trace=False) for r in results],
-                   "comparison": comparison.to_dict()}  # fmt: skip
+        payload = {
+            **meta,
+            "settings": settings,
+            "groups": counts,
+            "episodes": [r.to_dict(trace=False) for r in results],
+            "comparison": comparison.to_dict(),
+        }
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(payload, indent=1, allow_nan=False))
         console.print(f"wrote {json_out}")
@@ -145,8 +149,9 @@ def _run(
                     tasks = [(spec, tuple(s for s in settings if s in PAPER_SETTINGS)) for spec in specs[d]]
                 else:
                     tasks = [(spec, tuple(settings)) for spec in specs[d]]
-                for episodes in run_parallel(name, {}, tasks, jobs=jobs, protocol=protocol,
-                                             on_done=lambda _i: progress.advance(bar)):  # fmt: skip
+                for episodes in run_parallel(
+                    name, {}, tasks, jobs=jobs, protocol=protocol, on_done=lambda _i: progress.advance(bar)
+                ):
                     results += [r for r in episodes if r.setting in settings]
     return results
 

@@ -146,11 +146,20 @@ def submit(
     datasets = _names(dataset, DATASETS, "dataset")
     settings = _names(setting, SETTINGS, "setting")
     with _client(server, token) as client:
-        sub = client.submit(policy_url, secret=secret, name=name, datasets=datasets, settings=settings,
-                            track=_track(track), lookahead=lookahead)  # fmt: skip
+        sub = client.submit(
+            policy_url,
+            secret=secret,
+            name=name,
+            datasets=datasets,
+            settings=settings,
+            track=_track(track),
+            lookahead=lookahead,
+        )
         boards = len(sub.runs)
-        err.print(f"submitted [bold]#{sub.id}[/] {escape(sub.name)}: {sub.progress.episodes_total} episodes "
-                  f"on {boards} board{'s' * (boards != 1)} ({sub.track} track)")  # fmt: skip
+        err.print(
+            f"submitted [bold]#{sub.id}[/] {escape(sub.name)}: {sub.progress.episodes_total} episodes "
+            f"on {boards} board{'s' * (boards != 1)} ({sub.track} track)"
+        )
         if not wait:
             print(sub.id)
             return
@@ -171,9 +180,12 @@ def _print_results(client: ServerClient, sub: SubmissionPublic, wait_s: float = 
     _print_provenance(sub)
     late = [s.board for s in standings if s.status == "completed" and s.board_status is None]
     if late and sub.status in ("completed", "failed"):
-        err.print(f"the board{'s' * (len(late) > 1)} {', '.join(late)} did not include #{sub.id} within "
-                  f"{wait_s:g} s (boards are recomputed in the background); `robobpp submissions show {sub.id}` "
-                  "shows its score and rank once they do", soft_wrap=True)  # fmt: skip
+        err.print(
+            f"the board{'s' * (len(late) > 1)} {', '.join(late)} did not include #{sub.id} within "
+            f"{wait_s:g} s (boards are recomputed in the background); `robobpp submissions show {sub.id}` "
+            "shows its score and rank once they do",
+            soft_wrap=True,
+        )
 
 
 def _print_provenance(sub: SubmissionPublic) -> None:
@@ -195,8 +207,12 @@ def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> Submi
             p = s.progress
             phase = f" · {p.phase}" if p.phase and s.status == "running" else ""
             failed = f" · {p.episodes_failed} failed" if p.episodes_failed else ""
-            progress.update(task, total=p.episodes_total or None, completed=p.episodes_done,
-                            description=f"#{s.id} {s.status}{phase}{failed}")  # fmt: skip
+            progress.update(
+                task,
+                total=p.episodes_total or None,
+                completed=p.episodes_done,
+                description=f"#{s.id} {s.status}{phase}{failed}",
+            )
 
         try:
             return client.wait(sub.id, on_progress=show, poll_s=poll_s)
@@ -229,11 +245,20 @@ def _standings_table(sub: SubmissionPublic, standings: list[Standing]) -> Table:
     for s in standings:
         rank = f"{s.rank} / {s.entries}" if s.rank is not None else s.board_status or "—"
         style = "bold green" if s.rank == 1 else None
-        table.add_row(s.board, s.status, *(_fmt(s.metrics.get(k)) if k in s.metrics else "" for k in keys),
-                      _fmt(s.score, 3), _fmt(s.stable, 3), rank, style=style)  # fmt: skip
+        table.add_row(
+            s.board,
+            s.status,
+            *(_fmt(s.metrics.get(k)) if k in s.metrics else "" for k in keys),
+            _fmt(s.score, 3),
+            _fmt(s.stable, 3),
+            rank,
+            style=style,
+        )
     # Alone on a board the relative score is 0 by construction: say which figure to read then.
-    table.caption = ("score: relative to the board's other entries (0 when alone on it); "
-                     "stable: against fixed anchors, it never moves when others arrive")  # fmt: skip
+    table.caption = (
+        "score: relative to the board's other entries (0 when alone on it); "
+        "stable: against fixed anchors, it never moves when others arrive"
+    )
     return table
 
 
@@ -252,8 +277,15 @@ def list_command(
         print("[" + ",".join(s.model_dump_json() for s in subs) + "]")
         return
     table = Table(title="submissions")
-    for col, justify in (("id", "right"), ("name", "left"), ("status", "left"), ("track", "left"),
-                         ("boards", "left"), ("episodes", "right"), ("created", "left")):  # fmt: skip
+    for col, justify in (
+        ("id", "right"),
+        ("name", "left"),
+        ("status", "left"),
+        ("track", "left"),
+        ("boards", "left"),
+        ("episodes", "right"),
+        ("created", "left"),
+    ):
         table.add_column(col, justify=justify)  # type: ignore[arg-type]
     for s in subs:
         boards = ", ".join(f"{r.setting}/{r.dataset}" for r in s.runs)
@@ -266,9 +298,11 @@ def list_command(
 
 @submissions_app.command("show")
 def show_command(
-    submission_id: IdArg, as_json: JsonOpt = False, server: ServerOpt = "http://127.0.0.1:8000",
+    submission_id: IdArg,
+    as_json: JsonOpt = False,
+    server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
-) -> None:  # fmt: skip
+) -> None:
     """One submission: status, progress, and each board's metrics, score and rank."""
     with _client(server, token) as client:
         sub = client.submission(submission_id)
@@ -277,8 +311,11 @@ def show_command(
             return
         standings = client.standings(sub)
     p = sub.progress
-    err.print(f"#{sub.id} {escape(sub.name)} · {sub.status} · {p.episodes_done} / {p.episodes_total} episodes"
-              + (f" · phase {p.phase}" if p.phase else "") + f" · {escape(sub.policy_url)}")  # fmt: skip
+    err.print(
+        f"#{sub.id} {escape(sub.name)} · {sub.status} · {p.episodes_done} / {p.episodes_total} episodes"
+        + (f" · phase {p.phase}" if p.phase else "")
+        + f" · {escape(sub.policy_url)}"
+    )
     if sub.error:
         err.print(f"[red]{escape(sub.error)}[/]")
     table_console().print(_standings_table(sub, standings))
@@ -297,9 +334,11 @@ def cancel_command(
 
 @submissions_app.command("episodes")
 def episodes_command(
-    submission_id: IdArg, as_json: JsonOpt = False, server: ServerOpt = "http://127.0.0.1:8000",
+    submission_id: IdArg,
+    as_json: JsonOpt = False,
+    server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
-) -> None:  # fmt: skip
+) -> None:
     """Per-episode results and termination reasons."""
     with _client(server, token) as client:
         rows = client.episodes(submission_id)
@@ -319,8 +358,16 @@ def _episodes_table(submission_id: int, rows: list[EpisodePublic]) -> Table:
         boxes = f"{e.boxes_placed} / {e.boxes_total}" if e.boxes_total is not None else "—"
         su = (e.metrics or {}).get("space_utilization")
         detail = escape((e.termination_detail or "")[:80])
-        table.add_row(str(e.id), f"{e.setting}/{e.dataset}", str(e.group), e.status, boxes, _fmt(su),
-                      e.termination or "—", detail)  # fmt: skip
+        table.add_row(
+            str(e.id),
+            f"{e.setting}/{e.dataset}",
+            str(e.group),
+            e.status,
+            boxes,
+            _fmt(su),
+            e.termination or "—",
+            detail,
+        )
     return table
 
 
@@ -348,7 +395,7 @@ def leaderboard(
             help="Physics/Execution as closed (closed loop, the benchmark) or paper (the paper's "
             "protocol: the Math Pack actions replayed)."
         ),
-    ] = "closed",  # fmt: skip
+    ] = "closed",
     server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
 ) -> None:
@@ -371,8 +418,11 @@ def leaderboard(
     if setting is not None and setting not in SETTINGS:
         fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")
     with _client(server, token, need_token=False) as client:
-        data = (client.leaderboard(dataset, setting, _track(track), view=view, protocol=protocol)
-                if dataset and setting else client.grid(_track(track), view=view, protocol=protocol))  # fmt: skip
+        data = (
+            client.leaderboard(dataset, setting, _track(track), view=view, protocol=protocol)
+            if dataset and setting
+            else client.grid(_track(track), view=view, protocol=protocol)
+        )
     if as_json:
         print(data.model_dump_json(indent=2))
         return
@@ -404,8 +454,10 @@ def _rank(rank: int | None, low: int | None, high: int | None) -> str:
 def _board_table(board: Leaderboard) -> Table:
     """Ranks with their 95 % rank interval, scores with their bootstrap interval, failed/partial apart."""
     protocol = " · paper protocol" if board.protocol == "paper" else ""
-    table = Table(title=f"{board.setting}/{board.dataset}{protocol} · {board.track} track · {board.view} "
-                        f"({board.total} ranked, by the {board.ranked_by} score)")  # fmt: skip
+    table = Table(
+        title=f"{board.setting}/{board.dataset}{protocol} · {board.track} track · {board.view} "
+        f"({board.total} ranked, by the {board.ranked_by} score)"
+    )
     table.add_column("rank", justify="right")
     table.add_column("submission")
     for k in board.metrics:
@@ -424,13 +476,24 @@ def _board_table(board: Leaderboard) -> Table:
             if e.entries_submitted > 1
             else ""
         )
-        table.add_row(_rank(e.rank, e.rank_low, e.rank_high), f"#{e.submission_id} " + _who(e.name, e.participant, e.baseline) + of,
-                      *cells, _fmt(e.score, 3) + _ci(e.score_low, e.score_high), _fmt(e.stable, 3),
-                      style="bold green" if e.rank == 1 else None)  # fmt: skip
+        table.add_row(
+            _rank(e.rank, e.rank_low, e.rank_high),
+            f"#{e.submission_id} " + _who(e.name, e.participant, e.baseline) + of,
+            *cells,
+            _fmt(e.score, 3) + _ci(e.score_low, e.score_high),
+            _fmt(e.stable, 3),
+            style="bold green" if e.rank == 1 else None,
+        )
     for u in board.unranked:
-        table.add_row(u.status, f"#{u.submission_id} " + _who(u.name, u.participant, u.baseline),
-                      *[_fmt(u.metrics.get(k)) for k in board.metrics], *([""] if pph else []), "—", "—",
-                      style="dim")  # fmt: skip
+        table.add_row(
+            u.status,
+            f"#{u.submission_id} " + _who(u.name, u.participant, u.baseline),
+            *[_fmt(u.metrics.get(k)) for k in board.metrics],
+            *([""] if pph else []),
+            "—",
+            "—",
+            style="dim",
+        )
     if not board.entries:
         table.caption = "no completed submissions on this board yet"
     elif board.total > len(board.entries):
@@ -457,8 +520,12 @@ def _grid_table(grid: OverallGrid) -> Table:
             text = row.unranked.get(b, "—") if c is None else f"{c.score:.3f} ({c.rank})"
             cells.append(f"[bold]{text}[/]" if c is not None and c.rank <= 4 else text)
         mean = row.status if row.mean is None else f"{row.mean:.3f}" + _ci(row.mean_low, row.mean_high)
-        table.add_row(_rank(row.rank, row.rank_low, row.rank_high),
-                      f"#{row.submission_id} " + _who(row.name, row.participant, row.baseline), *cells, mean)  # fmt: skip
+        table.add_row(
+            _rank(row.rank, row.rank_low, row.rank_high),
+            f"#{row.submission_id} " + _who(row.name, row.participant, row.baseline),
+            *cells,
+            mean,
+        )
     if not grid.rows and not grid.apart:
         table.caption = "no completed submissions yet"
     return table

@@ -81,8 +81,13 @@ def worker(
         fail(str(exc))
     if pool == "solo" and concurrency != 1:
         fail("--pool solo runs one episode at a time; use --concurrency 1 or the prefork pool")
-    _run(app, concurrency=concurrency, pool=pool, loglevel=loglevel.upper(),
-         hostname=hostname or f"robobpp-{os.getpid()}@{socket.gethostname()}")  # fmt: skip
+    _run(
+        app,
+        concurrency=concurrency,
+        pool=pool,
+        loglevel=loglevel.upper(),
+        hostname=hostname or f"robobpp-{os.getpid()}@{socket.gethostname()}",
+    )
 
 
 def _run(app: Any, *, concurrency: int, pool: str, loglevel: str, hostname: str) -> None:

@@ -54,5 +54,11 @@ class _ClientPackage(ModuleType):
 sys.modules[__name__].__class__ = _ClientPackage
 
 __all__ = [
-    "BackgroundServer", "RemotePolicy", "ServerClient", "ServerError", "connect", "create_policy_app", "serve",
-]  # fmt: skip
+    "BackgroundServer",
+    "RemotePolicy",
+    "ServerClient",
+    "ServerError",
+    "connect",
+    "create_policy_app",
+    "serve",
+]

@@ -152,8 +152,9 @@ class ServerClient:
             if not token.isascii() or not token.isprintable():
                 raise ServerError(None, "Invalid API token", "it contains characters a header cannot carry")
             headers["Authorization"] = f"Bearer {token}"
-        self._http = httpx.Client(base_url=base + API_PREFIX, headers=headers, timeout=timeout,
-                                  follow_redirects=False)  # fmt: skip
+        self._http = httpx.Client(
+            base_url=base + API_PREFIX, headers=headers, timeout=timeout, follow_redirects=False
+        )
 
     # -- plumbing ---------------------------------------------------------------------------------
     def close(self) -> None:
@@ -169,8 +170,9 @@ class ServerClient:
         try:
             response = self._http.request(method, path, **kwargs)
         except httpx.TimeoutException:
-            raise ServerError(None, f"no answer from {self.base_url} in time",
-                              f"{method} {API_PREFIX}{path} timed out") from None  # fmt: skip
+            raise ServerError(
+                None, f"no answer from {self.base_url} in time", f"{method} {API_PREFIX}{path} timed out"
+            ) from None
         except httpx.TransportError as exc:
             reason = _one_line(str(exc) or type(exc).__name__, 120)
             raise ServerError(None, f"cannot reach the server at {self.base_url}", reason) from None
@@ -262,9 +264,18 @@ class ServerClient:
         """One episode; on the public track it carries its replay trace."""
         return self._get(f"/submissions/{int(submission_id)}/episodes/{int(episode_id)}", EpisodeDetail)
 
-    def leaderboard(self, dataset: str, setting: str, track: Track = "private", *, view: str = "best",
-                    limit: int = 50, offset: int = 0, submission: int | None = None,
-                    protocol: str = "closed") -> Leaderboard:  # fmt: skip
+    def leaderboard(
+        self,
+        dataset: str,
+        setting: str,
+        track: Track = "private",
+        *,
+        view: str = "best",
+        limit: int = 50,
+        offset: int = 0,
+        submission: int | None = None,
+        protocol: str = "closed",
+    ) -> Leaderboard:
         """One page of a board: each participant's best entry (``view="best"``) or ``"all"`` entries;
         ``protocol="paper"``: a physical setting's board under the paper protocol (docs/server.md)."""
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
@@ -278,9 +289,14 @@ class ServerClient:
         return board
 
     def grid(
-        self, track: Track = "private", *, view: str = "best", limit: int = 50, offset: int = 0,
+        self,
+        track: Track = "private",
+        *,
+        view: str = "best",
+        limit: int = 50,
+        offset: int = 0,
         protocol: str = "closed",
-    ) -> OverallGrid:  # fmt: skip
+    ) -> OverallGrid:
         """The overall grid: ranked rows (a score and rank per ``setting/dataset`` board, and the Mean) and
         the partial or failed ones apart; ``protocol="paper"``: its physical columns under the paper protocol."""
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
@@ -293,8 +309,13 @@ class ServerClient:
     def _check_protocol(self, served: str, asked: str) -> None:
         """A server from before protocols ignores ``protocol=paper`` and serves closed-loop boards: say so."""
         if served != asked:
-            raise ServerError(None, "Protocol not offered", f"the server at {self.base_url} served the {served} "
-                              f"protocol, not {asked} (it predates the paper protocol)", kind="protocol")  # fmt: skip
+            raise ServerError(
+                None,
+                "Protocol not offered",
+                f"the server at {self.base_url} served the {served} "
+                f"protocol, not {asked} (it predates the paper protocol)",
+                kind="protocol",
+            )
 
     def create_participant(self, name: str) -> TokenCreated:
         """(Admin) A new participant and its first API token — the only time the token is shown."""
@@ -371,17 +392,27 @@ class ServerClient:
     def _standing(self, submission: SubmissionPublic, run: Any) -> Standing:
         track: Track = "public" if submission.track == "public" else "private"
         protocol = run.protocol
-        board = self.leaderboard(run.dataset, run.setting, track=track, view="all", submission=submission.id,
-                                 protocol=protocol)  # fmt: skip
+        board = self.leaderboard(
+            run.dataset, run.setting, track=track, view="all", submission=submission.id, protocol=protocol
+        )
         entry: LeaderboardEntry | None = next(
             (e for e in board.entries if e.submission_id == submission.id), None
         )
         apart = next((e for e in board.unranked if e.submission_id == submission.id), None)
         metrics = dict(entry.metrics if entry else run.metrics or {})
         rank, score, stable = (entry.rank, entry.score, entry.stable) if entry else (None, None, None)
-        return Standing(dataset=run.dataset, setting=run.setting, status=run.status, metrics=metrics,
-                        metric_keys=list(board.metrics), rank=rank, score=score,
-                        entries=self.leaderboard(run.dataset, run.setting, track=track, view="all", limit=1,
-                                                 protocol=protocol).total,
-                        board_status="ranked" if entry else apart.status if apart else None,
-                        protocol=protocol, stable=stable)  # fmt: skip
+        return Standing(
+            dataset=run.dataset,
+            setting=run.setting,
+            status=run.status,
+            metrics=metrics,
+            metric_keys=list(board.metrics),
+            rank=rank,
+            score=score,
+            entries=self.leaderboard(
+                run.dataset, run.setting, track=track, view="all", limit=1, protocol=protocol
+            ).total,
+            board_status="ranked" if entry else apart.status if apart else None,
+            protocol=protocol,
+            stable=stable,
+        )

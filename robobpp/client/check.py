@@ -58,8 +58,16 @@ class CheckReport:
 
 def check_spec(boxes: int = 8) -> EpisodeSpec:
     """A fixed, deterministic episode in the Diverse container: mixed sizes, all placeable."""
-    sizes = [(40, 30, 20), (25, 25, 25), (60, 40, 15), (30, 20, 10), (50, 50, 30), (20, 15, 12), (45, 35, 25),
-             (35, 30, 18)]  # fmt: skip
+    sizes = [
+        (40, 30, 20),
+        (25, 25, 25),
+        (60, 40, 15),
+        (30, 20, 10),
+        (50, 50, 30),
+        (20, 15, 12),
+        (45, 35, 25),
+        (35, 30, 18),
+    ]
     picked = [sizes[i % len(sizes)] for i in range(boxes)]
     items = tuple(Box(float(length), float(width), float(height), 2.0) for length, width, height in picked)
     return EpisodeSpec("protocol-check", "train", 0, items, ContainerSpec(120, 100, 170), 4.0, 0)
@@ -99,8 +107,11 @@ def _check_signatures(report: CheckReport, base: str, secret: str, timeout_s: fl
         elif answer.status_code in (401, 403):
             report.add("ok", "signature", f"{label} refused with HTTP {answer.status_code}")
         else:
-            report.add("violation", "signature",
-                       f"{label} was answered HTTP {answer.status_code}; it must be refused with 401")  # fmt: skip
+            report.add(
+                "violation",
+                "signature",
+                f"{label} was answered HTTP {answer.status_code}; it must be refused with 401",
+            )
 
 
 def _check_malformed(report: CheckReport, base: str, secret: str | None, timeout_s: float) -> None:
@@ -114,8 +125,11 @@ def _check_malformed(report: CheckReport, base: str, secret: str | None, timeout
     elif 400 <= answer.status_code < 500:
         report.add("ok", "malformed request", f"a malformed /act was refused with HTTP {answer.status_code}")
     else:
-        report.add("warning", "malformed request",
-                   f"a malformed /act got HTTP {answer.status_code}; a 4xx (e.g. 422) tells callers what is wrong")  # fmt: skip
+        report.add(
+            "warning",
+            "malformed request",
+            f"a malformed /act got HTTP {answer.status_code}; a 4xx (e.g. 422) tells callers what is wrong",
+        )
 
 
 def check_policy_server(

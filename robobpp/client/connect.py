@@ -61,11 +61,19 @@ class AppCaller:
         self, method: str, path: str, headers: list[tuple[str, str]], body: bytes
     ) -> tuple[int, list[tuple[str, str]], bytes]:
         scope = {
-            "type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": method,
-            "scheme": "http", "path": path, "raw_path": path.encode(), "query_string": b"", "root_path": "",
+            "type": "http",
+            "asgi": {"version": "3.0"},
+            "http_version": "1.1",
+            "method": method,
+            "scheme": "http",
+            "path": path,
+            "raw_path": path.encode(),
+            "query_string": b"",
+            "root_path": "",
             "headers": [(k.lower().encode("latin-1"), v.encode("latin-1")) for k, v in headers],
-            "client": ("pull", 0), "server": ("pull", 0),
-        }  # fmt: skip
+            "client": ("pull", 0),
+            "server": ("pull", 0),
+        }
         sent = False
         status, out_headers, chunks = 500, [], []
 
@@ -119,10 +127,17 @@ def serve_connection(
     failures = 0
     while not stop.is_set():
         try:
-            ws = ws_connect(url, additional_headers={"Authorization": f"Bearer {token}"}, open_timeout=10,
-                            max_size=MAX_REQUEST_BYTES, compression=None, ping_interval=20, ping_timeout=20,
-                            user_agent_header=f"robobpp/{__version__}",
-                            **({"ssl": ssl_context} if ssl_context is not None else {}))  # fmt: skip
+            ws = ws_connect(
+                url,
+                additional_headers={"Authorization": f"Bearer {token}"},
+                open_timeout=10,
+                max_size=MAX_REQUEST_BYTES,
+                compression=None,
+                ping_interval=20,
+                ping_timeout=20,
+                user_agent_header=f"robobpp/{__version__}",
+                **({"ssl": ssl_context} if ssl_context is not None else {}),
+            )
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
             delay = BACKOFF_S[min(failures, len(BACKOFF_S) - 1)]
             failures += 1
@@ -149,8 +164,12 @@ def serve_connection(
     return "stopped"
 
 
-def _answer(ws: Any, call: Callable[..., tuple[int, list[tuple[str, str]], bytes]], stop: threading.Event,
-            on_event: Callable[[str], None]) -> None:  # fmt: skip
+def _answer(
+    ws: Any,
+    call: Callable[..., tuple[int, list[tuple[str, str]], bytes]],
+    stop: threading.Event,
+    on_event: Callable[[str], None],
+) -> None:
     welcome = ws.recv(timeout=15)
     hello = json.loads(welcome) if isinstance(welcome, str) else {}
     on_event(f"connected to submission {hello.get('submission', '?')}; waiting for episodes")
@@ -170,8 +189,9 @@ def _answer(ws: Any, call: Callable[..., tuple[int, list[tuple[str, str]], bytes
         if path == "/echo":  # the evaluator's network probe: answer at once, the policy is not involved
             status, headers, body = 200, _JSON, _ECHO
         else:
-            status, headers, body = call(str(request.envelope.get("method", "POST")), path, request.headers,
-                                         request.body)  # fmt: skip
+            status, headers, body = call(
+                str(request.envelope.get("method", "POST")), path, request.headers, request.body
+            )
         ws.send(frames.encode({"id": request.id, "status": status}, headers, body))
 
 
@@ -214,8 +234,16 @@ def connect(
         if submission is None:
             sample = factory() if factory is not None else policy
             shown = name or getattr(sample, "name", None) or type(sample).__name__
-            sub = api.submit(None, secret=secret, name=str(shown)[:64], datasets=datasets, settings=settings,
-                             track=track, lookahead=lookahead, mode="pull")  # type: ignore[arg-type]  # fmt: skip
+            sub = api.submit(
+                None,
+                secret=secret,
+                name=str(shown)[:64],
+                datasets=datasets,
+                settings=settings,
+                track=track,
+                lookahead=lookahead,
+                mode="pull",
+            )  # type: ignore[arg-type]
             say(f"submitted #{sub.id} {sub.name} in pull mode: {sub.progress.episodes_total} episodes")
         else:
             sub = api.submission(submission)
@@ -236,8 +264,10 @@ def connect(
             finally:
                 caller.close()
 
-        threads = [threading.Thread(target=run, args=(i,), name=f"robobpp-pull-{i}", daemon=True)
-                   for i in range(parallel)]  # fmt: skip
+        threads = [
+            threading.Thread(target=run, args=(i,), name=f"robobpp-pull-{i}", daemon=True)
+            for i in range(parallel)
+        ]
         for thread in threads:
             thread.start()
         try:

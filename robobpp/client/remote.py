@@ -187,8 +187,12 @@ class RemotePolicy:
         self.last_network_estimate: float | None = None
         self._probes: deque[float] = deque(maxlen=PROBE_WINDOW)
         self._fastest_act = float("inf")
-        self._headers = [("Accept", "application/json"), ("Accept-Encoding", "identity"),
-                         ("User-Agent", f"robobpp/{__version__}"), (P.PROTOCOL_HEADER, P.PROTOCOL)]  # fmt: skip
+        self._headers = [
+            ("Accept", "application/json"),
+            ("Accept-Encoding", "identity"),
+            ("User-Agent", f"robobpp/{__version__}"),
+            (P.PROTOCOL_HEADER, P.PROTOCOL),
+        ]
         self._episode_id: str | None = None
         self._episode_deadline: float | None = None
 
@@ -345,8 +349,14 @@ class RemotePolicy:
             # The answer must be signed for this very request: a replayed or altered one ends the episode.
             episode_id = str(payload.get("episode_id", "")) if payload else ""
             try:
-                P.verify_answer(self.secret, answer.headers, answer.body, episode_id=episode_id,
-                                step=payload.get("step") if payload else None, request_signature=request_signature)  # fmt: skip
+                P.verify_answer(
+                    self.secret,
+                    answer.headers,
+                    answer.body,
+                    episode_id=episode_id,
+                    step=payload.get("step") if payload else None,
+                    request_signature=request_signature,
+                )
             except P.SignatureError as exc:
                 raise SignatureMismatch(
                     PROTOCOL_VIOLATION, f"the answer to {what} is refused: {exc}", refused=False

@@ -115,8 +115,13 @@ def create_policy_app(
         if secret is None:
             return _json(data)
         body = json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
-        headers = P.sign_answer(secret, episode_id=episode_id, step=step, body=body,
-                                request_signature=request.headers.get(P.SIGNATURE_HEADER, ""))  # fmt: skip
+        headers = P.sign_answer(
+            secret,
+            episode_id=episode_id,
+            step=step,
+            body=body,
+            request_signature=request.headers.get(P.SIGNATURE_HEADER, ""),
+        )
         return Response(body, media_type="application/json", headers=headers)
 
     def call_hook(hook: str, *args: object) -> Response | None:
@@ -187,8 +192,9 @@ def create_policy_app(
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
-            schema = get_openapi(title=app.title, version=app.version, description=app.description,
-                                 routes=app.routes)  # fmt: skip
+            schema = get_openapi(
+                title=app.title, version=app.version, description=app.description, routes=app.routes
+            )
             defs = P.json_schema(ref_template="#/components/schemas/{model}")["$defs"]
             schema.setdefault("components", {}).setdefault("schemas", {}).update(defs)
             app.openapi_schema = schema
@@ -259,8 +265,16 @@ class BackgroundServer:
         self._sock.bind((host, port))
         self.host, self.port = self._sock.getsockname()[:2]
         self.url = f"http://{self.host}:{self.port}"
-        self.server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off",
-                                                    timeout_graceful_shutdown=2, **config))  # fmt: skip
+        self.server = uvicorn.Server(
+            uvicorn.Config(
+                app,
+                log_level="warning",
+                access_log=False,
+                lifespan="off",
+                timeout_graceful_shutdown=2,
+                **config,
+            )
+        )
         self._thread = threading.Thread(target=self._run, name="robobpp-policy-server", daemon=True)
 
     def _run(self) -> None:

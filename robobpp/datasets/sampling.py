@@ -85,6 +85,6 @@ def episode_specs(
                 spec.collapse_threshold_cm,
                 gseed,
                 SAMPLER_VERSION,
-            )  # fmt: skip
+            )
         )
     return out

@@ -81,10 +81,12 @@ def synthetic_episode_specs(
     ranges = [
         _check_range(name, given or default)
         for name, given, default in zip(
-            ("length_range", "width_range", "height_range"), (length_range, width_range, height_range), defaults,
+            ("length_range", "width_range", "height_range"),
+            (length_range, width_range, height_range),
+            defaults,
             strict=True,
         )
-    ]  # fmt: skip
+    ]
     salt = zlib.crc32(b"robobpp-synthetic")
     out = []
     for group in range(groups):

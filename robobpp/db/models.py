@@ -89,8 +89,9 @@ class WebSession(Base):
 
     id: Mapped[int] = mapped_column(primary_key=True)
     #: The participant's token it signed in with (``None``: the operator, signed in with the admin token).
-    token_id: Mapped[int | None] = mapped_column(ForeignKey("api_tokens.id", ondelete="CASCADE"), index=True,
-                                                 default=None)  # fmt: skip
+    token_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_tokens.id", ondelete="CASCADE"), index=True, default=None
+    )
     admin: Mapped[bool] = mapped_column(default=False)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     revoked_at: Mapped[datetime | None] = mapped_column(default=None)
@@ -130,8 +131,9 @@ class Submission(Base):
     __table_args__ = (Index("ix_submissions_track_finished", "track", "finished_at"),)
 
     participant: Mapped[Participant] = relationship()
-    runs: Mapped[list[RunRow]] = relationship(back_populates="submission", cascade="all, delete-orphan",
-                                              order_by="RunRow.id")  # fmt: skip
+    runs: Mapped[list[RunRow]] = relationship(
+        back_populates="submission", cascade="all, delete-orphan", order_by="RunRow.id"
+    )
 
 
 class RunRow(Base):

@@ -175,8 +175,9 @@ def board_protocol(setting: str, protocol: str) -> str:
     return protocol if setting in PHYSICAL else "closed"
 
 
-def _entry_rows(session: Session, dataset: str, setting: str, track: str,
-                protocol: str = "closed") -> list[dict[str, Any]]:  # fmt: skip
+def _entry_rows(
+    session: Session, dataset: str, setting: str, track: str, protocol: str = "closed"
+) -> list[dict[str, Any]]:
     """Every completed run on the board of a finished submission (failed ones too: they are shown apart)."""
     # A physical setting's board shows only runs whose every episode ran the current physics version.
     other_physics = exists().where(
@@ -196,7 +197,7 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str,
             Participant.name,
             Participant.is_builtin,
             Submission.verification,
-        )  # fmt: skip
+        )
         .join(Submission, Submission.id == RunRow.submission_id)
         .join(Participant, Participant.id == Submission.participant_id)
         .where(
@@ -207,21 +208,37 @@ def _entry_rows(session: Session, dataset: str, setting: str, track: str,
             Submission.track == track,
             Submission.status.in_(("completed", "failed")),
             current,
-        )  # fmt: skip
+        )
         .order_by(RunRow.submission_id)
     ).all()
-    keys = ("submission_id", "metrics", "extras", "figures", "episodes_total", "completed_at", "name",
-            "submission_status", "participant", "baseline", "verification")  # fmt: skip
-    return [dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": _verdict(r[10])}
-            for r in rows if current_rules(r[2])]  # fmt: skip
+    keys = (
+        "submission_id",
+        "metrics",
+        "extras",
+        "figures",
+        "episodes_total",
+        "completed_at",
+        "name",
+        "submission_status",
+        "participant",
+        "baseline",
+        "verification",
+    )
+    return [
+        dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": _verdict(r[10])}
+        for r in rows
+        if current_rules(r[2])
+    ]
 
 
 def current_rules(extras: Mapping[str, Any] | None) -> bool:
     """Whether a run ran the current Math rules and sampler (a board never mixes versions). A run recorded
     before they were versioned has none: it ran version 1 of both."""
     recorded = (extras or {}).get("provenance") or {}
-    return all(recorded.get(key) in (None, version) for key, version in
-               (("math_rules", MATH_RULES_VERSION), ("sampler", SAMPLER_VERSION)))  # fmt: skip
+    return all(
+        recorded.get(key) in (None, version)
+        for key, version in (("math_rules", MATH_RULES_VERSION), ("sampler", SAMPLER_VERSION))
+    )
 
 
 def _verdict(verification: dict[str, Any] | None) -> str | None:
@@ -233,8 +250,9 @@ def _verdict(verification: dict[str, Any] | None) -> str | None:
     return status if status in ("verified", "disagrees", "failed") else None
 
 
-def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "private",
-                protocol: str = "closed") -> dict[str, Any]:  # fmt: skip
+def leaderboard(
+    session: Session, dataset: str, setting: str, *, track: str = "private", protocol: str = "closed"
+) -> dict[str, Any]:
     """One board, computed now (the server reads it through its cache): see :func:`robobpp.leaderboard.build_board`.
 
     ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
@@ -246,9 +264,14 @@ def leaderboard(session: Session, dataset: str, setting: str, *, track: str = "p
 
 
 def overall_grid(
-    session: Session, *, datasets: tuple[str, ...] = DATASETS_ORDER, settings: tuple[str, ...] = SETTINGS_ORDER,
-    track: str = "private", board: Callable[[str, str], dict[str, Any]] | None = None, protocol: str = "closed",
-) -> dict[str, Any]:  # fmt: skip
+    session: Session,
+    *,
+    datasets: tuple[str, ...] = DATASETS_ORDER,
+    settings: tuple[str, ...] = SETTINGS_ORDER,
+    track: str = "private",
+    board: Callable[[str, str], dict[str, Any]] | None = None,
+    protocol: str = "closed",
+) -> dict[str, Any]:
     """The paper's overall table (see :func:`robobpp.leaderboard.build_grid`); ``protocol="paper"``: its
     physical columns under the paper protocol (the Mean then averages those).
 
@@ -293,8 +316,9 @@ def episode_counts(session: Session, submission_ids: Sequence[int]) -> dict[int,
     return counts
 
 
-def submissions_progress(session: Session, submission_ids: Sequence[int],
-                         known: Mapping[int, dict[str, int]] | None = None) -> dict[int, dict[str, Any]]:  # fmt: skip
+def submissions_progress(
+    session: Session, submission_ids: Sequence[int], known: Mapping[int, dict[str, int]] | None = None
+) -> dict[int, dict[str, Any]]:
     """:func:`submission_progress` of several submissions in two queries whatever their number: the
     episodes by status (those not already ``known``, from :func:`episode_counts`), and the phase of those
     still waiting or running (a page of 50 queued submissions once cost a phase lookup each, 50 round
@@ -336,24 +360,47 @@ def _progress(counts: dict[str, int], phase: str | None) -> dict[str, Any]:
     }
 
 
-def submission_view(session: Session, sub: Submission, progress: dict[str, Any] | None = None,
-                    runs: Sequence[RunRow] | None = None) -> dict[str, Any]:  # fmt: skip
+def submission_view(
+    session: Session,
+    sub: Submission,
+    progress: dict[str, Any] | None = None,
+    runs: Sequence[RunRow] | None = None,
+) -> dict[str, Any]:
     """``progress`` (its entry of :func:`submissions_progress`) and ``runs`` (of :func:`runs_of`) when
     already looked up for several submissions."""
     runs = sub.runs if runs is None else runs
     return {
-        "id": sub.id, "name": sub.name, "participant": sub.participant.name,
-        "baseline": sub.participant.is_builtin, "policy_url": sub.policy_url, "track": sub.track,
+        "id": sub.id,
+        "name": sub.name,
+        "participant": sub.participant.name,
+        "baseline": sub.participant.is_builtin,
+        "policy_url": sub.policy_url,
+        "track": sub.track,
         "mode": sub.mode,
-        "datasets": sub.datasets, "settings": sub.settings, "lookahead": sub.lookahead, "status": sub.status,
-        "created_at": sub.created_at, "finished_at": sub.finished_at, "error": shown_text(sub.error),
+        "datasets": sub.datasets,
+        "settings": sub.settings,
+        "lookahead": sub.lookahead,
+        "status": sub.status,
+        "created_at": sub.created_at,
+        "finished_at": sub.finished_at,
+        "error": shown_text(sub.error),
         "progress": progress if progress is not None else submission_progress(session, sub.id),
-        "runs": [{"dataset": r.dataset, "setting": r.setting, "protocol": r.protocol, "status": r.status,
-                  "episodes_total": r.episodes_total, "metrics": r.metrics, "extras": r.extras,
-                  "completed_at": r.completed_at} for r in runs],
+        "runs": [
+            {
+                "dataset": r.dataset,
+                "setting": r.setting,
+                "protocol": r.protocol,
+                "status": r.status,
+                "episodes_total": r.episodes_total,
+                "metrics": r.metrics,
+                "extras": r.extras,
+                "completed_at": r.completed_at,
+            }
+            for r in runs
+        ],
         "verification": sub.verification,
         "provenance": submission_provenance(sub, runs),
-    }  # fmt: skip
+    }
 
 
 def submission_provenance(sub: Submission, runs: Sequence[RunRow]) -> dict[str, Any]:
@@ -365,10 +412,12 @@ def submission_provenance(sub: Submission, runs: Sequence[RunRow]) -> dict[str, 
     produced = merge((r.extras or {}).get("provenance") or {} for r in runs if r.status == "completed")
     return {
         **{k: v for k, v in produced.items() if k not in ("protocol", "split", "seed", "groups")},
-        "anchors": ANCHORS_VERSION, "protocol": merged(r.protocol for r in runs) or "closed",
-        "split": SPLIT_OF_TRACK.get(sub.track, sub.track), "seed": 0 if sub.track == "public" else None,
+        "anchors": ANCHORS_VERSION,
+        "protocol": merged(r.protocol for r in runs) or "closed",
+        "split": SPLIT_OF_TRACK.get(sub.track, sub.track),
+        "seed": 0 if sub.track == "public" else None,
         "groups": max((r.episodes_total for r in runs), default=0),
-    }  # fmt: skip
+    }
 
 
 def runs_of(session: Session, submission_ids: Sequence[int]) -> dict[int, list[RunRow]]:
@@ -435,15 +484,16 @@ def _participants_statement() -> Select[Any]:
             Participant.created_at,
             func.coalesce(tokens.c.n, 0),
             func.coalesce(subs.c.n, 0),
-        )  # fmt: skip
+        )
         .outerjoin(tokens, tokens.c.participant_id == Participant.id)
         .outerjoin(subs, subs.c.participant_id == Participant.id)
         .order_by(Participant.id)
     )
 
 
-def list_submission_keys(session: Session, participant_id: int | None, *, limit: int = 50,
-                         offset: int = 0) -> list[Any]:  # fmt: skip
+def list_submission_keys(
+    session: Session, participant_id: int | None, *, limit: int = 50, offset: int = 0
+) -> list[Any]:
     """A page of submissions (``participant_id``'s, or everyone's; newest first) as rows of ``id, status,
     finished_at, verification, episodes_total`` only: what tells whether a built form of each is still current
     (``server.services.submissions.stamp``, :func:`waiting_counts`)."""
@@ -454,7 +504,7 @@ def list_submission_keys(session: Session, participant_id: int | None, *, limit:
             Submission.finished_at,
             Submission.verification,
             Submission.episodes_total,
-        )  # fmt: skip
+        )
         .order_by(Submission.id.desc())
         .limit(limit)
         .offset(offset)
@@ -474,13 +524,24 @@ def submissions_by_id(session: Session, ids: Sequence[int]) -> dict[int, Submiss
 
 def episode_summary(ep: EpisodeRow) -> dict[str, Any]:
     return {
-        "id": ep.id, "dataset": ep.dataset, "setting": ep.setting, "protocol": ep.protocol, "split": ep.split,
+        "id": ep.id,
+        "dataset": ep.dataset,
+        "setting": ep.setting,
+        "protocol": ep.protocol,
+        "split": ep.split,
         "group": ep.group,
-        "status": ep.status, "attempts": ep.attempts, "step": ep.step, "termination": ep.termination,
-        "termination_detail": shown_text(ep.termination_detail), "boxes_total": ep.boxes_total,
-        "boxes_placed": ep.boxes_placed, "metrics": ep.metrics, "counters": ep.counters,
-        "finished_at": ep.finished_at, "has_trace": ep.trace is not None,
-    }  # fmt: skip
+        "status": ep.status,
+        "attempts": ep.attempts,
+        "step": ep.step,
+        "termination": ep.termination,
+        "termination_detail": shown_text(ep.termination_detail),
+        "boxes_total": ep.boxes_total,
+        "boxes_placed": ep.boxes_placed,
+        "metrics": ep.metrics,
+        "counters": ep.counters,
+        "finished_at": ep.finished_at,
+        "has_trace": ep.trace is not None,
+    }
 
 
 def episode_rows(session: Session, submission_id: int) -> list[dict[str, Any]]:
@@ -504,17 +565,28 @@ def baseline_runs(session: Session, track: str) -> list[dict[str, Any]]:
         EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
     )
     rows = session.execute(
-        select(RunRow.submission_id, RunRow.dataset, RunRow.setting, RunRow.protocol, RunRow.metrics,
-               RunRow.extras, Submission.policy_url)
+        select(
+            RunRow.submission_id,
+            RunRow.dataset,
+            RunRow.setting,
+            RunRow.protocol,
+            RunRow.metrics,
+            RunRow.extras,
+            Submission.policy_url,
+        )
         .join(Submission, Submission.id == RunRow.submission_id)
         .join(Participant, Participant.id == Submission.participant_id)
         .where(
-            Participant.is_builtin.is_(True), Submission.track == track,
-            Submission.status.in_(("completed", "failed")), RunRow.status == "completed",
-            or_(and_(RunRow.setting == "math", RunRow.protocol == "closed"),
-                and_(RunRow.setting.in_(PHYSICAL), RunRow.protocol == "paper", current)),
+            Participant.is_builtin.is_(True),
+            Submission.track == track,
+            Submission.status.in_(("completed", "failed")),
+            RunRow.status == "completed",
+            or_(
+                and_(RunRow.setting == "math", RunRow.protocol == "closed"),
+                and_(RunRow.setting.in_(PHYSICAL), RunRow.protocol == "paper", current),
+            ),
         )
         .order_by(RunRow.submission_id)
-    ).all()  # fmt: skip
+    ).all()
     keys = ("submission_id", "dataset", "setting", "protocol", "metrics", "extras", "policy_url")
     return [dict(zip(keys, r, strict=True)) for r in rows]

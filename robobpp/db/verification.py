@@ -54,11 +54,20 @@ def start_verification(session: Session, original: Submission, groups: int) -> S
     the placeholder ``pull:`` and every episode would fail."""
     from robobpp.db import work
 
-    verify = work.create_submission(session, original.participant, name=original.name[:80],
-                                    policy_url=original.policy_url, secret=original.secret,
-                                    pinned_ip=original.pinned_ip, datasets=list(original.datasets),
-                                    settings=list(original.settings), groups=groups, track="verify",
-                                    lookahead=original.lookahead, mode=original.mode)  # fmt: skip
+    verify = work.create_submission(
+        session,
+        original.participant,
+        name=original.name[:80],
+        policy_url=original.policy_url,
+        secret=original.secret,
+        pinned_ip=original.pinned_ip,
+        datasets=list(original.datasets),
+        settings=list(original.settings),
+        groups=groups,
+        track="verify",
+        lookahead=original.lookahead,
+        mode=original.mode,
+    )
     verify.verifies_id = original.id
     original.verification = {"status": "running", "submission_id": verify.id}
     session.flush()
@@ -68,9 +77,14 @@ def start_verification(session: Session, original: Submission, groups: int) -> S
 def run_interval(session: Session, submission_id: int, dataset: str, setting: str) -> dict[str, Any] | None:
     """The run's :data:`METRIC` with its 95 % interval, or ``None`` when the run did not complete."""
     run = session.execute(
-        select(RunRow).where(RunRow.submission_id == submission_id, RunRow.dataset == dataset,
-                             RunRow.setting == setting, RunRow.protocol == "closed", RunRow.status == "completed")
-    ).scalar_one_or_none()  # fmt: skip
+        select(RunRow).where(
+            RunRow.submission_id == submission_id,
+            RunRow.dataset == dataset,
+            RunRow.setting == setting,
+            RunRow.protocol == "closed",
+            RunRow.status == "completed",
+        )
+    ).scalar_one_or_none()
     if run is None:
         return None
     figures = run.figures or {}
@@ -79,8 +93,13 @@ def run_interval(session: Session, submission_id: int, dataset: str, setting: st
         samples = stats.metric_samples([figures], METRIC, stats.resample_counts(len(figures["ids"])))
         low, high = stats.interval(samples)
         if np.isfinite(low[0]) and np.isfinite(high[0]):
-            return {"mean": float(mean), "low": float(low[0]), "high": float(high[0]), "n": len(figures["ids"]),
-                    "method": "bootstrap"}  # fmt: skip
+            return {
+                "mean": float(mean),
+                "low": float(low[0]),
+                "high": float(high[0]),
+                "n": len(figures["ids"]),
+                "method": "bootstrap",
+            }
     values = _values(session, submission_id, dataset, setting)
     return {**interval(values), "method": "normal"} if values else None
 
@@ -111,13 +130,25 @@ def record_verdict(session: Session, verify: Submission) -> dict[str, Any] | Non
             if a is None or b is None:
                 runs.append({"dataset": dataset, "setting": setting, "agree": None})
                 continue
-            runs.append({"dataset": dataset, "setting": setting, "metric": METRIC, "played": a, "holdout": b,
-                         "agree": agree(a, b)})  # fmt: skip
+            runs.append(
+                {
+                    "dataset": dataset,
+                    "setting": setting,
+                    "metric": METRIC,
+                    "played": a,
+                    "holdout": b,
+                    "agree": agree(a, b),
+                }
+            )
     if verify.status != "completed" or any(r["agree"] is None for r in runs):
         status = "failed"
     else:
         status = "verified" if all(r["agree"] for r in runs) else "disagrees"
-    verdict = {"status": status, "submission_id": verify.id, "checked_at": datetime.now(UTC).isoformat(),
-               "runs": runs}  # fmt: skip
+    verdict = {
+        "status": status,
+        "submission_id": verify.id,
+        "checked_at": datetime.now(UTC).isoformat(),
+        "runs": runs,
+    }
     original.verification = verdict
     return verdict

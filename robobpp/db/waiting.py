@@ -43,10 +43,15 @@ def queue_place(session: Session, sub: Submission, now: datetime | None = None) 
     pending = _pending(session, running_pending)
     # This participant's own episodes ahead of this submission's first: its running submissions' pending ones
     # and its older queued submissions'.
-    own_before = int(session.execute(
-        select(func.coalesce(func.sum(Submission.episodes_total), 0))
-        .where(Submission.participant_id == sub.participant_id, Submission.status == "queued", Submission.id < sub.id)
-    ).scalar_one()) + running_pending.get(sub.participant_id, 0)  # fmt: skip
+    own_before = int(
+        session.execute(
+            select(func.coalesce(func.sum(Submission.episodes_total), 0)).where(
+                Submission.participant_id == sub.participant_id,
+                Submission.status == "queued",
+                Submission.id < sub.id,
+            )
+        ).scalar_one()
+    ) + running_pending.get(sub.participant_id, 0)
     level = mine.running + own_before  # this participant's running count when its claim for this one comes
     ahead = own_before
     for pid, load in loads.items():
@@ -78,8 +83,9 @@ def _pending(session: Session, running_pending: dict[int, int]) -> dict[int, int
     out: dict[int, int] = {}
     for pid, n in session.execute(
         select(Submission.participant_id, func.sum(Submission.episodes_total))
-        .where(Submission.status == "queued").group_by(Submission.participant_id)
-    ):  # fmt: skip
+        .where(Submission.status == "queued")
+        .group_by(Submission.participant_id)
+    ):
         out[pid] = out.get(pid, 0) + int(n or 0)
     for pid, n in running_pending.items():
         out[pid] = out.get(pid, 0) + n
@@ -90,15 +96,20 @@ def _running_pending(session: Session) -> dict[int, int]:
     """Pending episodes of running submissions per participant. The running submissions are listed first and
     their episodes counted by id (the (submission, status) index): a join let SQLite scan every pending
     episode of the backlog instead."""
-    owners = dict(session.execute(select(Submission.id, Submission.participant_id)
-                                  .where(Submission.status == "running")).tuples().all())  # fmt: skip
+    owners = dict(
+        session.execute(
+            select(Submission.id, Submission.participant_id).where(Submission.status == "running")
+        )
+        .tuples()
+        .all()
+    )
     out: dict[int, int] = {}
     if owners:
         for sid, n in session.execute(
             select(EpisodeRow.submission_id, func.count())
             .where(EpisodeRow.submission_id.in_(list(owners)), EpisodeRow.status == "pending")
             .group_by(EpisodeRow.submission_id)
-        ):  # fmt: skip
+        ):
             out[owners[sid]] = out.get(owners[sid], 0) + int(n)
     return out
 
@@ -111,10 +122,14 @@ def _mean_episode_s(session: Session) -> float | None:
         return None
     recent = (
         select(EpisodeRow.started_at, EpisodeRow.finished_at)
-        .where(EpisodeRow.id > newest - RECENT_WINDOW, EpisodeRow.status == "done",
-               EpisodeRow.started_at.is_not(None), EpisodeRow.finished_at.is_not(None))
+        .where(
+            EpisodeRow.id > newest - RECENT_WINDOW,
+            EpisodeRow.status == "done",
+            EpisodeRow.started_at.is_not(None),
+            EpisodeRow.finished_at.is_not(None),
+        )
         .order_by(EpisodeRow.id.desc())
         .limit(RECENT_EPISODES)
-    )  # fmt: skip
+    )
     spans = [(f - s).total_seconds() for s, f in session.execute(recent)]
     return sum(spans) / len(spans) if spans else None

@@ -77,9 +77,20 @@ def create_submission(
     split = SPLIT_OF_TRACK[track]
     boards = [(d, s, "closed") for d in datasets for s in settings]
     boards += [(d, s, "paper") for d in datasets for s in paper_settings(settings, track)]
-    sub = Submission(participant=participant, name=name, policy_url=policy_url, secret=secret,
-                     pinned_ip=pinned_ip, track=track, mode=mode, datasets=list(datasets), settings=list(settings),
-                     lookahead=lookahead, status="queued", episodes_total=len(boards) * groups)  # fmt: skip
+    sub = Submission(
+        participant=participant,
+        name=name,
+        policy_url=policy_url,
+        secret=secret,
+        pinned_ip=pinned_ip,
+        track=track,
+        mode=mode,
+        datasets=list(datasets),
+        settings=list(settings),
+        lookahead=lookahead,
+        status="queued",
+        episodes_total=len(boards) * groups,
+    )
     session.add(sub)
     session.flush()
     for dataset, setting, protocol in boards:
@@ -90,10 +101,24 @@ def create_submission(
         session.flush()
         # a replay waits for its Math Pack episode (``waiting`` is never claimed): see ``_settle_replays``
         status = "pending" if protocol == "closed" else "waiting"
-        session.execute(insert(EpisodeRow), [  # one bulk INSERT: submitting stays cheap
-            {"submission_id": sub.id, "run_id": run.id, "dataset": dataset, "setting": setting, "split": split,
-             "group": g, "protocol": protocol, "status": status, "attempts": 0, "step": 0} for g in range(groups)
-        ])  # fmt: skip
+        session.execute(
+            insert(EpisodeRow),
+            [  # one bulk INSERT: submitting stays cheap
+                {
+                    "submission_id": sub.id,
+                    "run_id": run.id,
+                    "dataset": dataset,
+                    "setting": setting,
+                    "split": split,
+                    "group": g,
+                    "protocol": protocol,
+                    "status": status,
+                    "attempts": 0,
+                    "step": 0,
+                }
+                for g in range(groups)
+            ],
+        )
     session.flush()
     return sub
 
@@ -114,40 +139,76 @@ def plan_of(result: dict[str, Any]) -> dict[str, Any]:
     """What a paper-protocol replay needs of a Math Pack episode's result: each step's action (None: the
     policy found no placement) and its timing, and how the episode ended. A few numbers a box: stored for
     every track, where a private episode keeps no trace."""
-    keys = ("step", "box", "action", "decision_time", "compute_time", "round_trip", "network_estimate",
-            "placement", "termination")  # fmt: skip
+    keys = (
+        "step",
+        "box",
+        "action",
+        "decision_time",
+        "compute_time",
+        "round_trip",
+        "network_estimate",
+        "placement",
+        "termination",
+    )
     return {
         "steps": [{k: step.get(k) for k in keys} for step in result.get("steps", [])],
         **{k: result.get(k) for k in ("termination", "termination_detail", "boxes_placed", "policy", "seed")},
     }
 
 
-def _settle_replays(session: Session, math_episode_id: int, *, plan: dict[str, Any] | None = None,
-                    failure: tuple[str, str] | None = None) -> None:  # fmt: skip
+def _settle_replays(
+    session: Session,
+    math_episode_id: int,
+    *,
+    plan: dict[str, Any] | None = None,
+    failure: tuple[str, str] | None = None,
+) -> None:
     """A Math Pack episode was recorded: its paper-protocol replays (same submission, dataset and group;
     ``waiting`` until now) become ``pending`` with its ``plan``, or — when it ``failure`` (termination,
     detail) — ``failed`` too, their runs finalised. In the caller's transaction: the replays are released
     exactly when the episode is recorded, never twice, never lost."""
     ep = session.execute(
-        select(EpisodeRow.submission_id, EpisodeRow.dataset, EpisodeRow.group, EpisodeRow.setting,
-               EpisodeRow.protocol).where(EpisodeRow.id == math_episode_id)
-    ).one()  # fmt: skip
+        select(
+            EpisodeRow.submission_id,
+            EpisodeRow.dataset,
+            EpisodeRow.group,
+            EpisodeRow.setting,
+            EpisodeRow.protocol,
+        ).where(EpisodeRow.id == math_episode_id)
+    ).one()
     if ep.setting != "math" or ep.protocol != "closed":
         return
-    replays = and_(EpisodeRow.submission_id == ep.submission_id, EpisodeRow.dataset == ep.dataset,
-                   EpisodeRow.group == ep.group, EpisodeRow.protocol == "paper", EpisodeRow.status == "waiting")  # fmt: skip
+    replays = and_(
+        EpisodeRow.submission_id == ep.submission_id,
+        EpisodeRow.dataset == ep.dataset,
+        EpisodeRow.group == ep.group,
+        EpisodeRow.protocol == "paper",
+        EpisodeRow.status == "waiting",
+    )
     if failure is None:
-        session.execute(update(EpisodeRow).where(replays).values(status="pending", plan=plan)
-                        .execution_options(synchronize_session=False))  # fmt: skip
+        session.execute(
+            update(EpisodeRow)
+            .where(replays)
+            .values(status="pending", plan=plan)
+            .execution_options(synchronize_session=False)
+        )
         return
-    runs = session.execute(
-        update(EpisodeRow)
-        .where(replays)
-        .values(status="failed", termination=failure[0], finished_at=utcnow(),
-                termination_detail=f"its Math Pack episode could not be evaluated: {failure[1]}"[:4000])
-        .returning(EpisodeRow.run_id)
-        .execution_options(synchronize_session=False)
-    ).scalars().all()  # fmt: skip
+    runs = (
+        session.execute(
+            update(EpisodeRow)
+            .where(replays)
+            .values(
+                status="failed",
+                termination=failure[0],
+                finished_at=utcnow(),
+                termination_detail=f"its Math Pack episode could not be evaluated: {failure[1]}"[:4000],
+            )
+            .returning(EpisodeRow.run_id)
+            .execution_options(synchronize_session=False)
+        )
+        .scalars()
+        .all()
+    )
     for run_id in sorted(set(runs)):
         finalize_run(session, run_id)
 
@@ -207,10 +268,13 @@ def has_overdue(session: Session, *, older_than_s: float, now: datetime | None =
     row = session.execute(
         select(EpisodeRow.id)
         .join(Submission, Submission.id == EpisodeRow.submission_id)
-        .where(EpisodeRow.status == "pending", EpisodeRow.enqueued_at < cutoff,
-               Submission.status.in_(ACTIVE_SUBMISSION))
+        .where(
+            EpisodeRow.status == "pending",
+            EpisodeRow.enqueued_at < cutoff,
+            Submission.status.in_(ACTIVE_SUBMISSION),
+        )
         .limit(1)
-    ).first()  # fmt: skip
+    ).first()
     return row is not None
 
 
@@ -248,7 +312,7 @@ def reap_expired(session: Session, max_attempts: int, now: datetime | None = Non
                 finished_at=now,
                 lease_token=None,
                 termination_detail=detail,
-            )  # fmt: skip
+            )
         )
         finalize_run(session, run_id)
         _settle_replays(session, episode_id, failure=(WORKER_LOST, detail))
@@ -289,11 +353,16 @@ def participant_loads(session: Session) -> list[Load]:
         .subquery()
     )
     rows = session.execute(
-        select(active.c.pid, Participant.is_builtin, func.coalesce(started.c.running, 0), started.c.last,
-               active.c.first)
+        select(
+            active.c.pid,
+            Participant.is_builtin,
+            func.coalesce(started.c.running, 0),
+            started.c.last,
+            active.c.first,
+        )
         .join(Participant, Participant.id == active.c.pid)
         .outerjoin(started, started.c.pid == active.c.pid)
-    ).all()  # fmt: skip
+    ).all()
     return sorted((Load(pid, bool(b), int(n), last, first) for pid, b, n, last, first in rows), key=fair_key)
 
 
@@ -337,30 +406,56 @@ def claim_episode(
     runnable = or_(EpisodeRow.status == "pending", and_(_expired(now), EpisodeRow.attempts < max_attempts))
     eligible = runnable
     if max_running_per_participant is not None:  # checked at select time: two racing claims may pass it both
-        eligible = and_(runnable, or_(Submission.policy_url.startswith("builtin:"),
-                                      Submission.participant_id.not_in(_busy_participants(max_running_per_participant))))  # fmt: skip
+        eligible = and_(
+            runnable,
+            or_(
+                Submission.policy_url.startswith("builtin:"),
+                Submission.participant_id.not_in(_busy_participants(max_running_per_participant)),
+            ),
+        )
     fair = eligible if episode_id is None else and_(eligible, EpisodeRow.enqueued_at.is_not(None))
     for load in participant_loads(session):
         # Submission by submission (oldest first; a participant has a few active ones), each through the
         # (submission, status) index: a backlog of others' pending episodes is never scanned.
         for submission_id in session.execute(
-            select(Submission.id).where(Submission.participant_id == load.participant_id,
-                                        Submission.status.in_(ACTIVE_SUBMISSION)).order_by(Submission.id)
-        ).scalars():  # fmt: skip
-            claim = _claim_one(session, worker, and_(fair, EpisodeRow.submission_id == submission_id), runnable,
-                               skip_locked=True, lease_s=lease_s, now=fixed_now)  # fmt: skip
+            select(Submission.id)
+            .where(Submission.participant_id == load.participant_id, Submission.status.in_(ACTIVE_SUBMISSION))
+            .order_by(Submission.id)
+        ).scalars():
+            claim = _claim_one(
+                session,
+                worker,
+                and_(fair, EpisodeRow.submission_id == submission_id),
+                runnable,
+                skip_locked=True,
+                lease_s=lease_s,
+                now=fixed_now,
+            )
             if claim is not None:
                 return claim
     if episode_id is None:
         return None
-    return _claim_one(session, worker, and_(eligible, EpisodeRow.id == episode_id), runnable, skip_locked=False,
-                      lease_s=lease_s, now=fixed_now)  # fmt: skip
+    return _claim_one(
+        session,
+        worker,
+        and_(eligible, EpisodeRow.id == episode_id),
+        runnable,
+        skip_locked=False,
+        lease_s=lease_s,
+        now=fixed_now,
+    )
 
 
 def _claim_one(
-    session: Session, worker: str, where: Any, runnable: Any, *, skip_locked: bool, lease_s: float,
+    session: Session,
+    worker: str,
+    where: Any,
+    runnable: Any,
+    *,
+    skip_locked: bool,
+    lease_s: float,
     now: datetime | None,
-) -> Claim | None:  # fmt: skip
+) -> Claim | None:
     for _ in range(
         5
     ):  # another claimer may win the row between select and update (SQLite has no SKIP LOCKED)
@@ -393,7 +488,7 @@ def _claim_one(
                 lease_expires_at=taken_at + timedelta(seconds=lease_s),
                 started_at=taken_at,
                 step=0,
-            )  # fmt: skip
+            )
             .execution_options(synchronize_session=False)
         )
         if claimed.rowcount == 1:
@@ -403,9 +498,23 @@ def _claim_one(
             assert sub is not None
             if sub.status == "queued":
                 sub.status = "running"
-            return Claim(ep.id, token, ep.attempts, sub.id, ep.dataset, ep.setting, ep.split, ep.group,
-                         sub.policy_url, sub.secret, sub.pinned_ip, sub.lookahead, sub.track == "public",
-                         sub.mode, ep.protocol)  # fmt: skip
+            return Claim(
+                ep.id,
+                token,
+                ep.attempts,
+                sub.id,
+                ep.dataset,
+                ep.setting,
+                ep.split,
+                ep.group,
+                sub.policy_url,
+                sub.secret,
+                sub.pinned_ip,
+                sub.lookahead,
+                sub.track == "public",
+                sub.mode,
+                ep.protocol,
+            )
     return None
 
 
@@ -449,7 +558,7 @@ def complete_episode(
             **environment(),
             "math_rules": result.get("rules_version"),
             "sampler": result.get("sampler_version"),
-        },  # fmt: skip
+        },
         "step": len(result.get("steps", ())) or result["boxes_placed"],
         "metrics": result["metrics"],
         "counters": result["counters"],
@@ -459,7 +568,7 @@ def complete_episode(
             "container": result.get("container"),
         }
         if keep_trace
-        else None,  # fmt: skip
+        else None,
         "plan": None,  # a replay's input, spent
     }
     done = session.execute(
@@ -542,15 +651,22 @@ def finalize_run(session: Session, run_id: int) -> None:
         run.status = "cancelled"
     else:
         rows = session.execute(
-            select(EpisodeRow.metrics, EpisodeRow.counters, EpisodeRow.termination, EpisodeRow.boxes_placed,
-                   EpisodeRow.group, EpisodeRow.provenance, EpisodeRow.physics_version)
-            .where(EpisodeRow.run_id == run_id)
-        ).all()  # fmt: skip
+            select(
+                EpisodeRow.metrics,
+                EpisodeRow.counters,
+                EpisodeRow.termination,
+                EpisodeRow.boxes_placed,
+                EpisodeRow.group,
+                EpisodeRow.provenance,
+                EpisodeRow.physics_version,
+            ).where(EpisodeRow.run_id == run_id)
+        ).all()
         run.metrics, run.extras = run_figures([r[:4] for r in rows], run.setting)
         run.extras["provenance"] = {
-            **merge(p or {} for *_x, p, _v in rows), "physics": merged(v for *_x, v in rows),
+            **merge(p or {} for *_x, p, _v in rows),
+            "physics": merged(v for *_x, v in rows),
             "protocol": run.protocol,
-        }  # fmt: skip
+        }
         run.figures = group_figures(
             ({**(m or {}), **(c or {}), "group": g} for m, c, _t, _b, g, *_p in rows), run.setting
         )
@@ -613,8 +729,11 @@ def _policy_failed_runs(session: Session, submission_id: int) -> list[str]:
             RunRow.submission_id == submission_id, RunRow.protocol == "closed"
         )
     ).all()
-    return [f"{setting}/{dataset}" for dataset, setting, extras in runs
-            if extras and run_failed(extras.get("terminations"), int(extras.get("episodes") or 0))]  # fmt: skip
+    return [
+        f"{setting}/{dataset}"
+        for dataset, setting, extras in runs
+        if extras and run_failed(extras.get("terminations"), int(extras.get("episodes") or 0))
+    ]
 
 
 def cancel_submission(session: Session, sub: Submission) -> bool:

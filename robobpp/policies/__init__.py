@@ -32,9 +32,17 @@ BASELINES: tuple[str, ...] = tuple(name for name in BUILTIN if name not in LEARN
 
 #: Display names, spelled as in the paper.
 TITLES: dict[str, str] = {
-    "dbl": "DBL", "hm": "HM", "lsah": "LSAH", "onlinebph": "OnlineBPH", "br": "BR", "macs": "MACS",
-    "sdfpack": "SDFPack", "packe-rules": "PackE-rules", "random": "Random", "pct": "PCT",
-}  # fmt: skip
+    "dbl": "DBL",
+    "hm": "HM",
+    "lsah": "LSAH",
+    "onlinebph": "OnlineBPH",
+    "br": "BR",
+    "macs": "MACS",
+    "sdfpack": "SDFPack",
+    "packe-rules": "PackE-rules",
+    "random": "Random",
+    "pct": "PCT",
+}
 
 
 class PolicyLoadError(ValueError):

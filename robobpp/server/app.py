@@ -107,8 +107,11 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
     app.state.runtime = Runtime(settings)
     from robobpp.server.probes import ProbeGate
 
-    app.state.probe_gate = ProbeGate(settings.probe_concurrency, settings.probe_per_participant,
-                                     min(settings.probe_timeout_s, settings.step_timeout_s))  # fmt: skip
+    app.state.probe_gate = ProbeGate(
+        settings.probe_concurrency,
+        settings.probe_per_participant,
+        min(settings.probe_timeout_s, settings.step_timeout_s),
+    )
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
     app.add_middleware(SecurityHeaders)
     problems.install(app)

@@ -52,15 +52,27 @@ def ensure_baselines(session: Any, settings: Any) -> int:
     created = 0
     names = (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines
     for track in ("private", "public") if settings.public_baselines else ("private",):
-        existing = set(session.execute(select(Submission.policy_url).where(
-            Submission.participant_id == participant.id, Submission.track == track)).scalars())  # fmt: skip
+        existing = set(
+            session.execute(
+                select(Submission.policy_url).where(
+                    Submission.participant_id == participant.id, Submission.track == track
+                )
+            ).scalars()
+        )
         for name in names:
             url = f"builtin:{name}"
             if url in existing:
                 continue
-            work.create_submission(session, participant, name=TITLES.get(name, name), policy_url=url,
-                                   datasets=list(settings.datasets), settings=list(settings.enabled_settings),
-                                   groups=settings.groups, track=track)  # fmt: skip
+            work.create_submission(
+                session,
+                participant,
+                name=TITLES.get(name, name),
+                policy_url=url,
+                datasets=list(settings.datasets),
+                settings=list(settings.enabled_settings),
+                groups=settings.groups,
+                track=track,
+            )
             created += 1
     return created
 

@@ -114,7 +114,9 @@ def guarded_protocol(limits: ConnectionLimits) -> type[asyncio.Protocol]:
 
 def server_config(settings: Any) -> dict[str, Any]:
     """The uvicorn options ``robobpp serve`` runs with (``settings``: :class:`robobpp.server.config.Settings`)."""
-    limits = ConnectionLimits(max_connections=settings.max_connections,
-                              max_per_client=settings.max_connections_per_client,
-                              header_timeout_s=settings.header_timeout_s)  # fmt: skip
+    limits = ConnectionLimits(
+        max_connections=settings.max_connections,
+        max_per_client=settings.max_connections_per_client,
+        header_timeout_s=settings.header_timeout_s,
+    )
     return {"http": guarded_protocol(limits), "timeout_keep_alive": 5, "backlog": 2048}

@@ -22,10 +22,13 @@ ALWAYS = [(b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"same-o
 
 
 def content_security_policy(html: bytes) -> bytes:
-    hashes = sorted({
-        "'sha256-" + base64.b64encode(hashlib.sha256(m["body"]).digest()).decode() + "'"
-        for m in _INLINE_SCRIPT.finditer(html) if b"src=" not in m["attrs"].lower()
-    })  # fmt: skip
+    hashes = sorted(
+        {
+            "'sha256-" + base64.b64encode(hashlib.sha256(m["body"]).digest()).decode() + "'"
+            for m in _INLINE_SCRIPT.finditer(html)
+            if b"src=" not in m["attrs"].lower()
+        }
+    )
     return (
         "default-src 'self'; script-src 'self' " + " ".join(hashes) + "; style-src 'self' 'unsafe-inline'; "
         "img-src 'self' data:; connect-src 'self'; object-src 'none'; base-uri 'self'; form-action 'self'; "
@@ -60,9 +63,16 @@ class SecurityHeaders:
                     return
                 body = b"".join(chunks)
                 held, start = start, None
-                await send({**held, "headers": [*held["headers"], (b"content-security-policy",
-                                                                   content_security_policy(body)),
-                                                (b"x-frame-options", b"DENY")]})  # fmt: skip
+                await send(
+                    {
+                        **held,
+                        "headers": [
+                            *held["headers"],
+                            (b"content-security-policy", content_security_policy(body)),
+                            (b"x-frame-options", b"DENY"),
+                        ],
+                    }
+                )
                 message = {"type": "http.response.body", "body": body}
             await send(message)
 

@@ -56,8 +56,14 @@ class BodySizeLimit:
                 if not message.get("more_body", False):
                     break
         except TimeoutError:
-            await self._refuse(scope, send, 408, "body-timeout", "Request body too slow",
-                               f"a request body must arrive within {self.timeout_s:g} s of its headers")  # fmt: skip
+            await self._refuse(
+                scope,
+                send,
+                408,
+                "body-timeout",
+                "Request body too slow",
+                f"a request body must arrive within {self.timeout_s:g} s of its headers",
+            )
             return
         replay: list[Message] = [
             first or {"type": "http.request", "body": b"".join(chunks), "more_body": False}
@@ -68,17 +74,33 @@ class BodySizeLimit:
 
         await self.app(scope, buffered_receive, send)
 
-    async def _refuse(self, scope: Scope, send: Send, status: int = 413, kind: str = "body-too-large",
-                      title: str = "Request body too large", detail: str | None = None) -> None:  # fmt: skip
-        body = json.dumps({
-            "type": TYPE_BASE + kind,
-            "title": title,
-            "status": status,
-            "detail": detail or f"request bodies are limited to {self.max_bytes} bytes",
-            "instance": scope.get("path"),
-        }).encode()  # fmt: skip
-        await send({"type": "http.response.start", "status": status,
-                    "headers": [(b"content-type", PROBLEM_MEDIA_TYPE.encode()),
-                                (b"content-length", str(len(body)).encode()),
-                                (b"connection", b"close")]})  # fmt: skip
+    async def _refuse(
+        self,
+        scope: Scope,
+        send: Send,
+        status: int = 413,
+        kind: str = "body-too-large",
+        title: str = "Request body too large",
+        detail: str | None = None,
+    ) -> None:
+        body = json.dumps(
+            {
+                "type": TYPE_BASE + kind,
+                "title": title,
+                "status": status,
+                "detail": detail or f"request bodies are limited to {self.max_bytes} bytes",
+                "instance": scope.get("path"),
+            }
+        ).encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": status,
+                "headers": [
+                    (b"content-type", PROBLEM_MEDIA_TYPE.encode()),
+                    (b"content-length", str(len(body)).encode()),
+                    (b"connection", b"close"),
+                ],
+            }
+        )
         await send({"type": "http.response.body", "body": body})

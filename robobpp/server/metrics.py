@@ -70,8 +70,10 @@ class _QueueCollector(Collector):
                 "robobpp_board_snapshots", "Board snapshots computed by this process"
             )
             computed.add_metric([], cache.computed)
-            seconds = GaugeMetricFamily("robobpp_board_snapshot_seconds",
-                                        "Wall time of this process's last board snapshot computation")  # fmt: skip
+            seconds = GaugeMetricFamily(
+                "robobpp_board_snapshot_seconds",
+                "Wall time of this process's last board snapshot computation",
+            )
             seconds.add_metric([], cache.last_seconds)
             yield computed
             yield seconds
@@ -160,8 +162,13 @@ def install_metrics(app: FastAPI) -> None:
     requests = Counter(
         "robobpp_http_requests", "HTTP requests", ["method", "route", "status"], registry=requests_registry
     )
-    latency = Histogram("robobpp_http_request_seconds", "HTTP request latency", ["method", "route"],
-                        buckets=LATENCY_BUCKETS, registry=requests_registry)  # fmt: skip
+    latency = Histogram(
+        "robobpp_http_request_seconds",
+        "HTTP request latency",
+        ["method", "route"],
+        buckets=LATENCY_BUCKETS,
+        registry=requests_registry,
+    )
     rendered = _RenderedRequests(requests_registry)
     registry.register(_QueueCollector(app))
     app.state.metrics_registry = registry
@@ -174,8 +181,12 @@ def install_metrics(app: FastAPI) -> None:
         # (who submits when, what is slow) for anyone else. Public only when ROBOBPP_METRICS_PUBLIC says so.
         settings = request.app.state.settings
         if not settings.metrics_public and not _is_admin(request, settings.effective_admin_token):
-            return Response("metrics need the admin token (Authorization: Bearer …)\n", status_code=401,
-                            media_type="text/plain", headers={"WWW-Authenticate": "Bearer"})  # fmt: skip
+            return Response(
+                "metrics need the admin token (Authorization: Bearer …)\n",
+                status_code=401,
+                media_type="text/plain",
+                headers={"WWW-Authenticate": "Bearer"},
+            )
         return Response(rendered.text() + generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
 

@@ -61,23 +61,44 @@ Page = Annotated[int, Query(ge=1, le=10**5)]
 
 
 @router.get("/", response_class=HTMLResponse)
-async def overall_page(request: Request, settings: SettingsDep, track: Track = "private", view: View = "best",
-                       page: Page = 1, protocol: Protocol = "closed"):  # fmt: skip
+async def overall_page(
+    request: Request,
+    settings: SettingsDep,
+    track: Track = "private",
+    view: View = "best",
+    page: Page = 1,
+    protocol: Protocol = "closed",
+):
     datasets, setting_names = _board_names(settings)
 
     def build(session: Session) -> HTMLResponse:
-        shown = grid_view(board_cache(request).grid(session, datasets, setting_names, track, protocol), view,
-                          tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)  # fmt: skip
-        return render(request, "index.html", title="Leaderboard", nav="leaderboard", track=track, view=view,
-                      table=tables.grid_table(shown), datasets_info=DATASETS, top=tables.TOP,
-                      pages=tables.pages(shown, page), protocol=protocol,
-                      has_physical=bool(set(setting_names) & set(PHYSICAL)))  # fmt: skip
+        shown = grid_view(
+            board_cache(request).grid(session, datasets, setting_names, track, protocol),
+            view,
+            tables.PAGE_SIZE,
+            (page - 1) * tables.PAGE_SIZE,
+        )
+        return render(
+            request,
+            "index.html",
+            title="Leaderboard",
+            nav="leaderboard",
+            track=track,
+            view=view,
+            table=tables.grid_table(shown),
+            datasets_info=DATASETS,
+            top=tables.TOP,
+            pages=tables.pages(shown, page),
+            protocol=protocol,
+            has_physical=bool(set(setting_names) & set(PHYSICAL)),
+        )
 
     return await _shared(request, track, ("home", root(request), track, view, page, protocol), build)
 
 
-async def _shared(request: Request, track: str, key: tuple[Any, ...],
-                  build: Callable[[Session], HTMLResponse]) -> HTMLResponse:  # fmt: skip
+async def _shared(
+    request: Request, track: str, key: tuple[Any, ...], build: Callable[[Session], HTMLResponse]
+) -> HTMLResponse:
     """An anonymous visitor's board page, rendered once per board version and shared by every such reader
     (services/boards.py; answered on the event loop while current); a page naming its viewer or carrying a
     CSRF nonce is rendered for that viewer, in a worker thread."""
@@ -101,26 +122,53 @@ async def _static(request: Request, key: tuple[Any, ...], build: Callable[[], HT
 
 
 @router.get("/boards/{dataset}/{setting}", response_class=HTMLResponse)
-async def board_page(request: Request, dataset: DatasetPath, setting: SettingPath, settings: SettingsDep,
-                     track: Track = "private", view: View = "best", page: Page = 1,
-                     protocol: Protocol = "closed"):  # fmt: skip
+async def board_page(
+    request: Request,
+    dataset: DatasetPath,
+    setting: SettingPath,
+    settings: SettingsDep,
+    track: Track = "private",
+    view: View = "best",
+    page: Page = 1,
+    protocol: Protocol = "closed",
+):
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
     protocol = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
 
     def build(session: Session) -> HTMLResponse:
-        shown = board_view(board_cache(request).board(session, dataset, setting, track, protocol), view,
-                           tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)  # fmt: skip
+        shown = board_view(
+            board_cache(request).board(session, dataset, setting, track, protocol),
+            view,
+            tables.PAGE_SIZE,
+            (page - 1) * tables.PAGE_SIZE,
+        )
         title = f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}"
         if protocol != "closed":
             title += " · paper protocol"
-        return render(request, "board.html", title=title, nav="leaderboard", dataset=DATASETS[dataset],
-                      setting=setting, track=track, view=view, table=tables.board_table(shown),
-                      weights=WEIGHTS[setting], top=tables.TOP, pages=tables.pages(shown, page), board=shown,
-                      protocol=protocol, has_physical=setting in PHYSICAL,
-                      other_boards=[(d, s, f"{DATASETS[d].title} · {SETTING_TITLES[s]}")  # as the titles read
-                                    for s in setting_names for d in datasets])  # fmt: skip
+        return render(
+            request,
+            "board.html",
+            title=title,
+            nav="leaderboard",
+            dataset=DATASETS[dataset],
+            setting=setting,
+            track=track,
+            view=view,
+            table=tables.board_table(shown),
+            weights=WEIGHTS[setting],
+            top=tables.TOP,
+            pages=tables.pages(shown, page),
+            board=shown,
+            protocol=protocol,
+            has_physical=setting in PHYSICAL,
+            other_boards=[
+                (d, s, f"{DATASETS[d].title} · {SETTING_TITLES[s]}")  # as the titles read
+                for s in setting_names
+                for d in datasets
+            ],
+        )
 
     return await _shared(
         request, track, ("board-page", root(request), dataset, setting, track, view, page, protocol), build
@@ -167,10 +215,12 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
     view = _page_view(request, session, sub, owner)
     cache = board_cache(request)
     boards = {
-        (r["dataset"], r["setting"], r["protocol"]): cache.board(session, r["dataset"], r["setting"], sub.track,
-                                                                 r["protocol"])
-        for r in view["runs"] if r["status"] == "completed"
-    }  # fmt: skip
+        (r["dataset"], r["setting"], r["protocol"]): cache.board(
+            session, r["dataset"], r["setting"], sub.track, r["protocol"]
+        )
+        for r in view["runs"]
+        if r["status"] == "completed"
+    }
     ranks = {}
     for key, board in boards.items():
         entry = find_entry(board, sub.id)
@@ -179,8 +229,13 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
     closed = [r for r in view["runs"] if r["protocol"] == "closed"]  # the radar: the benchmark's boards
     # the results table lists a paper-protocol run right under its closed-loop run
     place = {(r["dataset"], r["setting"]): i for i, r in enumerate(closed)}
-    view = {**view, "runs": sorted(view["runs"], key=lambda r: (place.get((r["dataset"], r["setting"]), len(place)),
-                                                               r["protocol"] != "closed"))}  # fmt: skip
+    view = {
+        **view,
+        "runs": sorted(
+            view["runs"],
+            key=lambda r: (place.get((r["dataset"], r["setting"]), len(place)), r["protocol"] != "closed"),
+        ),
+    }
     public = sub.track == "public"
     reasons = {**TERMINATION_REASONS, **EXTRA_REASONS}
     views = finished_views(request.app.state)
@@ -188,11 +243,24 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
     def episode_table() -> tuple[Markup, dict[str, list]]:
         """The episode table and the utilisation histogram: a finished submission's are built once."""
         episodes = queries.episode_rows(session, sub.id)
-        utilisation = [(e["metrics"] or {}).get("space_utilization")
-                       for e in episodes if e["status"] == "done" and e["metrics"]]  # fmt: skip
-        html = environment().get_template("_episodes_table.html").render(
-            root=root(request), sub=view, episodes=episodes, owner=owner, public=public, reasons=reasons,
-            neutral=NEUTRAL_ENDINGS)  # fmt: skip
+        utilisation = [
+            (e["metrics"] or {}).get("space_utilization")
+            for e in episodes
+            if e["status"] == "done" and e["metrics"]
+        ]
+        html = (
+            environment()
+            .get_template("_episodes_table.html")
+            .render(
+                root=root(request),
+                sub=view,
+                episodes=episodes,
+                owner=owner,
+                public=public,
+                reasons=reasons,
+                neutral=NEUTRAL_ENDINGS,
+            )
+        )
         return Markup(html), tables.histogram([u for u in utilisation if u is not None])
 
     table, histogram = views.get(("page-episodes", owner, public, root(request)), sub, episode_table)
@@ -200,12 +268,26 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
     charts = {"radar": tables.radar_groups(closed, closed_boards, sub.id), "utilization": histogram}
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
-    return render(request, "submission.html", title=f"Submission {sub.id}", nav="leaderboard", sub=view,
-                  has_pph="execution" in ran, owner=owner, site=str(request.base_url).rstrip("/"),
-                  can_cancel=owner and view["status"] in ("queued", "running")
-                  and (sub.track != "verify" or viewer(request).admin), episodes_table=table,
-                  ranks=ranks, charts=charts, metrics=columns, public=public, reasons=reasons,
-                  neutral=NEUTRAL_ENDINGS)  # fmt: skip
+    return render(
+        request,
+        "submission.html",
+        title=f"Submission {sub.id}",
+        nav="leaderboard",
+        sub=view,
+        has_pph="execution" in ran,
+        owner=owner,
+        site=str(request.base_url).rstrip("/"),
+        can_cancel=owner
+        and view["status"] in ("queued", "running")
+        and (sub.track != "verify" or viewer(request).admin),
+        episodes_table=table,
+        ranks=ranks,
+        charts=charts,
+        metrics=columns,
+        public=public,
+        reasons=reasons,
+        neutral=NEUTRAL_ENDINGS,
+    )
 
 
 @router.get("/submissions/{submission_id}/status.json")
@@ -219,8 +301,11 @@ async def submission_status(
 def _submission_status(request: Request, session: Session, submission_id: int) -> JSONResponse:
     sub = _visible(request, session, submission_id)
     if sub is None:
-        return JSONResponse({"detail": f"no submission {submission_id}"}, status_code=404,
-                            headers={"Cache-Control": "no-store"})  # fmt: skip
+        return JSONResponse(
+            {"detail": f"no submission {submission_id}"},
+            status_code=404,
+            headers={"Cache-Control": "no-store"},
+        )
     view = finished_views(request.app.state).get(
         ("view",), sub, lambda: queries.submission_view(session, sub)
     )
@@ -228,32 +313,63 @@ def _submission_status(request: Request, session: Session, submission_id: int) -
     queue = waiting.queue_place(session, sub)
     if queue is not None and queue["estimated_start"] is not None:
         queue = {**queue, "estimated_start": queue["estimated_start"].isoformat()}
-    return JSONResponse({"id": sub.id, "status": view["status"], "progress": view["progress"], "runs": runs,
-                         "queue": queue}, headers={"Cache-Control": "no-store"})  # fmt: skip
+    return JSONResponse(
+        {"id": sub.id, "status": view["status"], "progress": view["progress"], "runs": runs, "queue": queue},
+        headers={"Cache-Control": "no-store"},
+    )
 
 
 @router.get("/submissions/{submission_id}/episodes/{episode_id}/replay", response_class=HTMLResponse)
-def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)],
-                episode_id: Annotated[int, Path(ge=1, le=2**62)], session: SessionDep):  # fmt: skip
+def replay_page(
+    request: Request,
+    submission_id: Annotated[int, Path(ge=1, le=2**62)],
+    episode_id: Annotated[int, Path(ge=1, le=2**62)],
+    session: SessionDep,
+):
     sub = _submission(session, submission_id)
     ep = queries.get_episode(session, submission_id, episode_id) if sub is not None else None
     if sub is None or ep is None or sub.track != "public" or ep.trace is None:
         # One answer for missing and hidden alike (a private-track episode, one without a trace): a distinct
         # one mapped episode ids to tracks.
-        return not_found(request, f"There is no replay of episode {episode_id} in submission {submission_id}. "
-                                  "Only public-track episodes have one.")  # fmt: skip
+        return not_found(
+            request,
+            f"There is no replay of episode {episode_id} in submission {submission_id}. "
+            "Only public-track episodes have one.",
+        )
     summary = queries.episode_summary(ep)
     owner = _is_owner(viewer(request), sub)
     if not owner:  # a public replay shows how the episode ended, not the policy's own words
         summary["termination_detail"] = ""
-    raw = {**ep.trace, **{k: summary[k] for k in ("dataset", "split", "setting", "group", "boxes_total",
-                                                   "boxes_placed", "termination", "termination_detail", "metrics")},
-           "episode_id": str(ep.id), "policy": sub.name}  # fmt: skip
+    raw = {
+        **ep.trace,
+        **{
+            k: summary[k]
+            for k in (
+                "dataset",
+                "split",
+                "setting",
+                "group",
+                "boxes_total",
+                "boxes_placed",
+                "termination",
+                "termination_detail",
+                "metrics",
+            )
+        },
+        "episode_id": str(ep.id),
+        "policy": sub.name,
+    }
     try:
         payload = viewer_payload(raw)
     except TraceError as exc:
-        return render(request, "error.html", 500, title="Replay unavailable", nav="",
-                      message=f"This episode's trace cannot be drawn: {exc}")  # fmt: skip
+        return render(
+            request,
+            "error.html",
+            500,
+            title="Replay unavailable",
+            nav="",
+            message=f"This episode's trace cannot be drawn: {exc}",
+        )
     base = root(request)
     heading = f"{sub.name} · {ep.dataset} · {ep.setting} · group {ep.group}"
     if ep.protocol != "closed":  # the Math Pack actions replayed
@@ -261,8 +377,9 @@ def replay_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2*
     crumbs = [("Leaderboard", f"{base}/")]
     if owner or sub.participant.is_builtin:
         crumbs.append((f"Submission {sub.id}", f"{base}/submissions/{sub.id}"))
-    return render(request, "replay.html", title=heading, heading=heading, episodes=[payload], nav="",
-                  crumbs=crumbs)  # fmt: skip
+    return render(
+        request, "replay.html", title=heading, heading=heading, episodes=[payload], nav="", crumbs=crumbs
+    )
 
 
 @router.get("/reproduction", response_class=HTMLResponse)
@@ -274,9 +391,17 @@ async def reproduction_page(request: Request, track: Track = "private"):
     def build(session: Session) -> HTMLResponse:
         data = reproduction(session, track)
         titles = {**paper_tables().methods, **TITLES}
-        return render(request, "reproduction.html", title="Reproduction", nav="reproduction", track=track,
-                      data=data, tables=tables.reproduction_tables(data, titles), titles=titles,
-                      table_captions=paper_tables().tables)  # fmt: skip
+        return render(
+            request,
+            "reproduction.html",
+            title="Reproduction",
+            nav="reproduction",
+            track=track,
+            data=data,
+            tables=tables.reproduction_tables(data, titles),
+            titles=titles,
+            table_captions=paper_tables().tables,
+        )
 
     return await _shared(request, track, ("reproduction-page", root(request), track), build)
 
@@ -299,12 +424,31 @@ def _datasets_page(request: Request) -> HTMLResponse:
                 [(dim.capitalize(), summary["dims"][dim], colors[dim]) for dim in ds.DIMENSIONS], "cm"
             )
         cards.append({"spec": spec, "summary": summary, "plot": plot})
-    return render(request, "datasets.html", title="Datasets", nav="datasets", cards=cards,
-                  available=ds.data_available(), groups=ds.SAMPLE_GROUPS)  # fmt: skip
+    return render(
+        request,
+        "datasets.html",
+        title="Datasets",
+        nav="datasets",
+        cards=cards,
+        available=ds.data_available(),
+        groups=ds.SAMPLE_GROUPS,
+    )
 
 
 @router.get("/protocol", response_class=HTMLResponse)
 async def protocol_page(request: Request, settings: SettingsDep):
-    return await _static(request, ("protocol",), lambda: render(request, "protocol.html", title="Take part", nav="protocol", reasons=TERMINATION_REASONS,
-                  datasets=DATASETS, settings_offered=settings.enabled_settings,
-                  quota_day=settings.quota_submissions_per_day, quota_concurrent=settings.quota_concurrent))  # fmt: skip
+    return await _static(
+        request,
+        ("protocol",),
+        lambda: render(
+            request,
+            "protocol.html",
+            title="Take part",
+            nav="protocol",
+            reasons=TERMINATION_REASONS,
+            datasets=DATASETS,
+            settings_offered=settings.enabled_settings,
+            quota_day=settings.quota_submissions_per_day,
+            quota_concurrent=settings.quota_concurrent,
+        ),
+    )

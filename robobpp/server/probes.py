@@ -52,14 +52,21 @@ class ProbeGate:
         return self._pool, self._slots[1]
 
     def _busy(self, detail: str) -> ProblemError:
-        return ProblemError(429, "probe-busy", "Too many policy checks", detail,
-                            headers={"Retry-After": str(max(1, round(self.deadline_s)))})  # fmt: skip
+        return ProblemError(
+            429,
+            "probe-busy",
+            "Too many policy checks",
+            detail,
+            headers={"Retry-After": str(max(1, round(self.deadline_s)))},
+        )
 
     async def run(self, key: str, fn: Callable[[], T]) -> T:
         """Run ``fn`` (a blocking check that honours :attr:`deadline_s`) on the gate's own pool."""
         if self._in_flight[key] >= self.per_participant:
-            raise self._busy(f"at most {self.per_participant} policy check(s) at a time per participant; "
-                             "wait for the answer to the previous submission")  # fmt: skip
+            raise self._busy(
+                f"at most {self.per_participant} policy check(s) at a time per participant; "
+                "wait for the answer to the previous submission"
+            )
         self._in_flight[key] += 1
         pool, slots = self._resources()
         try:
@@ -72,8 +79,12 @@ class ProbeGate:
                 future = asyncio.get_running_loop().run_in_executor(pool, fn)
                 return await asyncio.wait_for(future, 2 * self.deadline_s + 1)
             except TimeoutError:
-                raise ProblemError(422, "policy-unreachable", "Policy unreachable",
-                                   f"the policy URL could not be checked within {2 * self.deadline_s + 1:g} s") from None  # fmt: skip
+                raise ProblemError(
+                    422,
+                    "policy-unreachable",
+                    "Policy unreachable",
+                    f"the policy URL could not be checked within {2 * self.deadline_s + 1:g} s",
+                ) from None
             finally:
                 slots.release()
         finally:

@@ -81,15 +81,22 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(ProblemError)
     async def _problem(request: Request, exc: ProblemError) -> JSONResponse:
-        return problem_response(request, exc.status, exc.kind, exc.title, exc.detail, headers=exc.headers or None,
-                                **exc.extra)  # fmt: skip
+        return problem_response(
+            request, exc.status, exc.kind, exc.title, exc.detail, headers=exc.headers or None, **exc.extra
+        )
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = _clean_errors(list(exc.errors()))
         if any(e["type"] == "json_invalid" for e in errors):
-            return problem_response(request, 400, "malformed-json", "Malformed JSON",
-                                    "the request body is not valid JSON", errors=errors)  # fmt: skip
+            return problem_response(
+                request,
+                400,
+                "malformed-json",
+                "Malformed JSON",
+                "the request body is not valid JSON",
+                errors=errors,
+            )
         summary = "; ".join(f"{'.'.join(e['loc'])}: {e['msg']}" for e in errors[:5])
         return problem_response(request, 422, "validation-error", "Invalid request", summary, errors=errors)
 
@@ -97,8 +104,9 @@ def install(app: FastAPI) -> None:
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         kind, title = _STATUS_KINDS.get(exc.status_code, ("error", "Error"))
         detail = exc.detail if isinstance(exc.detail, str) else title
-        return problem_response(request, exc.status_code, kind, title, detail,
-                                headers=getattr(exc, "headers", None))  # fmt: skip
+        return problem_response(
+            request, exc.status_code, kind, title, detail, headers=getattr(exc, "headers", None)
+        )
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:  # pragma: no cover - last resort

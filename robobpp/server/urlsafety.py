@@ -93,8 +93,11 @@ def check_policy_url(url: str, *, allow_private: bool) -> CheckedURL:
     for ip in addresses:  # every answer must be acceptable: a mixed answer is a rebinding trick
         problem = _address_problem(ip, allow_private)
         if problem:
-            raise UnsafeURLError("policy-url-forbidden", f"the policy host {host!r} resolves to {problem} ({ip}); "
-                                 "the service only calls public addresses")  # fmt: skip
+            raise UnsafeURLError(
+                "policy-url-forbidden",
+                f"the policy host {host!r} resolves to {problem} ({ip}); "
+                "the service only calls public addresses",
+            )
     if not addresses:
         raise UnsafeURLError("policy-unreachable", f"the policy host {host!r} has no address")
     return CheckedURL(url.rstrip("/"), host, port, str(addresses[0]))
@@ -112,8 +115,15 @@ def probe_policy(
     from robobpp.client.remote import RemotePolicy, SignatureMismatch
     from robobpp.policies.base import PolicyError
 
-    policy = RemotePolicy(checked.url, secret, step_timeout_s=timeout_s, connect_timeout_s=timeout_s,
-                          max_response_bytes=cap_bytes, resolved_ip=checked.pinned_ip, check_info=False)  # fmt: skip
+    policy = RemotePolicy(
+        checked.url,
+        secret,
+        step_timeout_s=timeout_s,
+        connect_timeout_s=timeout_s,
+        max_response_bytes=cap_bytes,
+        resolved_ip=checked.pinned_ip,
+        check_info=False,
+    )
     try:
         info = policy.fetch_info()
     except SignatureMismatch as exc:  # reached, and it answered: only the secrets disagree
@@ -132,13 +142,19 @@ def signature_advice(url: str, secret: str | None, exc: object) -> str:
     assert isinstance(exc, SignatureMismatch)
     check = f"`robobpp protocol check {url} --secret ...` tests a secret before submitting"
     if exc.refused and secret is None:
-        what = ("the policy server requires signed requests, and this submission has no secret: submit "
-                "with the secret the policy server was started with (--secret or ROBOBPP_POLICY_SECRET)")  # fmt: skip
+        what = (
+            "the policy server requires signed requests, and this submission has no secret: submit "
+            "with the secret the policy server was started with (--secret or ROBOBPP_POLICY_SECRET)"
+        )
     elif exc.refused:
-        what = ("the policy server refused this submission's signature: its secret is not the one the policy "
-                "server was started with; submit with that secret (--secret or ROBOBPP_POLICY_SECRET)")  # fmt: skip
+        what = (
+            "the policy server refused this submission's signature: its secret is not the one the policy "
+            "server was started with; submit with that secret (--secret or ROBOBPP_POLICY_SECRET)"
+        )
     else:
-        what = ("the policy server's answer is not signed with this submission's secret: start the policy "
-                "server with the same secret (robobpp policy serve --secret, serve(policy, secret=...)) or "
-                "submit without one")  # fmt: skip
+        what = (
+            "the policy server's answer is not signed with this submission's secret: start the policy "
+            "server with the same secret (robobpp policy serve --secret, serve(policy, secret=...)) or "
+            "submit without one"
+        )
     return f"GET {url}/info answered, but {what}; {check} ({exc.detail})"

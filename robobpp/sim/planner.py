@@ -138,8 +138,9 @@ class PlanningWorld:
                     p.resetBasePositionAndOrientation(body, list(centre), list(quat), physicsClientId=cid)
                     continue
                 p.removeBody(body, physicsClientId=cid)
-                self._obstacles[i] = p.createMultiBody(0, self._shape(tuple(half)), -1, list(centre), list(quat),
-                                                       physicsClientId=cid)  # fmt: skip
+                self._obstacles[i] = p.createMultiBody(
+                    0, self._shape(tuple(half)), -1, list(centre), list(quat), physicsClientId=cid
+                )
             else:
                 self._obstacles.append(
                     p.createMultiBody(
@@ -173,8 +174,9 @@ class PlanningWorld:
             p.resetJointState(self.robot, j, float(q[j]), physicsClientId=cid)
         if self.carried is not None:
             if tcp is None:
-                state = p.getLinkState(self.robot, LINK_NAMES.index("tcp"), computeForwardKinematics=True,
-                                       physicsClientId=cid)  # fmt: skip
+                state = p.getLinkState(
+                    self.robot, LINK_NAMES.index("tcp"), computeForwardKinematics=True, physicsClientId=cid
+                )
                 position = np.asarray(state[4])
                 rotation = np.asarray(p.getMatrixFromQuaternion(state[5])).reshape(3, 3)
             else:
@@ -216,8 +218,9 @@ class PlanningWorld:
                 if contact[8] < -self.config.box_tolerance_m:
                     suspects.add((self.carried, -1, contact[2], contact[4], self.config.box_tolerance_m))
         for body_a, link_a, body_b, link_b, tolerance in sorted(suspects):
-            fresh = p.getClosestPoints(body_a, body_b, 0.0, linkIndexA=link_a, linkIndexB=link_b,
-                                       physicsClientId=cid)  # fmt: skip
+            fresh = p.getClosestPoints(
+                body_a, body_b, 0.0, linkIndexA=link_a, linkIndexB=link_b, physicsClientId=cid
+            )
             if any(point[8] < -tolerance for point in fresh or ()):
                 return True
         return False

@@ -164,11 +164,20 @@ def boxplot_svg(rows: Sequence[tuple[str, FiveNumbers, str]], unit: str, width: 
         return round(left + plot_w * v / span, 2)
 
     glyphs = [
-        BoxGlyph(label, top + i * row_h + row_h / 2, x(f.low), x(f.q1), x(f.median), x(f.q3), x(f.high),
-                 f"{label}: median {f.median:g} {unit}, quartiles {f.q1:g}–{f.q3:g}, "
-                 f"5–95 % {f.low:g}–{f.high:g}, range {f.minimum:g}–{f.maximum:g}", color)
+        BoxGlyph(
+            label,
+            top + i * row_h + row_h / 2,
+            x(f.low),
+            x(f.q1),
+            x(f.median),
+            x(f.q3),
+            x(f.high),
+            f"{label}: median {f.median:g} {unit}, quartiles {f.q1:g}–{f.q3:g}, "
+            f"5–95 % {f.low:g}–{f.high:g}, range {f.minimum:g}–{f.maximum:g}",
+            color,
+        )
         for i, (label, f, color) in enumerate(rows)
-    ]  # fmt: skip
+    ]
     height = top + len(rows) * row_h + 30
     return {
         "width": width,

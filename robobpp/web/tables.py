@@ -36,10 +36,16 @@ class Column:
 
 def metric_columns(setting: str) -> list[Column]:
     cols = [
-        Column(m.key, m.label, m.better, m.unit,
-               f"{m.label}: {'higher' if m.better == 'up' else 'lower'} is better" + (f" ({m.unit})" if m.unit else ""))
+        Column(
+            m.key,
+            m.label,
+            m.better,
+            m.unit,
+            f"{m.label}: {'higher' if m.better == 'up' else 'lower'} is better"
+            + (f" ({m.unit})" if m.unit else ""),
+        )
         for m in metrics_for(setting)
-    ]  # fmt: skip
+    ]
     return cols
 
 
@@ -65,8 +71,13 @@ def pages(shown: Mapping[str, Any], page: int) -> dict[str, Any]:
     """Pagination of a board or grid view (``board_view``/``grid_view`` result) for the templates."""
     total, size = int(shown.get("total", 0)), int(shown.get("limit", PAGE_SIZE)) or PAGE_SIZE
     last = max(1, math.ceil(total / size))
-    return {"page": page, "last": last, "total": total, "prev": page - 1 if page > 1 else None,
-            "next": page + 1 if page < last else None}  # fmt: skip
+    return {
+        "page": page,
+        "last": last,
+        "total": total,
+        "prev": page - 1 if page > 1 else None,
+        "next": page + 1 if page < last else None,
+    }
 
 
 def span(low: Any, high: Any, digits: int = 3) -> str:
@@ -105,34 +116,56 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
         metrics = e.get("metrics") or {}
         extras = e.get("extras") or {}
         intervals = e.get("intervals") or {}
-        rows.append({
-            "rank": e.get("rank"),
-            "rank_text": rank_span(e.get("rank"), e.get("rank_low"), e.get("rank_high")),
-            "score": e.get("score"),
-            "score_ci": span(e.get("score_low"), e.get("score_high")),
-            "stable": e.get("stable"),
-            "stable_ci": span(e.get("stable_low"), e.get("stable_high")),
-            "score_place": score_places[i],
+        rows.append(
+            {
+                "rank": e.get("rank"),
+                "rank_text": rank_span(e.get("rank"), e.get("rank_low"), e.get("rank_high")),
+                "score": e.get("score"),
+                "score_ci": span(e.get("score_low"), e.get("score_high")),
+                "stable": e.get("stable"),
+                "stable_ci": span(e.get("stable_low"), e.get("stable_high")),
+                "score_place": score_places[i],
+                "submission_id": e.get("submission_id"),
+                "name": e.get("name", ""),
+                "participant": e.get("participant", ""),
+                "baseline": bool(e.get("baseline")),
+                "verification": e.get("verification"),
+                "entries_submitted": e.get("entries_submitted") or 1,
+                "best": bool(e.get("best")),
+                "cells": [
+                    {
+                        "key": c.key,
+                        "value": metrics.get(c.key),
+                        "place": places[c.key][i],
+                        "ci": metric_span(*(intervals.get(c.key) or (None, None)), c.key),
+                        "normalized": (e.get("normalized") or {}).get(c.key),
+                    }
+                    for c in columns
+                ],
+                "pph": extras.get("pph"),
+                "boxes_placed": extras.get("boxes_placed_mean"),
+                "episodes": extras.get("episodes"),
+            }
+        )
+    apart = [
+        {
             "submission_id": e.get("submission_id"),
             "name": e.get("name", ""),
             "participant": e.get("participant", ""),
             "baseline": bool(e.get("baseline")),
-            "verification": e.get("verification"),
-            "entries_submitted": e.get("entries_submitted") or 1,
-            "best": bool(e.get("best")),
-            "cells": [{"key": c.key, "value": metrics.get(c.key), "place": places[c.key][i],
-                       "ci": metric_span(*(intervals.get(c.key) or (None, None)), c.key),
-                       "normalized": (e.get("normalized") or {}).get(c.key)} for c in columns],
-            "pph": extras.get("pph"),
-            "boxes_placed": extras.get("boxes_placed_mean"),
-            "episodes": extras.get("episodes"),
-        })  # fmt: skip
-    apart = [{"submission_id": e.get("submission_id"), "name": e.get("name", ""), "participant": e.get("participant", ""),
-              "baseline": bool(e.get("baseline")), "status": e.get("status"), "reason": e.get("reason", ""),
-              "figures": [(e.get("metrics") or {}).get(c.key) for c in columns]}
-             for e in board.get("unranked", [])]  # fmt: skip
-    return {"columns": columns, "rows": rows, "has_pph": setting == "execution", "apart": apart,
-            "apart_total": board.get("unranked_total", len(apart))}  # fmt: skip
+            "status": e.get("status"),
+            "reason": e.get("reason", ""),
+            "figures": [(e.get("metrics") or {}).get(c.key) for c in columns],
+        }
+        for e in board.get("unranked", [])
+    ]
+    return {
+        "columns": columns,
+        "rows": rows,
+        "has_pph": setting == "execution",
+        "apart": apart,
+        "apart_total": board.get("unranked_total", len(apart)),
+    }
 
 
 def grid_table(grid: Mapping[str, Any]) -> dict[str, Any]:
@@ -150,29 +183,47 @@ def grid_table(grid: Mapping[str, Any]) -> dict[str, Any]:
         cells = []
         for k in keys:
             cell = (r.get("cells") or {}).get(k)
-            cells.append({"key": k, "score": cell.get("score") if cell else None,
-                          "rank": cell.get("rank") if cell else None,
-                          "ci": span(cell.get("score_low"), cell.get("score_high")) if cell else "",
-                          "rank_ci": rank_span(cell.get("rank"), cell.get("rank_low"), cell.get("rank_high")) if cell else "",
-                          "unranked": (r.get("unranked") or {}).get(k),
-                          "place": places[k][i] if i is not None else None})  # fmt: skip
+            cells.append(
+                {
+                    "key": k,
+                    "score": cell.get("score") if cell else None,
+                    "rank": cell.get("rank") if cell else None,
+                    "ci": span(cell.get("score_low"), cell.get("score_high")) if cell else "",
+                    "rank_ci": rank_span(cell.get("rank"), cell.get("rank_low"), cell.get("rank_high"))
+                    if cell
+                    else "",
+                    "unranked": (r.get("unranked") or {}).get(k),
+                    "place": places[k][i] if i is not None else None,
+                }
+            )
         return {
-            "submission_id": r.get("submission_id"), "name": r.get("name", ""),
-            "participant": r.get("participant", ""), "baseline": bool(r.get("baseline")), "cells": cells,
-            "mean": r.get("mean"), "mean_ci": span(r.get("mean_low"), r.get("mean_high")),
-            "stable": r.get("stable"), "stable_ci": span(r.get("stable_low"), r.get("stable_high")),
+            "submission_id": r.get("submission_id"),
+            "name": r.get("name", ""),
+            "participant": r.get("participant", ""),
+            "baseline": bool(r.get("baseline")),
+            "cells": cells,
+            "mean": r.get("mean"),
+            "mean_ci": span(r.get("mean_low"), r.get("mean_high")),
+            "stable": r.get("stable"),
+            "stable_ci": span(r.get("stable_low"), r.get("stable_high")),
             "rank_text": rank_span(r.get("rank"), r.get("rank_low"), r.get("rank_high")),
-            "status": r.get("status", "ranked"), "boards": r.get("boards", len([c for c in cells if c["score"] is not None])),
-        }  # fmt: skip
+            "status": r.get("status", "ranked"),
+            "boards": r.get("boards", len([c for c in cells if c["score"] is not None])),
+        }
 
-    return {"settings": settings, "datasets": datasets, "keys": keys,
-            "rows": [shaped(r, i) for i, r in enumerate(rows)],
-            "apart": [shaped(r, None) for r in grid.get("apart", [])],
-            "apart_total": grid.get("apart_total", 0)}  # fmt: skip
+    return {
+        "settings": settings,
+        "datasets": datasets,
+        "keys": keys,
+        "rows": [shaped(r, i) for i, r in enumerate(rows)],
+        "apart": [shaped(r, None) for r in grid.get("apart", [])],
+        "apart_total": grid.get("apart_total", 0),
+    }
 
 
-def radar_groups(runs: Sequence[Mapping[str, Any]], boards: Mapping[tuple[str, str], Mapping[str, Any]],
-                 submission_id: int) -> list[dict[str, Any]]:  # fmt: skip
+def radar_groups(
+    runs: Sequence[Mapping[str, Any]], boards: Mapping[tuple[str, str], Mapping[str, Any]], submission_id: int
+) -> list[dict[str, Any]]:
     """Normalised metrics (0..1, higher = better, as the board's scoring computed them), one radar per setting
     (settings measure different metrics), one series per dataset of that setting."""
     groups: dict[str, dict[str, Any]] = {}
@@ -182,14 +233,23 @@ def radar_groups(runs: Sequence[Mapping[str, Any]], boards: Mapping[tuple[str, s
         if entry is None:
             continue
         keys = [m.key for m in metrics_for(run["setting"])]
-        group = groups.setdefault(run["setting"], {"setting": run["setting"], "series": [], "single": True,
-                                                   "labels": [METRIC_BY_KEY[k].label for k in keys]})  # fmt: skip
+        group = groups.setdefault(
+            run["setting"],
+            {
+                "setting": run["setting"],
+                "series": [],
+                "single": True,
+                "labels": [METRIC_BY_KEY[k].label for k in keys],
+            },
+        )
         normalized = entry.get("normalized") or {}
         group["single"] = group["single"] and len(board.get("entries", [])) < 2
-        group["series"].append({
-            "label": f"{run['dataset']} (rank {entry.get('rank')} of {len(board.get('entries', []))})",
-            "values": [round(float(normalized.get(k, 0.0)), 4) for k in keys],
-        })  # fmt: skip
+        group["series"].append(
+            {
+                "label": f"{run['dataset']} (rank {entry.get('rank')} of {len(board.get('entries', []))})",
+                "values": [round(float(normalized.get(k, 0.0)), 4) for k in keys],
+            }
+        )
     return list(groups.values())
 
 
@@ -234,18 +294,33 @@ def reproduction_tables(data: Mapping[str, Any], titles: Mapping[str, str]) -> l
             row = []
             for d in datasets:
                 c = found.get((d, p))
-                row.append({"paper": c and c["paper"], "ours": c and c["ours"], "diff": c and c["diff"],
-                            "groups": groups.get((setting, d, p)), "table": c and c["table"]})  # fmt: skip
+                row.append(
+                    {
+                        "paper": c and c["paper"],
+                        "ours": c and c["ours"],
+                        "diff": c and c["diff"],
+                        "groups": groups.get((setting, d, p)),
+                        "table": c and c["table"],
+                    }
+                )
             rows.append({"policy": p, "title": titles.get(p, p), "cells": row})
         tables = [agreement.get((setting, d, metric)) or {} for d in datasets]
         metric_def = METRIC_BY_KEY.get(metric)
         counts = sorted({c["groups"] for r in rows for c in r["cells"] if c["groups"]})
-        out.append({
-            "setting": setting, "metric": metric, "label": metric_def.label if metric_def else metric.upper(),
-            "better": metric_def.better if metric_def else "up", "datasets": datasets, "rows": rows,
-            "spearman": [a.get("spearman") for a in tables], "mean_abs_diff": [a.get("mean_abs_diff") for a in tables],
-            "groups": _count_text(counts), "paper_groups": PAPER_GROUPS,
-            # a figure over a few groups is far noisier than the paper's: say so beside the table, not on hover
-            "few_groups": bool(counts) and counts[-1] * 3 <= PAPER_GROUPS,
-        })  # fmt: skip
+        out.append(
+            {
+                "setting": setting,
+                "metric": metric,
+                "label": metric_def.label if metric_def else metric.upper(),
+                "better": metric_def.better if metric_def else "up",
+                "datasets": datasets,
+                "rows": rows,
+                "spearman": [a.get("spearman") for a in tables],
+                "mean_abs_diff": [a.get("mean_abs_diff") for a in tables],
+                "groups": _count_text(counts),
+                "paper_groups": PAPER_GROUPS,
+                # a figure over a few groups is far noisier than the paper's: say so beside the table, not on hover
+                "few_groups": bool(counts) and counts[-1] * 3 <= PAPER_GROUPS,
+            }
+        )
     return out

@@ -123,11 +123,13 @@ def viewer_payload(episode: Any, *, where: str = "episode") -> dict[str, Any]:
     final = []
     for i, f in enumerate(final_raw):
         fm = _mapping(f, f"{where}.final[{i}]")
-        final.append({
-            "planned": _placement(fm.get("planned"), f"{where}.final[{i}].planned"),
-            "actual": _placement(fm.get("actual"), f"{where}.final[{i}].actual"),
-            "in_place": bool(fm.get("in_place", True)),
-        })  # fmt: skip
+        final.append(
+            {
+                "planned": _placement(fm.get("planned"), f"{where}.final[{i}].planned"),
+                "actual": _placement(fm.get("actual"), f"{where}.final[{i}].actual"),
+                "in_place": bool(fm.get("in_place", True)),
+            }
+        )
     metrics_raw = ep.get("metrics") or {}
     metrics = {
         str(k): (float(v) if isinstance(v, int | float) and math.isfinite(v) else None)
@@ -304,10 +306,15 @@ def _cell(raw: Any, where: str) -> dict[str, Any]:
     if min(tool) <= 0 or min(conveyor[3:]) <= 0:
         raise TraceError(f"{where}: tool and conveyor sizes must be positive")
     return {
-        "base": nums(c.get("base"), "base", 4), "floor_z": _num(c.get("floor_z"), f"{where}.floor_z"),
-        "joints": table, "tool": tool, "shapes": frames, "conveyor": conveyor,
-        "pick": nums(c.get("pick"), "pick", 3), "home": nums(c.get("home"), "home", 6),
-    }  # fmt: skip
+        "base": nums(c.get("base"), "base", 4),
+        "floor_z": _num(c.get("floor_z"), f"{where}.floor_z"),
+        "joints": table,
+        "tool": tool,
+        "shapes": frames,
+        "conveyor": conveyor,
+        "pick": nums(c.get("pick"), "pick", 3),
+        "home": nums(c.get("home"), "home", 6),
+    }
 
 
 def _placement(raw: Any, where: str) -> dict[str, Any]:
@@ -357,11 +364,19 @@ def _expand_compact_poses(steps: list[dict[str, Any]], where: str) -> None:
             norm = math.sqrt(sum(v * v for v in q))
             if norm < 1e-9:
                 raise TraceError(f"{where}.steps[{i}].extra.poses[{j}] has a zero quaternion")
-            out.append({
-                "x": pose[0] - length / 2, "y": pose[1] - width / 2, "z": pose[2] - height / 2,
-                "length": length, "width": width, "height": height, "orientation": box["orientation"],
-                "index": j, "quaternion": [v / norm for v in q],
-            })  # fmt: skip
+            out.append(
+                {
+                    "x": pose[0] - length / 2,
+                    "y": pose[1] - width / 2,
+                    "z": pose[2] - height / 2,
+                    "length": length,
+                    "width": width,
+                    "height": height,
+                    "orientation": box["orientation"],
+                    "index": j,
+                    "quaternion": [v / norm for v in q],
+                }
+            )
         step["poses"] = out
 
 
@@ -369,8 +384,11 @@ def _action(raw: Any, where: str) -> dict[str, float] | None:
     if raw is None:
         return None
     a = _mapping(raw, where)
-    return {"x": _num(a.get("x"), f"{where}.x"), "y": _num(a.get("y"), f"{where}.y"),
-            "orientation": _int_or_none(a.get("orientation")) or 0}  # fmt: skip
+    return {
+        "x": _num(a.get("x"), f"{where}.x"),
+        "y": _num(a.get("y"), f"{where}.y"),
+        "orientation": _int_or_none(a.get("orientation")) or 0,
+    }
 
 
 def _path(raw: Any, scale: float, where: str) -> list[list[float]]:

@@ -47,14 +47,30 @@ def render_standalone(episodes: list[dict[str, Any]], source: str = "trace") -> 
     )
 
 
-def render_replay_page(episodes: list[dict[str, Any]], *, heading: str, static: str = "/static",
-                       root: str = "", crumbs: list[tuple[str, str]] | None = None,
-                       show_nav: bool = True) -> str:  # fmt: skip
+def render_replay_page(
+    episodes: list[dict[str, Any]],
+    *,
+    heading: str,
+    static: str = "/static",
+    root: str = "",
+    crumbs: list[tuple[str, str]] | None = None,
+    show_nav: bool = True,
+) -> str:
     """The replay page with the site's layout (server, and ``robobpp view``'s local server)."""
-    return environment().get_template("replay.html").render(
-        title=heading, heading=heading, episodes=episodes, static=static, root=root,
-        crumbs=crumbs or [], show_nav=show_nav, nav="",
-    )  # fmt: skip
+    return (
+        environment()
+        .get_template("replay.html")
+        .render(
+            title=heading,
+            heading=heading,
+            episodes=episodes,
+            static=static,
+            root=root,
+            crumbs=crumbs or [],
+            show_nav=show_nav,
+            nav="",
+        )
+    )
 
 
 def view_app(episodes: list[dict[str, Any]], source: str) -> Any:

@@ -127,7 +127,17 @@ def app_from_settings(settings: Any) -> Celery:
 
 
 __all__ = [
-    "DEFAULT_QUEUE", "SUPPORTED_SCHEMES", "TASK_ID_PREFIX", "TASK_NAME", "BrokerURLError", "app_from_settings",
-    "celery_config", "check_broker_url", "make_celery", "options_of", "queue_of", "task_id",
+    "DEFAULT_QUEUE",
+    "SUPPORTED_SCHEMES",
+    "TASK_ID_PREFIX",
+    "TASK_NAME",
+    "BrokerURLError",
+    "app_from_settings",
+    "celery_config",
+    "check_broker_url",
+    "make_celery",
+    "options_of",
+    "queue_of",
+    "task_id",
     "visibility_timeout_s",
-]  # fmt: skip
+]

@@ -57,7 +57,7 @@ def requeue_expired(
                 EpisodeRow.status == "running",
                 EpisodeRow.lease_expires_at < now,
                 EpisodeRow.attempts < max_attempts,
-            )  # fmt: skip
+            )
             .values(status="pending", lease_token=None, lease_expires_at=None, enqueued_at=now)
             .returning(EpisodeRow.id)
             .execution_options(synchronize_session=False)
@@ -239,8 +239,12 @@ def resend_lost(factory: sessionmaker[Session], app: Celery) -> list[int]:
         ids = work.take_unsent(s, stale_after_s=timeout)
         enqueue(app, ids)
     if ids:
-        log.warning("re-sent %d episode(s) whose message was neither queued nor claimed after %.0f s: %s",
-                    len(ids), timeout, ids[:20])  # fmt: skip
+        log.warning(
+            "re-sent %d episode(s) whose message was neither queued nor claimed after %.0f s: %s",
+            len(ids),
+            timeout,
+            ids[:20],
+        )
     return ids
 
 

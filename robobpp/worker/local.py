@@ -73,8 +73,9 @@ class LocalExecutor:
         self._outages = OutageLog(log, "local worker supervisor")
 
     def _spawn(self) -> BaseProcess:
-        proc = self._ctx.Process(target=worker_main, args=(self.options, self._stop), name="robobpp-worker",
-                                 daemon=True)  # fmt: skip
+        proc = self._ctx.Process(
+            target=worker_main, args=(self.options, self._stop), name="robobpp-worker", daemon=True
+        )
         proc.start()
         return proc
 

@@ -31,11 +31,18 @@ class WorkerOptions:
 def worker_options(settings: Any) -> WorkerOptions:
     """The options of a :class:`robobpp.server.config.Settings` (duck-typed: no import of the server)."""
     return WorkerOptions(
-        database_url=settings.sqlalchemy_url, groups=settings.groups, private_dir=settings.private_dir,
-        spec_provider=settings.spec_provider, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
-        poll_interval_s=settings.poll_interval_s, step_timeout_s=settings.step_timeout_s,
-        episode_timeout_s=settings.episode_timeout_s, response_cap_bytes=settings.response_cap_bytes,
-        pull_relay_url=settings.pull_relay_url, pull_wait_s=settings.pull_wait_s,
+        database_url=settings.sqlalchemy_url,
+        groups=settings.groups,
+        private_dir=settings.private_dir,
+        spec_provider=settings.spec_provider,
+        lease_s=settings.lease_s,
+        max_attempts=settings.max_attempts,
+        poll_interval_s=settings.poll_interval_s,
+        step_timeout_s=settings.step_timeout_s,
+        episode_timeout_s=settings.episode_timeout_s,
+        response_cap_bytes=settings.response_cap_bytes,
+        pull_relay_url=settings.pull_relay_url,
+        pull_wait_s=settings.pull_wait_s,
         pull_reconnect_s=settings.pull_reconnect_s,
         max_running_per_participant=settings.participant_max_running,
-    )  # fmt: skip
+    )

@@ -66,13 +66,15 @@ class OutageLog:
             self.log.debug("%s: %s still unreachable (%s)", self.what, dependency, _short(exc))
             return
         self.down_since[dependency] = time.monotonic()
-        self.log.error("%s: %s unreachable (%s); retrying quietly until it answers", self.what, dependency,
-                       _short(exc))  # fmt: skip
+        self.log.error(
+            "%s: %s unreachable (%s); retrying quietly until it answers", self.what, dependency, _short(exc)
+        )
 
     def ok(self, *dependencies: str) -> None:
         """A round succeeded using ``dependencies`` (``database``, ``broker``): those answer again."""
         for dependency in dependencies:
             since = self.down_since.pop(dependency, None)
             if since is not None:
-                self.log.warning("%s: %s reachable again after %.1f s", self.what, dependency,
-                                 time.monotonic() - since)  # fmt: skip
+                self.log.warning(
+                    "%s: %s reachable again after %.1f s", self.what, dependency, time.monotonic() - since
+                )

@@ -89,11 +89,16 @@ class PullTransport:
         wait_s = max(0.0, wait_s)
         try:
             ws = connect(
-                f"{self.url}?wait={wait_s:g}", additional_headers={"X-Robobpp-Lease": self.lease_token},
-                open_timeout=self.connect_timeout_s, max_size=self.max_frame_bytes, compression=None,
-                proxy=None, ping_interval=None, user_agent_header="robobpp-worker",
+                f"{self.url}?wait={wait_s:g}",
+                additional_headers={"X-Robobpp-Lease": self.lease_token},
+                open_timeout=self.connect_timeout_s,
+                max_size=self.max_frame_bytes,
+                compression=None,
+                proxy=None,
+                ping_interval=None,
+                user_agent_header="robobpp-worker",
                 **self._tls(),
-            )  # fmt: skip
+            )
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
             raise wire.ConnectFailed(f"cannot reach the pull relay at {self.url}: {exc}") from None
         with contextlib.suppress(OSError):  # already closed by the relay: recv below says why

@@ -56,9 +56,14 @@ def make_policy(claim: Claim, settings: WorkerOptions) -> Any:
 
         if not settings.pull_relay_url:
             raise RuntimeError("a pull episode needs ROBOBPP_PULL_RELAY_URL (the server's URL) on the worker")
-        transport = PullTransport(settings.pull_relay_url, claim.episode_id, claim.token,
-                                  wait_s=settings.pull_wait_s, reconnect_s=settings.pull_reconnect_s,
-                                  max_frame_bytes=settings.response_cap_bytes + MAX_ENVELOPE)  # fmt: skip
+        transport = PullTransport(
+            settings.pull_relay_url,
+            claim.episode_id,
+            claim.token,
+            wait_s=settings.pull_wait_s,
+            reconnect_s=settings.pull_reconnect_s,
+            max_frame_bytes=settings.response_cap_bytes + MAX_ENVELOPE,
+        )
         url = settings.pull_relay_url  # names the policy only: every byte goes through the transport
     policy = RemotePolicy(
         url,
@@ -100,8 +105,9 @@ class _Lease(threading.Thread):
         while not self.done.wait(interval):
             try:
                 with self.factory() as s, s.begin():
-                    ok = work.heartbeat(s, self.claim.episode_id, self.claim.token, lease_s=self.lease_s,
-                                        step=self.step)  # fmt: skip
+                    ok = work.heartbeat(
+                        s, self.claim.episode_id, self.claim.token, lease_s=self.lease_s, step=self.step
+                    )
             except Exception as exc:  # noqa: BLE001 - a blip of the database: try again next interval
                 outages.failed(exc, "renewal")
                 continue
@@ -127,8 +133,14 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
     if claim.protocol == "paper":
         return replay_claimed(factory, claim, settings)
     try:
-        spec = episode_spec(claim.dataset, claim.split, claim.group, groups=settings.groups,
-                            private_dir=settings.private_dir, provider=settings.spec_provider)  # fmt: skip
+        spec = episode_spec(
+            claim.dataset,
+            claim.split,
+            claim.group,
+            groups=settings.groups,
+            private_dir=settings.private_dir,
+            provider=settings.spec_provider,
+        )
         if not claim.policy_url.startswith("builtin:"):
             # The id a participant's policy sees names neither split nor group, and differs per episode and
             # attempt: it must not learn which test group it is playing (docs/server.md, threat model). The
@@ -138,8 +150,13 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
         policy = make_policy(claim, settings)
     except Exception as exc:  # noqa: BLE001 - an evaluation problem, not the policy's: retry, then fail
         with factory() as s, s.begin():
-            work.release_episode(s, claim.episode_id, claim.token, f"{type(exc).__name__}: {exc}",
-                                 max_attempts=settings.max_attempts)  # fmt: skip
+            work.release_episode(
+                s,
+                claim.episode_id,
+                claim.token,
+                f"{type(exc).__name__}: {exc}",
+                max_attempts=settings.max_attempts,
+            )
         log.error("episode %s could not start: %s", claim.episode_id, exc)
         return False
     lease = _Lease(factory, claim, settings.lease_s)
@@ -150,8 +167,9 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
         lease.done.set()
         lease.join(timeout=5)
         with factory() as s, s.begin():
-            work.release_episode(s, claim.episode_id, claim.token, f"pull mode: {exc}",
-                                 max_attempts=settings.max_attempts)  # fmt: skip
+            work.release_episode(
+                s, claim.episode_id, claim.token, f"pull mode: {exc}", max_attempts=settings.max_attempts
+            )
         log.info("episode %s: %s", claim.episode_id, exc)
         return False
 
@@ -161,8 +179,14 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
             raise ClaimLost
 
     try:
-        result = run_episode(spec, policy, claim.setting, lookahead=claim.lookahead,
-                             time_budget_s=settings.episode_timeout_s, on_step=on_step)  # fmt: skip
+        result = run_episode(
+            spec,
+            policy,
+            claim.setting,
+            lookahead=claim.lookahead,
+            time_budget_s=settings.episode_timeout_s,
+            on_step=on_step,
+        )
     except ClaimLost:
         log.info("episode %s: claim lost (cancelled or taken over); result dropped", claim.episode_id)
         return False
@@ -182,8 +206,14 @@ def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: Worke
     lease as any episode, so a crash hands it to the next worker and a late result is dropped."""
     lease = _Lease(factory, claim, settings.lease_s)
     try:
-        spec = episode_spec(claim.dataset, claim.split, claim.group, groups=settings.groups,
-                            private_dir=settings.private_dir, provider=settings.spec_provider)  # fmt: skip
+        spec = episode_spec(
+            claim.dataset,
+            claim.split,
+            claim.group,
+            groups=settings.groups,
+            private_dir=settings.private_dir,
+            provider=settings.spec_provider,
+        )
         with factory() as s:
             plan = work.episode_plan(s, claim.episode_id)
         if plan is None:
@@ -202,28 +232,46 @@ def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: Worke
         log.info("episode %s: claim lost (cancelled or taken over); result dropped", claim.episode_id)
         return False
     with factory() as s, s.begin():
-        return work.complete_episode(s, claim.episode_id, claim.token, result.to_dict(),
-                                     keep_trace=claim.keep_trace)  # fmt: skip
+        return work.complete_episode(
+            s, claim.episode_id, claim.token, result.to_dict(), keep_trace=claim.keep_trace
+        )
 
 
 def math_result_of(plan: dict[str, Any], spec: EpisodeSpec) -> EpisodeResult:
     """The Math Pack episode a plan was taken from, as the replay reads it (actions, timings, ending)."""
-    steps = [StepRecord(**{k: v for k, v in step.items() if v is not None or k == "action"})
-             for step in plan["steps"]]  # fmt: skip
+    steps = [
+        StepRecord(**{k: v for k, v in step.items() if v is not None or k == "action"})
+        for step in plan["steps"]
+    ]
     return EpisodeResult(
-        episode_id=spec.episode_id, dataset=spec.dataset, split=spec.split, group=spec.group, setting="math",
-        policy=plan.get("policy") or "", seed=int(plan.get("seed") or spec.seed), boxes_total=len(spec.boxes),
-        boxes_placed=int(plan.get("boxes_placed") or 0), termination=plan.get("termination") or "",
-        termination_detail=plan.get("termination_detail") or "", metrics={}, counters={},
-        container={}, steps=steps,
-    )  # fmt: skip
+        episode_id=spec.episode_id,
+        dataset=spec.dataset,
+        split=spec.split,
+        group=spec.group,
+        setting="math",
+        policy=plan.get("policy") or "",
+        seed=int(plan.get("seed") or spec.seed),
+        boxes_total=len(spec.boxes),
+        boxes_placed=int(plan.get("boxes_placed") or 0),
+        termination=plan.get("termination") or "",
+        termination_detail=plan.get("termination_detail") or "",
+        metrics={},
+        counters={},
+        container={},
+        steps=steps,
+    )
 
 
 def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worker: str) -> bool | None:
     """Claim the next episode and run it. ``None`` when there was nothing to do."""
     with factory() as s, s.begin():
-        claim = work.claim_episode(s, worker, lease_s=settings.lease_s, max_attempts=settings.max_attempts,
-                                   max_running_per_participant=settings.max_running_per_participant)  # fmt: skip
+        claim = work.claim_episode(
+            s,
+            worker,
+            lease_s=settings.lease_s,
+            max_attempts=settings.max_attempts,
+            max_running_per_participant=settings.max_running_per_participant,
+        )
     if claim is None:
         return None
     return run_claimed(factory, claim, settings)

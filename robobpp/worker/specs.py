@@ -94,6 +94,8 @@ def offline_spec(dataset: str, split: str, group: int, groups: int) -> EpisodeSp
     rng = np.random.default_rng(seed)
     c = ds.container
     dims = rng.uniform(0.15, 0.45, size=(OFFLINE_BOXES, 3)) * np.array([c.length, c.width, c.height * 0.5])
-    boxes = tuple(Box(float(round(a)), float(round(b)), float(round(h)), float(round(rng.uniform(1, 8), 2)))
-                  for a, b, h in dims)  # fmt: skip
+    boxes = tuple(
+        Box(float(round(a)), float(round(b)), float(round(h)), float(round(rng.uniform(1, 8), 2)))
+        for a, b, h in dims
+    )
     return EpisodeSpec(dataset, label, group, boxes, c, ds.collapse_threshold_cm, seed)

@@ -67,8 +67,9 @@ def enqueue(app: Celery, episode_ids: list[int], *, countdown: float | None = No
     """Send one message per episode, its task id derived from the episode id. Returns how many were sent."""
     queue = queue_of(app)
     for episode_id in episode_ids:
-        app.send_task(TASK_NAME, args=[int(episode_id)], task_id=task_id(episode_id), queue=queue,
-                      countdown=countdown)  # fmt: skip
+        app.send_task(
+            TASK_NAME, args=[int(episode_id)], task_id=task_id(episode_id), queue=queue, countdown=countdown
+        )
     return len(episode_ids)
 
 
@@ -78,23 +79,41 @@ def execute(app: Celery, episode_id: int, worker: str | None = None) -> str:
     factory = session_factory(options.database_url)
     me = worker or worker_id("celery")
     with factory() as s, s.begin():
-        claim = work.claim_episode(s, me, lease_s=options.lease_s, max_attempts=options.max_attempts,
-                                   episode_id=episode_id,
-                                   max_running_per_participant=options.max_running_per_participant)  # fmt: skip
+        claim = work.claim_episode(
+            s,
+            me,
+            lease_s=options.lease_s,
+            max_attempts=options.max_attempts,
+            episode_id=episode_id,
+            max_running_per_participant=options.max_running_per_participant,
+        )
         if claim is None:
             # Still pending means its participant already has its share of episodes running: send it again
             # later (this message is acknowledged). Otherwise it is done, cancelled, failed, unknown, or
             # leased by a live worker; the sweeper re-sends it if that lease ever expires.
-            s.execute(update(EpisodeRow).where(EpisodeRow.id == episode_id, EpisodeRow.status == "pending")
-                      .values(enqueued_at=None))  # fmt: skip
+            s.execute(
+                update(EpisodeRow)
+                .where(EpisodeRow.id == episode_id, EpisodeRow.status == "pending")
+                .values(enqueued_at=None)
+            )
             later = work.take_unsent(s, stale_after_s=0, ids=[episode_id])
             enqueue(app, later, countdown=RETRY_DELAY_S)
     if claim is None:
-        log.info("episode %s: nothing to do here (%s)", episode_id,
-                 "its participant is at its limit; sent again later" if later else "finished or held by another worker")  # fmt: skip
+        log.info(
+            "episode %s: nothing to do here (%s)",
+            episode_id,
+            "its participant is at its limit; sent again later"
+            if later
+            else "finished or held by another worker",
+        )
         return "skipped"
-    log.info("episode %s: attempt %s on %s (message for episode %s)", claim.episode_id, claim.attempt, me,
-             episode_id)  # fmt: skip
+    log.info(
+        "episode %s: attempt %s on %s (message for episode %s)",
+        claim.episode_id,
+        claim.attempt,
+        me,
+        episode_id,
+    )
     if run_claimed(factory, claim, options):
         return "recorded"
     with factory() as s, s.begin():  # handed back for another attempt: it needs a new message, sent once

@@ -97,8 +97,14 @@ def _drop_queue(url: str, queue: str) -> None:
             conn.default_channel.exchange_delete(queue)
         if url.startswith("redis"):
             client = conn.default_channel.client
-            client.delete(queue, f"unacked:{queue}", f"unacked_index:{queue}", f"unacked_mutex:{queue}",
-                          f"_kombu.binding.{queue}", f"_kombu.binding_permanent.{queue}")  # fmt: skip
+            client.delete(
+                queue,
+                f"unacked:{queue}",
+                f"unacked_index:{queue}",
+                f"unacked_mutex:{queue}",
+                f"_kombu.binding.{queue}",
+                f"_kombu.binding_permanent.{queue}",
+            )
 
 
 class Fleet:
@@ -128,10 +134,21 @@ class Fleet:
         for i in range(n):
             log = open(self.tmp / f"worker-{len(self.procs)}.log", "wb")  # noqa: SIM115 - closed with the process
             hostname = f"w{len(self.procs)}-{uuid.uuid4().hex[:6]}@test"
-            cmd = [sys.executable, "-c", "from robobpp.cli import main; main()", "worker", "--concurrency", str(concurrency),
-                   "--loglevel", "info", "--hostname", hostname]  # fmt: skip
-            proc = subprocess.Popen(cmd, env=self.env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                                    start_new_session=True)  # fmt: skip
+            cmd = [
+                sys.executable,
+                "-c",
+                "from robobpp.cli import main; main()",
+                "worker",
+                "--concurrency",
+                str(concurrency),
+                "--loglevel",
+                "info",
+                "--hostname",
+                hostname,
+            ]
+            proc = subprocess.Popen(
+                cmd, env=self.env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+            )
             self.procs.append(proc)
             self.hostnames[proc.pid] = hostname
             new.append(proc)
@@ -195,8 +212,16 @@ def new_submission(factory: Any, *, policy: str, datasets: list[str], groups: in
             participant = Participant(name=name)
             s.add(participant)
             s.flush()
-        sub = work.create_submission(s, participant, name=name, policy_url=f"builtin:{policy}",
-                                     datasets=datasets, settings=["math"], groups=groups, track="public")  # fmt: skip
+        sub = work.create_submission(
+            s,
+            participant,
+            name=name,
+            policy_url=f"builtin:{policy}",
+            datasets=datasets,
+            settings=["math"],
+            groups=groups,
+            track="public",
+        )
         return sub.id
 
 
@@ -223,8 +248,11 @@ def wait_for(predicate: Callable[[], Any], timeout: float, what: str, logs: Call
 
 def episodes(factory: Any, submission_id: int) -> list[EpisodeRow]:
     with factory() as s:
-        return list(s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == submission_id)
-                              .order_by(EpisodeRow.id)).scalars())  # fmt: skip
+        return list(
+            s.execute(
+                select(EpisodeRow).where(EpisodeRow.submission_id == submission_id).order_by(EpisodeRow.id)
+            ).scalars()
+        )
 
 
 def episode_states(factory: Any, submission_id: int | None = None) -> str:

@@ -20,8 +20,9 @@ BOXES_PER_EPISODE = 16
 def spec(dataset: str, split: str, group: int, groups: int) -> EpisodeSpec:
     """Group ``group`` of a small synthetic set in ``dataset``'s container (deterministic)."""
     get_dataset(dataset)  # unknown names fail like the real provider
-    return synthetic_episode_specs(group + 1, seed=11, container=dataset, group_size=BOXES_PER_EPISODE,
-                                   dataset=dataset, split=split)[group]  # fmt: skip
+    return synthetic_episode_specs(
+        group + 1, seed=11, container=dataset, group_size=BOXES_PER_EPISODE, dataset=dataset, split=split
+    )[group]
 
 
 class PacedDBL(DBL):

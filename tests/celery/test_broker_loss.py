@@ -68,31 +68,49 @@ def test_episodes_recorded_once_after_the_broker_loses_its_queue(
 
     engine = make_engine(own_pg_url)
     factory = make_session_factory(engine)
-    options = WorkerOptions(database_url=own_pg_url, groups=4, lease_s=LEASE_S,
-                            spec_provider=fleet.env["ROBOBPP_SPEC_PROVIDER"], poll_interval_s=0.3)  # fmt: skip
+    options = WorkerOptions(
+        database_url=own_pg_url,
+        groups=4,
+        lease_s=LEASE_S,
+        spec_provider=fleet.env["ROBOBPP_SPEC_PROVIDER"],
+        poll_interval_s=0.3,
+    )
     app = make_celery(fleet.env["ROBOBPP_BROKER_URL"], options, queue=queue)
     caplog.set_level(logging.DEBUG, logger="robobpp.worker.celery")
     executor = CeleryExecutor(app, ping_every_s=10_000)
     try:
         fleet.start(2)
         wait_for(lambda: fleet.answering(app) >= 2, 90, "2 workers to answer", fleet.logs)
-        sub = new_submission(factory, policy="tests.celery.helpers:SlowDBL", datasets=["repetitive", "diverse"],
-                             groups=4, name=f"loss-{queue}")  # fmt: skip
+        sub = new_submission(
+            factory,
+            policy="tests.celery.helpers:SlowDBL",
+            datasets=["repetitive", "diverse"],
+            groups=4,
+            name=f"loss-{queue}",
+        )
         executor.start()
 
         def states() -> list[str]:
             return [e.status for e in episodes(factory, sub)]
 
-        wait_for(lambda: "done" in states() and "pending" in states(), 120, "mid-evaluation",
-                 lambda: fleet.logs() + episode_states(factory, sub))  # fmt: skip
+        wait_for(
+            lambda: "done" in states() and "pending" in states(),
+            120,
+            "mid-evaluation",
+            lambda: fleet.logs() + episode_states(factory, sub),
+        )
         relay.down()
         _queue_gone(url, queue)
         time.sleep(OUTAGE_S)
         assert "pending" in states(), "the outage must leave episodes whose message the broker lost"
         relay.up()
         back = time.monotonic()
-        wait_for(lambda: set(states()) == {"done"}, RECOVERY_S, "every episode after the broker's return",
-                 lambda: fleet.logs() + episode_states(factory, sub))  # fmt: skip
+        wait_for(
+            lambda: set(states()) == {"done"},
+            RECOVERY_S,
+            "every episode after the broker's return",
+            lambda: fleet.logs() + episode_states(factory, sub),
+        )
         took = time.monotonic() - back
         print(
             f"every episode recorded {took:.1f} s after the broker's return"

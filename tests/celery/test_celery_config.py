@@ -144,8 +144,14 @@ def test_the_last_allowed_attempt_is_recorded_failed_not_resent(
     with factory() as s:
         episode_id = s.execute(select(EpisodeRow.id).where(EpisodeRow.submission_id == sub)).scalar_one()
     with factory() as s, s.begin():
-        assert work.claim_episode(s, "celery:dead:2", lease_s=1, max_attempts=1, episode_id=episode_id,
-                                  now=utcnow() - timedelta(hours=1))  # fmt: skip
+        assert work.claim_episode(
+            s,
+            "celery:dead:2",
+            lease_s=1,
+            max_attempts=1,
+            episode_id=episode_id,
+            now=utcnow() - timedelta(hours=1),
+        )
     with factory() as s, s.begin():
         assert requeue_expired(s, app, 1) == []
     with factory() as s:

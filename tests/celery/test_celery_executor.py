@@ -33,8 +33,13 @@ GEOMETRY = ("space_utilization", "occupancy")  # wall clock never decides these
 
 def _app(fleet: Fleet) -> Any:
     env = fleet.env
-    options = WorkerOptions(database_url=env["ROBOBPP_DATABASE_URL"], groups=4, lease_s=LEASE_S,
-                            spec_provider=env["ROBOBPP_SPEC_PROVIDER"], poll_interval_s=0.3)  # fmt: skip
+    options = WorkerOptions(
+        database_url=env["ROBOBPP_DATABASE_URL"],
+        groups=4,
+        lease_s=LEASE_S,
+        spec_provider=env["ROBOBPP_SPEC_PROVIDER"],
+        poll_interval_s=0.3,
+    )
     return make_celery(env["ROBOBPP_BROKER_URL"], options, queue=env["ROBOBPP_CELERY_QUEUE"])
 
 
@@ -54,8 +59,13 @@ def _expected(dataset: str, group: int, policy: str) -> dict[str, Any]:
 
 
 def test_two_workers_drain_a_submission(fleet: Fleet, factory: Any) -> None:
-    sub = new_submission(factory, policy="tests.celery.helpers:PacedDBL", datasets=["repetitive", "diverse"],
-                         groups=3, name=f"drain-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    sub = new_submission(
+        factory,
+        policy="tests.celery.helpers:PacedDBL",
+        datasets=["repetitive", "diverse"],
+        groups=3,
+        name=f"drain-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+    )
     _app_, executor = _start(fleet, 2)
     try:
         wait_for(lambda: submission_status(factory, sub) == "completed", 120, "the submission", fleet.logs)
@@ -75,8 +85,13 @@ def test_two_workers_drain_a_submission(fleet: Fleet, factory: Any) -> None:
 
 
 def test_kill_9_mid_episode_completes_once_on_the_other_worker(fleet: Fleet, factory: Any) -> None:
-    sub = new_submission(factory, policy="tests.celery.helpers:SlowDBL", datasets=["repetitive"], groups=1,
-                         name=f"kill-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    sub = new_submission(
+        factory,
+        policy="tests.celery.helpers:SlowDBL",
+        datasets=["repetitive"],
+        groups=1,
+        name=f"kill-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+    )
     app, executor = _start(fleet, 2)
     try:
 
@@ -91,8 +106,12 @@ def test_kill_9_mid_episode_completes_once_on_the_other_worker(fleet: Fleet, fac
         victim_group = os.getpgid(victim_pid)
         victim = next(p for p in fleet.procs if p.pid == victim_group)
         fleet.kill(victim)  # kill -9 of the whole worker: main process and its pool child
-        wait_for(lambda: submission_status(factory, sub) == "completed", 120, "the retried episode",
-                 lambda: f"{episode_states(factory, sub)}\n{fleet.logs()}")  # fmt: skip
+        wait_for(
+            lambda: submission_status(factory, sub) == "completed",
+            120,
+            "the retried episode",
+            lambda: f"{episode_states(factory, sub)}\n{fleet.logs()}",
+        )
         (done,) = episodes(factory, sub)
         seen = (done.status, done.attempts, done.worker, row.worker)
         assert done.status == "done", f"{seen}\n{fleet.logs()}"
@@ -113,7 +132,11 @@ def test_kill_9_mid_episode_completes_once_on_the_other_worker(fleet: Fleet, fac
         assert execute(app, done.id, worker="celery:redelivery:1") == "skipped"
         (again,) = episodes(factory, sub)
         assert (again.finished_at, again.attempts, again.worker, again.metrics) == (
-            done.finished_at, done.attempts, done.worker, done.metrics)  # fmt: skip
+            done.finished_at,
+            done.attempts,
+            done.worker,
+            done.metrics,
+        )
     finally:
         executor.stop()
 
@@ -126,8 +149,10 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
 
     policies = ("tests.celery.helpers:PacedDBL", "random")
     tag = fleet.env["ROBOBPP_CELERY_QUEUE"]
-    celery_subs = [new_submission(factory, policy=p, datasets=["repetitive"], groups=3, name=f"{tag}-{i}")
-                   for i, p in enumerate(policies)]  # fmt: skip
+    celery_subs = [
+        new_submission(factory, policy=p, datasets=["repetitive"], groups=3, name=f"{tag}-{i}")
+        for i, p in enumerate(policies)
+    ]
     _app_, executor = _start(fleet, 2)
     try:
         for sub in celery_subs:
@@ -140,10 +165,20 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
     local_url = f"sqlite:///{tmp_path / 'local.sqlite3'}"
     upgrade(local_url)
     local = make_session_factory(make_engine(local_url))
-    local_subs = [new_submission(local, policy=p, datasets=["repetitive"], groups=3, name=f"{tag}-{i}")
-                  for i, p in enumerate(policies)]  # fmt: skip
-    pool = LocalExecutor(WorkerOptions(database_url=local_url, groups=4, lease_s=LEASE_S, poll_interval_s=0.2,
-                                       spec_provider="tests.celery.helpers:spec"), 2)  # fmt: skip
+    local_subs = [
+        new_submission(local, policy=p, datasets=["repetitive"], groups=3, name=f"{tag}-{i}")
+        for i, p in enumerate(policies)
+    ]
+    pool = LocalExecutor(
+        WorkerOptions(
+            database_url=local_url,
+            groups=4,
+            lease_s=LEASE_S,
+            poll_interval_s=0.2,
+            spec_provider="tests.celery.helpers:spec",
+        ),
+        2,
+    )
     pool.start()
     try:
         for sub in local_subs:
@@ -156,8 +191,10 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
             entries = queries.leaderboard(s, "repetitive", "math", track="public")["entries"]
         mine = [e for e in entries if e["submission_id"] in subs]
         assert len(mine) == len(subs)
-        return [(e["name"], {k: v for k, v in e["metrics"].items() if k != "decision_time"}, e["extras"])
-                for e in mine]  # fmt: skip
+        return [
+            (e["name"], {k: v for k, v in e["metrics"].items() if k != "decision_time"}, e["extras"])
+            for e in mine
+        ]
 
     assert board(factory, celery_subs) == board(local, local_subs)
 
@@ -188,25 +225,40 @@ def _serve_and_check(fleet: Fleet, own: Any, tmp_path: Path) -> None:
 
     env = fleet.env
     settings = Settings(
-        database_url=env["ROBOBPP_DATABASE_URL"], broker_url=env["ROBOBPP_BROKER_URL"],
-        celery_queue=env["ROBOBPP_CELERY_QUEUE"], spec_provider=env["ROBOBPP_SPEC_PROVIDER"],
-        state_dir=tmp_path / "server", datasets=("repetitive",), settings=("math",), groups=2,
-        baselines=("dbl",), lease_s=LEASE_S, poll_interval_s=0.3, admin_token="a-strong-admin-token-0123",
-    )  # fmt: skip
+        database_url=env["ROBOBPP_DATABASE_URL"],
+        broker_url=env["ROBOBPP_BROKER_URL"],
+        celery_queue=env["ROBOBPP_CELERY_QUEUE"],
+        spec_provider=env["ROBOBPP_SPEC_PROVIDER"],
+        state_dir=tmp_path / "server",
+        datasets=("repetitive",),
+        settings=("math",),
+        groups=2,
+        baselines=("dbl",),
+        lease_s=LEASE_S,
+        poll_interval_s=0.3,
+        admin_token="a-strong-admin-token-0123",
+    )
     fleet.start(2)
     with TestClient(create_app(settings)) as client:
         assert isinstance(client.app.state.runtime.executor, Dispatcher)  # type: ignore[attr-defined]
         auth = {"Authorization": "Bearer a-strong-admin-token-0123"}
-        made = client.post("/api/v1/submissions", headers=auth, json={
-            "name": "random-run", "policy_url": "builtin:random", "track": "public"})  # fmt: skip
+        made = client.post(
+            "/api/v1/submissions",
+            headers=auth,
+            json={"name": "random-run", "policy_url": "builtin:random", "track": "public"},
+        )
         assert made.status_code == 201, made.text
 
         def finished() -> bool:  # the baselines queued at start and the API's submission: all it holds
             subs = client.get("/api/v1/submissions", headers=auth).json()
             return len(subs) >= 2 and all(s["status"] == "completed" for s in subs)
 
-        wait_for(finished, 120, "baseline and submission on the workers",
-                 lambda: f"{episode_states(own)}\n{fleet.logs()}")  # fmt: skip
+        wait_for(
+            finished,
+            120,
+            "baseline and submission on the workers",
+            lambda: f"{episode_states(own)}\n{fleet.logs()}",
+        )
         health = client.get("/healthz").json()
         assert health["status"] == "ok"
     with own() as s:
@@ -225,18 +277,30 @@ def test_celery_workers_replay_math_episodes_under_the_paper_protocol(fleet: Fle
         participant = Participant(name=name)
         s.add(participant)
         s.flush()
-        sub = work.create_submission(s, participant, name=name, policy_url="builtin:tests.celery.helpers:PacedDBL",
-                                     datasets=["diverse"], settings=["math", "physics"], groups=2,
-                                     track="public").id  # fmt: skip
+        sub = work.create_submission(
+            s,
+            participant,
+            name=name,
+            policy_url="builtin:tests.celery.helpers:PacedDBL",
+            datasets=["diverse"],
+            settings=["math", "physics"],
+            groups=2,
+            track="public",
+        ).id
     _app_, executor = _start(fleet, 2)
     try:
-        wait_for(lambda: submission_status(factory, sub) == "completed", 180, "the submission",
-                 lambda: episode_states(factory, sub) + "\n" + fleet.logs())  # fmt: skip
+        wait_for(
+            lambda: submission_status(factory, sub) == "completed",
+            180,
+            "the submission",
+            lambda: episode_states(factory, sub) + "\n" + fleet.logs(),
+        )
     finally:
         executor.stop()
     rows = episodes(factory, sub)
     assert sorted((r.setting, r.protocol) for r in rows) == sorted(
-        [("math", "closed")] * 2 + [("physics", "closed")] * 2 + [("physics", "paper")] * 2)  # fmt: skip
+        [("math", "closed")] * 2 + [("physics", "closed")] * 2 + [("physics", "paper")] * 2
+    )
     assert all(r.status == "done" and r.attempts == 1 for r in rows), episode_states(factory, sub)
     for replay in (r for r in rows if r.protocol == "paper"):
         assert (replay.worker or "").startswith("celery:")

@@ -33,17 +33,23 @@ REQUEUE_BOUND_S = 30.0  # the issue's requirement for the shipped settings
 def compose_env(fleet: Fleet, tmp: Path) -> dict[str, str]:
     env = {k: _substitute(str(v)) for k, v in _compose()["x-robobpp-env"].items()}
     shipped = dict(env)
-    env.update({
-        "ROBOBPP_DATABASE_URL": fleet.env["ROBOBPP_DATABASE_URL"],  # this machine's services, not compose's
-        "ROBOBPP_BROKER_URL": fleet.env["ROBOBPP_BROKER_URL"],
-        "ROBOBPP_CELERY_QUEUE": fleet.env["ROBOBPP_CELERY_QUEUE"],
-        "ROBOBPP_STATE_DIR": str(tmp / "data"),
-        "ROBOBPP_DATA_DIR": os.environ.get("ROBOBPP_TEST_DATA_DIR", str(Path.home() / ".cache" / "robobpp")),
-        "ROBOBPP_PRIVATE_DIR": str(tmp / "private"),
-        "ROBOBPP_SPEC_PROVIDER": "tests.celery.helpers:spec",
-        "ROBOBPP_GROUPS": "1",
-        "ROBOBPP_EVALUATE_BASELINES": "0",
-    })  # fmt: skip
+    env.update(
+        {
+            "ROBOBPP_DATABASE_URL": fleet.env[
+                "ROBOBPP_DATABASE_URL"
+            ],  # this machine's services, not compose's
+            "ROBOBPP_BROKER_URL": fleet.env["ROBOBPP_BROKER_URL"],
+            "ROBOBPP_CELERY_QUEUE": fleet.env["ROBOBPP_CELERY_QUEUE"],
+            "ROBOBPP_STATE_DIR": str(tmp / "data"),
+            "ROBOBPP_DATA_DIR": os.environ.get(
+                "ROBOBPP_TEST_DATA_DIR", str(Path.home() / ".cache" / "robobpp")
+            ),
+            "ROBOBPP_PRIVATE_DIR": str(tmp / "private"),
+            "ROBOBPP_SPEC_PROVIDER": "tests.celery.helpers:spec",
+            "ROBOBPP_GROUPS": "1",
+            "ROBOBPP_EVALUATE_BASELINES": "0",
+        }
+    )
     for key in ("ROBOBPP_ENV", "ROBOBPP_LEASE_S", "ROBOBPP_MAX_ATTEMPTS", "ROBOBPP_EPISODE_TIMEOUT_S"):
         assert env[key] == shipped[key]  # the settings under test are compose's own
     base = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
@@ -56,13 +62,22 @@ def start_server(env: dict[str, str], tmp: Path) -> tuple[subprocess.Popen[bytes
     port = free_port()
     compose = _compose()
     # robobpp's own settings of the server (FORWARDED_ALLOW_IPS is uvicorn's, for a proxy in front)
-    own = {k: str(v) for k, v in compose["services"]["server"]["environment"].items()
-           if k.startswith("ROBOBPP_") and k not in compose["x-robobpp-env"] and k != "ROBOBPP_ADMIN_TOKEN"}  # fmt: skip
+    own = {
+        k: str(v)
+        for k, v in compose["services"]["server"]["environment"].items()
+        if k.startswith("ROBOBPP_") and k not in compose["x-robobpp-env"] and k != "ROBOBPP_ADMIN_TOKEN"
+    }
     assert own == {"ROBOBPP_WORKERS": "0"}  # the server runs no episodes itself; the workers do
     server_env = {**env, **own, "ROBOBPP_ADMIN_TOKEN": ADMIN}
     log = (tmp / "server.log").open("ab")
-    proc = subprocess.Popen([sys.executable, "-c", "from robobpp.cli import main; main()", "serve", "--port", str(port)],
-                            env=server_env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from robobpp.cli import main; main()", "serve", "--port", str(port)],
+        env=server_env,
+        cwd=ROOT,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     url = f"http://127.0.0.1:{port}"
 
     def up() -> bool:
@@ -88,8 +103,13 @@ def queued(fleet: Fleet) -> int:
 def test_compose_settings_restart_and_kill_9(fleet: Fleet, factory: Any, tmp_path: Path) -> None:
     env = compose_env(fleet, tmp_path)
     fleet.env = env
-    sub = new_submission(factory, policy="tests.celery.helpers:SlowDBL", datasets=["repetitive"], groups=3,
-                         name=f"compose-{env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    sub = new_submission(
+        factory,
+        policy="tests.celery.helpers:SlowDBL",
+        datasets=["repetitive"],
+        groups=3,
+        name=f"compose-{env['ROBOBPP_CELERY_QUEUE']}",
+    )
     server, _url = start_server(env, tmp_path)
     try:
         wait_for(lambda: queued(fleet) == 3, 60, "the three episodes to be queued", fleet.logs)

@@ -37,8 +37,13 @@ POLICY = "tests.celery.helpers:PacedDBL"
 
 def _app(fleet: Fleet) -> Any:
     env = fleet.env
-    options = WorkerOptions(database_url=env["ROBOBPP_DATABASE_URL"], groups=4, lease_s=LEASE_S,
-                            spec_provider=env["ROBOBPP_SPEC_PROVIDER"], poll_interval_s=0.3)  # fmt: skip
+    options = WorkerOptions(
+        database_url=env["ROBOBPP_DATABASE_URL"],
+        groups=4,
+        lease_s=LEASE_S,
+        spec_provider=env["ROBOBPP_SPEC_PROVIDER"],
+        poll_interval_s=0.3,
+    )
     return make_celery(env["ROBOBPP_BROKER_URL"], options, queue=env["ROBOBPP_CELERY_QUEUE"])
 
 
@@ -50,8 +55,11 @@ def _mark_sent(factory: Any, sub: int) -> list[int]:
 
 def _backdate(factory: Any, ids: list[int], seconds: float) -> None:
     with factory() as s, s.begin():
-        s.execute(update(EpisodeRow).where(EpisodeRow.id.in_(ids))
-                  .values(enqueued_at=utcnow() - timedelta(seconds=seconds)))  # fmt: skip
+        s.execute(
+            update(EpisodeRow)
+            .where(EpisodeRow.id.in_(ids))
+            .values(enqueued_at=utcnow() - timedelta(seconds=seconds))
+        )
 
 
 def _purge(app: Any) -> None:
@@ -71,8 +79,13 @@ def _assert_recorded_once(factory: Any, sub: int, fleet: Fleet) -> None:
 def test_a_message_lost_after_its_mark_is_sent_again(fleet: Fleet, factory: Any) -> None:
     """The mark commits but the message never reaches a queue (a broker that lost it): the episode still runs,
     once, although the mark is far younger than the stale-message limit (the visibility timeout)."""
-    sub = new_submission(factory, policy=POLICY, datasets=["repetitive"], groups=1,
-                         name=f"lost-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    sub = new_submission(
+        factory,
+        policy=POLICY,
+        datasets=["repetitive"],
+        groups=1,
+        name=f"lost-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+    )
     marked = _mark_sent(factory, sub)
     assert len(marked) == 1
     app = _app(fleet)
@@ -92,8 +105,13 @@ def test_a_message_reserved_by_a_killed_worker_is_sent_again(fleet: Fleet, facto
     and is killed with ``kill -9`` before it claims the episode. Redis keeps that message from every other
     worker until its visibility timeout; RabbitMQ requeues it, and the next worker holds it for its delay.
     Either way the episode is pending and marked sent: the lost-message check sends it again."""
-    sub = new_submission(factory, policy=POLICY, datasets=["repetitive"], groups=1,
-                         name=f"reserved-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    sub = new_submission(
+        factory,
+        policy=POLICY,
+        datasets=["repetitive"],
+        groups=1,
+        name=f"reserved-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+    )
     app = _app(fleet)
     (first,) = fleet.start(1)
     _wait_for_workers(fleet, app, 1)
@@ -101,8 +119,9 @@ def test_a_message_reserved_by_a_killed_worker_is_sent_again(fleet: Fleet, facto
         ids = work.take_unsent(s, stale_after_s=3600, ids=[e.id for e in episodes(factory, sub)])
         enqueue(app, ids, countdown=600)
     (episode_id,) = ids
-    wait_for(lambda: f"episode-{episode_id}] received" in fleet.logs(), 60, "the worker to reserve it",
-             fleet.logs)  # fmt: skip
+    wait_for(
+        lambda: f"episode-{episode_id}] received" in fleet.logs(), 60, "the worker to reserve it", fleet.logs
+    )
     assert queue_length(app) == 0
     fleet.kill(first)
     fleet.start(1)
@@ -110,8 +129,9 @@ def test_a_message_reserved_by_a_killed_worker_is_sent_again(fleet: Fleet, facto
     executor = CeleryExecutor(app)
     executor.start()
     try:
-        wait_for(lambda: submission_status(factory, sub) == "completed", 90, "the reserved episode",
-                 fleet.logs)  # fmt: skip
+        wait_for(
+            lambda: submission_status(factory, sub) == "completed", 90, "the reserved episode", fleet.logs
+        )
     finally:
         executor.stop()
     _assert_recorded_once(factory, sub, fleet)
@@ -120,8 +140,13 @@ def test_a_message_reserved_by_a_killed_worker_is_sent_again(fleet: Fleet, facto
 def test_a_backlog_is_not_sent_twice_but_a_drained_queue_is_healed(fleet: Fleet, factory: Any) -> None:
     """No workers: old marks whose messages still wait in the queue are left alone, however old (no
     duplicates from a backlog); once the queue is empty they are sent again, once."""
-    sub = new_submission(factory, policy=POLICY, datasets=["repetitive"], groups=3,
-                         name=f"backlog-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    sub = new_submission(
+        factory,
+        policy=POLICY,
+        datasets=["repetitive"],
+        groups=3,
+        name=f"backlog-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+    )
     app = _app(fleet)
     with factory() as s, s.begin():
         ids = work.take_unsent(s, stale_after_s=3600, ids=[e.id for e in episodes(factory, sub)])
@@ -143,8 +168,13 @@ def test_a_claim_by_id_waits_for_the_senders_commit(fleet: Fleet, factory: Any) 
     message before that commit must claim the episode, not skip the still-locked row (which used to turn
     the message into a no-op and a delayed copy that a worker holds in memory)."""
     cancel_active_submissions(factory)
-    sub = new_submission(factory, policy=POLICY, datasets=["repetitive"], groups=1,
-                         name=f"commit-{fleet.env['ROBOBPP_CELERY_QUEUE']}")  # fmt: skip
+    sub = new_submission(
+        factory,
+        policy=POLICY,
+        datasets=["repetitive"],
+        groups=1,
+        name=f"commit-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+    )
     (row,) = episodes(factory, sub)
     claims: list[Any] = []
     sender = factory()
@@ -155,8 +185,9 @@ def test_a_claim_by_id_waits_for_the_senders_commit(fleet: Fleet, factory: Any) 
 
         def claim() -> None:
             with factory() as s, s.begin():
-                claims.append(work.claim_episode(s, "celery:test:1", lease_s=LEASE_S, max_attempts=3,
-                                                 episode_id=row.id))  # fmt: skip
+                claims.append(
+                    work.claim_episode(s, "celery:test:1", lease_s=LEASE_S, max_attempts=3, episode_id=row.id)
+                )
 
         worker = threading.Thread(target=claim)
         worker.start()

@@ -25,12 +25,22 @@ def test_a_second_participant_starts_within_one_episode_time(own_fleet: Fleet, o
     executor.start()
     logs = lambda: fleet.logs() + episode_states(factory)  # noqa: E731
     try:
-        slow = new_submission(factory, policy="tests.celery.helpers:SlowDBL", datasets=["repetitive", "diverse"],
-                              groups=4, name="slow")  # fmt: skip
-        wait_for(lambda: [e.status for e in episodes(factory, slow)].count("running") == 2, 90,
-                 "both workers on the slow participant", logs)  # fmt: skip
-        second = new_submission(factory, policy="tests.celery.helpers:PacedDBL", datasets=["repetitive"],
-                                groups=1, name="second")  # fmt: skip
+        slow = new_submission(
+            factory,
+            policy="tests.celery.helpers:SlowDBL",
+            datasets=["repetitive", "diverse"],
+            groups=4,
+            name="slow",
+        )
+        wait_for(
+            lambda: [e.status for e in episodes(factory, slow)].count("running") == 2,
+            90,
+            "both workers on the slow participant",
+            logs,
+        )
+        second = new_submission(
+            factory, policy="tests.celery.helpers:PacedDBL", datasets=["repetitive"], groups=1, name="second"
+        )
         wait_for(
             lambda: submission_status(factory, second) == "completed", 120, "the second participant", logs
         )

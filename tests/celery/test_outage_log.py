@@ -37,8 +37,9 @@ def test_broker_outage_logs_one_line_down_and_one_up(
     relay = Relay(("127.0.0.1", 6379))
     relay.up()
     queue = f"robobpp-outage-{relay.port}"
-    app = make_celery(f"redis://127.0.0.1:{relay.port}/0", WorkerOptions(database_url=url, poll_interval_s=0.1),
-                      queue=queue)  # fmt: skip
+    app = make_celery(
+        f"redis://127.0.0.1:{relay.port}/0", WorkerOptions(database_url=url, poll_interval_s=0.1), queue=queue
+    )
     executor = CeleryExecutor(app, ping_every_s=10_000)
     caplog.set_level(logging.DEBUG, logger="robobpp.worker.celery")
 
@@ -47,8 +48,9 @@ def test_broker_outage_logs_one_line_down_and_one_up(
             p = Participant(name=name)
             s.add(p)
             s.flush()
-            work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
-                                   settings=["math"], groups=2)  # fmt: skip
+            work.create_submission(
+                s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"], settings=["math"], groups=2
+            )
 
     try:
         executor.start()

@@ -15,8 +15,14 @@ from tests.server.conftest import ADMIN_TOKEN, ServerProcess, new_participant
 
 @pytest.mark.parametrize("broker", ["redis"], indirect=True)
 def test_celery_workers_drive_a_pull_client_through_the_server(fleet: Fleet, tmp_path) -> None:
-    env = {**fleet.env, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN, "ROBOBPP_SETTINGS": '["math"]',
-           "ROBOBPP_EVALUATE_BASELINES": "0", "ROBOBPP_GROUPS": "2", "ROBOBPP_WORKERS": "0"}  # fmt: skip
+    env = {
+        **fleet.env,
+        "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
+        "ROBOBPP_SETTINGS": '["math"]',
+        "ROBOBPP_EVALUATE_BASELINES": "0",
+        "ROBOBPP_GROUPS": "2",
+        "ROBOBPP_WORKERS": "0",
+    }
     server = ServerProcess(env, tmp_path).start()  # dispatches to Celery: no local worker pool
     try:
         fleet.env["ROBOBPP_PULL_RELAY_URL"] = server.url  # what a worker on another machine is told
@@ -27,8 +33,17 @@ def test_celery_workers_drive_a_pull_client_through_the_server(fleet: Fleet, tmp
         result = {}
 
         def run() -> None:
-            result["sub"] = connect(DBL, server.url, token, name="via-celery", datasets=["diverse"],
-                                    settings=["math"], parallel=2, on_event=events.append, poll_s=0.3)  # fmt: skip
+            result["sub"] = connect(
+                DBL,
+                server.url,
+                token,
+                name="via-celery",
+                datasets=["diverse"],
+                settings=["math"],
+                parallel=2,
+                on_event=events.append,
+                poll_s=0.3,
+            )
 
         thread = threading.Thread(target=run, daemon=True)
         thread.start()
@@ -48,5 +63,7 @@ def test_celery_workers_drive_a_pull_client_through_the_server(fleet: Fleet, tmp
 def _workers(url: str, submission_id: int) -> list[dict[str, str]]:
     from tests.server.conftest import db_rows
 
-    return [dict(r._mapping) for r in db_rows(url, "SELECT worker FROM episodes WHERE submission_id = :s",
-                                              s=submission_id)]  # fmt: skip
+    return [
+        dict(r._mapping)
+        for r in db_rows(url, "SELECT worker FROM episodes WHERE submission_id = :s", s=submission_id)
+    ]

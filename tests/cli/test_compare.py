@@ -17,8 +17,18 @@ def results(real_data, tmp_path):
     paths = {}
     for policy, groups in (("dbl", "2"), ("random", "2"), ("hm", "1")):
         path = tmp_path / f"{policy}.json"
-        proc = robobpp("evaluate", "--policy", policy, "--dataset", "diverse", "--groups", groups,
-                       "--json", str(path), env_extra=env)  # fmt: skip
+        proc = robobpp(
+            "evaluate",
+            "--policy",
+            policy,
+            "--dataset",
+            "diverse",
+            "--groups",
+            groups,
+            "--json",
+            str(path),
+            env_extra=env,
+        )
         assert proc.returncode == 0, proc.stderr
         paths[policy] = path
     return paths
@@ -77,8 +87,24 @@ def test_evaluate_exits_3_when_every_episode_is_a_policy_failure(real_data, tmp_
         "from robobpp.core import Action\n\n\nclass Garbage:\n    name = 'garbage'\n\n"
         "    def reset(self, info):\n        pass\n\n    def act(self, obs):\n        return Action(float('nan'), 0.0, 0)\n"
     )
-    proc = subprocess.run([sys.executable, "-m", "robobpp.cli", "evaluate", "--policy", "garbage:Garbage",
-                           "--dataset", "repetitive", "--groups", "2"], capture_output=True, text=True, timeout=300,
-                          cwd=tmp_path, env={**os.environ, "ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "robobpp.cli",
+            "evaluate",
+            "--policy",
+            "garbage:Garbage",
+            "--dataset",
+            "repetitive",
+            "--groups",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+        env={**os.environ, "ROBOBPP_DATA_DIR": str(real_data)},
+    )
     assert proc.returncode == 3, proc.stderr
     assert "every episode ended in a policy failure" in proc.stderr and "invalid_action in 2" in proc.stderr

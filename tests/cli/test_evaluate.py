@@ -23,9 +23,22 @@ def robobpp(*args: str, env_extra: dict | None = None) -> subprocess.CompletedPr
 def test_evaluate_writes_results_matching_the_loop(real_data, tmp_path):
     out = tmp_path / "out.json"
     trace = tmp_path / "trace.json"
-    proc = robobpp("evaluate", "--policy", "dbl", "--dataset", "repetitive", "--setting", "math",
-                   "--groups", "2", "--json", str(out), "--trace", str(trace),
-                   env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    proc = robobpp(
+        "evaluate",
+        "--policy",
+        "dbl",
+        "--dataset",
+        "repetitive",
+        "--setting",
+        "math",
+        "--groups",
+        "2",
+        "--json",
+        str(out),
+        "--trace",
+        str(trace),
+        env_extra={"ROBOBPP_DATA_DIR": str(real_data)},
+    )
     assert proc.returncode == 0, proc.stderr
     assert "Space Utilization" in proc.stdout and "repetitive" in proc.stdout
     payload = json.loads(out.read_text())
@@ -65,8 +78,11 @@ def test_module_class_policy_is_found_in_the_working_directory(tmp_path, command
     # -P: do not prepend the working directory, as the `robobpp` console script does not.
     proc = subprocess.run(
         [sys.executable, "-P", "-m", "robobpp.cli", *command, "mypolicy_cwd_probe:Missing"],
-        capture_output=True, text=True, cwd=tmp_path, timeout=120,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert proc.returncode != 0
     assert "has no attribute 'Missing'" in proc.stderr, proc.stderr  # imported, unlike "cannot import"
 
@@ -80,11 +96,19 @@ def test_policy_failures_are_explained_under_the_table():
     def result(eid: str, reason: str, detail: str) -> SimpleNamespace:
         return SimpleNamespace(episode_id=eid, termination=reason, termination_detail=detail)
 
-    runs = {("diverse", "math"): [
-        result("diverse-train-000", "policy_error", "refused GET /info (HTTP 401): check the shared secret"),
-        result("diverse-train-001", "policy_error", "refused GET /info (HTTP 401): check the shared secret"),
-        result("diverse-train-002", "no_feasible_placement", "no feasible placement for box #9 (the 10th)"),
-    ]}  # fmt: skip
+    runs = {
+        ("diverse", "math"): [
+            result(
+                "diverse-train-000", "policy_error", "refused GET /info (HTTP 401): check the shared secret"
+            ),
+            result(
+                "diverse-train-001", "policy_error", "refused GET /info (HTTP 401): check the shared secret"
+            ),
+            result(
+                "diverse-train-002", "no_feasible_placement", "no feasible placement for box #9 (the 10th)"
+            ),
+        ]
+    }
     notes = failure_notes(runs)
     assert notes == [
         "policy_error in 2 episode(s), e.g. diverse-train-000: refused GET /info (HTTP 401): check the shared secret"
@@ -97,14 +121,36 @@ def test_jobs_give_the_same_results_in_the_same_order(real_data, tmp_path):
     outputs = []
     for jobs in ("1", "2"):
         out = tmp_path / f"jobs{jobs}.json"
-        proc = robobpp("evaluate", "--policy", "hm", "--dataset", "diverse,longboard", "--setting", "math,physics",
-                       "--groups", "2", "--jobs", jobs, "--json", str(out), env_extra=env)  # fmt: skip
+        proc = robobpp(
+            "evaluate",
+            "--policy",
+            "hm",
+            "--dataset",
+            "diverse,longboard",
+            "--setting",
+            "math,physics",
+            "--groups",
+            "2",
+            "--jobs",
+            jobs,
+            "--json",
+            str(out),
+            env_extra=env,
+        )
         assert proc.returncode == 0, proc.stderr
         outputs.append(json.loads(out.read_text()))
 
     def figures(payload):
-        return [(e["episode_id"], e["setting"], e["boxes_placed"], e["termination"],
-                 {k: v for k, v in e["metrics"].items() if k != "decision_time"}) for e in payload["episodes"]]  # fmt: skip
+        return [
+            (
+                e["episode_id"],
+                e["setting"],
+                e["boxes_placed"],
+                e["termination"],
+                {k: v for k, v in e["metrics"].items() if k != "decision_time"},
+            )
+            for e in payload["episodes"]
+        ]
 
     assert len(outputs[0]["episodes"]) == 8
     assert figures(outputs[0]) == figures(outputs[1])

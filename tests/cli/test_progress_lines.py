@@ -42,7 +42,8 @@ def test_evaluate_redirected_to_a_log_prints_progress_lines(real_data, monkeypat
 
     monkeypatch.setattr(progress_module, "PROGRESS_LINE_S", 0.0)
     _register()
-    result = CliRunner().invoke(app, ["evaluate", "--policy", "dbl", "--dataset", "repetitive", "--setting",
-                                      "math", "--groups", "2"])  # fmt: skip
+    result = CliRunner().invoke(
+        app, ["evaluate", "--policy", "dbl", "--dataset", "repetitive", "--setting", "math", "--groups", "2"]
+    )
     assert result.exit_code == 0, result.output
     assert "dbl · repetitive · closed · math: 1/2 · " in result.output

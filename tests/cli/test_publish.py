@@ -36,8 +36,13 @@ def test_the_datasets_fingerprint_ignores_when_and_how_the_cache_was_written(tmp
 
     def cache(root: Path, created: str, archive_sha: str, wheel_sha: str) -> str | None:
         (root / CONVERTED_DIR).mkdir(parents=True)
-        manifest = {"format": CACHE_FORMAT, "created": created, "source": {"sha256": wheel_sha},
-                    "files": {"diverse.npz": {"sha256": archive_sha}}, "datasets": {"diverse": {"boxes": 3}}}  # fmt: skip
+        manifest = {
+            "format": CACHE_FORMAT,
+            "created": created,
+            "source": {"sha256": wheel_sha},
+            "files": {"diverse.npz": {"sha256": archive_sha}},
+            "datasets": {"diverse": {"boxes": 3}},
+        }
         (root / CONVERTED_DIR / "manifest.json").write_text(json.dumps(manifest))
         return provenance.datasets_manifest_sha256(root)
 
@@ -57,8 +62,22 @@ def test_spec_files_and_the_private_set_keep_the_sampler_version(real_data, tmp_
 @pytest.fixture
 def evaluated(real_data, tmp_path):
     out, table = tmp_path / "dbl.json", tmp_path / "dbl.csv"
-    proc = run_cli("evaluate", "--policy", "dbl", "--dataset", "diverse", "--groups", "5", "--seed", "3",
-                   "--json", str(out), "--csv", str(table), env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    proc = run_cli(
+        "evaluate",
+        "--policy",
+        "dbl",
+        "--dataset",
+        "diverse",
+        "--groups",
+        "5",
+        "--seed",
+        "3",
+        "--json",
+        str(out),
+        "--csv",
+        str(table),
+        env_extra={"ROBOBPP_DATA_DIR": str(real_data)},
+    )
     assert proc.returncode == 0, proc.stderr
     return proc, json.loads(out.read_text()), table
 
@@ -188,8 +207,18 @@ def test_a_served_policy_is_named_by_its_info_not_its_url(real_data, tmp_path):
         info = httpx.get(server.url + "/info").json()
         assert (info["name"], info["version"]) == ("lowest-first", "2.1")
         out = tmp_path / "served.json"
-        proc = run_cli("evaluate", "--policy", server.url, "--dataset", "diverse", "--groups", "1", "--json", str(out),
-                       env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+        proc = run_cli(
+            "evaluate",
+            "--policy",
+            server.url,
+            "--dataset",
+            "diverse",
+            "--groups",
+            "1",
+            "--json",
+            str(out),
+            env_extra={"ROBOBPP_DATA_DIR": str(real_data)},
+        )
     assert proc.returncode == 0, proc.stderr
     payload = json.loads(out.read_text())
     assert payload["policy"] == "lowest-first 2.1" and server.url not in proc.stdout
@@ -213,8 +242,11 @@ def test_compare_refuses_results_of_different_versions(evaluated, tmp_path):
     b.write_text(json.dumps(older))
     proc = run_cli("compare", str(a), str(b))
     assert proc.returncode == 2 and "math_rules version 0" in proc.stderr and "not comparable" in proc.stderr
-    legacy = {**payload, "policy": "legacy", "episodes": [{k: v for k, v in e.items() if k != "rules_version"}
-                                                          for e in payload["episodes"]]}  # fmt: skip
+    legacy = {
+        **payload,
+        "policy": "legacy",
+        "episodes": [{k: v for k, v in e.items() if k != "rules_version"} for e in payload["episodes"]],
+    }
     b.write_text(json.dumps(legacy))
     assert run_cli("compare", str(a), str(b)).returncode == 0  # a file from before versions: not checked
 
@@ -224,17 +256,39 @@ def test_grid_and_board_csvs_print_every_figure_at_one_precision():
     board's or the grid's CSV has at most 12 decimals (the precision scores are ranked at)."""
     from robobpp.export import board_csv, grid_csv
 
-    row = {"status": "ranked", "rank": 1, "rank_low": 1, "rank_high": 2, "submission_id": 7, "name": "a",
-           "participant": "p", "baseline": False, "mean": 0.5806950457624445, "mean_low": 1 / 3, "mean_high": 0.7,
-           "stable": -1e-17, "stable_low": 0.1, "stable_high": 0.9, "cells": {"math/diverse": {"score": 2 / 3, "rank": 1}}}  # fmt: skip
+    row = {
+        "status": "ranked",
+        "rank": 1,
+        "rank_low": 1,
+        "rank_high": 2,
+        "submission_id": 7,
+        "name": "a",
+        "participant": "p",
+        "baseline": False,
+        "mean": 0.5806950457624445,
+        "mean_low": 1 / 3,
+        "mean_high": 0.7,
+        "stable": -1e-17,
+        "stable_low": 0.1,
+        "stable_high": 0.9,
+        "cells": {"math/diverse": {"score": 2 / 3, "rank": 1}},
+    }
     grid = {"track": "private", "settings": ["math"], "datasets": ["diverse"], "rows": [row]}
     line = dict(zip(*csv.reader(io.StringIO(grid_csv(grid))), strict=True))
     assert (
         line["mean"] == "0.580695045762" and line["mean_low"] == "0.333333333333" and line["stable"] == "0.0"
     )
     assert line["math/diverse_score"] == "0.666666666667" and line["rank"] == "1"
-    entry = {"rank": 1, "submission_id": 7, "name": "a", "participant": "p", "baseline": False, "score": 1 / 7,
-             "metrics": {"space_utilization": 0.5806950457624445}, "intervals": {"space_utilization": [0.1, 2 / 3]}}  # fmt: skip
+    entry = {
+        "rank": 1,
+        "submission_id": 7,
+        "name": "a",
+        "participant": "p",
+        "baseline": False,
+        "score": 1 / 7,
+        "metrics": {"space_utilization": 0.5806950457624445},
+        "intervals": {"space_utilization": [0.1, 2 / 3]},
+    }
     board = {"dataset": "diverse", "setting": "math", "metrics": ["space_utilization"], "entries": [entry]}
     line = dict(zip(*csv.reader(io.StringIO(board_csv(board))), strict=True))
     assert line["score"] == "0.142857142857" and line["space_utilization"] == "0.580695045762"

@@ -17,8 +17,20 @@ from tests.cli.test_evaluate import robobpp
 def test_reproduce_one_group_end_to_end_and_merge(real_data: Path, tmp_path: Path) -> None:
     env = {"ROBOBPP_DATA_DIR": str(real_data)}
     out = tmp_path / "r.json"
-    proc = robobpp("reproduce", "--dataset", "diverse", "--setting", "math,physics", "--policies", "dbl,lsah",
-                   "--groups", "1", "--json", str(out), env_extra=env)  # fmt: skip
+    proc = robobpp(
+        "reproduce",
+        "--dataset",
+        "diverse",
+        "--setting",
+        "math,physics",
+        "--policies",
+        "dbl,lsah",
+        "--groups",
+        "1",
+        "--json",
+        str(out),
+        env_extra=env,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "Physics Pack · ours vs the paper" in proc.stdout and "protocol paper" in proc.stdout
     assert "Spearman" in proc.stdout and "0.257" in proc.stdout  # the paper's DBL, Diverse, Physics
@@ -48,9 +60,24 @@ def test_reproduce_one_group_end_to_end_and_merge(real_data: Path, tmp_path: Pat
 def test_evaluate_protocol_reaches_the_json(real_data: Path, tmp_path: Path) -> None:
     out = tmp_path / "e.json"
     # two worker processes: each runs a group's Math plan and its replay
-    proc = robobpp("evaluate", "--policy", "dbl", "--dataset", "diverse", "--setting", "physics",
-                   "--groups", "2", "--protocol", "paper", "--jobs", "2", "--json", str(out),
-                   env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    proc = robobpp(
+        "evaluate",
+        "--policy",
+        "dbl",
+        "--dataset",
+        "diverse",
+        "--setting",
+        "physics",
+        "--groups",
+        "2",
+        "--protocol",
+        "paper",
+        "--jobs",
+        "2",
+        "--json",
+        str(out),
+        env_extra={"ROBOBPP_DATA_DIR": str(real_data)},
+    )
     assert proc.returncode == 0, proc.stderr
     assert "protocol paper" in proc.stdout
     data = json.loads(out.read_text())
@@ -65,8 +92,20 @@ def test_evaluate_protocol_reaches_the_json(real_data: Path, tmp_path: Path) -> 
         assert got["metrics"]["space_utilization"] == pytest.approx(want.metrics["space_utilization"])
     # `robobpp compare` never ranks a closed-loop run against a paper-protocol one: two boards
     closed = tmp_path / "c.json"
-    proc = robobpp("evaluate", "--policy", "dbl", "--dataset", "diverse", "--setting", "physics",
-                   "--groups", "2", "--json", str(closed), env_extra={"ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    proc = robobpp(
+        "evaluate",
+        "--policy",
+        "dbl",
+        "--dataset",
+        "diverse",
+        "--setting",
+        "physics",
+        "--groups",
+        "2",
+        "--json",
+        str(closed),
+        env_extra={"ROBOBPP_DATA_DIR": str(real_data)},
+    )
     assert proc.returncode == 0, proc.stderr
     assert json.loads(closed.read_text())["protocol"] == "closed"
     boards = tmp_path / "boards.json"

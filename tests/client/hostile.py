@@ -81,8 +81,9 @@ class _Handler(socketserver.BaseRequestHandler):
         finally:
             self.server.closed()
 
-    def send(self, sock: socket.socket, status: str, body: bytes, ctype: str = "application/json",
-             extra: str = "") -> bool:  # fmt: skip
+    def send(
+        self, sock: socket.socket, status: str, body: bytes, ctype: str = "application/json", extra: str = ""
+    ) -> bool:
         if status.startswith("200") and self.server.secret is not None and "X-Robobpp-" not in extra:
             extra += self.signature(body)
         head = f"HTTP/1.1 {status}\r\nContent-Type: {ctype}\r\nContent-Length: {len(body)}\r\n{extra}\r\n"
@@ -109,8 +110,14 @@ class _Handler(socketserver.BaseRequestHandler):
             else None
         )
         assert self.server.secret is not None
-        signed = P.sign_answer(self.server.secret, episode_id=episode_id, step=step, body=body, now=now,
-                               request_signature=headers.get(P.SIGNATURE_HEADER.lower(), ""))  # fmt: skip
+        signed = P.sign_answer(
+            self.server.secret,
+            episode_id=episode_id,
+            step=step,
+            body=body,
+            now=now,
+            request_signature=headers.get(P.SIGNATURE_HEADER.lower(), ""),
+        )
         return "".join(f"{k}: {v}\r\n" for k, v in signed.items())
 
     def respond(self, sock: socket.socket, target: str) -> bool:

@@ -28,8 +28,14 @@ def signing_hostile() -> HostileServer:
 
 def test_sdk_answers_carry_the_documented_hmac() -> None:
     """The bytes of docs/protocol.md, recomputed here with hmac alone, match what serve() sends."""
-    body = json.dumps({"episode_id": "demo-1", "dataset": "diverse", "setting": "math",
-                       "container": {"length": 120, "width": 100, "height": 170}}).encode()  # fmt: skip
+    body = json.dumps(
+        {
+            "episode_id": "demo-1",
+            "dataset": "diverse",
+            "setting": "math",
+            "container": {"length": 120, "width": 100, "height": 170},
+        }
+    ).encode()
     request_headers = P.signed_headers(SECRET, body)
     with BackgroundServer(create_policy_app(DBL(), SECRET)) as server:
         r = httpx.post(server.url + "/reset", content=body, headers=request_headers)
@@ -44,8 +50,14 @@ def test_sdk_answers_carry_the_documented_hmac() -> None:
     with pytest.raises(P.SignatureError, match="replayed"):
         P.verify_answer(SECRET, r.headers, r.content, step=3, **common)
     with pytest.raises(P.SignatureError, match="replayed"):
-        P.verify_answer(SECRET, r.headers, r.content, step=None, episode_id="demo-1",
-                        request_signature=P.signed_headers(SECRET, b"{}")[P.SIGNATURE_HEADER])  # fmt: skip
+        P.verify_answer(
+            SECRET,
+            r.headers,
+            r.content,
+            step=None,
+            episode_id="demo-1",
+            request_signature=P.signed_headers(SECRET, b"{}")[P.SIGNATURE_HEADER],
+        )
 
 
 def test_signed_sdk_server_completes_an_episode(small_spec: EpisodeSpec) -> None:

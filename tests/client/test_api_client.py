@@ -36,8 +36,12 @@ RANK = re.compile(r"math/diverse\s.*\scompleted\s.*\s(\d+) / (\d+)")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     """One server for the module (starting one costs seconds): Math only, 2 groups, DBL baseline."""
     state = tmp_path_factory.mktemp("server")
-    env = server_env(state, f"sqlite:///{state / 'api.sqlite3'}", ROBOBPP_QUOTA_CONCURRENT="10",
-                     ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY="50")  # fmt: skip
+    env = server_env(
+        state,
+        f"sqlite:///{state / 'api.sqlite3'}",
+        ROBOBPP_QUOTA_CONCURRENT="10",
+        ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY="50",
+    )
     proc = ServerProcess(env, state).start()
     yield proc
     proc.crash()
@@ -141,14 +145,30 @@ def test_submit_wait_and_connect_show_the_rank_the_board_gets_a_moment_later(
             # the baseline first: participants are served before baselines, so it could finish after ours
             wait_for(lambda: admin.get("/leaderboards/diverse/math").json()["total"] >= 1, 120)
         runs = {
-            "submit": robobpp("submit", fast.url, "--secret", SECRET, "--name", "lag push", "--dataset", "diverse",
-                              "--wait", "--poll", "0.3"),
+            "submit": robobpp(
+                "submit",
+                fast.url,
+                "--secret",
+                SECRET,
+                "--name",
+                "lag push",
+                "--dataset",
+                "diverse",
+                "--wait",
+                "--poll",
+                "0.3",
+            ),
             "connect": robobpp("connect", "dbl", "--name", "lag pull", "--dataset", "diverse"),
-        }  # fmt: skip
+        }
         with ServerClient(server.url, token, timeout=30) as reader:
             for label, args in runs.items():
-                proc = subprocess.Popen(args, env=cli_env(server, token), stdout=subprocess.PIPE,
-                                        stderr=subprocess.PIPE, text=True)  # fmt: skip
+                proc = subprocess.Popen(
+                    args,
+                    env=cli_env(server, token),
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.PIPE,
+                    text=True,
+                )
                 try:
                     while proc.poll() is None:  # a page open on the board keeps its version fresh in cache
                         reader.leaderboard("diverse", "math")
@@ -203,8 +223,13 @@ def test_cancel_list_and_episodes_through_the_cli(
     args = robobpp(
         "submit", slow.url, "--secret", SECRET, "--name", "slow one", "--dataset", "repetitive,diverse"
     )
-    waiting = subprocess.Popen([*args, "--wait", "--poll", "0.3"], env=cli_env(server, token),
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    waiting = subprocess.Popen(
+        [*args, "--wait", "--poll", "0.3"],
+        env=cli_env(server, token),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         sub = wait_for(lambda: next((s for s in api.submissions() if s.name == "slow one"), None), 60)
         wait_for(lambda: api.submission(sub.id).progress.episodes_running, 60)
@@ -333,9 +358,15 @@ def test_wait_gives_up_on_an_unreachable_server_after_its_patience() -> None:
 
 @pytest.mark.parametrize(
     ("url", "warn"),
-    [("http://127.0.0.1:8000", False), ("http://localhost:8000", False), ("http://[::1]:8000", False),
-     ("https://bench.example.org", False), ("http://bench.example.org", True), ("http://10.0.0.5:80", True)],
-)  # fmt: skip
+    [
+        ("http://127.0.0.1:8000", False),
+        ("http://localhost:8000", False),
+        ("http://[::1]:8000", False),
+        ("https://bench.example.org", False),
+        ("http://bench.example.org", True),
+        ("http://10.0.0.5:80", True),
+    ],
+)
 def test_plain_http_to_another_machine_is_flagged(url: str, warn: bool) -> None:
     from robobpp.cli.submit import _plain_http_elsewhere
 

@@ -99,8 +99,19 @@ def test_check_runs_the_dataset_and_setting_asked_for(real_data) -> None:
     policy built for another container (the project's PPO example did)."""
     with BackgroundServer(create_policy_app(_RepetitiveOnly())) as server:
         default = _cli("protocol", "check", server.url, "--timeout", "30")
-        asked = _cli("protocol", "check", server.url, "--dataset", "repetitive", "--setting", "physics",
-                     "--boxes", "4", "--timeout", "30")  # fmt: skip
+        asked = _cli(
+            "protocol",
+            "check",
+            server.url,
+            "--dataset",
+            "repetitive",
+            "--setting",
+            "physics",
+            "--boxes",
+            "4",
+            "--timeout",
+            "30",
+        )
     assert default.exit_code == 1 and "trained on Repetitive" in default.output
     assert asked.exit_code == 0, asked.output
     assert "repetitive · physics" in asked.output and "no violations" in asked.output

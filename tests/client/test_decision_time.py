@@ -90,8 +90,11 @@ def _decision_times(url: str) -> tuple[list[float], list[float], list[float]]:
     result = run_episode(spec, RemotePolicy(url, probe_network=True, check_info=False), "math")
     assert result.boxes_placed == 12, result.termination_detail
     steps = result.steps[1:]  # step 0 has had a single probe; every later step a window of them
-    return ([s.decision_time for s in steps], [s.round_trip for s in steps],
-            [s.network_estimate for s in steps])  # type: ignore[misc]  # fmt: skip
+    return (
+        [s.decision_time for s in steps],
+        [s.round_trip for s in steps],
+        [s.network_estimate for s in steps],
+    )  # type: ignore[misc]
 
 
 def test_decision_time_is_unchanged_by_100_ms_of_network() -> None:

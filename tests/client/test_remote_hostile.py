@@ -81,8 +81,14 @@ def test_one_connection_is_kept_alive_for_the_whole_episode(small_spec: EpisodeS
         assert result.termination == "completed"
         assert server.total_connections == 1
         assert [r[1] for r in server.requests] == [
-            "/good/info", "/good/reset", "/good/act", "/good/act", "/good/act", "/good/act", "/good/close",
-        ]  # fmt: skip
+            "/good/info",
+            "/good/reset",
+            "/good/act",
+            "/good/act",
+            "/good/act",
+            "/good/act",
+            "/good/close",
+        ]
         assert server.wait_all_closed()
 
 

@@ -163,8 +163,14 @@ def test_malformed_requests_get_422_in_plain_words(signed: BackgroundServer) -> 
         body = _body(payload)
         return httpx.post(signed.url + path, content=body, headers=P.signed_headers(SECRET, body))
 
-    bad_box = {"episode_id": "e", "step": 0, "placed": [], "box": {"length": -1, "width": 1, "height": 1, "mass": 1},
-               "container": {"length": 10, "width": 10, "height": 10}, "colour": "red"}  # fmt: skip
+    bad_box = {
+        "episode_id": "e",
+        "step": 0,
+        "placed": [],
+        "box": {"length": -1, "width": 1, "height": 1, "mass": 1},
+        "container": {"length": 10, "width": 10, "height": 10},
+        "colour": "red",
+    }
     response = post("/act", bad_box)
     assert response.status_code == 422
     detail = response.json()["detail"]
@@ -172,8 +178,12 @@ def test_malformed_requests_get_422_in_plain_words(signed: BackgroundServer) -> 
         "field 'box.length': input should be greater than 0" in detail and "unknown field 'colour'" in detail
     )
     # No container in /act and no /reset for this episode: the SDK cannot build a heightmap.
-    orphan = {"episode_id": "never-reset", "step": 0, "placed": [], "box": {"length": 1, "width": 1, "height": 1,
-              "mass": 1}}  # fmt: skip
+    orphan = {
+        "episode_id": "never-reset",
+        "step": 0,
+        "placed": [],
+        "box": {"length": 1, "width": 1, "height": 1, "mass": 1},
+    }
     response = post("/act", orphan)
     assert response.status_code == 422 and "send /reset first" in response.json()["detail"]
 

@@ -48,14 +48,17 @@ def _line_with(stream: IO[str], pattern: str, proc: subprocess.Popen[str], timeo
 
 
 def _start(cmd: list[str], **kw: object) -> subprocess.Popen[str]:
-    return subprocess.Popen(with_parent_death(cmd), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            **kw)  # type: ignore[call-overload]  # fmt: skip
+    return subprocess.Popen(
+        with_parent_death(cmd), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw
+    )  # type: ignore[call-overload]
 
 
 def test_example_policy_server_prints_its_url_once_it_answers() -> None:
     """``--port 0``: the line names the port actually bound, and /info answers at once."""
-    proc = _start([sys.executable, str(ROOT / "examples" / "policy_server.py"), "--port", "0"],
-                  env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})  # fmt: skip
+    proc = _start(
+        [sys.executable, str(ROOT / "examples" / "policy_server.py"), "--port", "0"],
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+    )
     try:
         assert proc.stdout is not None
         m = _line_with(
@@ -71,8 +74,10 @@ def test_example_policy_server_prints_its_url_once_it_answers() -> None:
 
 def test_policy_serve_cli_prints_the_url_once(tmp_path: Path) -> None:
     port = free_port()
-    proc = _start([sys.executable, "-m", "robobpp.cli", "policy", "serve", "dbl", "--port", str(port)],
-                  env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})  # fmt: skip
+    proc = _start(
+        [sys.executable, "-m", "robobpp.cli", "policy", "serve", "dbl", "--port", str(port)],
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+    )
     try:
         assert proc.stdout is not None
         m = _line_with(proc.stdout, r"serving policy 'dbl' on (\S+) \(no secret", proc, 60)
@@ -87,8 +92,12 @@ def test_robobpp_serve_says_serving_on_only_once_it_accepts_connections(tmp_path
     """The start-up (migrations, baselines, worker processes) takes seconds; the line comes after it."""
     port = free_port()
     env = server_env(tmp_path, f"sqlite:///{tmp_path / 'robobpp.sqlite3'}", PYTHONPATH=str(ROOT))
-    proc = _start([sys.executable, "-m", "robobpp.cli", "serve", "--port", str(port)], env=env, cwd=tmp_path,
-                  start_new_session=True)  # fmt: skip
+    proc = _start(
+        [sys.executable, "-m", "robobpp.cli", "serve", "--port", str(port)],
+        env=env,
+        cwd=tmp_path,
+        start_new_session=True,
+    )
     try:
         assert proc.stdout is not None
         m = _line_with(proc.stdout, r"robobpp: serving on (\S+) \(API docs (\S+)\)", proc, 90)

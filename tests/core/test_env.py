@@ -83,8 +83,13 @@ def test_gym_rollout_example_runs(real_data):
     from pathlib import Path
 
     example = Path(__file__).resolve().parents[2] / "examples" / "gym_rollout.py"
-    proc = subprocess.run([sys.executable, str(example), "--episodes", "2", "--groups", "3"], capture_output=True,
-                          text=True, timeout=300, env={**os.environ, "ROBOBPP_DATA_DIR": str(real_data)})  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, str(example), "--episodes", "2", "--groups", "3"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "ROBOBPP_DATA_DIR": str(real_data)},
+    )
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 2 and all(
@@ -159,8 +164,23 @@ def test_train_ppo_example_trains_plots_and_evaluates(real_data, tmp_path):
     from pathlib import Path
 
     example = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
-    cmd = [sys.executable, str(example), "--steps", "256", "--n-steps", "128", "--groups", "2",
-           "--eval-groups", "1", "--no-baselines", "--progress-s", "0", "--out", str(tmp_path)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        str(example),
+        "--steps",
+        "256",
+        "--n-steps",
+        "128",
+        "--groups",
+        "2",
+        "--eval-groups",
+        "1",
+        "--no-baselines",
+        "--progress-s",
+        "0",
+        "--out",
+        str(tmp_path),
+    ]
     env = {**os.environ, "ROBOBPP_DATA_DIR": str(real_data), "OMP_NUM_THREADS": "1"}
     err = (tmp_path / "stderr.txt").open("w")  # a file, not a pipe nobody reads while stdout is read
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=env)

@@ -63,11 +63,23 @@ def test_static_stability_formula(v, w, expected):
 
 def test_aggregate_means_and_pooled_ratios():
     episodes = [
-        {"space_utilization": 0.5, "decision_time": 0.1, "placements_collapsed": 1, "placements_attempted": 10,
-         "operations": 10, "operations_dangerous": 0},
-        {"space_utilization": 0.7, "decision_time": None, "placements_collapsed": 0, "placements_attempted": 30,
-         "operations": 30, "operations_dangerous": 3},
-    ]  # fmt: skip
+        {
+            "space_utilization": 0.5,
+            "decision_time": 0.1,
+            "placements_collapsed": 1,
+            "placements_attempted": 10,
+            "operations": 10,
+            "operations_dangerous": 0,
+        },
+        {
+            "space_utilization": 0.7,
+            "decision_time": None,
+            "placements_collapsed": 0,
+            "placements_attempted": 30,
+            "operations": 30,
+            "operations_dangerous": 3,
+        },
+    ]
     out = M.aggregate(episodes, "execution")
     assert out["space_utilization"] == pytest.approx(0.6)
     assert out["decision_time"] == pytest.approx(0.1)  # missing values are skipped, not zeros

@@ -77,12 +77,29 @@ def test_info_table(real_data: Path) -> None:
 def test_build_private_through_the_entry_point(real_data_root: Path, tmp_path: Path) -> None:
     root = tmp_path / "datasets_private"
     env = {**os.environ, "ROBOBPP_DATA_DIR": str(real_data_root)}
-    cmd = [sys.executable, "-c", "from robobpp.cli import main; main()", "datasets", "build-private",
-           "--root", str(root), "--groups", "3", "--seed", "99"]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-c",
+        "from robobpp.cli import main; main()",
+        "datasets",
+        "build-private",
+        "--root",
+        str(root),
+        "--groups",
+        "3",
+        "--seed",
+        "99",
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
     assert "longboard: 3 groups" in proc.stderr
     assert len(load_private("repetitive", root)) == 3
-    bad = subprocess.run([*cmd[:5], "--root", str(root / "diverse.json")], capture_output=True, text=True,
-                         env=env, timeout=300, check=False)  # fmt: skip
+    bad = subprocess.run(
+        [*cmd[:5], "--root", str(root / "diverse.json")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        check=False,
+    )
     assert bad.returncode == 1 and "not a directory" in bad.stderr

@@ -145,9 +145,11 @@ def test_diverse_groups_follow_shipment_proportions(real_data: Path) -> None:
 def test_longboard_groups_are_uniform_draws(real_data: Path) -> None:
     pool = load_pool("longboard", "test")
     draws = np.concatenate(
-        [sample_indices(pool, "uniform", np.random.default_rng(group_seed("longboard", "test", 0, g)), 80)
-         for g in range(300)]
-    )  # fmt: skip
+        [
+            sample_indices(pool, "uniform", np.random.default_rng(group_seed("longboard", "test", 0, g)), 80)
+            for g in range(300)
+        ]
+    )
     counts = np.bincount(draws, minlength=len(pool))
     expected = len(draws) / len(pool)
     chi2 = float(((counts - expected) ** 2 / expected).sum())

@@ -142,8 +142,14 @@ def test_csv_load_and_refusals(tmp_path: Path) -> None:
     assert specs[0].boxes[1].mass == 1.0 and specs[0].container == ContainerSpec(134, 125, 100)
     with pytest.raises(SpecFileError, match="needs container"):
         load_specs(path)
-    for bad, hint in [("0,10,0,30,1", "width"), ("0,10,20,-1,1", "height"), ("0,nan,1,1,1", "length"),
-                      ("0,inf,1,1,1", "length"), ("x,1,1,1,1", "group"), ("-1,1,1,1,1", "group")]:  # fmt: skip
+    for bad, hint in [
+        ("0,10,0,30,1", "width"),
+        ("0,10,20,-1,1", "height"),
+        ("0,nan,1,1,1", "length"),
+        ("0,inf,1,1,1", "length"),
+        ("x,1,1,1,1", "group"),
+        ("-1,1,1,1,1", "group"),
+    ]:
         path.write_text(f"group,length,width,height,mass\n{bad}\n")
         with pytest.raises(SpecFileError, match=hint) as err:
             load_specs(path, container=ContainerSpec(10, 10, 10))

@@ -84,8 +84,10 @@ def built_images(docker_daemon: None) -> None:
         "docker", "image", "inspect", "--format", '{{index .Config.Labels "org.robobpp.source"}}', IMAGES[0]
     )
     if label.strip() != source_hash():
-        pytest.skip(f"{IMAGES[0]} was built from other sources ({label.strip() or 'no label'} != {source_hash()}): "
-                    "rebuild it with deploy/build-images.sh")  # fmt: skip
+        pytest.skip(
+            f"{IMAGES[0]} was built from other sources ({label.strip() or 'no label'} != {source_hash()}): "
+            "rebuild it with deploy/build-images.sh"
+        )
 
 
 @dataclass
@@ -103,8 +105,15 @@ class Stack:
         return f"http://127.0.0.1:{self.ports['ROBOBPP_PORT']}"
 
     def compose(self, *args: str, timeout: float = 300) -> str:
-        argv = ["docker-compose", *(a for f in FILES for a in ("-f", f)), "--env-file", str(self.env_file),
-                "-p", self.project, *args]  # fmt: skip
+        argv = [
+            "docker-compose",
+            *(a for f in FILES for a in ("-f", f)),
+            "--env-file",
+            str(self.env_file),
+            "-p",
+            self.project,
+            *args,
+        ]
         # Only the env file configures the stack: a variable of the calling shell would win over it.
         env = {k: v for k, v in os.environ.items() if k in ("PATH", "HOME", "DOCKER_HOST", "LANG")}
         return _run(*argv, timeout=timeout, env=env)
@@ -118,8 +127,10 @@ class Stack:
         if not ids:
             return {}
         out = _run("docker", "inspect", *ids)
-        return {c["Name"].lstrip("/"): (c["State"].get("Health") or {}).get("Status", c["State"]["Status"])
-                for c in json.loads(out)}  # fmt: skip
+        return {
+            c["Name"].lstrip("/"): (c["State"].get("Health") or {}).get("Status", c["State"]["Status"])
+            for c in json.loads(out)
+        }
 
     def logs(self, service: str | None = None, tail: str = "60") -> str:
         try:

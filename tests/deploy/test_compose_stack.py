@@ -40,13 +40,17 @@ def results(stack: Stack, subs: list[int]) -> dict[str, Any]:
     """What a participant or the operator can read back: submissions, episodes and the boards."""
     keep = ("id", "status", "attempts", "group", "boxes_placed", "metrics", "termination")
     return {
-        "submissions": [{k: v for k, v in stack.api("GET", f"/submissions/{s}").items() if k != "progress"}
-                        for s in subs],
-        "episodes": [[{k: e[k] for k in keep} for e in stack.api("GET", f"/submissions/{s}/episodes")]
-                     for s in subs],
-        "boards": {setting: [(e["submission_id"], e["rank"], e["metrics"]) for e in board(stack, setting)["entries"]]
-                   for setting in ("math", "execution")},
-    }  # fmt: skip
+        "submissions": [
+            {k: v for k, v in stack.api("GET", f"/submissions/{s}").items() if k != "progress"} for s in subs
+        ],
+        "episodes": [
+            [{k: e[k] for k in keep} for e in stack.api("GET", f"/submissions/{s}/episodes")] for s in subs
+        ],
+        "boards": {
+            setting: [(e["submission_id"], e["rank"], e["metrics"]) for e in board(stack, setting)["entries"]]
+            for setting in ("math", "execution")
+        },
+    }
 
 
 def test_compose_stack_ranks_survives_a_killed_worker_and_a_restart(stack: Stack) -> None:
@@ -70,8 +74,16 @@ def test_compose_stack_ranks_survives_a_killed_worker_and_a_restart(stack: Stack
 
     # --- a built-in policy (Math, the cheap setting) is submitted and ranked
     t1 = time.monotonic()
-    math = stack.api("POST", "/submissions", json={"name": "dbl-math", "policy_url": "builtin:dbl",
-                                                   "datasets": ["repetitive"], "settings": ["math"]})  # fmt: skip
+    math = stack.api(
+        "POST",
+        "/submissions",
+        json={
+            "name": "dbl-math",
+            "policy_url": "builtin:dbl",
+            "datasets": ["repetitive"],
+            "settings": ["math"],
+        },
+    )
     entry = wait(lambda: board(stack, "math")["entries"], 300, "the Math submission on the board", stack)[0]
     t["submit -> ranked (Math, 3 episodes)"] = time.monotonic() - t1
     t["up -> first ranked result"] = time.monotonic() - t0
@@ -82,8 +94,16 @@ def test_compose_stack_ranks_survives_a_killed_worker_and_a_restart(stack: Stack
     # robot plans every move, so an episode lasts long enough to be caught mid-way: since physics version 4 a
     # Physics DBL episode collapses within about 2 s and the two workers were never seen mid-episode together)
     t2 = time.monotonic()
-    execution = stack.api("POST", "/submissions", json={"name": "dbl-execution", "policy_url": "builtin:dbl",
-                                                      "datasets": ["repetitive"], "settings": ["execution"]})  # fmt: skip
+    execution = stack.api(
+        "POST",
+        "/submissions",
+        json={
+            "name": "dbl-execution",
+            "policy_url": "builtin:dbl",
+            "datasets": ["repetitive"],
+            "settings": ["execution"],
+        },
+    )
 
     def both_mid_episode() -> bool:
         eps = stack.api("GET", f"/submissions/{execution['id']}/episodes")

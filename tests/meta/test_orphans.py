@@ -35,8 +35,12 @@ def _alive(pid: int) -> bool:
 @pytest.mark.parametrize("launcher", [True, False])
 def test_a_server_started_by_a_killed_test_process_goes_too(launcher: bool) -> None:
     code = PARENT if launcher else PARENT.replace("with_parent_death([", "([")
-    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
-                              cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))  # fmt: skip
+    parent = subprocess.Popen(
+        [sys.executable, "-c", code],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))),
+    )
     assert parent.stdout is not None
     child = int(parent.stdout.readline())
     try:

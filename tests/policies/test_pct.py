@@ -50,8 +50,9 @@ def test_the_first_internal_node_is_valid_before_any_box():
     nodes = build_nodes(obs, spaces_of(obs)[1], np.random.default_rng(0))
     assert nodes.internal_valid.tolist() == [True] + [False] * 79 and not nodes.internal.any()
     # the four corners of the empty container, in both orientations of a 4×2 box
-    assert set(nodes.actions) == {(x, y, o) for o, (sx, sy) in enumerate(((4, 2), (2, 4)))
-                                  for x in (0, 10 - sx) for y in (0, 10 - sy)}  # fmt: skip
+    assert set(nodes.actions) == {
+        (x, y, o) for o, (sx, sy) in enumerate(((4, 2), (2, 4))) for x in (0, 10 - sx) for y in (0, 10 - sy)
+    }
     assert nodes.next_item.tolist() == [1, 0, 0, 2, 3, 4]  # sides ascending
 
 

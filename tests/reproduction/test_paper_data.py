@@ -52,8 +52,14 @@ def test_figures_read_from_the_paper(key: tuple[str, str, str, str], value: floa
 
 def test_ranges_are_sane() -> None:
     for v in paper_tables().values:
-        if v.metric in ("space_utilization", "occupancy", "static_stability", "collapsed_placement",
-                        "dangerous_operation", "score"):  # fmt: skip
+        if v.metric in (
+            "space_utilization",
+            "occupancy",
+            "static_stability",
+            "collapsed_placement",
+            "dangerous_operation",
+            "score",
+        ):
             assert 0 <= v.value <= 1, v
         else:
             assert v.value >= 0, v
@@ -67,9 +73,21 @@ def test_the_wheel_ships_the_data(tmp_path: Path) -> None:
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(root / name, src / name)
     proc = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(tmp_path), str(src)],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(tmp_path),
+            str(src),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     (wheel,) = tmp_path.glob("robobpp-*.whl")
     assert "robobpp/data/paper_tables.json" in zipfile.ZipFile(wheel).namelist()

@@ -93,8 +93,14 @@ class ServerProcess:
         ]
         out = self.log.open("ab")
         # Own session: a crash test can kill the server and its worker processes at once (killpg).
-        self.proc = subprocess.Popen(with_parent_death(cmd), env=self.env, stdout=out, stderr=subprocess.STDOUT,
-                                     cwd=self.data_dir, start_new_session=True)  # fmt: skip
+        self.proc = subprocess.Popen(
+            with_parent_death(cmd),
+            env=self.env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            cwd=self.data_dir,
+            start_new_session=True,
+        )
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -128,21 +134,31 @@ class ServerProcess:
             self.proc.wait(10)
 
     def client(self, token: str = ADMIN_TOKEN) -> httpx.Client:
-        return httpx.Client(base_url=self.url + "/api/v1", headers={"Authorization": f"Bearer {token}"},
-                            timeout=30)  # fmt: skip
+        return httpx.Client(
+            base_url=self.url + "/api/v1", headers={"Authorization": f"Bearer {token}"}, timeout=30
+        )
 
 
 def server_env(state_dir: Path, db: str, **extra: str) -> dict[str, str]:
     """The environment of a test server: offline episodes, 2 groups, Math only, short leases, loopback
     policy URLs allowed, nothing inherited from the caller's ``ROBOBPP_*`` (also used by tests/client)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
-    env.update({
-        "ROBOBPP_STATE_DIR": str(state_dir), "ROBOBPP_DATABASE_URL": db, "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
-        "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1", "ROBOBPP_SPEC_PROVIDER": OFFLINE, "ROBOBPP_GROUPS": "2",
-        "ROBOBPP_BOARD_REFRESH_S": "0",  # tests read a board right after a submission finishes
-        "ROBOBPP_SETTINGS": '["math"]', "ROBOBPP_WORKERS": "2", "ROBOBPP_LEASE_S": "4",
-        "ROBOBPP_POLL_INTERVAL_S": "0.2", "ROBOBPP_BASELINES": '["dbl"]',
-    })  # fmt: skip
+    env.update(
+        {
+            "ROBOBPP_STATE_DIR": str(state_dir),
+            "ROBOBPP_DATABASE_URL": db,
+            "ROBOBPP_ADMIN_TOKEN": ADMIN_TOKEN,
+            "ROBOBPP_ALLOW_PRIVATE_POLICY_URLS": "1",
+            "ROBOBPP_SPEC_PROVIDER": OFFLINE,
+            "ROBOBPP_GROUPS": "2",
+            "ROBOBPP_BOARD_REFRESH_S": "0",  # tests read a board right after a submission finishes
+            "ROBOBPP_SETTINGS": '["math"]',
+            "ROBOBPP_WORKERS": "2",
+            "ROBOBPP_LEASE_S": "4",
+            "ROBOBPP_POLL_INTERVAL_S": "0.2",
+            "ROBOBPP_BASELINES": '["dbl"]',
+        }
+    )
     env.update(extra)
     return env
 
@@ -209,8 +225,9 @@ def db_rows(url: str, sql: str, **params: Any) -> list[Any]:
         engine.dispose()
 
 
-def submit_direct(app: Any, participant: str, url: str, *, datasets: tuple[str, ...], groups: int,
-                  name: str | None = None) -> int:  # fmt: skip
+def submit_direct(
+    app: Any, participant: str, url: str, *, datasets: tuple[str, ...], groups: int, name: str | None = None
+) -> int:
     """A Math-setting submission written straight into the app's database (no HTTP, no quota), for tests
     that need many entries quickly; the participant is created on first use."""
     with app.state.runtime.session() as s:
@@ -219,8 +236,15 @@ def submit_direct(app: Any, participant: str, url: str, *, datasets: tuple[str, 
             p = Participant(name=participant)
             s.add(p)
             s.flush()
-        return work.create_submission(s, p, name=name or participant, policy_url=url, datasets=list(datasets),
-                                      settings=["math"], groups=groups).id  # fmt: skip
+        return work.create_submission(
+            s,
+            p,
+            name=name or participant,
+            policy_url=url,
+            datasets=list(datasets),
+            settings=["math"],
+            groups=groups,
+        ).id
 
 
 def new_participant(client: httpx.Client, name: str = "alice") -> str:

@@ -19,8 +19,10 @@ async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, int
         return
     if head.startswith(b"GET /stats"):
         body = json.dumps(stats).encode()
-        writer.write(b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nConnection: close\r\n"
-                     b"Content-Length: %d\r\n\r\n%s" % (len(body), body))  # fmt: skip
+        writer.write(
+            b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nConnection: close\r\n"
+            b"Content-Length: %d\r\n\r\n%s" % (len(body), body)
+        )
         await writer.drain()
         writer.close()
         return

@@ -17,9 +17,20 @@ ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 
 def make_settings(db_url: str, tmp_path, **kw) -> Settings:  # type: ignore[no-untyped-def]
-    base = {"database_url": db_url, "state_dir": tmp_path, "admin_token": ADMIN_TOKEN, "workers": 0,
-            "spec_provider": OFFLINE, "board_refresh_s": 0, "groups": 2, "settings": ("math",), "evaluate_baselines": False,
-            "allow_private_policy_urls": True, "quota_concurrent": 2, "quota_submissions_per_day": 3}  # fmt: skip
+    base = {
+        "database_url": db_url,
+        "state_dir": tmp_path,
+        "admin_token": ADMIN_TOKEN,
+        "workers": 0,
+        "spec_provider": OFFLINE,
+        "board_refresh_s": 0,
+        "groups": 2,
+        "settings": ("math",),
+        "evaluate_baselines": False,
+        "allow_private_policy_urls": True,
+        "quota_concurrent": 2,
+        "quota_submissions_per_day": 3,
+    }
     return Settings(**{**base, **kw})
 
 
@@ -38,8 +49,10 @@ def participant(api: TestClient, name: str) -> dict[str, str]:
 
 def row_counts(api: TestClient) -> tuple[int, int, int]:
     with api.app.state.runtime.session() as s:  # type: ignore[attr-defined]
-        return tuple(s.execute(select(func.count()).select_from(t)).scalar_one()
-                     for t in (Submission, RunRow, EpisodeRow))  # type: ignore[return-value]  # fmt: skip
+        return tuple(
+            s.execute(select(func.count()).select_from(t)).scalar_one()
+            for t in (Submission, RunRow, EpisodeRow)
+        )  # type: ignore[return-value]
 
 
 def assert_problem(r, status: int, kind: str | None = None) -> dict:  # type: ignore[no-untyped-def,type-arg]

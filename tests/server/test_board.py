@@ -39,10 +39,19 @@ class NaNPolicy:
 
 @pytest.fixture
 def board_app(tmp_path: Path):  # type: ignore[no-untyped-def]
-    settings = Settings(database_url=f"sqlite:///{tmp_path / 'board.sqlite3'}", state_dir=tmp_path, admin_token=ADMIN,
-                        workers=0, evaluate_baselines=False, settings=("math",), datasets=("diverse", "longboard"),
-                        groups=GROUPS, allow_private_policy_urls=True, board_refresh_s=0,
-                        spec_provider="robobpp.worker.specs:offline_spec")  # fmt: skip
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path / 'board.sqlite3'}",
+        state_dir=tmp_path,
+        admin_token=ADMIN,
+        workers=0,
+        evaluate_baselines=False,
+        settings=("math",),
+        datasets=("diverse", "longboard"),
+        groups=GROUPS,
+        allow_private_policy_urls=True,
+        board_refresh_s=0,
+        spec_provider="robobpp.worker.specs:offline_spec",
+    )
     app = create_app(settings, start_workers=False)
     bootstrap(app.state.runtime)
     with TestClient(app) as client:
@@ -50,8 +59,14 @@ def board_app(tmp_path: Path):  # type: ignore[no-untyped-def]
     app.state.runtime.dispose()
 
 
-def submit(app: Any, participant: str, url: str, *, datasets: tuple[str, ...] = ("diverse", "longboard"),
-           name: str | None = None) -> int:  # fmt: skip
+def submit(
+    app: Any,
+    participant: str,
+    url: str,
+    *,
+    datasets: tuple[str, ...] = ("diverse", "longboard"),
+    name: str | None = None,
+) -> int:
     return submit_direct(app, participant, url, datasets=datasets, groups=GROUPS, name=name)
 
 

@@ -29,8 +29,16 @@ def test_submit_remote_policy_and_read_the_leaderboard(db_url, make_server, poli
     admin = server.client()
     alice = server.client(new_participant(admin, "alice"))
 
-    r = alice.post("/submissions", json={"name": "my dbl", "policy_url": policy.url, "secret": "policy-secret-123",
-                                         "datasets": ["diverse"], "settings": ["math"]})  # fmt: skip
+    r = alice.post(
+        "/submissions",
+        json={
+            "name": "my dbl",
+            "policy_url": policy.url,
+            "secret": "policy-secret-123",
+            "datasets": ["diverse"],
+            "settings": ["math"],
+        },
+    )
     assert r.status_code == 201, r.text
     sub = r.json()
     assert sub["progress"]["episodes_total"] == GROUPS
@@ -50,8 +58,11 @@ def test_submit_remote_policy_and_read_the_leaderboard(db_url, make_server, poli
     assert set(mine["normalized"]) == {"space_utilization", "occupancy", "decision_time"}
 
     # The built-in DBL baseline ran through the same loop in-process: same geometry as the remote DBL.
-    baseline = wait_for(lambda: next((e for e in alice.get("/leaderboards/diverse/math").json()["entries"]
-                                      if e["baseline"]), None))  # fmt: skip
+    baseline = wait_for(
+        lambda: next(
+            (e for e in alice.get("/leaderboards/diverse/math").json()["entries"] if e["baseline"]), None
+        )
+    )
     assert baseline["metrics"]["space_utilization"] == pytest.approx(mine["metrics"]["space_utilization"])
     assert {e["rank"] for e in alice.get("/leaderboards/diverse/math").json()["entries"]} <= {1, 2}
 
@@ -68,8 +79,12 @@ def test_submit_remote_policy_and_read_the_leaderboard(db_url, make_server, poli
     assert grid["boards"] == 1 or (row["status"] == "partial" and row["mean"] is None)
 
     # The policy secret never leaves the server: not in any answer, not in the log, not on the pages.
-    answers = [alice.get(f"/submissions/{sub['id']}"), alice.get(f"/submissions/{sub['id']}/episodes"),
-               httpx.get(f"{server.url}/submissions/{sub['id']}"), httpx.get(f"{server.url}/")]  # fmt: skip
+    answers = [
+        alice.get(f"/submissions/{sub['id']}"),
+        alice.get(f"/submissions/{sub['id']}/episodes"),
+        httpx.get(f"{server.url}/submissions/{sub['id']}"),
+        httpx.get(f"{server.url}/"),
+    ]
     # the submission's page is its owner's only: anonymous visitors get a 404 (server/pages.py)
     assert [a.status_code for a in answers] == [200, 200, 404, 200]
     assert all("policy-secret-123" not in a.text for a in answers)
@@ -80,8 +95,16 @@ def test_public_track_keeps_traces(make_server, policy_server, tmp_path) -> None
     server = make_server(f"sqlite:///{tmp_path / 'pub.sqlite3'}", ROBOBPP_EVALUATE_BASELINES="0")
     policy = policy_server(DBL, secret=None)
     alice = server.client(new_participant(server.client(), "bob"))
-    r = alice.post("/submissions", json={"name": "pub", "policy_url": policy.url, "track": "public",
-                                         "datasets": ["longboard"], "settings": ["math"]})  # fmt: skip
+    r = alice.post(
+        "/submissions",
+        json={
+            "name": "pub",
+            "policy_url": policy.url,
+            "track": "public",
+            "datasets": ["longboard"],
+            "settings": ["math"],
+        },
+    )
     assert r.status_code == 201, r.text
     sid = r.json()["id"]
     wait_for(lambda: alice.get(f"/submissions/{sid}").json()["status"] == "completed")

@@ -42,8 +42,17 @@ def test_second_participant_starts_within_one_episode_time(make_server, policy_s
     assert r.status_code == 201, r.text
     many = r.json()["id"]
     # One of its episodes finishes first (the estimate needs one measured episode-time), both workers busy.
-    wait_for(lambda: db_rows(db_url, "SELECT count(*) FROM episodes WHERE submission_id = :s AND status = 'done'",
-                             s=many)[0][0] >= 1 and _running(db_url, many) == 2, timeout_s=120, every_s=0.05)  # fmt: skip
+    wait_for(
+        lambda: (
+            db_rows(
+                db_url, "SELECT count(*) FROM episodes WHERE submission_id = :s AND status = 'done'", s=many
+            )[0][0]
+            >= 1
+            and _running(db_url, many) == 2
+        ),
+        timeout_s=120,
+        every_s=0.05,
+    )
     r = second.post("/submissions", json={**body, "name": "one", "datasets": ["diverse"]})
     assert r.status_code == 201, r.text
     mine = r.json()["id"]
@@ -55,8 +64,11 @@ def test_second_participant_starts_within_one_episode_time(make_server, policy_s
     html = page.get(f"/submissions/{mine}").text
     status = page.get(f"/submissions/{mine}/status.json").json()
     wait_for(lambda: second.get(f"/submissions/{mine}").json()["status"] == "completed", timeout_s=240)
-    durations = db_rows(db_url, "SELECT started_at, finished_at FROM episodes WHERE submission_id = :s "
-                                "AND status = 'done'", s=many)  # fmt: skip
+    durations = db_rows(
+        db_url,
+        "SELECT started_at, finished_at FROM episodes WHERE submission_id = :s AND status = 'done'",
+        s=many,
+    )
     episode_s = max((_when(f) - _when(s)).total_seconds() for s, f in durations)
     (first_start,) = db_rows(db_url, "SELECT min(started_at) FROM episodes WHERE submission_id = :s", s=mine)[
         0
@@ -64,8 +76,12 @@ def test_second_participant_starts_within_one_episode_time(make_server, policy_s
     (created,) = db_rows(db_url, "SELECT created_at FROM submissions WHERE id = :s", s=mine)[0]
     waited = (_when(first_start) - _when(created)).total_seconds()
     assert waited <= episode_s + 1.0, (waited, episode_s)
-    left = db_rows(db_url, "SELECT count(*) FROM episodes WHERE submission_id = :s AND started_at > :t",
-                   s=many, t=first_start)[0][0]  # fmt: skip
+    left = db_rows(
+        db_url,
+        "SELECT count(*) FROM episodes WHERE submission_id = :s AND started_at > :t",
+        s=many,
+        t=first_start,
+    )[0][0]
     assert left >= 6, "first come, first served would have run the slow participant's episodes first"
     if shown["status"] == "queued":  # almost always: it waits for a slot to free
         queue = shown["queue"]

@@ -14,20 +14,34 @@ from tests.server.test_e2e import GROUPS, local_figures
 
 
 def _submit(client, policy, datasets):  # type: ignore[no-untyped-def]
-    r = client.post("/submissions", json={"name": "slow", "policy_url": policy.url, "secret": "policy-secret-123",
-                                          "datasets": datasets, "settings": ["math"]})  # fmt: skip
+    r = client.post(
+        "/submissions",
+        json={
+            "name": "slow",
+            "policy_url": policy.url,
+            "secret": "policy-secret-123",
+            "datasets": datasets,
+            "settings": ["math"],
+        },
+    )
     assert r.status_code == 201, r.text
     return r.json()["id"]
 
 
 def _running(db_url: str, sid: int, min_step: int = 1) -> list:  # type: ignore[type-arg]
-    return db_rows(db_url, "SELECT id, worker, step FROM episodes WHERE submission_id = :s AND status = 'running' "
-                   "AND step >= :m", s=sid, m=min_step)  # fmt: skip
+    return db_rows(
+        db_url,
+        "SELECT id, worker, step FROM episodes WHERE submission_id = :s AND status = 'running' "
+        "AND step >= :m",
+        s=sid,
+        m=min_step,
+    )
 
 
 def _check_recorded_once(client, db_url: str, sid: int, datasets: list[str]) -> None:  # type: ignore[no-untyped-def]
-    sub = wait_for(lambda: (s := client.get(f"/submissions/{sid}").json())["status"] == "completed" and s,
-                   timeout_s=180)  # fmt: skip
+    sub = wait_for(
+        lambda: (s := client.get(f"/submissions/{sid}").json())["status"] == "completed" and s, timeout_s=180
+    )
     assert sub["progress"]["episodes_done"] == GROUPS * len(datasets)
     for run in sub["runs"]:
         assert run["extras"]["episodes"] == GROUPS

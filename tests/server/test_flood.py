@@ -81,8 +81,9 @@ def test_slow_drip_flood_keeps_health_and_leaderboard_responsive(
 
     def submit(token: str) -> tuple[int, str, float]:
         started = time.perf_counter()
-        with httpx.Client(base_url=server.url + "/api/v1", timeout=120,
-                          headers={"Authorization": f"Bearer {token}"}) as c:  # fmt: skip
+        with httpx.Client(
+            base_url=server.url + "/api/v1", timeout=120, headers={"Authorization": f"Bearer {token}"}
+        ) as c:
             r = c.post("/submissions", json={"name": "drip", "policy_url": drip_server})
         return r.status_code, r.json().get("type", ""), time.perf_counter() - started
 
@@ -120,8 +121,9 @@ def test_slow_drip_flood_keeps_health_and_leaderboard_responsive(
 def test_over_quota_causes_no_outbound_call_and_info_is_strict(
     make_server, drip_server: str, tmp_path
 ) -> None:
-    server = make_server(f"sqlite:///{tmp_path / 'quota.sqlite3'}", ROBOBPP_WORKERS="0",
-                         ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY="0")  # fmt: skip
+    server = make_server(
+        f"sqlite:///{tmp_path / 'quota.sqlite3'}", ROBOBPP_WORKERS="0", ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY="0"
+    )
     with server.client(ADMIN_TOKEN) as admin:
         token = new_participant(admin, "over")
     with server.client(token) as c:
@@ -138,9 +140,12 @@ def test_over_quota_causes_no_outbound_call_and_info_is_strict(
 
     secret = "submit-secret-123"
     with HostileServer(secret=secret) as hostile, server.client(ADMIN_TOKEN) as admin:
-        answers = {mode: admin.post("/submissions", json={"name": mode, "policy_url": f"{hostile.url}/{mode}",
-                                                          "secret": secret})
-                   for mode in ("empty_info", "unsigned", "good")}  # fmt: skip
+        answers = {
+            mode: admin.post(
+                "/submissions", json={"name": mode, "policy_url": f"{hostile.url}/{mode}", "secret": secret}
+            )
+            for mode in ("empty_info", "unsigned", "good")
+        }
     assert (
         answers["empty_info"].status_code == 422 and "missing field 'protocol'" in answers["empty_info"].text
     )

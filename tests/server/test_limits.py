@@ -29,8 +29,16 @@ ADMIN = "limits-admin-token-0123456789abcdef"
 def _server(tmp: Path, **limits: Any) -> BackgroundServer:
     db = f"sqlite:///{tmp / 'limits.sqlite3'}"
     upgrade(db)
-    settings = Settings(database_url=db, admin_token=ADMIN, state_dir=tmp, workers=0, groups=1,
-                        settings=("math",), evaluate_baselines=False, **limits)  # fmt: skip
+    settings = Settings(
+        database_url=db,
+        admin_token=ADMIN,
+        state_dir=tmp,
+        workers=0,
+        groups=1,
+        settings=("math",),
+        evaluate_baselines=False,
+        **limits,
+    )
     return BackgroundServer(create_app(settings, start_workers=False), **server_config(settings))
 
 
@@ -91,8 +99,11 @@ def test_half_a_header_is_cut_off_at_the_header_deadline(serve) -> None:
 def test_a_dripped_body_is_answered_408_at_the_body_deadline(serve) -> None:
     server = serve(body_timeout_s=1.0, header_timeout_s=30.0)
     sock = _open(server)
-    sock.sendall(b"POST /api/v1/participants HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " + ADMIN.encode()
-                 + b"\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{\"na")  # fmt: skip
+    sock.sendall(
+        b"POST /api/v1/participants HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer "
+        + ADMIN.encode()
+        + b'\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{"na'
+    )
     started = time.monotonic()
     closed, data = _closed_within(sock, 10.0)
     assert data.startswith(b"HTTP/1.1 408"), data

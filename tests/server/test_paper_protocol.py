@@ -29,16 +29,25 @@ def factory(db_url: str):  # type: ignore[no-untyped-def]
     engine.dispose()
 
 
-def _submit(factory, settings=("math", "physics"), groups: int = 2, track: str = "public",
-            datasets=("diverse",)) -> int:  # type: ignore[no-untyped-def]  # fmt: skip
+def _submit(
+    factory, settings=("math", "physics"), groups: int = 2, track: str = "public", datasets=("diverse",)
+) -> int:  # type: ignore[no-untyped-def]
     with transaction(factory) as s:
         p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
         if p is None:
             p = Participant(name="p", is_builtin=True)
             s.add(p)
             s.flush()
-        return work.create_submission(s, p, name="dbl", policy_url="builtin:dbl", datasets=list(datasets),
-                                      settings=list(settings), groups=groups, track=track).id  # fmt: skip
+        return work.create_submission(
+            s,
+            p,
+            name="dbl",
+            policy_url="builtin:dbl",
+            datasets=list(datasets),
+            settings=list(settings),
+            groups=groups,
+            track=track,
+        ).id
 
 
 def _episodes(factory, sid: int) -> list[EpisodeRow]:  # type: ignore[no-untyped-def]
@@ -61,9 +70,13 @@ def test_runs_and_waiting_replays_are_created_with_the_submission(factory) -> No
         runs = {(r.setting, r.protocol): r.status for r in s.execute(select(RunRow)).scalars()}
         sub = s.get(Submission, sid)
         assert sub is not None and sub.episodes_total == 2 * 5
-    assert runs == {("math", "closed"): "pending", ("physics", "closed"): "pending",
-                    ("execution", "closed"): "pending", ("physics", "paper"): "pending",
-                    ("execution", "paper"): "pending"}  # fmt: skip
+    assert runs == {
+        ("math", "closed"): "pending",
+        ("physics", "closed"): "pending",
+        ("execution", "closed"): "pending",
+        ("physics", "paper"): "pending",
+        ("execution", "paper"): "pending",
+    }
     statuses = {(e.setting, e.protocol, e.group): e.status for e in _episodes(factory, sid)}
     assert statuses[("physics", "paper", 0)] == "waiting" and statuses[("math", "closed", 1)] == "pending"
     # no Math Pack, nothing to replay; a verification is compared on closed loop only
@@ -135,10 +148,22 @@ def test_a_completed_math_episode_releases_its_replays_once(factory) -> None:
     with transaction(factory) as s:
         claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
     assert claim is not None and claim.setting == "math"
-    step = {"step": 0, "box": {"length": 1, "width": 1, "height": 1, "mass": 1}, "action": None,
-            "decision_time": 0.25, "termination": "no_feasible_placement"}  # fmt: skip
-    result = {"termination": "no_feasible_placement", "termination_detail": "none", "boxes_total": 12,
-              "boxes_placed": 0, "metrics": {"space_utilization": 0.0}, "counters": {}, "steps": [step]}  # fmt: skip
+    step = {
+        "step": 0,
+        "box": {"length": 1, "width": 1, "height": 1, "mass": 1},
+        "action": None,
+        "decision_time": 0.25,
+        "termination": "no_feasible_placement",
+    }
+    result = {
+        "termination": "no_feasible_placement",
+        "termination_detail": "none",
+        "boxes_total": 12,
+        "boxes_placed": 0,
+        "metrics": {"space_utilization": 0.0},
+        "counters": {},
+        "steps": [step],
+    }
     for _ in range(2):  # a repeated completion (a duplicate message) changes nothing
         with transaction(factory) as s:
             work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
@@ -164,15 +189,19 @@ def test_migration_round_trip_keeps_rows_closed(db_url: str) -> None:
     engine = make_engine(db_url)
     try:
         with engine.begin() as conn:  # a row stored before the protocol existed
-            conn.exec_driver_sql("INSERT INTO participants (name, is_builtin, created_at) "
-                                 "VALUES ('old', false, CURRENT_TIMESTAMP)")  # fmt: skip
+            conn.exec_driver_sql(
+                "INSERT INTO participants (name, is_builtin, created_at) "
+                "VALUES ('old', false, CURRENT_TIMESTAMP)"
+            )
             conn.exec_driver_sql(
                 "INSERT INTO submissions (participant_id, name, policy_url, track, mode, datasets, settings, "
                 "lookahead, status, episodes_total, created_at) VALUES (1, 'old', 'builtin:dbl', 'private', "
                 "'push', '[\"diverse\"]', '[\"physics\"]', 0, 'completed', 1, CURRENT_TIMESTAMP)"
             )
-            conn.exec_driver_sql("INSERT INTO runs (submission_id, dataset, setting, status, episodes_total) "
-                                 "VALUES (1, 'diverse', 'physics', 'completed', 1)")  # fmt: skip
+            conn.exec_driver_sql(
+                "INSERT INTO runs (submission_id, dataset, setting, status, episodes_total) "
+                "VALUES (1, 'diverse', 'physics', 'completed', 1)"
+            )
         command.upgrade(cfg, "head")
         with engine.connect() as conn:
             assert conn.exec_driver_sql("SELECT protocol FROM runs").scalars().all() == ["closed"]
@@ -204,9 +233,18 @@ def protocol_app(db_url: str, tmp_path):  # type: ignore[no-untyped-def]
     from robobpp.server.bootstrap import bootstrap
     from robobpp.server.config import Settings
 
-    settings = Settings(database_url=db_url, state_dir=tmp_path, admin_token="paper-admin-token-0123456789abcdef",
-                        workers=0, evaluate_baselines=False, settings=("math", "physics"), datasets=("diverse",),
-                        groups=2, board_refresh_s=0, spec_provider=OFFLINE)  # fmt: skip
+    settings = Settings(
+        database_url=db_url,
+        state_dir=tmp_path,
+        admin_token="paper-admin-token-0123456789abcdef",
+        workers=0,
+        evaluate_baselines=False,
+        settings=("math", "physics"),
+        datasets=("diverse",),
+        groups=2,
+        board_refresh_s=0,
+        spec_provider=OFFLINE,
+    )
     app = create_app(settings, start_workers=False)
     bootstrap(app.state.runtime)
     with TestClient(app) as client:
@@ -224,8 +262,17 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
             p = Participant(name=f"baseline-{name}", is_builtin=True)
             s.add(p)
             s.flush()
-            ids.append(work.create_submission(s, p, name=name, policy_url=f"builtin:{name}", datasets=["diverse"],
-                                              settings=["math", "physics"], groups=2).id)  # fmt: skip
+            ids.append(
+                work.create_submission(
+                    s,
+                    p,
+                    name=name,
+                    policy_url=f"builtin:{name}",
+                    datasets=["diverse"],
+                    settings=["math", "physics"],
+                    groups=2,
+                ).id
+            )
     admin = {"Authorization": "Bearer paper-admin-token-0123456789abcdef"}
     queue = client.get("/metrics", headers=admin).text  # the replays wait for their Math episodes
     assert (
@@ -251,8 +298,11 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
     with factory() as s:  # each board shows its own protocol's runs
         for sid in ids:
             for protocol, shown in (("closed", closed), ("paper", paper)):
-                run = s.execute(select(RunRow).where(RunRow.submission_id == sid, RunRow.setting == "physics",
-                                                     RunRow.protocol == protocol)).scalar_one()  # fmt: skip
+                run = s.execute(
+                    select(RunRow).where(
+                        RunRow.submission_id == sid, RunRow.setting == "physics", RunRow.protocol == protocol
+                    )
+                ).scalar_one()
                 assert run.metrics == shown[sid]
     math = client.get("/api/v1/leaderboards/diverse/math", params={"protocol": "paper"}).json()
     assert math["protocol"] == "closed" and len(math["entries"]) == 3  # Math Pack: one board for both
@@ -263,12 +313,18 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
         cell = row["cells"]["physics/diverse"]
         entry = next(e for e in boards["paper"]["entries"] if e["submission_id"] == row["submission_id"])
         assert (cell["score"], cell["score_low"], cell["score_high"]) == (
-            entry["score"], entry["score_low"], entry["score_high"])  # fmt: skip
+            entry["score"],
+            entry["score_low"],
+            entry["score_high"],
+        )
         assert row["mean_low"] - 1e-6 <= row["mean"] <= row["mean_high"] + 1e-6  # bounds to 6 decimals
     assert client.get("/api/v1/leaderboards").json()["protocol"] == "closed"
     runs = client.get(f"/api/v1/submissions/{ids[0]}", headers=admin).json()["runs"]
     assert sorted((r["setting"], r["protocol"]) for r in runs) == [
-        ("math", "closed"), ("physics", "closed"), ("physics", "paper")]  # fmt: skip
+        ("math", "closed"),
+        ("physics", "closed"),
+        ("physics", "paper"),
+    ]
 
     page = client.get("/boards/diverse/physics", params={"protocol": "paper"}).text
     assert "paper protocol (plan in Math, replay)" in page and "· paper protocol" in page
@@ -286,8 +342,9 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
     data = client.get("/api/v1/reproduction").json()
     assert data["track"] == "private" and data["protocol"] == "paper"
     assert sorted((r["setting"], r["protocol"], r["policy"]) for r in data["runs"]) == sorted(
-        [("math", "closed", p) for p in ("dbl", "hm", "lsah")] + [("physics", "paper", p) for p in ("dbl", "hm", "lsah")]
-    )  # fmt: skip
+        [("math", "closed", p) for p in ("dbl", "hm", "lsah")]
+        + [("physics", "paper", p) for p in ("dbl", "hm", "lsah")]
+    )
     cells = {(c["setting"], c["policy"], c["metric"]): c for c in data["cells"] if c["dataset"] == "diverse"}
     by_name = dict(zip(("dbl", "hm", "lsah"), ids, strict=True))
     for policy, sid in by_name.items():
@@ -296,8 +353,11 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
         published = paper_tables().get("physics", "diverse", policy, "space_utilization")
         assert published is not None and (cell["paper"], cell["table"]) == (published.value, published.table)
         assert cell["diff"] == pytest.approx(cell["ours"] - cell["paper"])
-    (agreement,) = [a for a in data["agreement"]
-                    if (a["setting"], a["dataset"], a["metric"]) == ("physics", "diverse", "space_utilization")]  # fmt: skip
+    (agreement,) = [
+        a
+        for a in data["agreement"]
+        if (a["setting"], a["dataset"], a["metric"]) == ("physics", "diverse", "space_utilization")
+    ]
     column = [cells[("physics", p, "space_utilization")] for p in ("dbl", "hm", "lsah")]
     assert agreement["spearman"] == spearman([c["ours"] for c in column], [c["paper"] for c in column])
     assert agreement["mean_abs_diff"] == pytest.approx(sum(abs(c["diff"]) for c in column) / 3)
@@ -321,17 +381,60 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
     _register()
     cli = CliRunner()
     with BackgroundServer(app) as served:
-        shown = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics", "--protocol",
-                                     "paper", "--view", "all", "--server", served.url])  # fmt: skip
+        shown = cli.invoke(
+            cli_app,
+            [
+                "leaderboard",
+                "--dataset",
+                "diverse",
+                "--setting",
+                "physics",
+                "--protocol",
+                "paper",
+                "--view",
+                "all",
+                "--server",
+                served.url,
+            ],
+        )
         assert shown.exit_code == 0, shown.output
         assert "physics/diverse · paper protocol" in shown.stdout
-        as_json = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics", "--protocol",
-                                       "paper", "--view", "all", "--json", "--server", served.url])  # fmt: skip
+        as_json = cli.invoke(
+            cli_app,
+            [
+                "leaderboard",
+                "--dataset",
+                "diverse",
+                "--setting",
+                "physics",
+                "--protocol",
+                "paper",
+                "--view",
+                "all",
+                "--json",
+                "--server",
+                served.url,
+            ],
+        )
         served_board = json.loads(as_json.stdout)
         assert served_board["protocol"] == "paper"
         assert {e["submission_id"]: e["metrics"] for e in served_board["entries"]} == paper
-        exported = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics", "--protocol",
-                                        "paper", "--format", "md", "--server", served.url])  # fmt: skip
+        exported = cli.invoke(
+            cli_app,
+            [
+                "leaderboard",
+                "--dataset",
+                "diverse",
+                "--setting",
+                "physics",
+                "--protocol",
+                "paper",
+                "--format",
+                "md",
+                "--server",
+                served.url,
+            ],
+        )
         assert exported.exit_code == 0 and "physics/diverse · paper protocol" in exported.stdout
         grid_shown = cli.invoke(cli_app, ["leaderboard", "--protocol", "paper", "--server", served.url])
         assert grid_shown.exit_code == 0 and "Physics/Execution under the paper protocol" in grid_shown.stdout
@@ -343,8 +446,9 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
         mine = standings["physics/diverse (paper protocol)"]  # stands on the paper-protocol board
         assert mine.protocol == "paper" and mine.metrics == paper[ids[0]] and mine.entries == 3
         assert mine.rank is not None and standings["physics/diverse"].metrics == closed[ids[0]]
-        closed_shown = cli.invoke(cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics",
-                                            "--server", served.url])  # fmt: skip
+        closed_shown = cli.invoke(
+            cli_app, ["leaderboard", "--dataset", "diverse", "--setting", "physics", "--server", served.url]
+        )
         assert closed_shown.exit_code == 0 and "paper protocol" not in closed_shown.stdout
     bad = cli.invoke(cli_app, ["leaderboard", "--protocol", "open"])
     assert bad.exit_code == 2 and "unknown protocol 'open'" in bad.output
@@ -358,9 +462,25 @@ def test_the_client_says_when_a_server_has_no_paper_protocol() -> None:
     from robobpp.client.serve import BackgroundServer
 
     old = FastAPI()
-    board = {"dataset": "diverse", "setting": "physics", "track": "private", "metrics": [], "weights": {},
-             "ranked_by": "relative", "anchors": "a", "groups": 0, "resamples": 0, "confidence": 0.95, "view": "best",
-             "total": 0, "limit": 50, "offset": 0, "entries": [], "unranked_total": 0, "unranked": []}  # fmt: skip
+    board = {
+        "dataset": "diverse",
+        "setting": "physics",
+        "track": "private",
+        "metrics": [],
+        "weights": {},
+        "ranked_by": "relative",
+        "anchors": "a",
+        "groups": 0,
+        "resamples": 0,
+        "confidence": 0.95,
+        "view": "best",
+        "total": 0,
+        "limit": 50,
+        "offset": 0,
+        "entries": [],
+        "unranked_total": 0,
+        "unranked": [],
+    }
     old.get("/api/v1/leaderboards/{dataset}/{setting}")(lambda dataset, setting: board)
     with BackgroundServer(old) as served, ServerClient(served.url) as client:
         assert client.leaderboard("diverse", "physics").protocol == "closed"
@@ -382,8 +502,15 @@ def test_a_replay_whose_worker_died_is_taken_over_and_recorded_once(factory, db_
     (dead,) = [c for c in claims if c is not None and c.protocol == "paper"]
     time.sleep(0.2)
     assert _drain(factory, db_url) == 2  # the closed-loop Physics episode, and the replay taken over
-    late = {"termination": "completed", "termination_detail": "", "boxes_total": 1, "boxes_placed": 1,
-            "metrics": {"space_utilization": 1.0}, "counters": {}, "steps": []}  # fmt: skip
+    late = {
+        "termination": "completed",
+        "termination_detail": "",
+        "boxes_total": 1,
+        "boxes_placed": 1,
+        "metrics": {"space_utilization": 1.0},
+        "counters": {},
+        "steps": [],
+    }
     with transaction(factory) as s:  # the dead worker's result arrives late: nothing is written
         assert not work.complete_episode(s, dead.episode_id, dead.token, late, keep_trace=False)
     replay = next(e for e in _episodes(factory, sid) if e.protocol == "paper")
@@ -428,7 +555,10 @@ def test_the_server_replay_equals_the_local_paper_protocol(tmp_path, real_data) 
     ]
     assert replay.status == "done" and local.protocol == "paper"
     assert (replay.termination, replay.boxes_placed, replay.physics_version) == (
-        local.termination, local.boxes_placed, local.physics_version)  # fmt: skip
+        local.termination,
+        local.boxes_placed,
+        local.physics_version,
+    )
     for key in ("space_utilization", "occupancy", "local_stability", "static_stability"):
         assert replay.metrics[key] == local.metrics[key], key
     engine.dispose()

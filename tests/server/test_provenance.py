@@ -42,16 +42,25 @@ def _finished(factory, name: str, rules: str | None, sampler: str | None) -> int
             p = Participant(name="p")
             s.add(p)
             s.flush()
-        sub = work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
-                                     settings=["math"], groups=2)  # fmt: skip
+        sub = work.create_submission(
+            s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"], settings=["math"], groups=2
+        )
         sub_id = sub.id
     for _ in range(2):
         with transaction(factory) as s:
             claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
             assert claim is not None
-            result = {"termination": "completed", "termination_detail": "", "boxes_total": 3, "boxes_placed": 3,
-                      "metrics": {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01}, "counters": {},
-                      "steps": [], "rules_version": rules, "sampler_version": sampler}  # fmt: skip
+            result = {
+                "termination": "completed",
+                "termination_detail": "",
+                "boxes_total": 3,
+                "boxes_placed": 3,
+                "metrics": {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01},
+                "counters": {},
+                "steps": [],
+                "rules_version": rules,
+                "sampler_version": sampler,
+            }
             assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
     return sub_id
 
@@ -70,8 +79,13 @@ def test_a_board_shows_only_the_current_math_rules_and_sampler(factory) -> None:
         ]
         names = sorted(e["name"] for e in leaderboard(s, "diverse", "math", track="private")["entries"])
     assert names == ["before versions", "now"]
-    assert recorded == {**provenance.environment(), "physics": None, "math_rules": MATH_RULES_VERSION,
-                        "sampler": SAMPLER_VERSION, "protocol": "closed"}  # fmt: skip
+    assert recorded == {
+        **provenance.environment(),
+        "physics": None,
+        "math_rules": MATH_RULES_VERSION,
+        "sampler": SAMPLER_VERSION,
+        "protocol": "closed",
+    }
 
 
 def test_submissions_runs_boards_and_exports_carry_provenance(make_server, policy_server, tmp_path) -> None:
@@ -80,16 +94,26 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
     with server.client(ADMIN_TOKEN) as admin:
         token = new_participant(admin, "alice")
         with server.client(token) as alice:
-            ids = [alice.post("/submissions", json={"name": f"run {i}", "policy_url": policy.url,
-                                                    "secret": "policy-secret-123"}).json()["id"] for i in (1, 2)]  # fmt: skip
+            ids = [
+                alice.post(
+                    "/submissions",
+                    json={"name": f"run {i}", "policy_url": policy.url, "secret": "policy-secret-123"},
+                ).json()["id"]
+                for i in (1, 2)
+            ]
 
             def finished() -> list[dict[str, Any]] | None:
                 subs = [alice.get(f"/submissions/{i}").json() for i in ids]
                 return subs if all(s["status"] == "completed" for s in subs) else None
 
             subs = wait_for(finished, 120)
-        board = wait_for(lambda: (b := admin.get("/leaderboards/diverse/math", params={"view": "all"}).json())
-                         ["total"] == 3 and b, 60)  # fmt: skip
+        board = wait_for(
+            lambda: (
+                (b := admin.get("/leaderboards/diverse/math", params={"view": "all"}).json())["total"] == 3
+                and b
+            ),
+            60,
+        )
         (baseline,) = [e["submission_id"] for e in board["entries"] if e["baseline"]]
         page = admin.get(f"{server.url}/submissions/{baseline}", headers={"Accept": "text/html"}).text
         shown = admin.get(f"{server.url}/boards/diverse/math").text
@@ -116,15 +140,21 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
     runner = CliRunner()
 
     def export(fmt: str, *extra: str) -> str:
-        r = runner.invoke(app, ["leaderboard", "--dataset", "diverse", "--setting", "math", "--format", fmt, *extra],
-                          env=env)  # fmt: skip
+        r = runner.invoke(
+            app,
+            ["leaderboard", "--dataset", "diverse", "--setting", "math", "--format", fmt, *extra],
+            env=env,
+        )
         assert r.exit_code == 0, r.output
         return r.stdout
 
     rows = list(csv.DictReader(io.StringIO(export("csv", "--view", "all"))))
     assert sorted(r["name"] for r in rows) == sorted(e["name"] for e in board["entries"])
-    for row, entry in zip(sorted(rows, key=lambda r: r["submission_id"]),
-                          sorted(board["entries"], key=lambda e: e["submission_id"]), strict=True):  # fmt: skip
+    for row, entry in zip(
+        sorted(rows, key=lambda r: r["submission_id"]),
+        sorted(board["entries"], key=lambda e: e["submission_id"]),
+        strict=True,
+    ):
         # figures at the one precision of a board's CSV (SUMMARY_DECIMALS, the precision scores rank at)
         assert float(row["space_utilization"]) == round(
             entry["metrics"]["space_utilization"], SUMMARY_DECIMALS

@@ -45,10 +45,29 @@ def test_a_policy_connected_in_pull_mode_is_evaluated_and_ranked(make_server, tm
     token = new_participant(admin, "natted")
     env = {**os.environ, "PYTHONPATH": str(ROOT), "ROBOBPP_TOKEN": token, "ROBOBPP_SERVER": server.url}
     client = subprocess.Popen(
-        [sys.executable, "-c", "from robobpp.cli import main; main()", "connect", "dbl", "--name", "behind-nat",
-         "--dataset", "diverse", "--setting", "math", "--parallel", "2", "--secret", "pull-secret-123"],
-        env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-c",
+            "from robobpp.cli import main; main()",
+            "connect",
+            "dbl",
+            "--name",
+            "behind-nat",
+            "--dataset",
+            "diverse",
+            "--setting",
+            "math",
+            "--parallel",
+            "2",
+            "--secret",
+            "pull-secret-123",
+        ],
+        env=env,
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     seen_listening: set[int] = set()
     try:
         while client.poll() is None:  # the whole time it is connected: no listening socket at all
@@ -82,16 +101,29 @@ def test_a_policy_connected_in_pull_mode_is_evaluated_and_ranked(make_server, tm
 def test_a_dropped_client_resumes_its_episode_without_loss_or_double_count(
     make_server, tmp_path: Path
 ) -> None:
-    server = make_server(f"sqlite:///{tmp_path / 'drop.sqlite3'}", ROBOBPP_EVALUATE_BASELINES="0",
-                         ROBOBPP_GROUPS="1", ROBOBPP_PULL_RECONNECT_S="20")  # fmt: skip
+    server = make_server(
+        f"sqlite:///{tmp_path / 'drop.sqlite3'}",
+        ROBOBPP_EVALUATE_BASELINES="0",
+        ROBOBPP_GROUPS="1",
+        ROBOBPP_PULL_RECONNECT_S="20",
+    )
     token = new_participant(server.client(), "flaky")
     stop = threading.Event()
     events: list[str] = []
     result: dict[str, object] = {}
 
     def run() -> None:
-        result["sub"] = connect(SlowDBL(), server.url, token, name="flaky", datasets=["repetitive"],
-                                settings=["math"], stop=stop, on_event=events.append, poll_s=0.3)  # fmt: skip
+        result["sub"] = connect(
+            SlowDBL(),
+            server.url,
+            token,
+            name="flaky",
+            datasets=["repetitive"],
+            settings=["math"],
+            stop=stop,
+            on_event=events.append,
+            poll_s=0.3,
+        )
 
     thread = threading.Thread(target=run, daemon=True)
     thread.start()

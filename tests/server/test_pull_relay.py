@@ -34,8 +34,15 @@ def relay(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     tmp = tmp_path_factory.mktemp("relay")
     db = f"sqlite:///{tmp / 'relay.sqlite3'}"
     upgrade(db)
-    settings = Settings(database_url=db, admin_token=ADMIN, state_dir=tmp, workers=0, groups=1,
-                        settings=("math",), evaluate_baselines=False)  # fmt: skip
+    settings = Settings(
+        database_url=db,
+        admin_token=ADMIN,
+        state_dir=tmp,
+        workers=0,
+        groups=1,
+        settings=("math",),
+        evaluate_baselines=False,
+    )
     with BackgroundServer(create_app(settings, start_workers=False)) as server:
         admin = httpx.Client(base_url=server.url + "/api/v1", headers={"Authorization": f"Bearer {ADMIN}"})
         token = admin.post("/participants", json={"name": "hostile"}).json()["token"]

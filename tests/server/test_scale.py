@@ -31,9 +31,19 @@ DATASETS = ("diverse", "longboard")
 
 
 def make_app(url: str, tmp_path: Path, **extra: Any) -> Any:
-    settings = Settings(database_url=url, state_dir=tmp_path, admin_token=ADMIN, workers=0, evaluate_baselines=False,
-                        settings=("math",), datasets=DATASETS, groups=GROUPS, board_refresh_s=0,
-                        spec_provider="robobpp.worker.specs:offline_spec", **extra)  # fmt: skip
+    settings = Settings(
+        database_url=url,
+        state_dir=tmp_path,
+        admin_token=ADMIN,
+        workers=0,
+        evaluate_baselines=False,
+        settings=("math",),
+        datasets=DATASETS,
+        groups=GROUPS,
+        board_refresh_s=0,
+        spec_provider="robobpp.worker.specs:offline_spec",
+        **extra,
+    )
     app = create_app(settings, start_workers=False)
     bootstrap(app.state.runtime)
     return app
@@ -97,8 +107,13 @@ def test_board_process_snapshot_equals_the_in_process_one(db_url: str, tmp_path:
         submit(app, who, url, name=url)
     drain(app)
     runtime = app.state.runtime
-    remote = BoardCache(runtime.read_session, datasets=DATASETS, settings=("math",),
-                        database_url=runtime.settings.sqlalchemy_url, process_from=0)  # fmt: skip
+    remote = BoardCache(
+        runtime.read_session,
+        datasets=DATASETS,
+        settings=("math",),
+        database_url=runtime.settings.sqlalchemy_url,
+        process_from=0,
+    )
     try:
         with runtime.read_session() as s:
             far = remote.snapshot(s, "private")
@@ -121,8 +136,17 @@ def test_api_processes_of_one_host_compute_each_snapshot_once(db_url: str, tmp_p
         submit(app, who, url, name=url)
     drain(app)
     runtime = app.state.runtime
-    caches = [BoardCache(runtime.read_session, datasets=DATASETS, settings=("math",), store_dir=tmp_path,
-                         database_url=runtime.settings.sqlalchemy_url, process_from=0) for _ in range(2)]  # fmt: skip
+    caches = [
+        BoardCache(
+            runtime.read_session,
+            datasets=DATASETS,
+            settings=("math",),
+            store_dir=tmp_path,
+            database_url=runtime.settings.sqlalchemy_url,
+            process_from=0,
+        )
+        for _ in range(2)
+    ]
 
     def snapshot(cache: BoardCache) -> Any:
         with runtime.read_session() as s:
@@ -164,8 +188,12 @@ def test_a_finished_run_reaches_every_cached_route(scale_app) -> None:
     app, client = scale_app
     submit(app, "alice", "builtin:random", name="first-entry")
     drain(app)
-    routes = ["/api/v1/leaderboards/diverse/math?view=all", "/api/v1/leaderboards?view=all", "/",
-              "/boards/diverse/math?view=all"]  # fmt: skip
+    routes = [
+        "/api/v1/leaderboards/diverse/math?view=all",
+        "/api/v1/leaderboards?view=all",
+        "/",
+        "/boards/diverse/math?view=all",
+    ]
     anonymous = TestClient(app)
     for path in routes:  # cached now (the pages as an anonymous visitor sees them: shared)
         body = (anonymous if not path.startswith("/api") else client).get(path).text
@@ -188,8 +216,12 @@ def test_best_entry_default_and_pages_of_all_entries(scale_app) -> None:
     assert sorted(e["participant"] for e in best["entries"]) == ["alice", "bob"]
     everything = client.get("/api/v1/leaderboards/diverse/math", params={"view": "all"}).json()
     assert everything["total"] == 4
-    pages = [client.get("/api/v1/leaderboards/diverse/math",
-                        params={"view": "all", "limit": 3, "offset": o}).json()["entries"] for o in (0, 3)]  # fmt: skip
+    pages = [
+        client.get(
+            "/api/v1/leaderboards/diverse/math", params={"view": "all", "limit": 3, "offset": o}
+        ).json()["entries"]
+        for o in (0, 3)
+    ]
     assert [len(p) for p in pages] == [3, 1]
     assert [e["submission_id"] for p in pages for e in p] == [
         e["submission_id"] for e in everything["entries"]

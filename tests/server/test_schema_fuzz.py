@@ -26,8 +26,11 @@ from tests.server.test_api import make_settings
 def _fuzz_app():  # type: ignore[no-untyped-def]
     tmp = Path(tempfile.mkdtemp(prefix="robobpp-fuzz-"))
     atexit.register(shutil.rmtree, tmp, ignore_errors=True)
-    app = create_app(make_settings(f"sqlite:///{tmp / 'fuzz.sqlite3'}", tmp, evaluate_baselines=True,
-                                   allow_private_policy_urls=False))  # fmt: skip
+    app = create_app(
+        make_settings(
+            f"sqlite:///{tmp / 'fuzz.sqlite3'}", tmp, evaluate_baselines=True, allow_private_policy_urls=False
+        )
+    )
     bootstrap(app.state.runtime)  # migrations + baseline rows, so reads have something to find
     return app
 

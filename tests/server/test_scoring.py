@@ -56,9 +56,11 @@ def test_missing_or_non_finite_values_score_as_the_worst() -> None:
 
 
 def test_competition_ranking_and_scores_change_when_an_entry_joins() -> None:
-    base = [{"space_utilization": 0.6, "occupancy": 0.6, "decision_time": 0.1},
-            {"space_utilization": 0.6, "occupancy": 0.6, "decision_time": 0.1},
-            {"space_utilization": 0.4, "occupancy": 0.5, "decision_time": 0.2}]  # fmt: skip
+    base = [
+        {"space_utilization": 0.6, "occupancy": 0.6, "decision_time": 0.1},
+        {"space_utilization": 0.6, "occupancy": 0.6, "decision_time": 0.1},
+        {"space_utilization": 0.4, "occupancy": 0.5, "decision_time": 0.2},
+    ]
     assert [s.rank for s in score_entries(base, "math")] == [1, 1, 3]
     before = score_entries(base, "math")[2].score
     after = score_entries([*base, {"space_utilization": 0.1, "occupancy": 0.1, "decision_time": 1.0}], "math")
@@ -66,12 +68,26 @@ def test_competition_ranking_and_scores_change_when_an_entry_joins() -> None:
 
 
 def test_execution_uses_all_eight_metrics() -> None:
-    good = {"space_utilization": 0.8, "occupancy": 0.9, "decision_time": 0.01, "local_stability": 0.001,
-            "static_stability": 0.99, "trajectory_length": 2.0, "collapsed_placement": 0.0,
-            "dangerous_operation": 0.0}  # fmt: skip
-    bad = {"space_utilization": 0.3, "occupancy": 0.5, "decision_time": 1.0, "local_stability": 0.1,
-           "static_stability": 0.5, "trajectory_length": 5.0, "collapsed_placement": 0.2,
-           "dangerous_operation": 0.3}  # fmt: skip
+    good = {
+        "space_utilization": 0.8,
+        "occupancy": 0.9,
+        "decision_time": 0.01,
+        "local_stability": 0.001,
+        "static_stability": 0.99,
+        "trajectory_length": 2.0,
+        "collapsed_placement": 0.0,
+        "dangerous_operation": 0.0,
+    }
+    bad = {
+        "space_utilization": 0.3,
+        "occupancy": 0.5,
+        "decision_time": 1.0,
+        "local_stability": 0.1,
+        "static_stability": 0.5,
+        "trajectory_length": 5.0,
+        "collapsed_placement": 0.2,
+        "dangerous_operation": 0.3,
+    }
     g, b = score_entries([good, bad], "execution")
     assert g.score == pytest.approx(1.0) and b.score == 0.0
 

@@ -31,8 +31,9 @@ DETAIL = "box top at 41.5 cm"
 
 @pytest.fixture
 def app(tmp_path: Path) -> Iterator[Any]:
-    application = create_app(make_settings(f"sqlite:///{tmp_path / 'pages.sqlite3'}", tmp_path,
-                                           auth_failures_per_minute=5))  # fmt: skip
+    application = create_app(
+        make_settings(f"sqlite:///{tmp_path / 'pages.sqlite3'}", tmp_path, auth_failures_per_minute=5)
+    )
     with TestClient(application):
         yield application
     application.state.runtime.dispose()
@@ -45,8 +46,9 @@ def _csrf(html: str) -> str:
 
 
 def _sign_in(client: TestClient, token: str) -> Any:
-    return client.post("/sign-in", data={"token": token, "csrf": _csrf(client.get("/sign-in").text)},
-                       follow_redirects=False)  # fmt: skip
+    return client.post(
+        "/sign-in", data={"token": token, "csrf": _csrf(client.get("/sign-in").text)}, follow_redirects=False
+    )
 
 
 def _participant(client: TestClient, name: str) -> str:
@@ -64,14 +66,18 @@ def _submission(
             p = Participant(name=name, is_builtin=builtin)
             s.add(p)
             s.flush()
-        return work.create_submission(s, p, name=name, policy_url=policy, datasets=["diverse"], settings=["math"],
-                                      groups=2, track=track).id  # fmt: skip
+        return work.create_submission(
+            s, p, name=name, policy_url=policy, datasets=["diverse"], settings=["math"], groups=2, track=track
+        ).id
 
 
 def _episodes(app: Any, sid: int) -> list[int]:
     with app.state.runtime.session() as s:
-        return list(s.execute(select(EpisodeRow.id).where(EpisodeRow.submission_id == sid)
-                              .order_by(EpisodeRow.id)).scalars())  # fmt: skip
+        return list(
+            s.execute(
+                select(EpisodeRow.id).where(EpisodeRow.submission_id == sid).order_by(EpisodeRow.id)
+            ).scalars()
+        )
 
 
 def test_sign_out_ends_the_session_for_every_copy_of_the_cookie(app: Any) -> None:
@@ -151,8 +157,9 @@ def test_metrics_need_the_admin_token_unless_opened(app: Any, tmp_path: Path) ->
         assert client.get("/metrics").status_code == 401
         assert client.get("/metrics", headers={"Authorization": "Bearer rbp_wrong"}).status_code == 401
         assert "robobpp_episodes" in client.get("/metrics", headers=ADMIN).text
-    opened = create_app(make_settings(f"sqlite:///{tmp_path / 'open.sqlite3'}", tmp_path / "open",
-                                      metrics_public=True))  # fmt: skip
+    opened = create_app(
+        make_settings(f"sqlite:///{tmp_path / 'open.sqlite3'}", tmp_path / "open", metrics_public=True)
+    )
     with TestClient(opened) as client:
         assert client.get("/metrics").status_code == 200
 
@@ -161,16 +168,23 @@ def test_a_baselines_private_episode_shows_no_termination_detail_to_participants
     baseline = _submission(app, "baselines", track="private", builtin=True)
     first = _episodes(app, baseline)[0]
     with app.state.runtime.session() as s:
-        s.execute(update(EpisodeRow).where(EpisodeRow.id == first)
-                  .values(status="failed", termination="collapse", termination_detail=DETAIL))  # fmt: skip
+        s.execute(
+            update(EpisodeRow)
+            .where(EpisodeRow.id == first)
+            .values(status="failed", termination="collapse", termination_detail=DETAIL)
+        )
     with TestClient(app) as client:
         dave = {"Authorization": f"Bearer {_participant(client, 'dave')}"}
         listed = client.get(f"/api/v1/submissions/{baseline}/episodes", headers=dave).json()
         one = client.get(f"/api/v1/submissions/{baseline}/episodes/{first}", headers=dave).json()
         assert listed[0]["termination"] == one["termination"] == "collapse"  # how it ended: public
         assert DETAIL not in str(listed) and DETAIL not in str(one)  # the simulator's words: not
-        assert client.get(f"/api/v1/submissions/{baseline}/episodes", headers=ADMIN).json()[0][
-            "termination_detail"] == DETAIL  # fmt: skip
+        assert (
+            client.get(f"/api/v1/submissions/{baseline}/episodes", headers=ADMIN).json()[0][
+                "termination_detail"
+            ]
+            == DETAIL
+        )
         page = client.get(f"/submissions/{baseline}")
         assert page.status_code == 200 and DETAIL not in page.text
 
@@ -203,8 +217,13 @@ def test_the_ids_a_policy_sees_name_neither_split_nor_group(app: Any) -> None:
             pass
         remote_ids = list(Recorder.seen)
     Recorder.seen.clear()
-    _submission(app, "baselines", track="private", builtin=True,
-                policy="builtin:tests.server.test_sessions_and_pages:Recorder")  # fmt: skip
+    _submission(
+        app,
+        "baselines",
+        track="private",
+        builtin=True,
+        policy="builtin:tests.server.test_sessions_and_pages:Recorder",
+    )
     while claim_and_run(factory, options, "test:worker") is not None:
         pass
     assert sorted(Recorder.seen) == ["diverse-test-000", "diverse-test-001"]

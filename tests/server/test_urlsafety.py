@@ -7,19 +7,42 @@ import pytest
 from robobpp.server.urlsafety import UnsafeURLError, check_policy_url, parse_url
 
 
-@pytest.mark.parametrize("url", ["ftp://example.com", "file:///etc/passwd", "http://", "javascript:alert(1)",
-                                 "http://user:pw@example.com", "http://example.com/?q=1", "http://h:99999/",
-                                 "http://example.com/#x", "http://" + "a" * 2100])  # fmt: skip
+@pytest.mark.parametrize(
+    "url",
+    [
+        "ftp://example.com",
+        "file:///etc/passwd",
+        "http://",
+        "javascript:alert(1)",
+        "http://user:pw@example.com",
+        "http://example.com/?q=1",
+        "http://h:99999/",
+        "http://example.com/#x",
+        "http://" + "a" * 2100,
+    ],
+)
 def test_malformed_urls_are_refused(url: str) -> None:
     with pytest.raises(UnsafeURLError) as err:
         parse_url(url)
     assert err.value.kind == "policy-url-invalid"
 
 
-@pytest.mark.parametrize("url", ["http://127.0.0.1:9000", "http://localhost:9000", "http://10.1.2.3",
-                                 "http://192.168.1.1", "http://172.16.0.1", "http://169.254.10.10",
-                                 "http://[::1]:9000", "http://[fe80::1]", "http://[::ffff:127.0.0.1]",
-                                 "http://100.64.0.1", "http://0.0.0.0"])  # fmt: skip
+@pytest.mark.parametrize(
+    "url",
+    [
+        "http://127.0.0.1:9000",
+        "http://localhost:9000",
+        "http://10.1.2.3",
+        "http://192.168.1.1",
+        "http://172.16.0.1",
+        "http://169.254.10.10",
+        "http://[::1]:9000",
+        "http://[fe80::1]",
+        "http://[::ffff:127.0.0.1]",
+        "http://100.64.0.1",
+        "http://0.0.0.0",
+    ],
+)
 def test_inside_addresses_are_refused_by_default(url: str) -> None:
     with pytest.raises(UnsafeURLError) as err:
         check_policy_url(url, allow_private=False)

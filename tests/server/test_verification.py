@@ -47,8 +47,10 @@ class Memoriser(DBL):
 
 def _played_sequences() -> list[tuple[tuple[float, float, float], ...]]:
     """What a participant records by playing the private track once: the boxes of every played group."""
-    return [tuple((b.length, b.width, b.height) for b in offline_spec(DATASET, "test", g, GROUPS).boxes)
-            for g in range(GROUPS)]  # fmt: skip
+    return [
+        tuple((b.length, b.width, b.height) for b in offline_spec(DATASET, "test", g, GROUPS).boxes)
+        for g in range(GROUPS)
+    ]
 
 
 def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, policy_server, tmp_path) -> None:
@@ -58,12 +60,17 @@ def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, pol
     with server.client(ADMIN_TOKEN) as admin:
         token = new_participant(admin, "tuner")
         with server.client(token) as alice:
-            r = alice.post("/submissions", json={"name": "tuned", "policy_url": memoriser.url,
-                                                 "secret": "policy-secret-123"})  # fmt: skip
+            r = alice.post(
+                "/submissions",
+                json={"name": "tuned", "policy_url": memoriser.url, "secret": "policy-secret-123"},
+            )
             assert r.status_code == 201, r.text
         tuned = r.json()["id"]
-        (baseline,) = [s["id"] for s in admin.get("/submissions").json()
-                       if s["policy_url"] == "builtin:dbl" and s["track"] == "private"]  # fmt: skip
+        (baseline,) = [
+            s["id"]
+            for s in admin.get("/submissions").json()
+            if s["policy_url"] == "builtin:dbl" and s["track"] == "private"
+        ]
 
         def status(i: int) -> str:
             return admin.get(f"/submissions/{i}").json()["status"]
@@ -106,8 +113,12 @@ def test_verifying_a_pull_submission_is_a_pull_submission_its_client_serves(make
     episode failed: "policy URL must be http(s)://…"); it is a pull submission the participant's client joins."""
     from robobpp.client.connect import connect
 
-    server = make_server(f"sqlite:///{tmp_path / 'pull-verify.sqlite3'}", ROBOBPP_GROUPS="2",
-                         ROBOBPP_DATASETS=f'["{DATASET}"]', ROBOBPP_SETTINGS='["math"]')  # fmt: skip
+    server = make_server(
+        f"sqlite:///{tmp_path / 'pull-verify.sqlite3'}",
+        ROBOBPP_GROUPS="2",
+        ROBOBPP_DATASETS=f'["{DATASET}"]',
+        ROBOBPP_SETTINGS='["math"]',
+    )
     with server.client(ADMIN_TOKEN) as admin:
         token = new_participant(admin, "natted")
         played = connect(DBL(), server.url, token, secret="pull-secret-123", name="behind-nat", poll_s=0.3)
@@ -130,8 +141,13 @@ def test_only_the_operator_controls_a_verification(make_server, policy_server, t
     became ``cancelled`` and vanished from the board), the board shows ``pending`` while it runs, and the
     operator can still cancel it."""
     url = f"sqlite:///{tmp_path / 'own.sqlite3'}"
-    server = make_server(url, ROBOBPP_GROUPS="2", ROBOBPP_DATASETS=f'["{DATASET}"]', ROBOBPP_EVALUATE_BASELINES="0",
-                         ROBOBPP_WORKERS="1")  # fmt: skip
+    server = make_server(
+        url,
+        ROBOBPP_GROUPS="2",
+        ROBOBPP_DATASETS=f'["{DATASET}"]',
+        ROBOBPP_EVALUATE_BASELINES="0",
+        ROBOBPP_WORKERS="1",
+    )
     policy = policy_server(SlowDBLVerify)
     with server.client(ADMIN_TOKEN) as admin, server.client(new_participant(admin, "owner")) as owner:
         r = owner.post(

@@ -34,8 +34,10 @@ from tests.server.test_api import make_settings
 #: What a policy answering HTTP 500 with the box it was just shown leaves in termination_detail.
 LEAK = "37.125"
 TAIL = "TAIL-SENTINEL"
-DETAIL = (f"POST /act (step 0) failed with HTTP 500: '{{\"box\": {{\"length\": {LEAK}}}}}' "
-          "<script>alert('x')</script>\u202e" + "A" * 900 + TAIL)  # fmt: skip
+DETAIL = (
+    f'POST /act (step 0) failed with HTTP 500: \'{{"box": {{"length": {LEAK}}}}}\' '
+    "<script>alert('x')</script>\u202e" + "A" * 900 + TAIL
+)
 POLICY_URL = "http://10.1.2.3:9000/alice-only-path"
 VIEWERS = ("anonymous", "owner", "other", "operator")
 
@@ -72,8 +74,16 @@ def _seed(client: TestClient, tokens: dict[str, str]) -> tuple[int, int, int, in
         alice = s.execute(select(Participant).where(Participant.name == "alice")).scalar_one()
         ids = []
         for track in ("private", "public"):
-            sub = work.create_submission(s, alice, name=f"alice-{track}", policy_url=POLICY_URL, datasets=["diverse"],
-                                         settings=["math"], groups=2, track=track)  # fmt: skip
+            sub = work.create_submission(
+                s,
+                alice,
+                name=f"alice-{track}",
+                policy_url=POLICY_URL,
+                datasets=["diverse"],
+                settings=["math"],
+                groups=2,
+                track=track,
+            )
             s.flush()
             ep = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sub.id)).scalars().first()
             ep.status, ep.termination, ep.termination_detail = "done", "policy_error", DETAIL
@@ -217,8 +227,15 @@ def test_public_pages_never_show_failure_reasons(world: World, who: str) -> None
 def test_cancel_form_needs_the_owner_and_a_csrf_token(world: World) -> None:
     with world.clients["operator"].app.state.runtime.session() as s:  # type: ignore[attr-defined]
         alice = s.execute(select(Participant).where(Participant.name == "alice")).scalar_one()
-        sid = work.create_submission(s, alice, name="alice-cancel", policy_url=POLICY_URL, datasets=["diverse"],
-                                     settings=["math"], groups=1).id  # fmt: skip
+        sid = work.create_submission(
+            s,
+            alice,
+            name="alice-cancel",
+            policy_url=POLICY_URL,
+            datasets=["diverse"],
+            settings=["math"],
+            groups=1,
+        ).id
     other, owner, anon = world.clients["other"], world.clients["owner"], world.clients["anonymous"]
     r = other.post(f"/submissions/{sid}/cancel", data={"csrf": _csrf(other.get("/account").text)})
     assert r.status_code == 404 and _status(world, sid) == "queued"
@@ -240,8 +257,9 @@ API_STATUS = {"anonymous": 401, "owner": 200, "other": 404, "operator": 200}
 
 
 @pytest.mark.parametrize("who", VIEWERS)
-@pytest.mark.parametrize("route", ["/submissions/{sid}", "/submissions/{sid}/episodes",
-                                   "/submissions/{sid}/episodes/{eid}"])  # fmt: skip
+@pytest.mark.parametrize(
+    "route", ["/submissions/{sid}", "/submissions/{sid}/episodes", "/submissions/{sid}/episodes/{eid}"]
+)
 def test_api_routes_answer_the_owner_and_the_operator_only(world: World, who: str, route: str) -> None:
     path = "/api/v1" + route.format(sid=world.private, eid=world.episode)
     r = world.clients["anonymous"].get(path, headers=world.bearer[who])
@@ -311,8 +329,12 @@ def test_sign_in_refuses_a_missing_csrf_token_and_bad_tokens(world: World) -> No
             "/sign-in", data={"token": "rbp_nope", "csrf": _csrf(page.text)}, follow_redirects=False
         )
         assert r.status_code == 401 and "not valid" in r.text
-        r = browser.post("/sign-in", data={"token": ADMIN_TOKEN, "csrf": _csrf(page.text)}, follow_redirects=False,
-                         headers={"Origin": "https://evil.example"})  # fmt: skip
+        r = browser.post(
+            "/sign-in",
+            data={"token": ADMIN_TOKEN, "csrf": _csrf(page.text)},
+            follow_redirects=False,
+            headers={"Origin": "https://evil.example"},
+        )
         assert r.status_code == 403 and browser.get("/operator").status_code == 404
 
 
@@ -339,8 +361,18 @@ def test_submit_form_creates_a_pull_submission(world: World) -> None:
         sign_in(browser, r.json()["token"])
         form = browser.get("/submit")
         assert 'name="mode" value="pull"' in form.text
-        r = browser.post("/submit", data={"name": "pulled", "mode": "pull", "policy_url": "", "datasets": ["diverse"],
-                                          "settings": ["math"], "csrf": _csrf(form.text)}, follow_redirects=False)  # fmt: skip
+        r = browser.post(
+            "/submit",
+            data={
+                "name": "pulled",
+                "mode": "pull",
+                "policy_url": "",
+                "datasets": ["diverse"],
+                "settings": ["math"],
+                "csrf": _csrf(form.text),
+            },
+            follow_redirects=False,
+        )
         assert r.status_code == 303, r.text
         page = browser.get(r.headers["location"])
         assert (
@@ -356,8 +388,15 @@ def test_every_form_post_needs_the_csrf_token(world: World) -> None:
     app = operator.app
     with app.state.runtime.session() as s:  # type: ignore[attr-defined]
         alice = s.execute(select(Participant).where(Participant.name == "alice")).scalar_one()
-        sid = work.create_submission(s, alice, name="alice-csrf", policy_url=POLICY_URL, datasets=["diverse"],
-                                     settings=["math"], groups=1).id  # fmt: skip
+        sid = work.create_submission(
+            s,
+            alice,
+            name="alice-csrf",
+            policy_url=POLICY_URL,
+            datasets=["diverse"],
+            settings=["math"],
+            groups=1,
+        ).id
         token_id = alice.tokens[0].id
     ids = {"submission_id": sid, "participant_id": world.participants["owner"], "token_id": token_id}
 
@@ -370,8 +409,9 @@ def test_every_form_post_needs_the_csrf_token(world: World) -> None:
     assert len(posts) >= 7, posts
     before = operator.get(f"/operator/participants/{ids['participant_id']}").text.count("Revoke")
     for path in posts:
-        r = operator.post(path.format(**ids), data={"csrf": "not-the-token", "name": "csrf-victim"},
-                          follow_redirects=False)  # fmt: skip
+        r = operator.post(
+            path.format(**ids), data={"csrf": "not-the-token", "name": "csrf-victim"}, follow_redirects=False
+        )
         assert r.status_code == 403, (path, r.status_code)
     assert _status(world, sid) == "queued"
     assert operator.get("/account").status_code == 200  # still signed in
@@ -388,8 +428,13 @@ def test_submit_form_goes_through_the_api_handler(world: World, policy_server) -
     with TestClient(world.clients["owner"].app) as browser:
         sign_in(browser, r.json()["token"])
         form = browser.get("/submit")
-        base = {"name": "formed", "policy_url": policy.url, "datasets": ["diverse"], "settings": ["math"],
-                "csrf": _csrf(form.text)}  # fmt: skip
+        base = {
+            "name": "formed",
+            "policy_url": policy.url,
+            "datasets": ["diverse"],
+            "settings": ["math"],
+            "csrf": _csrf(form.text),
+        }
         short = browser.post("/submit", data={**base, "secret": "s3cret"})
         assert short.status_code == 422 and "secret" in short.text and "at least 8" in short.text
         wrong = browser.post("/submit", data={**base, "secret": "not-the-secret"})

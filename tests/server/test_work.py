@@ -29,8 +29,15 @@ def _submission(factory, groups: int = 2, datasets=("diverse",)) -> int:  # type
             p = Participant(name="p")
             s.add(p)
             s.flush()
-        return work.create_submission(s, p, name="x", policy_url="builtin:dbl", datasets=list(datasets),
-                                      settings=["math"], groups=groups).id  # fmt: skip
+        return work.create_submission(
+            s,
+            p,
+            name="x",
+            policy_url="builtin:dbl",
+            datasets=list(datasets),
+            settings=["math"],
+            groups=groups,
+        ).id
 
 
 def _claim(factory, worker="w", now=None, max_attempts=3):  # type: ignore[no-untyped-def]
@@ -38,9 +45,15 @@ def _claim(factory, worker="w", now=None, max_attempts=3):  # type: ignore[no-un
         return work.claim_episode(s, worker, lease_s=10, max_attempts=max_attempts, now=now)
 
 
-RESULT = {"termination": "completed", "termination_detail": "", "boxes_total": 3, "boxes_placed": 3,
-          "metrics": {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01},
-          "counters": {"placements_attempted": 3}, "steps": []}  # fmt: skip
+RESULT = {
+    "termination": "completed",
+    "termination_detail": "",
+    "boxes_total": 3,
+    "boxes_placed": 3,
+    "metrics": {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01},
+    "counters": {"placements_attempted": 3},
+    "steps": [],
+}
 
 
 def _complete(factory, claim) -> bool:  # type: ignore[no-untyped-def]
@@ -142,8 +155,9 @@ def _remote(factory, name: str, url: str, groups: int = 4) -> int:  # type: igno
         p = Participant(name=name)
         s.add(p)
         s.flush()
-        return work.create_submission(s, p, name=name, policy_url=url, datasets=["diverse"], settings=["math"],
-                                      groups=groups).id  # fmt: skip
+        return work.create_submission(
+            s, p, name=name, policy_url=url, datasets=["diverse"], settings=["math"], groups=groups
+        ).id
 
 
 def _claim_limited(factory, limit: int):  # type: ignore[no-untyped-def]
@@ -163,9 +177,13 @@ def test_a_participant_gets_at_most_its_share_of_running_episodes(factory) -> No
     assert _claim_limited(factory, 2) is None
     with transaction(factory) as s:  # one of greedy's finishes: the next one may start
         done = next(c for c in claims if c.submission_id == greedy)
-        assert work.complete_episode(s, done.episode_id, done.token, {
-            "termination": "completed", "boxes_total": 1, "boxes_placed": 1, "metrics": {}, "counters": {}},
-            keep_trace=False)  # fmt: skip
+        assert work.complete_episode(
+            s,
+            done.episode_id,
+            done.token,
+            {"termination": "completed", "boxes_total": 1, "boxes_placed": 1, "metrics": {}, "counters": {}},
+            keep_trace=False,
+        )
     nxt = _claim_limited(factory, 2)
     assert nxt is not None and nxt.submission_id == greedy
 
@@ -175,8 +193,9 @@ def _builtin(factory, name: str, groups: int) -> int:  # type: ignore[no-untyped
         p = Participant(name=name, is_builtin=True)
         s.add(p)
         s.flush()
-        return work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
-                                      settings=["math"], groups=groups).id  # fmt: skip
+        return work.create_submission(
+            s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"], settings=["math"], groups=groups
+        ).id
 
 
 def test_claims_are_fair_across_participants_and_baselines_come_last(factory) -> None:
@@ -209,8 +228,15 @@ def test_a_message_claims_the_fairest_episode_that_has_one_out(factory) -> None:
     late = _remote(factory, "late", "http://203.0.113.8:9000", groups=1)
     unsent = _remote(factory, "unsent", "http://203.0.113.9:9000", groups=1)
     with transaction(factory) as s:
-        ids = {sub: [e.id for e in s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sub)
-                                             .order_by(EpisodeRow.id)).scalars()] for sub in (greedy, late, unsent)}  # fmt: skip
+        ids = {
+            sub: [
+                e.id
+                for e in s.execute(
+                    select(EpisodeRow).where(EpisodeRow.submission_id == sub).order_by(EpisodeRow.id)
+                ).scalars()
+            ]
+            for sub in (greedy, late, unsent)
+        }
         work.take_unsent(s, stale_after_s=3600, ids=ids[greedy] + ids[late])
 
     def by_message(episode_id: int):  # type: ignore[no-untyped-def]

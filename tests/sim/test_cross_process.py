@@ -46,8 +46,13 @@ def test_fresh_process_gives_identical_figures(setting: str, boxes: int) -> None
     )
     here = run_episode(spec, load_policy("dbl"), setting).to_dict()
     env = {**os.environ, "PYTHONHASHSEED": "12345"}
-    proc = subprocess.run([sys.executable, "-c", SCRIPT.replace("BOXES", str(boxes)), setting],
-                          capture_output=True, text=True, env=env, timeout=600)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-c", SCRIPT.replace("BOXES", str(boxes)), setting],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     there = json.loads(proc.stdout.strip().splitlines()[-1])
     assert here["boxes_placed"] >= 3

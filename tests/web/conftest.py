@@ -44,8 +44,9 @@ class Server:
     def __init__(self, url: str, data_dir: Path) -> None:
         self.url = url
         self.data_dir = data_dir
-        self.client = httpx.Client(base_url=url, timeout=30.0,
-                                   headers={"Authorization": f"Bearer {ADMIN_TOKEN}"})  # fmt: skip
+        self.client = httpx.Client(
+            base_url=url, timeout=30.0, headers={"Authorization": f"Bearer {ADMIN_TOKEN}"}
+        )
         self.ids: dict[str, int] = {}
         self.datasets_visible = False
 
@@ -85,9 +86,15 @@ def _seed_hostile(database_url: str) -> int:
             participant = Participant(name=HOSTILE_PARTICIPANT)
             session.add(participant)
             session.flush()
-            sub = work.create_submission(session, participant, name=HOSTILE_SUBMISSION, policy_url="builtin:onlinebph",
-                                         datasets=["repetitive", "diverse", "longboard"], settings=["math", "physics"],
-                                         groups=2)  # fmt: skip
+            sub = work.create_submission(
+                session,
+                participant,
+                name=HOSTILE_SUBMISSION,
+                policy_url="builtin:onlinebph",
+                datasets=["repetitive", "diverse", "longboard"],
+                settings=["math", "physics"],
+                groups=2,
+            )
             session.flush()
             return sub.id
     finally:
@@ -121,10 +128,26 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     }
     log = (data_dir / "server.log").open("wb")
     proc = subprocess.Popen(
-        with_parent_death([sys.executable, "-m", "uvicorn", "robobpp.server.app:create_app", "--factory",
-                           "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"]),
-        env=env, stdout=log, stderr=subprocess.STDOUT, cwd=data_dir,
-    )  # fmt: skip
+        with_parent_death(
+            [
+                sys.executable,
+                "-m",
+                "uvicorn",
+                "robobpp.server.app:create_app",
+                "--factory",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(port),
+                "--log-level",
+                "warning",
+            ]
+        ),
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        cwd=data_dir,
+    )
     srv = Server(f"http://127.0.0.1:{port}", data_dir)
     srv.datasets_visible = data_available()
     try:
@@ -140,8 +163,9 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         srv.wait_until(healthy, "start")
         database_url = f"sqlite:///{(data_dir / 'robobpp-data' / 'robobpp.sqlite3').resolve()}"
         srv.ids["hostile"] = _seed_hostile(database_url)
-        r = srv.client.post("/api/v1/submissions", json={"name": "DBL public", "policy_url": "builtin:dbl",
-                                                          "track": "public"})  # fmt: skip
+        r = srv.client.post(
+            "/api/v1/submissions", json={"name": "DBL public", "policy_url": "builtin:dbl", "track": "public"}
+        )
         assert r.status_code == 201, r.text
         srv.ids["public"] = r.json()["id"]
         srv.wait_until(srv.all_finished, "every submission finishing")

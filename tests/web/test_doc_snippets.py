@@ -195,8 +195,9 @@ def test_every_doc_is_covered() -> None:
 def test_python_snippet_runs(snippet: Snippet, real_data_root: Path) -> None:
     env = {**os.environ, "ROBOBPP_DATA_DIR": str(real_data_root), "PYTHONPATH": str(ROOT)}
     code = snippet.code + "\nprint('SNIPPET-DONE')\n"
-    done = subprocess.run([sys.executable, "-c", code], env=env, text=True, capture_output=True, timeout=300,
-                          cwd=ROOT)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, text=True, capture_output=True, timeout=300, cwd=ROOT
+    )
     assert done.returncode == 0, f"{snippet}: {done.stderr[-2000:]}"
     assert "SNIPPET-DONE" in done.stdout
 
@@ -214,10 +215,22 @@ def test_protocol_curl_session_replays_as_recorded() -> None:
     recorded = re.search(r"policy serve (dbl --port (\d+) --secret (\S+))\)", snippet.note)
     port = _free_port()
     server = subprocess.Popen(
-        [sys.executable, "-c", "from robobpp.cli import main; main()", "policy", "serve", "dbl", "--port", str(port),
-         "--secret", recorded.group(3)],
-        env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-c",
+            "from robobpp.cli import main; main()",
+            "policy",
+            "serve",
+            "dbl",
+            "--port",
+            str(port),
+            "--secret",
+            recorded.group(3),
+        ],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.monotonic() + 60
         while True:
@@ -238,8 +251,9 @@ def test_protocol_curl_session_replays_as_recorded() -> None:
                 expected.append(json.loads(answer.group(1)))
             elif not line.startswith("#"):
                 script.append(line)
-        done = subprocess.run(["bash", "-euo", "pipefail", "-c", "\n".join(script)], text=True, capture_output=True,
-                              timeout=60)  # fmt: skip
+        done = subprocess.run(
+            ["bash", "-euo", "pipefail", "-c", "\n".join(script)], text=True, capture_output=True, timeout=60
+        )
         assert done.returncode == 0, done.stderr
         answers = [json.loads(a) for a in done.stdout.split("@@@")[:-1]]
         assert len(answers) == len(expected) >= 5

@@ -217,10 +217,16 @@ def test_submission_page_follows_a_running_evaluation(server: Server, probe: Pag
 
     gate = threading.Event()
     with BackgroundServer(create_policy_app(GatedPolicy(gate), None, name="gated")) as policy:
-        r = server.client.post("/api/v1/submissions", json={
-            "name": "gated-dbl", "policy_url": policy.url, "datasets": ["repetitive"], "settings": ["math"],
-            "track": "public",  # keeps the private boards the other tests count unchanged
-        })  # fmt: skip
+        r = server.client.post(
+            "/api/v1/submissions",
+            json={
+                "name": "gated-dbl",
+                "policy_url": policy.url,
+                "datasets": ["repetitive"],
+                "settings": ["math"],
+                "track": "public",  # keeps the private boards the other tests count unchanged
+            },
+        )
         assert r.status_code == 201, r.text
         sid = r.json()["id"]
         try:
@@ -302,8 +308,12 @@ def test_reproduction_page(server: Server, probe: PageProbe) -> None:
 
 
 def test_missing_things_answer_404_pages(server: Server) -> None:
-    for path in ("/submissions/999999", "/boards/nope/math", "/boards/repetitive/quantum",
-                 "/submissions/1/episodes/999999/replay"):  # fmt: skip
+    for path in (
+        "/submissions/999999",
+        "/boards/nope/math",
+        "/boards/repetitive/quantum",
+        "/submissions/1/episodes/999999/replay",
+    ):
         r = server.get(path)
         assert r.status_code == 404, path
         assert r.headers["content-type"].startswith("text/html")
@@ -350,9 +360,17 @@ def test_tables_fit_their_container_at_1280_px(server: Server, browser: Any) -> 
     wide = {}
     try:
         sign_in(page, server, ADMIN_TOKEN)  # the owner's view has the widest episode table (details)
-        for path in ("/", "/boards/repetitive/physics", "/boards/longboard/math", "/submissions/1", "/reproduction",
-                     "/?protocol=paper", "/boards/diverse/physics?protocol=paper",
-                     f"/submissions/{server.ids['hostile']}", f"/submissions/{server.ids['public']}"):  # fmt: skip
+        for path in (
+            "/",
+            "/boards/repetitive/physics",
+            "/boards/longboard/math",
+            "/submissions/1",
+            "/reproduction",
+            "/?protocol=paper",
+            "/boards/diverse/physics?protocol=paper",
+            f"/submissions/{server.ids['hostile']}",
+            f"/submissions/{server.ids['public']}",
+        ):
             page.goto(server.url + path)
             sizes = page.evaluate(
                 "() => Array.from(document.querySelectorAll('.table-wrap'))"
@@ -380,30 +398,95 @@ def test_execution_results_and_radar_fit_at_1280_px(server: Server, browser: Any
     from robobpp.web import environment, tables
 
     metrics = {m.key: 0.123456 for m in METRICS}
-    runs = [{"dataset": d, "setting": s, "status": "completed", "episodes_total": 30, "metrics": metrics,
-             "extras": {"pph": 612.0}, "completed_at": None}
-            for s in ("math", "physics", "execution") for d in ("repetitive", "diverse", "longboard")]  # fmt: skip
+    runs = [
+        {
+            "dataset": d,
+            "setting": s,
+            "status": "completed",
+            "episodes_total": 30,
+            "metrics": metrics,
+            "extras": {"pph": 612.0},
+            "completed_at": None,
+        }
+        for s in ("math", "physics", "execution")
+        for d in ("repetitive", "diverse", "longboard")
+    ]
     now = datetime(2026, 1, 1)
-    sub = {"id": 7, "name": "a-rather-long-policy-name v12", "participant": "participant-with-a-long-name",
-           "baseline": False, "policy_url": "https://policy.example.org:9000/" + "p" * 60, "track": "public",
-           "status": "completed", "created_at": now, "finished_at": now, "error": None, "runs": runs, "queue": None,
-           "progress": {"episodes_total": 270, "episodes_done": 270, "episodes_running": 0, "episodes_failed": 0,
-                        "phase": None}}  # fmt: skip
-    episodes = [{"id": 100000 + i, "dataset": "longboard", "setting": "execution", "group": i, "status": "done",
-                 "attempts": 1, "boxes_placed": 80, "boxes_total": 80, "metrics": metrics, "has_trace": True,
-                 "termination": "policy_error", "termination_detail": "POST /act (step 12) failed: " + "x" * 470}
-                for i in range(3)]  # fmt: skip
-    html = environment().get_template("submission.html").render(
-        root=server.url, static=server.url + "/static", SETTING_TITLES={"math": "Math Pack",
-        "physics": "Physics Pack", "execution": "Execution Pack"}, viewer=Viewer(nonce="n", admin=True, name="operator"),
-        csrf="n", title="t", nav="", sub=sub, has_pph=True, owner=True, can_cancel=False, episodes=episodes,
-        ranks={(r["dataset"], r["setting"]): {"rank": 12, "score": 0.5, "of": 20} for r in runs},
-        charts={"radar": [{"setting": "execution", "single": False, "labels": [m.label for m in METRICS],
-                           "series": [{"label": d, "values": [0.2 * (i % 5) for i in range(len(METRICS))]}
-                                      for d in ("repetitive", "diverse", "longboard")]}],
-                "utilization": tables.histogram([0.5])}, metrics=list(METRICS), public=True,
-        reasons=TERMINATION_REASONS, neutral=set(),
-    )  # fmt: skip
+    sub = {
+        "id": 7,
+        "name": "a-rather-long-policy-name v12",
+        "participant": "participant-with-a-long-name",
+        "baseline": False,
+        "policy_url": "https://policy.example.org:9000/" + "p" * 60,
+        "track": "public",
+        "status": "completed",
+        "created_at": now,
+        "finished_at": now,
+        "error": None,
+        "runs": runs,
+        "queue": None,
+        "progress": {
+            "episodes_total": 270,
+            "episodes_done": 270,
+            "episodes_running": 0,
+            "episodes_failed": 0,
+            "phase": None,
+        },
+    }
+    episodes = [
+        {
+            "id": 100000 + i,
+            "dataset": "longboard",
+            "setting": "execution",
+            "group": i,
+            "status": "done",
+            "attempts": 1,
+            "boxes_placed": 80,
+            "boxes_total": 80,
+            "metrics": metrics,
+            "has_trace": True,
+            "termination": "policy_error",
+            "termination_detail": "POST /act (step 12) failed: " + "x" * 470,
+        }
+        for i in range(3)
+    ]
+    html = (
+        environment()
+        .get_template("submission.html")
+        .render(
+            root=server.url,
+            static=server.url + "/static",
+            SETTING_TITLES={"math": "Math Pack", "physics": "Physics Pack", "execution": "Execution Pack"},
+            viewer=Viewer(nonce="n", admin=True, name="operator"),
+            csrf="n",
+            title="t",
+            nav="",
+            sub=sub,
+            has_pph=True,
+            owner=True,
+            can_cancel=False,
+            episodes=episodes,
+            ranks={(r["dataset"], r["setting"]): {"rank": 12, "score": 0.5, "of": 20} for r in runs},
+            charts={
+                "radar": [
+                    {
+                        "setting": "execution",
+                        "single": False,
+                        "labels": [m.label for m in METRICS],
+                        "series": [
+                            {"label": d, "values": [0.2 * (i % 5) for i in range(len(METRICS))]}
+                            for d in ("repetitive", "diverse", "longboard")
+                        ],
+                    }
+                ],
+                "utilization": tables.histogram([0.5]),
+            },
+            metrics=list(METRICS),
+            public=True,
+            reasons=TERMINATION_REASONS,
+            neutral=set(),
+        )
+    )
     context = browser.new_context(viewport={"width": 1280, "height": 900})
     try:
         page = context.new_page()

@@ -137,8 +137,12 @@ def test_robobpp_view_writes_a_self_contained_page(
     assert out.as_uri() in result.output
     html = out.read_text()
     assert "/static/" not in html  # nothing to fetch: it opens from disk
-    probe.page.route("**/*", lambda route: route.abort() if not route.request.url.startswith(("file:", "data:"))
-                     else route.continue_())  # fmt: skip
+    probe.page.route(
+        "**/*",
+        lambda route: (
+            route.abort() if not route.request.url.startswith(("file:", "data:")) else route.continue_()
+        ),
+    )
     probe.page.goto(out.as_uri())
     steps = len(read_trace(trace_file)[0]["steps"])
     check_viewer(probe, steps)
@@ -304,8 +308,15 @@ def test_the_physics_replay_shows_boxes_settling(tmp_path: Path, probe: PageProb
     from robobpp.episode import Episode
     from robobpp.sim.physics import PhysicsPack
 
-    spec = EpisodeSpec("repetitive", "train", 0, (Box(30, 30, 20, 5.0), Box(30, 30, 20, 5.0), Box(8, 30, 50, 1.0),
-                       Box(30, 30, 10, 20.0)), ContainerSpec(120, 100, 100), 7.0, 0)  # fmt: skip
+    spec = EpisodeSpec(
+        "repetitive",
+        "train",
+        0,
+        (Box(30, 30, 20, 5.0), Box(30, 30, 20, 5.0), Box(8, 30, 50, 1.0), Box(30, 30, 10, 20.0)),
+        ContainerSpec(120, 100, 100),
+        7.0,
+        0,
+    )
     episode = Episode(spec, PhysicsPack())
     for action in (Action(0, 0, 0), Action(30, 0, 0), Action(60, 60, 0), Action(53, 60, 0)):
         episode.step(action, 0.0)

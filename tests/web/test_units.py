@@ -121,14 +121,30 @@ def test_dense_top_shares_places_and_skips_missing() -> None:
 
 def _board() -> dict:
     entries = [
-        {"rank": 1, "score": 0.9, "submission_id": 1, "name": "a", "participant": "p", "baseline": True,
-         "metrics": {"space_utilization": 0.505, "occupancy": 0.8, "decision_time": 0.01},
-         "intervals": {"space_utilization": [0.4553, 0.5551], "decision_time": [0.008, 0.0125]},
-         "normalized": {"space_utilization": 1.0, "occupancy": 1.0, "decision_time": 0.0}, "extras": {}},
-        {"rank": 2, "score": 0.2, "submission_id": 2, "name": "<b>", "participant": "q", "baseline": False,
-         "metrics": {"space_utilization": 0.4, "occupancy": 0.6, "decision_time": 0.001},
-         "normalized": {"space_utilization": 0.0, "occupancy": 0.0, "decision_time": 1.0}, "extras": {}},
-    ]  # fmt: skip
+        {
+            "rank": 1,
+            "score": 0.9,
+            "submission_id": 1,
+            "name": "a",
+            "participant": "p",
+            "baseline": True,
+            "metrics": {"space_utilization": 0.505, "occupancy": 0.8, "decision_time": 0.01},
+            "intervals": {"space_utilization": [0.4553, 0.5551], "decision_time": [0.008, 0.0125]},
+            "normalized": {"space_utilization": 1.0, "occupancy": 1.0, "decision_time": 0.0},
+            "extras": {},
+        },
+        {
+            "rank": 2,
+            "score": 0.2,
+            "submission_id": 2,
+            "name": "<b>",
+            "participant": "q",
+            "baseline": False,
+            "metrics": {"space_utilization": 0.4, "occupancy": 0.6, "decision_time": 0.001},
+            "normalized": {"space_utilization": 0.0, "occupancy": 0.0, "decision_time": 1.0},
+            "extras": {},
+        },
+    ]
     return {"dataset": "diverse", "setting": "math", "entries": entries}
 
 
@@ -147,14 +163,41 @@ def test_board_table_columns_and_places() -> None:
 
 
 def test_grid_table_and_radar() -> None:
-    grid = {"settings": ["math"], "datasets": ["diverse", "longboard"], "rows": [
-        {"submission_id": 2, "name": "b", "participant": "q", "baseline": False, "status": "ranked", "mean": 0.6,
-         "mean_low": 0.5, "mean_high": 0.7, "rank": 1, "rank_low": 1, "rank_high": 2,
-         "cells": {"math/diverse": {"score": 0.2, "rank": 2}, "math/longboard": {"score": 1.0, "rank": 1}}},
-    ], "apart": [
-        {"submission_id": 1, "name": "a", "participant": "p", "baseline": True, "status": "partial", "boards": 1,
-         "cells": {"math/diverse": {"score": 0.9, "rank": 1}}},
-    ], "apart_total": 1}  # fmt: skip
+    grid = {
+        "settings": ["math"],
+        "datasets": ["diverse", "longboard"],
+        "rows": [
+            {
+                "submission_id": 2,
+                "name": "b",
+                "participant": "q",
+                "baseline": False,
+                "status": "ranked",
+                "mean": 0.6,
+                "mean_low": 0.5,
+                "mean_high": 0.7,
+                "rank": 1,
+                "rank_low": 1,
+                "rank_high": 2,
+                "cells": {
+                    "math/diverse": {"score": 0.2, "rank": 2},
+                    "math/longboard": {"score": 1.0, "rank": 1},
+                },
+            },
+        ],
+        "apart": [
+            {
+                "submission_id": 1,
+                "name": "a",
+                "participant": "p",
+                "baseline": True,
+                "status": "partial",
+                "boards": 1,
+                "cells": {"math/diverse": {"score": 0.9, "rank": 1}},
+            },
+        ],
+        "apart_total": 1,
+    }
     table = grid_table(grid)
     assert table["keys"] == ["math/diverse", "math/longboard"]
     (b,) = table["rows"]
@@ -230,11 +273,22 @@ def test_every_template_autoescapes() -> None:
     for path in TEMPLATES_DIR.glob("*.html"):
         assert "|safe" not in path.read_text().replace(" ", ""), f"{path.name} marks data safe"
     html = env.get_template("board.html").render(
-        root="", static="/static", title="t", nav="", dataset=__import__("robobpp.datasets").datasets.DATASETS["diverse"],
-        setting="math", track="private", table=board_table(_board()), weights={"a": 1.0}, top=4, other_boards=[],
-        SETTING_TITLES={"math": "Math Pack"}, view="best", pages=pages({"total": 2, "limit": 50}, 1),
+        root="",
+        static="/static",
+        title="t",
+        nav="",
+        dataset=__import__("robobpp.datasets").datasets.DATASETS["diverse"],
+        setting="math",
+        track="private",
+        table=board_table(_board()),
+        weights={"a": 1.0},
+        top=4,
+        other_boards=[],
+        SETTING_TITLES={"math": "Math Pack"},
+        view="best",
+        pages=pages({"total": 2, "limit": 50}, 1),
         board={"anchors": "anchors-v1", "confidence": 0.95, "groups": 30, "resamples": 1000},
-    )  # fmt: skip
+    )
     assert "<b>" not in html.split("<main>")[1] and "&lt;b&gt;" in html
 
 
@@ -247,8 +301,9 @@ def test_protocol_page_example_policy_really_packs() -> None:
     policy = namespace["LowestFirst"]()
     rng = np.random.default_rng(5)
     boxes = tuple(Box(*map(float, rng.integers(20, 50, 3)), 2.0) for _ in range(20))
-    result = run_episode(EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0),
-                         policy, "math")  # fmt: skip
+    result = run_episode(
+        EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0), policy, "math"
+    )
     assert result.boxes_placed >= 5 and result.metrics["space_utilization"] > 0.1
     # One API: the page shows exactly the policy of examples/policy_server.py.
     example = (Path(__file__).resolve().parents[2] / "examples" / "policy_server.py").read_text()
@@ -287,8 +342,11 @@ def test_view_cli_serves_the_viewer(tmp_path: Path) -> None:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     code = "from robobpp.cli import main; main()"
-    proc = subprocess.Popen([sys.executable, "-c", code, "view", str(trace), "--no-open", "--port", str(port)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "view", str(trace), "--no-open", "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     try:
         deadline = time.monotonic() + 60
         while True:
@@ -310,13 +368,32 @@ def _board_page(entries: list, groups: int, protocol: str = "closed") -> str:
     from robobpp.datasets import DATASETS
 
     board = {**_board(), "entries": entries}
-    return environment().get_template("board.html").render(
-        root="", static="/static", title="t", nav="", dataset=DATASETS["diverse"], setting="physics", track="private",
-        table=board_table(board), weights={"a": 1.0}, top=4, protocol=protocol, has_physical=True,
-        other_boards=[("repetitive", "math", "Repetitive · Math Pack"), ("diverse", "physics", "Diverse · Physics Pack")],
-        SETTING_TITLES={"math": "Math Pack", "physics": "Physics Pack"}, view="best", pages=pages({"total": len(entries), "limit": 50}, 1),
-        board={"anchors": "anchors-v1", "confidence": 0.95, "groups": groups, "resamples": 1000},
-    )  # fmt: skip
+    return (
+        environment()
+        .get_template("board.html")
+        .render(
+            root="",
+            static="/static",
+            title="t",
+            nav="",
+            dataset=DATASETS["diverse"],
+            setting="physics",
+            track="private",
+            table=board_table(board),
+            weights={"a": 1.0},
+            top=4,
+            protocol=protocol,
+            has_physical=True,
+            other_boards=[
+                ("repetitive", "math", "Repetitive · Math Pack"),
+                ("diverse", "physics", "Diverse · Physics Pack"),
+            ],
+            SETTING_TITLES={"math": "Math Pack", "physics": "Physics Pack"},
+            view="best",
+            pages=pages({"total": len(entries), "limit": 50}, 1),
+            board={"anchors": "anchors-v1", "confidence": 0.95, "groups": groups, "resamples": 1000},
+        )
+    )
 
 
 def test_an_empty_board_says_so_plainly_and_links_boards_by_title() -> None:
@@ -335,17 +412,40 @@ def test_reproduction_tables_say_how_many_groups_are_behind_ours() -> None:
     """The groups behind "ours" were only in a tooltip (the demo compares 2 groups with the paper's 30)."""
     from robobpp.web.tables import reproduction_tables
 
-    cell = {"setting": "physics", "metric": "space_utilization", "policy": "dbl", "paper": 0.5, "ours": 0.48,
-            "diff": -0.02, "table": "T1"}  # fmt: skip
-    data = {"cells": [{**cell, "dataset": "diverse"}, {**cell, "dataset": "longboard"}],
-            "runs": [{"setting": "physics", "dataset": d, "policy": "dbl", "groups": 2} for d in ("diverse", "longboard")]}  # fmt: skip
+    cell = {
+        "setting": "physics",
+        "metric": "space_utilization",
+        "policy": "dbl",
+        "paper": 0.5,
+        "ours": 0.48,
+        "diff": -0.02,
+        "table": "T1",
+    }
+    data = {
+        "cells": [{**cell, "dataset": "diverse"}, {**cell, "dataset": "longboard"}],
+        "runs": [
+            {"setting": "physics", "dataset": d, "policy": "dbl", "groups": 2}
+            for d in ("diverse", "longboard")
+        ],
+    }
     (table,) = reproduction_tables(data, {"dbl": "DBL"})
     assert table["groups"] == "2" and table["paper_groups"] == 30 and table["few_groups"]
-    html = environment().get_template("reproduction.html").render(
-        root="", static="/static", title="t", nav="", track="private", tables=[table], table_captions={},
-        data={"paper": "the paper"}, PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
-        SETTING_TITLES={"physics": "Physics Pack"},
-    )  # fmt: skip
+    html = (
+        environment()
+        .get_template("reproduction.html")
+        .render(
+            root="",
+            static="/static",
+            title="t",
+            nav="",
+            track="private",
+            tables=[table],
+            table_captions={},
+            data={"paper": "the paper"},
+            PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
+            SETTING_TITLES={"physics": "Physics Pack"},
+        )
+    )
     text = re.sub(r"<[^>]+>", "", html.split('data-role="groups"')[1].split("</p>")[0])
     assert "Ours: 2 groups per figure; the paper’s: 30." in text and "Far fewer groups" in text
     many = {**data, "runs": [{**r, "groups": 30} for r in data["runs"]]}

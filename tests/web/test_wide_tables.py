@@ -77,10 +77,19 @@ def test_no_table_is_cut_on_the_served_pages(server: Server, browser: Any, width
     scrolled: list[str] = []
     seen = 0
     try:
-        public = ["/", "/?track=public&view=all", "/boards/repetitive/math", "/boards/diverse/physics",
-                  "/boards/longboard/physics?view=all", "/datasets", "/protocol", "/reproduction",
-                  "/?protocol=paper", "/boards/diverse/physics?protocol=paper",
-                  f"/submissions/{server.ids['public']}"]  # fmt: skip
+        public = [
+            "/",
+            "/?track=public&view=all",
+            "/boards/repetitive/math",
+            "/boards/diverse/physics",
+            "/boards/longboard/physics?view=all",
+            "/datasets",
+            "/protocol",
+            "/reproduction",
+            "/?protocol=paper",
+            "/boards/diverse/physics?protocol=paper",
+            f"/submissions/{server.ids['public']}",
+        ]
         signed = ["/account", "/operator", "/submit", f"/submissions/{server.ids['hostile']}"]
         for path in public:
             page.goto(server.url + path)
@@ -101,15 +110,39 @@ def test_no_table_is_cut_on_the_served_pages(server: Server, browser: Any, width
 
 def _execution_board() -> dict[str, Any]:
     keys = [m.key for m in METRICS]
-    entries = [{"rank": i + 1, "rank_low": 1, "rank_high": 4, "score": 0.9 - 0.1 * i, "score_low": 0.41,
-                "score_high": 0.97, "stable": 0.61, "stable_low": 0.55, "stable_high": 0.66, "submission_id": i + 1,
-                "name": f"a-rather-long-policy-name-{i} v12", "participant": "participant-with-a-long-name",
-                "baseline": i % 2 == 0, "metrics": {k: 0.123456 + 0.01 * i for k in keys},
-                "intervals": {k: [0.1, 0.2] for k in keys}, "normalized": {k: 0.5 for k in keys},
-                "extras": {"pph": 612.0, "boxes_placed_mean": 41.5, "episodes": 30}}
-               for i in range(6)]  # fmt: skip
-    return {"dataset": "longboard", "setting": "execution", "entries": entries, "unranked": [], "total": 6,
-            "anchors": "anchors-v1", "confidence": 0.95, "groups": 30, "resamples": 1000}  # fmt: skip
+    entries = [
+        {
+            "rank": i + 1,
+            "rank_low": 1,
+            "rank_high": 4,
+            "score": 0.9 - 0.1 * i,
+            "score_low": 0.41,
+            "score_high": 0.97,
+            "stable": 0.61,
+            "stable_low": 0.55,
+            "stable_high": 0.66,
+            "submission_id": i + 1,
+            "name": f"a-rather-long-policy-name-{i} v12",
+            "participant": "participant-with-a-long-name",
+            "baseline": i % 2 == 0,
+            "metrics": {k: 0.123456 + 0.01 * i for k in keys},
+            "intervals": {k: [0.1, 0.2] for k in keys},
+            "normalized": {k: 0.5 for k in keys},
+            "extras": {"pph": 612.0, "boxes_placed_mean": 41.5, "episodes": 30},
+        }
+        for i in range(6)
+    ]
+    return {
+        "dataset": "longboard",
+        "setting": "execution",
+        "entries": entries,
+        "unranked": [],
+        "total": 6,
+        "anchors": "anchors-v1",
+        "confidence": 0.95,
+        "groups": 30,
+        "resamples": 1000,
+    }
 
 
 def _grid() -> dict[str, Any]:
@@ -122,10 +155,26 @@ def _grid() -> dict[str, Any]:
         "rank_low": 3,
         "rank_high": 17,
     }
-    rows = [{"submission_id": i + 1, "name": f"a-rather-long-policy-name-{i} v12", "participant": "participant-x",
-             "baseline": False, "status": "ranked", "mean": 0.5, "mean_low": 0.412, "mean_high": 0.588,
-             "stable": 0.61, "stable_low": 0.55, "stable_high": 0.66, "rank": i + 1, "rank_low": 1, "rank_high": 9,
-             "cells": {f"{s}/{d}": cell for s in settings for d in datasets}} for i in range(6)]  # fmt: skip
+    rows = [
+        {
+            "submission_id": i + 1,
+            "name": f"a-rather-long-policy-name-{i} v12",
+            "participant": "participant-x",
+            "baseline": False,
+            "status": "ranked",
+            "mean": 0.5,
+            "mean_low": 0.412,
+            "mean_high": 0.588,
+            "stable": 0.61,
+            "stable_low": 0.55,
+            "stable_high": 0.66,
+            "rank": i + 1,
+            "rank_low": 1,
+            "rank_high": 9,
+            "cells": {f"{s}/{d}": cell for s in settings for d in datasets},
+        }
+        for i in range(6)
+    ]
     return {
         "settings": settings,
         "datasets": datasets,
@@ -144,18 +193,44 @@ def test_no_table_is_cut_on_an_execution_board_and_the_full_grid(
     from robobpp.scoring import WEIGHTS
     from robobpp.server.site.session import Viewer
 
-    common = {"root": server.url, "static": server.url + "/static", "viewer": Viewer(nonce="", admin=False),
-              "csrf": "", "title": "t", "nav": "leaderboard", "track": "private", "view": "best", "top": tables.TOP}  # fmt: skip
+    common = {
+        "root": server.url,
+        "static": server.url + "/static",
+        "viewer": Viewer(nonce="", admin=False),
+        "csrf": "",
+        "title": "t",
+        "nav": "leaderboard",
+        "track": "private",
+        "view": "best",
+        "top": tables.TOP,
+    }
     board = _execution_board()
     pages = {
-        "execution board": environment().get_template("board.html").render(
-            **common, dataset=DATASETS["longboard"], setting="execution", table=tables.board_table(board),
-            weights=WEIGHTS["execution"], pages=tables.pages(board, 1), board=board, protocol="closed",
-            has_physical=False, other_boards=[]),
-        "3 × 3 grid": environment().get_template("index.html").render(
-            **common, table=tables.grid_table(_grid()), datasets_info=DATASETS, pages=tables.pages(_grid(), 1),
-            protocol="closed", has_physical=False),
-    }  # fmt: skip
+        "execution board": environment()
+        .get_template("board.html")
+        .render(
+            **common,
+            dataset=DATASETS["longboard"],
+            setting="execution",
+            table=tables.board_table(board),
+            weights=WEIGHTS["execution"],
+            pages=tables.pages(board, 1),
+            board=board,
+            protocol="closed",
+            has_physical=False,
+            other_boards=[],
+        ),
+        "3 × 3 grid": environment()
+        .get_template("index.html")
+        .render(
+            **common,
+            table=tables.grid_table(_grid()),
+            datasets_info=DATASETS,
+            pages=tables.pages(_grid(), 1),
+            protocol="closed",
+            has_physical=False,
+        ),
+    }
     context = browser.new_context(viewport={"width": width, "height": 900})
     cut: list[str] = []
     scrolled: list[str] = []

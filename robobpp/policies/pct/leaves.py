@@ -140,8 +140,12 @@ def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) 
             continue
         heights[orientation] = (sx, sy, height, drop_height_map(obs.heightmap, length, width))
         fit = spaces[np.all(spaces[:, 3:] - spaces[:, :3] >= (sx, sy, height - 1e-9), axis=1)]
-        for x, y in ((fit[:, 0], fit[:, 1]), (fit[:, 3] - sx, fit[:, 1]), (fit[:, 0], fit[:, 4] - sy),
-                     (fit[:, 3] - sx, fit[:, 4] - sy)):  # fmt: skip
+        for x, y in (
+            (fit[:, 0], fit[:, 1]),
+            (fit[:, 3] - sx, fit[:, 1]),
+            (fit[:, 0], fit[:, 4] - sy),
+            (fit[:, 3] - sx, fit[:, 4] - sy),
+        ):
             corners.append(np.stack([x, y, fit[:, 2], np.full(len(fit), orientation)], axis=1))
 
     # Check every candidate as a drop at once (in the reference's shuffled order), then keep the first 50.
@@ -175,9 +179,16 @@ def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) 
     chosen = np.flatnonzero(fits)[:LEAF_HOLDER]
     leaves = np.zeros((LEAF_HOLDER, 8))
     leaves[: len(chosen)] = np.column_stack(
-        [xs[chosen], ys[chosen], order[chosen, 2], xs[chosen] + size[chosen, 0], ys[chosen] + size[chosen, 1],
-         np.full(len(chosen), container.height), np.zeros((len(chosen), 2))]
-    )  # fmt: skip
+        [
+            xs[chosen],
+            ys[chosen],
+            order[chosen, 2],
+            xs[chosen] + size[chosen, 0],
+            ys[chosen] + size[chosen, 1],
+            np.full(len(chosen), container.height),
+            np.zeros((len(chosen), 2)),
+        ]
+    )
     actions = [(int(xs[i]), int(ys[i]), int(orient[i])) for i in chosen]
     leaf_valid = np.zeros(LEAF_HOLDER, bool)
     leaf_valid[: len(actions)] = True

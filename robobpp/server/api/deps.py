@@ -73,9 +73,13 @@ def auth_refused_for(request: Request) -> float:
 
 
 def too_many_failures(wait_s: float) -> ProblemError:
-    return ProblemError(429, "too-many-failures", "Too many failed authentications",
-                        f"too many wrong tokens from this address; retry in {wait_s:.0f} s",
-                        headers={"Retry-After": str(max(1, round(wait_s)))})  # fmt: skip
+    return ProblemError(
+        429,
+        "too-many-failures",
+        "Too many failed authentications",
+        f"too many wrong tokens from this address; retry in {wait_s:.0f} s",
+        headers={"Retry-After": str(max(1, round(wait_s)))},
+    )
 
 
 def principal_for_token(request: Request, token: str) -> Principal | None:

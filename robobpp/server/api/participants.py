@@ -26,12 +26,20 @@ def issue_token(session: SessionDep, participant: Participant) -> TokenCreated:
     row = ApiToken(participant_id=participant.id, token_hash=queries.hash_token(token), prefix=token[:10])
     session.add(row)
     session.flush()
-    return TokenCreated(participant=ParticipantPublic.model_validate(participant, from_attributes=True),
-                        token=token, prefix=token[:10], id=row.id)  # fmt: skip
+    return TokenCreated(
+        participant=ParticipantPublic.model_validate(participant, from_attributes=True),
+        token=token,
+        prefix=token[:10],
+        id=row.id,
+    )
 
 
-@router.post("/participants", status_code=201, response_model=TokenCreated,
-             summary="Create a participant and its first API token (admin)")  # fmt: skip
+@router.post(
+    "/participants",
+    status_code=201,
+    response_model=TokenCreated,
+    summary="Create a participant and its first API token (admin)",
+)
 def create_participant(body: ParticipantCreate, session: SessionDep, _admin: AdminDep) -> TokenCreated:
     if session.execute(select(Participant.id).where(Participant.name == body.name)).first() is not None:
         raise ProblemError(409, "conflict", "Name taken", f"a participant named {body.name!r} already exists")
@@ -41,8 +49,12 @@ def create_participant(body: ParticipantCreate, session: SessionDep, _admin: Adm
     return issue_token(session, participant)
 
 
-@router.post("/participants/{participant_id}/tokens", status_code=201, response_model=TokenCreated,
-             summary="Issue another API token for a participant (admin)")  # fmt: skip
+@router.post(
+    "/participants/{participant_id}/tokens",
+    status_code=201,
+    response_model=TokenCreated,
+    summary="Issue another API token for a participant (admin)",
+)
 def create_token(participant_id: Id, session: SessionDep, _admin: AdminDep) -> TokenCreated:
     participant = session.get(Participant, participant_id)
     if participant is None or participant.is_builtin:
@@ -75,12 +87,15 @@ def me_of(session: Session, principal: Principal, settings: Settings) -> Me:
             "submissions_per_day": settings.quota_submissions_per_day,
             "active": active,
             "concurrent": settings.quota_concurrent,
-        },  # fmt: skip
+        },
     )
 
 
-@router.get("/tokens", response_model=list[TokenPublic],
-            summary="Your API tokens (admin: every participant's, or one participant's)")  # fmt: skip
+@router.get(
+    "/tokens",
+    response_model=list[TokenPublic],
+    summary="Your API tokens (admin: every participant's, or one participant's)",
+)
 def list_tokens(
     session: SessionDep,
     principal: PrincipalDep,
@@ -93,8 +108,11 @@ def list_tokens(
     return [TokenPublic.model_validate(t, from_attributes=True) for t in session.execute(query).scalars()]
 
 
-@router.delete("/tokens/{token_id}", response_model=TokenPublic,
-               summary="Revoke an API token (its owner or the admin); it stops working at once")  # fmt: skip
+@router.delete(
+    "/tokens/{token_id}",
+    response_model=TokenPublic,
+    summary="Revoke an API token (its owner or the admin); it stops working at once",
+)
 def revoke_token(token_id: Id, session: SessionDep, principal: PrincipalDep) -> TokenPublic:
     """Idempotent: revoking a revoked token answers it unchanged (its first ``revoked_at`` is kept).
 

@@ -77,8 +77,10 @@ class PullHub:
     ) -> bool:
         """Count a new client connection in, unless its submission or participant is at its cap (a flood of
         idle sockets costs file handles and memory, and serves nothing: one per episode served at once)."""
-        if (self.open_per_submission[submission_id] >= per_submission
-                or self.open_per_participant[participant_id] >= per_participant):  # fmt: skip
+        if (
+            self.open_per_submission[submission_id] >= per_submission
+            or self.open_per_participant[participant_id] >= per_participant
+        ):
             return False
         self.open_per_submission[submission_id] += 1
         self.open_per_participant[participant_id] += 1
@@ -157,8 +159,9 @@ def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[i
         if sub is None or not (principal.admin or sub.participant_id == principal.participant_id):
             raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id} of yours")
         if sub.mode != "pull":
-            raise ProblemError(409, "not-pull", "Not a pull submission",
-                               f"submission {submission_id} is in {sub.mode} mode")  # fmt: skip
+            raise ProblemError(
+                409, "not-pull", "Not a pull submission", f"submission {submission_id} is in {sub.mode} mode"
+            )
         if sub.status not in ACTIVE_SUBMISSION:
             raise ProblemError(410, "finished", "Finished", f"submission {submission_id} is {sub.status}")
         return sub.id, sub.participant_id
@@ -174,7 +177,7 @@ def _worker_submission(runtime: Any, episode_id: int, lease: str) -> int | None:
                 EpisodeRow.lease_token == lease,
                 EpisodeRow.status == "running",
                 Submission.mode == "pull",
-            )  # fmt: skip
+            )
         ).first()
     return None if row is None else int(row[0])
 
@@ -194,10 +197,14 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
         return
     settings = ws.app.state.settings
     hub = hub_of(ws)
-    if not hub.admit(submission_id, participant_id, settings.pull_max_per_submission,
-                     settings.pull_max_per_participant):  # fmt: skip
-        await ws.close(TOO_MANY, f"too many connections: at most {settings.pull_max_per_submission} per submission "
-                                 f"and {settings.pull_max_per_participant} per participant")  # fmt: skip
+    if not hub.admit(
+        submission_id, participant_id, settings.pull_max_per_submission, settings.pull_max_per_participant
+    ):
+        await ws.close(
+            TOO_MANY,
+            f"too many connections: at most {settings.pull_max_per_submission} per submission "
+            f"and {settings.pull_max_per_participant} per participant",
+        )
         return
     try:
         cap = settings.response_cap_bytes + ENVELOPE_BYTES

@@ -60,8 +60,9 @@ def _unique(values: list[str]) -> list[str]:
 
 def _visible(session: SessionDep, principal: PrincipalDep, submission_id: int) -> Submission:
     sub = session.get(Submission, submission_id)
-    if sub is not None and (principal.admin or sub.participant_id == principal.participant_id
-                            or sub.participant.is_builtin):  # fmt: skip
+    if sub is not None and (
+        principal.admin or sub.participant_id == principal.participant_id or sub.participant.is_builtin
+    ):
         return sub
     raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id} visible to this token")
 
@@ -78,8 +79,12 @@ async def _check_url(
     url = body.policy_url.strip()
     if url.startswith(BUILTIN_SCHEME):
         if not principal.admin:
-            raise ProblemError(422, "policy-url-invalid", "Invalid policy URL",
-                               "built-in policies are submitted by the operator only")  # fmt: skip
+            raise ProblemError(
+                422,
+                "policy-url-invalid",
+                "Invalid policy URL",
+                "built-in policies are submitted by the operator only",
+            )
         if url[len(BUILTIN_SCHEME) :] not in BUILTIN:
             raise ProblemError(
                 422, "policy-url-invalid", "Invalid policy URL", f"unknown built-in policy {url!r}"
@@ -100,8 +105,11 @@ async def _check_url(
     try:
         checked, shown = await gate.run(f"participant-{principal.participant_id or 'admin'}", check)
     except UnsafeURLError as exc:
-        title = {"policy-url-forbidden": "Policy URL refused", "policy-unreachable": "Policy unreachable",
-                 "policy-signature": "Signature mismatch"}  # fmt: skip
+        title = {
+            "policy-url-forbidden": "Policy URL refused",
+            "policy-unreachable": "Policy unreachable",
+            "policy-signature": "Signature mismatch",
+        }
         raise ProblemError(422, exc.kind, title.get(exc.kind, "Invalid policy URL"), exc.detail) from None
     return checked.url, checked.pinned_ip, body.name or clean_name(shown)
 
@@ -117,15 +125,27 @@ def _check_quota(
         session = lock if lock is not None else stack.enter_context(request.app.state.runtime.read_session())
         day, active = queries.quota_usage(session, principal.participant.id)
     if day >= settings.quota_submissions_per_day:
-        raise ProblemError(429, "quota-exceeded", "Quota exceeded",
-                           f"at most {settings.quota_submissions_per_day} submissions per 24 hours")  # fmt: skip
+        raise ProblemError(
+            429,
+            "quota-exceeded",
+            "Quota exceeded",
+            f"at most {settings.quota_submissions_per_day} submissions per 24 hours",
+        )
     if active >= settings.quota_concurrent:
-        raise ProblemError(429, "quota-exceeded", "Quota exceeded",
-                           f"at most {settings.quota_concurrent} evaluations at a time; wait or cancel one")  # fmt: skip
+        raise ProblemError(
+            429,
+            "quota-exceeded",
+            "Quota exceeded",
+            f"at most {settings.quota_concurrent} evaluations at a time; wait or cancel one",
+        )
 
 
-@router.post("/submissions", status_code=201, response_model=SubmissionPublic,
-             summary="Submit a policy URL for evaluation")  # fmt: skip
+@router.post(
+    "/submissions",
+    status_code=201,
+    response_model=SubmissionPublic,
+    summary="Submit a policy URL for evaluation",
+)
 async def create_submission(
     request: Request, body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
 ) -> SubmissionPublic:
@@ -140,8 +160,12 @@ async def create_submission(
             )
     for s in setting_names:
         if s not in settings.enabled_settings:
-            raise ProblemError(422, "setting-unavailable", "Setting unavailable",
-                               f"setting {s!r} is not offered here (offered: {', '.join(settings.enabled_settings)})")  # fmt: skip
+            raise ProblemError(
+                422,
+                "setting-unavailable",
+                "Setting unavailable",
+                f"setting {s!r} is not offered here (offered: {', '.join(settings.enabled_settings)})",
+            )
     await run_in_threadpool(_check_quota, request, principal, settings)  # no outbound call over quota
     url, pinned_ip, name = await _check_url(request, body, principal, settings)
 
@@ -157,10 +181,20 @@ async def create_submission(
                     select(Participant).where(Participant.id == principal.participant.id).with_for_update()
                 ).scalar_one()  # the row lock serialises quota checks of one participant
                 _check_quota(request, principal, settings, lock=session)
-            sub = work.create_submission(session, participant, name=name, policy_url=url, secret=body.secret,
-                                         pinned_ip=pinned_ip, datasets=datasets, settings=setting_names,
-                                         groups=settings.groups, track=body.track, lookahead=body.lookahead,
-                                         mode=body.mode)  # fmt: skip
+            sub = work.create_submission(
+                session,
+                participant,
+                name=name,
+                policy_url=url,
+                secret=body.secret,
+                pinned_ip=pinned_ip,
+                datasets=datasets,
+                settings=setting_names,
+                groups=settings.groups,
+                track=body.track,
+                lookahead=body.lookahead,
+                mode=body.mode,
+            )
             session.refresh(sub)
             return SubmissionPublic.model_validate(queries.submission_view(session, sub))
 
@@ -185,8 +219,15 @@ async def list_submissions(
     return Response(await in_read_session(request, listed), media_type="application/json")
 
 
-def listed_forms(views: FinishedViews, session: Session, owner: int | None, limit: int, offset: int,
-                 kind: tuple[Any, ...], build: Callable[[dict[str, Any]], T]) -> list[T]:  # fmt: skip
+def listed_forms(
+    views: FinishedViews,
+    session: Session,
+    owner: int | None,
+    limit: int,
+    offset: int,
+    kind: tuple[Any, ...],
+    build: Callable[[dict[str, Any]], T],
+) -> list[T]:
     """A page of submissions (newest first; ``owner``'s, or everyone's) as served forms, each ``build``
     from its :func:`queries.submission_view` and kept in ``views`` under ``kind``.
 
@@ -207,8 +248,9 @@ def listed_forms(views: FinishedViews, session: Session, owner: int | None, limi
     return views.get_many(kind, keys, build_missing, counts)
 
 
-def submission_models(views: FinishedViews, session: Session, principal: Principal, limit: int = 50,
-                      offset: int = 0) -> list[SubmissionPublic]:  # fmt: skip
+def submission_models(
+    views: FinishedViews, session: Session, principal: Principal, limit: int = 50, offset: int = 0
+) -> list[SubmissionPublic]:
     """The listed submissions as models (the account pages); see :func:`listed_forms`."""
     owner = None if principal.admin else principal.participant_id
     return listed_forms(views, session, owner, limit, offset, ("model",), SubmissionPublic.model_validate)
@@ -222,8 +264,11 @@ def _json(session: Session, sub: Submission) -> bytes:
     return _view_json({**queries.submission_view(session, sub), "queue": waiting.queue_place(session, sub)})
 
 
-@router.get("/submissions/{submission_id}", response_model=SubmissionPublic,
-            summary="One submission: status, progress and per-run metrics")  # fmt: skip
+@router.get(
+    "/submissions/{submission_id}",
+    response_model=SubmissionPublic,
+    summary="One submission: status, progress and per-run metrics",
+)
 async def get_submission(request: Request, submission_id: Id, principal: PrincipalDep) -> Response:
     def one(session: Session) -> bytes:
         sub = _visible(session, principal, submission_id)
@@ -232,8 +277,11 @@ async def get_submission(request: Request, submission_id: Id, principal: Princip
     return Response(await in_read_session(request, one), media_type="application/json")
 
 
-@router.post("/submissions/{submission_id}/cancel", response_model=SubmissionPublic,
-             summary="Cancel an evaluation; workers stop taking its episodes")  # fmt: skip
+@router.post(
+    "/submissions/{submission_id}/cancel",
+    response_model=SubmissionPublic,
+    summary="Cancel an evaluation; workers stop taking its episodes",
+)
 def cancel(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> SubmissionPublic:
     sub = _visible(session, principal, submission_id)
     if sub.participant.is_builtin and not principal.admin:
@@ -241,9 +289,13 @@ def cancel(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> S
             404, "not-found", "Not found", f"no submission {submission_id} visible to this token"
         )
     if sub.track == "verify" and not principal.admin:  # its participant must not erase its own verdict
-        raise ProblemError(403, "forbidden", "The operator's verification",
-                           f"submission {submission_id} re-evaluates your entry on the hold-out draw; only the "
-                           "operator can cancel it")  # fmt: skip
+        raise ProblemError(
+            403,
+            "forbidden",
+            "The operator's verification",
+            f"submission {submission_id} re-evaluates your entry on the hold-out draw; only the "
+            "operator can cancel it",
+        )
     if not work.cancel_submission(session, sub):
         raise ProblemError(409, "conflict", "Already finished", f"submission {submission_id} is {sub.status}")
     session.flush()
@@ -251,8 +303,11 @@ def cancel(submission_id: Id, session: SessionDep, principal: PrincipalDep) -> S
     return SubmissionPublic.model_validate(queries.submission_view(session, sub))
 
 
-@router.get("/submissions/{submission_id}/episodes", response_model=list[EpisodePublic],
-            summary="Per-episode results with termination reasons")  # fmt: skip
+@router.get(
+    "/submissions/{submission_id}/episodes",
+    response_model=list[EpisodePublic],
+    summary="Per-episode results with termination reasons",
+)
 async def episodes(request: Request, submission_id: Id, principal: PrincipalDep) -> Response:
     def listed(session: Session) -> bytes:
         sub = _visible(session, principal, submission_id)
@@ -260,9 +315,12 @@ async def episodes(request: Request, submission_id: Id, principal: PrincipalDep)
         return finished_views(request.app.state).get(
             ("api-episodes", public),
             sub,
-            lambda: _EPISODES.dump_json(_EPISODES.validate_python(
-                [_public_episode(e) if public else e for e in queries.episode_rows(session, sub.id)])),
-        )  # fmt: skip
+            lambda: _EPISODES.dump_json(
+                _EPISODES.validate_python(
+                    [_public_episode(e) if public else e for e in queries.episode_rows(session, sub.id)]
+                )
+            ),
+        )
 
     return Response(await in_read_session(request, listed), media_type="application/json")
 
@@ -281,8 +339,11 @@ def _public_episode(summary: dict[str, Any]) -> dict[str, Any]:
     return {**summary, "termination_detail": ""}
 
 
-@router.get("/submissions/{submission_id}/episodes/{episode_id}", response_model=EpisodeDetail,
-            summary="One episode; public-track episodes include their replay trace")  # fmt: skip
+@router.get(
+    "/submissions/{submission_id}/episodes/{episode_id}",
+    response_model=EpisodeDetail,
+    summary="One episode; public-track episodes include their replay trace",
+)
 async def episode(
     request: Request, submission_id: Id, episode_id: Id, principal: PrincipalDep
 ) -> EpisodeDetail:
@@ -302,8 +363,12 @@ async def episode(
     return await in_read_session(request, one)
 
 
-@router.post("/submissions/{submission_id}/verify", status_code=201, response_model=SubmissionPublic,
-             summary="(operator) Re-evaluate a completed private-track submission on the hold-out draw")  # fmt: skip
+@router.post(
+    "/submissions/{submission_id}/verify",
+    status_code=201,
+    response_model=SubmissionPublic,
+    summary="(operator) Re-evaluate a completed private-track submission on the hold-out draw",
+)
 def verify(
     request: Request, submission_id: Id, principal: AdminDep, settings: SettingsDep
 ) -> SubmissionPublic:
@@ -319,18 +384,30 @@ def _verify_one(session: Session, submission_id: int, settings: Settings) -> Sub
     if original is None:
         raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id}")
     if original.track != "private" or original.status != "completed":
-        raise ProblemError(409, "conflict", "Cannot verify",
-                           f"only completed private-track submissions are verified (this one: {original.track}, {original.status})")  # fmt: skip
+        raise ProblemError(
+            409,
+            "conflict",
+            "Cannot verify",
+            f"only completed private-track submissions are verified (this one: {original.track}, {original.status})",
+        )
     if (original.verification or {}).get("status") == "running":
-        raise ProblemError(409, "conflict", "Already verifying",
-                           f"verification #{original.verification['submission_id']} is still running")  # fmt: skip
+        raise ProblemError(
+            409,
+            "conflict",
+            "Already verifying",
+            f"verification #{original.verification['submission_id']} is still running",
+        )
     checked = start_verification(session, original, settings.groups)
     session.refresh(checked)
     return SubmissionPublic.model_validate(queries.submission_view(session, checked))
 
 
-@router.post("/leaderboards/{dataset}/{setting}/verify", status_code=201, response_model=list[SubmissionPublic],
-             summary="(operator) Re-evaluate the board's top entries on the hold-out draw")  # fmt: skip
+@router.post(
+    "/leaderboards/{dataset}/{setting}/verify",
+    status_code=201,
+    response_model=list[SubmissionPublic],
+    summary="(operator) Re-evaluate the board's top entries on the hold-out draw",
+)
 def verify_top(
     request: Request,
     dataset: DatasetName,

@@ -97,8 +97,9 @@ def to_json(data: Any) -> bytes:
     return json.dumps(data, default=_default, allow_nan=False, separators=(",", ":")).encode()
 
 
-def compute_snapshot(session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
-                     track: str) -> dict[str, Any]:  # fmt: skip
+def compute_snapshot(
+    session: Session, datasets: tuple[str, ...], settings: tuple[str, ...], track: str
+) -> dict[str, Any]:
     """Every board of a track and its overall grids, computed now: ``{"boards": {(dataset, setting): board,
     (dataset, setting, "paper"): board}, "grid": grid, "grid-paper": grid}`` — closed loop, and the physical
     settings under the paper protocol (a Math Pack board is the same under both). The boards lose the resample
@@ -112,8 +113,11 @@ def compute_snapshot(session: Session, datasets: tuple[str, ...], settings: tupl
                 boards[(d, st, PAPER)] = queries.leaderboard(session, d, st, track=track, protocol=PAPER)
     grids = {}
     for protocol in PROTOCOLS:
-        shown = {f"{st}/{d}": boards[(d, st, protocol) if (d, st, protocol) in boards else (d, st)]
-                 for st in settings for d in datasets}  # fmt: skip
+        shown = {
+            f"{st}/{d}": boards[(d, st, protocol) if (d, st, protocol) in boards else (d, st)]
+            for st in settings
+            for d in datasets
+        }
         grids[protocol] = build_grid(shown, datasets, settings, track) | {"protocol": protocol}
     for b in boards.values():
         b.pop("_samples", None)
@@ -150,8 +154,9 @@ def stored_path(store_dir: Path, track: str) -> Path:
     return store_dir / f"boards-{track}.pickle"
 
 
-def _snapshot_in_child(url: str, datasets: tuple[str, ...], settings: tuple[str, ...], track: str,
-                       store_dir: str | None = None) -> tuple[tuple[Any, ...], list[bytes]]:  # fmt: skip
+def _snapshot_in_child(
+    url: str, datasets: tuple[str, ...], settings: tuple[str, ...], track: str, store_dir: str | None = None
+) -> tuple[tuple[Any, ...], list[bytes]]:
     """:func:`compute_snapshot` in the board process: the version it read and the snapshot, pickled in parts
     (each board, the grid) so the serving process unpickles one part at a time, never holding its GIL for
     the whole snapshot. Stored in ``store_dir`` too, for the next start (module docstring)."""
@@ -228,11 +233,19 @@ class BoardCache:
     process stores each snapshot, and :meth:`load_stored` finds them after a restart.
     """
 
-    def __init__(self, session_factory: SessionFactory | None = None, *, size: int = 64,
-                 sync_limit_s: float = 0.25, refresh_s: float = 0.0,
-                 datasets: tuple[str, ...] = queries.DATASETS_ORDER, settings: tuple[str, ...] = queries.SETTINGS_ORDER,
-                 database_url: str | None = None, process_from: int | None = None,
-                 store_dir: Path | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        session_factory: SessionFactory | None = None,
+        *,
+        size: int = 64,
+        sync_limit_s: float = 0.25,
+        refresh_s: float = 0.0,
+        datasets: tuple[str, ...] = queries.DATASETS_ORDER,
+        settings: tuple[str, ...] = queries.SETTINGS_ORDER,
+        database_url: str | None = None,
+        process_from: int | None = None,
+        store_dir: Path | None = None,
+    ) -> None:
         self._slots: dict[tuple[Any, ...], _Slot] = {}
         self._lock = threading.Lock()
         self._computing: dict[tuple[Any, ...], threading.Lock] = {}
@@ -319,8 +332,9 @@ class BoardCache:
         key = ("snapshot", self.datasets, self.settings, track)
         return self._get(key, version, session, self._computer(key, version))
 
-    def board(self, session: Session, dataset: str, setting: str, track: str = "private",
-              protocol: str = CLOSED) -> dict[str, Any]:  # fmt: skip
+    def board(
+        self, session: Session, dataset: str, setting: str, track: str = "private", protocol: str = CLOSED
+    ) -> dict[str, Any]:
         """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``. ``protocol``:
         ``closed`` (the benchmark) or ``paper`` (a physical setting's Math actions replayed)."""
         protocol = queries.board_protocol(setting, protocol)
@@ -330,8 +344,14 @@ class BoardCache:
         version, key = self.version(session, track), ("board", dataset, setting, protocol, track)
         return self._get(key, version, session, self._computer(key, version))
 
-    def grid(self, session: Session, datasets: tuple[str, ...], settings: tuple[str, ...],
-             track: str = "private", protocol: str = CLOSED) -> dict[str, Any]:  # fmt: skip
+    def grid(
+        self,
+        session: Session,
+        datasets: tuple[str, ...],
+        settings: tuple[str, ...],
+        track: str = "private",
+        protocol: str = CLOSED,
+    ) -> dict[str, Any]:
         """The overall grid (``protocol``: of its physical columns); page it with ``grid_view``."""
         grid_key = "grid" if protocol == CLOSED else f"grid-{protocol}"
         if tuple(datasets) == self.datasets and tuple(settings) == self.settings:
@@ -405,8 +425,9 @@ class BoardCache:
             with self._lock:
                 if self._pool is None:
                     # spawn, not fork: the serving process has threads and open connections
-                    self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                                     max_tasks_per_child=1)  # fmt: skip
+                    self._pool = ProcessPoolExecutor(
+                        1, mp_context=multiprocessing.get_context("spawn"), max_tasks_per_child=1
+                    )
                 pool = self._pool
             assert self.database_url is not None
             with self._host_lock(track):
@@ -418,8 +439,9 @@ class BoardCache:
                         self.shared += 1
                     return version, snap
                 store = None if self.store_dir is None else str(self.store_dir)
-                computed_at, parts = pool.submit(_snapshot_in_child, self.database_url, self.datasets,
-                                                 self.settings, track, store).result()  # fmt: skip
+                computed_at, parts = pool.submit(
+                    _snapshot_in_child, self.database_url, self.datasets, self.settings, track, store
+                ).result()
             return computed_at, _load_parts(parts)
 
         return remote
@@ -457,8 +479,13 @@ class BoardCache:
             log.warning("ignoring %s: it does not load", path, exc_info=True)
             return None
 
-    def _get(self, key: tuple[Any, ...], version: tuple[Any, ...], session: Session,
-             compute: Callable[[Session], tuple[Any, Any]]) -> Any:  # fmt: skip
+    def _get(
+        self,
+        key: tuple[Any, ...],
+        version: tuple[Any, ...],
+        session: Session,
+        compute: Callable[[Session], tuple[Any, Any]],
+    ) -> Any:
         with self._lock:
             slot = self._slots.get(key)
             if slot is not None and slot.version == version:
@@ -467,13 +494,19 @@ class BoardCache:
                 self._local.used = slot.version  # a body built from it is stored under its version
                 if not slot.refreshing:
                     slot.refreshing = True
-                    threading.Thread(target=self._refresh, args=(key,), daemon=True,
-                                     name="board-refresh").start()  # fmt: skip
+                    threading.Thread(
+                        target=self._refresh, args=(key,), daemon=True, name="board-refresh"
+                    ).start()
                 return slot.value
         return self._store(key, version, compute, session)
 
-    def _store(self, key: tuple[Any, ...], version: tuple[Any, ...],
-               compute: Callable[[Session], tuple[Any, Any]], session: Session) -> Any:  # fmt: skip
+    def _store(
+        self,
+        key: tuple[Any, ...],
+        version: tuple[Any, ...],
+        compute: Callable[[Session], tuple[Any, Any]],
+        session: Session,
+    ) -> Any:
         with self._lock:
             key_lock = self._computing.setdefault(key, threading.Lock())
         with key_lock:  # readers arriving together wait for one computation instead of each doing it

@@ -32,9 +32,16 @@ def reproduction(session: Session, track: str) -> dict[str, Any]:
     for (setting, dataset, policy), run in latest.items():
         for metric, value in with_derived(setting, run["metrics"] or {}).items():
             ours[(setting, dataset, policy, metric)] = value
-        runs.append({"setting": setting, "dataset": dataset, "policy": policy, "protocol": run["protocol"],
-                     "submission_id": run["submission_id"],
-                     "groups": int((run["extras"] or {}).get("episodes") or 0)})  # fmt: skip
+        runs.append(
+            {
+                "setting": setting,
+                "dataset": dataset,
+                "policy": policy,
+                "protocol": run["protocol"],
+                "submission_id": run["submission_id"],
+                "groups": int((run["extras"] or {}).get("episodes") or 0),
+            }
+        )
     order = {name: i for i, name in enumerate((*SETTING_ORDER, *DATASET_ORDER, *PAPER_BASELINES))}
     runs.sort(key=lambda r: (order[r["setting"]], order[r["dataset"]], order[r["policy"]]))
     return {"track": track, "protocol": "paper", "runs": runs, **compare(ours).to_dict()}

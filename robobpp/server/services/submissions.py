@@ -51,8 +51,13 @@ class FinishedViews:
         """``sub``'s form ``kind``, built now unless kept (a submission not finished is built every time)."""
         return self.get_many(kind, [sub], lambda _missing: [build()])[0]
 
-    def get_many(self, kind: tuple[Any, ...], subs: Sequence[Submission | Any],
-                 build: Callable[[list[int]], list[T]], counts: Mapping[int, Mapping[str, int]] | None = None) -> list[T]:  # fmt: skip
+    def get_many(
+        self,
+        kind: tuple[Any, ...],
+        subs: Sequence[Submission | Any],
+        build: Callable[[list[int]], list[T]],
+        counts: Mapping[int, Mapping[str, int]] | None = None,
+    ) -> list[T]:
         """The forms ``kind`` of several submissions (a listed page), with the lock taken twice in all, not
         twice per submission: with 20 readers, a contended lock handed over 100 times per page cost each
         page a GIL hand-off per acquisition (a list of 50 then took 150 ms instead of 3). ``build`` gets the

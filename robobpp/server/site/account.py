@@ -76,14 +76,28 @@ def sign_in(request: Request, token: Text = "", csrf: Text = "") -> Response:
         return render(request, "sign_in.html", 403, title="Sign in", nav="account", form=True, error=BAD_CSRF)
     wait = auth_refused_for(request)
     if wait:
-        page = render(request, "sign_in.html", 429, title="Sign in", nav="account", form=True,
-                      error=f"Too many wrong tokens from your address; try again in {wait:.0f} s.")  # fmt: skip
+        page = render(
+            request,
+            "sign_in.html",
+            429,
+            title="Sign in",
+            nav="account",
+            form=True,
+            error=f"Too many wrong tokens from your address; try again in {wait:.0f} s.",
+        )
         page.headers["Retry-After"] = str(max(1, round(wait)))
         return page
     principal = principal_for_token(request, token.strip())
     if principal is None or (principal.participant is not None and principal.participant.is_builtin):
-        return render(request, "sign_in.html", 401, title="Sign in", nav="account", form=True,
-                      error="That token is not valid (unknown or revoked). Ask the operator for a new one.")  # fmt: skip
+        return render(
+            request,
+            "sign_in.html",
+            401,
+            title="Sign in",
+            nav="account",
+            form=True,
+            error="That token is not valid (unknown or revoked). Ask the operator for a new one.",
+        )
     response = redirect(request, "/operator" if principal.admin else "/account")
     web_session.start(request, response, token_id=principal.token_id, admin=principal.admin)
     return response
@@ -120,14 +134,27 @@ def account_page(request: Request, page: Page = 1) -> Response:
     with request.app.state.runtime.read_session() as session:
         me = api_participants.me_of(session, principal, settings)
         # one more than a page: whether a next page exists, without counting every submission
-        subs = api_submissions.submission_models(finished_views(request.app.state), session, principal,
-                                                 limit=ACCOUNT_PAGE_SIZE + 1, offset=(page - 1) * ACCOUNT_PAGE_SIZE)  # fmt: skip
+        subs = api_submissions.submission_models(
+            finished_views(request.app.state),
+            session,
+            principal,
+            limit=ACCOUNT_PAGE_SIZE + 1,
+            offset=(page - 1) * ACCOUNT_PAGE_SIZE,
+        )
         tokens = (
             api_participants.list_tokens(session, principal, participant_id=None) if not who.admin else []
         )
-    return render(request, "account.html", title="Your submissions" if not who.admin else "All submissions",
-                  nav="account", me=me, subs=subs[:ACCOUNT_PAGE_SIZE], tokens=tokens, page=page,
-                  more=len(subs) > ACCOUNT_PAGE_SIZE)  # fmt: skip
+    return render(
+        request,
+        "account.html",
+        title="Your submissions" if not who.admin else "All submissions",
+        nav="account",
+        me=me,
+        subs=subs[:ACCOUNT_PAGE_SIZE],
+        tokens=tokens,
+        page=page,
+        more=len(subs) > ACCOUNT_PAGE_SIZE,
+    )
 
 
 @router.post("/account/tokens/{token_id}/revoke")
@@ -152,18 +179,36 @@ def revoke_own_token(request: Request, token_id: Id, csrf: Text = "") -> Respons
 
 def _form_defaults(request: Request) -> dict[str, Any]:
     settings = request.app.state.settings
-    return {"name": "", "mode": "push", "policy_url": "", "datasets": list(settings.datasets),
-            "settings": list(settings.enabled_settings), "track": "private", "lookahead": 0}  # fmt: skip
+    return {
+        "name": "",
+        "mode": "push",
+        "policy_url": "",
+        "datasets": list(settings.datasets),
+        "settings": list(settings.enabled_settings),
+        "track": "private",
+        "lookahead": 0,
+    }
 
 
 def _submit_page(
     request: Request, values: dict[str, Any], error: str | None, status_code: int = 200
 ) -> Response:
     settings = request.app.state.settings
-    return render(request, "submit.html", status_code, title="Submit a policy", nav="submit", values=values,
-                  error=error, datasets_offered=[DATASETS[d] for d in settings.datasets],
-                  settings_offered=settings.enabled_settings, quota_day=settings.quota_submissions_per_day,
-                  quota_concurrent=settings.quota_concurrent, min_secret=8, pull_offered=PULL_OFFERED)  # fmt: skip
+    return render(
+        request,
+        "submit.html",
+        status_code,
+        title="Submit a policy",
+        nav="submit",
+        values=values,
+        error=error,
+        datasets_offered=[DATASETS[d] for d in settings.datasets],
+        settings_offered=settings.enabled_settings,
+        quota_day=settings.quota_submissions_per_day,
+        quota_concurrent=settings.quota_concurrent,
+        min_secret=8,
+        pull_offered=PULL_OFFERED,
+    )
 
 
 @router.get("/submit", response_class=HTMLResponse)
@@ -192,15 +237,27 @@ async def submit(
     if principal is None:
         return _need_sign_in(request)
     # The secret is never echoed back into the form.
-    values = {"name": name, "mode": mode, "policy_url": policy_url, "datasets": datasets, "settings": settings, "track": track,
-              "lookahead": lookahead}  # fmt: skip
+    values = {
+        "name": name,
+        "mode": mode,
+        "policy_url": policy_url,
+        "datasets": datasets,
+        "settings": settings,
+        "track": track,
+        "lookahead": lookahead,
+    }
     if not web_session.csrf_ok(request, csrf):
         return _submit_page(request, values, BAD_CSRF, 403)
     try:
         fields = {
-            "name": name, "policy_url": policy_url or None, "secret": secret or None, "datasets": datasets or None,
-            "settings": settings or None, "track": track, "lookahead": int(lookahead) if lookahead.strip().isdigit() else lookahead,
-        }  # fmt: skip
+            "name": name,
+            "policy_url": policy_url or None,
+            "secret": secret or None,
+            "datasets": datasets or None,
+            "settings": settings or None,
+            "track": track,
+            "lookahead": int(lookahead) if lookahead.strip().isdigit() else lookahead,
+        }
         if PULL_OFFERED:
             fields["mode"] = mode
             if mode == "pull":

@@ -46,8 +46,14 @@ def _refuse_form(request: Request, csrf: str) -> Response | None:
     return None
 
 
-def _participants_page(request: Request, *, created: TokenCreated | None = None, error: str | None = None,
-                       name: str = "", status_code: int = 200) -> Response:  # fmt: skip
+def _participants_page(
+    request: Request,
+    *,
+    created: TokenCreated | None = None,
+    error: str | None = None,
+    name: str = "",
+    status_code: int = 200,
+) -> Response:
     state = request.app.state
     with state.runtime.read_session() as session:
         # the counts change only with a new participant, token or submission, or a revoked token
@@ -57,9 +63,17 @@ def _participants_page(request: Request, *, created: TokenCreated | None = None,
         else:
             rows = tuple(queries.participant_summaries(session))
             state.operator_rows = (version, rows)
-    return render(request, "operator.html", status_code, title="Participants", nav="operator",
-                  participants_table=_participants_table(root(request), rows), created=created, error=error,
-                  name=name)  # fmt: skip
+    return render(
+        request,
+        "operator.html",
+        status_code,
+        title="Participants",
+        nav="operator",
+        participants_table=_participants_table(root(request), rows),
+        created=created,
+        error=error,
+        name=name,
+    )
 
 
 @lru_cache(maxsize=8)
@@ -89,22 +103,46 @@ def create_participant(request: Request, name: Text = "", csrf: Text = "") -> Re
     return _participants_page(request, created=created, status_code=201)
 
 
-def _participant_page(request: Request, participant_id: int, *, created: TokenCreated | None = None,
-                      status_code: int = 200, page: int = 1) -> Response:  # fmt: skip
+def _participant_page(
+    request: Request,
+    participant_id: int,
+    *,
+    created: TokenCreated | None = None,
+    status_code: int = 200,
+    page: int = 1,
+) -> Response:
     with request.app.state.runtime.read_session() as session:
         participant = session.get(Participant, participant_id)
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")
         tokens = api_participants.list_tokens(session, ADMIN, participant_id=participant_id)
         # one more than a page: whether an older page exists, without counting every submission
-        subs = api_submissions.submission_models(finished_views(request.app.state), session,
-                                                 Principal(participant, admin=False), limit=ACCOUNT_PAGE_SIZE + 1,
-                                                 offset=(page - 1) * ACCOUNT_PAGE_SIZE)  # fmt: skip
-        info = {"id": participant.id, "name": participant.name, "builtin": participant.is_builtin,
-                "created_at": participant.created_at}  # fmt: skip
-    return render(request, "operator_participant.html", status_code, title=f"Participant {info['name']}",
-                  nav="operator", participant=info, tokens=tokens, subs=subs[:ACCOUNT_PAGE_SIZE], created=created,
-                  page=page, more=len(subs) > ACCOUNT_PAGE_SIZE)  # fmt: skip
+        subs = api_submissions.submission_models(
+            finished_views(request.app.state),
+            session,
+            Principal(participant, admin=False),
+            limit=ACCOUNT_PAGE_SIZE + 1,
+            offset=(page - 1) * ACCOUNT_PAGE_SIZE,
+        )
+        info = {
+            "id": participant.id,
+            "name": participant.name,
+            "builtin": participant.is_builtin,
+            "created_at": participant.created_at,
+        }
+    return render(
+        request,
+        "operator_participant.html",
+        status_code,
+        title=f"Participant {info['name']}",
+        nav="operator",
+        participant=info,
+        tokens=tokens,
+        subs=subs[:ACCOUNT_PAGE_SIZE],
+        created=created,
+        page=page,
+        more=len(subs) > ACCOUNT_PAGE_SIZE,
+    )
 
 
 @router.get("/operator/participants/{participant_id}", response_class=HTMLResponse)

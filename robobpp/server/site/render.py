@@ -15,8 +15,9 @@ def root(request: Request) -> str:
     return str(request.scope.get("root_path", "")).rstrip("/")
 
 
-def render(request: Request, template: str, status_code: int = 200, *, form: bool = False,
-           **context: Any) -> HTMLResponse:  # fmt: skip
+def render(
+    request: Request, template: str, status_code: int = 200, *, form: bool = False, **context: Any
+) -> HTMLResponse:
     """``form=True`` for a page with a form an anonymous visitor may post (the sign-in): it gets a
     session nonce first, so the form can carry it."""
     pending: Response | None = None
@@ -36,7 +37,7 @@ def render(request: Request, template: str, status_code: int = 200, *, form: boo
             viewer=who,
             csrf=who.nonce,
             **context,
-        )  # fmt: skip
+        )
     )
     response = HTMLResponse(html, status_code=status_code)
     if pending is not None:

@@ -84,8 +84,13 @@ def viewer(request: Request) -> Viewer:
                 elif row.token_id is not None:
                     token = session.get(ApiToken, row.token_id)
                     if token is not None and token.revoked_at is None and not token.participant.is_builtin:
-                        found = Viewer(nonce=nonce, participant_id=token.participant_id,
-                                       name=token.participant.name, token_id=token.id, session_id=row.id)  # fmt: skip
+                        found = Viewer(
+                            nonce=nonce,
+                            participant_id=token.participant_id,
+                            name=token.participant.name,
+                            token_id=token.id,
+                            session_id=row.id,
+                        )
     request.state.viewer = found
     return found
 
@@ -148,8 +153,15 @@ def csrf_ok(request: Request, token: str) -> bool:
 
 def _write(request: Request, response: Response, data: dict[str, Any]) -> None:
     value = _serializer(request.app.state.settings).dumps(data)
-    response.set_cookie(COOKIE, value, max_age=MAX_AGE_S, path=_path(request), secure=_https(request),
-                        httponly=True, samesite="lax")  # fmt: skip
+    response.set_cookie(
+        COOKIE,
+        value,
+        max_age=MAX_AGE_S,
+        path=_path(request),
+        secure=_https(request),
+        httponly=True,
+        samesite="lax",
+    )
 
 
 def _https(request: Request) -> bool:

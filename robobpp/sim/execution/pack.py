@@ -187,8 +187,9 @@ class ExecutionPack(PhysicsPack):
         world = self._world()
         cid = world.client
         base_quat = p.getQuaternionFromEuler((0, 0, layout.base_yaw))
-        self.robot = p.loadURDF(urdf_path(), layout.base_position.tolist(), base_quat, useFixedBase=True,
-                                physicsClientId=cid)  # fmt: skip
+        self.robot = p.loadURDF(
+            urdf_path(), layout.base_position.tolist(), base_quat, useFixedBase=True, physicsClientId=cid
+        )
         for link in range(-1, len(LINK_NAMES)):  # kinematic: pushes boxes, is never pushed
             p.changeDynamics(self.robot, link, mass=0.0, physicsClientId=cid)
         conveyor_centre, conveyor_half = layout.conveyor_box()
@@ -247,18 +248,25 @@ class ExecutionPack(PhysicsPack):
             # Nothing moved: the box is not placed and the operation not counted (dangerous None).
             reasons = ", ".join(r for r in operation.reasons if r in PLACE_FAILURES)
             detail = f"the robot cannot place {box_label(index)} ({reasons})"
-            extra = {"plan_status": operation.plan_status, "plan_checks": operation.plan_checks,
-                     "planner_seed": operation.seed, "dangerous_reasons": list(operation.reasons)}  # fmt: skip
+            extra = {
+                "plan_status": operation.plan_status,
+                "plan_checks": operation.plan_checks,
+                "planner_seed": operation.seed,
+                "dangerous_reasons": list(operation.reasons),
+            }
             return StepOutcome(None, Infeasible("place_plan_failed", detail), extra=extra)
         carried, disturbed = self._operate(box, operation)
         # Release: the kinematic carried box gives way to the dynamic one, exactly at the release pose.
         if carried is not None:
             p.removeBody(carried, physicsClientId=world.client)
         if operation.failed_grasp and self.execution.end_on_failed_grasp:
-            detail = (f"box of {box.mass:g} kg exceeds the suction capacity of its "
-                      f"{planned.length:g}×{planned.width:g} cm top")  # fmt: skip
-            return StepOutcome(None, Infeasible("failed_grasp", detail), dangerous=True,
-                               trajectory_length_m=0.0)  # fmt: skip
+            detail = (
+                f"box of {box.mass:g} kg exceeds the suction capacity of its "
+                f"{planned.length:g}×{planned.width:g} cm top"
+            )
+            return StepOutcome(
+                None, Infeasible("failed_grasp", detail), dangerous=True, trajectory_length_m=0.0
+            )
         # Retreat before the settle (not simulated, outside the trajectory metric): left at the release
         # pose, the tool propped up boxes that tip over in the Physics Pack. The release and the settle
         # are then exactly the Physics Pack's, plus the boxes the motion set moving.
@@ -268,11 +276,15 @@ class ExecutionPack(PhysicsPack):
             self.recorder.begin(self.motion_record["grip"][1])  # type: ignore[index]
         report = self.release_and_settle(planned, box.mass, disturbed)
         extra: dict[str, object] = {
-            "execution_time_s": operation.execution_time_s, "plan_status": operation.plan_status,
-            "plan_checks": operation.plan_checks, "planning_time_s": operation.plan_seconds,
-            "planner_seed": operation.seed, "dangerous_reasons": list(operation.reasons),
-            "failed_grasp": operation.failed_grasp, "disturbed_boxes": len(disturbed),
-        }  # fmt: skip
+            "execution_time_s": operation.execution_time_s,
+            "plan_status": operation.plan_status,
+            "plan_checks": operation.plan_checks,
+            "planning_time_s": operation.plan_seconds,
+            "planner_seed": operation.seed,
+            "dangerous_reasons": list(operation.reasons),
+            "failed_grasp": operation.failed_grasp,
+            "disturbed_boxes": len(disturbed),
+        }
         if operation.trajectory is not None:
             extra["tool_path_cm"] = motion.tool_path_cm(operation.trajectory, self.layout)
         if self.record_tracks:
@@ -281,8 +293,9 @@ class ExecutionPack(PhysicsPack):
                 self._cell_recorded = True
             if self.motion_record is not None:
                 extra["motion"] = self.motion_record
-        outcome = self.finish_placement(report, trajectory_length_m=operation.tcp_length_m,
-                                        dangerous=operation.dangerous, extra=extra)  # fmt: skip
+        outcome = self.finish_placement(
+            report, trajectory_length_m=operation.tcp_length_m, dangerous=operation.dangerous, extra=extra
+        )
         limit = self.execution.dangerous_limit
         if operation.motion_dangerous:
             self._dangerous_count += 1
@@ -364,8 +377,17 @@ class ExecutionPack(PhysicsPack):
         duration = trajectory.duration
         if duration > cfg.safe_time_s:
             reasons.append("slow")
-        return Operation(trajectory, trajectory.tcp_length(), duration, failed_grasp, reasons, result.status,
-                         result.checks, result.seconds, seed)  # fmt: skip
+        return Operation(
+            trajectory,
+            trajectory.tcp_length(),
+            duration,
+            failed_grasp,
+            reasons,
+            result.status,
+            result.checks,
+            result.seconds,
+            seed,
+        )
 
     def _over_the_pile(
         self, box: Box, tcp_lift: np.ndarray, tcp_pre: np.ndarray, q_lift: np.ndarray, q_pre: np.ndarray
@@ -404,8 +426,9 @@ class ExecutionPack(PhysicsPack):
         cid = world.client
         layout = self.layout
         assert layout is not None
-        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=self._carried_half_extents(box).tolist(),
-                                       physicsClientId=cid)  # fmt: skip
+        shape = p.createCollisionShape(
+            p.GEOM_BOX, halfExtents=self._carried_half_extents(box).tolist(), physicsClientId=cid
+        )
         carried = p.createMultiBody(0, shape, -1, [0, 0, -5], physicsClientId=cid)
         centre, yaw = layout.pick_box_pose(box)
         q_grasp = operation.trajectory.waypoints[0]
@@ -414,8 +437,13 @@ class ExecutionPack(PhysicsPack):
         offset = r_world.T @ (centre - layout.to_world(p_tcp))
         r_local = r_world.T @ rot("z", yaw + math.radians(self.execution.carried_yaw_deg))
         if self.recorder is not None:
-            self.motion_record = recording.motion_record(operation.trajectory, layout, self.config.dt,
-                                                         self.execution.cartesian_speed, (offset, r_local))  # fmt: skip
+            self.motion_record = recording.motion_record(
+                operation.trajectory,
+                layout,
+                self.config.dt,
+                self.execution.cartesian_speed,
+                (offset, r_local),
+            )
             self.recorder.begin(self.motion_record["grip"][0])
         disturbed = self._drive(operation.trajectory, carried, offset, r_local)
         return carried, disturbed

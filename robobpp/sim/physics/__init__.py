@@ -20,9 +20,15 @@ if TYPE_CHECKING:
     from robobpp.sim.physics.world import PhysicsWorld, WorldBox
 
 _LAZY = {
-    "PhysicsPack": "pack", "stability_reward": "reward", "Displacement": "settle", "Settler": "settle",
-    "SettleReport": "settle", "detect_collapse": "settle", "PhysicsWorld": "world", "WorldBox": "world",
-}  # fmt: skip
+    "PhysicsPack": "pack",
+    "stability_reward": "reward",
+    "Displacement": "settle",
+    "Settler": "settle",
+    "SettleReport": "settle",
+    "detect_collapse": "settle",
+    "PhysicsWorld": "world",
+    "WorldBox": "world",
+}
 
 
 def __getattr__(name: str) -> Any:

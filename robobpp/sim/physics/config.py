@@ -118,8 +118,15 @@ class PhysicsConfig:
             raise ValueError(f"physics gravity must be > 0, got {self.gravity!r}")
         if self.lateral_friction < 0 or self.restitution < 0 or self.restitution > 1:
             raise ValueError("friction must be >= 0 and restitution in [0, 1]")
-        lengths = ("heightmap_resolution_cm", "release_gap_cm", "edge_tolerance_cm", "wake_margin_cm",
-                   "clear_gap_cm", "heightmap_shrink_cm", "pose_resolution_cm")  # fmt: skip
+        lengths = (
+            "heightmap_resolution_cm",
+            "release_gap_cm",
+            "edge_tolerance_cm",
+            "wake_margin_cm",
+            "clear_gap_cm",
+            "heightmap_shrink_cm",
+            "pose_resolution_cm",
+        )
         if negative := [name for name in lengths if getattr(self, name) < 0]:
             raise ValueError(f"physics lengths must be >= 0: {', '.join(negative)}")
         if min(self.solver_iterations, self.stability_steps, self.rest_steps, self.max_steps) < 1:

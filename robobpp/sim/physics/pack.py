@@ -116,8 +116,9 @@ class PhysicsPack(Setting):
         length, width, height = box.dims(action.orientation)
         z = self.resting_height(action.x, action.y, length, width)
         if self.height_check and z + height > spec.container.height + self.config.too_high_slack_cm:
-            detail = (f"box top at {z + height:g} cm would exceed the container height "
-                      f"{spec.container.height:g} cm")  # fmt: skip
+            detail = (
+                f"box top at {z + height:g} cm would exceed the container height {spec.container.height:g} cm"
+            )
             return Infeasible("too_high", detail)
         return Placement(action.x, action.y, z, length, width, height, action.orientation, index)
 
@@ -159,9 +160,13 @@ class PhysicsPack(Setting):
         centers, quats, halves = self._world().poses_cm(self._boxes)
         lo, hi = aabbs(centers, quats, halves)
         return clear_shift(
-            lo, hi, planned, self.config.release_gap_cm, self.config.edge_tolerance_cm,
+            lo,
+            hi,
+            planned,
+            self.config.release_gap_cm,
+            self.config.edge_tolerance_cm,
             self.config.clear_gap_cm,
-        )  # fmt: skip
+        )
 
     def finish_placement(
         self,

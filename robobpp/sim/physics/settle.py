@@ -57,8 +57,10 @@ class Displacement:
         """What happened to this box, against the collapse threshold, for a newcomer to read."""
         if self.fell:
             return f"{box_label(self.index)} fell off the pallet"
-        return (f"{box_label(self.index)} moved {self.horizontal_cm:.1f} cm along x or y from where it was placed, "
-                f"more than the collapse threshold of {threshold_cm:g} cm")  # fmt: skip
+        return (
+            f"{box_label(self.index)} moved {self.horizontal_cm:.1f} cm along x or y from where it was placed, "
+            f"more than the collapse threshold of {threshold_cm:g} cm"
+        )
 
 
 class Settler:

@@ -84,8 +84,14 @@ class PhysicsWorld:
 
     # -- static scene --------------------------------------------------------------------------------
     def _surface(self, body: int) -> None:
-        p.changeDynamics(body, -1, lateralFriction=self._body_friction, restitution=self._body_restitution,
-                         frictionAnchor=int(self.config.friction_anchor), physicsClientId=self.client)  # fmt: skip
+        p.changeDynamics(
+            body,
+            -1,
+            lateralFriction=self._body_friction,
+            restitution=self._body_restitution,
+            frictionAnchor=int(self.config.friction_anchor),
+            physicsClientId=self.client,
+        )
 
     def _static_box(self, half_m: tuple[float, float, float], center_m: tuple[float, float, float]) -> int:
         shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half_m, physicsClientId=self.client)
@@ -127,11 +133,17 @@ class PhysicsWorld:
         if shape is None:
             shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
             self._shapes[half] = shape  # type: ignore[index]
-        body = p.createMultiBody(mass, shape, -1, tuple(c * CM for c in center_cm), quaternion,
-                                 physicsClientId=self.client)  # fmt: skip
+        body = p.createMultiBody(
+            mass, shape, -1, tuple(c * CM for c in center_cm), quaternion, physicsClientId=self.client
+        )
         self._surface(body)
-        p.changeDynamics(body, -1, linearDamping=self.config.linear_damping,
-                         angularDamping=self.config.angular_damping, physicsClientId=self.client)  # fmt: skip
+        p.changeDynamics(
+            body,
+            -1,
+            linearDamping=self.config.linear_damping,
+            angularDamping=self.config.angular_damping,
+            physicsClientId=self.client,
+        )
         box = WorldBox(body, (extents_cm[0] / 2, extents_cm[1] / 2, extents_cm[2] / 2), mass)
         self.boxes.append(box)
         return box

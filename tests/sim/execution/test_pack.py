@@ -184,7 +184,7 @@ def test_same_seed_same_trajectory() -> None:
                 [
                     (o.trajectory_length_m, o.extra["execution_time_s"], o.extra["planner_seed"], o.placement)
                     for o in outcomes
-                ]  # fmt: skip
+                ]
             )
             trajectory = pack.last_operation.trajectory  # type: ignore[union-attr]
             runs[-1].append(trajectory.waypoints.tobytes())  # type: ignore[union-attr]
@@ -217,8 +217,17 @@ def test_apply_before_reset_is_refused() -> None:
 A, B = Box(29.1, 17.4, 21.5, 6.016), Box(30.6, 15.8, 27.7, 6.405)
 #: DBL's first nine placements on repetitive train group 0: boxes of 17.4 and 15.8 cm in rows on the 1 cm
 #: grid, so slots overlap their neighbours by up to 4 mm. Box 8 goes in beside box 5, 4 mm into it.
-DBL_ROWS = [(A, 0, 0), (B, 0, 17), (B, 29, 0), (B, 0, 33), (A, 31, 16), (A, 0, 49), (B, 60, 0), (B, 31, 33),
-            (B, 0, 66)]  # fmt: skip
+DBL_ROWS = [
+    (A, 0, 0),
+    (B, 0, 17),
+    (B, 29, 0),
+    (B, 0, 33),
+    (A, 31, 16),
+    (A, 0, 49),
+    (B, 60, 0),
+    (B, 31, 33),
+    (B, 0, 66),
+]
 
 
 def _dbl_rows(**options: object) -> tuple[list, list[float]]:

@@ -17,8 +17,11 @@ WALL = ((-0.15, 1.2, 0.45), (0.05, 0.9, 0.6))  # between the pick station and th
 
 def _endpoints() -> tuple[np.ndarray, np.ndarray]:
     home = LAYOUT.home
-    pick = LAYOUT.ik(np.array([LAYOUT.base_position[0] - 2.0, LAYOUT.base_position[1], 0.75]),
-                     LAYOUT.tool_rotation(LAYOUT.box_yaw_at_pick), home)  # fmt: skip
+    pick = LAYOUT.ik(
+        np.array([LAYOUT.base_position[0] - 2.0, LAYOUT.base_position[1], 0.75]),
+        LAYOUT.tool_rotation(LAYOUT.box_yaw_at_pick),
+        home,
+    )
     place = LAYOUT.place_ik(np.array([0.67, 0.62, 0.35]), 0, home)
     assert pick is not None and place is not None
     return pick, place[0]

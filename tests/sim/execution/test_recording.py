@@ -92,10 +92,23 @@ def test_the_transfer_follows_the_simulated_trajectory(run: tuple) -> None:
 
 def test_the_replay_reader_takes_and_checks_the_robot(run: tuple) -> None:
     _, outcomes, _ = run
-    steps = [{"step": i, "box": {"length": b.length, "width": b.width, "height": b.height}, "extra": o.extra,
-              "placement": {"x": o.placement.x, "y": o.placement.y, "z": o.placement.z, "length": o.placement.length,
-                            "width": o.placement.width, "height": o.placement.height, "index": i}}
-             for i, (b, o) in enumerate(zip(BOXES, outcomes, strict=True))]  # fmt: skip
+    steps = [
+        {
+            "step": i,
+            "box": {"length": b.length, "width": b.width, "height": b.height},
+            "extra": o.extra,
+            "placement": {
+                "x": o.placement.x,
+                "y": o.placement.y,
+                "z": o.placement.z,
+                "length": o.placement.length,
+                "width": o.placement.width,
+                "height": o.placement.height,
+                "index": i,
+            },
+        }
+        for i, (b, o) in enumerate(zip(BOXES, outcomes, strict=True))
+    ]
     episode = json.loads(
         json.dumps({"container": {"length": 134, "width": 125, "height": 100}, "steps": steps})
     )

@@ -36,8 +36,10 @@ def repetitive_like(
     if millimetres:
         types = [_mm_box(rng) for _ in range(3)]
     else:
-        types = [Box(rng.randint(15, 35), rng.randint(15, 30), rng.randint(10, 25), round(rng.uniform(1, 8), 2))
-                 for _ in range(3)]  # fmt: skip
+        types = [
+            Box(rng.randint(15, 35), rng.randint(15, 30), rng.randint(10, 25), round(rng.uniform(1, 8), 2))
+            for _ in range(3)
+        ]
     boxes: list[Box] = []
     while len(boxes) < n:
         boxes += [rng.choice(types)] * rng.randint(1, 6)

@@ -15,8 +15,14 @@ SMALL = ContainerSpec(80, 60, 100)
 
 
 def _figures(result):  # type: ignore[no-untyped-def]
-    return (result.termination, result.termination_detail, result.boxes_placed, result.metrics | {"decision_time": 0},
-            [(s.placement, s.static_stability, s.collapsed) for s in result.steps], result.final)  # fmt: skip
+    return (
+        result.termination,
+        result.termination_detail,
+        result.boxes_placed,
+        result.metrics | {"decision_time": 0},
+        [(s.placement, s.static_stability, s.collapsed) for s in result.steps],
+        result.final,
+    )
 
 
 @pytest.mark.parametrize("mode", ["fast", "full"])

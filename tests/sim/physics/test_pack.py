@@ -63,8 +63,11 @@ def test_box_over_a_gap_falls_and_collapse_is_detected() -> None:
     assert out.termination is not None and out.termination.reason == "collapse"
     # Which box moved, how far, against which threshold, after which placement, numbered as "N / M boxes
     # placed" counts (it read "box 1 moved … (threshold 7 cm); 1 box(es) beyond it after placing box 1").
-    assert re.fullmatch(r"after placing box #1 \(the 2nd\), box #1 \(the 2nd\) moved \d+\.\d cm along x or y "
-                        r"from where it was placed, more than the collapse threshold of 7 cm", out.termination.detail), out.termination.detail  # fmt: skip
+    assert re.fullmatch(
+        r"after placing box #1 \(the 2nd\), box #1 \(the 2nd\) moved \d+\.\d cm along x or y "
+        r"from where it was placed, more than the collapse threshold of 7 cm",
+        out.termination.detail,
+    ), out.termination.detail
     assert out.placement is not None and out.placement.z < 10  # it ended on the deck, not at 40 cm
     assert out.placement.quaternion is not None
     assert out.static_stability is not None and out.static_stability < 0.3  # it moved fast

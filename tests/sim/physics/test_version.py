@@ -48,8 +48,15 @@ def _finished_submission(factory, name: str, version: str | None) -> None:  # ty
             p = Participant(name="p")
             s.add(p)
             s.flush()
-        work.create_submission(s, p, name=name, policy_url="builtin:dbl", datasets=["diverse"],
-                               settings=["math", "physics"], groups=1)  # fmt: skip
+        work.create_submission(
+            s,
+            p,
+            name=name,
+            policy_url="builtin:dbl",
+            datasets=["diverse"],
+            settings=["math", "physics"],
+            groups=1,
+        )
     # closed loop, then the paper protocol's replay of the Math episode (docs/server.md)
     for setting, protocol in (("math", "closed"), ("physics", "closed"), ("physics", "paper")):
         with transaction(factory) as s:
@@ -60,9 +67,16 @@ def _finished_submission(factory, name: str, version: str | None) -> None:  # ty
             metrics = {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01}
             if setting == "physics":
                 metrics |= {"local_stability": 0.01, "static_stability": 0.4}
-            result = {"termination": "completed", "termination_detail": "", "boxes_total": 3,
-                      "boxes_placed": 3, "metrics": metrics, "counters": {}, "steps": [],
-                      "physics_version": version if setting == "physics" else None}  # fmt: skip
+            result = {
+                "termination": "completed",
+                "termination_detail": "",
+                "boxes_total": 3,
+                "boxes_placed": 3,
+                "metrics": metrics,
+                "counters": {},
+                "steps": [],
+                "physics_version": version if setting == "physics" else None,
+            }
             assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
             s.refresh(row)
             assert row.physics_version == result["physics_version"]

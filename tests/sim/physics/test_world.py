@@ -40,7 +40,7 @@ def test_defaults_are_the_benchmarks() -> None:
         dict(max_steps=0),
         dict(box_mass_kg=0.0),
         dict(clear_gap_cm=-0.1),
-    ],  # fmt: skip
+    ],
 )
 def test_bad_config_is_refused(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):

@@ -43,13 +43,13 @@ from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.db import queries, work
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.work import run_figures
-from robobpp.leaderboard import build_grid
 from robobpp.policies.dbl import DBL
+from robobpp.scoring.boards import build_grid
+from robobpp.scoring.stats import group_figures
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
 from robobpp.sim.physics.config import PHYSICS_VERSION
-from robobpp.stats import group_figures
 
 ADMIN = "bench-admin-token-0123456789abcdef"
 DATASETS = ("repetitive", "diverse", "longboard")

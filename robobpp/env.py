@@ -40,10 +40,10 @@ import numpy as np
 from gymnasium import spaces
 
 from robobpp import GYM_ENV_ID
-from robobpp import metrics as M
 from robobpp.core import ORIENTATIONS, Action, EpisodeSpec, Observation
 from robobpp.episode import Episode
 from robobpp.policies.candidates import candidate_maps
+from robobpp.scoring import metrics as M
 
 ENV_ID = GYM_ENV_ID
 #: Largest box dimension or mass the observation space admits (cm / kg); datasets stay far below.

@@ -12,7 +12,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from robobpp import metrics as M
 from robobpp.core import (
     Action,
     EpisodeInfo,
@@ -24,6 +23,7 @@ from robobpp.core import (
     check_action,
 )
 from robobpp.policies.base import Policy, PolicyError
+from robobpp.scoring import metrics as M
 from robobpp.sim import MATH_RULES_VERSION, Setting, make_setting
 
 #: Termination codes. Feasibility and settings add their own (``out_of_bounds``, ``too_high``, ``collapse``...).

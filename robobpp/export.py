@@ -14,8 +14,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from robobpp.metrics import METRIC_BY_KEY, METRICS, metrics_for
 from robobpp.provenance import FIELDS, merge, one_line
+from robobpp.scoring.metrics import METRIC_BY_KEY, METRICS, metrics_for
 
 FORMATS = ("csv", "md", "latex")
 

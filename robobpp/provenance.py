@@ -118,7 +118,7 @@ def of_results(
 ) -> dict[str, Any]:
     """The provenance of a local run (``robobpp evaluate``) from its ``EpisodeResult``s; ``protocol`` is the
     one asked for (the paper protocol's Math episodes are closed loop, its replays ``paper``)."""
-    from robobpp.scoring import ANCHORS_VERSION
+    from robobpp.scoring.scores import ANCHORS_VERSION
 
     rows = list(results)
     return {
@@ -137,7 +137,7 @@ def of_results(
 def current_versions() -> dict[str, str]:
     """The versions this code produces (what a board shows): physics, Math rules, sampler, anchors."""
     from robobpp.datasets.sampling import SAMPLER_VERSION
-    from robobpp.scoring import ANCHORS_VERSION
+    from robobpp.scoring.scores import ANCHORS_VERSION
     from robobpp.sim.math_pack import MATH_RULES_VERSION
     from robobpp.sim.physics.config import PHYSICS_VERSION
 

@@ -19,11 +19,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from robobpp.core import Action, Box, ContainerState, EpisodeInfo, EpisodeSpec, Observation
+from robobpp.core import Action, Box, ContainerState, EpisodeInfo, EpisodeSpec, FinalBox, Observation
 from robobpp.episode import CLOSED, COMPLETED, PAPER, PROTOCOLS, EpisodeResult, run_episode
 from robobpp.policies.base import Policy, PolicyError
 from robobpp.sim import Setting, make_setting
-from robobpp.sim.base import FinalBox, StepOutcome
+from robobpp.sim.base import StepOutcome
 from robobpp.sim.math_pack import MathPack
 
 #: The settings the paper protocol replays in (in Math Pack both protocols are the same episode).

@@ -17,10 +17,10 @@ import numpy as np
 
 from robobpp.core import EpisodeSpec
 from robobpp.episode import EpisodeResult, run_episode
-from robobpp.metrics import METRIC_BY_KEY, aggregate, metrics_for
 from robobpp.paper import PAPER_BASELINES, paper_tables
 from robobpp.policies import Policy, load_policy
 from robobpp.replay import PAPER, PAPER_SETTINGS, check_protocol, run_paper_protocol
+from robobpp.scoring.metrics import METRIC_BY_KEY, aggregate, metrics_for
 from robobpp.sim import Setting
 
 #: (setting, dataset, policy, metric)

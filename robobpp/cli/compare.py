@@ -17,11 +17,11 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from robobpp import stats
 from robobpp.cli.common import fail, table_console
-from robobpp.metrics import METRIC_BY_KEY, metrics_for
 from robobpp.provenance import merged
-from robobpp.scoring import score_board
+from robobpp.scoring import stats
+from robobpp.scoring.metrics import METRIC_BY_KEY, metrics_for
+from robobpp.scoring.scores import score_board
 
 
 def register(root: typer.Typer) -> None:

@@ -12,13 +12,13 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from robobpp import stats
 from robobpp.cli.common import DatasetOpt, fail, import_from_cwd, parse_choices, table_console
 from robobpp.cli.progress import LineProgress
-from robobpp.metrics import aggregate, metrics_for
 from robobpp.provenance import of_results, one_line
-from robobpp.scoring import score_board
-from robobpp.stats import POLICY_FAILURES
+from robobpp.scoring import stats
+from robobpp.scoring.metrics import aggregate, metrics_for
+from robobpp.scoring.scores import score_board
+from robobpp.scoring.stats import POLICY_FAILURES
 
 console = Console(stderr=True)
 
@@ -201,7 +201,7 @@ def failure_notes(runs: dict[tuple[str, str], list]) -> list[str]:
 
 def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:
     """Each (dataset, setting): its figures with the board's 95 % bootstrap intervals over groups
-    (:func:`robobpp.scoring.score_board` on this run alone) and its stable score with interval."""
+    (:func:`robobpp.scoring.scores.score_board` on this run alone) and its stable score with interval."""
     out = []
     for (dataset, setting), results in runs.items():
         terminations: dict[str, int] = {}

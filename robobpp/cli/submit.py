@@ -114,7 +114,7 @@ def _fmt(value: float | None, digits: int = 4) -> str:
 
 
 def _label(key: str) -> str:
-    from robobpp.metrics import METRIC_BY_KEY
+    from robobpp.scoring.metrics import METRIC_BY_KEY
 
     metric = METRIC_BY_KEY.get(key)
     return metric.label if metric else key

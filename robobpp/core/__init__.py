@@ -9,6 +9,7 @@ from robobpp.core.episode_spec import EpisodeSpec
 from robobpp.core.feasibility import Infeasible, SupportModel, check_action, check_support, is_supported
 from robobpp.core.heightmap import drop_height_map, footprint_cells
 from robobpp.core.observation import Action, EpisodeInfo, Observation
+from robobpp.core.readings import FinalBox, static_stability
 
 __all__ = [
     "ORIENTATIONS",
@@ -18,6 +19,7 @@ __all__ = [
     "ContainerState",
     "EpisodeInfo",
     "EpisodeSpec",
+    "FinalBox",
     "Infeasible",
     "Observation",
     "Placement",
@@ -29,4 +31,5 @@ __all__ = [
     "footprint_cells",
     "is_supported",
     "oriented_dims",
+    "static_stability",
 ]

@@ -156,7 +156,7 @@ class RunRow(Base):
     metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
     #: Pooled counters and side figures (boxes placed, episodes ended by collapse, PPH).
     extras: Mapped[dict[str, Any] | None] = mapped_column(default=None)
-    #: Per-group figures (``robobpp.stats.group_figures``), written with the aggregate: what the board's
+    #: Per-group figures (``robobpp.scoring.stats.group_figures``), written with the aggregate: what the board's
     #: bootstrap intervals resample, so a board never reads episode rows.
     figures: Mapped[dict[str, Any] | None] = mapped_column(default=None, deferred=True)
     completed_at: Mapped[datetime | None] = mapped_column(default=None)

@@ -3,7 +3,7 @@
 For page authors, the entry points are:
 
 * :func:`leaderboard` — one board (dataset × setting): ranked entries with raw metrics, scores and intervals,
-  and the failed or partial ones apart (``robobpp.leaderboard.board_view`` pages it);
+  and the failed or partial ones apart (``robobpp.scoring.boards.board_view`` pages it);
 * :func:`overall_grid` — every submission's score and rank on each of the 3 × 3 boards, and the Mean;
 * :func:`submission_view` / :func:`submission_progress` — one submission with its runs and progress;
 * :func:`episode_rows` / :func:`get_episode` — per-episode results (traces only on the public track);
@@ -27,10 +27,10 @@ from sqlalchemy.orm import Session, joinedload
 
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
-from robobpp.leaderboard import build_board, build_grid
-from robobpp.metrics import PHYSICAL
 from robobpp.provenance import merge, merged
-from robobpp.scoring import ANCHORS_VERSION
+from robobpp.scoring.boards import build_board, build_grid
+from robobpp.scoring.metrics import PHYSICAL
+from robobpp.scoring.scores import ANCHORS_VERSION
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
@@ -253,7 +253,7 @@ def _verdict(verification: dict[str, Any] | None) -> str | None:
 def leaderboard(
     session: Session, dataset: str, setting: str, *, track: str = "private", protocol: str = "closed"
 ) -> dict[str, Any]:
-    """One board, computed now (the server reads it through its cache): see :func:`robobpp.leaderboard.build_board`.
+    """One board, computed now (the server reads it through its cache): see :func:`robobpp.scoring.boards.build_board`.
 
     ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
     board is the same under both."""
@@ -272,7 +272,7 @@ def overall_grid(
     board: Callable[[str, str], dict[str, Any]] | None = None,
     protocol: str = "closed",
 ) -> dict[str, Any]:
-    """The paper's overall table (see :func:`robobpp.leaderboard.build_grid`); ``protocol="paper"``: its
+    """The paper's overall table (see :func:`robobpp.scoring.boards.build_grid`); ``protocol="paper"``: its
     physical columns under the paper protocol (the Mean then averages those).
 
     ``board(dataset, setting)`` supplies each board (the server passes its cache); default: computed here.

@@ -10,7 +10,7 @@ API (and the pages) show it: ``verified`` when every board's result agrees withi
 ``disagrees`` when one does not — the signature of a policy tuned to the played groups.
 
 The compared figure is the run's space utilisation (the geometric metric every setting has) with the
-board's own 95 % interval: the seeded bootstrap over groups of :mod:`robobpp.stats`, applied to each run
+board's own 95 % interval: the seeded bootstrap over groups of :mod:`robobpp.scoring.stats`, applied to each run
 on its own (the two runs played different groups, so the resamples are not paired). Runs recorded before
 per-group figures existed fall back to a normal-approximation interval of the per-episode values.
 """
@@ -26,8 +26,8 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from robobpp import stats
 from robobpp.db.models import EpisodeRow, RunRow, Submission
+from robobpp.scoring import stats
 
 #: Per-episode metric compared between the played groups and the hold-out draw.
 METRIC = "space_utilization"

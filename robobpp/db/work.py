@@ -24,9 +24,9 @@ from sqlalchemy import and_, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
-from robobpp.metrics import PHYSICAL, aggregate
 from robobpp.provenance import environment, merge, merged
-from robobpp.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
+from robobpp.scoring.metrics import PHYSICAL, aggregate
+from robobpp.scoring.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
 
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
 WORKER_LOST = "worker_lost"

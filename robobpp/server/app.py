@@ -22,7 +22,7 @@ from robobpp.server import problems
 from robobpp.server.config import Settings
 from robobpp.server.headers import SecurityHeaders
 from robobpp.server.limits import BodySizeLimit
-from robobpp.server.metrics import install_metrics
+from robobpp.server.prometheus import install_metrics
 
 log = logging.getLogger("robobpp.server")
 

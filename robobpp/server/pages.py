@@ -23,9 +23,9 @@ from robobpp.datasets import DATASETS
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
-from robobpp.leaderboard import board_view, find_entry, grid_view
-from robobpp.metrics import METRICS, PHYSICAL
-from robobpp.scoring import WEIGHTS
+from robobpp.scoring.boards import board_view, find_entry, grid_view
+from robobpp.scoring.metrics import METRICS, PHYSICAL
+from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body
 from robobpp.server.services.submissions import finished_views

@@ -6,8 +6,9 @@ users never load pybullet.
 
 from __future__ import annotations
 
+from robobpp.core import FinalBox
 from robobpp.extras import require
-from robobpp.sim.base import FinalBox, Setting, StepOutcome
+from robobpp.sim.base import Setting, StepOutcome
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 
 SETTINGS: tuple[str, ...] = ("math", "physics", "execution")

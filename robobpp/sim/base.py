@@ -5,7 +5,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
-from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement
+from robobpp.core import Action, Box, ContainerState, EpisodeSpec, FinalBox, Infeasible, Placement
 
 
 @dataclass(slots=True)
@@ -28,15 +28,6 @@ class StepOutcome:
     #: Unsafe grasp-and-place operation (Execution).
     dangerous: bool | None = None
     extra: dict[str, object] = field(default_factory=dict)
-
-
-@dataclass(slots=True)
-class FinalBox:
-    """A placed box at the end of the episode: where it was meant to be and where it is."""
-
-    planned: Placement
-    actual: Placement
-    in_place: bool
 
 
 class Setting(ABC):

@@ -9,8 +9,8 @@ paper's Math Pack figures are reproduced without it and missed with it).
 
 from __future__ import annotations
 
-from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible
-from robobpp.sim.base import FinalBox, Setting, StepOutcome
+from robobpp.core import Action, Box, ContainerState, EpisodeSpec, FinalBox, Infeasible
+from robobpp.sim.base import Setting, StepOutcome
 
 #: Version of the Math Pack rules: which actions are accepted (``robobpp.core.check_action``: bounds,
 #: orientations, finite numbers), where a box comes to rest (the drop onto the heightmap) and when it is too

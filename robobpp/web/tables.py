@@ -1,6 +1,6 @@
 """Table models for the leaderboard pages, shaped from the server's query results (no second scoring).
 
-The server's ``robobpp.leaderboard`` ranks and scores; this module only decides what each cell shows:
+The server's ``robobpp.scoring.boards`` ranks and scores; this module only decides what each cell shows:
 column headers with their better-direction arrows, intervals as text, which cells are a column's top
 four, sort keys for the sortable tables, pagination. Pure functions of plain dicts, so they are tested without a server.
 """
@@ -12,9 +12,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from robobpp.leaderboard import find_entry
-from robobpp.metrics import METRIC_BY_KEY, metrics_for
 from robobpp.paper import PAPER_GROUPS
+from robobpp.scoring.boards import find_entry
+from robobpp.scoring.metrics import METRIC_BY_KEY, metrics_for
 from robobpp.web import fmt_metric
 
 #: How many of a column's best entries are highlighted (the paper highlights its top methods).

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from robobpp.scoring import score_entries
+from robobpp.scoring.scores import score_entries
 from tests.cli.test_evaluate import robobpp
 
 

@@ -14,7 +14,7 @@ from robobpp import provenance
 from robobpp.datasets.private import build_private, load_private
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.export import latex_escape
-from robobpp.scoring import ANCHORS_VERSION
+from robobpp.scoring.scores import ANCHORS_VERSION
 from robobpp.sim import MATH_RULES_VERSION
 from tests.cli.test_evaluate import robobpp as run_cli
 

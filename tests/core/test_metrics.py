@@ -1,8 +1,7 @@
 import pytest
 
-from robobpp import metrics as M
-from robobpp.core import ContainerSpec, Placement
-from robobpp.sim.base import FinalBox
+from robobpp.core import ContainerSpec, FinalBox, Placement, static_stability
+from robobpp.scoring import metrics as M
 
 C = ContainerSpec(10, 10, 10)
 
@@ -58,7 +57,7 @@ def test_local_stability_is_mean_displacement_in_metres():
     ],
 )
 def test_static_stability_formula(v, w, expected):
-    assert M.static_stability(v, w) == pytest.approx(expected)
+    assert static_stability(v, w) == pytest.approx(expected)
 
 
 def test_aggregate_means_and_pooled_ratios():

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from robobpp.metrics import metrics_for
 from robobpp.paper import PAPER_BASELINES, paper_tables
+from robobpp.scoring.metrics import metrics_for
 
 DATASETS = ("repetitive", "diverse", "longboard")
 

@@ -7,8 +7,8 @@ import httpx
 import pytest
 
 from robobpp.episode import run_episode
-from robobpp.metrics import aggregate
 from robobpp.policies.dbl import DBL
+from robobpp.scoring.metrics import aggregate
 from robobpp.worker.specs import offline_spec
 from tests.server.conftest import new_participant, wait_for
 

@@ -21,7 +21,7 @@ from robobpp.db.models import Participant, RunRow
 from robobpp.db.queries import leaderboard
 from robobpp.db.session import make_engine, make_session_factory, transaction
 from robobpp.export import SUMMARY_DECIMALS
-from robobpp.scoring import ANCHORS_VERSION
+from robobpp.scoring.scores import ANCHORS_VERSION
 from robobpp.sim import MATH_RULES_VERSION
 from tests.server.conftest import ADMIN_TOKEN, new_participant, wait_for
 

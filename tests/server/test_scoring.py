@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from robobpp import stats
-from robobpp.metrics import metrics_for
-from robobpp.scoring import ANCHORS, WEIGHTS, anchored, normalize, score_board, score_entries
+from robobpp.scoring import stats
+from robobpp.scoring.metrics import metrics_for
+from robobpp.scoring.scores import ANCHORS, WEIGHTS, anchored, normalize, score_board, score_entries
 
 
 @pytest.mark.parametrize("setting", ["math", "physics", "execution"])
@@ -97,7 +97,7 @@ def test_unknown_setting_is_refused() -> None:
         score_entries([], "juggling")
 
 
-# ---- intervals (robobpp.stats; docs/benchmark.md "Uncertainty") ----------------------------------------
+# ---- intervals (robobpp.scoring.stats; docs/benchmark.md "Uncertainty") ----------------------------------------
 
 
 def _entry(rng: np.random.Generator, mean: float, groups: int) -> dict:

@@ -393,7 +393,7 @@ def test_execution_results_and_radar_fit_at_1280_px(server: Server, browser: Any
     from datetime import datetime
 
     from robobpp.episode import TERMINATION_REASONS
-    from robobpp.metrics import METRICS
+    from robobpp.scoring.metrics import METRICS
     from robobpp.server.site.session import Viewer
     from robobpp.web import environment, tables
 

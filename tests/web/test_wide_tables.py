@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from robobpp.metrics import METRICS
+from robobpp.scoring.metrics import METRICS
 from robobpp.web import environment, tables
 from tests.web.conftest import ADMIN_TOKEN, Server, sign_in
 
@@ -190,7 +190,7 @@ def test_no_table_is_cut_on_an_execution_board_and_the_full_grid(
     server: Server, browser: Any, width: int
 ) -> None:
     from robobpp.datasets import DATASETS
-    from robobpp.scoring import WEIGHTS
+    from robobpp.scoring.scores import WEIGHTS
     from robobpp.server.site.session import Viewer
 
     common = {

@@ -10,7 +10,6 @@ from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy.orm import Session
 
 from robobpp.episode import TERMINATION_REASONS
-from robobpp.leaderboard import board_view, grid_view
 from robobpp.schemas import (
     PROTOCOL_HELP,
     DatasetName,
@@ -21,7 +20,8 @@ from robobpp.schemas import (
     ServiceInfo,
     SettingName,
 )
-from robobpp.scoring import WEIGHTS
+from robobpp.scoring.boards import board_view, grid_view
+from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SettingsDep, in_read_session
 from robobpp.server.runtime import Runtime
 from robobpp.server.services.boards import BoardCache, to_json

@@ -48,9 +48,9 @@ from robobpp import __version__
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import queries
 from robobpp.db.models import Submission
-from robobpp.leaderboard import build_grid
-from robobpp.metrics import PHYSICAL
 from robobpp.replay import CLOSED, PAPER, PROTOCOLS
+from robobpp.scoring.boards import build_grid
+from robobpp.scoring.metrics import PHYSICAL
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
@@ -335,7 +335,7 @@ class BoardCache:
     def board(
         self, session: Session, dataset: str, setting: str, track: str = "private", protocol: str = CLOSED
     ) -> dict[str, Any]:
-        """The full board (``robobpp.leaderboard.build_board``); page it with ``board_view``. ``protocol``:
+        """The full board (``robobpp.scoring.boards.build_board``); page it with ``board_view``. ``protocol``:
         ``closed`` (the benchmark) or ``paper`` (a physical setting's Math actions replayed)."""
         protocol = queries.board_protocol(setting, protocol)
         if dataset in self.datasets and setting in self.settings:

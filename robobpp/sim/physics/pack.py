@@ -8,8 +8,8 @@ from dataclasses import fields, replace
 
 import numpy as np
 
-from robobpp.core import Action, Box, ContainerState, EpisodeSpec, Infeasible, Placement, box_label
-from robobpp.sim.base import FinalBox, Setting, StepOutcome
+from robobpp.core import Action, Box, ContainerState, EpisodeSpec, FinalBox, Infeasible, Placement, box_label
+from robobpp.sim.base import Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
 from robobpp.sim.physics.geometry import aabbs, clear_shift, heightmap_from_boxes, surface_height
 from robobpp.sim.physics.recording import PoseRecorder

@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
-from robobpp.core import box_label
-from robobpp.metrics import static_stability
+from robobpp.core import box_label, static_stability
 from robobpp.sim.physics.geometry import aabbs
 from robobpp.sim.physics.recording import PoseRecorder
 from robobpp.sim.physics.world import CM, PhysicsWorld, WorldBox

@@ -7,8 +7,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from robobpp.core import ContainerSpec, ContainerState, Placement
-from robobpp.sim.base import FinalBox
+from robobpp.core import ContainerSpec, ContainerState, FinalBox, Placement
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,13 +43,6 @@ POOLED = {
 
 def metrics_for(setting: str) -> tuple[MetricDef, ...]:
     return tuple(m for m in METRICS if setting in m.settings)
-
-
-def static_stability(max_linear_speed: float, max_angular_speed: float) -> float:
-    """R = 0.5·clip(1 − v^0.4, 0, 1) + 0.5·clip(1 − ω^0.3, 0, 1) (v in m/s, ω in rad/s)."""
-    v = max(0.0, max_linear_speed)
-    w = max(0.0, max_angular_speed)
-    return 0.5 * min(1.0, max(0.0, 1.0 - v**0.4)) + 0.5 * min(1.0, max(0.0, 1.0 - w**0.3))
 
 
 def space_utilization(final: Sequence[FinalBox], container: ContainerSpec) -> float:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from robobpp.metrics import POOLED, metrics_for
+from robobpp.scoring.metrics import POOLED, metrics_for
 
 #: Resamples per interval; the ends of a 95 % percentile interval move by well under 1 % of its width
 #: between seeds at this count.

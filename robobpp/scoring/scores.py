@@ -5,7 +5,7 @@
 * The **stable** score normalises each metric against fixed, versioned anchors (:data:`ANCHORS`), so an
   entry's stable score never changes when others arrive; it is shown beside the relative one.
 
-Intervals come from :mod:`robobpp.stats`: one seeded, paired bootstrap over groups per board; each
+Intervals come from :mod:`robobpp.scoring.stats`: one seeded, paired bootstrap over groups per board; each
 resample re-aggregates every entry's run figures, re-normalises and re-ranks the board.
 """
 
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from robobpp import stats
-from robobpp.metrics import METRIC_BY_KEY
+from robobpp.scoring import stats
+from robobpp.scoring.metrics import METRIC_BY_KEY
 
 #: Weights of each metric in a setting's score (each row sums to 1).
 WEIGHTS: dict[str, dict[str, float]] = {

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from robobpp import stats
-from robobpp.metrics import metrics_for
-from robobpp.scoring import ANCHORS_VERSION, RANKED_BY, WEIGHTS, competition_ranks, score_board
+from robobpp.scoring import stats
+from robobpp.scoring.metrics import metrics_for
+from robobpp.scoring.scores import ANCHORS_VERSION, RANKED_BY, WEIGHTS, competition_ranks, score_board
 
 #: Resamples kept per board for the overall grid's Mean interval (of the board's ``stats.RESAMPLES``).
 GRID_RESAMPLES = 250

@@ -6,15 +6,26 @@ with itself. Pure Python, shared by ``bench/fidelity_physics.py`` and the CI tes
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import NamedTuple
-
-from robobpp.episode import EpisodeResult
+from typing import NamedTuple, Protocol
 
 #: Two runs of an episode may place this many boxes more or fewer and still agree.
 BOXES_SLACK = 1
 #: ... and their Local Stability may differ by this much, metres.
 LOCAL_STABILITY_M = 0.005
+
+
+class EpisodeEnd(Protocol):
+    """What the criterion reads of an episode's result (``robobpp.episode.EpisodeResult`` has it): described
+    here rather than imported, so the simulator never imports the episode loop above it."""
+
+    @property
+    def termination(self) -> str: ...
+    @property
+    def boxes_placed(self) -> int: ...
+    @property
+    def metrics(self) -> Mapping[str, float | None]: ...
 
 
 class Outcome(NamedTuple):
@@ -25,7 +36,7 @@ class Outcome(NamedTuple):
     local_stability_m: float
 
     @classmethod
-    def of(cls, result: EpisodeResult) -> Outcome:
+    def of(cls, result: EpisodeEnd) -> Outcome:
         return cls(result.termination, result.boxes_placed, result.metrics.get("local_stability") or 0.0)
 
 

@@ -80,10 +80,14 @@ class EmptyResponse(Message):
     """The answer to ``/reset`` and ``/close``: exactly ``{}``."""
 
 
+#: The version ``/info`` carries when a policy reports none; labels leave it out ("dbl", not "dbl 0").
+UNREPORTED_VERSION = "0"
+
+
 class InfoResponse(Message):
     protocol: Literal["robobpp/1"]
     name: Text
-    version: Text = "0"
+    version: Text = UNREPORTED_VERSION
 
 
 class ContainerModel(Message):

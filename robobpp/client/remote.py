@@ -43,8 +43,11 @@ M = TypeVar("M", bound=BaseModel)
 
 
 def label(info: P.InfoResponse) -> str:
-    """A served policy's label in results: ``/info``'s name and version ("lowest-first 1.2")."""
-    return f"{info.name} {info.version}" if info.version else info.name
+    """A served policy's label in results: ``/info``'s name and version ("lowest-first 1.2"); a policy that
+    reports no version (the protocol's default "0") is labelled by its name alone, not "dbl 0"."""
+    if not info.version or info.version == P.UNREPORTED_VERSION:
+        return info.name
+    return f"{info.name} {info.version}"
 
 
 class SignatureMismatch(PolicyError):

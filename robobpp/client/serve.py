@@ -77,7 +77,7 @@ def create_policy_app(
     if not callable(getattr(policy, "act", None)):
         raise TypeError(f"{type(policy).__name__} has no act(observation) method")
     shown_name = str(name or getattr(policy, "name", None) or type(policy).__name__)[: P.MAX_TEXT]
-    version = str(version or getattr(policy, "version", None) or "0")[: P.MAX_TEXT]
+    version = str(version or getattr(policy, "version", None) or P.UNREPORTED_VERSION)[: P.MAX_TEXT]
     info = {"protocol": P.PROTOCOL, "name": shown_name, "version": version}
     # Per episode: its container (from /reset) and its last observation (for the incremental heightmap).
     episodes: OrderedDict[str, tuple[ContainerSpec, Observation | None]] = OrderedDict()

@@ -240,3 +240,24 @@ def test_sdk_serve_is_the_function_even_after_its_module_was_imported() -> None:
     out = subprocess.run([sys.executable, "-c", fresh], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "True"
     assert inspect.isfunction(serve)
+
+
+class Versioned(BasePolicy):
+    name = "versioned"
+    version = "1.2"
+
+    def act(self, obs: Observation) -> Action | None:
+        return None
+
+
+@pytest.mark.parametrize(("policy", "expected"), [(DBL(), "dbl"), (Versioned(), "versioned 1.2")])
+def test_results_are_labelled_by_info_name_and_only_a_reported_version(
+    policy: BasePolicy, expected: str
+) -> None:
+    # DBL reports no version: /info carries the protocol's default, which labels leave out ("dbl", not "dbl 0")
+    with BackgroundServer(create_policy_app(policy)) as server:
+        remote = RemotePolicy(server.url)
+        info = remote.fetch_info()
+        remote.close()
+    assert (info.name, info.version) == (expected.split()[0], getattr(policy, "version", None) or "0")
+    assert remote.name == expected

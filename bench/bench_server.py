@@ -40,7 +40,7 @@ from _load import read_concurrently
 from sqlalchemy import insert, text
 
 from robobpp.client.serve import BackgroundServer, create_policy_app
-from robobpp.db import queries, work
+from robobpp.db import work
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.work import run_figures
 from robobpp.policies.dbl import DBL
@@ -49,6 +49,7 @@ from robobpp.scoring.stats import group_figures
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
+from robobpp.server.services.board_engine import leaderboard
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
 ADMIN = "bench-admin-token-0123456789abcdef"
@@ -466,7 +467,7 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
         for st in SETTINGS:
             for d in DATASETS:
                 t0, c0 = time.perf_counter(), time.process_time()
-                boards[f"{st}/{d}"] = queries.leaderboard(s, d, st)
+                boards[f"{st}/{d}"] = leaderboard(s, d, st)
                 out.append(
                     (
                         f"board {st}/{d} ({len(boards[f'{st}/{d}']['entries'])} ranked)",
@@ -480,7 +481,7 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
         for st in SETTINGS[1:]:  # the physical boards again, under the paper protocol
             for d in DATASETS:
                 t0, c0 = time.perf_counter(), time.process_time()
-                boards[f"{st}/{d}"] = queries.leaderboard(s, d, st, protocol="paper")
+                boards[f"{st}/{d}"] = leaderboard(s, d, st, protocol="paper")
                 out.append(
                     (
                         f"board {st}/{d}, paper protocol ({len(boards[f'{st}/{d}']['entries'])} ranked)",

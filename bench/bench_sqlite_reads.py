@@ -89,6 +89,7 @@ def main() -> None:
                 ids.append(r.json()["id"])
             from robobpp.db import queries
             from robobpp.db.session import make_engine, make_session_factory
+            from robobpp.server.services.board_engine import leaderboard
 
             engine = make_engine(
                 f"sqlite:///{Path(tmp) / 'robobpp.sqlite3'}", read_only=args.begin == "deferred"
@@ -103,7 +104,7 @@ def main() -> None:
                 if k % 4 == 0:
                     queries.episode_rows(session, sub_id)
                 elif k % 4 == 1:
-                    queries.leaderboard(session, "diverse", "math")
+                    leaderboard(session, "diverse", "math")
                 elif k % 4 == 2:
                     queries.episode_status_counts(session)
                 else:

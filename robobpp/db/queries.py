@@ -2,9 +2,8 @@
 
 For page authors, the entry points are:
 
-* :func:`leaderboard` — one board (dataset × setting): ranked entries with raw metrics, scores and intervals,
-  and the failed or partial ones apart (``robobpp.scoring.boards.board_view`` pages it);
-* :func:`overall_grid` — every submission's score and rank on each of the 3 × 3 boards, and the Mean;
+* :func:`board_rows` — the stored runs a board (dataset × setting × protocol) is composed from (the
+  composition, scores and intervals, is ``robobpp.server.services.board_engine``'s);
 * :func:`submission_view` / :func:`submission_progress` — one submission with its runs and progress;
 * :func:`episode_rows` / :func:`get_episode` — per-episode results (traces only on the public track);
 * :func:`list_submission_keys` / :func:`submissions_by_id` — a page of submissions, newest first.
@@ -18,7 +17,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
@@ -28,7 +27,6 @@ from sqlalchemy.orm import Session, joinedload
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.provenance import merge, merged
-from robobpp.scoring.boards import build_board, build_grid
 from robobpp.scoring.metrics import PHYSICAL
 from robobpp.scoring.scores import ANCHORS_VERSION
 from robobpp.sim.math_pack import MATH_RULES_VERSION
@@ -175,7 +173,7 @@ def board_protocol(setting: str, protocol: str) -> str:
     return protocol if setting in PHYSICAL else "closed"
 
 
-def _entry_rows(
+def board_rows(
     session: Session, dataset: str, setting: str, track: str, protocol: str = "closed"
 ) -> list[dict[str, Any]]:
     """Every completed run on the board of a finished submission (failed ones too: they are shown apart)."""
@@ -225,7 +223,7 @@ def _entry_rows(
         "verification",
     )
     return [
-        dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": _verdict(r[10])}
+        dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": board_verdict(r[10])}
         for r in rows
         if current_rules(r[2])
     ]
@@ -241,49 +239,13 @@ def current_rules(extras: Mapping[str, Any] | None) -> bool:
     )
 
 
-def _verdict(verification: dict[str, Any] | None) -> str | None:
+def board_verdict(verification: dict[str, Any] | None) -> str | None:
     """What a board shows of a verification: its verdict, or ``pending`` while the hold-out re-run runs
     (nothing when the operator cancelled it)."""
     status = (verification or {}).get("status")
     if status == "running":
         return "pending"
     return status if status in ("verified", "disagrees", "failed") else None
-
-
-def leaderboard(
-    session: Session, dataset: str, setting: str, *, track: str = "private", protocol: str = "closed"
-) -> dict[str, Any]:
-    """One board, computed now (the server reads it through its cache): see :func:`robobpp.scoring.boards.build_board`.
-
-    ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
-    board is the same under both."""
-    protocol = board_protocol(setting, protocol)
-    board = build_board(_entry_rows(session, dataset, setting, track, protocol), dataset, setting, track)
-    board["protocol"] = protocol
-    return board
-
-
-def overall_grid(
-    session: Session,
-    *,
-    datasets: tuple[str, ...] = DATASETS_ORDER,
-    settings: tuple[str, ...] = SETTINGS_ORDER,
-    track: str = "private",
-    board: Callable[[str, str], dict[str, Any]] | None = None,
-    protocol: str = "closed",
-) -> dict[str, Any]:
-    """The paper's overall table (see :func:`robobpp.scoring.boards.build_grid`); ``protocol="paper"``: its
-    physical columns under the paper protocol (the Mean then averages those).
-
-    ``board(dataset, setting)`` supplies each board (the server passes its cache); default: computed here.
-    """
-    get_board = board or (
-        lambda dataset, setting: leaderboard(session, dataset, setting, track=track, protocol=protocol)
-    )
-    boards = {f"{s}/{d}": get_board(d, s) for s in settings for d in datasets}
-    grid = build_grid(boards, datasets, settings, track)
-    grid["protocol"] = protocol
-    return grid
 
 
 def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:

@@ -9,10 +9,10 @@ from typing import Any
 import pytest
 from sqlalchemy import select
 
-from robobpp.db import queries
 from robobpp.db.models import EpisodeRow, RunRow
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
+from robobpp.server.services.board_engine import leaderboard
 from robobpp.worker.celery_app import make_celery
 from robobpp.worker.celery_executor import CeleryExecutor
 from robobpp.worker.options import WorkerOptions
@@ -188,7 +188,7 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
 
     def board(f: Any, subs: list[int]) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
         with f() as s:
-            entries = queries.leaderboard(s, "repetitive", "math", track="public")["entries"]
+            entries = leaderboard(s, "repetitive", "math", track="public")["entries"]
         mine = [e for e in entries if e["submission_id"] in subs]
         assert len(mine) == len(subs)
         return [

@@ -39,6 +39,7 @@ from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.probes import ProbeGate
 from robobpp.server.problems import ProblemError
+from robobpp.server.services.board_engine import leaderboard
 from robobpp.server.services.submissions import FinishedViews, finished_views
 from robobpp.server.urlsafety import (
     BUILTIN_SCHEME,
@@ -427,7 +428,7 @@ def _verify_top(
     from robobpp.db.verification import start_verification
 
     started = []
-    for entry in queries.leaderboard(session, dataset, setting)["entries"][:top]:
+    for entry in leaderboard(session, dataset, setting)["entries"][:top]:
         original = session.get(Submission, entry["submission_id"])
         if original is None or (original.verification or {}).get("status") in (
             "running",

@@ -48,9 +48,8 @@ from robobpp import __version__
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import queries
 from robobpp.db.models import Submission
-from robobpp.replay import CLOSED, PAPER, PROTOCOLS
-from robobpp.scoring.boards import build_grid
-from robobpp.scoring.metrics import PHYSICAL
+from robobpp.replay import CLOSED
+from robobpp.server.services.board_engine import GRID_KEYS, compute_snapshot, leaderboard
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
@@ -97,37 +96,7 @@ def to_json(data: Any) -> bytes:
     return json.dumps(data, default=_default, allow_nan=False, separators=(",", ":")).encode()
 
 
-def compute_snapshot(
-    session: Session, datasets: tuple[str, ...], settings: tuple[str, ...], track: str
-) -> dict[str, Any]:
-    """Every board of a track and its overall grids, computed now: ``{"boards": {(dataset, setting): board,
-    (dataset, setting, "paper"): board}, "grid": grid, "grid-paper": grid}`` — closed loop, and the physical
-    settings under the paper protocol (a Math Pack board is the same under both). The boards lose the resample
-    arrays only the grids need (tens of MB at 10,000 entries)."""
-    boards: dict[tuple[str, ...], dict[str, Any]] = {
-        (d, st): queries.leaderboard(session, d, st, track=track) for st in settings for d in datasets
-    }
-    for st in settings:
-        for d in datasets:
-            if st in PHYSICAL:
-                boards[(d, st, PAPER)] = queries.leaderboard(session, d, st, track=track, protocol=PAPER)
-    grids = {}
-    for protocol in PROTOCOLS:
-        shown = {
-            f"{st}/{d}": boards[(d, st, protocol) if (d, st, protocol) in boards else (d, st)]
-            for st in settings
-            for d in datasets
-        }
-        grids[protocol] = build_grid(shown, datasets, settings, track) | {"protocol": protocol}
-    for b in boards.values():
-        b.pop("_samples", None)
-        b.pop("_stable_samples", None)
-    return {"boards": boards, "grid": grids[CLOSED], "grid-paper": grids[PAPER]}
-
-
 _CHILD_FACTORIES: dict[str, Any] = {}
-#: A snapshot's grids, by protocol (``compute_snapshot``).
-GRID_KEYS = ("grid", "grid-paper")
 #: Bumped when a stored snapshot's layout changes (``_stored_key``). 2: paper-protocol boards and grid.
 STORE_FORMAT = 2
 
@@ -410,7 +379,7 @@ class BoardCache:
         (version computed at or None, value); the first reader and the background refresh share it."""
         kind, track = key[0], key[-1]
         if kind == "board":
-            return lambda s: (None, queries.leaderboard(s, key[1], key[2], track=track, protocol=key[3]))
+            return lambda s: (None, leaderboard(s, key[1], key[2], track=track, protocol=key[3]))
         if kind == "grid":
             grid_key = "grid" if key[3] == CLOSED else f"grid-{key[3]}"
             return lambda s: (None, compute_snapshot(s, key[1], key[2], track)[grid_key])

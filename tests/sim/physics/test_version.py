@@ -10,10 +10,10 @@ from robobpp.core import Box
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import EpisodeRow, Participant
-from robobpp.db.queries import leaderboard
 from robobpp.db.session import make_engine, make_session_factory, transaction
 from robobpp.episode import EpisodeResult, run_episode
 from robobpp.policies import load_policy
+from robobpp.server.services.board_engine import leaderboard
 from robobpp.sim import make_setting
 from robobpp.sim.physics import PHYSICS_VERSION, PhysicsConfig
 

@@ -14,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -29,7 +30,14 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backg
 ADMIN_TOKEN = "web-tests-admin-token-0123456789"
 HOSTILE_PARTICIPANT = "<script>alert(1)</script>"
 HOSTILE_SUBMISSION = '<img src=x onerror="alert(2)">'
-SCREENSHOTS = Path(__file__).resolve().parents[2] / "docs" / "screenshots"
+#: Where the tests' screenshots go: a temporary folder, so a test run leaves the working tree as it was;
+#: ``ROBOBPP_UPDATE_SCREENSHOTS=1`` writes them over the documentation's own (docs/screenshots, CONTRIBUTING.md).
+DOC_SCREENSHOTS = Path(__file__).resolve().parents[2] / "docs" / "screenshots"
+SCREENSHOTS = (
+    DOC_SCREENSHOTS
+    if os.environ.get("ROBOBPP_UPDATE_SCREENSHOTS") == "1"
+    else Path(tempfile.gettempdir()) / f"robobpp-test-screenshots-{os.getpid()}"
+)
 #: Bounds on waiting for the workers (generous: the machine may be busy); not a speed test.
 WAIT_S = 240.0
 

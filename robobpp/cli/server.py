@@ -39,6 +39,14 @@ def serve(
     state_dir: Annotated[
         Path | None, typer.Option(help="Where the SQLite file lives (ROBOBPP_STATE_DIR)")
     ] = None,
+    server_workers: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            max=256,
+            help="API processes on the port (more than 1 needs Redis for pull mode: docs/deploy.md)",
+        ),
+    ] = 1,
 ) -> None:
     """Run the evaluation service: API, pages, migrations at start, baselines, local workers."""
     from robobpp.extras import require
@@ -77,12 +85,22 @@ def serve(
         settings = Settings(**overrides)
     except (ValidationError, ValueError) as exc:
         fail(f"invalid settings: {settings_problem(exc)}")
-    app = create_app(settings)
     where = "ROBOBPP_ADMIN_TOKEN" if settings.admin_token else str(settings.state_dir / "admin_token")
 
     def ready(url: str) -> None:  # after migrations, baselines and workers: a reader may connect at once
-        typer.echo(f"robobpp: serving on {url} (API docs {url}/docs); admin token: {where}")
+        processes = f" from {server_workers} API processes" if server_workers > 1 else ""
+        typer.echo(f"robobpp: serving on {url}{processes} (API docs {url}/docs); admin token: {where}")
 
+    if server_workers > 1:
+        from robobpp.server.processes import refusal, serve_processes
+
+        problem = refusal(settings, server_workers)
+        if problem:
+            fail(problem)
+        settings.effective_admin_token  # noqa: B018 - dev: the generated token is written once, here
+        serve_processes(settings, overrides, host, port, server_workers, ready)
+        return
+    app = create_app(settings)
     from robobpp.server.connections import server_config
 
     run_server(app, host, port, ready, log_level="info", access_log=False, **server_config(settings))

@@ -14,6 +14,7 @@ import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.staticfiles import StaticFiles
@@ -42,8 +43,30 @@ def _include_pages(app: FastAPI) -> None:
         app.include_router(router)
 
 
-def create_app(settings: Settings | None = None, *, start_workers: bool | None = None) -> FastAPI:
-    """Build the service. ``start_workers=False`` serves the API only (tests, API-only replicas)."""
+def start_executor(settings: Settings) -> Any:
+    """Start what runs the episodes: the Celery dispatcher when a broker is configured (the episodes run on
+    Celery workers), else the local worker pool; ``None`` when there is neither."""
+    if settings.broker_url:
+        from robobpp.worker.celery_executor import executor_from_settings
+
+        executor = executor_from_settings(settings)
+    elif settings.workers > 0:
+        from robobpp.worker.local import LocalExecutor
+        from robobpp.worker.options import worker_options
+
+        executor = LocalExecutor(worker_options(settings), settings.workers)
+    else:
+        return None
+    executor.start()
+    return executor
+
+
+def create_app(
+    settings: Settings | None = None, *, start_workers: bool | None = None, first_start: bool = True
+) -> FastAPI:
+    """Build the service. ``start_workers=False`` serves the API only (tests, API-only replicas);
+    ``first_start=False`` skips the start-up's migrations and seeding (done once by ``robobpp serve``'s
+    supervising process before it starts several API processes: server/processes.py)."""
     settings = settings or Settings()
     # With a broker the server dispatches episodes to Celery workers (no local pool); see worker/celery_*.py.
     run_workers = (
@@ -62,7 +85,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
             import anyio.to_thread
 
             anyio.to_thread.current_default_thread_limiter().total_tokens = settings.api_threads
-        await _run_sync(bootstrap, runtime)
+        if first_start:
+            await _run_sync(bootstrap, runtime)
         from robobpp.server.api.leaderboards import make_board_cache
 
         board_cache = app.state.board_cache = make_board_cache(runtime)
@@ -70,26 +94,16 @@ def create_app(settings: Settings | None = None, *, start_workers: bool | None =
         await _run_sync(board_cache.load_stored)
         # large tracks' boards computed now, in the background, not by the first readers
         threading.Thread(target=board_cache.warm, daemon=True, name="board-warm").start()
-        executor = None
-        if run_workers and settings.broker_url:
-            from robobpp.worker.celery_executor import executor_from_settings
-
-            executor = executor_from_settings(settings)
-            executor.start()
-            runtime.executor = executor
-        elif run_workers:
-            from robobpp.worker.local import LocalExecutor
-            from robobpp.worker.options import worker_options
-
-            executor = LocalExecutor(worker_options(settings), settings.workers)
-            executor.start()
-            runtime.executor = executor
+        executor = runtime.executor = start_executor(settings) if run_workers else None
         try:
             yield
         finally:
             if executor is not None:
                 executor.stop()
             app.state.probe_gate.shutdown()
+            hub = getattr(app.state, "pull_hub", None)
+            if hub is not None:  # the relay's bus (its Redis subscription, when it has one)
+                await hub.bus.close()
             board_cache.close()
             runtime.dispose()
 

@@ -74,6 +74,9 @@ class Settings(BaseSettings):
     pull_wait_s: float = Field(default=30.0, gt=0)
     #: How long a worker waits for a dropped client to come back before the episode ends with policy_error.
     pull_reconnect_s: float = Field(default=30.0, gt=0)
+    #: Redis the API processes' pull relays meet through (``redis://…``); empty: ``broker_url`` when it is
+    #: Redis, else the relay lives in the one API process (docs/deploy.md, "Several API processes").
+    pull_broker_url: str = ""
     evaluate_baselines: bool = True
     #: Built-in baselines evaluated on first start; ``None`` means every one (``robobpp.policies.BASELINES``).
     baselines: tuple[str, ...] | None = None
@@ -148,6 +151,21 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.state_dir / 'robobpp.sqlite3').resolve()}"
+
+    @property
+    def pull_redis_url(self) -> str:
+        """The Redis of the pull relay's bus, or ``""`` for the in-process relay (one API process only)."""
+        if self.pull_broker_url:
+            return self.pull_broker_url
+        return self.broker_url if self.broker_url.startswith(("redis://", "rediss://")) else ""
+
+    @model_validator(mode="after")
+    def _pull_broker_is_redis(self) -> Settings:
+        if self.pull_broker_url and not self.pull_broker_url.startswith(("redis://", "rediss://", "unix://")):
+            raise ValueError(
+                f"ROBOBPP_PULL_BROKER_URL must be a Redis URL (redis://host:port/db), got {self.pull_broker_url!r}"
+            )
+        return self
 
     @cached_property
     def enabled_settings(self) -> tuple[str, ...]:

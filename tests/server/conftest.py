@@ -27,6 +27,7 @@ from tests._orphans import with_parent_death
 
 PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
 ADMIN_TOKEN = "test-admin-token-0123456789abcdef"
+REDIS_URL = os.environ.get("ROBOBPP_TEST_REDIS", "redis://127.0.0.1:6379/0")
 OFFLINE = "robobpp.worker.specs:offline_spec"
 
 
@@ -63,6 +64,16 @@ def db_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
     return request.getfixturevalue("pg_url")
 
 
+def redis_or_skip() -> None:
+    """Skip (saying why) when the machine's Redis does not answer."""
+    import redis
+
+    try:
+        redis.Redis.from_url(REDIS_URL, socket_connect_timeout=2).ping()
+    except redis.RedisError as exc:
+        pytest.skip(f"Redis is not reachable at {REDIS_URL}: {exc}")
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -72,16 +83,20 @@ def free_port() -> int:
 class ServerProcess:
     """``robobpp serve`` in a subprocess (real uvicorn, real worker processes)."""
 
-    def __init__(self, env: dict[str, str], data_dir: Path) -> None:
+    def __init__(
+        self, env: dict[str, str], data_dir: Path, args: tuple[str, ...] = (), port: int | None = None
+    ) -> None:
         self.env = env
         self.data_dir = data_dir
-        self.port = free_port()
+        self.args = args
+        self.fixed_port = port
+        self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen[bytes] | None = None
         self.log = data_dir / "server.log"
 
     def start(self) -> ServerProcess:
-        self.port = free_port()
+        self.port = self.fixed_port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         cmd = [
             sys.executable,
@@ -90,6 +105,7 @@ class ServerProcess:
             "serve",
             "--port",
             str(self.port),
+            *self.args,
         ]
         out = self.log.open("ab")
         # Own session: a crash test can kill the server and its worker processes at once (killpg).

@@ -1,5 +1,9 @@
 """The pull relay against hostile clients: the worker ends the episode with the same reasons as in push mode
-(a NaN, an answer over the cap, silence), and the relay refuses a worker without the episode's lease."""
+(a NaN, an answer over the cap, silence), and the relay refuses a worker without the episode's lease.
+
+Every case runs twice: with one API app (the in-process bus) and across two apps on one database whose
+buses meet through the real Redis, the client on one and the worker on the other, so each frame, and the
+oversize answer, crosses the broker."""
 
 from __future__ import annotations
 
@@ -24,16 +28,20 @@ from robobpp.server.app import create_app
 from robobpp.server.config import Settings
 from robobpp.worker.pull import PullTransport
 from tests.conftest import make_spec
+from tests.server.conftest import REDIS_URL, redis_or_skip
 
 ADMIN = "relay-admin-token-0123456789abcdef"
 Answer = Callable[[frames.Frame], bytes]
 
 
-@pytest.fixture(scope="module")
-def relay(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+@pytest.fixture(scope="module", params=["in-process", pytest.param("across-redis", marks=pytest.mark.redis)])
+def relay(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[dict[str, Any]]:
     tmp = tmp_path_factory.mktemp("relay")
     db = f"sqlite:///{tmp / 'relay.sqlite3'}"
     upgrade(db)
+    across = request.param == "across-redis"
     settings = Settings(
         database_url=db,
         admin_token=ADMIN,
@@ -42,8 +50,15 @@ def relay(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         groups=1,
         settings=("math",),
         evaluate_baselines=False,
+        pull_broker_url=REDIS_URL if across else "",
     )
-    with BackgroundServer(create_app(settings, start_workers=False)) as server:
+    if across:
+        redis_or_skip()
+    with (
+        BackgroundServer(create_app(settings, start_workers=False)) as server,
+        BackgroundServer(create_app(settings, start_workers=False)) as other,
+    ):
+        worker_url = other.url if across else server.url
         admin = httpx.Client(base_url=server.url + "/api/v1", headers={"Authorization": f"Bearer {ADMIN}"})
         token = admin.post("/participants", json={"name": "hostile"}).json()["token"]
         mine = httpx.Client(base_url=server.url + "/api/v1", headers={"Authorization": f"Bearer {token}"})
@@ -54,7 +69,13 @@ def relay(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         with factory() as session, session.begin():
             claim = work.claim_episode(session, "test:worker", lease_s=600, max_attempts=3)
         assert claim is not None and claim.mode == "pull"
-        yield {"url": server.url, "token": token, "claim": claim, "submission": made.json()["id"]}
+        yield {
+            "url": server.url,  # the participant's client connects here
+            "worker_url": worker_url,  # the worker's episode socket lands here
+            "token": token,
+            "claim": claim,
+            "submission": made.json()["id"],
+        }
 
 
 class ScriptedClient:
@@ -91,7 +112,7 @@ def _episode(relay: dict[str, Any], answer: Answer | None, lease: str | None = N
     try:
         claim = relay["claim"]
         transport = PullTransport(
-            relay["url"], claim.episode_id, lease or claim.token, wait_s=5, reconnect_s=1
+            relay["worker_url"], claim.episode_id, lease or claim.token, wait_s=5, reconnect_s=1
         )
         policy = RemotePolicy(relay["url"], step_timeout_s=1.0, check_info=False, transport=transport)
         transport.headers_for = policy.request_headers
@@ -126,7 +147,7 @@ def test_a_silent_client_times_out_like_a_silent_server(relay: dict[str, Any]) -
 
 def test_the_relay_refuses_a_worker_without_the_lease(relay: dict[str, Any]) -> None:
     claim = relay["claim"]
-    transport = PullTransport(relay["url"], claim.episode_id, "not-the-lease", wait_s=2)
+    transport = PullTransport(relay["worker_url"], claim.episode_id, "not-the-lease", wait_s=2)
     with pytest.raises(wire.ConnectFailed, match="refused"):
         transport.pair(2)
 

@@ -10,11 +10,16 @@ Two WebSocket routes meet here:
   forwarded unchanged in both directions.
 
 The relay never interprets a frame beyond its size: the worker signs, times and validates exactly as in
-push mode (:mod:`robobpp.worker.pull`). When the client drops, the worker's socket is closed with
-:data:`GONE` so that it waits for the client to come back and resumes the episode on a new connection.
+push mode (:mod:`robobpp.worker.pull`). An answer over the cap is never forwarded: the worker's socket is
+closed with :data:`TOO_LARGE`. When the client drops, the worker's socket is closed with :data:`GONE` so that
+it waits for the client to come back and resumes the episode on a new connection.
 
-The connections live in this process: serve the API from one process (``robobpp serve`` does), or route
-``/api/v1/pull/*`` of one submission to one process.
+The two sockets of an episode need not land on the same API process. Each handler owns an endpoint of the
+relay bus (:mod:`robobpp.server.relay_bus`) and the two talk only through it: in-process when the API runs as
+one process with no Redis configured, through Redis otherwise (``robobpp serve --server-workers N``, or
+replicas on several hosts; docs/deploy.md, "Several API processes"). Pairing is one exchange: the worker's
+side takes an idle client address from the submission's queue and asks it to ``PAIR``; the client's side
+answers ``PAIRED``, or ``GONE`` if it was taken meanwhile, and the worker's side tries the next one.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import asyncio
 import contextlib
 import json
 import logging
-from collections import defaultdict, deque
+from collections import defaultdict
 from typing import Any
 
 from fastapi import APIRouter, WebSocket
@@ -35,6 +40,18 @@ from robobpp.db.models import EpisodeRow, Submission
 from robobpp.db.work import ACTIVE_SUBMISSION
 from robobpp.server.api.deps import auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
+from robobpp.server.relay_bus import (
+    FRAME,
+    PAIR,
+    PAIRED,
+    RELEASE,
+    WATCH_S,
+    Endpoint,
+    LocalBus,
+    make_bus,
+)
+from robobpp.server.relay_bus import GONE as GONE_MESSAGE
+from robobpp.server.relay_bus import TOO_LARGE as TOO_LARGE_MESSAGE
 
 log = logging.getLogger("robobpp.server.pull")
 router = APIRouter(tags=["pull"])
@@ -49,28 +66,31 @@ TOO_MANY = 4029  # the submission or the participant has as many client connecti
 #: Slack over the answer cap for the frame's envelope line.
 ENVELOPE_BYTES = 4096
 MAX_WAIT_S = 300.0
-
-
-class ClientConnection:
-    """One participant connection; frames it sends while paired go to the worker through ``inbox``."""
-
-    def __init__(self, ws: WebSocket, submission_id: int) -> None:
-        self.ws = ws
-        self.submission_id = submission_id
-        self.inbox: asyncio.Queue[bytes | int] = asyncio.Queue()
-        self.alive = True
-        self.busy = False
+#: How long the worker's side waits for an idle client connection to answer ``PAIR`` before trying the next.
+PAIR_REPLY_S = 5.0
 
 
 class PullHub:
-    """Idle client connections per submission, and the workers waiting for one."""
+    """This process's side of the relay: its bus and the caps' counts of its open client connections.
 
-    def __init__(self) -> None:
-        self._idle: defaultdict[int, deque[ClientConnection]] = defaultdict(deque)
-        self._waiting: defaultdict[int, deque[asyncio.Future[ClientConnection]]] = defaultdict(deque)
+    The caps are per API process, like the connection limits (server/connections.py): they bound what one
+    process holds open (file handles, memory), which is what a flood of idle sockets costs.
+    """
+
+    def __init__(self, bus: LocalBus) -> None:
+        self.bus = bus
+        self._started = False
+        self._starting = asyncio.Lock()
         #: Open client connections (idle or busy) per submission and per participant: the caps' counts.
         self.open_per_submission: defaultdict[int, int] = defaultdict(int)
         self.open_per_participant: defaultdict[int, int] = defaultdict(int)
+
+    async def start(self) -> PullHub:
+        async with self._starting:
+            if not self._started:
+                await self.bus.start()
+                self._started = True
+        return self
 
     def admit(
         self, submission_id: int, participant_id: int, per_submission: int, per_participant: int
@@ -95,52 +115,14 @@ class PullHub:
             if table[key] <= 0:
                 del table[key]
 
-    def connected(self, submission_id: int) -> int:
-        """Idle connections of a submission (busy ones serve an episode)."""
-        return sum(c.alive for c in self._idle.get(submission_id, ()))
 
-    def release(self, conn: ClientConnection) -> None:
-        """The connection is free: hand it to the first waiting worker, or keep it idle."""
-        conn.busy = False
-        if not conn.alive:
-            return
-        while not conn.inbox.empty():  # late answers of the last episode are nobody's business now
-            conn.inbox.get_nowait()
-        waiting = self._waiting[conn.submission_id]
-        while waiting:
-            future = waiting.popleft()
-            if not future.done():
-                conn.busy = True
-                future.set_result(conn)
-                return
-        self._idle[conn.submission_id].append(conn)
-
-    async def take(self, submission_id: int, timeout_s: float) -> ClientConnection | None:
-        idle = self._idle[submission_id]
-        while idle:
-            conn = idle.popleft()
-            if conn.alive:
-                conn.busy = True
-                return conn
-        future: asyncio.Future[ClientConnection] = asyncio.get_running_loop().create_future()
-        self._waiting[submission_id].append(future)
-        try:
-            return await asyncio.wait_for(future, timeout_s)
-        except TimeoutError:
-            return None
-
-    def drop(self, conn: ClientConnection) -> None:
-        conn.alive = False
-        if conn in self._idle[conn.submission_id]:
-            self._idle[conn.submission_id].remove(conn)
-        conn.inbox.put_nowait(GONE)  # wakes the worker paired with it, if any
-
-
-def hub_of(ws: WebSocket) -> PullHub:
-    hub = getattr(ws.app.state, "pull_hub", None)
+async def hub_of(app: Any) -> PullHub:
+    """The app's relay hub, its bus started on first use (the app's lifespan closes it)."""
+    hub = getattr(app.state, "pull_hub", None)
     if hub is None:
-        hub = ws.app.state.pull_hub = PullHub()
-    return hub
+        settings = app.state.settings
+        hub = app.state.pull_hub = PullHub(make_bus(settings.pull_redis_url, settings.sqlalchemy_url))
+    return await hub.start()
 
 
 def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[int, int]:
@@ -196,7 +178,7 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
         await ws.close(FINISHED if exc.status == 410 else REFUSED, f"{exc.title}: {exc.detail}"[:120])
         return
     settings = ws.app.state.settings
-    hub = hub_of(ws)
+    hub = await hub_of(ws.app)
     if not hub.admit(
         submission_id, participant_id, settings.pull_max_per_submission, settings.pull_max_per_participant
     ):
@@ -207,47 +189,151 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
         )
         return
     try:
-        cap = settings.response_cap_bytes + ENVELOPE_BYTES
         await ws.send_text(
             json.dumps({"type": "welcome", "submission": submission_id, "protocol": P.PROTOCOL})
         )
-        conn = ClientConnection(ws, submission_id)
-        hub.release(conn)
+        side = _ClientSide(
+            ws, hub.bus.endpoint(), submission_id, settings.response_cap_bytes + ENVELOPE_BYTES
+        )
         try:
-            while True:
-                message = await ws.receive()
-                if message["type"] == "websocket.disconnect":
-                    break
-                frame = message.get("bytes")
-                if frame is None or not conn.busy:
-                    continue  # text frames carry nothing for a worker; an idle connection has no one to answer
-                conn.inbox.put_nowait(TOO_LARGE if len(frame) > cap else frame)
+            await side.offer()
+            await _first_done(side.from_client(), side.from_bus())
         finally:
-            hub.drop(conn)
+            await side.leave()
     finally:
         hub.leave(submission_id, participant_id)
 
 
-async def _to_client(ws: WebSocket, conn: ClientConnection) -> int | None:
+class _ClientSide:
+    """A client connection's handler: idle (queued for its submission) or paired with one worker's side."""
+
+    def __init__(self, ws: WebSocket, endpoint: Endpoint, submission_id: int, cap: int) -> None:
+        self.ws, self.endpoint, self.submission_id, self.cap = ws, endpoint, submission_id, cap
+        self.bus = endpoint.bus
+        #: The paired worker side's address; ``None`` while idle.
+        self.peer: str | None = None
+
+    async def offer(self) -> None:
+        self.peer = None
+        await self.bus.offer(self.submission_id, self.endpoint.address)
+
+    async def from_client(self) -> None:
+        """The client's frames go to the paired worker (an idle connection has no one to answer)."""
+        while True:
+            message = await self.ws.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            frame = message.get("bytes")
+            peer = self.peer
+            if frame is None or peer is None:
+                continue  # text frames carry nothing for a worker; late answers of the last episode neither
+            if len(frame) > self.cap:  # never forwarded: the worker ends the episode as in push mode
+                await self.endpoint.send(peer, TOO_LARGE_MESSAGE)
+            else:
+                await self.endpoint.send(peer, FRAME, frame)
+
+    async def from_bus(self) -> None:
+        """Pairing requests and the paired worker's frames; returns when the client's socket broke."""
+        while True:
+            message = await self.endpoint.receive(WATCH_S)
+            if message is None:  # silence: check what silence cannot tell
+                if self.peer is None:
+                    await self.bus.still_offered(self.submission_id, self.endpoint.address)
+                elif not await self.bus.alive(self.peer):
+                    await self.offer()  # the worker's process went away: free for the next episode
+                continue
+            if message.kind == PAIR:
+                if self.peer is None:
+                    self.peer = message.sender
+                    await self.endpoint.send(message.sender, PAIRED)
+                elif message.sender != self.peer:
+                    await self.endpoint.send(message.sender, GONE_MESSAGE)  # taken meanwhile
+                continue
+            if message.sender != self.peer:
+                continue  # a former peer's late message
+            if message.kind == FRAME:
+                try:
+                    await self.ws.send_bytes(message.payload)
+                except Exception:  # noqa: BLE001 - the client's socket broke under us: same as a disconnect
+                    return
+            elif message.kind in (RELEASE, GONE_MESSAGE):
+                await self.offer()
+
+    async def leave(self) -> None:
+        """The client is gone: its worker (if any) hears ``GONE``, its idle entry goes."""
+        try:
+            if self.peer is not None:
+                await self.endpoint.send(self.peer, GONE_MESSAGE)
+            else:
+                await self.bus.withdraw(self.submission_id, self.endpoint.address)
+        except Exception:  # noqa: BLE001 - the broker is away: the peer notices our silence (bus.alive)
+            log.warning("pull relay: could not tell the bus a client left", exc_info=True)
+        finally:
+            self.endpoint.close()
+
+
+async def _first_done(*coroutines: Any) -> Any:
+    """Run the coroutines until one returns (or raises); cancel the others; its result."""
+    tasks = [asyncio.ensure_future(c) for c in coroutines]
+    try:
+        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+    return next(iter(done)).result()
+
+
+async def _pair(endpoint: Endpoint, submission_id: int, wait_s: float) -> str | None:
+    """Take idle client connections of the submission until one accepts ``PAIR``; ``None`` after ``wait_s``."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + wait_s
+    while (left := deadline - loop.time()) > 0:
+        address = await endpoint.bus.take(submission_id, left)
+        if address is None:
+            return None
+        await endpoint.send(address, PAIR)
+        answer_by = loop.time() + PAIR_REPLY_S
+        while (left := answer_by - loop.time()) > 0:
+            message = await endpoint.receive(left)
+            if message is None or message.sender == address:
+                break
+        else:
+            message = None
+        if message is not None and message.kind == PAIRED:
+            return address
+        if message is None:  # no answer: should it accept later, it is released at once
+            await endpoint.send(address, RELEASE)
+    return None
+
+
+async def _to_client(ws: WebSocket, endpoint: Endpoint, peer: str) -> int | None:
+    """The worker's frames go to the client; ``None`` when the worker closed its socket."""
     while True:
         message = await ws.receive()
         if message["type"] == "websocket.disconnect":
             return None
         frame = message.get("bytes")
-        if frame is None:
-            continue
-        try:
-            await conn.ws.send_bytes(frame)
-        except Exception:  # noqa: BLE001 - the client's socket broke under us: same as a disconnect
-            return GONE
+        if frame is not None:
+            await endpoint.send(peer, FRAME, frame)
 
 
-async def _to_worker(ws: WebSocket, conn: ClientConnection) -> int:
+async def _to_worker(ws: WebSocket, endpoint: Endpoint, peer: str) -> int:
+    """The client's answers go to the worker; the close code when the client side ended the pairing."""
     while True:
-        item = await conn.inbox.get()
-        if isinstance(item, int):
-            return item
-        await ws.send_bytes(item)
+        message = await endpoint.receive(WATCH_S)
+        if message is None:
+            if not await endpoint.bus.alive(peer):
+                return GONE  # the client's process went away with its socket
+            continue
+        if message.sender != peer:
+            continue
+        if message.kind == FRAME:
+            await ws.send_bytes(message.payload)
+        elif message.kind == TOO_LARGE_MESSAGE:
+            return TOO_LARGE
+        elif message.kind == GONE_MESSAGE:
+            return GONE
 
 
 @router.websocket("/pull/episodes/{episode_id}")
@@ -260,24 +346,24 @@ async def worker_drives(ws: WebSocket, episode_id: int, wait: float = 30.0) -> N
     if submission_id is None:
         await ws.close(REFUSED, "not a running pull episode under this lease")
         return
-    hub = hub_of(ws)
-    conn = await hub.take(submission_id, min(max(wait, 0.0), MAX_WAIT_S))
-    if conn is None:
-        await ws.close(NO_CLIENT, f"no client of submission {submission_id} connected in time")
-        return
+    hub = await hub_of(ws.app)
+    endpoint = hub.bus.endpoint()
     code: int | None = None
+    peer: str | None = None
     try:
+        peer = await _pair(endpoint, submission_id, min(max(wait, 0.0), MAX_WAIT_S))
+        if peer is None:
+            await ws.close(NO_CLIENT, f"no client of submission {submission_id} connected in time")
+            return
         await ws.send_text("paired")
-        tasks = {asyncio.create_task(_to_client(ws, conn)), asyncio.create_task(_to_worker(ws, conn))}
-        done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-        for task in pending:
-            task.cancel()
-        code = next(iter(done)).result()
+        code = await _first_done(_to_client(ws, endpoint, peer), _to_worker(ws, endpoint, peer))
     except Exception:  # noqa: BLE001 - the worker's socket broke: the client is free again
         log.debug("pull relay of episode %s ended", episode_id, exc_info=True)
     finally:
-        if conn.alive:
-            hub.release(conn)
+        if peer is not None and code != GONE:
+            with contextlib.suppress(Exception):  # the broker is away: the client notices our silence
+                await endpoint.send(peer, RELEASE)
+        endpoint.close()
     if code is not None:
         reason = (
             "the client's answer is larger than the cap" if code == TOO_LARGE else "the client disconnected"

@@ -1,0 +1,165 @@
+"""Several API processes on one port: ``robobpp serve --server-workers N``.
+
+One Python process serves the API on one core. With ``N`` > 1 the process ``robobpp serve`` starts becomes a
+supervisor that serves nothing itself:
+
+1. it applies the migrations and seeds the database once (:func:`robobpp.server.bootstrap.bootstrap`), so
+   ``N`` processes never race to create the same rows;
+2. it starts what runs the episodes once (:func:`robobpp.server.app.start_executor`: the local worker pool,
+   or the Celery dispatcher), not once per API process;
+3. it binds the port and starts ``N`` API processes (spawned: fresh interpreters) that all accept on that
+   one socket (the kernel spreads the connections), each an app built with ``start_workers=False`` and
+   ``first_start=False`` under the same connection limits as a single process;
+4. it restarts an API process that exits, and on SIGTERM or Ctrl-C stops them, then the workers.
+
+What is process-local stays correct with several processes: boards are version-checked against SQL, login
+sessions and everything else a route reads are in SQL, the pull relay's sockets meet through Redis
+(:mod:`robobpp.server.relay_bus`). Without Redis it refuses to start (:func:`refusal`). Limits on connections
+and on pull clients are per process (docs/deploy.md, "Several API processes").
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import signal
+import socket
+import threading
+import time
+from collections.abc import Callable
+from multiprocessing.process import BaseProcess
+from typing import Any
+
+log = logging.getLogger("robobpp.server")
+
+#: How long the supervisor waits for the first API process to answer ``/healthz``.
+READY_TIMEOUT_S = 120.0
+
+
+def refusal(settings: Any, processes: int) -> str | None:
+    """Why these settings cannot run ``processes`` API processes, or ``None`` when they can."""
+    if processes > 1 and not settings.pull_redis_url:
+        return (
+            f"--server-workers {processes} needs Redis, where the API processes' pull relays meet (a worker's "
+            "socket and the participant's may land on different processes): set ROBOBPP_BROKER_URL=redis://… "
+            "(Celery workers) or ROBOBPP_PULL_BROKER_URL=redis://… (local workers)"
+        )
+    return None
+
+
+def api_process(overrides: dict[str, Any], sock: socket.socket) -> None:
+    """One API process: the app without bootstrap or workers, served by uvicorn on the inherited socket."""
+    import uvicorn
+
+    from robobpp.server.app import create_app
+    from robobpp.server.config import Settings
+    from robobpp.server.connections import server_config
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    settings = Settings(**overrides)
+    app = create_app(settings, start_workers=False, first_start=False)
+    config = uvicorn.Config(app, log_level="info", access_log=False, **server_config(settings))
+    uvicorn.Server(config).run(sockets=[sock])
+
+
+class Supervisor:
+    """The N API processes on one listening socket, restarted when one exits."""
+
+    def __init__(self, overrides: dict[str, Any], sock: socket.socket, processes: int) -> None:
+        self.overrides, self.sock, self.processes = overrides, sock, processes
+        self._ctx = mp.get_context("spawn")
+        self._procs: list[BaseProcess] = []
+        self.stopping = threading.Event()
+
+    def _spawn(self) -> BaseProcess:
+        proc = self._ctx.Process(
+            target=api_process, args=(self.overrides, self.sock), name="robobpp-api", daemon=True
+        )
+        proc.start()
+        return proc
+
+    def start(self) -> None:
+        self._procs = [self._spawn() for _ in range(self.processes)]
+
+    def watch(self) -> None:
+        """Until :attr:`stopping` is set: restart any API process that exited."""
+        while not self.stopping.wait(0.5):
+            for i, proc in enumerate(self._procs):
+                if not proc.is_alive():
+                    log.warning("API process %s exited (code %s); restarting", proc.pid, proc.exitcode)
+                    self._procs[i] = self._spawn()
+
+    def pids(self) -> list[int]:
+        return [p.pid for p in self._procs if p.pid is not None and p.is_alive()]
+
+    def stop(self, timeout_s: float = 15.0) -> None:
+        self.stopping.set()
+        for proc in self._procs:
+            if proc.is_alive():
+                proc.terminate()  # SIGTERM: uvicorn closes its connections and runs the app's shutdown
+        deadline = time.monotonic() + timeout_s
+        for proc in self._procs:
+            proc.join(max(0.0, deadline - time.monotonic()))
+            if proc.is_alive():
+                proc.kill()
+                proc.join(2)
+
+
+def serve_processes(
+    settings: Any,
+    overrides: dict[str, Any],
+    host: str,
+    port: int,
+    processes: int,
+    on_ready: Callable[[str], None],
+) -> None:
+    """Bootstrap once, start the workers once, serve the API from ``processes`` processes until stopped."""
+    import httpx
+
+    from robobpp.server.app import start_executor
+    from robobpp.server.bootstrap import bootstrap
+    from robobpp.server.runtime import Runtime
+
+    runtime = Runtime(settings)
+    bootstrap(runtime)
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind((host, port))
+    sock.listen(2048)
+    supervisor = Supervisor(overrides, sock, processes)
+    executor = None
+    previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def stop(_signum: int, _frame: Any) -> None:
+        supervisor.stopping.set()
+
+    for s in previous:
+        signal.signal(s, stop)
+    try:
+        executor = start_executor(settings)
+        supervisor.start()
+        bound = sock.getsockname()[1]
+        local = "127.0.0.1" if host in ("0.0.0.0", "") else ("[::1]" if host == "::" else host)
+        url = f"http://{f'[{local}]' if ':' in local and not local.startswith('[') else local}:{bound}"
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while not supervisor.stopping.is_set():
+            try:
+                if httpx.get(url + "/healthz", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"no API process answered on {url} within {READY_TIMEOUT_S:g} s")
+            time.sleep(0.2)
+        else:
+            return
+        on_ready(f"http://{f'[{host}]' if ':' in host else host}:{bound}")
+        supervisor.watch()
+    finally:
+        supervisor.stop()
+        if executor is not None:
+            executor.stop()
+        sock.close()
+        runtime.dispose()
+        for s, handler in previous.items():
+            signal.signal(s, handler)

@@ -10,7 +10,8 @@ supervisor that serves nothing itself:
 3. it binds the port and starts ``N`` API processes (spawned: fresh interpreters) that all accept on that
    one socket (the kernel spreads the connections), each an app built with ``start_workers=False`` and
    ``first_start=False`` under the same connection limits as a single process;
-4. it restarts an API process that exits, and on SIGTERM or Ctrl-C stops them, then the workers.
+4. it restarts an API process that exits, and on SIGTERM or Ctrl-C stops them, then the workers;
+5. ``/metrics`` of any API process sums the request metrics of all of them (server/prometheus.py).
 
 What is process-local stays correct with several processes: boards are version-checked against SQL, login
 sessions and everything else a route reads are in SQL, the pull relay's sockets meet through Redis
@@ -22,8 +23,10 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import signal
 import socket
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -116,6 +119,7 @@ def serve_processes(
     """Bootstrap once, start the workers once, serve the API from ``processes`` processes until stopped."""
     import httpx
 
+    logging.getLogger("httpx").setLevel(logging.WARNING)  # the readiness polls below are not news
     from robobpp.server.app import start_executor
     from robobpp.server.bootstrap import bootstrap
     from robobpp.server.runtime import Runtime
@@ -126,6 +130,9 @@ def serve_processes(
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind((host, port))
     sock.listen(2048)
+    # the API processes' request metrics, summed at each scrape (server/prometheus.py); fresh at each start
+    metrics_dir = tempfile.TemporaryDirectory(prefix="robobpp-metrics-")
+    os.environ["PROMETHEUS_MULTIPROC_DIR"] = metrics_dir.name  # inherited by the spawned API processes
     supervisor = Supervisor(overrides, sock, processes)
     executor = None
     previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
@@ -161,5 +168,7 @@ def serve_processes(
             executor.stop()
         sock.close()
         runtime.dispose()
+        os.environ.pop("PROMETHEUS_MULTIPROC_DIR", None)
+        metrics_dir.cleanup()
         for s, handler in previous.items():
             signal.signal(s, handler)

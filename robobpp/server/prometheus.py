@@ -7,11 +7,18 @@ CPU to render with ``prometheus_client``; they are rendered at most once per ``R
 and served from that rendering meanwhile (a route seen for the first time renders them again at once). A
 scraper polling every 15 s never sees the cache; a flood of scrapes no longer costs a rendering each. The
 queue and board gauges are read at every scrape.
+
+With several API processes (``robobpp serve --server-workers N``) a scrape reaches one of them, so the request
+metrics are those of every process, summed: the supervisor gives its API processes a fresh
+``PROMETHEUS_MULTIPROC_DIR`` (server/processes.py), each writes its counts there (``prometheus_client``'s
+multiprocess mode) and a scrape renders the directory. The queue gauges come from SQL and are the same from any
+process; the board gauges are the answering process's own.
 """
 
 from __future__ import annotations
 
 import hmac
+import os
 import threading
 import time
 from collections.abc import Iterable, Mapping
@@ -155,6 +162,18 @@ class _RenderedRequests:
             return self._text
 
 
+def _every_process(requests_registry: CollectorRegistry) -> CollectorRegistry:
+    """What a scrape renders of the request metrics: this process's registry, or with several API processes
+    a registry that reads every process's counts from ``PROMETHEUS_MULTIPROC_DIR``."""
+    if not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+        return requests_registry
+    from prometheus_client import multiprocess
+
+    merged = CollectorRegistry()
+    multiprocess.MultiProcessCollector(merged)
+    return merged
+
+
 def install_metrics(app: FastAPI) -> None:
     # ``*_created`` timestamps: a line per label set that no dashboard here reads
     prometheus_client.disable_created_metrics()
@@ -169,7 +188,7 @@ def install_metrics(app: FastAPI) -> None:
         buckets=LATENCY_BUCKETS,
         registry=requests_registry,
     )
-    rendered = _RenderedRequests(requests_registry)
+    rendered = _RenderedRequests(_every_process(requests_registry))
     registry.register(_QueueCollector(app))
     app.state.metrics_registry = registry
 

@@ -14,14 +14,17 @@ import re
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 
 from robobpp.client.connect import connect
 from robobpp.policies.dbl import DBL
 from tests.server.conftest import (
+    ADMIN_TOKEN,
     REDIS_URL,
     ServerProcess,
     SlowDBL,
@@ -163,6 +166,18 @@ def test_serve_with_two_api_processes_evaluates_and_ranks_a_pull_submission(tmp_
         assert mine["rank"] >= 1 and mine["metrics"]["space_utilization"] > 0
         started = set(re.findall(r"Started server process \[(\d+)\]", server.log.read_text()))
         assert {int(p) for p in started} == set(api)
+        # /metrics of whichever process answers counts the requests of both: 30 on fresh connections
+        # (the kernel spreads them over the two processes), then every scrape sees all 30.
+        for _ in range(30):
+            assert httpx.get(server.url + "/api/v1/leaderboards").status_code == 200
+        time.sleep(1.2)  # each process re-renders its request metrics at most once a second
+        for _ in range(4):
+            text = httpx.get(server.url + "/metrics", headers={"Authorization": f"Bearer {ADMIN_TOKEN}"}).text
+            counted = re.search(
+                r'robobpp_http_requests_total\{method="GET",route="/api/v1/leaderboards",status="200"\} (\S+)',
+                text,
+            )
+            assert counted is not None and float(counted.group(1)) == 30, text[-2000:]
     finally:
         server.stop()
     assert server.proc.returncode == 0

@@ -7,8 +7,12 @@ remote step minus that of the same step in-process (the states are identical: DB
 ``--mode pull`` measures pull mode instead: a real ``robobpp serve`` (SQLite, no workers) relays between
 this process, which plays the worker (it holds the lease of a pull episode), and ``robobpp connect dbl``
 in its own process. ``--probe`` adds the echo probes of the network estimate and reports their figures.
+``--relay redis`` runs pull mode across two API processes on one database whose relays meet through Redis
+(``ROBOBPP_PULL_BROKER_URL``, default ``redis://127.0.0.1:6379/0``): the client connects to one, the worker
+(this process) to the other, so every frame crosses the broker both ways.
 
-    python bench/bench_protocol.py [--mode push|pull] [--probe] [--episodes 10] [--boxes 80] [--secret s]
+    python bench/bench_protocol.py [--mode push|pull] [--relay in-process|redis] [--probe] [--episodes 10]
+        [--boxes 80] [--secret s]
 """
 
 from __future__ import annotations
@@ -69,11 +73,12 @@ class PullRig:
 
     ADMIN = "bench-admin-token-0123456789abcdef"
 
-    def __init__(self, state_dir: str, secret: str | None) -> None:
+    def __init__(self, state_dir: str, secret: str | None, redis_url: str = "") -> None:
         import httpx
 
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
+        self.worker_url = self.url
         db = f"sqlite:///{state_dir}/bench.sqlite3"
         env = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
         env.update(
@@ -87,26 +92,12 @@ class PullRig:
                 "ROBOBPP_SETTINGS": '["math"]',
                 "ROBOBPP_SPEC_PROVIDER": "robobpp.worker.specs:offline_spec",
                 "ROBOBPP_LEASE_S": "3600",
+                "ROBOBPP_PULL_BROKER_URL": redis_url,
             }
         )
         code = "import sys; from robobpp.cli import main; sys.argv = ['robobpp', *sys.argv[1:]]; main()"
-        self.procs = [
-            subprocess.Popen(
-                [sys.executable, "-c", code, "serve", "--port", str(self.port)],
-                env=env,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-            )
-        ]
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                if time.monotonic() > deadline:
-                    raise RuntimeError("the relay server did not start") from None
-            time.sleep(0.3)
+        self.procs = [self._serve(code, self.port, env)]
+        wait_healthy(self.url)
         api = httpx.Client(base_url=self.url + "/api/v1", headers={"Authorization": f"Bearer {self.ADMIN}"})
         token = api.post("/participants", json={"name": "bench"}).json()["token"]
         body = {"name": "bench", "mode": "pull", "datasets": ["diverse"], "settings": ["math"]}
@@ -132,11 +123,25 @@ class PullRig:
         with factory() as session, session.begin():
             self.claim = work.claim_episode(session, "bench:worker", lease_s=3600, max_attempts=3)
         assert self.claim is not None and self.claim.mode == "pull"
+        if redis_url:  # a second API process on the same database: the worker's side of the relay
+            port = free_port()
+            self.worker_url = f"http://127.0.0.1:{port}"
+            self.procs.append(self._serve(code, port, env))
+            wait_healthy(self.worker_url)
+
+    @staticmethod
+    def _serve(code: str, port: int, env: dict[str, str]) -> subprocess.Popen[bytes]:
+        return subprocess.Popen(
+            [sys.executable, "-c", code, "serve", "--port", str(port)],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
 
     def policy(self, secret: str | None, probe: bool) -> RemotePolicy:
         from robobpp.worker.pull import PullTransport
 
-        transport = PullTransport(self.url, self.claim.episode_id, self.claim.token, wait_s=30)
+        transport = PullTransport(self.worker_url, self.claim.episode_id, self.claim.token, wait_s=30)
         policy = RemotePolicy(self.url, secret, transport=transport, probe_network=probe)
         transport.headers_for = policy.request_headers
         return policy
@@ -145,6 +150,20 @@ class PullRig:
         for proc in reversed(self.procs):
             proc.terminate()
             proc.wait(timeout=20)
+
+
+def wait_healthy(url: str, timeout_s: float = 60.0) -> None:
+    import httpx
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            if httpx.get(url + "/healthz", timeout=1).status_code == 200:
+                return
+        except httpx.HTTPError:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the relay server at {url} did not start") from None
+        time.sleep(0.3)
 
 
 def server_cpu_s(pid: int) -> float | None:
@@ -168,6 +187,15 @@ def main() -> None:
     parser.add_argument("--secret", default=None, help="sign every request (HMAC-SHA256)")
     parser.add_argument("--mode", choices=("push", "pull"), default="push")
     parser.add_argument("--probe", action="store_true", help="echo probes before each act (network estimate)")
+    parser.add_argument(
+        "--relay",
+        choices=("in-process", "redis"),
+        default="in-process",
+        help="pull mode: one API process, or two through Redis",
+    )
+    parser.add_argument(
+        "--redis", default=os.environ.get("ROBOBPP_PULL_BROKER_URL") or "redis://127.0.0.1:6379/0"
+    )
     parser.add_argument("--json", dest="json_out", default=None)
     args = parser.parse_args()
 
@@ -176,7 +204,7 @@ def main() -> None:
     tmp = tempfile.TemporaryDirectory()
     rig = None
     if args.mode == "pull":
-        rig = PullRig(tmp.name, args.secret)
+        rig = PullRig(tmp.name, args.secret, args.redis if args.relay == "redis" else "")
         server = rig.procs[1]  # the participant's process: the policy's side, as in push mode
     else:
         port = free_port()
@@ -232,6 +260,7 @@ def main() -> None:
         cpu_overhead = spent / steps * 1000.0
     figures = {
         "mode": args.mode,
+        "relay": args.relay if args.mode == "pull" else None,
         "probe": args.probe,
         "steps": steps,
         "signed": bool(args.secret),

@@ -169,10 +169,13 @@ class RedisBus(LocalBus):
         super().__init__()
         import redis.asyncio
 
+        from robobpp.server.redis_wire import Address, Publisher
+
         self.node = uuid.uuid4().hex[:16]
         self.prefix = f"robobpp:pull:{deployment}"
-        self._redis: Any = redis.asyncio.from_url(url)
-        self._pubsub: Any = None
+        self._address = Address.parse(url)
+        self._redis: Any = redis.asyncio.from_url(url)  # idle queues and liveness: once per pairing
+        self._publisher = Publisher(self._address)  # frames: every step (server/redis_wire.py)
         self._listener: asyncio.Task[None] | None = None
 
     def _channel(self, node: str) -> str:
@@ -182,46 +185,67 @@ class RedisBus(LocalBus):
         return f"{self.prefix}:idle:{int(submission_id)}"
 
     async def start(self) -> None:
-        self._pubsub = self._redis.pubsub(ignore_subscribe_messages=True)
-        await self._pubsub.subscribe(self._channel(self.node))
-        self._listener = asyncio.create_task(self._listen(), name="robobpp-pull-bus")
+        from robobpp.server.redis_wire import Subscriber
+
+        subscriber = Subscriber(self._address, self._channel(self.node).encode())
+        await subscriber.subscribe()  # subscribed before any address of this node is handed out
+        self._listener = asyncio.create_task(self._listen(subscriber), name="robobpp-pull-bus")
 
     async def close(self) -> None:
         if self._listener is not None:
             self._listener.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await self._listener
-        if self._pubsub is not None:
-            with contextlib.suppress(Exception):
-                await self._pubsub.aclose()
+        await self._publisher.close()
         with contextlib.suppress(Exception):
             await self._redis.aclose()
 
-    async def _listen(self) -> None:
+    async def _listen(self, subscriber: Any) -> None:
+        try:
+            while True:
+                try:
+                    data = await subscriber.message()
+                except (OSError, EOFError) as exc:  # Redis restarted or the network blinked
+                    log.warning("pull relay: lost the Redis subscription (%s); subscribing again", exc)
+                    await self._resubscribe(subscriber)
+                    continue
+                decoded = decode(data)
+                if decoded is None:
+                    log.warning("pull relay: ignored a malformed bus message")
+                    continue
+                await self._deliver_here(*decoded)
+        finally:
+            subscriber.close()
+
+    @staticmethod
+    async def _resubscribe(subscriber: Any) -> None:
         while True:
             try:
-                raw = await self._pubsub.get_message(timeout=None)
-            except asyncio.CancelledError:
-                raise
-            except Exception:  # noqa: BLE001 - Redis blinked: redis-py reconnects and subscribes again
-                log.warning("pull relay: lost the Redis subscription; reconnecting", exc_info=True)
+                await subscriber.subscribe()
+                return
+            except (OSError, EOFError):
                 await asyncio.sleep(0.5)
-                continue
-            if raw is None or raw.get("type") != "message":
-                continue
-            decoded = decode(raw["data"])
-            if decoded is None:
-                log.warning("pull relay: ignored a malformed bus message")
-                continue
-            await self._deliver_here(*decoded)
 
     async def send(self, to: str, message: Message) -> None:
         if self.is_here(to):
             await self._deliver_here(to, message)
             return
-        receivers = await self._redis.publish(self._channel(to.split(".", 1)[0]), encode(to, message))
-        if receivers == 0 and message.kind != GONE:  # no process subscribed there: it exited or was killed
-            await self.send(message.sender, Message(GONE, to))
+        channel = self._channel(to.split(".", 1)[0]).encode()
+        try:
+            delivered = await self._publisher.publish(channel, encode(to, message))
+        except (OSError, EOFError) as exc:  # Redis is away: for the sender, its peer is gone
+            log.warning("pull relay: cannot publish to Redis: %s", exc)
+            delivered = asyncio.get_running_loop().create_future()
+            delivered.set_exception(exc)
+        # Not awaited: a frame's latency is one trip through Redis. Its answer comes back in order; when
+        # no process was subscribed there (it exited or was killed) or the publish failed, the sender hears
+        # GONE from the address, as from an endpoint that closed.
+        delivered.add_done_callback(lambda done: self._published(done, to, message))
+
+    def _published(self, done: asyncio.Future[int], to: str, message: Message) -> None:
+        failed = done.cancelled() or done.exception() is not None
+        if message.kind != GONE and (failed or done.result() == 0):
+            asyncio.ensure_future(self._deliver_here(message.sender, Message(GONE, to)))
 
     async def alive(self, address: str) -> bool:
         if self.is_here(address):

@@ -1,0 +1,138 @@
+"""The relay bus on its own: in-process, and between two Redis-backed buses (two API processes' worth) through
+the real Redis. A frame arrives in order, an address that is gone answers GONE (a closed endpoint, or a whole
+process whose subscription ended), idle queues hand out each client connection once, and garbage published on
+a process's channel is ignored."""
+
+from __future__ import annotations
+
+import asyncio
+import uuid
+from collections.abc import Awaitable, Callable
+
+import pytest
+
+from robobpp.server.relay_bus import FRAME, GONE, PAIR, Endpoint, LocalBus, Message, RedisBus, decode, encode
+from tests.server.conftest import REDIS_URL, redis_or_skip
+
+Pair = tuple[LocalBus, LocalBus]
+
+
+def _buses(kind: str) -> Pair:
+    if kind == "in-process":
+        bus = LocalBus()
+        return bus, bus
+    redis_or_skip()
+    deployment = f"test-{uuid.uuid4().hex[:12]}"
+    return RedisBus(REDIS_URL, deployment), RedisBus(REDIS_URL, deployment)
+
+
+def _run(kind: str, body: Callable[[Pair], Awaitable[None]]) -> None:
+    async def main() -> None:
+        buses = _buses(kind)
+        for bus in {id(b): b for b in buses}.values():
+            await bus.start()
+        try:
+            await body(buses)
+        finally:
+            for bus in {id(b): b for b in buses}.values():
+                await bus.close()
+
+    asyncio.run(main())
+
+
+KINDS = ["in-process", pytest.param("redis", marks=pytest.mark.redis)]
+
+
+async def _next(endpoint: Endpoint) -> Message:
+    message = await endpoint.receive(5)
+    assert message is not None, "nothing arrived within 5 s"
+    return message
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_frames_arrive_in_order_with_their_bytes_intact(kind: str) -> None:
+    async def body(buses: Pair) -> None:
+        worker, client = buses[0].endpoint(), buses[1].endpoint()
+        payloads = [bytes([i % 256]) * (i * 37) + b"\n\r\n\x00" for i in range(60)]
+        for payload in payloads:
+            await worker.send(client.address, FRAME, payload)
+        got = [await _next(client) for _ in payloads]
+        assert [m.payload for m in got] == payloads
+        assert {(m.kind, m.sender) for m in got} == {(FRAME, worker.address)}
+
+    _run(kind, body)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_message_to_a_closed_endpoint_comes_back_as_gone(kind: str) -> None:
+    async def body(buses: Pair) -> None:
+        worker, client = buses[0].endpoint(), buses[1].endpoint()
+        client.close()
+        await worker.send(client.address, PAIR)
+        answer = await _next(worker)
+        assert (answer.kind, answer.sender) == (GONE, client.address)
+        # in-process the endpoint is the unit; through Redis the process is, and the client's is still up
+        assert await buses[0].alive(client.address) is (kind == "redis")
+
+    _run(kind, body)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_each_idle_connection_is_handed_out_once_in_order(kind: str) -> None:
+    async def body(buses: Pair) -> None:
+        submission = 7
+        assert await buses[1].take(submission, 0.2) is None  # nobody connected: the wait ends empty
+        await buses[0].offer(submission, "a.1")
+        await buses[0].offer(submission, "a.2")
+        await buses[0].withdraw(submission, "a.1")  # that client left before a worker came
+        assert await buses[1].take(submission, 1) == "a.2"
+        waiting = asyncio.ensure_future(buses[1].take(submission, 5))
+        await asyncio.sleep(0.2)
+        await buses[0].offer(submission, "a.3")  # a worker already waiting gets it
+        assert await waiting == "a.3"
+        assert await buses[1].take(submission, 0.2) is None
+
+    _run(kind, body)
+
+
+@pytest.mark.redis
+def test_an_address_of_a_process_that_went_away_is_gone_and_not_alive() -> None:
+    async def body(buses: Pair) -> None:
+        worker, client = buses[0].endpoint(), buses[1].endpoint()
+        assert await buses[0].alive(client.address)
+        await buses[1].close()  # the client's API process exits: its channel has no subscriber left
+        assert not await buses[0].alive(client.address)
+        await worker.send(client.address, FRAME, b"anyone?")
+        answer = await _next(worker)
+        assert (answer.kind, answer.sender) == (GONE, client.address)
+
+    _run("redis", body)
+
+
+@pytest.mark.redis
+def test_garbage_on_a_process_channel_is_ignored() -> None:
+    async def body(buses: Pair) -> None:
+        import redis.asyncio
+
+        a, b = buses
+        assert isinstance(b, RedisBus)
+        worker, client = a.endpoint(), b.endpoint()
+        raw = redis.asyncio.from_url(REDIS_URL)
+        try:
+            channel = f"{b.prefix}:node:{b.node}"
+            for junk in (b"", b"Z" + b"x" * 50, b"Fno-newlines", b"F\xff\xfe\n\n"):
+                await raw.publish(channel, junk)
+        finally:
+            await raw.aclose()
+        await worker.send(client.address, FRAME, b"after the junk")
+        message = await _next(client)
+        assert (message.kind, message.payload) == (FRAME, b"after the junk")
+
+    _run("redis", body)
+
+
+def test_the_wire_format_round_trips_and_rejects_unknown_kinds() -> None:
+    message = Message(FRAME, "n1.4", b"\n\x00body\n")
+    assert decode(encode("n2.9", message)) == ("n2.9", message)
+    assert decode(b"Qn2.9\nn1.4\nbody") is None
+    assert decode(b"Fmissing-parts") is None

@@ -45,6 +45,7 @@ from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcno
 from robobpp.db.work import run_figures
 from robobpp.policies.dbl import DBL
 from robobpp.scoring.boards import build_grid
+from robobpp.scoring.entries import part_of_run
 from robobpp.scoring.stats import group_figures
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
@@ -201,6 +202,7 @@ def seed_rows(runtime: Any, n: int) -> int:
                         "metrics": metrics,
                         "extras": extras,
                         "figures": figures,
+                        "entry": part_of_run(figures, st),
                         "completed_at": now,
                     }
                 )

@@ -241,7 +241,7 @@ def board_sheet(board: Mapping[str, Any]) -> Sheet:
     )
     for e in board.get("entries") or []:
         lo, hi, rank = e.get("rank_low"), e.get("rank_high"), e.get("rank")
-        shown = str(rank) if lo == hi == rank else f"{rank} ({lo}–{hi})"
+        shown = str(rank) if lo is None or lo == hi == rank else f"{rank} ({lo}–{hi})"
         name = f"{e['name']} ({e['participant']}{', baseline' if e.get('baseline') else ''})"
         intervals = e.get("intervals") or {}
         sheet.rows.append(
@@ -330,7 +330,11 @@ def grid_sheet(grid: Mapping[str, Any]) -> Sheet:
     for r in [*(grid.get("rows") or []), *(grid.get("apart") or [])]:
         lo, hi, rank = r.get("rank_low"), r.get("rank_high"), r.get("rank")
         shown = (
-            r.get("status", "") if rank is None else str(rank) if lo == hi == rank else f"{rank} ({lo}–{hi})"
+            r.get("status", "")
+            if rank is None
+            else str(rank)
+            if lo is None or lo == hi == rank
+            else f"{rank} ({lo}–{hi})"
         )
         cells = []
         for b in boards:

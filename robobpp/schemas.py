@@ -209,12 +209,13 @@ class EpisodeDetail(EpisodePublic):
 
 class LeaderboardEntry(BaseModel):
     """A ranked entry. ``*_low``/``*_high``: bootstrap 95 % interval over groups; ``rank_low``–``rank_high``:
-    the ranks it takes in 95 % of resamples. ``score`` is the paper's relative score (it ranks the board),
-    ``stable`` the score against fixed anchors (it never moves when others arrive)."""
+    the ranks it takes in 95 % of resamples (null in the all-entries view for an entry that arrived since the
+    board's last full computation, docs/server.md). ``score`` is the paper's relative score (it ranks the
+    board), ``stable`` the score against fixed anchors (it never moves when others arrive)."""
 
     rank: int
-    rank_low: int
-    rank_high: int
+    rank_low: int | None = None
+    rank_high: int | None = None
     score: float
     score_low: float
     score_high: float
@@ -283,8 +284,8 @@ class GridCell(BaseModel):
     score_low: float
     score_high: float
     rank: int
-    rank_low: int
-    rank_high: int
+    rank_low: int | None = None
+    rank_high: int | None = None
     stable: float
     stable_low: float
     stable_high: float

@@ -448,7 +448,9 @@ def _ci(low: float | None, high: float | None) -> str:
 
 
 def _rank(rank: int | None, low: int | None, high: int | None) -> str:
-    return "—" if rank is None else str(rank) if low == high == rank else f"{rank} [dim]({low}–{high})[/]"
+    if rank is None:
+        return "—"
+    return str(rank) if low is None or low == high == rank else f"{rank} [dim]({low}–{high})[/]"
 
 
 def _board_table(board: Leaderboard) -> Table:

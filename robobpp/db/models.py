@@ -10,7 +10,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import JSON, DateTime, ForeignKey, Index, Integer, String, Text, UniqueConstraint
+from sqlalchemy import JSON, DateTime, ForeignKey, Index, Integer, LargeBinary, String, Text, UniqueConstraint
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 from sqlalchemy.types import TypeDecorator
 
@@ -159,6 +159,9 @@ class RunRow(Base):
     #: Per-group figures (``robobpp.scoring.stats.group_figures``), written with the aggregate: what the board's
     #: bootstrap intervals resample, so a board never reads episode rows.
     figures: Mapped[dict[str, Any] | None] = mapped_column(default=None, deferred=True)
+    #: The run's own part of the board scoring (``robobpp.scoring.entries.EntryPart.encode``: figures as a
+    #: matrix, metric and stable intervals), computed once with the aggregate (0011).
+    entry: Mapped[bytes | None] = mapped_column(LargeBinary, default=None, deferred=True)
     completed_at: Mapped[datetime | None] = mapped_column(default=None)
 
     submission: Mapped[Submission] = relationship(back_populates="runs")

@@ -21,7 +21,7 @@ from collections.abc import Mapping, Sequence
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
-from sqlalchemy import Select, and_, exists, func, or_, select, true
+from sqlalchemy import Select, and_, exists, func, or_, select
 from sqlalchemy.orm import Session, joinedload
 
 from robobpp.datasets.sampling import SAMPLER_VERSION
@@ -176,18 +176,71 @@ def board_protocol(setting: str, protocol: str) -> str:
 def board_rows(
     session: Session, dataset: str, setting: str, track: str, protocol: str = "closed"
 ) -> list[dict[str, Any]]:
-    """Every completed run on the board of a finished submission (failed ones too: they are shown apart)."""
+    """Every completed run on the board of a finished submission (failed ones too: they are shown apart),
+    with its per-group ``figures``."""
+    return board_runs(session, track, boards=[(dataset, setting, protocol)], figures=True)
+
+
+_BOARD_KEYS = (
+    "submission_id",
+    "metrics",
+    "extras",
+    "figures",
+    "episodes_total",
+    "completed_at",
+    "name",
+    "submission_status",
+    "participant",
+    "baseline",
+    "verification",
+    "dataset",
+    "setting",
+    "protocol",
+)
+
+
+def board_runs(
+    session: Session,
+    track: str,
+    *,
+    boards: Sequence[tuple[str, str, str]] | None = None,
+    submission_ids: Sequence[int] | None = None,
+    figures: bool = False,
+) -> list[dict[str, Any]]:
+    """The completed runs shown on the track's boards (``boards``: only those (dataset, setting, protocol);
+    ``submission_ids``: only theirs), by submission id, each with ``dataset``, ``setting``, ``protocol``,
+    and its per-group ``figures`` or (``figures=False``) its stored scoring part ``entry`` (bytes or None)."""
     # A physical setting's board shows only runs whose every episode ran the current physics version.
     other_physics = exists().where(
         EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
     )
-    current = ~other_physics if setting in PHYSICAL else true()
+    where = [
+        RunRow.status == "completed",
+        Submission.track == track,
+        Submission.status.in_(("completed", "failed")),
+        or_(RunRow.setting.not_in(PHYSICAL), ~other_physics),
+    ]
+    if boards is not None:
+        where.append(
+            or_(
+                *(
+                    and_(
+                        RunRow.dataset == d,
+                        RunRow.setting == st,
+                        RunRow.protocol == board_protocol(st, p),
+                    )
+                    for d, st, p in boards
+                )
+            )
+        )
+    if submission_ids is not None:
+        where.append(RunRow.submission_id.in_(list(submission_ids)))
     rows = session.execute(
         select(
             RunRow.submission_id,
             RunRow.metrics,
             RunRow.extras,
-            RunRow.figures,
+            RunRow.figures if figures else RunRow.entry,
             RunRow.episodes_total,
             RunRow.completed_at,
             Submission.name,
@@ -195,38 +248,60 @@ def board_rows(
             Participant.name,
             Participant.is_builtin,
             Submission.verification,
+            RunRow.dataset,
+            RunRow.setting,
+            RunRow.protocol,
         )
         .join(Submission, Submission.id == RunRow.submission_id)
         .join(Participant, Participant.id == Submission.participant_id)
-        .where(
-            RunRow.dataset == dataset,
-            RunRow.setting == setting,
-            RunRow.protocol == board_protocol(setting, protocol),
-            RunRow.status == "completed",
-            Submission.track == track,
-            Submission.status.in_(("completed", "failed")),
-            current,
-        )
+        .where(*where)
         .order_by(RunRow.submission_id)
     ).all()
-    keys = (
-        "submission_id",
-        "metrics",
-        "extras",
-        "figures",
-        "episodes_total",
-        "completed_at",
-        "name",
-        "submission_status",
-        "participant",
-        "baseline",
-        "verification",
-    )
+    keys = _BOARD_KEYS if figures else tuple("entry" if k == "figures" else k for k in _BOARD_KEYS)
     return [
         dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": board_verdict(r[10])}
         for r in rows
         if current_rules(r[2])
     ]
+
+
+def run_figures_of(
+    session: Session, track: str, dataset: str, setting: str, protocol: str, submission_ids: Sequence[int]
+) -> dict[int, Any]:
+    """The per-group figures of some runs of a board, by submission id (for a run whose stored part is
+    missing or of an older format)."""
+    rows = session.execute(
+        select(RunRow.submission_id, RunRow.figures)
+        .join(Submission, Submission.id == RunRow.submission_id)
+        .where(
+            RunRow.dataset == dataset,
+            RunRow.setting == setting,
+            RunRow.protocol == board_protocol(setting, protocol),
+            Submission.track == track,
+            RunRow.submission_id.in_(list(submission_ids)),
+        )
+    ).all()
+    return dict(rows)
+
+
+def run_entries_of(
+    session: Session, track: str, dataset: str, setting: str, protocol: str, submission_ids: Sequence[int]
+) -> dict[int, bytes | None]:
+    """The stored scoring parts of some runs of a board, by submission id."""
+    query = (
+        select(RunRow.submission_id, RunRow.entry)
+        .join(Submission, Submission.id == RunRow.submission_id)
+        .where(
+            RunRow.dataset == dataset,
+            RunRow.setting == setting,
+            RunRow.protocol == board_protocol(setting, protocol),
+            Submission.track == track,
+        )
+    )
+    wanted = set(submission_ids)
+    if len(wanted) <= 500:  # a few: by key; many (a renormalisation): the whole board in one pass
+        query = query.where(RunRow.submission_id.in_(list(wanted)))
+    return {sid: entry for sid, entry in session.execute(query) if sid in wanted}
 
 
 def current_rules(extras: Mapping[str, Any] | None) -> bool:

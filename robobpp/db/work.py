@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.provenance import environment, merge, merged
+from robobpp.scoring.entries import part_of_run
 from robobpp.scoring.metrics import PHYSICAL, aggregate
 from robobpp.scoring.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
 
@@ -670,6 +671,7 @@ def finalize_run(session: Session, run_id: int) -> None:
         run.figures = group_figures(
             ({**(m or {}), **(c or {}), "group": g} for m, c, _t, _b, g, *_p in rows), run.setting
         )
+        run.entry = part_of_run(run.figures, run.setting)  # what every board update reuses
         run.status = "completed"
     run.completed_at = now
     session.flush()

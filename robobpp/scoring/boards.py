@@ -11,14 +11,22 @@ no other entry's score. In the overall grid, the Mean ranks only submissions ran
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from robobpp.scoring import stats
 from robobpp.scoring.metrics import metrics_for
-from robobpp.scoring.scores import ANCHORS_VERSION, RANKED_BY, WEIGHTS, competition_ranks, score_board
+from robobpp.scoring.scores import (
+    ANCHORS_VERSION,
+    RANKED_BY,
+    WEIGHTS,
+    BoardScores,
+    competition_ranks,
+    score_board,
+)
 
 #: Resamples kept per board for the overall grid's Mean interval (of the board's ``stats.RESAMPLES``).
 GRID_RESAMPLES = 250
@@ -60,13 +68,19 @@ def _public(row: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, track: str) -> dict[str, Any]:
-    """One board from its candidate runs (``submission_id``, ``name``, ``participant``, ``baseline``,
-    ``submission_status``, ``episodes_total``, ``metrics``, ``extras``, ``figures``, ``completed_at``).
+@dataclass(frozen=True, slots=True)
+class Classified:
+    """A board's candidate runs sorted out: the ranked ones (in input order), the unranked ones as served,
+    the board's group count and each participant's number of entries."""
 
-    ``entries`` are the ranked ones, best first; ``unranked`` the failed and partial ones. Keys starting
-    with ``_`` are for the grid and never served.
-    """
+    groups: int
+    ranked: list[Mapping[str, Any]]
+    unranked: list[dict[str, Any]]
+    submitted: dict[str, int]
+
+
+def classify(rows: Sequence[Mapping[str, Any]]) -> Classified:
+    """Who is ranked on a board (module docstring) from its candidate runs."""
     counts = [int((r.get("extras") or {}).get("episodes") or r.get("episodes_total") or 0) for r in rows]
     valid = [
         n
@@ -93,16 +107,46 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
                     "entries_submitted": submitted[participant_key(row)],
                 }
             )
-    scores = score_board(ranked_rows, setting)
+    return Classified(groups, ranked_rows, unranked, submitted)
+
+
+def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, track: str) -> dict[str, Any]:
+    """One board from its candidate runs (``submission_id``, ``name``, ``participant``, ``baseline``,
+    ``submission_status``, ``episodes_total``, ``metrics``, ``extras``, ``figures``, ``completed_at``).
+
+    ``entries`` are the ranked ones, best first; ``unranked`` the failed and partial ones. Keys starting
+    with ``_`` are for the grid and never served.
+    """
+    sorted_out = classify(rows)
+    scores = score_board(sorted_out.ranked, setting)
+    return assemble_board(
+        dataset, setting, track, sorted_out, scores, lambda chosen: scores.samples[:, chosen]
+    )
+
+
+def assemble_board(
+    dataset: str,
+    setting: str,
+    track: str,
+    sorted_out: Classified,
+    scores: BoardScores,
+    best_samples: Callable[[list[int]], np.ndarray],
+) -> dict[str, Any]:
+    """The board dict from its ranked entries' scores (``scores`` follows ``sorted_out.ranked``; its
+    ``samples`` need only the grid's first :data:`GRID_RESAMPLES` resamples; ``best_samples(columns)``: the
+    relative score samples of those columns under every resample, for the best entries' rank intervals).
+    A rank interval of None is one not computed yet (the all-entries view between two full computations)."""
     entries = []
-    for i, row in enumerate(ranked_rows):
+    submitted = sorted_out.submitted
+    for i, row in enumerate(sorted_out.ranked):
         s = scores.scored[i]
+        rank_ci = scores.rank_ci[i]
         entries.append(
             {
                 **_public(row),
                 "rank": s.rank,
-                "rank_low": scores.rank_ci[i][0],
-                "rank_high": scores.rank_ci[i][1],
+                "rank_low": None if rank_ci is None else rank_ci[0],
+                "rank_high": None if rank_ci is None else rank_ci[1],
                 "score": s.score,
                 "score_low": scores.score_ci[i][0],
                 "score_high": scores.score_ci[i][1],
@@ -115,9 +159,9 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
                 "_column": i,
             }
         )
-    _mark_best(entries, scores.samples)
+    _mark_best(entries, best_samples)
     order = sorted(range(len(entries)), key=lambda i: (entries[i]["rank"], entries[i]["submission_id"]))
-    unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
+    unranked = sorted(sorted_out.unranked, key=lambda e: (e["status"], e["submission_id"]))
     best = [
         {**e, "rank": e["best_rank"], "rank_low": e["best_rank_low"], "rank_high": e["best_rank_high"]}
         for e in entries
@@ -132,7 +176,7 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
         "weights": WEIGHTS[setting],
         "ranked_by": RANKED_BY,
         "anchors": ANCHORS_VERSION,
-        "groups": groups,
+        "groups": sorted_out.groups,
         "resamples": stats.RESAMPLES,
         "confidence": stats.CONFIDENCE,
         "entries": [entries[i] for i in order],
@@ -145,9 +189,11 @@ def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, t
     }
 
 
-def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray, score: str = "score") -> None:
+def _mark_best(
+    entries: list[dict[str, Any]], samples: Callable[[list[int]], np.ndarray], score: str = "score"
+) -> None:
     """Flag each participant's best entry (a board's entry or a grid row, ranked by ``score``) and rank the
-    best ones among themselves (with intervals)."""
+    best ones among themselves (with intervals; ``samples(columns)``: those entries' score samples)."""
     best: dict[str, int] = {}
     for i, e in enumerate(entries):
         key = participant_key(e)
@@ -156,7 +202,7 @@ def _mark_best(entries: list[dict[str, Any]], samples: np.ndarray, score: str = 
             best[key] = i
     chosen = sorted(best.values())
     ranks = competition_ranks([entries[i][score] for i in chosen])
-    low, high = stats.rank_interval(stats.rank_samples(samples[:, chosen])) if chosen else ([], [])
+    low, high = stats.rank_interval(stats.rank_samples(samples(chosen))) if chosen else ([], [])
     for e in entries:
         e["best"] = False
     for k, i in enumerate(chosen):
@@ -208,10 +254,18 @@ def _served(entry: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def build_grid(
-    boards: Mapping[str, Mapping[str, Any]], datasets: Sequence[str], settings: Sequence[str], track: str
+    boards: Mapping[str, Mapping[str, Any]],
+    datasets: Sequence[str],
+    settings: Sequence[str],
+    track: str,
+    *,
+    rank_intervals: Mapping[int, tuple[int, int]] | None = None,
 ) -> dict[str, Any]:
     """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
-    interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board."""
+    interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board.
+
+    ``rank_intervals``: the rows' rank intervals of the all-rows view by submission id, as last computed,
+    instead of computing them (a row missing there has none yet); None: computed now."""
     keys = [f"{s}/{d}" for s in settings for d in datasets]
     rows: dict[int, dict[str, Any]] = {}
 
@@ -251,7 +305,7 @@ def build_grid(
         for e in boards[key]["unranked"]:
             row_for(e)["unranked"][key] = e["status"]
     complete = [r for r in rows.values() if len(r["cells"]) == len(keys) and keys]
-    _grid_means(complete, boards, keys)
+    _grid_means(complete, boards, keys, rank_intervals)
     ranked_ids = {r["submission_id"] for r in complete}
     apart = []
     for r in rows.values():
@@ -298,7 +352,10 @@ def build_grid(
 
 
 def _grid_means(
-    rows: list[dict[str, Any]], boards: Mapping[str, Mapping[str, Any]], keys: Sequence[str]
+    rows: list[dict[str, Any]],
+    boards: Mapping[str, Mapping[str, Any]],
+    keys: Sequence[str],
+    known: Mapping[int, tuple[int, int]] | None = None,
 ) -> None:
     """Mean over boards with interval, rank and rank interval; then each participant's best row."""
     if not rows:
@@ -317,7 +374,11 @@ def _grid_means(
     ranks = competition_ranks(means)
     lo, hi = stats.interval(rel)
     slo, shi = stats.interval(stab)
-    rlo, rhi = stats.rank_interval(stats.rank_samples(rel))
+    if known is None:
+        rlo, rhi = stats.rank_interval(stats.rank_samples(rel))
+        rank_ci: list[tuple[int, int] | None] = [(int(a), int(b)) for a, b in zip(rlo, rhi, strict=True)]
+    else:
+        rank_ci = [known.get(r["submission_id"]) for r in rows]
     # the samples are float32 (memory of a 10,000-entry cache): 6 decimals is their precision
     lo, hi, slo, shi = (np.round(a, 6) for a in (lo, hi, slo, shi))
     for i, r in enumerate(rows):
@@ -331,10 +392,10 @@ def _grid_means(
             stable_low=float(slo[i]),
             stable_high=float(shi[i]),
             rank=ranks[i],
-            rank_low=int(rlo[i]),
-            rank_high=int(rhi[i]),
+            rank_low=None if rank_ci[i] is None else rank_ci[i][0],
+            rank_high=None if rank_ci[i] is None else rank_ci[i][1],
         )
-    _mark_best(rows, rel, score="mean")
+    _mark_best(rows, lambda chosen: rel[:, chosen], score="mean")
 
 
 def grid_view(

@@ -157,7 +157,7 @@ class BoardScores:
 
     scored: list[Scored]
     score_ci: list[tuple[float, float]]
-    rank_ci: list[tuple[int, int]]
+    rank_ci: list[tuple[int, int] | None]
     stable: list[float]
     stable_ci: list[tuple[float, float]]
     metric_ci: list[dict[str, tuple[float, float] | None]]

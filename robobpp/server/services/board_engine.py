@@ -12,8 +12,9 @@ physical setting under the paper protocol, and ``"grid"`` / ``"grid-paper"`` for
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
 from typing import Any
 
 from sqlalchemy import select
@@ -23,6 +24,8 @@ from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.replay import CLOSED, PAPER, PROTOCOLS
 from robobpp.scoring.boards import build_board, build_grid
+from robobpp.scoring.engine import BoardMatrix, PartLoader
+from robobpp.scoring.entries import EntryPart, entry_part
 from robobpp.scoring.metrics import PHYSICAL
 
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -109,12 +112,25 @@ def finished_submissions(session: Session, track: str) -> dict[int, tuple[Any, .
     }
 
 
-class BoardEngine:
-    """Each track's boards and grids, kept between updates.
+@dataclass
+class _Track:
+    """What the engine keeps of one track between updates."""
 
-    ``update(track)`` reads which finished submissions the track has, and when that moved recomputes the
-    boards; it returns only the boards and grids that changed since the previous call (everything on the
-    first call of a track). One engine per deployment (the board worker); calls are serialised.
+    seen: dict[int, tuple[Any, ...]]
+    boards: dict[tuple[str, ...], BoardMatrix]
+    out: dict[BoardKey, dict[str, Any]] = field(default_factory=dict)
+    #: The grids' all-rows rank intervals as last computed in full, by grid key and submission id.
+    grid_ranks: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
+
+
+class BoardEngine:
+    """Each track's boards and grids, kept between updates (:class:`robobpp.scoring.engine.BoardMatrix`).
+
+    ``update(track)`` reads which finished submissions the track has; the boards of those that arrived,
+    changed or left are updated — only the global part of the scoring: each run's own part was stored when
+    it finished — and returned with the grids, if any moved; nothing else is touched. The all-entries rank
+    intervals (boards and grids) are computed by ``refresh(track)``, the full computation the board worker
+    runs on a timer; the first ``update`` of a track is one. One engine per deployment; calls are serialised.
     """
 
     def __init__(
@@ -126,32 +142,168 @@ class BoardEngine:
         self.session_factory = session_factory
         self.datasets, self.settings = tuple(datasets), tuple(settings)
         self._lock = threading.Lock()
-        self._seen: dict[str, dict[int, tuple[Any, ...]]] = {}
-        self._boards: dict[str, dict[BoardKey, dict[str, Any]]] = {}
+        self._tracks: dict[str, _Track] = {}
 
     def keys(self) -> list[BoardKey]:
         """Every board and grid key of a track, in display order."""
-        out: list[BoardKey] = [(d, st) for st in self.settings for d in self.datasets]
-        out += [(d, st, PAPER) for st in self.settings if st in PHYSICAL for d in self.datasets]
-        return [*out, *GRID_KEYS]
+        return [*self._board_keys(), *GRID_KEYS]
+
+    def _board_keys(self) -> list[tuple[str, ...]]:
+        out: list[tuple[str, ...]] = [(d, st) for st in self.settings for d in self.datasets]
+        return out + [(d, st, PAPER) for st in self.settings if st in PHYSICAL for d in self.datasets]
 
     def update(self, track: str) -> dict[BoardKey, dict[str, Any]]:
         """The track's boards and grids that changed since the last call, now current."""
-        with self._lock, self.session_factory() as session:
-            seen = finished_submissions(session, track)
-            if track in self._boards and seen == self._seen.get(track):
-                return {}
-            snap = compute_snapshot(session, self.datasets, self.settings, track)
-        boards: dict[BoardKey, dict[str, Any]] = {
-            **snap["boards"],
-            "grid": snap["grid"],
-            "grid-paper": snap["grid-paper"],
-        }
         with self._lock:
-            self._seen[track], self._boards[track] = seen, boards
-        return dict(boards)
+            state = self._tracks.get(track)
+            if state is None:
+                return self._full(track)
+            with self.session_factory() as session:
+                seen = finished_submissions(session, track)
+                added = [s for s in seen if s not in state.seen]
+                changed = [s for s in seen if s in state.seen and seen[s] != state.seen[s]]
+                removed = [s for s in state.seen if s not in seen]
+                if not (added or changed or removed):
+                    return {}
+                runs = self._runs(session, track, added + changed) if added or changed else []
+            touched: set[tuple[str, ...]] = set()
+            by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+            for run in runs:
+                by_board.setdefault(self._key_of(run), []).append(run)
+            for key, matrix in state.boards.items():
+                upsert = by_board.get(key, [])
+                present = {int(r["submission_id"]) for r in upsert}
+                gone = [s for s in (*removed, *changed) if s in matrix.rows and s not in present]
+                if upsert or gone:
+                    matrix.apply(
+                        [_row(r) for r in upsert], gone, parts={r["submission_id"]: r["part"] for r in upsert}
+                    )
+                    touched.add(key)
+            state.seen = seen
+            changed_out: dict[BoardKey, dict[str, Any]] = {}
+            for key in touched:
+                state.out[key] = state.boards[key].board()
+                changed_out[key] = state.out[key]
+            if touched:
+                changed_out.update(self._grids(track, state, full=False))
+            return {k: _served(v) for k, v in changed_out.items()}
+
+    def refresh(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+        """Every board and grid of the track computed in full (rank intervals of every entry included)."""
+        with self._lock:
+            return self._full(track)
 
     def current(self, track: str) -> dict[BoardKey, dict[str, Any]]:
-        """Every board and grid of the track as of the last :meth:`update` (empty before it)."""
+        """Every board and grid of the track as of the last update (empty before the first)."""
         with self._lock:
-            return dict(self._boards.get(track, {}))
+            state = self._tracks.get(track)
+            return {} if state is None else {k: _served(v) for k, v in state.out.items()}
+
+    def _full(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+        with self.session_factory() as session:
+            seen = finished_submissions(session, track)
+            runs = self._runs(session, track, None)
+        state = self._tracks.get(track)
+        if state is None:
+            boards = {
+                key: BoardMatrix(
+                    key[0], key[1], track, key[2] if len(key) > 2 else CLOSED, self._loader(track, key)
+                )
+                for key in self._board_keys()
+            }
+            state = _Track(seen, boards)
+        by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+        for run in runs:
+            by_board.setdefault(self._key_of(run), []).append(run)
+        for key, matrix in state.boards.items():
+            rows = by_board.get(key, [])
+            present = {int(r["submission_id"]) for r in rows}
+            matrix.apply([_row(r) for r in rows], [s for s in matrix.rows if s not in present])
+            state.out[key] = matrix.board(rank_intervals=True)
+        state.seen = seen
+        grids = self._grids(track, state, full=True)
+        self._tracks[track] = state
+        return {k: _served(v) for k, v in {**state.out, **grids}.items()}
+
+    def _grids(self, track: str, state: _Track, *, full: bool) -> dict[BoardKey, dict[str, Any]]:
+        out: dict[BoardKey, dict[str, Any]] = {}
+        for protocol, grid_key in zip(PROTOCOLS, GRID_KEYS, strict=True):
+            shown = {
+                f"{st}/{d}": state.out[(d, st, protocol) if (d, st, protocol) in state.out else (d, st)]
+                for st in self.settings
+                for d in self.datasets
+            }
+            known = None if full else state.grid_ranks.get(grid_key, {})
+            grid = build_grid(shown, self.datasets, self.settings, track, rank_intervals=known)
+            grid["protocol"] = protocol
+            if full:
+                state.grid_ranks[grid_key] = {
+                    r["submission_id"]: (r["rank_low"], r["rank_high"]) for r in grid["rows"]
+                }
+            state.out[grid_key] = out[grid_key] = grid
+        return out
+
+    def _key_of(self, run: Mapping[str, Any]) -> tuple[str, ...]:
+        if run["setting"] in PHYSICAL and run["protocol"] == PAPER:
+            return (run["dataset"], run["setting"], PAPER)
+        return (run["dataset"], run["setting"])
+
+    def _runs(self, session: Session, track: str, submission_ids: list[int] | None) -> list[dict[str, Any]]:
+        """The track's runs on this engine's boards, each with its ``part`` (and the group ``ids``)."""
+        boards = [(k[0], k[1], k[2] if len(k) > 2 else CLOSED) for k in self._board_keys()]
+        runs = queries.board_runs(session, track, boards=boards, submission_ids=submission_ids)
+        missing: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+        for run in runs:
+            entry = run.pop("entry")
+            run["part"] = None if entry is None else EntryPart.decode(entry, run["setting"])
+            if run["part"] is None:
+                missing.setdefault(self._key_of(run), []).append(run)
+        for key, lacking in missing.items():  # stored before 0011 or by an older version: computed here
+            protocol = key[2] if len(key) > 2 else CLOSED
+            figures = queries.run_figures_of(
+                session, track, key[0], key[1], protocol, [r["submission_id"] for r in lacking]
+            )
+            for run in lacking:
+                f = figures.get(run["submission_id"])
+                run["part"] = entry_part(f, run["setting"]) if f and f.get("ids") else None
+        for run in runs:
+            run["ids"] = None if run["part"] is None else _interned(run["part"].ids.tobytes())
+        return runs
+
+    def _loader(self, track: str, key: tuple[str, ...]) -> PartLoader:
+        dataset, setting = key[0], key[1]
+        protocol = key[2] if len(key) > 2 else CLOSED
+
+        def load(submission_ids: Sequence[int]) -> dict[int, EntryPart | None]:
+            with self.session_factory() as session:
+                stored = queries.run_entries_of(session, track, dataset, setting, protocol, submission_ids)
+                parts = {
+                    sid: None if entry is None else EntryPart.decode(entry, setting)
+                    for sid, entry in stored.items()
+                }
+                lacking = [sid for sid in submission_ids if parts.get(sid) is None]
+                if lacking:
+                    figures = queries.run_figures_of(session, track, dataset, setting, protocol, lacking)
+                    for sid in lacking:
+                        f = figures.get(sid)
+                        parts[sid] = entry_part(f, setting) if f and f.get("ids") else None
+            return parts
+
+        return load
+
+
+_IDS: dict[bytes, bytes] = {}
+
+
+def _interned(ids: bytes) -> bytes:
+    """One object per distinct group-id list (every entry of a board has the same)."""
+    return _IDS.setdefault(ids, ids)
+
+
+def _row(run: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in run.items() if k not in ("part", "dataset", "setting", "protocol")}
+
+
+def _served(board: dict[str, Any]) -> dict[str, Any]:
+    """A board as handed out: without the resample arrays only the grids need."""
+    return {k: v for k, v in board.items() if k not in ("_samples", "_stable_samples")}

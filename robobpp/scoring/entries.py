@@ -1,0 +1,183 @@
+"""One board entry's own part of the scoring, computed once when its run finishes and stored with it.
+
+Everything here depends on the run alone — its per-group figures, the resample plan (a function of the
+group count only, :func:`robobpp.scoring.stats.resample_counts`) and the fixed stable anchors — so no other
+entry arriving or leaving can change it. A board update then only does the global part (min–max per
+resample, ranks: :mod:`robobpp.scoring.engine`).
+
+Stored form (``runs.entry``, :meth:`EntryPart.encode`): a small header, then little-endian arrays — the group
+ids, the per-group figures as a groups × columns float64 matrix (one column per metric, NaN = unmeasured,
+and two for a pooled ratio: numerator and denominator), each metric's interval and the stable score's.
+float64, not float32: the figures are the recorded numbers bit for bit, so a board built from them equals
+one built from the recorded JSON figures.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from robobpp.scoring import stats
+from robobpp.scoring.metrics import POOLED
+from robobpp.scoring.scores import WEIGHTS, anchored
+
+#: Bumped when the stored layout or what it holds changes; a part of another format is recomputed.
+FORMAT = 1
+_HEADER = struct.Struct("<4sHHHH")  # magic, format, groups, metrics, resamples / 1 (0 = the default)
+_MAGIC = b"RBPE"
+
+
+@cache
+def metric_keys(setting: str) -> tuple[str, ...]:
+    """The scored metrics of a setting, in the order of its weights (the order scores sum them)."""
+    return tuple(WEIGHTS[setting])
+
+
+@cache
+def counts(groups: int) -> np.ndarray:
+    """The shared resample plan of a board of ``groups`` groups (read-only: every board shares it)."""
+    plan = stats.resample_counts(groups)
+    plan.flags.writeable = False
+    return plan
+
+
+@dataclass(frozen=True, slots=True)
+class EntryPart:
+    """A run's figures as a matrix and the intervals that depend on it alone."""
+
+    setting: str
+    ids: np.ndarray  # (groups,) int64, ascending
+    top: np.ndarray  # (groups, metrics): per-group sum terms (value, or pooled numerator; 0 when unmeasured)
+    bottom: np.ndarray  # (groups, metrics): per-group weights (1 measured / 0 not, or pooled denominator)
+    metric_ci: np.ndarray  # (metrics, 2), NaN = no interval
+    stable_ci: tuple[float, float]
+
+    @property
+    def groups(self) -> int:
+        return int(self.ids.shape[0])
+
+    def samples(self, plan: np.ndarray | None = None) -> np.ndarray:
+        """Each metric's run figure under each resample: (resamples, metrics), NaN = unmeasured.
+
+        The same computation for an entry wherever it is done (``numpy.matmul`` of one entry gives the same
+        bits alone or stacked with others), so a board updated entry by entry equals one built at once."""
+        return samples_of(self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan)[0]
+
+    def encode(self) -> bytes:
+        keys = metric_keys(self.setting)
+        m = len(keys)
+        columns = []
+        for j, key in enumerate(keys):
+            if key in POOLED:
+                columns += [self.top[:, j], self.bottom[:, j]]
+            else:
+                columns.append(np.where(self.bottom[:, j] > 0, self.top[:, j], np.nan))
+        matrix = np.column_stack(columns) if columns else np.zeros((self.groups, 0))
+        return b"".join(
+            (
+                _HEADER.pack(_MAGIC, FORMAT, self.groups, m, 0),
+                self.ids.astype("<i8").tobytes(),
+                matrix.astype("<f8").tobytes(),
+                self.metric_ci.astype("<f8").tobytes(),
+                np.array(self.stable_ci, dtype="<f8").tobytes(),
+            )
+        )
+
+    @classmethod
+    def decode(cls, data: bytes, setting: str) -> EntryPart | None:
+        """The part stored in ``data``, or None when it is of another format or setting (recompute it)."""
+        if len(data) < _HEADER.size:
+            return None
+        magic, fmt, groups, m, _ = _HEADER.unpack_from(data)
+        keys = metric_keys(setting)
+        if magic != _MAGIC or fmt != FORMAT or m != len(keys):
+            return None
+        width = m + sum(k in POOLED for k in keys)
+        at = _HEADER.size
+        ids = np.frombuffer(data, "<i8", groups, at).astype(np.int64)
+        at += 8 * groups
+        matrix = np.frombuffer(data, "<f8", groups * width, at).reshape(groups, width)
+        at += 8 * groups * width
+        metric_ci = np.frombuffer(data, "<f8", 2 * m, at).reshape(m, 2).copy()
+        at += 16 * m
+        stable_ci = np.frombuffer(data, "<f8", 2, at)
+        top, bottom = _split(matrix, keys)
+        return cls(setting, ids, top, bottom, metric_ci, (float(stable_ci[0]), float(stable_ci[1])))
+
+
+def _split(matrix: np.ndarray, keys: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    tops, bottoms, c = [], [], 0
+    for key in keys:
+        if key in POOLED:
+            tops.append(matrix[:, c])
+            bottoms.append(matrix[:, c + 1])
+            c += 2
+        else:
+            ok = np.isfinite(matrix[:, c])
+            tops.append(np.where(ok, matrix[:, c], 0.0))
+            bottoms.append(ok.astype(np.float64))
+            c += 1
+    g = matrix.shape[0]
+    if not keys:
+        return np.zeros((g, 0)), np.zeros((g, 0))
+    return np.column_stack(tops), np.column_stack(bottoms)
+
+
+def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndarray:
+    """Run figures of stacked entries under each resample: (entries, resamples, metrics), NaN = unmeasured
+    (``top``/``bottom``: entries × groups × metrics; the ratio of resampled sums, as
+    :func:`robobpp.scoring.stats.metric_samples` computes it)."""
+    num, den = np.matmul(plan[None], top), np.matmul(plan[None], bottom)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        num /= den
+    num[den <= 0] = np.nan
+    return num
+
+
+def entry_part(figures: Mapping[str, Any], setting: str) -> EntryPart:
+    """A run's part from its per-group figures (``stats.group_figures``)."""
+    keys = metric_keys(setting)
+    ids = np.asarray(figures.get("ids") or [], dtype=np.int64)
+    g = int(ids.shape[0])
+    top = np.zeros((g, len(keys)))
+    bottom = np.zeros((g, len(keys)))
+    for j, key in enumerate(keys):
+        if key in POOLED:
+            pairs = np.asarray((figures.get("pooled") or {}).get(key) or [[0.0, 0.0]] * g, dtype=np.float64)
+            top[:, j], bottom[:, j] = pairs.reshape(g, 2)[:, 0], pairs.reshape(g, 2)[:, 1]
+        else:
+            values = np.asarray(
+                (figures.get("values") or {}).get(key) or [None] * g, dtype=np.float64
+            ).reshape(g)
+            ok = np.isfinite(values)
+            top[:, j], bottom[:, j] = np.where(ok, values, 0.0), ok
+    metric_ci = np.full((len(keys), 2), np.nan)
+    stable_ci = (0.0, 0.0)
+    if g:
+        s = samples_of(top[None], bottom[None], counts(g))[0]
+        lo, hi = stats.interval(s)
+        metric_ci[:, 0], metric_ci[:, 1] = lo, hi
+        slo, shi = stats.interval(stable_samples(s, setting)[:, None])
+        stable_ci = (float(slo[0]), float(shi[0]))
+    return EntryPart(setting, ids, top, bottom, metric_ci, stable_ci)
+
+
+def stable_samples(samples: np.ndarray, setting: str) -> np.ndarray:
+    """The stable score under each resample from an entry's (resamples, metrics) samples (or a stack of
+    entries': (..., resamples, metrics) → (..., resamples))."""
+    total = np.zeros(samples.shape[:-1])
+    for j, (key, weight) in enumerate(WEIGHTS[setting].items()):
+        total += weight * anchored(samples[..., j], key)
+    return total
+
+
+def part_of_run(figures: Mapping[str, Any] | None, setting: str) -> bytes | None:
+    """What a finished run stores in ``runs.entry``: its encoded part, or None without figures."""
+    if not figures or not figures.get("ids") or setting not in WEIGHTS:
+        return None
+    return entry_part(figures, setting).encode()

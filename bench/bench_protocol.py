@@ -225,6 +225,8 @@ def main() -> None:
         compute: list[float] = []
         cpu_remote = cpu_local = 0.0
         server_before = server_cpu_s(server.pid)
+        relays = [p.pid for i, p in enumerate(rig.procs) if i != 1] if rig is not None else []
+        relay_before = [server_cpu_s(pid) for pid in relays]
         for spec in episodes:
             c0 = time.process_time()
             r = run_episode(spec, remote, "math")
@@ -244,6 +246,7 @@ def main() -> None:
                 if rs.network_estimate is not None:
                     probes.append(rs.network_estimate)
         server_after = server_cpu_s(server.pid)
+        relay_after = [server_cpu_s(pid) for pid in relays]
     finally:
         if rig is not None:
             rig.stop()
@@ -258,6 +261,10 @@ def main() -> None:
     if server_before is not None and server_after is not None:
         spent = (cpu_remote - cpu_local) + (server_after - server_before) - sum(compute)
         cpu_overhead = spent / steps * 1000.0
+    # pull mode: CPU of the API process(es) relaying, per step (both of them with --relay redis)
+    relay_cpu = None
+    if relays and None not in relay_before and None not in relay_after:
+        relay_cpu = sum(a - b for a, b in zip(relay_after, relay_before, strict=True)) / steps * 1000.0  # type: ignore[operator]
     figures = {
         "mode": args.mode,
         "relay": args.relay if args.mode == "pull" else None,
@@ -274,6 +281,7 @@ def main() -> None:
         "round_trip_p50_ms": pct(round_trips, 50) if round_trips else None,
         "network_estimate_p50_ms": pct(probes, 50) if probes else None,
         "cpu_overhead_mean_ms": cpu_overhead,
+        "relay_cpu_per_step_ms": relay_cpu,
         "cpu_count": os.cpu_count(),
         "python": sys.version.split()[0],
     }

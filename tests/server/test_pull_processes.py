@@ -10,7 +10,9 @@
 
 from __future__ import annotations
 
+import os
 import re
+import signal
 import subprocess
 import sys
 import threading
@@ -183,6 +185,94 @@ def test_serve_with_two_api_processes_evaluates_and_ranks_a_pull_submission(tmp_
     assert server.proc.returncode == 0
     # every child goes with it (the resource tracker a moment after the supervisor)
     wait_for(lambda: not any(_alive(pid) for pid in children), timeout_s=15, every_s=0.2)
+
+
+@pytest.mark.redis
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads /proc to find the API processes")
+def test_an_api_process_killed_mid_episode_is_replaced_and_the_episode_resumes(tmp_path: Path) -> None:
+    """kill -9 of one of two API processes mid-episode: the supervisor starts a new one, and the episode goes on
+    and is counted once whatever the killed process held (the kernel decides where each socket lands: the
+    client's, the worker's, both or neither; the next test kills the client's process on purpose)."""
+    redis_or_skip()
+    env = server_env(
+        tmp_path,
+        f"sqlite:///{tmp_path / 'kill.sqlite3'}",
+        ROBOBPP_PULL_BROKER_URL=REDIS_URL,
+        ROBOBPP_EVALUATE_BASELINES="0",
+        ROBOBPP_GROUPS="1",
+        ROBOBPP_PULL_RECONNECT_S="20",
+    )
+    server = ServerProcess(env, tmp_path, args=("--server-workers", "2")).start()
+    try:
+        assert server.proc is not None
+        token = new_participant(server.client(), "unlucky")
+        thread, result = _run_connect(server.url, token, SlowDBL(), name="unlucky", datasets=["repetitive"])
+        api = server.client(token)
+        sub_id = wait_for(lambda: next((s["id"] for s in api.get("/submissions").json()), None), timeout_s=30)
+        wait_for(
+            lambda: any(e["step"] >= 3 for e in api.get(f"/submissions/{sub_id}/episodes").json()),
+            timeout_s=60,
+        )
+        before = [pid for pid in _children(server.proc.pid) if server.port in listening_ports(pid)]
+        assert len(before) == 2
+        os.kill(before[0], signal.SIGKILL)
+        thread.join(timeout=120)
+        assert not thread.is_alive(), result["events"]
+        assert result["sub"].status == "completed", result["events"]
+        (episode,) = api.get(f"/submissions/{sub_id}/episodes").json()
+        assert episode["status"] == "done" and episode["attempts"] == 1, episode
+        assert episode["termination"] == "completed", episode["termination_detail"]
+        assert episode["step"] == episode["boxes_total"] == episode["boxes_placed"]
+        after = [pid for pid in _children(server.proc.pid) if server.port in listening_ports(pid)]
+        assert len(after) == 2 and before[0] not in after  # the supervisor replaced the killed one
+    finally:
+        server.stop()
+
+
+@pytest.mark.redis
+def test_the_worker_hears_gone_when_the_client_s_api_process_dies_and_resumes_on_its_return(
+    tmp_path: Path,
+) -> None:
+    """The client's API process (B) is killed while the worker, on A, waits for an answer. Nothing will ever come
+    from B's side, and nothing tells the worker's side but B's silence: its liveness check (B's channel has no
+    subscriber left) closes the worker's socket with GONE within seconds, long before the 10 s step deadline.
+    B comes back on its port, the client reconnects, and the episode resumes where it was."""
+    redis_or_skip()
+    db = f"sqlite:///{tmp_path / 'die.sqlite3'}"
+    common = {"ROBOBPP_PULL_BROKER_URL": REDIS_URL, "ROBOBPP_EVALUATE_BASELINES": "0", "ROBOBPP_GROUPS": "1"}
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a_env = server_env(
+        tmp_path / "a", db, ROBOBPP_PULL_RECONNECT_S="60", ROBOBPP_STEP_TIMEOUT_S="10", **common
+    )
+    a = ServerProcess(a_env, tmp_path / "a").start()  # API + local workers, whose relay is A itself
+    b = ServerProcess(
+        server_env(tmp_path / "b", db, ROBOBPP_WORKERS="0", **common), tmp_path / "b", port=free_port()
+    )
+    b.start()
+    try:
+        token = new_participant(a.client(), "orphaned")
+        policy = SlowDBL()
+        policy.delay_s = 1.0  # the worker spends most of each step waiting for the answer
+        thread, result = _run_connect(b.url, token, policy, name="orphaned", datasets=["repetitive"])
+        api = a.client(token)
+        sub_id = wait_for(lambda: next((s["id"] for s in api.get("/submissions").json()), None), timeout_s=30)
+        wait_for(
+            lambda: any(e["step"] >= 2 for e in api.get(f"/submissions/{sub_id}/episodes").json()),
+            timeout_s=60,
+        )
+        b.crash()
+        b.start()  # same port: the client's reconnection lands on the new B
+        thread.join(timeout=150)
+        assert not thread.is_alive(), result["events"]
+        assert result["sub"].status == "completed", result["events"]
+        (episode,) = api.get(f"/submissions/{sub_id}/episodes").json()
+        assert episode["status"] == "done" and episode["attempts"] == 1, episode
+        assert episode["termination"] == "completed", episode["termination_detail"]
+        assert episode["step"] == episode["boxes_total"] == episode["boxes_placed"]
+    finally:
+        for server in (a, b):
+            server.crash()
 
 
 def test_several_api_processes_without_redis_are_refused_with_the_reason(tmp_path: Path) -> None:

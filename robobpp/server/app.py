@@ -94,7 +94,11 @@ def create_app(
         await _run_sync(board_cache.load_stored)
         # large tracks' boards computed now, in the background, not by the first readers
         threading.Thread(target=board_cache.warm, daemon=True, name="board-warm").start()
-        executor = runtime.executor = start_executor(settings) if run_workers else None
+        executor = start_executor(settings) if run_workers else None
+        if (
+            executor is not None
+        ):  # else runtime.executor stays as given (server/processes.py: the supervisor's)
+            runtime.executor = executor
         try:
             yield
         finally:

@@ -50,7 +50,18 @@ def refusal(settings: Any, processes: int) -> str | None:
     return None
 
 
-def api_process(overrides: dict[str, Any], sock: socket.socket) -> None:
+class SupervisorsWorkers:
+    """The workers as an API process sees them: their count, which the supervisor publishes every half second
+    (``/healthz`` reports it as from a single process's own pool)."""
+
+    def __init__(self, alive: Any) -> None:
+        self._alive = alive
+
+    def alive(self) -> int:
+        return int(self._alive.value)
+
+
+def api_process(overrides: dict[str, Any], sock: socket.socket, workers_alive: Any) -> None:
     """One API process: the app without bootstrap or workers, served by uvicorn on the inherited socket."""
     import uvicorn
 
@@ -61,6 +72,7 @@ def api_process(overrides: dict[str, Any], sock: socket.socket) -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     settings = Settings(**overrides)
     app = create_app(settings, start_workers=False, first_start=False)
+    app.state.runtime.executor = SupervisorsWorkers(workers_alive)
     config = uvicorn.Config(app, log_level="info", access_log=False, **server_config(settings))
     uvicorn.Server(config).run(sockets=[sock])
 
@@ -68,15 +80,30 @@ def api_process(overrides: dict[str, Any], sock: socket.socket) -> None:
 class Supervisor:
     """The N API processes on one listening socket, restarted when one exits."""
 
-    def __init__(self, overrides: dict[str, Any], sock: socket.socket, processes: int) -> None:
-        self.overrides, self.sock, self.processes = overrides, sock, processes
+    def __init__(
+        self,
+        overrides: dict[str, Any],
+        sock: socket.socket,
+        processes: int,
+        executor: Any,
+        stopping: threading.Event,
+    ) -> None:
+        self.overrides, self.sock, self.processes, self.executor = overrides, sock, processes, executor
         self._ctx = mp.get_context("spawn")
         self._procs: list[BaseProcess] = []
-        self.stopping = threading.Event()
+        self.stopping = stopping
+        #: How many workers are alive, as the executor says; shared with the API processes (/healthz).
+        self.workers_alive = self._ctx.RawValue("i", self._count_workers())
+
+    def _count_workers(self) -> int:
+        return self.executor.alive() if self.executor is not None else 0
 
     def _spawn(self) -> BaseProcess:
         proc = self._ctx.Process(
-            target=api_process, args=(self.overrides, self.sock), name="robobpp-api", daemon=True
+            target=api_process,
+            args=(self.overrides, self.sock, self.workers_alive),
+            name="robobpp-api",
+            daemon=True,
         )
         proc.start()
         return proc
@@ -85,8 +112,9 @@ class Supervisor:
         self._procs = [self._spawn() for _ in range(self.processes)]
 
     def watch(self) -> None:
-        """Until :attr:`stopping` is set: restart any API process that exited."""
+        """Until :attr:`stopping` is set: restart any API process that exited; publish the workers' count."""
         while not self.stopping.wait(0.5):
+            self.workers_alive.value = self._count_workers()
             for i, proc in enumerate(self._procs):
                 if not proc.is_alive():
                     log.warning("API process %s exited (code %s); restarting", proc.pid, proc.exitcode)
@@ -133,23 +161,25 @@ def serve_processes(
     # the API processes' request metrics, summed at each scrape (server/prometheus.py); fresh at each start
     metrics_dir = tempfile.TemporaryDirectory(prefix="robobpp-metrics-")
     os.environ["PROMETHEUS_MULTIPROC_DIR"] = metrics_dir.name  # inherited by the spawned API processes
-    supervisor = Supervisor(overrides, sock, processes)
     executor = None
     previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    stopping = threading.Event()
 
     def stop(_signum: int, _frame: Any) -> None:
-        supervisor.stopping.set()
+        stopping.set()
 
     for s in previous:
         signal.signal(s, stop)
+    supervisor: Supervisor | None = None
     try:
         executor = start_executor(settings)
+        supervisor = Supervisor(overrides, sock, processes, executor, stopping)
         supervisor.start()
         bound = sock.getsockname()[1]
         local = "127.0.0.1" if host in ("0.0.0.0", "") else ("[::1]" if host == "::" else host)
         url = f"http://{f'[{local}]' if ':' in local and not local.startswith('[') else local}:{bound}"
         deadline = time.monotonic() + READY_TIMEOUT_S
-        while not supervisor.stopping.is_set():
+        while not stopping.is_set():
             try:
                 if httpx.get(url + "/healthz", timeout=2).status_code == 200:
                     break
@@ -163,7 +193,8 @@ def serve_processes(
         on_ready(f"http://{f'[{host}]' if ':' in host else host}:{bound}")
         supervisor.watch()
     finally:
-        supervisor.stop()
+        if supervisor is not None:
+            supervisor.stop()
         if executor is not None:
             executor.stop()
         sock.close()

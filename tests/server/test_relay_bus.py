@@ -136,3 +136,48 @@ def test_the_wire_format_round_trips_and_rejects_unknown_kinds() -> None:
     assert decode(encode("n2.9", message)) == ("n2.9", message)
     assert decode(b"Qn2.9\nn1.4\nbody") is None
     assert decode(b"Fmissing-parts") is None
+
+
+@pytest.mark.redis
+def test_a_bus_cut_off_from_redis_answers_gone_then_works_again_when_redis_is_back() -> None:
+    """Bus B reaches Redis through a TCP relay that the test cuts: while B is cut off, what A sends to B's
+    endpoints and what B's endpoints send come back as GONE (no one waits on a dead path); once Redis is
+    reachable again, B subscribes again and both directions work without a restart."""
+    from tests.celery.relay import Relay
+
+    redis_or_skip()
+    relay = Relay(("127.0.0.1", int(REDIS_URL.rsplit(":", 1)[1].split("/")[0])))
+    relay.up()
+
+    async def main() -> None:
+        deployment = f"test-{uuid.uuid4().hex[:12]}"
+        a, b = RedisBus(REDIS_URL, deployment), RedisBus(f"redis://127.0.0.1:{relay.port}/0", deployment)
+        await a.start()
+        await b.start()
+        try:
+            worker, client = a.endpoint(), b.endpoint()
+            await worker.send(client.address, FRAME, b"before")
+            assert (await _next(client)).payload == b"before"
+            relay.down()
+            await asyncio.sleep(0.3)
+            await worker.send(client.address, FRAME, b"while cut")
+            assert (await _next(worker)).kind == GONE  # B's subscription is gone with its connection
+            await client.send(worker.address, FRAME, b"while cut")
+            assert (await _next(client)).kind == GONE  # B cannot publish
+            relay.up()
+            deadline = asyncio.get_running_loop().time() + 10
+            while not await a.alive(client.address):  # B subscribed again
+                assert asyncio.get_running_loop().time() < deadline, "B did not subscribe again"
+                await asyncio.sleep(0.2)
+            await worker.send(client.address, FRAME, b"after")
+            assert (await _next(client)).payload == b"after"
+            await client.send(worker.address, FRAME, b"back")
+            assert (await _next(worker)).payload == b"back"
+        finally:
+            await a.close()
+            await b.close()
+
+    try:
+        asyncio.run(main())
+    finally:
+        relay.down()

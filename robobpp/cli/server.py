@@ -92,13 +92,16 @@ def serve(
         typer.echo(f"robobpp: serving on {url}{processes} (API docs {url}/docs); admin token: {where}")
 
     if server_workers > 1:
-        from robobpp.server.processes import refusal, serve_processes
+        from robobpp.server.processes import StartFailed, refusal, serve_processes
 
         problem = refusal(settings, server_workers)
         if problem:
             fail(problem)
         settings.effective_admin_token  # noqa: B018 - dev: the generated token is written once, here
-        serve_processes(settings, overrides, host, port, server_workers, ready)
+        try:
+            serve_processes(settings, overrides, host, port, server_workers, ready)
+        except (StartFailed, OSError) as exc:  # OSError: the port is taken, or the host is not ours
+            fail(str(exc))
         return
     app = create_app(settings)
     from robobpp.server.connections import server_config

@@ -35,6 +35,11 @@ from typing import Any
 
 log = logging.getLogger("robobpp.server")
 
+
+class StartFailed(RuntimeError):
+    """The API processes did not come up."""
+
+
 #: How long the supervisor waits for the first API process to answer ``/healthz``.
 READY_TIMEOUT_S = 120.0
 
@@ -116,9 +121,12 @@ class Supervisor:
         while not self.stopping.wait(0.5):
             self.workers_alive.value = self._count_workers()
             for i, proc in enumerate(self._procs):
-                if not proc.is_alive():
+                if not proc.is_alive() and not self.stopping.is_set():
                     log.warning("API process %s exited (code %s); restarting", proc.pid, proc.exitcode)
                     self._procs[i] = self._spawn()
+
+    def exited(self) -> list[BaseProcess]:
+        return [p for p in self._procs if p.exitcode is not None]
 
     def pids(self) -> list[int]:
         return [p.pid for p in self._procs if p.pid is not None and p.is_alive()]
@@ -152,12 +160,16 @@ def serve_processes(
     from robobpp.server.bootstrap import bootstrap
     from robobpp.server.runtime import Runtime
 
-    runtime = Runtime(settings)
-    bootstrap(runtime)
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind((host, port))
-    sock.listen(2048)
+    try:
+        sock.bind((host, port))  # first: a port in use fails the start before anything is written
+    except OSError:
+        sock.close()
+        raise
+    sock.listen(2048)  # connections wait in the backlog until the first API process accepts them
+    runtime = Runtime(settings)
+    bootstrap(runtime)
     # the API processes' request metrics, summed at each scrape (server/prometheus.py); fresh at each start
     metrics_dir = tempfile.TemporaryDirectory(prefix="robobpp-metrics-")
     os.environ["PROMETHEUS_MULTIPROC_DIR"] = metrics_dir.name  # inherited by the spawned API processes
@@ -185,8 +197,13 @@ def serve_processes(
                     break
             except httpx.HTTPError:
                 pass
+            exited = supervisor.exited()
+            if exited:  # a broken configuration would only restart it in a loop
+                raise StartFailed(
+                    f"an API process exited during start-up (exit code {exited[0].exitcode}; its log is above)"
+                )
             if time.monotonic() > deadline:
-                raise RuntimeError(f"no API process answered on {url} within {READY_TIMEOUT_S:g} s")
+                raise StartFailed(f"no API process answered on {url} within {READY_TIMEOUT_S:g} s")
             time.sleep(0.2)
         else:
             return

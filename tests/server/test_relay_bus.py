@@ -6,13 +6,19 @@ a process's channel is ignored."""
 from __future__ import annotations
 
 import asyncio
+import shutil
+import subprocess
+import time
 import uuid
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterator
+from pathlib import Path
 
 import pytest
+import redis
 
 from robobpp.server.relay_bus import FRAME, GONE, PAIR, Endpoint, LocalBus, Message, RedisBus, decode, encode
-from tests.server.conftest import REDIS_URL, redis_or_skip
+from tests._orphans import with_parent_death
+from tests.server.conftest import REDIS_URL, free_port, redis_or_skip
 
 Pair = tuple[LocalBus, LocalBus]
 
@@ -181,3 +187,62 @@ def test_a_bus_cut_off_from_redis_answers_gone_then_works_again_when_redis_is_ba
         asyncio.run(main())
     finally:
         relay.down()
+
+
+@pytest.fixture
+def redis_with_password(tmp_path: Path) -> Iterator[tuple[int, str]]:
+    """A private redis-server that requires a password, as the compose file's does (skips without the binary)."""
+    binary = shutil.which("redis-server")
+    if binary is None:
+        pytest.skip("redis-server is not installed")
+    port, password = free_port(), "s3cret-relay-pw"
+    proc = subprocess.Popen(
+        with_parent_death(
+            [binary, "--port", str(port), "--bind", "127.0.0.1", "--requirepass", password, "--save", ""]
+            + ["--appendonly", "no", "--dir", str(tmp_path)]
+        ),
+        stdout=subprocess.DEVNULL,
+    )
+    try:
+        client = redis.Redis(port=port, password=password)
+        for _ in range(50):
+            try:
+                client.ping()
+                break
+            except redis.ConnectionError:
+                time.sleep(0.1)
+        yield port, password
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+@pytest.mark.redis
+def test_the_bus_authenticates_with_the_url_s_password(redis_with_password: tuple[int, str]) -> None:
+    """The compose file's broker URL carries a password (``redis://:PASSWORD@redis:6379/0``): the relay's own
+    connections send it, and a wrong one fails the start with Redis's reason, not later and silently."""
+    from robobpp.server.redis_wire import RedisWireError
+
+    port, password = redis_with_password
+
+    async def main() -> None:
+        deployment = f"test-{uuid.uuid4().hex[:12]}"
+        good = f"redis://:{password}@127.0.0.1:{port}/0"
+        a, b = RedisBus(good, deployment), RedisBus(good, deployment)
+        await a.start()
+        await b.start()
+        try:
+            worker, client = a.endpoint(), b.endpoint()
+            await worker.send(client.address, FRAME, b"authenticated")
+            assert (await _next(client)).payload == b"authenticated"
+            await client.send(worker.address, FRAME, b"both ways")
+            assert (await _next(worker)).payload == b"both ways"
+        finally:
+            await a.close()
+            await b.close()
+        wrong = RedisBus(f"redis://:not-it@127.0.0.1:{port}/0", deployment)
+        with pytest.raises(RedisWireError, match="refused the credentials"):
+            await wrong.start()
+        await wrong.close()
+
+    asyncio.run(main())

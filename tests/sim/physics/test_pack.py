@@ -205,7 +205,7 @@ def test_a_board_that_tilts_in_place_counts_as_placed() -> None:
     only |dx| and |dy| of the centre — it is no collapse and counts as in place, tilted and all."""
     import math
 
-    from robobpp import metrics as M
+    from robobpp.scoring import metrics as M
 
     base, board = Box(40, 20, 10, 5.0), Box(100, 20, 2, 5.0)
     pack = _pack([base, board])

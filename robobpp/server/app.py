@@ -46,6 +46,7 @@ def _include_pages(app: FastAPI) -> None:
 def start_executor(settings: Settings) -> Any:
     """Start what runs the episodes: the Celery dispatcher when a broker is configured (the episodes run on
     Celery workers), else the local worker pool; ``None`` when there is neither."""
+    executor: Any  # the Celery dispatcher or the local pool: the same start/stop/alive surface
     if settings.broker_url:
         from robobpp.worker.celery_executor import executor_from_settings
 

@@ -138,13 +138,14 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         }
         if lookahead > 0:
             observed["lookahead"] = spaces.Box(0.0, _MAX_BOX, (lookahead, 4), np.float32)
-        self.observation_space = spaces.Dict(observed)
+        # gymnasium types a Dict space as holding dicts of spaces; its samples are dicts of arrays
+        self.observation_space = spaces.Dict(observed)  # type: ignore[assignment]
         self.grid_shape = (nx, ny, len(ORIENTATIONS))
         self.flat_actions = actions == "flat"
         self.action_space: spaces.Space[Any] = (
             spaces.Discrete(nx * ny * len(ORIENTATIONS))
             if self.flat_actions
-            else spaces.MultiDiscrete(self.grid_shape)
+            else spaces.MultiDiscrete(list(self.grid_shape))
         )
         self._episode: Episode | None = None
         self._obs: Observation | None = None

@@ -266,8 +266,7 @@ def info_from_reset(req: ResetRequest) -> EpisodeInfo:
 
 def _placement(p: PlacedModel, position: int) -> Placement:
     index = position if p.index is None else p.index
-    quaternion = None if p.quaternion is None else tuple(p.quaternion)
-    return Placement(p.x, p.y, p.z, p.length, p.width, p.height, p.orientation, index, quaternion)
+    return Placement(p.x, p.y, p.z, p.length, p.width, p.height, p.orientation, index, p.quaternion)
 
 
 def observation_from_act(

@@ -235,20 +235,21 @@ def compare(ours: Mapping[Key, float | None], metrics: Sequence[str] | None = No
             _place(c.metric, compared_metrics(c.setting)),
         )
     )
-    columns: dict[tuple[str, str, str], list[Cell]] = {}
+    # (policy, ours, paper) of the cells where both figures exist, per (setting, dataset, metric)
+    columns: dict[tuple[str, str, str], list[tuple[str, float, float]]] = {}
     for c in cells:
         columns.setdefault((c.setting, c.dataset, c.metric), [])
         if c.ours is not None and c.paper is not None:
-            columns[(c.setting, c.dataset, c.metric)].append(c)
+            columns[(c.setting, c.dataset, c.metric)].append((c.policy, c.ours, c.paper))
     agreement = [
         Agreement(
             s,
             d,
             m,
-            tuple(c.policy for c in both),
-            spearman([c.ours for c in both], [c.paper for c in both]),  # type: ignore[misc]
-            float(np.mean([abs(c.ours - c.paper) for c in both])) if both else None,
-        )  # type: ignore[operator]
+            tuple(policy for policy, _, _ in both),
+            spearman([ours for _, ours, _ in both], [paper for _, _, paper in both]),
+            float(np.mean([abs(ours - paper) for _, ours, paper in both])) if both else None,
+        )
         for (s, d, m), both in columns.items()
     ]
     return Comparison(tuple(cells), tuple(agreement))

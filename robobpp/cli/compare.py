@@ -108,7 +108,7 @@ def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str, str], li
                 rank=s.rank,
                 normalized=s.normalized,
                 score_ci=list(scores.score_ci[i]),
-                rank_ci=list(scores.rank_ci[i]),
+                rank_ci=None if (rank_ci := scores.rank_ci[i]) is None else list(rank_ci),
                 stable=scores.stable[i],
                 stable_ci=list(scores.stable_ci[i]),
                 intervals={k: list(v) if v else None for k, v in scores.metric_ci[i].items()},

@@ -64,7 +64,7 @@ def evaluate(
     """Evaluate a policy locally and print a results table. Exit code 3: every episode ended in a policy failure."""
     from robobpp.client.loading import PolicyLoadError, load_policy
     from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
-    from robobpp.episode import run_episode
+    from robobpp.episode import EpisodeResult, run_episode
     from robobpp.replay import PAPER, PAPER_SETTINGS, PROTOCOLS, run_paper_protocol
     from robobpp.sim import SETTINGS, require_setting
 
@@ -101,21 +101,23 @@ def evaluate(
     with LineProgress(console) as progress:
         bar = progress.add_task(agent.name, total=len(tasks))
         if jobs == 1:
-            results = []
+            groups_run: list[list[EpisodeResult]] = []
             for spec, names in tasks:
                 progress.update(
                     bar, description=f"{agent.name} · {spec.dataset} · {protocol} · {','.join(names)}"
                 )
                 if protocol == PAPER:
-                    results.append(list(run_paper_protocol(spec, agent, names, lookahead=lookahead).values()))
+                    groups_run.append(
+                        list(run_paper_protocol(spec, agent, names, lookahead=lookahead).values())
+                    )
                 else:
-                    results.append([run_episode(spec, agent, names[0], lookahead=lookahead)])
+                    groups_run.append([run_episode(spec, agent, names[0], lookahead=lookahead)])
                 progress.advance(bar)
         else:
             from robobpp.cli.parallel import run_parallel
 
             progress.update(bar, description=f"{agent.name} · {protocol} · {jobs} processes")
-            results = list(
+            groups_run = list(
                 run_parallel(
                     policy,
                     kwargs,
@@ -126,8 +128,8 @@ def evaluate(
                     on_done=lambda _i: progress.advance(bar),
                 )
             )
-    runs: dict[tuple[str, str], list] = {}
-    for result in (r for group in results for r in group):
+    runs: dict[tuple[str, str], list[EpisodeResult]] = {}
+    for result in (r for group in groups_run for r in group):
         if result.setting in settings:  # the paper protocol's Math plan is shown when Math Pack was asked for
             runs.setdefault((result.dataset, result.setting), []).append(result)
     runs = {

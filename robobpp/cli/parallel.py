@@ -7,9 +7,10 @@ measured inside each worker, as in a single process.
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
 
 from robobpp.core import EpisodeSpec
@@ -29,11 +30,16 @@ def _load(name: str, kwargs: dict[str, Any]) -> None:
 
 
 def _run(spec: EpisodeSpec, settings: tuple[str, ...], lookahead: int, protocol: str) -> list[dict[str, Any]]:
+    results: list[EpisodeResult]
     if protocol == PAPER:
-        results = run_paper_protocol(spec, _policy, settings, lookahead=lookahead).values()
+        results = list(run_paper_protocol(spec, _policy, settings, lookahead=lookahead).values())
     else:
         results = [run_episode(spec, _policy, setting, lookahead=lookahead) for setting in settings]
     return [r.to_dict() for r in results]
+
+
+def _report_done(on_done: Callable[[int], None], index: int, _future: Future[Any]) -> None:
+    on_done(index)
 
 
 def run_parallel(
@@ -59,6 +65,6 @@ def run_parallel(
         futures = [pool.submit(_run, spec, settings, lookahead, protocol) for spec, settings in tasks]
         if on_done is not None:
             for i, future in enumerate(futures):
-                future.add_done_callback(lambda _f, i=i: on_done(i))
+                future.add_done_callback(functools.partial(_report_done, on_done, i))
         for future in futures:
             yield [EpisodeResult.from_dict(r) for r in future.result()]

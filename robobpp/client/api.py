@@ -114,7 +114,7 @@ def problem_from_response(response: httpx.Response) -> ServerError:
         kind = body.get("type")
         kind = kind.rstrip("/").rsplit("/", 1)[-1] if isinstance(kind, str) else None
         errors = body.get("errors") if isinstance(body.get("errors"), list) else None
-        detail = body.get("detail") if isinstance(body.get("detail"), str) else ""
+        detail = found if isinstance(found := body.get("detail"), str) else ""
         return ServerError(status, _one_line(body["title"], 100), _one_line(detail), kind=kind, errors=errors)
     reason = response.reason_phrase or "HTTP error"
     text = _one_line(response.text, 120) if response.text.strip() else ""
@@ -198,9 +198,10 @@ class ServerClient:
                 return model.model_validate(data)
             return TypeAdapter(model).validate_python(data)
         except ValidationError as exc:
-            first = exc.errors()[0] if exc.errors() else {}
-            where = ".".join(str(p) for p in first.get("loc", ())) or "body"
-            detail = f"{API_PREFIX}{path} does not match this client ({where}: {first.get('msg', 'invalid')})"
+            errors = exc.errors()
+            loc, msg = (errors[0]["loc"], errors[0]["msg"]) if errors else ((), "invalid")
+            where = ".".join(str(p) for p in loc) or "body"
+            detail = f"{API_PREFIX}{path} does not match this client ({where}: {msg})"
             raise ServerError(None, "Unexpected answer", detail) from None
 
     # -- the API ----------------------------------------------------------------------------------
@@ -283,7 +284,7 @@ class ServerClient:
             params["submission"] = submission
         if protocol != "closed":  # the default goes unsaid: a server from before protocols answers alike
             params["protocol"] = protocol
-        board = self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
+        board: Leaderboard = self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
         if setting != "math":
             self._check_protocol(board.protocol, protocol)
         return board
@@ -302,7 +303,7 @@ class ServerClient:
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
         if protocol != "closed":
             params["protocol"] = protocol
-        grid = self._get("/leaderboards", OverallGrid, params=params)
+        grid: OverallGrid = self._get("/leaderboards", OverallGrid, params=params)
         self._check_protocol(grid.protocol, protocol)
         return grid
 

@@ -31,7 +31,7 @@ from websockets.sync.client import connect as ws_connect
 
 from robobpp import __version__
 from robobpp.client import frames
-from robobpp.client.api import FINISHED, ServerClient, ServerError
+from robobpp.client.api import FINISHED, ServerClient, ServerError, Track
 from robobpp.schemas import SubmissionPublic
 
 log = logging.getLogger("robobpp.connect")
@@ -205,7 +205,7 @@ def connect(
     name: str | None = None,
     datasets: list[str] | None = None,
     settings: list[str] | None = None,
-    track: str = "private",
+    track: Track = "private",
     lookahead: int = 0,
     parallel: int = 1,
     on_event: Callable[[str], None] | None = None,
@@ -243,14 +243,18 @@ def connect(
                 track=track,
                 lookahead=lookahead,
                 mode="pull",
-            )  # type: ignore[arg-type]
+            )
             say(f"submitted #{sub.id} {sub.name} in pull mode: {sub.progress.episodes_total} episodes")
         else:
             sub = api.submission(submission)
         url = relay_url(server, sub.id)
 
         def run(index: int) -> None:
-            app = shared if shared is not None else create_policy_app(factory(), secret, name=name)
+            if shared is not None:
+                app = shared
+            else:
+                assert factory is not None  # no shared app: the policy is a factory
+                app = create_policy_app(factory(), secret, name=name)
             caller = AppCaller(app)
 
             def call(*args: Any) -> tuple[int, list[tuple[str, str]], bytes]:

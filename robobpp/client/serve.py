@@ -72,12 +72,11 @@ def create_policy_app(
     ``/info`` names it ``name`` (default: the policy's ``name`` attribute, else its class) at ``version``
     (default: the policy's ``version`` attribute, else "0"): what ``robobpp evaluate`` and ``compare`` label
     its results with."""
-    if isinstance(policy, type):
-        policy = policy()
-    if not callable(getattr(policy, "act", None)):
-        raise TypeError(f"{type(policy).__name__} has no act(observation) method")
-    shown_name = str(name or getattr(policy, "name", None) or type(policy).__name__)[: P.MAX_TEXT]
-    version = str(version or getattr(policy, "version", None) or P.UNREPORTED_VERSION)[: P.MAX_TEXT]
+    served: Policy = policy() if isinstance(policy, type) else policy
+    if not callable(getattr(served, "act", None)):
+        raise TypeError(f"{type(served).__name__} has no act(observation) method")
+    shown_name = str(name or getattr(served, "name", None) or type(served).__name__)[: P.MAX_TEXT]
+    version = str(version or getattr(served, "version", None) or P.UNREPORTED_VERSION)[: P.MAX_TEXT]
     info = {"protocol": P.PROTOCOL, "name": shown_name, "version": version}
     # Per episode: its container (from /reset) and its last observation (for the incremental heightmap).
     episodes: OrderedDict[str, tuple[ContainerSpec, Observation | None]] = OrderedDict()
@@ -125,7 +124,7 @@ def create_policy_app(
         return Response(body, media_type="application/json", headers=headers)
 
     def call_hook(hook: str, *args: object) -> Response | None:
-        method = getattr(policy, hook, None)
+        method = getattr(served, hook, None)
         if not callable(method):
             return None
         try:
@@ -163,7 +162,7 @@ def create_policy_app(
         remember(req.episode_id, obs.container, obs)
         started = time.perf_counter()
         try:
-            action = policy.act(obs)
+            action = served.act(obs)
         except Exception as exc:  # noqa: BLE001
             return _error(500, "policy_error", f"act raised {type(exc).__name__}: {exc}")
         elapsed = time.perf_counter() - started

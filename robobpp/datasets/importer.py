@@ -217,7 +217,8 @@ def convert(wheel: Path, target: Path, wheel_sha256: str | None, notify: Notify)
             notify(f"converting {dataset}")
             arrays, facts = converter(files)
             filename = f"{dataset}.npz"
-            np.savez_compressed(build / filename, **arrays)
+            # numpy's stub types **kwds as if a key could be its allow_pickle flag; every value is an array
+            np.savez_compressed(build / filename, **arrays)  # type: ignore[arg-type]
             split = arrays["split"]
             facts |= {s: int((split == code).sum()) for s, code in SPLIT_CODES.items()}
             manifest["datasets"][dataset] = facts

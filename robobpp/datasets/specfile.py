@@ -148,7 +148,7 @@ def read_csv(
     try:
         with path.open(newline="", encoding="utf-8") as fh:
             rows = list(csv.DictReader(fh))
-            header = rows and list(rows[0]) or []
+            header = list(rows[0]) if rows else []
     except OSError as exc:
         raise SpecFileError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     missing = {"group", "length", "width", "height"} - set(header)

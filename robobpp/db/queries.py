@@ -501,7 +501,7 @@ def participant_summaries(session: Session) -> list[ParticipantSummary]:
 
 
 @functools.cache
-def _participants_statement() -> Select[Any]:
+def _participants_statement() -> Select[int, str, bool, datetime, int, int]:  # a ParticipantSummary
     tokens = (
         select(ApiToken.participant_id, func.count().label("n"))
         .where(ApiToken.revoked_at.is_(None))

@@ -131,5 +131,6 @@ def _mean_episode_s(session: Session) -> float | None:
         .order_by(EpisodeRow.id.desc())
         .limit(RECENT_EPISODES)
     )
-    spans = [(f - s).total_seconds() for s, f in session.execute(recent)]
+    # the statement leaves out unset times; the check says so to the type checker
+    spans = [(f - s).total_seconds() for s, f in session.execute(recent) if s is not None and f is not None]
     return sum(spans) / len(spans) if spans else None

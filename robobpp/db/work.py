@@ -18,9 +18,9 @@ import os
 import secrets
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Any
+from typing import Any, cast
 
-from sqlalchemy import and_, func, insert, or_, select, update
+from sqlalchemy import CursorResult, Result, and_, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
@@ -492,7 +492,7 @@ def _claim_one(
             )
             .execution_options(synchronize_session=False)
         )
-        if claimed.rowcount == 1:
+        if _rowcount(claimed) == 1:
             ep = session.get(EpisodeRow, row.id, populate_existing=True)
             assert ep is not None
             sub = session.get(Submission, ep.submission_id)
@@ -519,6 +519,12 @@ def _claim_one(
     return None
 
 
+def _rowcount(result: Result[Any]) -> int:
+    """The rows an UPDATE matched (``Session.execute`` is typed as a plain ``Result``; an UPDATE's is a
+    ``CursorResult``)."""
+    return cast(CursorResult[Any], result).rowcount
+
+
 def heartbeat(
     session: Session, episode_id: int, token: str, *, lease_s: float, step: int, now: datetime | None = None
 ) -> bool:
@@ -530,7 +536,7 @@ def heartbeat(
         .values(lease_expires_at=now + timedelta(seconds=lease_s), step=step)
         .execution_options(synchronize_session=False)
     )
-    return result.rowcount == 1
+    return _rowcount(result) == 1
 
 
 def episode_plan(session: Session, episode_id: int) -> dict[str, Any] | None:
@@ -578,7 +584,7 @@ def complete_episode(
         .values(**values)
         .execution_options(synchronize_session=False)
     )
-    if done.rowcount != 1:
+    if _rowcount(done) != 1:
         return False
     run_id = session.execute(select(EpisodeRow.run_id).where(EpisodeRow.id == episode_id)).scalar_one()
     finalize_run(session, run_id)

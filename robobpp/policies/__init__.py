@@ -86,8 +86,8 @@ def load_policy(name: str, **kwargs: object) -> Policy:
         if not callable(getattr(policy, hook, None)):
             setattr(policy, hook, lambda *_a, **_k: None)
     if not getattr(policy, "name", None):
-        policy.name = name  # type: ignore[attr-defined]
-    return policy  # type: ignore[return-value]
+        policy.name = name
+    return policy
 
 
 __all__ = [

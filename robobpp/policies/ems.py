@@ -20,6 +20,7 @@ scratch. Coordinates are 1 cm cells (integers); ``z0`` is a float.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -88,7 +89,8 @@ def _contained(
     own = np.arange(len(new_z))[:, None] + offset
     later_or_self = np.arange(len(all_z))[None, :] >= own
     inside &= ~(equal & later_or_self)  # an equal copy only counts if it comes earlier
-    return inside.any(axis=1)
+    # numpy types any(axis=...) as possibly a scalar (a 1-D input); a 2-D input gives one flag per row
+    return cast(np.ndarray, inside.any(axis=1))
 
 
 def cut(ems: EmsSet, obstacle: tuple[int, int, int, int, float]) -> EmsSet:

@@ -202,7 +202,8 @@ def _mark_best(
             best[key] = i
     chosen = sorted(best.values())
     ranks = competition_ranks([entries[i][score] for i in chosen])
-    low, high = stats.rank_interval(stats.rank_samples(samples(chosen))) if chosen else ([], [])
+    no_ranks = np.zeros(0, dtype=np.int64)
+    low, high = stats.rank_interval(stats.rank_samples(samples(chosen))) if chosen else (no_ranks, no_ranks)
     for e in entries:
         e["best"] = False
     for k, i in enumerate(chosen):
@@ -382,6 +383,7 @@ def _grid_means(
     # the samples are float32 (memory of a 10,000-entry cache): 6 decimals is their precision
     lo, hi, slo, shi = (np.round(a, 6) for a in (lo, hi, slo, shi))
     for i, r in enumerate(rows):
+        row_rank_ci = rank_ci[i]
         r.update(
             status="ranked",
             boards=len(keys),
@@ -392,8 +394,8 @@ def _grid_means(
             stable_low=float(slo[i]),
             stable_high=float(shi[i]),
             rank=ranks[i],
-            rank_low=None if rank_ci[i] is None else rank_ci[i][0],
-            rank_high=None if rank_ci[i] is None else rank_ci[i][1],
+            rank_low=None if row_rank_ci is None else row_rank_ci[0],
+            rank_high=None if row_rank_ci is None else row_rank_ci[1],
         )
     _mark_best(rows, lambda chosen: rel[:, chosen], score="mean")
 

@@ -263,8 +263,10 @@ def _points(metrics: Mapping[str, Any], keys: Sequence[str]) -> list[float]:
     out = []
     for key in keys:
         v = metrics.get(key)
-        ok = isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
-        out.append(float(v) if ok else np.nan)
+        if isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v):
+            out.append(float(v))
+        else:
+            out.append(np.nan)
     return out
 
 

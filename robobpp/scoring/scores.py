@@ -215,7 +215,8 @@ def score_board(
     relative = np.round(relative, 12)
     score_lo, score_hi = stats.interval(relative)
     stable_lo, stable_hi = stats.interval(stable)
-    rank_lo, rank_hi = stats.rank_interval(stats.rank_samples(relative)) if n else ([], [])
+    no_ranks = np.zeros(0, dtype=np.int64)
+    rank_lo, rank_hi = stats.rank_interval(stats.rank_samples(relative)) if n else (no_ranks, no_ranks)
     return BoardScores(
         scored=scored,
         score_ci=[(float(a), float(b)) for a, b in zip(score_lo, score_hi, strict=True)],

@@ -11,10 +11,10 @@ import importlib
 import logging
 import sys
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from fastapi import FastAPI, Request
 from fastapi.staticfiles import StaticFiles
@@ -25,7 +25,12 @@ from robobpp.server.headers import SecurityHeaders
 from robobpp.server.limits import BodySizeLimit
 from robobpp.server.prometheus import install_metrics
 
+if TYPE_CHECKING:  # both executors are imported only when the server starts one (Celery is slow to import)
+    from robobpp.worker.celery_executor import CeleryExecutor
+    from robobpp.worker.local import LocalExecutor
+
 log = logging.getLogger("robobpp.server")
+T = TypeVar("T")
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "web" / "static"
 
@@ -43,10 +48,10 @@ def _include_pages(app: FastAPI) -> None:
         app.include_router(router)
 
 
-def start_executor(settings: Settings) -> Any:
+def start_executor(settings: Settings) -> CeleryExecutor | LocalExecutor | None:
     """Start what runs the episodes: the Celery dispatcher when a broker is configured (the episodes run on
     Celery workers), else the local worker pool; ``None`` when there is neither."""
-    executor: Any  # the Celery dispatcher or the local pool: the same start/stop/alive surface
+    executor: CeleryExecutor | LocalExecutor
     if settings.broker_url:
         from robobpp.worker.celery_executor import executor_from_settings
 
@@ -173,7 +178,7 @@ def _include_docs(app: FastAPI) -> None:
         return HTMLResponse(bytes(page.body).decode().replace("<body>", "<body>" + bar, 1))
 
 
-async def _run_sync(fn, *args):  # type: ignore[no-untyped-def]
+async def _run_sync(fn: Callable[..., T], *args: Any) -> T:
     from starlette.concurrency import run_in_threadpool
 
     return await run_in_threadpool(fn, *args)

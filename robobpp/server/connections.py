@@ -58,11 +58,11 @@ def guarded_protocol(limits: ConnectionLimits) -> type[asyncio.Protocol]:
     table = _Table()
     base: Any = AutoHTTPProtocol
 
-    class Guarded(base):  # type: ignore[misc, valid-type]
+    class Guarded(base):
         _refused = False
         _header_timer: asyncio.TimerHandle | None = None
 
-        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        def connection_made(self, transport: asyncio.Transport) -> None:
             peer = transport.get_extra_info("peername")
             address = str(peer[0]) if isinstance(peer, tuple) and peer else ""
             table.prune()

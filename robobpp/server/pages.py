@@ -135,17 +135,17 @@ async def board_page(
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
-    protocol = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
+    served = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
 
     def build(session: Session) -> HTMLResponse:
         shown = board_view(
-            board_cache(request).board(session, dataset, setting, track, protocol),
+            board_cache(request).board(session, dataset, setting, track, served),
             view,
             tables.PAGE_SIZE,
             (page - 1) * tables.PAGE_SIZE,
         )
         title = f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}"
-        if protocol != "closed":
+        if served != "closed":
             title += " · paper protocol"
         return render(
             request,
@@ -161,7 +161,7 @@ async def board_page(
             top=tables.TOP,
             pages=tables.pages(shown, page),
             board=shown,
-            protocol=protocol,
+            protocol=served,
             has_physical=setting in PHYSICAL,
             other_boards=[
                 (d, s, f"{DATASETS[d].title} · {SETTING_TITLES[s]}")  # as the titles read
@@ -171,7 +171,7 @@ async def board_page(
         )
 
     return await _shared(
-        request, track, ("board-page", root(request), dataset, setting, track, view, page, protocol), build
+        request, track, ("board-page", root(request), dataset, setting, track, view, page, served), build
     )
 
 

@@ -87,7 +87,7 @@ def check_policy_url(url: str, *, allow_private: bool) -> CheckedURL:
         ) from None
     addresses = []
     for info in infos:
-        ip = ipaddress.ip_address(info[4][0].split("%")[0])
+        ip = ipaddress.ip_address(str(info[4][0]).split("%")[0])
         if ip not in addresses:
             addresses.append(ip)
     for ip in addresses:  # every answer must be acceptable: a mixed answer is a rebinding trick

@@ -6,6 +6,8 @@ users never load pybullet.
 
 from __future__ import annotations
 
+from typing import Any
+
 from robobpp.core import FinalBox
 from robobpp.extras import require
 from robobpp.sim.base import Setting, StepOutcome
@@ -29,20 +31,20 @@ def require_setting(name: str) -> None:
         require(package, extra, title)
 
 
-def make_setting(name: str, **options: object) -> Setting:
+def make_setting(name: str, **options: Any) -> Setting:
     """A fresh setting instance by name (``math``, ``physics`` or ``execution``)."""
     if name == "math":
         from robobpp.sim.math_pack import MathPack
 
-        return MathPack(**options)  # type: ignore[arg-type]
+        return MathPack(**options)
     if name == "physics":
         require_setting(name)
-        from robobpp.sim.physics import PhysicsPack  # type: ignore[attr-defined]
+        from robobpp.sim.physics import PhysicsPack
 
         return PhysicsPack(**options)
     if name == "execution":
         require_setting(name)
-        from robobpp.sim.execution import ExecutionPack  # type: ignore[attr-defined]
+        from robobpp.sim.execution import ExecutionPack
 
         return ExecutionPack(**options)
     raise ValueError(f"unknown setting {name!r}; expected one of {', '.join(SETTINGS)}")

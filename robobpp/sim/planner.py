@@ -30,6 +30,9 @@ from robobpp.sim.robot.facts import LOWER, UPPER
 from robobpp.sim.robot.kinematics import tcp_pose
 from robobpp.sim.robot.urdf import LINK_NAMES, TOOL_LINK, urdf_path
 
+#: A joint configuration, position or size: callers pass tuples, lists and numpy arrays alike.
+Vector = Sequence[float] | np.ndarray
+
 ou.setLogLevel(ou.LOG_WARN)
 
 #: Robot links whose contact with the carried box is the grasp itself, not a collision.
@@ -79,9 +82,9 @@ class PlanningWorld:
 
     def __init__(
         self,
-        base_position: Sequence[float],
+        base_position: Vector,
         base_yaw: float,
-        statics: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
+        statics: Sequence[tuple[Vector, Vector]] = (),
         config: PlannerConfig | None = None,
     ) -> None:
         """``statics``: (centre, half extents) of axis-aligned static scene boxes, metres."""
@@ -96,7 +99,7 @@ class PlanningWorld:
             shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(half), physicsClientId=cid)
             self.scene.append(p.createMultiBody(0, shape, -1, list(centre), physicsClientId=cid))
         self._obstacles: list[int] = []
-        self._obstacle_shapes: dict[tuple[float, float, float], int] = {}
+        self._obstacle_shapes: dict[tuple[float, ...], int] = {}
         self.carried: int | None = None
         self._carried_offset = np.zeros(3)
         self._carried_rot = np.eye(3)
@@ -114,17 +117,15 @@ class PlanningWorld:
             self.close()
 
     # -- scene -------------------------------------------------------------------------------------
-    def _shape(self, half: tuple[float, float, float]) -> int:
-        key = tuple(round(h, 6) for h in half)
-        shape = self._obstacle_shapes.get(key)  # type: ignore[arg-type]
+    def _shape(self, half: Vector) -> int:
+        key = tuple(round(float(h), 6) for h in half)
+        shape = self._obstacle_shapes.get(key)
         if shape is None:
             shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(key), physicsClientId=self.client)
-            self._obstacle_shapes[key] = shape  # type: ignore[index]
+            self._obstacle_shapes[key] = shape
         return shape
 
-    def set_obstacles(
-        self, boxes: Sequence[tuple[Sequence[float], Sequence[float], Sequence[float]]]
-    ) -> None:
+    def set_obstacles(self, boxes: Sequence[tuple[Vector, Vector, Vector]]) -> None:
         """Static copies of the placed boxes: (centre m, quaternion xyzw, half extents m) each, in order.
 
         Bodies are reused by position in the list; a changed size replaces the body.
@@ -139,18 +140,16 @@ class PlanningWorld:
                     continue
                 p.removeBody(body, physicsClientId=cid)
                 self._obstacles[i] = p.createMultiBody(
-                    0, self._shape(tuple(half)), -1, list(centre), list(quat), physicsClientId=cid
+                    0, self._shape(half), -1, list(centre), list(quat), physicsClientId=cid
                 )
             else:
                 self._obstacles.append(
-                    p.createMultiBody(
-                        0, self._shape(tuple(half)), -1, list(centre), list(quat), physicsClientId=cid
-                    )
+                    p.createMultiBody(0, self._shape(half), -1, list(centre), list(quat), physicsClientId=cid)
                 )
         while len(self._obstacles) > len(boxes):
             p.removeBody(self._obstacles.pop(), physicsClientId=cid)
 
-    def attach(self, half_extents: Sequence[float], offset: np.ndarray, rotation: np.ndarray) -> None:
+    def attach(self, half_extents: Vector, offset: np.ndarray, rotation: np.ndarray) -> None:
         """Carry a box: its centre at ``offset`` and its axes ``rotation`` in the TCP frame."""
         self.detach()
         shape = p.createCollisionShape(
@@ -167,7 +166,7 @@ class PlanningWorld:
             self.carried = None
 
     # -- checking ----------------------------------------------------------------------------------
-    def set_config(self, q: Sequence[float], tcp: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    def set_config(self, q: Vector, tcp: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Put the arm (and the carried box) at ``q``; ``tcp`` is the world TCP pose if already known."""
         cid = self.client
         for j in range(6):
@@ -185,7 +184,7 @@ class PlanningWorld:
             quat = _quaternion(rotation @ self._carried_rot)
             p.resetBasePositionAndOrientation(self.carried, centre.tolist(), quat, physicsClientId=cid)
 
-    def in_collision(self, q: Sequence[float]) -> bool:
+    def in_collision(self, q: Vector) -> bool:
         """Arm or carried box touching anything (beyond the tolerances) at ``q``. Counts against the budget.
 
         ``getContactPoints`` after ``performCollisionDetection`` reads Bullet's *persistent* contact

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 from robobpp.paper import PAPER_GROUPS
 from robobpp.scoring.boards import find_entry
@@ -59,7 +59,7 @@ def dense_top(values: Sequence[float | None], better: str, top: int = TOP) -> li
     return [best.index(v) + 1 if _finite(v) and v in best else None for v in values]
 
 
-def _finite(v: Any) -> bool:
+def _finite(v: Any) -> TypeGuard[float]:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
@@ -93,6 +93,14 @@ def metric_span(low: Any, high: Any, key: str) -> str:
     if not (_finite(low) and _finite(high)):
         return ""
     return f"{fmt_metric(low, key)}–{fmt_metric(high, key)}"
+
+
+def _bounds(interval: Sequence[float] | None) -> tuple[float | None, float | None]:
+    """An interval's (low, high), (None, None) when unknown; a pair, or a list once read back from JSON."""
+    if not interval:
+        return None, None
+    low, high = interval
+    return low, high
 
 
 def rank_span(rank: Any, low: Any, high: Any) -> str:
@@ -137,7 +145,7 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
                         "key": c.key,
                         "value": metrics.get(c.key),
                         "place": places[c.key][i],
-                        "ci": metric_span(*(intervals.get(c.key) or (None, None)), c.key),
+                        "ci": metric_span(*_bounds(intervals.get(c.key)), c.key),
                         "normalized": (e.get("normalized") or {}).get(c.key),
                     }
                     for c in columns
@@ -228,8 +236,8 @@ def radar_groups(
     (settings measure different metrics), one series per dataset of that setting."""
     groups: dict[str, dict[str, Any]] = {}
     for run in runs:
-        board = boards.get((run["dataset"], run["setting"]))
-        entry = find_entry(board or {}, submission_id)
+        board = boards.get((run["dataset"], run["setting"])) or {}
+        entry = find_entry(board, submission_id)
         if entry is None:
             continue
         keys = [m.key for m in metrics_for(run["setting"])]

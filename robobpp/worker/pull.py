@@ -20,12 +20,16 @@ import contextlib
 import socket
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 from websockets.sync.client import ClientConnection, connect
 
 from robobpp.client import frames, wire
+
+if TYPE_CHECKING:
+    import ssl
 
 #: Close codes of the relay (robobpp.server.api.pull; the worker does not import the server).
 GONE, REFUSED, NO_CLIENT, TOO_LARGE = 4001, 4003, 4004, 4009
@@ -97,7 +101,7 @@ class PullTransport:
                 proxy=None,
                 ping_interval=None,
                 user_agent_header="robobpp-worker",
-                **self._tls(),
+                ssl=self._tls(),
             )
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
             raise wire.ConnectFailed(f"cannot reach the pull relay at {self.url}: {exc}") from None
@@ -188,7 +192,7 @@ class PullTransport:
             code = exc.rcvd.code if exc.rcvd else None
             if code == TOO_LARGE or (exc.sent is not None and exc.sent.code == 1009):
                 raise wire.TooLarge("the client's answer passed the size cap") from None
-            if code == REFUSED:
+            if code == REFUSED and exc.rcvd is not None:
                 raise wire.ConnectionBroke(f"the pull relay ended the episode: {exc.rcvd.reason}") from None
             raise _ClientGone from None
         status = answer.envelope.get("status")
@@ -199,12 +203,12 @@ class PullTransport:
         self.last_exchange_s = time.perf_counter() - sent
         return wire.Answer(status, {k.lower(): v for k, v in answer.headers}, answer.body)
 
-    def _tls(self) -> dict[str, object]:
+    def _tls(self) -> ssl.SSLContext | None:
         if not self.url.startswith("wss://") or self.verify_tls:
-            return {}
+            return None
         import ssl
 
         context = ssl.create_default_context()
         context.check_hostname = False
         context.verify_mode = ssl.CERT_NONE
-        return {"ssl": context}
+        return context

@@ -85,7 +85,7 @@ def _pair_pull_client(policy: Any) -> None:
     """Pull mode: wait for the participant's client before the episode starts (raises ``NoClient``)."""
     transport = getattr(policy, "_connection", None)
     pair = getattr(transport, "pair", None)
-    if pair is not None:
+    if transport is not None and pair is not None:
         pair(transport.wait_s)
 
 

@@ -4,7 +4,7 @@ per-episode results. Another participant's submission answers 404, exactly like 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Annotated, Any, TypeVar
 
 from fastapi import APIRouter, Path, Query, Request, Response
@@ -55,7 +55,7 @@ T = TypeVar("T")
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 
 
-def _unique(values: list[str]) -> list[str]:
+def _unique(values: Sequence[str]) -> list[str]:
     return list(dict.fromkeys(values))
 
 
@@ -391,12 +391,13 @@ def _verify_one(session: Session, submission_id: int, settings: Settings) -> Sub
             "Cannot verify",
             f"only completed private-track submissions are verified (this one: {original.track}, {original.status})",
         )
-    if (original.verification or {}).get("status") == "running":
+    running = original.verification or {}
+    if running.get("status") == "running":
         raise ProblemError(
             409,
             "conflict",
             "Already verifying",
-            f"verification #{original.verification['submission_id']} is still running",
+            f"verification #{running['submission_id']} is still running",
         )
     checked = start_verification(session, original, settings.groups)
     session.refresh(checked)

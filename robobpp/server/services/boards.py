@@ -443,7 +443,7 @@ class BoardCache:
             if stored["key"] != _stored_key(self.database_url, self.datasets, self.settings, track):
                 log.info("ignoring %s: written for another version, database or set of boards", path)
                 return None
-            return stored  # type: ignore[no-any-return]
+            return stored
         except Exception:  # noqa: BLE001 - a damaged file costs a recomputation, never the start
             log.warning("ignoring %s: it does not load", path, exc_info=True)
             return None

@@ -79,7 +79,9 @@ def _participants_page(
 @lru_cache(maxsize=8)
 def _participants_table(base: str, rows: tuple[queries.ParticipantSummary, ...]) -> Markup:
     """Rendered once per state of the rows (a hundred participants cost more to render than to read)."""
-    return Markup(environment().get_template("_participants.html").module.participants_table(rows, base))
+    module = environment().get_template("_participants.html").module
+    # jinja2 sets a template's macros as attributes of its module at run time; its stubs cannot name them
+    return Markup(module.participants_table(rows, base))  # type: ignore[attr-defined]
 
 
 @router.get("/operator", response_class=HTMLResponse)

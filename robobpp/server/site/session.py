@@ -73,7 +73,7 @@ def viewer(request: Request) -> Viewer:
     if cached is not None:
         return cached
     data = _load(request)
-    nonce = data.get("n") if isinstance(data.get("n"), str) else ""
+    nonce = found if isinstance(found := data.get("n"), str) else ""
     found = Viewer(nonce=nonce)
     if isinstance(data.get("s"), int):
         with request.app.state.runtime.read_session() as session:

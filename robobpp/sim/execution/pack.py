@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 import pybullet as p
@@ -23,7 +24,7 @@ from robobpp.sim.execution import motion, recording
 from robobpp.sim.execution.layout import Layout
 from robobpp.sim.physics import PhysicsConfig, PhysicsPack
 from robobpp.sim.physics.world import CM, PALLET_HEIGHT_M, WorldBox
-from robobpp.sim.planner import MotionPlanner, PlannerConfig, PlanningWorld, quaternion
+from robobpp.sim.planner import MotionPlanner, PlannerConfig, PlanningWorld, Vector, quaternion
 from robobpp.sim.robot.facts import TOOL
 from robobpp.sim.robot.kinematics import joint_frames, rot, tcp_pose
 from robobpp.sim.robot.urdf import LINK_NAMES, urdf_path
@@ -171,7 +172,7 @@ class ExecutionPack(PhysicsPack):
         self.q = np.zeros(6)
         self.last_operation: Operation | None = None
         #: The replay's record of the current operation (``extra["motion"]``), when recording.
-        self.motion_record: dict[str, object] | None = None
+        self.motion_record: dict[str, Any] | None = None
         self._cell_recorded = False
         self._dangerous_count = 0
 
@@ -197,7 +198,7 @@ class ExecutionPack(PhysicsPack):
         p.createMultiBody(0, shape, -1, conveyor_centre.tolist(), physicsClientId=cid)
         length, width = spec.container.length * CM, spec.container.width * CM
         ground_half = 6.0
-        statics = [
+        statics: list[tuple[Vector, Vector]] = [
             (conveyor_centre, conveyor_half),
             # pallet (deck and its support, floor to deck top)
             ((length / 2, width / 2, layout.floor_z / 2), (length / 2, width / 2, -layout.floor_z / 2)),
@@ -248,7 +249,7 @@ class ExecutionPack(PhysicsPack):
             # Nothing moved: the box is not placed and the operation not counted (dangerous None).
             reasons = ", ".join(r for r in operation.reasons if r in PLACE_FAILURES)
             detail = f"the robot cannot place {box_label(index)} ({reasons})"
-            extra = {
+            extra: dict[str, object] = {
                 "plan_status": operation.plan_status,
                 "plan_checks": operation.plan_checks,
                 "planner_seed": operation.seed,
@@ -273,9 +274,9 @@ class ExecutionPack(PhysicsPack):
         self.q = self.layout.home
         self._set_arm(self.q)
         if self.recorder is not None and self.motion_record is not None:
-            self.recorder.begin(self.motion_record["grip"][1])  # type: ignore[index]
+            self.recorder.begin(self.motion_record["grip"][1])
         report = self.release_and_settle(planned, box.mass, disturbed)
-        extra: dict[str, object] = {
+        extra = {
             "execution_time_s": operation.execution_time_s,
             "plan_status": operation.plan_status,
             "plan_checks": operation.plan_checks,

@@ -241,7 +241,8 @@ class PhysicsPack(Setting):
             centre[2] - planned.height / 2,
         )
         if resolution > 0:
-            corner = tuple(round(round(c / resolution) * resolution, 6) for c in corner)
+            x, y, z = (round(round(c / resolution) * resolution, 6) for c in corner)
+            corner = (x, y, z)
         return Placement(
             *corner,
             planned.length,

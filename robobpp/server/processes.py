@@ -46,6 +46,12 @@ READY_TIMEOUT_S = 120.0
 
 def refusal(settings: Any, processes: int) -> str | None:
     """Why these settings cannot run ``processes`` API processes, or ``None`` when they can."""
+    if processes > 1 and not settings.pull_redis_url and settings.broker_url:
+        return (
+            f"--server-workers {processes} needs Redis, where the API processes' pull relays meet; the Celery "
+            f"broker ({settings.broker_url.split(':', 1)[0]}://) is not Redis and the relay speaks only Redis: "
+            "set ROBOBPP_PULL_BROKER_URL=redis://… for the relay"
+        )
     if processes > 1 and not settings.pull_redis_url:
         return (
             f"--server-workers {processes} needs Redis, where the API processes' pull relays meet (a worker's "

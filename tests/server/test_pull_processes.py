@@ -276,8 +276,20 @@ def test_the_worker_hears_gone_when_the_client_s_api_process_dies_and_resumes_on
             server.crash()
 
 
-def test_several_api_processes_without_redis_are_refused_with_the_reason(tmp_path: Path) -> None:
-    env = {**server_env(tmp_path, f"sqlite:///{tmp_path / 'x.sqlite3'}"), "PYTHONPATH": str(ROOT)}
+@pytest.mark.parametrize(
+    ("broker", "said"),
+    [
+        ("", "ROBOBPP_BROKER_URL=redis://… (Celery workers)"),
+        ("amqp://guest@127.0.0.1:5672//", "(amqp://) is not Redis"),
+    ],
+)
+def test_several_api_processes_without_redis_are_refused_with_the_reason(
+    tmp_path: Path, broker: str, said: str
+) -> None:
+    env = {
+        **server_env(tmp_path, f"sqlite:///{tmp_path / 'x.sqlite3'}", ROBOBPP_BROKER_URL=broker),
+        "PYTHONPATH": str(ROOT),
+    }
     done = subprocess.run(
         [sys.executable, "-m", "robobpp.cli", "serve", "--server-workers", "2", "--port", str(free_port())],
         env=env,
@@ -287,7 +299,11 @@ def test_several_api_processes_without_redis_are_refused_with_the_reason(tmp_pat
         timeout=60,
     )
     assert done.returncode == 2, done.stderr
-    assert "--server-workers 2 needs Redis" in done.stderr and "ROBOBPP_PULL_BROKER_URL" in done.stderr
+    assert (
+        "--server-workers 2 needs Redis" in done.stderr and "ROBOBPP_PULL_BROKER_URL=redis://" in done.stderr
+    )
+    assert said in done.stderr
+    assert not (tmp_path / "x.sqlite3").exists()  # refused before anything was written
 
 
 def _children(pid: int) -> list[int]:

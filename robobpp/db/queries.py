@@ -19,7 +19,7 @@ import hashlib
 import re
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timedelta
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypedDict
 
 from sqlalchemy import Select, and_, exists, func, or_, select
 from sqlalchemy.orm import Session, joinedload
@@ -559,7 +559,29 @@ def submissions_by_id(session: Session, ids: Sequence[int]) -> dict[int, Submiss
     return {s.id: s for s in session.execute(query).scalars()}
 
 
-def episode_summary(ep: EpisodeRow) -> dict[str, Any]:
+class EpisodeSummary(TypedDict):
+    """One episode as the API lists it and the pages show it (served as ``schemas.EpisodePublic``)."""
+
+    id: int
+    dataset: str
+    setting: str
+    protocol: str
+    split: str
+    group: int
+    status: str
+    attempts: int
+    step: int
+    termination: str | None
+    termination_detail: str | None
+    boxes_total: int | None
+    boxes_placed: int | None
+    metrics: dict[str, Any] | None
+    counters: dict[str, Any] | None
+    finished_at: datetime | None
+    has_trace: bool
+
+
+def episode_summary(ep: EpisodeRow) -> EpisodeSummary:
     return {
         "id": ep.id,
         "dataset": ep.dataset,
@@ -581,7 +603,7 @@ def episode_summary(ep: EpisodeRow) -> dict[str, Any]:
     }
 
 
-def episode_rows(session: Session, submission_id: int) -> list[dict[str, Any]]:
+def episode_rows(session: Session, submission_id: int) -> list[EpisodeSummary]:
     rows = session.execute(
         select(EpisodeRow).where(EpisodeRow.submission_id == submission_id).order_by(EpisodeRow.id)
     ).scalars()

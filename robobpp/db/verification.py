@@ -4,10 +4,12 @@ Every private-track submission plays the same groups of the private split, and a
 box it is shown, so a participant can record the groups and tune to them. A top entry can therefore be
 re-evaluated on the *hold-out* draw: groups drawn from the same private pool with a second secret seed,
 which no submission ever plays except these verifications. The verification is an ordinary submission
-with track ``verify`` (never on a board) pointing at the original (``verifies_id``); when it finishes,
-:func:`record_verdict` compares the two per leaderboard and writes the verdict on the original, where the
-API (and the pages) show it: ``verified`` when every board's result agrees within the two intervals,
-``disagrees`` when one does not — the signature of a policy tuned to the played groups.
+with track ``verify`` (never on a board) pointing at the original (``verifies_id``), started by the operator
+(``robobpp.server.services.verification``); when it finishes, :func:`record_verdict` (called by the run
+completion in :mod:`robobpp.db.work`, which this module never imports) compares the two per leaderboard and
+writes the verdict on the original, where the API (and the pages) show it: ``verified`` when every board's
+result agrees within the two intervals, ``disagrees`` when one does not — the signature of a policy tuned to
+the played groups.
 
 The compared figure is the run's space utilisation (the geometric metric every setting has) with the
 board's own 95 % interval: the seeded bootstrap over groups of :mod:`robobpp.scoring.stats`, applied to each run
@@ -44,34 +46,6 @@ def interval(values: list[float]) -> dict[str, float]:
 def agree(a: dict[str, float], b: dict[str, float]) -> bool:
     """Two results agree when their intervals overlap."""
     return a["low"] <= b["high"] and b["low"] <= a["high"]
-
-
-def start_verification(session: Session, original: Submission, groups: int) -> Submission:
-    """Queue the re-evaluation of ``original`` on the hold-out draw; the original shows it as running.
-
-    It runs in the original's mode: a pull submission's verification is a pull submission too, served when
-    the participant's client joins it (``robobpp connect --submission ID``); as a push job its URL would be
-    the placeholder ``pull:`` and every episode would fail."""
-    from robobpp.db import work
-
-    verify = work.create_submission(
-        session,
-        original.participant,
-        name=original.name[:80],
-        policy_url=original.policy_url,
-        secret=original.secret,
-        pinned_ip=original.pinned_ip,
-        datasets=list(original.datasets),
-        settings=list(original.settings),
-        groups=groups,
-        track="verify",
-        lookahead=original.lookahead,
-        mode=original.mode,
-    )
-    verify.verifies_id = original.id
-    original.verification = {"status": "running", "submission_id": verify.id}
-    session.flush()
-    return verify
 
 
 def run_interval(session: Session, submission_id: int, dataset: str, setting: str) -> dict[str, Any] | None:

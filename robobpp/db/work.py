@@ -24,6 +24,7 @@ from sqlalchemy import CursorResult, Result, and_, func, insert, or_, select, up
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
+from robobpp.db.verification import record_verdict
 from robobpp.provenance import environment, merge, merged
 from robobpp.scoring.entries import part_of_run
 from robobpp.scoring.metrics import PHYSICAL, aggregate
@@ -725,8 +726,6 @@ def _finalize_submission(session: Session, submission_id: int, now: datetime) ->
             sub.error = f"more than {share} of the episodes ended in a policy failure on {', '.join(failing)}"
     sub.finished_at = now
     if sub.verifies_id is not None:  # a verification: its verdict goes onto the verified submission
-        from robobpp.db.verification import record_verdict
-
         record_verdict(session, sub)
 
 

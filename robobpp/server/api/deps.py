@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hmac
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from typing import Annotated, TypeVar
 
 from fastapi import Depends, Request
@@ -13,8 +12,8 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from robobpp.db import queries
-from robobpp.db.models import Participant
 from robobpp.server.config import Settings
+from robobpp.server.principal import Principal
 from robobpp.server.problems import ProblemError
 from robobpp.server.ratelimit import FailureLimit, client_address
 
@@ -39,20 +38,6 @@ def get_session(request: Request) -> Iterator[Session]:
 
 SessionDep = Annotated[Session, Depends(get_session)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
-
-
-@dataclass(slots=True)
-class Principal:
-    """Who is calling: a participant, or the operator holding the admin token."""
-
-    participant: Participant | None
-    admin: bool = False
-    #: The API token's row id (participants only): the pages' signed session names it, never the token.
-    token_id: int | None = None
-
-    @property
-    def participant_id(self) -> int | None:
-        return self.participant.id if self.participant else None
 
 
 def _unauthorized(detail: str) -> ProblemError:

@@ -13,9 +13,11 @@ from starlette.concurrency import run_in_threadpool
 from robobpp.db import queries
 from robobpp.db.models import ApiToken, Participant, utcnow
 from robobpp.schemas import Me, ParticipantCreate, ParticipantPublic, TokenCreated, TokenPublic
-from robobpp.server.api.deps import AdminDep, Principal, PrincipalDep, SessionDep, SettingsDep
+from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, SettingsDep
 from robobpp.server.config import Settings
+from robobpp.server.principal import Principal
 from robobpp.server.problems import ProblemError
+from robobpp.server.services import admission
 
 router = APIRouter(tags=["participants"])
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
@@ -78,16 +80,10 @@ def me_of(session: Session, principal: Principal, settings: Settings) -> Me:
     """Who ``principal`` is and its quota use (the API's /me and the account page)."""
     if principal.participant is None:
         return Me(admin=principal.admin, participant=None)
-    day, active = queries.quota_usage(session, principal.participant.id)
     return Me(
         admin=principal.admin,
         participant=ParticipantPublic.model_validate(principal.participant, from_attributes=True),
-        quota={
-            "submissions_today": day,
-            "submissions_per_day": settings.quota_submissions_per_day,
-            "active": active,
-            "concurrent": settings.quota_concurrent,
-        },
+        quota=admission.quota_use(session, principal.participant.id, settings),
     )
 
 

@@ -20,7 +20,12 @@ from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TypeVar
 
+from sqlalchemy.orm import Session
+
+from robobpp.db import queries
 from robobpp.db.models import Submission
+from robobpp.schemas import SubmissionPublic
+from robobpp.server.principal import Principal
 
 T = TypeVar("T")
 FINISHED = ("completed", "failed", "cancelled")
@@ -91,3 +96,40 @@ def finished_views(state: Any) -> FinishedViews:
     if views is None:
         views = state.finished_views = FinishedViews()
     return views
+
+
+def listed_forms(
+    views: FinishedViews,
+    session: Session,
+    owner: int | None,
+    limit: int,
+    offset: int,
+    kind: tuple[Any, ...],
+    build: Callable[[dict[str, Any]], T],
+) -> list[T]:
+    """A page of submissions (newest first; ``owner``'s, or everyone's) as served forms, each ``build``
+    from its :func:`queries.submission_view` and kept in ``views`` under ``kind``.
+
+    The page's keys first (a few columns, no objects) and the episode counts of those not finished (one
+    aggregate): what tells whether a form built before is still current. Only the submissions without one
+    are then read whole, with their runs and progress (one query each, not two per submission)."""
+    keys = queries.list_submission_keys(session, owner, limit=limit, offset=offset)
+    counts = queries.waiting_counts(session, keys)
+
+    def build_missing(missing: list[int]) -> list[T]:
+        subs = queries.submissions_by_id(session, missing)
+        progress = queries.submissions_progress(session, missing, counts)
+        runs = queries.runs_of(session, missing)
+        return [
+            build(queries.submission_view(session, subs[i], progress.get(i), runs.get(i))) for i in missing
+        ]
+
+    return views.get_many(kind, keys, build_missing, counts)
+
+
+def submission_models(
+    views: FinishedViews, session: Session, principal: Principal, limit: int = 50, offset: int = 0
+) -> list[SubmissionPublic]:
+    """The listed submissions as models (the account pages); see :func:`listed_forms`."""
+    owner = None if principal.admin else principal.participant_id
+    return listed_forms(views, session, owner, limit, offset, ("model",), SubmissionPublic.model_validate)

@@ -19,9 +19,10 @@ from robobpp.db.models import Participant
 from robobpp.schemas import SubmissionCreate
 from robobpp.server.api import participants as api_participants
 from robobpp.server.api import submissions as api_submissions
-from robobpp.server.api.deps import Principal, auth_refused_for, principal_for_token
+from robobpp.server.api.deps import auth_refused_for, principal_for_token
+from robobpp.server.principal import Principal
 from robobpp.server.problems import ProblemError
-from robobpp.server.services.submissions import finished_views
+from robobpp.server.services.submissions import finished_views, submission_models
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import not_found, redirect, refused, render
 from robobpp.server.site.session import Viewer, load_viewer, viewer
@@ -134,7 +135,7 @@ def account_page(request: Request, page: Page = 1) -> Response:
     with request.app.state.runtime.read_session() as session:
         me = api_participants.me_of(session, principal, settings)
         # one more than a page: whether a next page exists, without counting every submission
-        subs = api_submissions.submission_models(
+        subs = submission_models(
             finished_views(request.app.state),
             session,
             principal,

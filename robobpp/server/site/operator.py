@@ -18,10 +18,9 @@ from robobpp.db import queries
 from robobpp.db.models import Participant
 from robobpp.schemas import ParticipantCreate, TokenCreated
 from robobpp.server.api import participants as api_participants
-from robobpp.server.api import submissions as api_submissions
-from robobpp.server.api.deps import Principal
+from robobpp.server.principal import Principal
 from robobpp.server.problems import ProblemError
-from robobpp.server.services.submissions import finished_views
+from robobpp.server.services.submissions import finished_views, submission_models
 from robobpp.server.site import session as web_session
 from robobpp.server.site.account import ACCOUNT_PAGE_SIZE, BAD_CSRF, Page, Text, problem_page, problem_text
 from robobpp.server.site.render import not_found, redirect, refused, render, root
@@ -119,7 +118,7 @@ def _participant_page(
             return not_found(request, f"There is no participant {participant_id}.")
         tokens = api_participants.list_tokens(session, ADMIN, participant_id=participant_id)
         # one more than a page: whether an older page exists, without counting every submission
-        subs = api_submissions.submission_models(
+        subs = submission_models(
             finished_views(request.app.state),
             session,
             Principal(participant, admin=False),

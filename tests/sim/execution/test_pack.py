@@ -86,6 +86,41 @@ def test_enclosed_goal_ends_the_episode_as_a_failed_place_plan() -> None:
     assert "no_path:goal_invalid" in outcome.extra["dangerous_reasons"]
 
 
+def test_approximate_plans_accept_an_enclosed_goal_and_count_it_dangerous_once_the_search_would_overrun() -> (
+    None
+):
+    # The same enclosed slot with the reference's planner rule: its search returns an approximate path (the
+    # pre-place pose in collision), accepted; the robot stops short and the box is put at its target. The
+    # operation is dangerous only from the placement where the reference's time limit (10 s + 1 s per placed
+    # box) reaches its 15 s threshold, the sixth; then the robot moves unchecked as with the default rule.
+    wall, slot = (Box(134, 50, 95, 30.0), Action(0, 75, 0)), (Box(20, 15, 10, 1.0), Action(57, 58, 0))
+    fillers = [(Box(20, 20, 10, 1.0), Action(5 + 25 * i, 5, 0)) for i in range(4)]
+    early = [wall, slot]
+    late = [wall, *fillers, slot]
+    pack = ExecutionPack(approximate_plans=True)
+    try:
+        outcomes = _run(pack, [b for b, _ in early], [a for _, a in early])
+        wall_after = pack.final_boxes()[0]
+        late_outcomes = _run(pack, [b for b, _ in late], [a for _, a in late])
+    finally:
+        pack.close()
+    accepted = outcomes[1]
+    assert accepted.termination is None and accepted.placement is not None
+    assert accepted.dangerous is False and accepted.extra["plan_status"] == "approximate:goal_invalid"
+    assert abs(accepted.placement.x - 57) < 1 and abs(accepted.placement.y - 58) < 1
+    # Nothing was driven into the wall: it stands where it was placed.
+    assert (
+        abs(wall_after.actual.x - wall_after.planned.x) < 0.5
+        and abs(wall_after.actual.y - wall_after.planned.y) < 0.5
+    )
+    overrun = late_outcomes[-1]
+    assert [o.termination for o in late_outcomes[:-1]] == [None] * (len(late) - 1)
+    # Not a failed place plan: the unchecked move goes through the wall (which may then collapse).
+    assert overrun.termination is None or overrun.termination.reason == "collapse"
+    assert overrun.dangerous is True and "no_path:goal_invalid" in overrun.extra["dangerous_reasons"]
+    assert all(o.dangerous is False for o in late_outcomes[:-1])
+
+
 def test_unreachable_goal_ends_the_episode() -> None:
     layout = Layout(CONTAINER, floor_z=-PALLET_HEIGHT_M, standoff=3.0)  # pallet out of the arm's reach
     pack = ExecutionPack(layout=layout)

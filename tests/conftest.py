@@ -15,6 +15,10 @@ import pytest
 from robobpp.core import Box, ContainerSpec, EpisodeSpec
 from robobpp.datasets.importer import fetch
 
+# The board worker runs as a thread of the server under test (services/board_worker.py): a spawned process per
+# app would cost each test a second's start-up; tests/server/test_board_publishing.py runs the process mode.
+os.environ.setdefault("ROBOBPP_BOARD_WORKER", "thread")
+
 
 def make_spec(
     boxes: list[tuple[float, float, float]] | list[Box],

@@ -133,6 +133,32 @@ def db_upgrade(revision: Annotated[str, typer.Argument(help="Target revision")] 
     typer.echo(f"database at {engine.url.render_as_string(hide_password=True)} is at revision {revision}")
 
 
+@db_app.command("refresh-boards")
+def db_refresh_boards(
+    track: Annotated[str | None, typer.Option(help="Only this track (private or public)")] = None,
+) -> None:
+    """Ask the board worker to recompute the boards although no submission finished (the published boards
+    stay served until it has)."""
+    from pydantic import ValidationError
+
+    from robobpp.cli.common import fail, settings_problem
+    from robobpp.db.session import make_engine, make_session_factory, transaction
+    from robobpp.server.config import Settings
+    from robobpp.server.services.board_worker import request_recompute
+
+    try:
+        settings = Settings()
+    except (ValidationError, ValueError) as exc:
+        fail(f"invalid settings: {settings_problem(exc)}")
+    engine = make_engine(settings.sqlalchemy_url)
+    try:
+        with transaction(make_session_factory(engine)) as session:
+            marked = request_recompute(session, track)
+    finally:
+        engine.dispose()
+    typer.echo(f"asked the board worker to recompute {marked} track(s)")
+
+
 def register(root: typer.Typer) -> None:
     root.command("serve")(serve)
     root.add_typer(db_app, name="db")

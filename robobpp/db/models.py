@@ -10,7 +10,18 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import JSON, DateTime, ForeignKey, Index, Integer, LargeBinary, String, Text, UniqueConstraint
+from sqlalchemy import (
+    JSON,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+    UniqueConstraint,
+)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 from sqlalchemy.types import TypeDecorator
 
@@ -218,3 +229,41 @@ class EpisodeRow(Base):
     #: Every track has one (a private episode keeps no trace); never served.
     plan: Mapped[dict[str, Any] | None] = mapped_column(default=None, deferred=True)
     error: Mapped[str | None] = mapped_column(Text, default=None)
+
+
+class BoardPublication(Base):
+    """A track's published boards (services/boards.py): which version of each board readers serve, and the
+    lease of the one board worker that computes the next (docs/server.md, "How boards are published")."""
+
+    __tablename__ = "board_publications"
+
+    track: Mapped[str] = mapped_column(String(16), primary_key=True)
+    #: Bumped on every publication; readers key what they cache by it.
+    version: Mapped[int] = mapped_column(default=0)
+    #: ``services.boards.board_source`` when they were computed (the data's version and the code's); None asks
+    #: the board worker to recompute (``robobpp db refresh-boards``).
+    source: Mapped[list[Any] | None] = mapped_column(default=None)
+    #: Board key (``repetitive/math/closed``, ``grid/closed``) -> [its parts' version, digest of its parts].
+    boards: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    #: Wall time of the last publication (computation and writing).
+    seconds: Mapped[float] = mapped_column(Float, default=0.0)
+    published_at: Mapped[datetime | None] = mapped_column(default=None)
+    #: The board worker computing this track's next version, and until when its claim holds.
+    holder: Mapped[str | None] = mapped_column(String(64), default=None)
+    lease_until: Mapped[datetime | None] = mapped_column(default=None)
+
+
+class BoardPart(Base):
+    """One pre-serialised part of a published board: its head, a chunk of a view's entries, or its
+    submission index. Read by (track, board, version, part), never scanned."""
+
+    __tablename__ = "board_parts"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    track: Mapped[str] = mapped_column(String(16))
+    board: Mapped[str] = mapped_column(String(64))
+    version: Mapped[int] = mapped_column()
+    part: Mapped[str] = mapped_column(String(32))
+    body: Mapped[bytes] = mapped_column(LargeBinary)
+
+    __table_args__ = (UniqueConstraint("track", "board", "version", "part", name="uq_board_parts_key"),)

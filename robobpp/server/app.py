@@ -10,7 +10,6 @@ from __future__ import annotations
 import importlib
 import logging
 import sys
-import threading
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -26,11 +25,15 @@ from robobpp.server.limits import BodySizeLimit
 from robobpp.server.prometheus import install_metrics
 
 if TYPE_CHECKING:  # both executors are imported only when the server starts one (Celery is slow to import)
+    from robobpp.server.runtime import Runtime
+    from robobpp.server.services.board_worker import BoardWorker, WorkerProcess
     from robobpp.worker.celery_executor import CeleryExecutor
     from robobpp.worker.local import LocalExecutor
 
 log = logging.getLogger("robobpp.server")
 T = TypeVar("T")
+#: How long a starting server waits for its board worker's first publication when the database has none.
+FIRST_PUBLICATION_S = 60.0
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "web" / "static"
 
@@ -95,11 +98,14 @@ def create_app(
             await _run_sync(bootstrap, runtime)
         from robobpp.server.api.leaderboards import make_board_cache
 
-        board_cache = app.state.board_cache = make_board_cache(runtime)
-        # the boards stored before a restart, served until recomputed (services/boards.py)
-        await _run_sync(board_cache.load_stored)
-        # large tracks' boards computed now, in the background, not by the first readers
-        threading.Thread(target=board_cache.warm, daemon=True, name="board-warm").start()
+        # the boards are computed by one board worker per deployment and published in SQL; this process
+        # reads them (services/boards.py, services/board_worker.py)
+        board_worker = app.state.board_worker = start_board_worker(runtime)
+        if board_worker is not None:
+            from robobpp.server.services.board_worker import await_first_publication
+
+            await _run_sync(await_first_publication, runtime.read_session, FIRST_PUBLICATION_S)
+        app.state.board_cache = make_board_cache(runtime, board_worker.wake if board_worker else None)
         executor = start_executor(settings) if run_workers else None
         if (
             executor is not None
@@ -114,7 +120,8 @@ def create_app(
             hub = getattr(app.state, "pull_hub", None)
             if hub is not None:  # the relay's bus (its Redis subscription, when it has one)
                 await hub.bus.close()
-            board_cache.close()
+            if board_worker is not None:
+                await _run_sync(board_worker.stop)
             runtime.dispose()
 
     app = FastAPI(
@@ -182,3 +189,27 @@ async def _run_sync(fn: Callable[..., T], *args: Any) -> T:
     from starlette.concurrency import run_in_threadpool
 
     return await run_in_threadpool(fn, *args)
+
+
+def start_board_worker(runtime: Runtime) -> BoardWorker | WorkerProcess | None:
+    """This process's candidate board worker (``ROBOBPP_BOARD_WORKER``), started: of all candidates of a
+    deployment, the one that claims a track's publication computes it (services/board_worker.py)."""
+    from robobpp.server.services.board_worker import BoardPublisher, BoardWorker, WorkerProcess
+
+    settings = runtime.settings
+    boards = (tuple(settings.datasets), tuple(settings.enabled_settings))
+    worker: BoardWorker | WorkerProcess
+    if settings.board_worker == "process":
+        worker = WorkerProcess(
+            settings.sqlalchemy_url, *boards, poll_s=settings.board_poll_s, full_s=settings.board_full_s
+        )
+    elif settings.board_worker == "thread":
+        worker = BoardWorker(
+            BoardPublisher(runtime.read_session, runtime.session, *boards),
+            poll_s=settings.board_poll_s,
+            full_s=settings.board_full_s,
+        )
+    else:
+        return None
+    worker.start()
+    return worker

@@ -23,11 +23,12 @@ from robobpp.datasets import DATASETS
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
-from robobpp.scoring.boards import board_view, find_entry, grid_view
 from robobpp.scoring.metrics import METRICS, PHYSICAL
 from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body
+from robobpp.server.problems import ProblemError
+from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root
@@ -46,6 +47,7 @@ DatasetPath = Annotated[str, Path(max_length=32)]
 SettingPath = Annotated[str, Path(max_length=16)]
 #: Termination reasons that are not the policy's fault or are plain endings, for colouring badges.
 NEUTRAL_ENDINGS = {"completed", "no_feasible_placement", "too_high"}
+NOT_READY = "The boards are being computed for the first time; this page will show them in a moment."
 EXTRA_REASONS = {
     "worker_lost": "no worker could finish the episode",
     "evaluation_error": "the service could not run the episode",
@@ -71,13 +73,8 @@ async def overall_page(
 ):
     datasets, setting_names = _board_names(settings)
 
-    def build(session: Session) -> HTMLResponse:
-        shown = grid_view(
-            board_cache(request).grid(session, datasets, setting_names, track, protocol),
-            view,
-            tables.PAGE_SIZE,
-            (page - 1) * tables.PAGE_SIZE,
-        )
+    def build(cache: BoardCache) -> HTMLResponse:
+        shown = cache.grid_page(track, protocol, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
         return render(
             request,
             "index.html",
@@ -93,19 +90,32 @@ async def overall_page(
             has_physical=bool(set(setting_names) & set(PHYSICAL)),
         )
 
-    return await _shared(request, track, ("home", root(request), track, view, page, protocol), build)
+    return await _shared(
+        request, track, grid_key(protocol), ("home", root(request), track, view, page, protocol), build
+    )
 
 
 async def _shared(
-    request: Request, track: str, key: tuple[Any, ...], build: Callable[[Session], HTMLResponse]
+    request: Request,
+    track: str,
+    board: str | None,
+    key: tuple[Any, ...],
+    build: Callable[[BoardCache], HTMLResponse],
 ) -> HTMLResponse:
-    """An anonymous visitor's board page, rendered once per board version and shared by every such reader
-    (services/boards.py; answered on the event loop while current); a page naming its viewer or carrying a
-    CSRF nonce is rendered for that viewer, in a worker thread."""
+    """An anonymous visitor's board page, rendered once per version of ``board`` and shared by every such
+    reader (services/boards.py; answered on the event loop while current); a page naming its viewer or
+    carrying a CSRF nonce is rendered for that viewer, in a worker thread."""
     who = viewer(request)
-    if who.signed_in or who.nonce:
-        return await in_read_session(request, build)
-    return HTMLResponse(await cached_body(request, track, key, lambda s: bytes(build(s).body)))
+    try:
+        if who.signed_in or who.nonce:
+            return await run_in_threadpool(build, board_cache(request))
+        return HTMLResponse(await cached_body(request, track, board, key, lambda c: bytes(build(c).body)))
+    except (BoardsUnavailable, ProblemError):
+        page = render(
+            request, "error.html", 503, title="Boards not ready", nav="leaderboard", message=NOT_READY
+        )
+        page.headers["Retry-After"] = "2"
+        return page
 
 
 async def _static(request: Request, key: tuple[Any, ...], build: Callable[[], HTMLResponse]) -> HTMLResponse:
@@ -137,12 +147,9 @@ async def board_page(
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
     served = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
 
-    def build(session: Session) -> HTMLResponse:
-        shown = board_view(
-            board_cache(request).board(session, dataset, setting, track, served),
-            view,
-            tables.PAGE_SIZE,
-            (page - 1) * tables.PAGE_SIZE,
+    def build(cache: BoardCache) -> HTMLResponse:
+        shown = cache.board_page(
+            dataset, setting, track, served, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE
         )
         title = f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}"
         if served != "closed":
@@ -171,7 +178,11 @@ async def board_page(
         )
 
     return await _shared(
-        request, track, ("board-page", root(request), dataset, setting, track, view, page, served), build
+        request,
+        track,
+        board_key(dataset, setting, served),
+        ("board-page", root(request), dataset, setting, track, view, page, served),
+        build,
     )
 
 
@@ -214,18 +225,18 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
     owner = _is_owner(viewer(request), sub)
     view = _page_view(request, session, sub, owner)
     cache = board_cache(request)
-    boards = {
-        (r["dataset"], r["setting"], r["protocol"]): cache.board(
-            session, r["dataset"], r["setting"], sub.track, r["protocol"]
-        )
-        for r in view["runs"]
-        if r["status"] == "completed"
-    }
-    ranks = {}
-    for key, board in boards.items():
-        entry = find_entry(board, sub.id)
+    ranks, entries = {}, {}
+    for r in view["runs"]:
+        if r["status"] != "completed":
+            continue
+        key = (r["dataset"], r["setting"], r["protocol"])
+        try:
+            entry, of = cache.ranked_entry(r["dataset"], r["setting"], sub.track, r["protocol"], sub.id)
+        except BoardsUnavailable:  # not published yet (a fresh server): the page shows no rank
+            continue
         if entry is not None:
-            ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": len(board["entries"])}
+            ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": of}
+            entries[key] = (entry, of)
     closed = [r for r in view["runs"] if r["protocol"] == "closed"]  # the radar: the benchmark's boards
     # the results table lists a paper-protocol run right under its closed-loop run
     place = {(r["dataset"], r["setting"]): i for i, r in enumerate(closed)}
@@ -264,8 +275,8 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
         return Markup(html), tables.histogram([u for u in utilisation if u is not None])
 
     table, histogram = views.get(("page-episodes", owner, public, root(request)), sub, episode_table)
-    closed_boards = {(d, s): b for (d, s, p), b in boards.items() if p == "closed"}
-    charts = {"radar": tables.radar_groups(closed, closed_boards, sub.id), "utilization": histogram}
+    closed_entries = {(d, s): e for (d, s, p), e in entries.items() if p == "closed"}
+    charts = {"radar": tables.radar_groups(closed, closed_entries), "utilization": histogram}
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
     return render(
@@ -388,8 +399,9 @@ async def reproduction_page(request: Request, track: Track = "private"):
     from robobpp.policies import TITLES
     from robobpp.server.services.reproduction import reproduction
 
-    def build(session: Session) -> HTMLResponse:
-        data = reproduction(session, track)
+    def build(_cache: BoardCache) -> HTMLResponse:
+        with request.app.state.runtime.read_session() as session:
+            data = reproduction(session, track)
         titles = {**paper_tables().methods, **TITLES}
         return render(
             request,
@@ -403,7 +415,8 @@ async def reproduction_page(request: Request, track: Track = "private"):
             table_captions=paper_tables().tables,
         )
 
-    return await _shared(request, track, ("reproduction-page", root(request), track), build)
+    # the baselines' runs change only when their boards do: rendered once per publication of the track
+    return await _shared(request, track, None, ("reproduction-page", root(request), track), build)
 
 
 @router.get("/datasets", response_class=HTMLResponse)

@@ -6,14 +6,15 @@ supervisor that serves nothing itself:
 1. it applies the migrations and seeds the database once (:func:`robobpp.server.bootstrap.bootstrap`), so
    ``N`` processes never race to create the same rows;
 2. it starts what runs the episodes once (:func:`robobpp.server.app.start_executor`: the local worker pool,
-   or the Celery dispatcher), not once per API process;
+   or the Celery dispatcher), and the board worker once (:func:`robobpp.server.app.start_board_worker`), not
+   once per API process;
 3. it binds the port and starts ``N`` API processes (spawned: fresh interpreters) that all accept on that
    one socket (the kernel spreads the connections), each an app built with ``start_workers=False`` and
    ``first_start=False`` under the same connection limits as a single process;
 4. it restarts an API process that exits, and on SIGTERM or Ctrl-C stops them, then the workers;
 5. ``/metrics`` of any API process sums the request metrics of all of them (server/prometheus.py).
 
-What is process-local stays correct with several processes: boards are version-checked against SQL, login
+What is process-local stays correct with several processes: boards are published in SQL and read from there, login
 sessions and everything else a route reads are in SQL, the pull relay's sockets meet through Redis
 (:mod:`robobpp.server.relay_bus`). Without Redis it refuses to start (:func:`refusal`). Limits on connections
 and on pull clients are per process (docs/deploy.md, "Several API processes").
@@ -162,9 +163,10 @@ def serve_processes(
     import httpx
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # the readiness polls below are not news
-    from robobpp.server.app import start_executor
+    from robobpp.server.app import FIRST_PUBLICATION_S, start_board_worker, start_executor
     from robobpp.server.bootstrap import bootstrap
     from robobpp.server.runtime import Runtime
+    from robobpp.server.services.board_worker import await_first_publication
 
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -179,7 +181,7 @@ def serve_processes(
     # the API processes' request metrics, summed at each scrape (server/prometheus.py); fresh at each start
     metrics_dir = tempfile.TemporaryDirectory(prefix="robobpp-metrics-")
     os.environ["PROMETHEUS_MULTIPROC_DIR"] = metrics_dir.name  # inherited by the spawned API processes
-    executor = None
+    executor = board_worker = None
     previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
     stopping = threading.Event()
 
@@ -191,7 +193,11 @@ def serve_processes(
     supervisor: Supervisor | None = None
     try:
         executor = start_executor(settings)
-        supervisor = Supervisor(overrides, sock, processes, executor, stopping)
+        board_worker = start_board_worker(runtime)
+        if board_worker is not None:
+            await_first_publication(runtime.read_session, FIRST_PUBLICATION_S)
+        # the API processes read the boards the supervisor's board worker publishes
+        supervisor = Supervisor({**overrides, "board_worker": "off"}, sock, processes, executor, stopping)
         supervisor.start()
         bound = sock.getsockname()[1]
         local = "127.0.0.1" if host in ("0.0.0.0", "") else ("[::1]" if host == "::" else host)
@@ -220,6 +226,8 @@ def serve_processes(
             supervisor.stop()
         if executor is not None:
             executor.stop()
+        if board_worker is not None:
+            board_worker.stop()
         sock.close()
         runtime.dispose()
         os.environ.pop("PROMETHEUS_MULTIPROC_DIR", None)

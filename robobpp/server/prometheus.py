@@ -71,19 +71,37 @@ class _QueueCollector(Collector):
             pass
         yield episodes
         yield submissions
-        cache = getattr(self.app.state, "board_cache", None)
-        if cache is not None:
-            computed = GaugeMetricFamily(
-                "robobpp_board_snapshots", "Board snapshots computed by this process"
-            )
-            computed.add_metric([], cache.computed)
-            seconds = GaugeMetricFamily(
-                "robobpp_board_snapshot_seconds",
-                "Wall time of this process's last board snapshot computation",
-            )
-            seconds.add_metric([], cache.last_seconds)
-            yield computed
-            yield seconds
+        yield from self._boards()
+
+    def _boards(self) -> Iterable[GaugeMetricFamily]:
+        """Each track's published boards (services/board_worker.py), whichever process computed them."""
+        from sqlalchemy import select
+
+        from robobpp.db.models import BoardPublication
+        from robobpp.server.services.board_worker import TRACKS
+
+        version = GaugeMetricFamily(
+            "robobpp_board_version", "Publications of the track's boards so far", labels=["track"]
+        )
+        seconds = GaugeMetricFamily(
+            "robobpp_board_publication_seconds",
+            "Wall time of the track's last board computation and publication",
+            labels=["track"],
+        )
+        try:
+            with self.app.state.runtime.read_session() as session:
+                rows = session.execute(
+                    select(BoardPublication.track, BoardPublication.version, BoardPublication.seconds).where(
+                        BoardPublication.track.in_(TRACKS)  # by primary key, as every scrape query
+                    )
+                ).all()
+            for track, published, took in rows:
+                version.add_metric([track], published)
+                seconds.add_metric([track], took)
+        except Exception:  # noqa: BLE001 - a scrape must not fail because the database blinked
+            pass
+        yield version
+        yield seconds
 
 
 def route_template(scope: Mapping[str, Any]) -> str:

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from typing import Any, TypeGuard
 
 from robobpp.paper import PAPER_GROUPS
-from robobpp.scoring.boards import find_entry
 from robobpp.scoring.metrics import METRIC_BY_KEY, metrics_for
 from robobpp.web import fmt_metric
 
@@ -230,16 +229,17 @@ def grid_table(grid: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def radar_groups(
-    runs: Sequence[Mapping[str, Any]], boards: Mapping[tuple[str, str], Mapping[str, Any]], submission_id: int
+    runs: Sequence[Mapping[str, Any]], entries: Mapping[tuple[str, str], tuple[Mapping[str, Any], int]]
 ) -> list[dict[str, Any]]:
     """Normalised metrics (0..1, higher = better, as the board's scoring computed them), one radar per setting
-    (settings measure different metrics), one series per dataset of that setting."""
+    (settings measure different metrics), one series per dataset of that setting. ``entries``: the
+    submission's ranked entry on each (dataset, setting) board and how many entries that board ranks."""
     groups: dict[str, dict[str, Any]] = {}
     for run in runs:
-        board = boards.get((run["dataset"], run["setting"])) or {}
-        entry = find_entry(board, submission_id)
-        if entry is None:
+        found = entries.get((run["dataset"], run["setting"]))
+        if found is None:
             continue
+        entry, ranked = found
         keys = [m.key for m in metrics_for(run["setting"])]
         group = groups.setdefault(
             run["setting"],
@@ -251,10 +251,10 @@ def radar_groups(
             },
         )
         normalized = entry.get("normalized") or {}
-        group["single"] = group["single"] and len(board.get("entries", [])) < 2
+        group["single"] = group["single"] and ranked < 2
         group["series"].append(
             {
-                "label": f"{run['dataset']} (rank {entry.get('rank')} of {len(board.get('entries', []))})",
+                "label": f"{run['dataset']} (rank {entry.get('rank')} of {ranked})",
                 "values": [round(float(normalized.get(k, 0.0)), 4) for k in keys],
             }
         )

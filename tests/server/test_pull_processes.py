@@ -154,7 +154,8 @@ def test_serve_with_two_api_processes_evaluates_and_ranks_a_pull_submission(tmp_
         api = [pid for pid in children if server.port in listening_ports(pid)]
         workers = [pid for pid in children if pid not in api and "resource_tracker" not in _cmdline(pid)]
         assert len(api) == 2, children  # two API processes accept on the one port
-        assert len(workers) == 2, children  # the pool of ROBOBPP_WORKERS=2 started once, not once per process
+        # the pool of ROBOBPP_WORKERS=2 and the board worker, each started once, not once per API process
+        assert len(workers) == 3, children
         assert httpx.get(server.url + "/healthz").json()["workers"] == 2  # the supervisor's pool, from either
         token = new_participant(server.client(), "two-procs")
         thread, result = _run_connect(

@@ -1,14 +1,11 @@
-"""The board at scale, on SQLite and PostgreSQL: snapshots computed in the board process equal the
-in-process ones, a finished run reaches every cached route, finished submissions' cached forms follow a
-verification verdict, and a /metrics scrape costs the same however much history the database holds.
+"""The board at scale, on SQLite and PostgreSQL: a finished run reaches every cached route, finished
+submissions' cached forms follow a verification verdict, and a /metrics scrape costs the same however much
+history the database holds (how boards are published: test_board_publishing.py).
 
 (Latencies are measured by bench/bench_server.py, never asserted here.)"""
 
 from __future__ import annotations
 
-import gc
-import pickle
-import time
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +17,7 @@ from robobpp.db.models import Participant, Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
-from robobpp.server.services.boards import BoardCache, compute_snapshot, stored_path
+from robobpp.server.services.board_worker import BoardPublisher, BoardWorker
 from robobpp.worker.options import worker_options
 from robobpp.worker.run import claim_and_run
 from tests.server.conftest import submit_direct
@@ -67,20 +64,6 @@ def drain(app: Any) -> None:
         pass
 
 
-def wait_for_both_entries(client: TestClient, path: str) -> None:
-    """Until the board at ``path`` shows ``second-entry`` beside ``first-entry``; meanwhile it must show the
-    previous board (``first-entry`` alone), never an error."""
-    deadline = time.monotonic() + 120
-    names: list[str] = []
-    while time.monotonic() < deadline:
-        names = [e["name"] for e in client.get(path).json()["entries"]]
-        if "second-entry" in names:
-            break
-        assert names == ["first-entry"]
-        time.sleep(0.2)
-    assert sorted(names) == ["first-entry", "second-entry"]
-
-
 def operator_browser(app: Any) -> TestClient:
     """A browser signed in as the operator, through the sign-in form."""
     import re
@@ -90,98 +73,6 @@ def operator_browser(app: Any) -> TestClient:
     assert csrf is not None
     browser.post("/sign-in", data={"token": ADMIN, "csrf": csrf.group(1)})
     return browser
-
-
-def _plain(value: Any) -> Any:
-    """A snapshot without its numpy arrays, comparable with ==."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items() if not hasattr(v, "dtype")}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    return value
-
-
-def test_board_process_snapshot_equals_the_in_process_one(db_url: str, tmp_path: Path) -> None:
-    app = make_app(db_url, tmp_path)
-    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random"), ("a", "builtin:lsah")):
-        submit(app, who, url, name=url)
-    drain(app)
-    runtime = app.state.runtime
-    remote = BoardCache(
-        runtime.read_session,
-        datasets=DATASETS,
-        settings=("math",),
-        database_url=runtime.settings.sqlalchemy_url,
-        process_from=0,
-    )
-    try:
-        with runtime.read_session() as s:
-            far = remote.snapshot(s, "private")
-            near = compute_snapshot(s, DATASETS, ("math",), "private")
-    finally:
-        remote.close()
-        runtime.dispose()
-    assert remote.computed == 1
-    assert len(far["grid"]["rows"]) == 3
-    assert _plain(far) == _plain(near)
-
-
-def test_api_processes_of_one_host_compute_each_snapshot_once(db_url: str, tmp_path: Path) -> None:
-    """Two board caches sharing a state directory (two ``uvicorn --workers`` processes) asked at the same
-    time: one computes the snapshot, the other waits for it and loads what it stored."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    app = make_app(db_url, tmp_path)
-    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
-        submit(app, who, url, name=url)
-    drain(app)
-    runtime = app.state.runtime
-    caches = [
-        BoardCache(
-            runtime.read_session,
-            datasets=DATASETS,
-            settings=("math",),
-            store_dir=tmp_path,
-            database_url=runtime.settings.sqlalchemy_url,
-            process_from=0,
-        )
-        for _ in range(2)
-    ]
-
-    def snapshot(cache: BoardCache) -> Any:
-        with runtime.read_session() as s:
-            return cache.snapshot(s, "private")
-
-    try:
-        with ThreadPoolExecutor(2) as pool:
-            first, second = pool.map(snapshot, caches)
-    finally:
-        for cache in caches:
-            cache.close()
-        runtime.dispose()
-    assert sorted(c.shared for c in caches) == [0, 1]
-    assert _plain(first) == _plain(second)
-
-
-def test_a_snapshot_holds_no_reference_cycles(scale_app) -> None:
-    """The API process moves loaded snapshots out of the cycle collector's reach (``gc.freeze``, no pauses
-    of the whole process at 10,000 entries); they are still freed when replaced only because a snapshot
-    has no reference cycle, which this shows: dropping one leaves nothing for the collector."""
-    app, _client = scale_app
-    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
-        submit(app, who, url, name=url)
-    drain(app)
-    with app.state.runtime.read_session() as s:
-        data = pickle.dumps(compute_snapshot(s, DATASETS, ("math",), "private"))
-    gc.collect()
-    gc.disable()
-    try:
-        loaded = pickle.loads(data)
-        assert len(loaded["boards"]) == len(DATASETS)
-        del loaded
-        assert gc.collect() == 0  # freed by reference counting alone
-    finally:
-        gc.enable()
 
 
 def test_a_finished_run_reaches_every_cached_route(scale_app) -> None:
@@ -265,8 +156,20 @@ def _statements(app: Any, client: TestClient) -> list[str]:
     return seen
 
 
-def test_metrics_scrape_costs_the_same_with_more_history(scale_app) -> None:
-    app, client = scale_app
+@pytest.fixture
+def quiet_scale_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
+    """As ``scale_app`` but without a board worker polling the database beside the statements counted."""
+    app = make_app(db_url, tmp_path, board_worker="off", board_wait_s=0)
+    with TestClient(app, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
+        yield app, client
+    app.state.runtime.dispose()
+
+
+def test_metrics_scrape_costs_the_same_with_more_history(quiet_scale_app) -> None:
+    app, client = quiet_scale_app
+    BoardWorker(
+        BoardPublisher(app.state.runtime.read_session, app.state.runtime.session, DATASETS, ("math",))
+    ).run_once()
     submit(app, "alice", "builtin:random")
     drain(app)
     _statements(app, client)  # the first scrape counts finished submissions once
@@ -287,27 +190,8 @@ def test_metrics_scrape_costs_the_same_with_more_history(scale_app) -> None:
     assert 'robobpp_submissions{status="completed"} 4.0' in text
     assert 'robobpp_submissions{status="queued"} 0.0' in text
     assert 'robobpp_episodes{status="pending"} 0.0' in text
-    assert "robobpp_board_snapshot_seconds " in text and "robobpp_board_snapshots " in text
-
-
-def test_a_stale_large_board_is_served_while_the_new_one_is_computed(db_url: str, tmp_path: Path) -> None:
-    """Above ``board_process_from`` the snapshot is computed in the board process; once one exists, a
-    reader after a change gets the previous one at once, and the new result appears when it is ready."""
-    app = make_app(db_url, tmp_path, board_process_from=1)
-    try:
-        with TestClient(app, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
-            submit(app, "alice", "builtin:random", name="first-entry")
-            drain(app)
-            path = "/api/v1/leaderboards/diverse/math?view=all"
-            assert [e["name"] for e in client.get(path).json()["entries"]] == ["first-entry"]
-            cache = app.state.board_cache
-            cache.sync_limit_s = 0.0  # every snapshot counts as large: refreshed in the background
-            submit(app, "bob", "builtin:dbl", name="second-entry")
-            drain(app)
-            wait_for_both_entries(client, path)
-            assert cache.computed >= 2
-    finally:
-        app.state.runtime.dispose()
+    assert 'robobpp_board_version{track="private"}' in text
+    assert 'robobpp_board_publication_seconds{track="private"}' in text
 
 
 @pytest.mark.parametrize("page", ["account", "operator-participant"])
@@ -336,60 +220,6 @@ def test_pages_listing_submissions_are_paged(scale_app, monkeypatch: pytest.Monk
     assert 'href="?page=2"' in first and 'href="?page=1"' not in first
     assert [n for n in names if n in second] == names[-4:-2]
     assert ('href="?page=3"' in second) == (len(names) > 4) and 'href="?page=1"' in second
-
-
-def test_a_restarted_server_serves_its_stored_boards_at_once(db_url: str, tmp_path: Path) -> None:
-    """The board process stores each snapshot; a restarted server serves it before computing anything and
-    replaces it in the background (a submission that finished while it was down then appears)."""
-    path = "/api/v1/leaderboards/diverse/math?view=all"
-    app = make_app(db_url, tmp_path, board_process_from=1)
-    try:
-        submit(app, "alice", "builtin:random", name="first-entry")
-        drain(app)
-        with TestClient(app) as client:
-            assert [e["name"] for e in client.get(path).json()["entries"]] == ["first-entry"]
-        assert stored_path(tmp_path, "private").is_file()
-        submit(app, "bob", "builtin:dbl", name="second-entry")  # finishes while no server runs
-        drain(app)
-    finally:
-        app.state.runtime.dispose()
-
-    app = make_app(db_url, tmp_path, board_process_from=1)
-    try:
-        with TestClient(app) as client:
-            cache = app.state.board_cache
-            assert cache.loaded == 1
-            # at once: the stored board, not a minute's computation (nothing computed yet)
-            assert [e["name"] for e in client.get(path).json()["entries"]] == ["first-entry"]
-            wait_for_both_entries(client, path)
-            assert cache.computed >= 1
-    finally:
-        app.state.runtime.dispose()
-
-
-@pytest.mark.parametrize("damage", ["garbage", "another-version"])
-def test_a_damaged_or_foreign_stored_snapshot_is_ignored(db_url: str, tmp_path: Path, damage: str) -> None:
-    path = "/api/v1/leaderboards/diverse/math?view=all"
-    app = make_app(db_url, tmp_path, board_process_from=1)
-    try:
-        submit(app, "alice", "builtin:random", name="first-entry")
-        drain(app)
-        stored = stored_path(tmp_path, "private")
-        if damage == "garbage":
-            stored.write_bytes(b"\x80\x05not a pickle at all")
-        else:
-            with TestClient(app) as client:
-                client.get(path)
-            data = pickle.loads(stored.read_bytes())
-            data["key"] = (data["key"][0], "0.0.0-other", *data["key"][2:])
-            stored.write_bytes(pickle.dumps(data))
-        app.state.runtime.dispose()
-        app = make_app(db_url, tmp_path, board_process_from=1)
-        with TestClient(app) as client:
-            assert app.state.board_cache.loaded == 0
-            assert [e["name"] for e in client.get(path).json()["entries"]] == ["first-entry"]
-    finally:
-        app.state.runtime.dispose()
 
 
 def test_a_waiting_submission_is_listed_from_its_form_until_an_episode_moves(

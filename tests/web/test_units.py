@@ -206,7 +206,8 @@ def test_grid_table_and_radar() -> None:
     assert b["cells"][1]["place"] == 1 and math.isclose(b["mean"], 0.6)
     assert b["rank_text"] == "1 (1–2)" and b["mean_ci"] == "0.500–0.700"
     runs = [{"dataset": "diverse", "setting": "math"}, {"dataset": "longboard", "setting": "math"}]
-    groups = radar_groups(runs, {("diverse", "math"): _board()}, 2)
+    board = _board()
+    groups = radar_groups(runs, {("diverse", "math"): (board["entries"][1], len(board["entries"]))})
     assert len(groups) == 1 and groups[0]["labels"][0] == "Space Utilization"
     assert groups[0]["series"][0]["values"] == [0.0, 0.0, 1.0] and not groups[0]["single"]
 

@@ -1,5 +1,5 @@
-"""Leaderboards: raw metrics and per-group figures stored; scores, intervals and ranks computed once per
-change of the board and served from the cache, a page at a time (docs/benchmark.md, "Scoring and uncertainty")."""
+"""Leaderboards: raw metrics and per-group figures stored; scores, intervals and ranks computed by the board
+worker once per change of the board, published in SQL and served a page at a time (docs/benchmark.md, "Scoring and uncertainty")."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
-from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.schemas import (
@@ -20,50 +20,61 @@ from robobpp.schemas import (
     ServiceInfo,
     SettingName,
 )
-from robobpp.scoring.boards import board_view, grid_view
 from robobpp.scoring.scores import WEIGHTS
-from robobpp.server.api.deps import SettingsDep, in_read_session
+from robobpp.server.api.deps import SettingsDep
+from robobpp.server.problems import ProblemError
 from robobpp.server.runtime import Runtime
-from robobpp.server.services.boards import BoardCache, to_json
+from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key, to_json
 
 router = APIRouter(tags=["leaderboards"])
 Track = Literal["private", "public"]
 
 
 def board_cache(request: Request) -> BoardCache:
-    """The app's board cache (version-checked against SQL; see services.boards)."""
+    """The app's reader of the published boards (services/boards.py)."""
     cache = getattr(request.app.state, "board_cache", None)
     if cache is None:
         cache = request.app.state.board_cache = make_board_cache(request.app.state.runtime)
     return cache
 
 
-def make_board_cache(runtime: Runtime) -> BoardCache:
+def make_board_cache(runtime: Runtime, wake: Callable[[], None] | None = None) -> BoardCache:
     settings = runtime.settings
     return BoardCache(
         runtime.read_session,
         refresh_s=settings.board_refresh_s,
+        wait_s=settings.board_wait_s,
         datasets=tuple(settings.datasets),
         settings=tuple(settings.enabled_settings),
-        database_url=settings.sqlalchemy_url,
-        process_from=settings.board_process_from,
-        store_dir=settings.state_dir,
+        wake=wake,
     )
 
 
 async def cached_body(
-    request: Request, track: str, key: tuple[Any, ...], build: Callable[[Session], bytes]
+    request: Request,
+    track: str,
+    board: str | None,
+    key: tuple[Any, ...],
+    build: Callable[[BoardCache], bytes],
 ) -> bytes:
-    """A served body shared by every reader of ``key`` (services.boards): answered on the event loop when
-    it is current (no thread, no session), else built or version-checked in a worker thread."""
+    """A served body of ``board`` (None: of the track's whole publication) shared by every reader of ``key``
+    (services.boards): answered on the event loop when it is current (no thread, no query), else built or
+    version-checked in a worker thread. A board not published yet answers 503 with Retry-After (a fresh
+    server's first computation)."""
     cache = board_cache(request)
-    body = cache.fresh_response(track, key)
+    body = cache.fresh_response(track, board, key)
     if body is not None:
         return body
-
-    return await in_read_session(
-        request, lambda session: cache.response(session, track, key, lambda: build(session))
-    )
+    try:
+        return await run_in_threadpool(cache.response, track, board, key, lambda: build(cache))
+    except BoardsUnavailable as exc:
+        raise ProblemError(
+            503,
+            "boards-not-ready",
+            "Boards not ready",
+            "the boards are being computed for the first time; try again in a moment",
+            headers={"Retry-After": "2"},
+        ) from exc
 
 
 View = Annotated[
@@ -89,12 +100,12 @@ async def overall(
     offset: Offset = 0,
     protocol: Protocol = "closed",
 ) -> Response:
-    cache, boards = board_cache(request), (tuple(settings.datasets), tuple(settings.enabled_settings))
     body = await cached_body(
         request,
         track,
-        ("api-grid", *boards, track, view, limit, offset, protocol),
-        lambda s: to_json(grid_view(cache.grid(s, *boards, track, protocol), view, limit, offset)),
+        grid_key(protocol),
+        ("api-grid", track, view, limit, offset, protocol),
+        lambda cache: to_json(cache.grid_page(track, protocol, view, limit, offset)),
     )
     return Response(body, media_type="application/json")
 
@@ -115,14 +126,17 @@ async def board(
     submission: Annotated[int | None, Query(ge=1, le=2**62, description="Only this submission")] = None,
     protocol: Protocol = "closed",
 ) -> Response:
-    cache = board_cache(request)
+    settings_ = request.app.state.settings
+    if dataset not in settings_.datasets or setting not in settings_.enabled_settings:
+        raise ProblemError(404, "not-found", "Not found", f"this server has no {dataset} × {setting} board")
     key = ("api-board", dataset, setting, track, view, limit, offset, submission, protocol)
     body = await cached_body(
         request,
         track,
+        board_key(dataset, setting, protocol),
         key,
-        lambda s: to_json(
-            board_view(cache.board(s, dataset, setting, track, protocol), view, limit, offset, submission)
+        lambda cache: to_json(
+            cache.board_page(dataset, setting, track, protocol, view, limit, offset, submission)
         ),
     )
     return Response(body, media_type="application/json")
@@ -136,9 +150,12 @@ async def board(
 async def reproduction_route(request: Request, track: Track = "private") -> Response:
     from robobpp.server.services.reproduction import reproduction
 
-    body = await cached_body(
-        request, track, ("api-reproduction", track), lambda s: to_json(reproduction(s, track))
-    )
+    def build(_cache: BoardCache) -> bytes:
+        with request.app.state.runtime.read_session() as session:
+            return to_json(reproduction(session, track))
+
+    # the baselines' runs change only when their boards do: built once per publication of the track
+    body = await cached_body(request, track, None, ("api-reproduction", track), build)
     return Response(body, media_type="application/json")
 
 

@@ -1,0 +1,391 @@
+"""The board worker: computes a track's boards when its data changed and publishes them in SQL.
+
+One per deployment computes: every candidate (one beside each ``robobpp serve``) polls the cheap
+``board_source`` of each track, and the one that sees it move *claims* the track's publication row (a lease,
+``holder``/``lease_until``, renewed while it computes) before computing; the others leave it alone. A
+worker that dies mid-computation stops renewing, its claim lapses after ``lease_s`` and another worker takes
+over; until then, and meanwhile, the previous version stays published. The new version is written in one
+transaction that also checks the claim is still held, so a worker that stalled past its lease publishes
+nothing.
+
+Boards whose serialised parts did not change (a Math Pack submission leaves the physical boards as they were)
+keep their parts; only changed boards get a new version. Each board keeps its previous version's parts too,
+so a reader that read the publication just before it moved still finds what it named.
+
+Modes (``ROBOBPP_BOARD_WORKER``): ``process`` (a spawned process beside the API process: the seconds of
+scoring never hold the API's interpreter lock), ``thread`` (a thread of the API process: small deployments,
+tests) or ``off`` (another process or host runs it).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import multiprocessing
+import os
+import socket
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from datetime import timedelta
+from typing import Any, Protocol, cast
+
+from sqlalchemy import CursorResult, Update, delete, or_, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from robobpp.db.models import BoardPart, BoardPublication, utcnow
+from robobpp.server.services.board_engine import BoardEngine
+from robobpp.server.services.boards import (
+    SessionFactory,
+    board_source,
+    digest,
+    parts_of,
+    published_key,
+    read_publication,
+)
+
+log = logging.getLogger("robobpp.server")
+TRACKS = ("private", "public")
+
+
+class Engine(Protocol):
+    """What the publisher needs of a board engine (services/board_engine.py)."""
+
+    def keys(self) -> list[tuple[str, ...] | str]: ...
+
+    def update(self, track: str) -> Mapping[tuple[str, ...] | str, Mapping[str, Any]]: ...
+
+    def refresh(self, track: str) -> Mapping[tuple[str, ...] | str, Mapping[str, Any]]: ...
+
+
+class BoardPublisher:
+    """Claims, computes and publishes one track at a time (module docstring). ``read``: a read-only
+    transaction (the computation; never a writer's lock on SQLite); ``write``: a transaction that commits.
+    ``engine``: computes the boards that changed (default: a ``BoardEngine`` reading through ``read``)."""
+
+    def __init__(
+        self,
+        read: SessionFactory,
+        write: SessionFactory,
+        datasets: tuple[str, ...],
+        settings: tuple[str, ...],
+        *,
+        engine: Engine | None = None,
+        lease_s: float = 30.0,
+        holder: str | None = None,
+    ) -> None:
+        self.read, self.write = read, write
+        self.datasets, self.settings = tuple(datasets), tuple(settings)
+        self._given = engine
+        self.engine = self._new_engine()
+        self.lease_s = lease_s
+        self.holder = holder or f"{socket.gethostname()[:40]}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
+        #: Computations and publications so far, and the wall time of the last publication.
+        self.computed = self.published = 0
+        self.last_seconds = 0.0
+
+    def _new_engine(self) -> Engine:
+        return self._given or BoardEngine(self.read, self.datasets, self.settings)
+
+    def publish(self, track: str, *, full: bool = False, force: bool = False) -> bool:
+        """Compute and publish ``track`` when its data (or the code) changed since its last publication (or
+        ``force``) and no other worker holds it; ``full``: every board in full (``BoardEngine.refresh``: the
+        all-entries rank intervals too, which an update leaves as they were). True when a new version was
+        published."""
+        with self.read() as session:
+            pub = read_publication(session, track)
+            if not force and pub is not None and pub.source == self._source(session, track):
+                return False
+        if pub is None:
+            self._create(track)
+        elif pub.source is None:  # asked to recompute everything (request_recompute)
+            self.engine = self._new_engine()
+        if not self._claim(track):
+            return False
+        started = time.perf_counter()
+        try:
+            with self._renewing(track):
+                with self.read() as session:  # read first: the boards are never older than what it names
+                    source = self._source(session, track)
+                computed = self.engine.refresh(track) if full else self.engine.update(track)
+                self.computed += 1
+                boards = {published_key(k): v for k, v in computed.items()}
+                stored = {key: parts_of(key, value) for key, value in boards.items()}
+            known = set(map(published_key, self.engine.keys()))
+            return self._write(track, source, stored, known, time.perf_counter() - started)
+        finally:
+            self._release(track)
+
+    def _source(self, session: Session, track: str) -> list[Any]:
+        return board_source(session, track, self.datasets, self.settings)
+
+    def _create(self, track: str) -> None:
+        try:
+            with self.write() as session:
+                session.add(BoardPublication(track=track, version=0, boards={}, seconds=0.0))
+        except IntegrityError:  # another worker created it first
+            pass
+
+    def _claim(self, track: str) -> bool:
+        now = utcnow()
+        with self.write() as session:
+            claimed = _matched(
+                session,
+                update(BoardPublication)
+                .where(
+                    BoardPublication.track == track,
+                    or_(
+                        BoardPublication.holder.is_(None),
+                        BoardPublication.holder == self.holder,
+                        BoardPublication.lease_until < now,
+                    ),
+                )
+                .values(holder=self.holder, lease_until=now + timedelta(seconds=self.lease_s)),
+            )
+        return bool(claimed)
+
+    def _renew(self, track: str) -> bool:
+        with self.write() as session:
+            return bool(
+                _matched(
+                    session,
+                    update(BoardPublication)
+                    .where(BoardPublication.track == track, BoardPublication.holder == self.holder)
+                    .values(lease_until=utcnow() + timedelta(seconds=self.lease_s)),
+                )
+            )
+
+    def _release(self, track: str) -> None:
+        try:
+            with self.write() as session:
+                session.execute(
+                    update(BoardPublication)
+                    .where(BoardPublication.track == track, BoardPublication.holder == self.holder)
+                    .values(holder=None, lease_until=None)
+                )
+        except Exception:  # noqa: BLE001 - the lease lapses by itself
+            log.warning("releasing the %s boards' lease failed", track, exc_info=True)
+
+    @contextmanager
+    def _renewing(self, track: str) -> Iterator[None]:
+        """Renew the claim every third of the lease while the body runs."""
+        done = threading.Event()
+
+        def renew() -> None:
+            while not done.wait(self.lease_s / 3):
+                try:
+                    if not self._renew(track):
+                        log.warning("lost the %s boards' lease while computing them", track)
+                        return
+                except Exception:  # noqa: BLE001 - tried again at the next beat
+                    log.warning("renewing the %s boards' lease failed", track, exc_info=True)
+
+        beat = threading.Thread(target=renew, daemon=True, name="board-lease")
+        beat.start()
+        try:
+            yield
+        finally:
+            done.set()
+            beat.join()
+
+    def _write(
+        self,
+        track: str,
+        source: list[Any],
+        stored: Mapping[str, Mapping[str, bytes]],
+        known: set[str],
+        seconds: float,
+    ) -> bool:
+        with self.write() as session:
+            row = session.get(BoardPublication, track, with_for_update=True, populate_existing=True)
+            if row is None or row.holder != self.holder:
+                log.warning("not publishing the %s boards: another worker holds them now", track)
+                return False
+            version = row.version + 1
+            before: dict[str, Any] = dict(row.boards or {})
+            after = {key: entry for key, entry in before.items() if key in known}  # the engine's unchanged
+            changed = False
+            for key, parts in stored.items():
+                sha = digest(parts)
+                old = before.get(key)
+                if old is not None and old[1] == sha:
+                    after[key] = old
+                    continue
+                changed = True
+                session.add_all(
+                    BoardPart(track=track, board=key, version=version, part=name, body=body)
+                    for name, body in parts.items()
+                )
+                after[key] = [version, sha]
+                if old is not None:  # keep the previous version for readers that just named it
+                    session.execute(
+                        delete(BoardPart).where(
+                            BoardPart.track == track, BoardPart.board == key, BoardPart.version < old[0]
+                        )
+                    )
+            for key in before.keys() - known:  # boards this server no longer publishes
+                changed = True
+                session.execute(delete(BoardPart).where(BoardPart.track == track, BoardPart.board == key))
+            if changed:
+                row.version, row.boards = version, after
+            row.source, row.seconds, row.published_at = source, seconds, utcnow()
+        self.published += 1
+        self.last_seconds = seconds
+        log.info("published the %s boards (version %d) in %.2f s", track, row.version, seconds)
+        return changed
+
+
+def request_recompute(session: Session, track: str | None = None) -> int:
+    """Ask the board worker to recompute ``track`` (every track when None) although nothing changed; the
+    published boards stay served until it has (``robobpp db refresh-boards``). Returns the rows marked."""
+    where = [] if track is None else [BoardPublication.track == track]
+    return _matched(session, update(BoardPublication).where(*where).values(source=None))
+
+
+def _matched(session: Session, statement: Update) -> int:
+    """The rows an UPDATE matched (``Session.execute`` is typed as returning a plain ``Result``)."""
+    return cast(CursorResult[Any], session.execute(statement)).rowcount
+
+
+def await_first_publication(read: SessionFactory, timeout_s: float, tracks: tuple[str, ...] = TRACKS) -> bool:
+    """Wait (at most ``timeout_s``) until every track has been published once: a server starting on a
+    database that has none (a fresh one, or the first start after migration 0012) answers its first readers
+    with boards rather than 503. A server restarted on published boards returns at once."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        with read() as session:
+            published = [read_publication(session, t) for t in tracks]
+        if all(pub is not None and pub.boards for pub in published):
+            return True
+        if time.monotonic() > deadline:
+            log.warning("the boards are not published yet: their routes answer 503 until they are")
+            return False
+        time.sleep(0.1)
+
+
+class BoardWorker:
+    """Publishes every track whenever it changed: polls every ``poll_s`` seconds, or at once when woken; and
+    every ``full_s`` seconds recomputes each track in full (``BoardEngine.refresh``). A track whose full
+    computation took under ``cheap_s`` is always computed in full (every rank interval current at once)."""
+
+    def __init__(
+        self,
+        publisher: BoardPublisher,
+        *,
+        poll_s: float = 0.5,
+        full_s: float = 300.0,
+        cheap_s: float = 1.0,
+        tracks: tuple[str, ...] = TRACKS,
+    ) -> None:
+        self.publisher, self.poll_s, self.full_s, self.tracks = publisher, poll_s, full_s, tracks
+        self.cheap_s = cheap_s
+        self._last_full = dict.fromkeys(tracks, -math.inf)
+        self._full_cost = dict.fromkeys(tracks, 0.0)
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def run_once(self) -> list[str]:
+        """One pass over the tracks: those published."""
+        published = []
+        for track in self.tracks:
+            started, computed = time.monotonic(), self.publisher.computed
+            due = started - self._last_full[track] >= self.full_s
+            full = due or self._full_cost[track] < self.cheap_s
+            try:
+                if self.publisher.publish(track, full=full, force=due):
+                    published.append(track)
+                if full and self.publisher.computed > computed:
+                    self._last_full[track] = time.monotonic()
+                    self._full_cost[track] = self._last_full[track] - started
+            except Exception:  # noqa: BLE001 - the previous boards stay published; the next pass retries
+                log.exception("computing the %s boards failed", track)
+        return published
+
+    def run(self, alive: Callable[[], bool] = lambda: True) -> None:
+        while not self._stop.is_set() and alive():
+            self._wake.clear()
+            self.run_once()
+            self._wake.wait(self.poll_s)
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self.run, daemon=True, name="board-worker")
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=30)
+
+
+def worker_for_url(
+    url: str, datasets: tuple[str, ...], settings: tuple[str, ...], **kwargs: Any
+) -> BoardWorker:
+    """A worker with its own connections to ``url``."""
+    from robobpp.db.session import make_engine, make_session_factory, transaction
+
+    reads = make_session_factory(make_engine(url, read_only=True, pool_size=2))
+    writes = make_session_factory(make_engine(url, pool_size=2))
+
+    @contextmanager
+    def read() -> Iterator[Session]:
+        with reads() as session, session.begin():
+            yield session
+
+    publisher = BoardPublisher(read, lambda: transaction(writes), datasets, settings)
+    return BoardWorker(publisher, **kwargs)
+
+
+def _process_main(
+    url: str,
+    datasets: tuple[str, ...],
+    settings: tuple[str, ...],
+    timing: dict[str, float],
+    stop: Any,
+    parent: int,
+) -> None:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    worker = worker_for_url(url, datasets, settings, **timing)
+
+    def stop_when_asked() -> None:
+        stop.wait()
+        worker.stop()
+
+    threading.Thread(target=stop_when_asked, daemon=True).start()
+    worker.run(alive=lambda: os.getppid() == parent)  # ends with the API process, however it ends
+
+
+class WorkerProcess:
+    """The board worker in a spawned process (``ROBOBPP_BOARD_WORKER=process``)."""
+
+    def __init__(
+        self, url: str, datasets: tuple[str, ...], settings: tuple[str, ...], **timing: float
+    ) -> None:
+        context = multiprocessing.get_context("spawn")  # the API process has threads and open connections
+        self._stop = context.Event()
+        self.process = context.Process(
+            target=_process_main,
+            args=(url, tuple(datasets), tuple(settings), timing, self._stop, os.getpid()),
+            daemon=True,
+            name="robobpp-board-worker",
+        )
+
+    def start(self) -> None:
+        self.process.start()
+
+    def wake(self) -> None:  # it polls on its own
+        pass
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.process.join(timeout=30)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=5)

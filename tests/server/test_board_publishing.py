@@ -1,0 +1,289 @@
+"""Boards published as data, on SQLite and PostgreSQL: what readers page through equals the computed board,
+a finished submission reaches every board route once the worker ran, readers keep the previous version while
+the next is computed or when its worker dies, one worker computes, a restarted server serves the stored boards
+without computing, two readers agree, and the process mode publishes on its own.
+
+(Latencies are measured by bench/bench_server.py, never asserted here.)"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from robobpp.db.models import BoardPublication
+from robobpp.scoring.boards import board_view, grid_view
+from robobpp.server.services import board_engine
+from robobpp.server.services import boards as boards_module
+from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
+from robobpp.server.services.board_worker import BoardPublisher, BoardWorker, request_recompute
+from robobpp.server.services.boards import BoardCache, to_json
+from tests.server.conftest import submit_direct
+from tests.server.test_scale import DATASETS, GROUPS, drain, make_app, operator_browser, submit
+
+BOARD = "/api/v1/leaderboards/diverse/math?view=all"
+
+
+def names(client: TestClient, path: str = BOARD) -> list[str]:
+    return sorted(e["name"] for e in client.get(path).json()["entries"])
+
+
+def publisher(app: Any, engine: Any = None, **kwargs: Any) -> BoardPublisher:
+    runtime = app.state.runtime
+    return BoardPublisher(
+        runtime.read_session,
+        runtime.session,
+        DATASETS,
+        ("math",),
+        engine=engine,
+        **kwargs,
+    )
+
+
+def reader(app: Any, **kwargs: Any) -> BoardCache:
+    return BoardCache(app.state.runtime.read_session, datasets=DATASETS, settings=("math",), **kwargs)
+
+
+def published(app: Any, track: str = "private") -> tuple[int, Any]:
+    with app.state.runtime.read_session() as s:
+        row = s.get(BoardPublication, track)
+        return (row.version, row.source) if row is not None else (0, None)
+
+
+def engine(app: Any) -> BoardEngine:
+    return BoardEngine(app.state.runtime.read_session, DATASETS, ("math",))
+
+
+class Gate:
+    """A board engine that computes as the real one but waits for ``go`` first, counting its calls."""
+
+    def __init__(self, inner: BoardEngine, fail: bool = False) -> None:
+        self.inner, self.fail = inner, fail
+        self.entered, self.go = threading.Event(), threading.Event()
+        self.calls = 0
+
+    def keys(self) -> list[Any]:
+        return self.inner.keys()
+
+    def update(self, track: str) -> Mapping[Any, Any]:
+        self.calls += 1
+        self.entered.set()
+        assert self.go.wait(60)
+        if self.fail:
+            raise RuntimeError("the worker died mid-computation")
+        return self.inner.update(track)
+
+
+@pytest.fixture
+def quiet_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
+    """An app whose boards no worker publishes unless a test runs one, and whose readers never wait."""
+    app = make_app(db_url, tmp_path, board_worker="off", board_wait_s=0)
+    yield app
+    app.state.runtime.dispose()
+
+
+def test_pages_read_by_index_equal_the_computed_board(quiet_app, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every page a reader assembles from the stored chunks is the page ``board_view``/``grid_view`` cut from
+    the whole board: views, offsets across chunk borders, one submission (ranked, unranked or absent)."""
+    monkeypatch.setattr(boards_module, "CHUNK", 2)  # several chunks with a handful of entries
+    app = quiet_app
+    ids = [
+        submit(app, who, url)
+        for who, url in (("a", "builtin:dbl"), ("b", "builtin:random"), ("a", "builtin:lsah"))
+    ]
+    ids.append(submit_direct(app, "c", "builtin:random", datasets=("diverse",), groups=GROUPS))  # apart
+    drain(app)
+    assert publisher(app).publish("private")
+    cache = reader(app)
+    with app.state.runtime.read_session() as s:
+        snap = compute_snapshot(s, DATASETS, ("math",), "private")
+
+    def plain(data: Any) -> Any:
+        return json.loads(to_json(data))
+
+    for dataset in DATASETS:
+        board = snap["boards"][(dataset, "math")]
+        for view in ("best", "all"):
+            for limit, offset in ((50, 0), (1, 0), (3, 1), (2, 2), (5, 3), (1, 10)):
+                got = cache.board_page(dataset, "math", "private", "closed", view, limit, offset)
+                assert got == plain(board_view(board, view, limit, offset)), (dataset, view, limit, offset)
+        for sid in (*ids, 10**6):
+            got = cache.board_page(dataset, "math", "private", "closed", "all", 50, 0, sid)
+            assert got == plain(board_view(board, "all", 50, 0, sid)), (dataset, sid)
+    for view in ("best", "all"):
+        for limit, offset in ((50, 0), (1, 1), (3, 0)):
+            got = cache.grid_page("private", "closed", view, limit, offset)
+            assert got == plain(grid_view(snap["grid"], view, limit, offset)), (view, limit, offset)
+    assert len(snap["grid"]["rows"]) == 3 and len(snap["grid"]["apart"]) == 1
+
+
+def test_a_finished_submission_appears_on_every_board_route_after_the_worker_runs(quiet_app) -> None:
+    app = quiet_app
+    worker = BoardWorker(publisher(app))
+    sid = submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    routes = [BOARD, "/api/v1/leaderboards?view=all", "/", "/boards/diverse/math?view=all"]
+    with TestClient(app) as client:
+        assert client.get(BOARD).status_code == 503  # nothing published yet: said so, never an empty board
+        assert client.get("/").status_code == 503
+        assert worker.run_once() == ["private", "public"]
+        for path in routes:
+            body = client.get(path).text
+            assert "first-entry" in body and "second-entry" not in body, path
+        second = submit(app, "bob", "builtin:dbl", name="second-entry")
+        drain(app)
+        for path in routes:  # not published yet: the previous version
+            body = client.get(path).text
+            assert "first-entry" in body and "second-entry" not in body, path
+        assert worker.run_once() == ["private"]  # only the track that changed
+        for path in routes:
+            body = client.get(path).text
+            assert "first-entry" in body and "second-entry" in body, path
+        page = operator_browser(app).get(f"/submissions/{second}").text  # its rank on each board it ran
+        assert page.count('<span class="muted small">of 2</span>') == len(DATASETS)
+        assert client.get(f"/api/v1/leaderboards/diverse/math?submission={sid}").json()["total"] == 1
+    assert worker.run_once() == []  # nothing changed: nothing computed
+
+
+def test_readers_keep_the_previous_version_while_the_next_is_computed(quiet_app) -> None:
+    """One worker computes (the other finds the track claimed and computes nothing); readers get the previous
+    version meanwhile, and the new one the moment it is published."""
+    app = quiet_app
+    submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    assert publisher(app).publish("private")
+    submit(app, "bob", "builtin:dbl", name="second-entry")
+    drain(app)
+    gate = Gate(engine(app))
+    first = publisher(app, gate)
+    running = threading.Thread(target=first.publish, args=("private",))
+    with TestClient(app) as client:
+        running.start()
+        assert gate.entered.wait(60)
+        rival = Gate(engine(app))
+        rival.go.set()
+        assert not publisher(app, rival).publish("private") and rival.calls == 0
+        for _ in range(3):
+            assert names(client) == ["first-entry"]
+        gate.go.set()
+        running.join(60)
+        assert names(client) == ["first-entry", "second-entry"]
+
+
+def test_a_worker_that_dies_mid_computation_leaves_the_previous_version_served(quiet_app) -> None:
+    app = quiet_app
+    submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    assert publisher(app).publish("private")
+    before = published(app)
+    submit(app, "bob", "builtin:dbl", name="second-entry")
+    drain(app)
+    crashing = Gate(engine(app), fail=True)
+    crashing.go.set()
+    with pytest.raises(RuntimeError):
+        publisher(app, crashing).publish("private")
+    with TestClient(app) as client:
+        assert names(client) == ["first-entry"]
+        assert published(app) == before
+        # a worker killed outright never releases its claim: the others wait for the lease to lapse
+        dead = publisher(app, lease_s=0.5)
+        assert dead._claim("private")
+        assert not publisher(app).publish("private")
+        assert names(client) == ["first-entry"]
+        time.sleep(0.6)
+        assert publisher(app).publish("private")
+        assert names(client) == ["first-entry", "second-entry"]
+
+
+def test_a_restarted_server_serves_the_stored_boards_without_computing(
+    db_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    app = make_app(db_url, tmp_path, board_worker="thread")
+    try:
+        submit(app, "alice", "builtin:random", name="first-entry")
+        drain(app)
+        with TestClient(app) as client:
+            assert names(client) == ["first-entry"]
+        submit(app, "bob", "builtin:dbl", name="second-entry")  # finishes while no server runs
+        drain(app)
+    finally:
+        app.state.runtime.dispose()
+    version = published(app)[0]
+
+    def never(*_: Any) -> Any:
+        raise AssertionError("a restarted server computed a board before serving")
+
+    monkeypatch.setattr(board_engine, "compute_snapshot", never)
+    app = make_app(db_url, tmp_path, board_worker="off", board_wait_s=0)
+    try:
+        with TestClient(app) as client:
+            assert names(client) == ["first-entry"]  # at once, from SQL
+            assert "first-entry" in client.get("/").text
+        assert published(app)[0] == version
+    finally:
+        app.state.runtime.dispose()
+
+
+def test_two_readers_on_one_database_agree(quiet_app) -> None:
+    """Two API processes' readers: the same pages, and both move to a new version when it is published."""
+    app = quiet_app
+    submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    assert publisher(app).publish("private")
+    one, two = reader(app), reader(app)
+    pages = [(c.board_page("diverse", "math", view="all"), c.grid_page(view="all")) for c in (one, two)]
+    assert pages[0] == pages[1] and len(pages[0][0]["entries"]) == 1
+    submit(app, "bob", "builtin:dbl", name="second-entry")
+    drain(app)
+    assert publisher(app).publish("private")
+    pages = [(c.board_page("diverse", "math", view="all"), c.grid_page(view="all")) for c in (one, two)]
+    assert pages[0] == pages[1] and len(pages[0][0]["entries"]) == 2
+
+
+def test_unchanged_boards_keep_their_parts_and_a_refresh_recomputes(quiet_app) -> None:
+    app = quiet_app
+    submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    worker = publisher(app)
+    assert worker.publish("private")
+    with app.state.runtime.read_session() as s:
+        boards = dict(s.get(BoardPublication, "private").boards)
+    submit_direct(app, "bob", "builtin:dbl", datasets=("diverse",), groups=GROUPS)  # longboard's stays
+    drain(app)
+    assert worker.publish("private")
+    with app.state.runtime.read_session() as s:
+        after = dict(s.get(BoardPublication, "private").boards)
+    assert after["longboard/math/closed"] == boards["longboard/math/closed"]
+    assert after["diverse/math/closed"] != boards["diverse/math/closed"]
+    gate = Gate(engine(app))
+    gate.go.set()
+    assert not publisher(app, gate).publish("private") and gate.calls == 0  # nothing changed
+    with app.state.runtime.session() as s:
+        assert request_recompute(s, "private") == 1
+    publisher(app, gate).publish("private")
+    assert gate.calls == 1 and published(app)[1] is not None
+
+
+def test_the_board_worker_process_publishes_on_its_own(db_url: str, tmp_path: Path) -> None:
+    app = make_app(db_url, tmp_path, board_worker="process", board_poll_s=0.2)
+    try:
+        with TestClient(app) as client:
+            submit(app, "alice", "builtin:random", name="first-entry")
+            drain(app)
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:
+                response = client.get(BOARD)
+                if response.status_code == 200 and response.json()["entries"]:
+                    break
+                time.sleep(0.2)
+            assert names(client) == ["first-entry"]
+            assert app.state.board_worker.process.is_alive()
+        assert not app.state.board_worker.process.is_alive()  # stopped with the server
+    finally:
+        app.state.runtime.dispose()

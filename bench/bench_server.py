@@ -109,20 +109,25 @@ def episode_figures(
     return m, c
 
 
-def seed_rows(runtime: Any, n: int) -> int:
-    """Insert ``n`` finished submissions with their runs and episodes; returns the episode rows written."""
-    rng = random.Random(0)
+def seed_rows(runtime: Any, n: int, *, first: int = 0, fixed_quality: float | None = None) -> int:
+    """Insert ``n`` finished submissions with their runs and episodes; returns the episode rows written.
+
+    ``first``: how many the database already has (these are its next ones, finishing now);
+    ``fixed_quality``: theirs (0..1; default: random), e.g. 1 for a new best."""
+    rng = random.Random(first)
     now = utcnow()
     engine = runtime.engine
     postgres = engine.dialect.name == "postgresql"
-    with runtime.session() as s:
-        s.add_all([Participant(name=f"team-{i:03d}") for i in range(TEAMS)])
+    if first == 0:
+        with runtime.session() as s:
+            s.add_all([Participant(name=f"team-{i:03d}") for i in range(TEAMS)])
     with runtime.session() as s:
         teams = [
             p for (p,) in s.execute(text("SELECT id FROM participants WHERE name LIKE 'team-%' ORDER BY id"))
         ]
+        run_id = s.execute(text("SELECT coalesce(max(id), 0) FROM runs")).scalar_one()
+        episode_id = s.execute(text("SELECT coalesce(max(id), 0) FROM episodes")).scalar_one()
     subs, runs, episodes = [], [], 0
-    run_id, episode_id = 0, 0
     batch: list[tuple[Any, ...]] = []
 
     def flush() -> None:
@@ -131,14 +136,14 @@ def seed_rows(runtime: Any, n: int) -> int:
             write_episodes(engine, batch, postgres)
             batch = []
 
-    for i in range(n):
+    for i in range(first, first + n):
         kind = "failed" if i % 50 == 7 else "partial" if i % 50 == 23 else "ok"
         settings = ("math",) if kind == "partial" else SETTINGS
         # the server's runs: every setting closed loop, and the physical ones again under the paper protocol
         boards = [(st, "closed") for st in settings] + [
             (st, "paper") for st in work.paper_settings(list(settings), "private")
         ]
-        quality = rng.random()
+        quality = rng.random() if fixed_quality is None else fixed_quality
         sub_id = i + 1
         subs.append(
             {
@@ -153,7 +158,7 @@ def seed_rows(runtime: Any, n: int) -> int:
                 "episodes_total": GROUPS * 3 * len(boards),
                 "status": "failed" if kind == "failed" else "completed",
                 "created_at": now - timedelta(days=1),
-                "finished_at": now - timedelta(seconds=n - i),
+                "finished_at": now - timedelta(seconds=first + n - i),
             }
         )
         for d in DATASETS:

@@ -37,7 +37,8 @@ def participant_key(row: Mapping[str, Any]) -> str:
     return f"baseline:{row['name']}" if row.get("baseline") else f"participant:{row['participant']}"
 
 
-def _classify(row: Mapping[str, Any], groups: int) -> tuple[str, str]:
+def classify_row(row: Mapping[str, Any], groups: int) -> tuple[str, str]:
+    """A candidate run's status on a board of ``groups`` groups (``ranked``, ``failed``, ``partial``) and why."""
     extras = row.get("extras") or {}
     episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
     failures = stats.policy_failure_count(extras.get("terminations"))
@@ -51,7 +52,8 @@ def _classify(row: Mapping[str, Any], groups: int) -> tuple[str, str]:
     return "ranked", ""
 
 
-def _public(row: Mapping[str, Any]) -> dict[str, Any]:
+def public_fields(row: Mapping[str, Any]) -> dict[str, Any]:
+    """What a board shows of a candidate run's row."""
     keys = (
         "submission_id",
         "name",
@@ -95,13 +97,13 @@ def classify(rows: Sequence[Mapping[str, Any]]) -> Classified:
         submitted[participant_key(row)] = submitted.get(participant_key(row), 0) + 1
     ranked_rows, unranked = [], []
     for row in rows:
-        status, reason = _classify(row, groups)
+        status, reason = classify_row(row, groups)
         if status == "ranked":
             ranked_rows.append(row)
         else:
             unranked.append(
                 {
-                    **_public(row),
+                    **public_fields(row),
                     "status": status,
                     "reason": reason,
                     "entries_submitted": submitted[participant_key(row)],
@@ -143,7 +145,7 @@ def assemble_board(
         rank_ci = scores.rank_ci[i]
         entries.append(
             {
-                **_public(row),
+                **public_fields(row),
                 "rank": s.rank,
                 "rank_low": None if rank_ci is None else rank_ci[0],
                 "rank_high": None if rank_ci is None else rank_ci[1],
@@ -159,9 +161,34 @@ def assemble_board(
                 "_column": i,
             }
         )
+    return finish_board(
+        dataset,
+        setting,
+        track,
+        sorted_out.groups,
+        entries,
+        sorted_out.unranked,
+        scores.samples,
+        scores.stable_samples,
+        best_samples,
+    )
+
+
+def finish_board(
+    dataset: str,
+    setting: str,
+    track: str,
+    groups: int,
+    entries: list[dict[str, Any]],
+    unranked: list[dict[str, Any]],
+    samples: np.ndarray,
+    stable_samples: np.ndarray,
+    best_samples: Callable[[list[int]], np.ndarray],
+) -> dict[str, Any]:
+    """The board dict from its ranked entries (input order, ``_column`` = position) and unranked ones."""
     _mark_best(entries, best_samples)
     order = sorted(range(len(entries)), key=lambda i: (entries[i]["rank"], entries[i]["submission_id"]))
-    unranked = sorted(sorted_out.unranked, key=lambda e: (e["status"], e["submission_id"]))
+    unranked = sorted(unranked, key=lambda e: (e["status"], e["submission_id"]))
     best = [
         {**e, "rank": e["best_rank"], "rank_low": e["best_rank_low"], "rank_high": e["best_rank_high"]}
         for e in entries
@@ -176,7 +203,7 @@ def assemble_board(
         "weights": WEIGHTS[setting],
         "ranked_by": RANKED_BY,
         "anchors": ANCHORS_VERSION,
-        "groups": sorted_out.groups,
+        "groups": groups,
         "resamples": stats.RESAMPLES,
         "confidence": stats.CONFIDENCE,
         "entries": [entries[i] for i in order],
@@ -184,8 +211,8 @@ def assemble_board(
         # copies: a slice would keep the full resample arrays alive in the cache
         "_best": best,  # the default view, ready to page
         "_index": {entries[i]["submission_id"]: k for k, i in enumerate(order)},  # position in "entries"
-        "_samples": scores.samples[:GRID_RESAMPLES].copy(),
-        "_stable_samples": scores.stable_samples[:GRID_RESAMPLES].copy(),
+        "_samples": samples[:GRID_RESAMPLES].copy(),
+        "_stable_samples": stable_samples[:GRID_RESAMPLES].copy(),
     }
 
 

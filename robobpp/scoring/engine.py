@@ -20,6 +20,7 @@ each entry's own samples: an entry's samples are always computed alone), except 
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -27,10 +28,16 @@ from typing import Any
 import numpy as np
 
 from robobpp.scoring import stats
-from robobpp.scoring.boards import GRID_RESAMPLES, assemble_board, classify
+from robobpp.scoring.boards import (
+    GRID_RESAMPLES,
+    classify_row,
+    finish_board,
+    participant_key,
+    public_fields,
+)
 from robobpp.scoring.entries import EntryPart, counts, metric_keys, samples_of, stable_samples
 from robobpp.scoring.metrics import METRIC_BY_KEY
-from robobpp.scoring.scores import WEIGHTS, BoardScores, score_entries, stable_scores
+from robobpp.scoring.scores import WEIGHTS, competition_ranks, stable_scores
 
 #: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
@@ -40,21 +47,39 @@ CHUNK = 512
 
 @dataclass(slots=True)
 class _Scored:
-    """What a board keeps of one ranked entry between updates (valid for the board's current basis)."""
+    """What a board keeps of one ranked entry between updates (valid under the board's current min–max)."""
 
+    order: np.ndarray  # (4,): the order statistics its score interval interpolates between
     score_ci: tuple[float, float]
     stable_ci: tuple[float, float]
-    metric_ci: dict[str, tuple[float, float] | None]
+    intervals: dict[str, list[float] | None]
     rel: np.ndarray  # float32 (GRID_RESAMPLES,): relative score samples, for the grid
     stable: np.ndarray  # float32 (GRID_RESAMPLES,)
-    rank_ci: tuple[int, int] | None
+    rank_ci: tuple[int, int] | None = None
+
+
+@dataclass(slots=True)
+class _Entry:
+    """One candidate row of the board, with what its scoring needs decoded once."""
+
+    row: dict[str, Any]
+    episodes: int
+    policy_failed: bool
+    submission_failed: bool
+    who: str
+    points: np.ndarray  # (metrics,) point figures, NaN = missing
+    stable: float  # the point stable score (its own metrics alone)
+    ids: bytes | None
+    public: dict[str, Any]
+    scored: _Scored | None = None
+    normalized: tuple[bytes, dict[str, float]] | None = None
 
 
 class BoardMatrix:
     """One board (dataset × setting × protocol of a track) kept between updates.
 
-    ``rows`` are what :func:`robobpp.db.queries.board_rows` returns without ``figures``, with ``ids``: the
-    run's group ids as bytes (None without figures). ``load`` reads parts when the board must renormalise.
+    ``rows`` are what :func:`robobpp.db.queries.board_runs` returns without ``entry``, with ``ids``: the
+    run's group ids as bytes (None without figures). ``load`` reads stored parts by submission id.
     """
 
     def __init__(self, dataset: str, setting: str, track: str, protocol: str, load: PartLoader) -> None:
@@ -62,16 +87,24 @@ class BoardMatrix:
             raise ValueError(f"unknown setting {setting!r}; expected one of {', '.join(WEIGHTS)}")
         self.dataset, self.setting, self.track, self.protocol = dataset, setting, track, protocol
         self.load = load
-        self.rows: dict[int, dict[str, Any]] = {}
         self.keys = metric_keys(setting)
+        self._up = np.array([METRIC_BY_KEY[k].better == "up" for k in self.keys])
+        self._weights = np.array([WEIGHTS[setting][k] for k in self.keys])
+        self._entries: dict[int, _Entry] = {}
         self._parts: dict[int, EntryPart | None] = {}  # of new entries and the best ones
         self._basis: tuple[Any, ...] | None = None
         self._lo = self._hi = np.zeros((0, 0))
-        self._scored: dict[int, _Scored] = {}
-        #: Bumped whenever every entry's samples were renormalised (the grid's cache key).
+        #: Bumped whenever entries already on the board were renormalised (a resample's min–max moved).
         self.epoch = 0
-        #: Whether every entry's rank interval is current (last :meth:`board` was a full computation).
-        self.ranks_current = False
+        #: Counters of what updates did (BENCHMARKS.md): renormalised rows, entries recomputed in full.
+        self.shifted_rows = 0
+        self.recomputed = 0
+
+    def __contains__(self, submission_id: object) -> bool:
+        return submission_id in self._entries
+
+    def submission_ids(self) -> list[int]:
+        return list(self._entries)
 
     def apply(
         self,
@@ -81,81 +114,101 @@ class BoardMatrix:
     ) -> None:
         """Add or replace rows (``parts``: their parts when already at hand), drop submissions."""
         for sid in remove:
-            self.rows.pop(sid, None)
-            self._scored.pop(sid, None)
+            if self._entries.pop(sid, None) is not None:
+                self._basis = None  # it may have held a min or max: renormalise everyone
             self._parts.pop(sid, None)
-            self._basis = None if self._basis is None else (*self._basis, "removed")
         for row in upsert:
             sid = int(row["submission_id"])
-            old = self.rows.get(sid)
-            self.rows[sid] = dict(row)
-            if old is not None and _scoring_fields(old) != _scoring_fields(row):
-                self._scored.pop(sid, None)
-                self._basis = None if self._basis is None else (*self._basis, "changed")
+            old = self._entries.get(sid)
+            entry = self._entry(row)
+            if old is not None:
+                if _scoring_fields(old.row) == _scoring_fields(row):
+                    entry.scored, entry.normalized = old.scored, old.normalized
+                else:
+                    self._basis = None
+            self._entries[sid] = entry
         for sid, part in (parts or {}).items():
             self._parts[sid] = part
 
+    def _entry(self, row: Mapping[str, Any]) -> _Entry:
+        extras = row.get("extras") or {}
+        episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
+        metrics = row.get("metrics") or {}
+        return _Entry(
+            row=dict(row),
+            episodes=episodes,
+            policy_failed=stats.run_failed(extras.get("terminations"), episodes),
+            submission_failed=row.get("submission_status") == "failed",
+            who=participant_key(row),
+            points=np.array([_point(metrics.get(k)) for k in self.keys], dtype=np.float64),
+            stable=stable_scores([metrics], self.setting)[0],
+            ids=row.get("ids"),
+            public=public_fields(row),
+        )
+
     def board(self, *, rank_intervals: bool = False) -> dict[str, Any]:
         """The board now (``rank_intervals``: compute every entry's, a full computation)."""
-        rows = [self.rows[s] for s in sorted(self.rows)]
-        sorted_out = classify(rows)
-        ranked = sorted_out.ranked
-        sids = [int(r["submission_id"]) for r in ranked]
-        ids = next((r["ids"] for r in ranked if r.get("ids") is not None), None)
+        everyone = [self._entries[s] for s in sorted(self._entries)]
+        groups = max((e.episodes for e in everyone if not e.policy_failed), default=0)
+        ranked = [e for e in everyone if not (e.policy_failed or e.submission_failed or e.episodes < groups)]
+        submitted = Counter(e.who for e in everyone)
+        ids = next((e.ids for e in ranked if e.ids is not None), None)
         plan = counts(len(ids) // 8) if ids else np.ones((stats.RESAMPLES, 1))
-        usable = np.array([r.get("ids") is not None and r["ids"] == ids for r in ranked], dtype=bool)
-        points = np.array([_points(r.get("metrics") or {}, self.keys) for r in ranked]).reshape(
-            len(ranked), len(self.keys)
+        usable = np.array([e.ids is not None and e.ids == ids for e in ranked], dtype=bool)
+        basis = (groups, ids, plan.shape)
+        fresh = [i for i, e in enumerate(ranked) if e.scored is None]
+        full = (
+            rank_intervals
+            or self._basis != basis
+            or len(ranked) - len(fresh) != sum(e.scored is not None for e in everyone)
         )
-        basis = (sorted_out.groups, ids)
-        full = rank_intervals or self._basis != basis or not set(self._scored) <= set(sids)
-        fresh = [i for i, s in enumerate(sids) if s not in self._scored]
-        if not full and fresh:
-            new = self._samples([sids[i] for i in fresh], usable[fresh], points[fresh], plan)
-            lo, hi = _fmin(self._lo, new), _fmax(self._hi, new)
-            if _same(lo, self._lo) and _same(hi, self._hi):
-                self._score(new, [sids[i] for i in fresh], usable[fresh])
-            else:
-                full = True
         rel_all = None
-        if full:
-            rel_all = self._renormalise(sids, usable, points, plan, keep=rank_intervals)
+        if not full and fresh:
+            new = self._samples([ranked[i] for i in fresh], usable[fresh], plan)
+            lo, hi = _fmin(self._lo, new), _fmax(self._hi, new)
+            moved = np.flatnonzero(~_same_rows(lo, self._lo) | ~_same_rows(hi, self._hi))
+            if moved.size:
+                old = [i for i, e in enumerate(ranked) if e.scored is not None]
+                self._shift(moved, lo, hi, [ranked[i] for i in old], usable[old], plan)
+            self._score(new, [ranked[i] for i in fresh], usable[fresh])
+        elif full:
+            chosen = {id(e) for e in ranked}
+            for e in everyone:
+                if id(e) not in chosen:
+                    e.scored = None
+            rel_all = self._renormalise(ranked, usable, plan, keep=rank_intervals)
             self._basis = basis
             self.epoch += 1
-        self.ranks_current = rank_intervals
-        if rel_all is not None and rank_intervals and sids:
+        if rel_all is not None and rank_intervals and ranked:
             low, high = stats.rank_interval(stats.rank_samples(rel_all))
-            for k, s in enumerate(sids):
-                self._scored[s].rank_ci = (int(low[k]), int(high[k]))
-        scores = self._board_scores(ranked, sids)
+            for k, e in enumerate(ranked):
+                assert e.scored is not None
+                e.scored.rank_ci = (int(low[k]), int(high[k]))
 
         def best_samples(chosen: list[int]) -> np.ndarray:
             if rel_all is not None:
                 return rel_all[:, chosen].astype(np.float32)
-            picked = [sids[i] for i in chosen]
-            samples = self._samples(picked, usable[chosen], points[chosen], plan)
-            return self._relative(samples).T.astype(np.float32)
+            samples = self._samples([ranked[i] for i in chosen], usable[chosen], plan)
+            return self._relative(samples, self._lo, self._hi).T.astype(np.float32)
 
-        board = assemble_board(self.dataset, self.setting, self.track, sorted_out, scores, best_samples)
-        board["protocol"] = self.protocol
+        board = self._assemble(everyone, ranked, groups, submitted, best_samples)
         keep = {e["submission_id"] for e in board["_best"]}
         self._parts = {s: p for s, p in self._parts.items() if s in keep}
         return board
 
     # -- the parts of the computation
 
-    def _samples(
-        self, sids: Sequence[int], usable: np.ndarray, points: np.ndarray, plan: np.ndarray
-    ) -> np.ndarray:
+    def _samples(self, entries: Sequence[_Entry], usable: np.ndarray, plan: np.ndarray) -> np.ndarray:
         """Entries' metric samples: (entries, resamples, metrics); an entry without usable figures keeps
         its point metrics in every resample (as ``score_board`` does)."""
+        sids = [int(e.row["submission_id"]) for e in entries]
         missing = [s for s, ok in zip(sids, usable, strict=True) if ok and s not in self._parts]
         if missing:
             self._parts.update(self.load(missing))
-        out = np.empty((len(sids), plan.shape[0], len(self.keys)))
+        out = np.empty((len(entries), plan.shape[0], len(self.keys)))
         rows = [k for k, ok in enumerate(usable) if ok]
         if rows:
-            parts = [self._parts[sids[k]] for k in rows]
+            parts = [self._parts.get(sids[k]) for k in rows]
             if any(p is None for p in parts):
                 raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
             top = np.stack([p.top for p in parts if p is not None])
@@ -163,95 +216,223 @@ class BoardMatrix:
             out[rows] = samples_of(top, bottom, plan)
         for k, ok in enumerate(usable):
             if not ok:
-                out[k] = points[k]
+                out[k] = entries[k].points
         return out
 
-    def _relative(self, samples: np.ndarray) -> np.ndarray:
-        """Relative score samples (entries, resamples) under the board's min–max (``_min_max_rows``)."""
+    def _relative(self, samples: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Relative score samples (entries, resamples) under a min–max (``scores._min_max_rows``)."""
         total = np.zeros(samples.shape[:2])
         with np.errstate(invalid="ignore", divide="ignore"):
-            for j, (key, weight) in enumerate(WEIGHTS[self.setting].items()):
-                lo, hi = self._lo[:, j], self._hi[:, j]
-                span = hi - lo
+            for j, weight in enumerate(self._weights):
+                span = hi[:, j] - lo[:, j]
                 s = samples[:, :, j]
-                out = (s - lo) / span if METRIC_BY_KEY[key].better == "up" else (hi - s) / span
+                out = (s - lo[:, j]) / span if self._up[j] else (hi[:, j] - s) / span
                 total += weight * np.where(np.isfinite(out) & (span > 0), out, 0.0)
         return np.round(total, 12)
 
-    def _score(self, samples: np.ndarray, sids: Sequence[int], usable: np.ndarray) -> np.ndarray:
+    def _score(self, samples: np.ndarray, entries: Sequence[_Entry], usable: np.ndarray) -> np.ndarray:
         """Store the entries' scored part under the current min–max; returns their relative samples.
 
         An entry's metric and stable intervals are its stored part's (computed when its run finished);
         one without usable figures has point metrics in every resample, so no metric interval."""
-        rel = self._relative(samples)
+        rel = self._relative(samples, self._lo, self._hi)
         stab = stable_samples(samples, self.setting)
-        lo, hi = stats.interval(rel.T)
-        for k, sid in enumerate(sids):
-            part = self._parts.get(sid) if usable[k] else None
+        order, (lo, hi) = _order_and_interval(rel)
+        for k, entry in enumerate(entries):
+            part = self._parts.get(int(entry.row["submission_id"])) if usable[k] else None
             if part is not None:
-                metric_ci = {
-                    key: (float(a), float(b)) if np.isfinite(a) else None
+                intervals = {
+                    key: [float(a), float(b)] if np.isfinite(a) else None
                     for key, (a, b) in zip(self.keys, part.metric_ci, strict=True)
                 }
                 stable_ci = part.stable_ci
             else:
-                metric_ci = dict.fromkeys(self.keys)
+                intervals = dict.fromkeys(self.keys)
                 slo, shi = stats.interval(stab[k][:, None])
                 stable_ci = (float(slo[0]), float(shi[0]))
-            self._scored[sid] = _Scored(
+            rank_ci = None if entry.scored is None else entry.scored.rank_ci
+            entry.scored = _Scored(
+                order=order[k],
                 score_ci=(float(lo[k]), float(hi[k])),
                 stable_ci=stable_ci,
-                metric_ci=metric_ci,
+                intervals=intervals,
                 rel=rel[k, :GRID_RESAMPLES].astype(np.float32),
                 stable=stab[k, :GRID_RESAMPLES].astype(np.float32),
-                rank_ci=None,
+                rank_ci=rank_ci,
             )
+        self.recomputed += len(entries)
         return rel
 
+    def _shift(
+        self,
+        moved: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        entries: Sequence[_Entry],
+        usable: np.ndarray,
+        plan: np.ndarray,
+    ) -> None:
+        """A new entry moved the min or max of the resamples ``moved``: only those resamples of every other
+        entry change. An entry whose changed samples stay on the same side of each order statistic its score
+        interval uses keeps that interval (those statistics cannot move); the others are recomputed."""
+        pad = (-moved.size) % 8  # the matrix product gives the same bits as the full one in blocks of 8 rows
+        rows = np.concatenate([moved, np.zeros(pad, dtype=moved.dtype)])
+        samples = self._samples(entries, usable, plan[rows])[:, : moved.size]
+        before = self._relative(samples, self._lo[moved], self._hi[moved])
+        after = self._relative(samples, lo[moved], hi[moved])
+        order = np.stack([e.scored.order for e in entries if e.scored is not None])
+        side_before, side_after = _side(before, order), _side(after, order)
+        kept = np.all((side_before == side_after) & (side_before >= 0), axis=1)
+        grid_rows = moved < GRID_RESAMPLES
+        self._lo, self._hi = lo, hi
+        redo = [k for k in range(len(entries)) if not kept[k]]
+        for k in np.flatnonzero(kept):
+            scored = entries[k].scored
+            assert scored is not None
+            scored.rel = scored.rel.copy()
+            scored.rel[moved[grid_rows]] = after[k, grid_rows].astype(np.float32)
+        for a in range(0, len(redo), CHUNK):
+            chunk = [entries[k] for k in redo[a : a + CHUNK]]
+            ok = usable[redo[a : a + CHUNK]]
+            self._score(self._samples(chunk, ok, plan), chunk, ok)
+        self.shifted_rows += int(moved.size)
+        self.epoch += 1
+
     def _renormalise(
-        self, sids: list[int], usable: np.ndarray, points: np.ndarray, plan: np.ndarray, *, keep: bool
+        self, ranked: list[_Entry], usable: np.ndarray, plan: np.ndarray, *, keep: bool
     ) -> np.ndarray | None:
         """Every entry's samples again: the min–max first, then each entry scored under it. Returns every
         entry's relative samples (resamples, entries) when ``keep``."""
+        sids = [int(e.row["submission_id"]) for e in ranked]
         self._parts.update(self.load([s for s, ok in zip(sids, usable, strict=True) if ok]))
         m = len(self.keys)
         lo = np.full((plan.shape[0], m), np.nan)
         hi = np.full((plan.shape[0], m), np.nan)
-        for a in range(0, len(sids), CHUNK):
-            chunk = self._samples(sids[a : a + CHUNK], usable[a : a + CHUNK], points[a : a + CHUNK], plan)
+        for a in range(0, len(ranked), CHUNK):
+            chunk = self._samples(ranked[a : a + CHUNK], usable[a : a + CHUNK], plan)
             lo, hi = _fmin(lo, chunk), _fmax(hi, chunk)
         self._lo, self._hi = lo, hi
-        ranks_before = {s: self._scored[s].rank_ci for s in sids if s in self._scored}
-        self._scored = {}
-        rel_all = np.empty((plan.shape[0], len(sids))) if keep else None
-        for a in range(0, len(sids), CHUNK):
-            part = sids[a : a + CHUNK]
-            chunk = self._samples(part, usable[a : a + CHUNK], points[a : a + CHUNK], plan)
-            rel = self._score(chunk, part, usable[a : a + CHUNK])
+        rel_all = np.empty((plan.shape[0], len(ranked))) if keep else None
+        for a in range(0, len(ranked), CHUNK):
+            chunk_entries = ranked[a : a + CHUNK]
+            chunk = self._samples(chunk_entries, usable[a : a + CHUNK], plan)
+            rel = self._score(chunk, chunk_entries, usable[a : a + CHUNK])
             if rel_all is not None:
-                rel_all[:, a : a + len(part)] = rel.T
-        for s, ci in ranks_before.items():  # kept until the next full computation replaces them
-            self._scored[s].rank_ci = ci
+                rel_all[:, a : a + len(chunk_entries)] = rel.T
         return rel_all
 
-    def _board_scores(self, ranked: Sequence[Mapping[str, Any]], sids: list[int]) -> BoardScores:
-        metrics = [r.get("metrics") or {} for r in ranked]
-        scored = [self._scored[s] for s in sids]
-        n = len(sids)
-        return BoardScores(
-            scored=score_entries(metrics, self.setting),
-            score_ci=[s.score_ci for s in scored],
-            rank_ci=[s.rank_ci for s in scored],
-            stable=stable_scores(metrics, self.setting),
-            stable_ci=[s.stable_ci for s in scored],
-            metric_ci=[s.metric_ci for s in scored],
-            samples=np.stack([s.rel for s in scored], axis=1)
+    def _points(self, ranked: Sequence[_Entry]) -> tuple[list[float], list[int], list[dict[str, float]]]:
+        """Point scores, competition ranks and normalised metrics (``scores.score_entries``, vectorised:
+        the same operations in the same order, so the same numbers)."""
+        n = len(ranked)
+        points = np.array([e.points for e in ranked]).reshape(n, len(self.keys))
+        total = np.zeros(n)
+        norm = np.zeros_like(points)
+        bounds = []
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for j, weight in enumerate(self._weights):
+                col = points[:, j]
+                present = np.isfinite(col)
+                if present.any():
+                    lo, hi = col[present].min(), col[present].max()
+                    span = hi - lo
+                    value = (col - lo) / span if self._up[j] else (hi - col) / span
+                    norm[:, j] = np.where(present & (span > 0), value, 0.0)
+                    bounds += [lo, hi]
+                total += weight * norm[:, j]
+        scores = [round(x, 12) for x in total.tolist()]  # as score_entries: ties must tie
+        key = np.array(bounds).tobytes()
+        normalized = []
+        for k, e in enumerate(ranked):
+            if e.normalized is None or e.normalized[0] != key:
+                e.normalized = (key, dict(zip(self.keys, norm[k].tolist(), strict=True)))
+            normalized.append(e.normalized[1])
+        return scores, competition_ranks(scores), normalized
+
+    def _assemble(
+        self,
+        everyone: list[_Entry],
+        ranked: list[_Entry],
+        groups: int,
+        submitted: Counter[str],
+        best_samples: Callable[[list[int]], np.ndarray],
+    ) -> dict[str, Any]:
+        """The board dict, as ``boards.assemble_board`` makes it."""
+        ranked_ids = {id(e) for e in ranked}
+        unranked = []
+        for e in everyone:
+            if id(e) not in ranked_ids:
+                status, reason = classify_row(e.row, groups)
+                unranked.append(
+                    {**e.public, "status": status, "reason": reason, "entries_submitted": submitted[e.who]}
+                )
+        scores, ranks, normalized = self._points(ranked)
+        entries = []
+        for i, e in enumerate(ranked):
+            s = e.scored
+            assert s is not None
+            entries.append(
+                {
+                    **e.public,
+                    "rank": ranks[i],
+                    "rank_low": None if s.rank_ci is None else s.rank_ci[0],
+                    "rank_high": None if s.rank_ci is None else s.rank_ci[1],
+                    "score": scores[i],
+                    "score_low": s.score_ci[0],
+                    "score_high": s.score_ci[1],
+                    "stable": e.stable,
+                    "stable_low": s.stable_ci[0],
+                    "stable_high": s.stable_ci[1],
+                    "normalized": normalized[i],
+                    "intervals": s.intervals,
+                    "entries_submitted": submitted[e.who],
+                    "_column": i,
+                }
+            )
+        n = len(ranked)
+        samples = (
+            np.stack([e.scored.rel for e in ranked if e.scored is not None], axis=1)
             if n
-            else np.zeros((GRID_RESAMPLES, 0), np.float32),
-            stable_samples=np.stack([s.stable for s in scored], axis=1)
-            if n
-            else np.zeros((GRID_RESAMPLES, 0), np.float32),
+            else np.zeros((GRID_RESAMPLES, 0), np.float32)
         )
+        stable = (
+            np.stack([e.scored.stable for e in ranked if e.scored is not None], axis=1)
+            if n
+            else np.zeros((GRID_RESAMPLES, 0), np.float32)
+        )
+        board = finish_board(
+            self.dataset, self.setting, self.track, groups, entries, unranked, samples, stable, best_samples
+        )
+        board["protocol"] = self.protocol
+        return board
+
+
+def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Each row's (entries, resamples; no NaN) four order statistics the percentile interval interpolates
+    between, and the interval (``stats.interval``: the same formula, so the same bits)."""
+    r = rel.shape[1]
+    tail = (1.0 - stats.CONFIDENCE) / 2.0
+    ordered = np.sort(rel, axis=1)
+    picks, ends = [], []
+    for q in (tail, 1.0 - tail):
+        position = q * np.maximum(np.full(rel.shape[0], r) - 1, 0)
+        below = np.floor(position).astype(np.intp)
+        above = np.minimum(below + 1, np.maximum(r - 1, 0))
+        low = np.take_along_axis(ordered, below[:, None], axis=1)[:, 0]
+        high = np.take_along_axis(ordered, above[:, None], axis=1)[:, 0]
+        picks += [low, high]
+        ends.append(low + (high - low) * (position - below))
+    return np.stack(picks, axis=1), (ends[0], ends[1])
+
+
+def _side(values: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Where each value lies against an entry's order statistics (entries, 4): 0 below the first, 1
+    strictly between the second and the third, 2 above the fourth, -1 on or between a pair (undecided)."""
+    out = np.full(values.shape, -1, dtype=np.int8)
+    out[values < order[:, 0:1]] = 0
+    out[(values > order[:, 1:2]) & (values < order[:, 2:3])] = 1
+    out[values > order[:, 3:4]] = 2
+    return out
 
 
 def _scoring_fields(row: Mapping[str, Any]) -> tuple[Any, ...]:
@@ -259,33 +440,27 @@ def _scoring_fields(row: Mapping[str, Any]) -> tuple[Any, ...]:
     return (row.get("metrics"), row.get("extras"), row.get("ids"), row.get("submission_status"))
 
 
-def _points(metrics: Mapping[str, Any], keys: Sequence[str]) -> list[float]:
-    out = []
-    for key in keys:
-        v = metrics.get(key)
-        if isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v):
-            out.append(float(v))
-        else:
-            out.append(np.nan)
-    return out
+def _point(value: object) -> float:
+    if isinstance(value, int | float) and not isinstance(value, bool) and np.isfinite(value):
+        return float(value)
+    return np.nan
 
 
 def _fmin(lo: np.ndarray, samples: np.ndarray) -> np.ndarray:
     """Per resample and metric, the lower of ``lo`` and the entries' samples (NaN = nobody measured)."""
     if samples.shape[0] == 0:
         return lo
-    with np.errstate(invalid="ignore"):
-        low = np.fmin.reduce(samples, axis=0)
+    low = np.fmin.reduce(samples, axis=0)
     return low if lo.size == 0 else np.fmin(lo, low)
 
 
 def _fmax(hi: np.ndarray, samples: np.ndarray) -> np.ndarray:
     if samples.shape[0] == 0:
         return hi
-    with np.errstate(invalid="ignore"):
-        high = np.fmax.reduce(samples, axis=0)
+    high = np.fmax.reduce(samples, axis=0)
     return high if hi.size == 0 else np.fmax(hi, high)
 
 
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    return a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=True))
+def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per resample, whether two min (or max) arrays agree on every metric (NaN = NaN)."""
+    return np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)

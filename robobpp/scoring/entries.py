@@ -6,10 +6,11 @@ entry arriving or leaving can change it. A board update then only does the globa
 resample, ranks: :mod:`robobpp.scoring.engine`).
 
 Stored form (``runs.entry``, :meth:`EntryPart.encode`): a small header, then little-endian arrays — the group
-ids, the per-group figures as a groups × columns float64 matrix (one column per metric, NaN = unmeasured,
-and two for a pooled ratio: numerator and denominator), each metric's interval and the stable score's.
-float64, not float32: the figures are the recorded numbers bit for bit, so a board built from them equals
-one built from the recorded JSON figures.
+ids, the per-group figures as two groups × metrics float64 matrices (what a resample sums: the value, 0 when
+unmeasured, or a pooled ratio's numerator; and its weight: 1 measured / 0 not, or the denominator), each
+metric's interval and the stable score's. float64, not float32: the figures are the recorded numbers bit
+for bit, so a board built from them equals one built from the recorded JSON figures. Decoding is a view of
+the bytes (no copy, no parsing): a board reloads 10,000 parts in milliseconds.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from robobpp.scoring.metrics import POOLED
 from robobpp.scoring.scores import WEIGHTS, anchored
 
 #: Bumped when the stored layout or what it holds changes; a part of another format is recomputed.
-FORMAT = 1
+FORMAT = 2
 _HEADER = struct.Struct("<4sHHHH")  # magic, format, groups, metrics, resamples / 1 (0 = the default)
 _MAGIC = b"RBPE"
 
@@ -69,20 +70,13 @@ class EntryPart:
         return samples_of(self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan)[0]
 
     def encode(self) -> bytes:
-        keys = metric_keys(self.setting)
-        m = len(keys)
-        columns = []
-        for j, key in enumerate(keys):
-            if key in POOLED:
-                columns += [self.top[:, j], self.bottom[:, j]]
-            else:
-                columns.append(np.where(self.bottom[:, j] > 0, self.top[:, j], np.nan))
-        matrix = np.column_stack(columns) if columns else np.zeros((self.groups, 0))
+        m = len(metric_keys(self.setting))
         return b"".join(
             (
                 _HEADER.pack(_MAGIC, FORMAT, self.groups, m, 0),
                 self.ids.astype("<i8").tobytes(),
-                matrix.astype("<f8").tobytes(),
+                self.top.astype("<f8").tobytes(),
+                self.bottom.astype("<f8").tobytes(),
                 self.metric_ci.astype("<f8").tobytes(),
                 np.array(self.stable_ci, dtype="<f8").tobytes(),
             )
@@ -90,42 +84,24 @@ class EntryPart:
 
     @classmethod
     def decode(cls, data: bytes, setting: str) -> EntryPart | None:
-        """The part stored in ``data``, or None when it is of another format or setting (recompute it)."""
+        """The part stored in ``data``, or None when it is of another format or setting (recompute it).
+        The arrays are read-only views of ``data``: decoding copies nothing."""
         if len(data) < _HEADER.size:
             return None
         magic, fmt, groups, m, _ = _HEADER.unpack_from(data)
-        keys = metric_keys(setting)
-        if magic != _MAGIC or fmt != FORMAT or m != len(keys):
+        if magic != _MAGIC or fmt != FORMAT or m != len(metric_keys(setting)):
             return None
-        width = m + sum(k in POOLED for k in keys)
         at = _HEADER.size
-        ids = np.frombuffer(data, "<i8", groups, at).astype(np.int64)
+        ids = np.frombuffer(data, "<i8", groups, at)
         at += 8 * groups
-        matrix = np.frombuffer(data, "<f8", groups * width, at).reshape(groups, width)
-        at += 8 * groups * width
-        metric_ci = np.frombuffer(data, "<f8", 2 * m, at).reshape(m, 2).copy()
+        top = np.frombuffer(data, "<f8", groups * m, at).reshape(groups, m)
+        at += 8 * groups * m
+        bottom = np.frombuffer(data, "<f8", groups * m, at).reshape(groups, m)
+        at += 8 * groups * m
+        metric_ci = np.frombuffer(data, "<f8", 2 * m, at).reshape(m, 2)
         at += 16 * m
         stable_ci = np.frombuffer(data, "<f8", 2, at)
-        top, bottom = _split(matrix, keys)
         return cls(setting, ids, top, bottom, metric_ci, (float(stable_ci[0]), float(stable_ci[1])))
-
-
-def _split(matrix: np.ndarray, keys: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    tops, bottoms, c = [], [], 0
-    for key in keys:
-        if key in POOLED:
-            tops.append(matrix[:, c])
-            bottoms.append(matrix[:, c + 1])
-            c += 2
-        else:
-            ok = np.isfinite(matrix[:, c])
-            tops.append(np.where(ok, matrix[:, c], 0.0))
-            bottoms.append(ok.astype(np.float64))
-            c += 1
-    g = matrix.shape[0]
-    if not keys:
-        return np.zeros((g, 0)), np.zeros((g, 0))
-    return np.column_stack(tops), np.column_stack(bottoms)
 
 
 def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndarray:

@@ -173,7 +173,7 @@ class BoardEngine:
             for key, matrix in state.boards.items():
                 upsert = by_board.get(key, [])
                 present = {int(r["submission_id"]) for r in upsert}
-                gone = [s for s in (*removed, *changed) if s in matrix.rows and s not in present]
+                gone = [s for s in (*removed, *changed) if s in matrix and s not in present]
                 if upsert or gone:
                     matrix.apply(
                         [_row(r) for r in upsert], gone, parts={r["submission_id"]: r["part"] for r in upsert}
@@ -218,7 +218,7 @@ class BoardEngine:
         for key, matrix in state.boards.items():
             rows = by_board.get(key, [])
             present = {int(r["submission_id"]) for r in rows}
-            matrix.apply([_row(r) for r in rows], [s for s in matrix.rows if s not in present])
+            matrix.apply([_row(r) for r in rows], [s for s in matrix.submission_ids() if s not in present])
             state.out[key] = matrix.board(rank_intervals=True)
         state.seen = seen
         grids = self._grids(track, state, full=True)

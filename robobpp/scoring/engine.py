@@ -286,7 +286,7 @@ class BoardMatrix:
         grid_rows = moved < GRID_RESAMPLES
         self._lo, self._hi = lo, hi
         redo = [k for k in range(len(entries)) if not kept[k]]
-        for k in np.flatnonzero(kept):
+        for k in np.flatnonzero(kept).tolist():
             scored = entries[k].scored
             assert scored is not None
             scored.rel = scored.rel.copy()

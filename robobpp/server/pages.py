@@ -28,6 +28,7 @@ from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body
 from robobpp.server.problems import ProblemError
+from robobpp.server.services import access
 from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
@@ -192,12 +193,13 @@ def _submission(session: Session, submission_id: int) -> Submission | None:
 
 def _is_owner(who: Viewer, sub: Submission) -> bool:
     """May ``who`` see this submission's details, live status and failure reasons? (The API's rule.)"""
-    return who.admin or (who.participant_id is not None and sub.participant_id == who.participant_id)
+    return access.is_owner(sub, admin=who.admin, participant_id=who.participant_id)
 
 
 def _visible(request: Request, session: Session, submission_id: int) -> Submission | None:
     sub = _submission(session, submission_id)
-    if sub is None or not (_is_owner(viewer(request), sub) or sub.participant.is_builtin):
+    who = viewer(request)
+    if sub is None or not access.may_see(sub, admin=who.admin, participant_id=who.participant_id):
         return None
     return sub
 

@@ -13,12 +13,21 @@ from robobpp.server.principal import Principal
 from robobpp.server.problems import ProblemError
 
 
+def is_owner(sub: Submission, *, admin: bool, participant_id: int | None) -> bool:
+    """May the caller see this submission's details, live status and failure reasons (the API's token and
+    the pages' session alike)?"""
+    return admin or (participant_id is not None and sub.participant_id == participant_id)
+
+
+def may_see(sub: Submission, *, admin: bool, participant_id: int | None) -> bool:
+    """Its owner and the operator see a submission; everyone sees the baselines."""
+    return is_owner(sub, admin=admin, participant_id=participant_id) or sub.participant.is_builtin
+
+
 def visible(session: Session, principal: Principal, submission_id: int) -> Submission:
     """The submission if ``principal`` may see it (404 otherwise)."""
     sub = session.get(Submission, submission_id)
-    if sub is not None and (
-        principal.admin or sub.participant_id == principal.participant_id or sub.participant.is_builtin
-    ):
+    if sub is not None and may_see(sub, admin=principal.admin, participant_id=principal.participant_id):
         return sub
     raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id} visible to this token")
 
@@ -47,7 +56,7 @@ def cancel(session: Session, principal: Principal, submission_id: int) -> Submis
 
 def seen_by_public(sub: Submission, principal: Principal) -> bool:
     """A baseline's episodes as every participant sees them (not its owner: the operator)."""
-    return not principal.admin and sub.participant_id != principal.participant_id
+    return not is_owner(sub, admin=principal.admin, participant_id=principal.participant_id)
 
 
 def public_episode(summary: EpisodeSummary) -> EpisodeSummary:

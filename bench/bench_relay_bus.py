@@ -1,13 +1,16 @@
-"""The pull relay's bus alone: what one step costs through Redis (two API processes) against in-process.
+"""The pull relay's bus alone: what one step costs through Redis or RabbitMQ (two API processes) vs in-process.
 
 A pull step is one frame from the worker's side to the client's side and one back. Here two endpoints of the
 relay bus (robobpp/server/relay_bus.py) exchange such frames, with nothing else around them: on one
 ``LocalBus`` (one API process), and on two ``RedisBus`` es with different node ids (what two API processes
-are: each frame is a ``PUBLISH`` to the other's channel and a delivery by its listener). Both buses run in
+are: each frame is a ``PUBLISH`` to the other's channel and a delivery by its listener), and on two
+``AmqpBus`` es (a publish to the other's exclusive queue, consumed by its thread). Both buses run in
 this one process and event loop, so the figures are the bus's own added latency and CPU per step, not a
-scheduling race between processes; the Redis server's own CPU is not counted.
+scheduling race between processes; the broker's own CPU is not counted. The GIL switch interval is the API
+process's (``ROBOBPP_SWITCH_INTERVAL_S``), since the AMQP bus hands messages between threads.
 
     python bench/bench_relay_bus.py [--exchanges 2000] [--size 3000] [--rounds 2] [--redis redis://127.0.0.1:6379/0]
+        [--amqp amqp://guest:guest@127.0.0.1:5672//]
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ import uuid
 
 import numpy as np
 
+from robobpp.server.config import Settings
+from robobpp.server.relay_amqp import AmqpBus
 from robobpp.server.relay_bus import FRAME, LocalBus, RedisBus
 
 
@@ -67,18 +72,23 @@ def main() -> None:
     parser.add_argument(
         "--redis", default=os.environ.get("ROBOBPP_PULL_BROKER_URL") or "redis://127.0.0.1:6379/0"
     )
+    parser.add_argument("--amqp", default="amqp://guest:guest@127.0.0.1:5672//")
     parser.add_argument("--json", dest="json_out", default=None)
     args = parser.parse_args()
+    # as the API process runs (ROBOBPP_SWITCH_INTERVAL_S): the AMQP bus's threads hand messages to the loop
+    sys.setswitchinterval(Settings().switch_interval_s)
 
     results: dict[str, dict[str, list[float]]] = {}
     for _ in range(args.rounds):
-        for kind in ("in-process", "redis"):
+        for kind in ("in-process", "redis", "rabbitmq"):
+            deployment = f"bench-{uuid.uuid4().hex[:8]}"
             if kind == "in-process":
                 local = LocalBus()
                 buses: tuple[LocalBus, LocalBus] = (local, local)
-            else:
-                deployment = f"bench-{uuid.uuid4().hex[:8]}"
+            elif kind == "redis":
                 buses = (RedisBus(args.redis, deployment), RedisBus(args.redis, deployment))
+            else:
+                buses = (AmqpBus(args.amqp, deployment), AmqpBus(args.amqp, deployment))
             times, cpu = asyncio.run(exchange(buses, args.exchanges, args.size))
             entry = results.setdefault(kind, {"p50_ms": [], "p95_ms": [], "cpu_us": []})
             entry["p50_ms"].append(float(np.percentile(times, 50)) * 1000)
@@ -90,8 +100,10 @@ def main() -> None:
             f"p95 {' / '.join(f'{v:.3f}' for v in entry['p95_ms'])} ms   "
             f"CPU {' / '.join(f'{v:.0f}' for v in entry['cpu_us'])} µs per step"
         )
-    added = np.median(results["redis"]["p50_ms"]) - np.median(results["in-process"]["p50_ms"])
-    print(f"added by Redis per step (p50, median of rounds): {added:.3f} ms")
+    base = np.median(results["in-process"]["p50_ms"])
+    added = {kind: float(np.median(results[kind]["p50_ms"]) - base) for kind in ("redis", "rabbitmq")}
+    for kind, ms in added.items():
+        print(f"added by {kind} per step (p50, median of rounds): {ms:.3f} ms")
     if args.json_out:
         with open(args.json_out, "w", encoding="utf-8") as fh:
             json.dump(

@@ -18,6 +18,9 @@ from typing import Literal
 from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+#: URL schemes of the brokers the pull relay's bus speaks (server/relay_bus.py, server/relay_amqp.py).
+BUS_SCHEMES = ("redis://", "rediss://", "unix://", "amqp://", "amqps://", "pyamqp://")
+
 #: Admin tokens that must never guard a real deployment.
 WEAK_TOKENS = frozenset({"", "changeme", "change-me", "admin", "secret", "password", "token"})
 
@@ -74,8 +77,8 @@ class Settings(BaseSettings):
     pull_wait_s: float = Field(default=30.0, gt=0)
     #: How long a worker waits for a dropped client to come back before the episode ends with policy_error.
     pull_reconnect_s: float = Field(default=30.0, gt=0)
-    #: Redis the API processes' pull relays meet through (``redis://…``); empty: ``broker_url`` when it is
-    #: Redis, else the relay lives in the one API process (docs/deploy.md, "Several API processes").
+    #: Broker the API processes' pull relays meet through (``redis://…`` or ``amqp://…``); empty: ``broker_url``,
+    #: else the relay lives in the one API process (docs/deploy.md, "Several API processes").
     pull_broker_url: str = ""
     evaluate_baselines: bool = True
     #: Built-in baselines evaluated on first start; ``None`` means every one (``robobpp.policies.BASELINES``).
@@ -161,17 +164,17 @@ class Settings(BaseSettings):
         return f"sqlite:///{(self.state_dir / 'robobpp.sqlite3').resolve()}"
 
     @property
-    def pull_redis_url(self) -> str:
-        """The Redis of the pull relay's bus, or ``""`` for the in-process relay (one API process only)."""
-        if self.pull_broker_url:
-            return self.pull_broker_url
-        return self.broker_url if self.broker_url.startswith(("redis://", "rediss://")) else ""
+    def pull_bus_url(self) -> str:
+        """The broker of the pull relay's bus (Redis or RabbitMQ), or ``""`` for the in-process relay (one API
+        process only): ``pull_broker_url``, else the Celery broker."""
+        return self.pull_broker_url or self.broker_url
 
     @model_validator(mode="after")
-    def _pull_broker_is_redis(self) -> Settings:
-        if self.pull_broker_url and not self.pull_broker_url.startswith(("redis://", "rediss://", "unix://")):
+    def _pull_broker_is_known(self) -> Settings:
+        if self.pull_broker_url and not self.pull_broker_url.startswith(BUS_SCHEMES):
             raise ValueError(
-                f"ROBOBPP_PULL_BROKER_URL must be a Redis URL (redis://host:port/db), got {self.pull_broker_url!r}"
+                "ROBOBPP_PULL_BROKER_URL must be a Redis or RabbitMQ URL (redis://host:port/db, "
+                f"amqp://user:password@host:port/vhost), got {self.pull_broker_url!r}"
             )
         return self
 

@@ -15,8 +15,8 @@ supervisor that serves nothing itself:
 5. ``/metrics`` of any API process sums the request metrics of all of them (server/prometheus.py).
 
 What is process-local stays correct with several processes: boards are published in SQL and read from there, login
-sessions and everything else a route reads are in SQL, the pull relay's sockets meet through Redis
-(:mod:`robobpp.server.relay_bus`). Without Redis it refuses to start (:func:`refusal`). Limits on connections
+sessions and everything else a route reads are in SQL, the pull relay's sockets meet through the broker, Redis or
+RabbitMQ (:mod:`robobpp.server.relay_bus`). Without a broker it refuses to start (:func:`refusal`). Limits on connections
 and on pull clients are per process (docs/deploy.md, "Several API processes").
 """
 
@@ -47,17 +47,11 @@ READY_TIMEOUT_S = 120.0
 
 def refusal(settings: Any, processes: int) -> str | None:
     """Why these settings cannot run ``processes`` API processes, or ``None`` when they can."""
-    if processes > 1 and not settings.pull_redis_url and settings.broker_url:
+    if processes > 1 and not settings.pull_bus_url:
         return (
-            f"--server-workers {processes} needs Redis, where the API processes' pull relays meet; the Celery "
-            f"broker ({settings.broker_url.split(':', 1)[0]}://) is not Redis and the relay speaks only Redis: "
-            "set ROBOBPP_PULL_BROKER_URL=redis://… for the relay"
-        )
-    if processes > 1 and not settings.pull_redis_url:
-        return (
-            f"--server-workers {processes} needs Redis, where the API processes' pull relays meet (a worker's "
-            "socket and the participant's may land on different processes): set ROBOBPP_BROKER_URL=redis://… "
-            "(Celery workers) or ROBOBPP_PULL_BROKER_URL=redis://… (local workers)"
+            f"--server-workers {processes} needs a broker, where the API processes' pull relays meet (a worker's "
+            "socket and the participant's may land on different processes): set ROBOBPP_BROKER_URL (Celery "
+            "workers) or ROBOBPP_PULL_BROKER_URL (local workers) to redis://… or amqp://…"
         )
     return None
 

@@ -10,7 +10,7 @@ idle client connections (their addresses):
 - :class:`LocalBus`: the embedded default, one API process, no broker: delivery is a put into the
   endpoint's queue.
 - :class:`RedisBus`: any number of processes and hosts through Redis (the deployment's Celery broker, or
-  ``ROBOBPP_PULL_BROKER_URL``). Each process subscribes to one channel of its own; a message to an endpoint
+  ``ROBOBPP_PULL_BROKER_URL``); :class:`robobpp.server.relay_amqp.AmqpBus` does the same through RabbitMQ. Each process subscribes to one channel of its own; a message to an endpoint
   of another process is one ``PUBLISH`` on that process's channel, a message between two endpoints of the
   same process never leaves it. The idle queues are Redis lists (``RPUSH``, ``BLPOP``).
 
@@ -291,13 +291,17 @@ def decode(data: bytes) -> tuple[str, Message] | None:
         return None
 
 
-def make_bus(redis_url: str, database_url: str) -> LocalBus:
-    """The bus a deployment's settings call for: Redis when one is configured, else in-process.
+def make_bus(broker_url: str, database_url: str) -> LocalBus:
+    """The bus a deployment's settings call for: Redis or RabbitMQ when one is configured, else in-process.
 
     ``database_url`` names the deployment: every API process of one deployment shares its database, and two
-    deployments sharing one Redis (tests, staging beside production) never see each other's sockets.
+    deployments sharing one broker (tests, staging beside production) never see each other's sockets.
     """
-    if not redis_url:
+    if not broker_url:
         return LocalBus()
     deployment = hashlib.sha256(database_url.encode()).hexdigest()[:16]
-    return RedisBus(redis_url, deployment)
+    if broker_url.startswith(("amqp://", "amqps://", "pyamqp://")):
+        from robobpp.server.relay_amqp import AmqpBus
+
+        return AmqpBus(broker_url, deployment)
+    return RedisBus(broker_url, deployment)

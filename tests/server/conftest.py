@@ -28,6 +28,7 @@ from tests._orphans import with_parent_death
 PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
 ADMIN_TOKEN = "test-admin-token-0123456789abcdef"
 REDIS_URL = os.environ.get("ROBOBPP_TEST_REDIS", "redis://127.0.0.1:6379/0")
+AMQP_URL = os.environ.get("ROBOBPP_TEST_AMQP", "amqp://guest:guest@127.0.0.1:5672//")
 OFFLINE = "robobpp.worker.specs:offline_spec"
 
 
@@ -72,6 +73,20 @@ def redis_or_skip() -> None:
         redis.Redis.from_url(REDIS_URL, socket_connect_timeout=2).ping()
     except redis.RedisError as exc:
         pytest.skip(f"Redis is not reachable at {REDIS_URL}: {exc}")
+
+
+def rabbitmq_or_skip() -> None:
+    """Skip (saying why) when the machine's RabbitMQ does not answer."""
+    import amqp
+
+    from robobpp.server.relay_amqp import connection_options
+
+    try:
+        connection = amqp.Connection(**connection_options(AMQP_URL))
+        connection.connect()
+        connection.close()
+    except Exception as exc:  # noqa: BLE001 - any failure to connect means "not here"
+        pytest.skip(f"RabbitMQ is not reachable at {AMQP_URL}: {exc}")
 
 
 def free_port() -> int:

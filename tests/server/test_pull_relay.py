@@ -1,9 +1,9 @@
 """The pull relay against hostile clients: the worker ends the episode with the same reasons as in push mode
 (a NaN, an answer over the cap, silence), and the relay refuses a worker without the episode's lease.
 
-Every case runs twice: with one API app (the in-process bus) and across two apps on one database whose
-buses meet through the real Redis, the client on one and the worker on the other, so each frame, and the
-oversize answer, crosses the broker."""
+Every case runs three times: with one API app (the in-process bus), and across two apps on one database whose
+buses meet through the real Redis, then the real RabbitMQ, the client on one and the worker on the other, so
+each frame, and the oversize answer, crosses the broker."""
 
 from __future__ import annotations
 
@@ -28,20 +28,28 @@ from robobpp.server.app import create_app
 from robobpp.server.config import Settings
 from robobpp.worker.pull import PullTransport
 from tests.conftest import make_spec
-from tests.server.conftest import REDIS_URL, redis_or_skip
+from tests.server.conftest import AMQP_URL, REDIS_URL, rabbitmq_or_skip, redis_or_skip
 
 ADMIN = "relay-admin-token-0123456789abcdef"
 Answer = Callable[[frames.Frame], bytes]
 
 
-@pytest.fixture(scope="module", params=["in-process", pytest.param("across-redis", marks=pytest.mark.redis)])
+@pytest.fixture(
+    scope="module",
+    params=[
+        "in-process",
+        pytest.param("across-redis", marks=pytest.mark.redis),
+        pytest.param("across-rabbitmq", marks=pytest.mark.rabbitmq),
+    ],
+)
 def relay(
     request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[dict[str, Any]]:
     tmp = tmp_path_factory.mktemp("relay")
     db = f"sqlite:///{tmp / 'relay.sqlite3'}"
     upgrade(db)
-    across = request.param == "across-redis"
+    across = request.param != "in-process"
+    broker = {"across-redis": REDIS_URL, "across-rabbitmq": AMQP_URL}.get(request.param, "")
     settings = Settings(
         database_url=db,
         admin_token=ADMIN,
@@ -50,10 +58,12 @@ def relay(
         groups=1,
         settings=("math",),
         evaluate_baselines=False,
-        pull_broker_url=REDIS_URL if across else "",
+        pull_broker_url=broker,
     )
-    if across:
+    if request.param == "across-redis":
         redis_or_skip()
+    elif request.param == "across-rabbitmq":
+        rabbitmq_or_skip()
     with (
         BackgroundServer(create_app(settings, start_workers=False)) as server,
         BackgroundServer(create_app(settings, start_workers=False)) as other,

@@ -16,8 +16,8 @@ it waits for the client to come back and resumes the episode on a new connection
 
 The two sockets of an episode need not land on the same API process. Each handler owns an endpoint of the
 relay bus (:mod:`robobpp.server.relay_bus`) and the two talk only through it: in-process when the API runs as
-one process with no Redis configured, through Redis otherwise (``robobpp serve --server-workers N``, or
-replicas on several hosts; docs/deploy.md, "Several API processes"). Pairing is one exchange: the worker's
+one process with no broker configured, through the deployment's broker otherwise, Redis or RabbitMQ
+(``robobpp serve --server-workers N``, or replicas on several hosts; docs/deploy.md, "Several API processes"). Pairing is one exchange: the worker's
 side takes an idle client address from the submission's queue and asks it to ``PAIR``; the client's side
 answers ``PAIRED``, or ``GONE`` if it was taken meanwhile, and the worker's side tries the next one.
 """
@@ -121,7 +121,7 @@ async def hub_of(app: Any) -> PullHub:
     hub = getattr(app.state, "pull_hub", None)
     if hub is None:
         settings = app.state.settings
-        hub = app.state.pull_hub = PullHub(make_bus(settings.pull_redis_url, settings.sqlalchemy_url))
+        hub = app.state.pull_hub = PullHub(make_bus(settings.pull_bus_url, settings.sqlalchemy_url))
     return await hub.start()
 
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import hashlib
 import itertools
 import logging
 import uuid
@@ -289,19 +288,3 @@ def decode(data: bytes) -> tuple[str, Message] | None:
         return to.decode("ascii"), Message(kind, sender.decode("ascii"), payload)
     except (ValueError, UnicodeDecodeError):
         return None
-
-
-def make_bus(broker_url: str, database_url: str) -> LocalBus:
-    """The bus a deployment's settings call for: Redis or RabbitMQ when one is configured, else in-process.
-
-    ``database_url`` names the deployment: every API process of one deployment shares its database, and two
-    deployments sharing one broker (tests, staging beside production) never see each other's sockets.
-    """
-    if not broker_url:
-        return LocalBus()
-    deployment = hashlib.sha256(database_url.encode()).hexdigest()[:16]
-    if broker_url.startswith(("amqp://", "amqps://", "pyamqp://")):
-        from robobpp.server.relay_amqp import AmqpBus
-
-        return AmqpBus(broker_url, deployment)
-    return RedisBus(broker_url, deployment)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import json
 import logging
 from collections import defaultdict
@@ -48,7 +49,7 @@ from robobpp.server.relay_bus import (
     WATCH_S,
     Endpoint,
     LocalBus,
-    make_bus,
+    RedisBus,
 )
 from robobpp.server.relay_bus import GONE as GONE_MESSAGE
 from robobpp.server.relay_bus import TOO_LARGE as TOO_LARGE_MESSAGE
@@ -114,6 +115,22 @@ class PullHub:
             table[key] -= 1
             if table[key] <= 0:
                 del table[key]
+
+
+def make_bus(broker_url: str, database_url: str) -> LocalBus:
+    """The bus a deployment's settings call for: Redis or RabbitMQ when one is configured, else in-process.
+
+    ``database_url`` names the deployment: every API process of one deployment shares its database, and two
+    deployments sharing one broker (tests, staging beside production) never see each other's sockets.
+    """
+    if not broker_url:
+        return LocalBus()
+    deployment = hashlib.sha256(database_url.encode()).hexdigest()[:16]
+    if broker_url.startswith(("amqp://", "amqps://", "pyamqp://")):
+        from robobpp.server.relay_amqp import AmqpBus
+
+        return AmqpBus(broker_url, deployment)
+    return RedisBus(broker_url, deployment)
 
 
 async def hub_of(app: Any) -> PullHub:

@@ -353,6 +353,21 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def rss_mb(pid: int) -> float:
+    """Resident memory of a process now, MB (Linux /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def children(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        out += [int(c) for c in (task / "children").read_text().split()]
+    return out
+
+
 def cpu_per_request(
     base: str, pid: int, paths: list[tuple[str, str, dict[str, str]]], n: int
 ) -> dict[str, float]:
@@ -624,6 +639,10 @@ def main() -> None:
             )
         everything = [v for values in samples.values() for v in values]
         print(f"| all routes | {len(everything)} | {_ms(everything)} | | |")
+        others = ", ".join(f"{rss_mb(c):.0f} MB" for c in children(proc.pid))
+        print(
+            f"\nRSS after the readers: server process {rss_mb(proc.pid):.0f} MB; its children {others or 'none'}"
+        )
 
         if args.accepts:
             with httpx.Client(

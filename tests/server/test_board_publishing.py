@@ -287,3 +287,30 @@ def test_the_board_worker_process_publishes_on_its_own(db_url: str, tmp_path: Pa
         assert not app.state.board_worker.process.is_alive()  # stopped with the server
     finally:
         app.state.runtime.dispose()
+
+
+def test_refresh_boards_command_has_the_worker_recompute(quiet_app, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``robobpp db refresh-boards``: the worker recomputes although no submission finished, and the boards
+    stay served until it has."""
+    from typer.testing import CliRunner
+
+    from robobpp.cli import _register
+    from robobpp.cli import app as cli_app
+
+    app = quiet_app
+    submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    assert publisher(app).publish("private") and publisher(app).publish("public")
+    monkeypatch.setenv("ROBOBPP_DATABASE_URL", app.state.settings.sqlalchemy_url)
+    _register()
+    shown = CliRunner().invoke(cli_app, ["db", "refresh-boards", "--track", "private"])
+    assert shown.exit_code == 0, shown.output
+    assert "recompute 1 track(s)" in shown.output
+    assert published(app)[1] is None and published(app, "public")[1] is not None
+    with TestClient(app) as client:
+        assert names(client) == ["first-entry"]  # still served meanwhile
+    gate = Gate(engine(app))
+    gate.go.set()
+    assert not publisher(app, gate).publish("public") and gate.calls == 0  # the other track: untouched
+    publisher(app, gate).publish("private")
+    assert gate.calls == 1 and published(app)[1] is not None

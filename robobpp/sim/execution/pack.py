@@ -89,6 +89,11 @@ class ExecutionConfig:
     #: the reference's search, run to its time limit for that placement (:func:`search_time_limit_s`),
     #: would pass its 15 s threshold; then the robot moves unchecked as with the default rule.
     approximate_plans: bool = False
+    #: Experiment only (0: off): the pre-place pose holds the carried box's bottom this far (m) above where it
+    #: will rest, instead of ``place_height_m`` above the target's centre. The reference's tool tip goes 0.35 m
+    #: above a target point that lies half a box height plus about 2.5 cm above the box's resting centre, so its
+    #: box hangs about 0.375 m above its resting place whatever its height (measured running it).
+    place_clearance_m: float = 0.0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
 
     def __post_init__(self) -> None:
@@ -363,6 +368,8 @@ class ExecutionPack(PhysicsPack):
         if lift is not None:
             # From the release TCP: the target centre is half a box height and the release gap below it.
             highest = cfg.place_height_m - (planned.height / 2 + self.config.release_gap_cm) * CM
+            if cfg.place_clearance_m:  # experiment: the carried box's bottom that far above its resting place
+                highest = cfg.place_clearance_m - self.config.release_gap_cm * CM
             heights = np.arange(highest, layout.approach - 1e-9, -0.05)
             for up in [*heights, layout.approach] if len(heights) else [layout.approach]:
                 tcp_pre = tcp_release + np.array([0.0, 0.0, up])

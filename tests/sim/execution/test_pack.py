@@ -121,6 +121,24 @@ def test_approximate_plans_accept_an_enclosed_goal_and_count_it_dangerous_once_t
     assert all(o.dangerous is False for o in late_outcomes[:-1])
 
 
+def test_place_clearance_holds_the_carried_box_that_far_above_its_resting_place() -> None:
+    # Released from the pre-place pose (descend=False), the tool path ends there: by default the TCP (the carried
+    # box's top) 35 cm above the target's centre; with the reference's measured height, the box's bottom 37.5 cm
+    # above where it will rest, whatever its height.
+    box, action = Box(40, 30, 20, 5.0), Action(50, 40, 1)
+    tops = {}
+    for clearance in (0.0, 0.375):
+        pack = ExecutionPack(descend=False, place_clearance_m=clearance)
+        try:
+            (outcome,) = _run(pack, [box], [action])
+        finally:
+            pack.close()
+        assert outcome.termination is None and outcome.placement is not None
+        tops[clearance] = outcome.extra["tool_path_cm"][-1][2]
+    assert tops[0.0] == pytest.approx(10 + 35, abs=0.5)
+    assert tops[0.375] == pytest.approx(20 + 37.5, abs=0.5)
+
+
 def test_unreachable_goal_ends_the_episode() -> None:
     layout = Layout(CONTAINER, floor_z=-PALLET_HEIGHT_M, standoff=3.0)  # pallet out of the arm's reach
     pack = ExecutionPack(layout=layout)

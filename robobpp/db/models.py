@@ -171,7 +171,7 @@ class RunRow(Base):
     #: bootstrap intervals resample, so a board never reads episode rows.
     figures: Mapped[dict[str, Any] | None] = mapped_column(default=None, deferred=True)
     #: The run's own part of the board scoring (``robobpp.scoring.entries.EntryPart.encode``: figures as a
-    #: matrix, metric and stable intervals), computed once with the aggregate (0011).
+    #: matrix, metric and stable intervals), computed once with the aggregate (0010).
     entry: Mapped[bytes | None] = mapped_column(LargeBinary, default=None, deferred=True)
     completed_at: Mapped[datetime | None] = mapped_column(default=None)
 

@@ -258,7 +258,7 @@ class BoardEngine:
             run["part"] = None if entry is None else EntryPart.decode(entry, run["setting"])
             if run["part"] is None:
                 missing.setdefault(self._key_of(run), []).append(run)
-        for key, lacking in missing.items():  # stored before 0011 or by an older version: computed here
+        for key, lacking in missing.items():  # stored before 0010 or by an older version: computed here
             protocol = key[2] if len(key) > 2 else CLOSED
             figures = queries.run_figures_of(
                 session, track, key[0], key[1], protocol, [r["submission_id"] for r in lacking]

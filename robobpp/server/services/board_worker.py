@@ -252,7 +252,7 @@ def _matched(session: Session, statement: Update) -> int:
 
 def await_first_publication(read: SessionFactory, timeout_s: float, tracks: tuple[str, ...] = TRACKS) -> bool:
     """Wait (at most ``timeout_s``) until every track has been published once: a server starting on a
-    database that has none (a fresh one, or the first start after migration 0012) answers its first readers
+    database that has none (a fresh one, or the first start after migration 0011) answers its first readers
     with boards rather than 503. A server restarted on published boards returns at once."""
     deadline = time.monotonic() + timeout_s
     while True:

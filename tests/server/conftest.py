@@ -22,6 +22,7 @@ from sqlalchemy import select
 from robobpp.core import Action, Observation
 from robobpp.db import work
 from robobpp.db.models import Participant
+from robobpp.db.session import transaction
 from robobpp.policies.dbl import DBL
 from tests._orphans import with_parent_death
 
@@ -282,3 +283,22 @@ def new_participant(client: httpx.Client, name: str = "alice") -> str:
     r = client.post("/participants", json={"name": name})
     assert r.status_code == 201, r.text
     return r.json()["token"]
+
+
+def complete_next_episode(factory: Callable[[], Any], metrics: dict[str, float], **result: Any) -> work.Claim:
+    """Claim the next episode as worker "w" and record it completed, 3 boxes of 3, with ``metrics`` (and any other
+    ``result`` fields), as a worker would: for tests that need finished runs without running a policy."""
+    with transaction(factory) as s:
+        claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
+        assert claim is not None
+        recorded = {
+            "termination": "completed",
+            "termination_detail": "",
+            "boxes_total": 3,
+            "boxes_placed": 3,
+            "metrics": metrics,
+            "counters": {},
+            "steps": [],
+        } | result
+        assert work.complete_episode(s, claim.episode_id, claim.token, recorded, keep_trace=False)
+    return claim

@@ -22,6 +22,7 @@ from robobpp.db.work import run_figures
 from robobpp.scoring.entries import EntryPart, entry_part, part_of_run
 from robobpp.scoring.stats import group_figures
 from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
+from tests.server.conftest import complete_next_episode
 
 DATASETS = ("diverse", "longboard")
 SETTINGS = ("math", "physics")
@@ -231,19 +232,9 @@ def test_a_finished_run_stores_its_scoring_part(factory: Any) -> None:
             s, p, name="x", policy_url="builtin:dbl", datasets=["diverse"], settings=["math"], groups=3
         )
     for g in range(3):
-        with transaction(factory) as s:
-            claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
-            assert claim is not None
-            result = {
-                "termination": "completed",
-                "termination_detail": "",
-                "boxes_total": 3,
-                "boxes_placed": 3,
-                "metrics": {"space_utilization": 0.3 + 0.1 * g, "occupancy": 0.9, "decision_time": 0.01},
-                "counters": {},
-                "steps": [],
-            }
-            assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
+        complete_next_episode(
+            factory, {"space_utilization": 0.3 + 0.1 * g, "occupancy": 0.9, "decision_time": 0.01}
+        )
     with factory() as s:
         run = s.execute(select(RunRow)).scalar_one()
         assert run.status == "completed" and run.entry is not None

@@ -23,7 +23,7 @@ from robobpp.export import SUMMARY_DECIMALS
 from robobpp.scoring.scores import ANCHORS_VERSION
 from robobpp.server.services.board_engine import leaderboard
 from robobpp.sim import MATH_RULES_VERSION
-from tests.server.conftest import ADMIN_TOKEN, new_participant, wait_for
+from tests.server.conftest import ADMIN_TOKEN, complete_next_episode, new_participant, wait_for
 
 
 @pytest.fixture
@@ -47,21 +47,8 @@ def _finished(factory, name: str, rules: str | None, sampler: str | None) -> int
         )
         sub_id = sub.id
     for _ in range(2):
-        with transaction(factory) as s:
-            claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
-            assert claim is not None
-            result = {
-                "termination": "completed",
-                "termination_detail": "",
-                "boxes_total": 3,
-                "boxes_placed": 3,
-                "metrics": {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01},
-                "counters": {},
-                "steps": [],
-                "rules_version": rules,
-                "sampler_version": sampler,
-            }
-            assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
+        metrics = {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01}
+        complete_next_episode(factory, metrics, rules_version=rules, sampler_version=sampler)
     return sub_id
 
 

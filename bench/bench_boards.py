@@ -10,9 +10,14 @@ and stored scoring parts, as a worker writes them), then:
 * ``recompute_cpu_s``: one more finished submission of middling quality — ``BoardEngine.update`` of its
   track (the boards it is on, and the grids), CPU of this process; ``recompute_best_cpu_s``: one that is a
   new best (it moves the normalisation of every board: every entry renormalised);
-* ``visible_after_s``: from the submission's commit to its boards computed by the engine (wall).
+* ``visible_after_s``: from the submission's commit to its boards computed by the engine (wall);
+* with ``--served``, end to end as a user meets it: the server runs for real (a subprocess as in
+  ``bench_server.py``, its board worker publishing to SQL), and ``served_visible_after_s`` is the wall time
+  from a finished submission's commit until every board route of the API (15 boards: closed loop and the
+  paper protocol) shows it; ``api_rss_mb`` is the API process's resident memory after that,
+  ``board_worker_rss_mb`` its board worker's.
 
-    python bench/bench_boards.py --submissions 10000 --database-url URL --json FILE [--reuse]
+    python bench/bench_boards.py --submissions 10000 --database-url URL --json FILE [--reuse] [--served]
 """
 
 from __future__ import annotations
@@ -25,10 +30,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import httpx
 from _common import machine
-from bench_server import GROUPS, SETTINGS, seed_rows
+from bench_server import GROUPS, SETTINGS, children, seed_rows, start_server
+from bench_server import rss_mb as process_rss_mb
 from sqlalchemy import text
 
+from robobpp.scoring.metrics import PHYSICAL
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
 from robobpp.server.runtime import Runtime
@@ -57,6 +65,9 @@ def main() -> None:
     parser.add_argument("--skip-before", action="store_true", help="do not time the full recompute")
     parser.add_argument("--seed-only", action="store_true", help="seed the database and stop")
     parser.add_argument("--skip-refresh", action="store_true", help="do not time the refresh")
+    parser.add_argument(
+        "--served", action="store_true", help="only the end-to-end figures, through a real server and its API"
+    )
     args = parser.parse_args()
 
     tmp = Path(tempfile.mkdtemp(prefix="robobpp-bench-boards-"))
@@ -84,6 +95,12 @@ def main() -> None:
     print(f"{count:,} submissions; {figures['database']}; {machine()}")
     if args.seed_only:
         runtime.dispose()
+        return
+    if args.served:
+        figures |= served_figures(runtime, url, count, tmp)
+        runtime.dispose()
+        if args.json:
+            Path(args.json).write_text(json.dumps(figures, indent=2) + "\n")
         return
 
     if not args.skip_before:
@@ -124,6 +141,70 @@ def main() -> None:
     runtime.dispose()
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2) + "\n")
+
+
+def board_paths(submission_id: int) -> list[str]:
+    """Every board route of the API, asked for one submission's entry (all entries, not only the best)."""
+    return [
+        f"/api/v1/leaderboards/{d}/{st}?view=all&submission={submission_id}&protocol={protocol}"
+        for d in DATASETS
+        for st in SETTINGS
+        for protocol in (("closed", "paper") if st in PHYSICAL else ("closed",))
+    ]
+
+
+def wait_visible(client: httpx.Client, submission_id: int, deadline_s: float) -> float:
+    """Seconds until every board route shows ``submission_id`` (a route that shows it keeps showing it)."""
+    start, end = time.perf_counter(), time.monotonic() + deadline_s
+    waiting = board_paths(submission_id)
+    while waiting:
+        if time.monotonic() > end:
+            raise RuntimeError(f"not on {len(waiting)} board routes after {deadline_s:.0f} s: {waiting[0]}")
+        r = client.get(waiting[0])
+        if r.status_code == 200 and any(e["submission_id"] == submission_id for e in r.json()["entries"]):
+            waiting.pop(0)
+        elif r.status_code not in (200, 503):  # 503: nothing published yet
+            raise RuntimeError(f"{waiting[0]}: {r.status_code} {r.text[:300]}")
+        else:
+            time.sleep(0.05)
+    return time.perf_counter() - start
+
+
+def newest(runtime: Runtime) -> int:
+    with runtime.read_session() as s:
+        return int(s.execute(text("SELECT max(id) FROM submissions")).scalar_one())
+
+
+def served_figures(runtime: Runtime, url: str, count: int, state: Path) -> dict[str, Any]:
+    """End to end: a real server publishes; a finished submission is timed until every board route shows it."""
+    proc, base = start_server(url, state, 1)
+    out: dict[str, Any] = {}
+    try:
+        with httpx.Client(base_url=base, timeout=60) as client:
+            # a first submission, waited for: the worker's start-up computation is over once it is everywhere
+            while count % 50 in (7, 23):  # bench_server makes these failed or partial
+                seed_rows(runtime, 1, first=count)
+                count += 1
+            seed_rows(runtime, 1, first=count, fixed_quality=0.5)
+            first = wait_visible(client, newest(runtime), deadline_s=3600)
+            print(f"server up, boards published, a first submission visible after {first:.1f} s")
+            count += 1
+            for label, quality in (("", 0.5), ("_best", 1.0)):
+                while count % 50 in (7, 23):
+                    seed_rows(runtime, 1, first=count)
+                    count += 1
+                seed_rows(runtime, 1, first=count, fixed_quality=quality)
+                visible = wait_visible(client, newest(runtime), deadline_s=600)
+                count += 1
+                out[f"served_visible_after{label}_s"] = round(visible, 2)
+                print(f"finished submission (quality {quality}) on every board route after {visible:.2f} s")
+        out["api_rss_mb"] = round(process_rss_mb(proc.pid))
+        out["board_worker_rss_mb"] = [round(process_rss_mb(c)) for c in children(proc.pid)]
+        print(f"RSS: API process {out['api_rss_mb']} MB, its children {out['board_worker_rss_mb']} MB")
+    finally:
+        proc.terminate()
+        proc.wait(30)
+    return out
 
 
 if __name__ == "__main__":

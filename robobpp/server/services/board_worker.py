@@ -353,13 +353,13 @@ def _process_main(
 ) -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     worker = worker_for_url(url, datasets, settings, **timing)
+    # ends when asked, or with the API process however it ends; a SIGTERM (to the whole process group, say)
+    # ends it at once: a publication cut short leaves the previous boards served and its lease to lapse
+    worker.run(alive=lambda: not stop.value and os.getppid() == parent)
 
-    def stop_when_asked() -> None:
-        stop.wait()
-        worker.stop()
 
-    threading.Thread(target=stop_when_asked, daemon=True).start()
-    worker.run(alive=lambda: os.getppid() == parent)  # ends with the API process, however it ends
+#: How long a stopping server waits for its board worker process to finish a pass before ending it.
+STOP_GRACE_S = 5.0
 
 
 class WorkerProcess:
@@ -369,7 +369,9 @@ class WorkerProcess:
         self, url: str, datasets: tuple[str, ...], settings: tuple[str, ...], **timing: float
     ) -> None:
         context = multiprocessing.get_context("spawn")  # the API process has threads and open connections
-        self._stop = context.Event()
+        # A flag in shared memory, not an Event: setting an Event waits for its sleeping waiters to wake, and
+        # one killed by a signal to the process group never does (the server then hung on shutdown).
+        self._stop = context.Value("b", 0, lock=False)
         self.process = context.Process(
             target=_process_main,
             args=(url, tuple(datasets), tuple(settings), timing, self._stop, os.getpid()),
@@ -384,8 +386,10 @@ class WorkerProcess:
         pass
 
     def stop(self) -> None:
-        self._stop.set()
-        self.process.join(timeout=30)
+        """Asks it to stop after its current pass (it polls the flag between passes); a long computation is
+        cut short after ``STOP_GRACE_S``."""
+        self._stop.value = 1
+        self.process.join(timeout=STOP_GRACE_S)
         if self.process.is_alive():
             self.process.terminate()
             self.process.join(timeout=5)

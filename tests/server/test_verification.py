@@ -4,6 +4,7 @@ flagged ``disagrees``, on the submission and on the board."""
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import pytest
@@ -27,11 +28,14 @@ def test_interval_and_agreement() -> None:
 
 
 class Memoriser(DBL):
-    """Plays DBL on box sequences it recorded from the played groups, and gives up on any other."""
+    """Plays DBL on box sequences it recorded from the played groups, and gives up on any other — once
+    ``released`` is set: until then its verification stays running, so the test sees it running (giving up at
+    once finished the whole hold-out run before the test asked, and a second verification was then allowed)."""
 
     def __init__(self, recorded: list[tuple[tuple[float, float, float], ...]]) -> None:
         super().__init__()
         self.recorded = recorded
+        self.released = threading.Event()
         self.seen: dict[str, list[tuple[float, float, float]]] = {}  # per episode: two workers call at once
 
     def reset(self, info: EpisodeInfo) -> None:
@@ -41,6 +45,7 @@ class Memoriser(DBL):
         seen = self.seen.setdefault(obs.episode_id, [])
         seen.append((obs.box.length, obs.box.width, obs.box.height))
         if not any(seq[: len(seen)] == tuple(seen) for seq in self.recorded):
+            self.released.wait(60)
             return None  # an unknown group: no tuned answer for it
         return super().act(obs)
 
@@ -56,7 +61,8 @@ def _played_sequences() -> list[tuple[tuple[float, float, float], ...]]:
 def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, policy_server, tmp_path) -> None:
     url = f"sqlite:///{tmp_path / 'verify.sqlite3'}"
     server = make_server(url, ROBOBPP_GROUPS=str(GROUPS), ROBOBPP_DATASETS=f'["{DATASET}"]')
-    memoriser = policy_server(Memoriser(_played_sequences()))
+    tuner = Memoriser(_played_sequences())
+    memoriser = policy_server(tuner)
     with server.client(ADMIN_TOKEN) as admin:
         token = new_participant(admin, "tuner")
         with server.client(token) as alice:
@@ -88,6 +94,7 @@ def test_tuned_policy_disagrees_and_honest_baseline_is_verified(make_server, pol
         assert admin.post(f"/submissions/{tuned}/verify").status_code == 409  # one at a time
         with server.client(token) as alice:
             assert alice.post(f"/submissions/{tuned}/verify").status_code == 403  # operator only
+        tuner.released.set()
         wait_for(lambda: all(status(v) == "completed" for v in checks.values()), 120)
 
         verdicts: dict[int, Any] = {o: admin.get(f"/submissions/{o}").json()["verification"] for o in checks}

@@ -28,9 +28,7 @@ import numpy as np
 from paper_table import DATASETS, POLICIES, paper_figures
 
 from robobpp.reproduction import spearman
-
-#: Reasons meaning the place plan could not start (robobpp.sim.execution.pack.PLACE_FAILURES).
-PLACE_FAILURES = {"unreachable", "no_path:goal_invalid", "no_path:start_invalid"}
+from robobpp.sim.execution.pack import PLACE_FAILURES
 
 
 def load(paths: list[str]) -> dict[str, dict[str, list[dict[str, Any]]]]:

@@ -96,13 +96,12 @@ def _running_pending(session: Session) -> dict[int, int]:
     """Pending episodes of running submissions per participant. The running submissions are listed first and
     their episodes counted by id (the (submission, status) index): a join let SQLite scan every pending
     episode of the backlog instead."""
-    owners = dict(
-        session.execute(
+    owners: dict[int, int] = {
+        sid: pid
+        for sid, pid in session.execute(
             select(Submission.id, Submission.participant_id).where(Submission.status == "running")
         )
-        .tuples()
-        .all()
-    )
+    }
     out: dict[int, int] = {}
     if owners:
         for sid, n in session.execute(

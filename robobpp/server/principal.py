@@ -1,11 +1,18 @@
 """Who is calling: what the routes learn from the bearer token (api/deps.py) or the page session, and what the
-services decide with (quota, ownership, operator-only actions)."""
+services decide with (quota, ownership, operator-only actions). Tokens are checked here, once, for the API's
+bearer auth, the pages' sign-in and the pull relay alike."""
 
 from __future__ import annotations
 
+import hmac
 from dataclasses import dataclass
 
+from starlette.requests import HTTPConnection
+
+from robobpp.db import queries
 from robobpp.db.models import Participant
+from robobpp.server.config import Settings
+from robobpp.server.ratelimit import FailureLimit, client_address
 
 
 @dataclass(slots=True)
@@ -20,3 +27,39 @@ class Principal:
     @property
     def participant_id(self) -> int | None:
         return self.participant.id if self.participant else None
+
+
+def auth_limit(request: HTTPConnection) -> FailureLimit:
+    limit = getattr(request.app.state, "auth_limit", None)
+    if limit is None:
+        settings: Settings = request.app.state.settings
+        limit = request.app.state.auth_limit = FailureLimit(settings.auth_failures_per_minute, 60.0)
+    return limit
+
+
+def auth_refused_for(request: HTTPConnection) -> float:
+    """Seconds this client must wait before its next token is even looked at (too many wrong ones); 0: none."""
+    return auth_limit(request).retry_after(client_address(request))
+
+
+def is_admin_token(request: HTTPConnection, token: str) -> bool:
+    settings: Settings = request.app.state.settings
+    return 0 < len(token) <= 256 and hmac.compare_digest(
+        token.encode(), settings.effective_admin_token.encode()
+    )
+
+
+def principal_for_token(request: HTTPConnection, token: str) -> Principal | None:
+    """Who holds ``token`` (the admin token or a live API token), or None. Shared by the API's bearer
+    auth, the pages' sign-in and the pull relay, so all accept exactly the same tokens — and count every
+    wrong one against the client's address (:mod:`robobpp.server.ratelimit`)."""
+    if token and len(token) <= 256:
+        if is_admin_token(request, token):
+            return Principal(None, admin=True)
+        # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
+        with request.app.state.runtime.read_session() as session:
+            row = queries.active_token(session, token)
+            if row is not None:
+                return Principal(row.participant, token_id=row.id)
+    auth_limit(request).failed(client_address(request))
+    return None

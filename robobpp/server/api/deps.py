@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hmac
 from collections.abc import Callable, Iterator
 from typing import Annotated, TypeVar
 
@@ -11,11 +10,9 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
-from robobpp.db import queries
 from robobpp.server.config import Settings
-from robobpp.server.principal import Principal
+from robobpp.server.principal import Principal, auth_refused_for, is_admin_token, principal_for_token
 from robobpp.server.problems import ProblemError
-from robobpp.server.ratelimit import FailureLimit, client_address
 
 T = TypeVar("T")
 _bearer = HTTPBearer(auto_error=False, description="An API token, or the admin token")
@@ -44,19 +41,6 @@ def _unauthorized(detail: str) -> ProblemError:
     return ProblemError(401, "unauthorized", "Unauthorized", detail, headers={"WWW-Authenticate": "Bearer"})
 
 
-def auth_limit(request: Request) -> FailureLimit:
-    limit = getattr(request.app.state, "auth_limit", None)
-    if limit is None:
-        settings: Settings = request.app.state.settings
-        limit = request.app.state.auth_limit = FailureLimit(settings.auth_failures_per_minute, 60.0)
-    return limit
-
-
-def auth_refused_for(request: Request) -> float:
-    """Seconds this client must wait before its next token is even looked at (too many wrong ones); 0: none."""
-    return auth_limit(request).retry_after(client_address(request))
-
-
 def too_many_failures(wait_s: float) -> ProblemError:
     return ProblemError(
         429,
@@ -65,23 +49,6 @@ def too_many_failures(wait_s: float) -> ProblemError:
         f"too many wrong tokens from this address; retry in {wait_s:.0f} s",
         headers={"Retry-After": str(max(1, round(wait_s)))},
     )
-
-
-def principal_for_token(request: Request, token: str) -> Principal | None:
-    """Who holds ``token`` (the admin token or a live API token), or None. Shared by the API's bearer
-    auth, the pages' sign-in and the pull relay, so all accept exactly the same tokens — and count every
-    wrong one against the client's address (:mod:`robobpp.server.ratelimit`)."""
-    settings: Settings = request.app.state.settings
-    if token and len(token) <= 256:
-        if hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
-            return Principal(None, admin=True)
-        # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
-        with request.app.state.runtime.read_session() as session:
-            row = queries.active_token(session, token)
-            if row is not None:
-                return Principal(row.participant, token_id=row.id)
-    auth_limit(request).failed(client_address(request))
-    return None
 
 
 async def get_principal(
@@ -96,8 +63,7 @@ async def get_principal(
     if wait:
         raise too_many_failures(wait)
     token = credentials.credentials
-    settings: Settings = request.app.state.settings
-    if 0 < len(token) <= 256 and hmac.compare_digest(token.encode(), settings.effective_admin_token.encode()):
+    if is_admin_token(request, token):  # on the event loop: no thread hand-off for the operator
         return Principal(None, admin=True)
     principal = await run_in_threadpool(principal_for_token, request, token)
     if principal is None:

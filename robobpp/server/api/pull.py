@@ -39,7 +39,7 @@ from starlette.concurrency import run_in_threadpool
 from robobpp import protocol as P
 from robobpp.db.models import EpisodeRow, Submission
 from robobpp.db.work import ACTIVE_SUBMISSION
-from robobpp.server.api.deps import auth_refused_for, principal_for_token
+from robobpp.server.principal import auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
 from robobpp.server.relay_bus import (
     FRAME,
@@ -143,12 +143,12 @@ async def hub_of(app: Any) -> PullHub:
 
 
 def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[int, int]:
-    wait = auth_refused_for(ws)  # type: ignore[arg-type]  # a WebSocket has .app and .client like a Request
+    wait = auth_refused_for(ws)
     if wait:
         raise ProblemError(
             429, "too-many-failures", "Too many failed authentications", f"retry in {wait:.0f} s"
         )
-    principal = principal_for_token(ws, token)  # type: ignore[arg-type]
+    principal = principal_for_token(ws, token)
     if principal is None:
         raise ProblemError(
             401, "unauthorized", "Unauthorized", "the API token is not valid (unknown or revoked)"

@@ -8,7 +8,6 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Path, Query, Request, Response
 from pydantic import TypeAdapter
 from sqlalchemy.orm import Session
-from starlette.concurrency import run_in_threadpool
 
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
@@ -41,33 +40,8 @@ Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 async def create_submission(
     request: Request, body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
 ) -> SubmissionPublic:
-    # async on purpose: the policy check awaits its own bounded pool and holds none of the threads that
-    # serve every other route; the short database steps run on that shared pool.
-    runtime = request.app.state.runtime
-    datasets, setting_names = admission.offered(body, settings)
-
-    def check_quota() -> None:
-        with runtime.read_session() as session:
-            admission.check_quota(session, principal, settings)
-
-    await run_in_threadpool(check_quota)  # no outbound call over quota
-    policy = await admission.check_policy(request.app.state.probe_gate, body, principal, settings)
-
-    def create() -> SubmissionPublic:
-        with runtime.session() as session:
-            sub = admission.create(
-                session,
-                principal,
-                body,
-                settings,
-                datasets=datasets,
-                setting_names=setting_names,
-                policy=policy,
-            )
-            session.refresh(sub)
-            return SubmissionPublic.model_validate(queries.submission_view(session, sub))
-
-    return await run_in_threadpool(create)
+    state = request.app.state
+    return await admission.submit(state.runtime, state.probe_gate, body, principal, settings)
 
 
 @router.get("/submissions", response_model=list[SubmissionPublic], summary="Your submissions, newest first")

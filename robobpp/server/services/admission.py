@@ -2,8 +2,8 @@
 server offers, the participant's quota, and the policy URL — a built-in policy (the operator's only), or an
 address that is public, reachable and answers ``/info`` under the submission's secret.
 
-The routes (the JSON API and the account page, which calls it) parse the request, call these in order — quota
-before the URL probe, so a participant over quota makes no outbound call — and shape the answer.
+:func:`submit` runs them in order — quota before the URL probe, so a participant over quota makes no outbound
+call — for both the JSON API and the submit form, which only parse the request and shape the answer.
 """
 
 from __future__ import annotations
@@ -12,17 +12,19 @@ from collections.abc import Sequence
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from robobpp import protocol as P
 from robobpp.db import queries, work
 from robobpp.db.models import Participant, Submission
 from robobpp.policies import BUILTIN
-from robobpp.schemas import PULL_URL, SubmissionCreate, clean_name
+from robobpp.schemas import PULL_URL, SubmissionCreate, SubmissionPublic, clean_name
 from robobpp.server.bootstrap import BUILTIN_PARTICIPANT
 from robobpp.server.config import Settings
 from robobpp.server.principal import Principal
 from robobpp.server.probes import ProbeGate
 from robobpp.server.problems import ProblemError
+from robobpp.server.runtime import Runtime
 from robobpp.server.urlsafety import (
     BUILTIN_SCHEME,
     CheckedURL,
@@ -176,3 +178,35 @@ def create(
         lookahead=body.lookahead,
         mode=body.mode,
     )
+
+
+async def submit(
+    runtime: Runtime, gate: ProbeGate, body: SubmissionCreate, principal: Principal, settings: Settings
+) -> SubmissionPublic:
+    """Admit one submission: offered datasets and settings, the quota, the policy URL, then the rows in one
+    transaction. Async on purpose: the policy check awaits the probe gate's own bounded pool and holds none of
+    the threads that serve every other route; the short database steps run on that shared pool."""
+    datasets, setting_names = offered(body, settings)
+
+    def quota() -> None:
+        with runtime.read_session() as session:
+            check_quota(session, principal, settings)
+
+    await run_in_threadpool(quota)  # no outbound call over quota
+    policy = await check_policy(gate, body, principal, settings)
+
+    def write() -> SubmissionPublic:
+        with runtime.session() as session:
+            sub = create(
+                session,
+                principal,
+                body,
+                settings,
+                datasets=datasets,
+                setting_names=setting_names,
+                policy=policy,
+            )
+            session.refresh(sub)
+            return SubmissionPublic.model_validate(queries.submission_view(session, sub))
+
+    return await run_in_threadpool(write)

@@ -1,7 +1,8 @@
 """Participant pages: sign in with an API token, submit a policy, follow and cancel your submissions.
 
-Every action calls the JSON API's handler (``create_submission``, ``cancel``, ``revoke_token``), so the
-page and ``POST /api/v1/...`` share one code path: the same URL check, quota, ownership and errors.
+Every action calls the service the JSON API's route calls (``admission.submit``, ``access.cancel``,
+``accounts.revoke_token``), so the page and ``POST /api/v1/...`` share one code path: the same URL check,
+quota, ownership and errors.
 """
 
 from __future__ import annotations
@@ -17,11 +18,9 @@ from robobpp.datasets import DATASETS
 from robobpp.db import queries
 from robobpp.db.models import Participant
 from robobpp.schemas import SubmissionCreate
-from robobpp.server.api import participants as api_participants
-from robobpp.server.api import submissions as api_submissions
-from robobpp.server.api.deps import auth_refused_for, principal_for_token
-from robobpp.server.principal import Principal
+from robobpp.server.principal import Principal, auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
+from robobpp.server.services import access, accounts, admission
 from robobpp.server.services.submissions import finished_views, submission_models
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import not_found, redirect, refused, render
@@ -133,7 +132,7 @@ def account_page(request: Request, page: Page = 1) -> Response:
         return _need_sign_in(request)
     settings = request.app.state.settings
     with request.app.state.runtime.read_session() as session:
-        me = api_participants.me_of(session, principal, settings)
+        me = accounts.me_of(session, principal, settings)
         # one more than a page: whether a next page exists, without counting every submission
         subs = submission_models(
             finished_views(request.app.state),
@@ -142,9 +141,7 @@ def account_page(request: Request, page: Page = 1) -> Response:
             limit=ACCOUNT_PAGE_SIZE + 1,
             offset=(page - 1) * ACCOUNT_PAGE_SIZE,
         )
-        tokens = (
-            api_participants.list_tokens(session, principal, participant_id=None) if not who.admin else []
-        )
+        tokens = accounts.list_tokens(session, principal) if not who.admin else []
     return render(
         request,
         "account.html",
@@ -168,7 +165,7 @@ def revoke_own_token(request: Request, token_id: Id, csrf: Text = "") -> Respons
         return refused(request, BAD_CSRF)
     try:
         with request.app.state.runtime.session() as session:
-            api_participants.revoke_token(token_id, session, principal)
+            accounts.revoke_token(session, principal, token_id)
     except ProblemError as exc:
         return problem_page(request, exc)
     # Revoking the token this browser signed in with ends the session: the next page asks to sign in.
@@ -264,9 +261,8 @@ async def submit(
             if mode == "pull":
                 fields["policy_url"] = None  # a URL left in the hidden push field is not an error
         body = SubmissionCreate.model_validate(fields)
-        created = await api_submissions.create_submission(
-            request, body, principal, request.app.state.settings
-        )
+        state = request.app.state
+        created = await admission.submit(state.runtime, state.probe_gate, body, principal, state.settings)
     except (ProblemError, ValidationError) as exc:
         status = exc.status if isinstance(exc, ProblemError) else 422
         return _submit_page(request, values, problem_text(exc), status)
@@ -282,7 +278,7 @@ def cancel(request: Request, submission_id: Id, csrf: Text = "") -> Response:
         return refused(request, BAD_CSRF)
     try:
         with request.app.state.runtime.session() as session:
-            api_submissions.cancel(submission_id, session, principal)
+            access.cancel(session, principal, submission_id)
     except ProblemError as exc:
         if exc.status == 404:
             return not_found(request, f"There is no submission {submission_id}.")

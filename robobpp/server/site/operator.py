@@ -17,9 +17,9 @@ from pydantic import ValidationError
 from robobpp.db import queries
 from robobpp.db.models import Participant
 from robobpp.schemas import ParticipantCreate, TokenCreated
-from robobpp.server.api import participants as api_participants
 from robobpp.server.principal import Principal
 from robobpp.server.problems import ProblemError
+from robobpp.server.services import accounts
 from robobpp.server.services.submissions import finished_views, submission_models
 from robobpp.server.site import session as web_session
 from robobpp.server.site.account import ACCOUNT_PAGE_SIZE, BAD_CSRF, Page, Text, problem_page, problem_text
@@ -97,7 +97,7 @@ def create_participant(request: Request, name: Text = "", csrf: Text = "") -> Re
     try:
         body = ParticipantCreate.model_validate({"name": name})
         with request.app.state.runtime.session() as session:
-            created = api_participants.create_participant(body, session, ADMIN)
+            created = accounts.create_participant(session, body.name)
     except (ProblemError, ValidationError) as exc:
         status = exc.status if isinstance(exc, ProblemError) else 422
         return _participants_page(request, error=problem_text(exc), name=name, status_code=status)
@@ -116,7 +116,7 @@ def _participant_page(
         participant = session.get(Participant, participant_id)
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")
-        tokens = api_participants.list_tokens(session, ADMIN, participant_id=participant_id)
+        tokens = accounts.list_tokens(session, ADMIN, participant_id)
         # one more than a page: whether an older page exists, without counting every submission
         subs = submission_models(
             finished_views(request.app.state),
@@ -159,7 +159,7 @@ def issue_token(request: Request, participant_id: Id, csrf: Text = "") -> Respon
         return refusal
     try:
         with request.app.state.runtime.session() as session:
-            created = api_participants.create_token(participant_id, session, ADMIN)
+            created = accounts.issue_token_for(session, participant_id)
     except ProblemError as exc:
         return problem_page(request, exc)
     return _participant_page(request, participant_id, created=created, status_code=201)
@@ -171,7 +171,7 @@ def revoke_token(request: Request, token_id: Id, csrf: Text = "") -> Response:
         return refusal
     try:
         with request.app.state.runtime.session() as session:
-            token = api_participants.revoke_token(token_id, session, ADMIN)
+            token = accounts.revoke_token(session, ADMIN, token_id)
     except ProblemError as exc:
         return problem_page(request, exc)
     return redirect(request, f"/operator/participants/{token.participant_id}")

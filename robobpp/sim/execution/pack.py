@@ -23,6 +23,7 @@ from robobpp.sim.base import StepOutcome
 from robobpp.sim.execution import motion, recording
 from robobpp.sim.execution.layout import Layout
 from robobpp.sim.physics import PhysicsConfig, PhysicsPack
+from robobpp.sim.physics.config import versioned
 from robobpp.sim.physics.world import CM, PALLET_HEIGHT_M, WorldBox
 from robobpp.sim.planner import MotionPlanner, PlannerConfig, PlanningWorld, Vector, quaternion
 from robobpp.sim.robot.facts import TOOL
@@ -113,6 +114,12 @@ class ExecutionConfig:
     def to_dict(self) -> dict[str, object]:
         return asdict(self)
 
+    def changed(self) -> dict[str, object]:
+        """The robot settings that differ from the benchmark's robot."""
+        return {k: v for k, v in self.to_dict().items() if v != _ROBOT_DEFAULTS[k]}
+
+
+_ROBOT_DEFAULTS = ExecutionConfig().to_dict()
 
 #: The reference's time limit for a place search (s) at the first placement, per dataset; it grows by 1 s per
 #: placed box up to ``SEARCH_TIME_CAP_S``. A search that finds no exact path runs to this limit, and an
@@ -207,6 +214,13 @@ class ExecutionPack(PhysicsPack):
         self.motion_record: dict[str, Any] | None = None
         self._cell_recorded = False
         self._dangerous_count = 0
+
+    @property
+    def physics_version(self) -> str:
+        """The physics version, with a digest when the physics *or the robot* differ from the defaults (an
+        experiment's robot, e.g. ``approximate_plans``, never shares a board with the benchmark's)."""
+        robot = {f"execution.{k}": v for k, v in self.execution.changed().items()}
+        return versioned({**self.config.changed(), **robot})
 
     # -- lifecycle -----------------------------------------------------------------------------------
     def reset(self, spec: EpisodeSpec) -> None:

@@ -151,11 +151,21 @@ class PhysicsConfig:
         """``PHYSICS_VERSION`` for the validated defaults (either mode: fast is validated against full);
         otherwise that plus a short digest of the settings, so a result of changed physics never shares
         a board with the defaults'."""
-        changed = {k: v for k, v in self.to_dict().items() if k != "mode" and v != getattr(_DEFAULTS, k)}
-        if not changed:
-            return PHYSICS_VERSION
-        digest = hashlib.sha256(json.dumps(changed, sort_keys=True).encode()).hexdigest()[:8]
-        return f"{PHYSICS_VERSION}+{digest}"
+        return versioned(self.changed())
+
+    def changed(self) -> dict[str, Any]:
+        """The settings that differ from the validated defaults (the mode aside: fast is validated against
+        full)."""
+        return {k: v for k, v in self.to_dict().items() if k != "mode" and v != getattr(_DEFAULTS, k)}
+
+
+def versioned(changed: dict[str, Any]) -> str:
+    """``PHYSICS_VERSION`` when nothing differs from the validated defaults, else that plus a short digest of
+    what differs: a result of changed physics (or a changed robot) never shares a board with the defaults'."""
+    if not changed:
+        return PHYSICS_VERSION
+    digest = hashlib.sha256(json.dumps(changed, sort_keys=True, default=str).encode()).hexdigest()[:8]
+    return f"{PHYSICS_VERSION}+{digest}"
 
 
 _DEFAULTS = PhysicsConfig()

@@ -32,6 +32,20 @@ def test_results_record_the_physics_version() -> None:
     assert PhysicsConfig(lateral_friction=0.5).version == custom  # a pure function of the settings
 
 
+def test_an_experiment_robot_is_a_version_of_its_own() -> None:
+    """The Execution Pack's robot options (the reference-robot experiments) change results as physics options
+    do: before, ``approximate_plans=True`` recorded the benchmark's version and could share its boards."""
+    assert make_setting("execution").physics_version == PHYSICS_VERSION
+    approximate = make_setting("execution", approximate_plans=True).physics_version
+    reference = make_setting("execution", descend=False, carried_yaw_deg=90.0).physics_version
+    physics_change = make_setting("execution", lateral_friction=0.5).physics_version
+    versions = {approximate, reference, physics_change}
+    assert len(versions) == 3 and all(v is not None and v.startswith(PHYSICS_VERSION + "+") for v in versions)
+    assert make_setting("execution", approximate_plans=True).physics_version == approximate  # deterministic
+    # the physics part of the digest is the Physics Pack's own
+    assert physics_change == make_setting("physics", lateral_friction=0.5).physics_version
+
+
 @pytest.fixture
 def factory(tmp_path):  # type: ignore[no-untyped-def]
     url = f"sqlite:///{tmp_path / 'board.db'}"

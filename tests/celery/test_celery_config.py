@@ -157,3 +157,18 @@ def test_the_last_allowed_attempt_is_recorded_failed_not_resent(
     with factory() as s:
         row = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sub)).scalar_one()
     assert (row.status, row.termination) == ("failed", work.WORKER_LOST)
+
+
+def test_each_app_runs_its_episodes_with_its_own_options() -> None:
+    """Two apps in one process (the tests, an embedded worker beside a second deployment): each app's task is
+    its own. Celery's default shared tasks gave the second app the first app's task, hence its options."""
+    first = make_celery("redis://127.0.0.1:6379/0", WorkerOptions(database_url="sqlite:///first.db"))
+    second = make_celery("redis://127.0.0.1:6379/0", WorkerOptions(database_url="sqlite:///second.db"))
+    seen = []
+    for app in (first, second):
+        task = app.tasks[TASK_NAME]
+        assert task.app is app
+        # the closure's app is the one whose options the episode runs with
+        (cell,) = [c.cell_contents for c in task.run.__closure__ if hasattr(c.cell_contents, "conf")]
+        seen.append(cell.conf.robobpp_options.database_url)
+    assert seen == ["sqlite:///first.db", "sqlite:///second.db"]

@@ -7,16 +7,19 @@ observed heightmap: a DBL-like rule written against the env's own observation an
 """
 
 import argparse
+from typing import cast
 
 import gymnasium as gym
 import numpy as np
 
 import robobpp  # noqa: F401 - importing robobpp registers robobpp/Pack-v0
 from robobpp.core import drop_height_map
+from robobpp.env import PackEnv
 
 
-def greedy_action(obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
-    """The feasible (x, y, orientation) whose footprint rests lowest; ties back-left (vectorised)."""
+def greedy_action(obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray | None:
+    """The feasible (x, y, orientation) whose footprint rests lowest; ties back-left (vectorised); None when
+    nothing is feasible (the env has then already ended the episode)."""
     heightmap, (length, width, _, _) = obs["heightmap"], obs["box"]
     best, best_cost = None, np.inf
     for o, (lx, wy) in enumerate(((length, width), (width, length))):
@@ -40,14 +43,16 @@ def main() -> None:
     parser.add_argument("--groups", type=int, default=10, help="train groups the env draws episodes from")
     args = parser.parse_args()
     env = gym.make("robobpp/Pack-v0", dataset=args.dataset, setting=args.setting, groups=args.groups)
+    pack = cast(PackEnv, env.unwrapped)  # the env under gymnasium's wrappers: its action mask
     for episode in range(args.episodes):
         obs, info = env.reset(seed=episode)
         episode_id = info["episode_id"]
         total, steps, terminated = 0.0, 0, False
         while not terminated:  # the env ends the episode itself when nothing fits the next box
-            mask = env.unwrapped.action_mask()
-            obs, reward, terminated, truncated, info = env.step(greedy_action(obs, mask))
-            total += reward
+            action = greedy_action(obs, pack.action_mask())
+            assert action is not None, "the env ends an episode when nothing fits its next box"
+            obs, reward, terminated, truncated, info = env.step(action)
+            total += float(reward)
             steps += 1
         print(f"{episode_id}: {steps} boxes, return {total:.3f}, ended by {info['termination']}")
     env.close()

@@ -30,13 +30,14 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import cast
 
 import gymnasium as gym
 import numpy as np
 
 import robobpp  # noqa: F401 - importing robobpp registers robobpp/Pack-v0
 from robobpp.core import ORIENTATIONS, Action, ContainerSpec, Observation
-from robobpp.env import encode_observation
+from robobpp.env import PackEnv, encode_observation
 from robobpp.policies import BasePolicy
 from robobpp.policies.candidates import candidate_maps, first_placement
 
@@ -63,7 +64,7 @@ class Features(gym.ObservationWrapper):
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
-        self.container = env.unwrapped.container
+        self.container = cast(PackEnv, env.unwrapped).container
         size = int(np.prod(self.container.grid_shape)) + 3
         self.observation_space = gym.spaces.Box(0.0, np.inf, (size,), np.float32)
 
@@ -137,7 +138,9 @@ class PPOPolicy(BasePolicy):
         x = features(encode_observation(obs, 0), obs.container)
         tensor, _ = self.model.policy.obs_to_tensor(x)
         with torch.no_grad():
-            probs = self.model.policy.get_distribution(tensor, action_masks=fits.ravel()).distribution.probs
+            distribution = self.model.policy.get_distribution(tensor, action_masks=fits.ravel()).distribution
+            assert isinstance(distribution, torch.distributions.Categorical)  # one discrete action space
+            probs = distribution.probs
         ranked = np.argsort(-probs[0].numpy(), kind="stable")
         ranked = ranked[fits.ravel()[ranked]]
         xs, ys, orientations = np.unravel_index(ranked, shape)

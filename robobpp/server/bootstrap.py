@@ -10,11 +10,14 @@ import secrets
 from typing import Any
 
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
-from robobpp.db.models import Participant, Submission
+from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission
 from robobpp.policies import BASELINES, LEARNED, TITLES
+from robobpp.scoring.metrics import PHYSICAL
+from robobpp.sim.physics.config import PHYSICS_VERSION
 
 log = logging.getLogger("robobpp.server")
 
@@ -43,26 +46,34 @@ def ensure_private_split(settings: Any) -> bool:
     return True
 
 
-def ensure_baselines(session: Any, settings: Any) -> int:
-    """One submission per built-in baseline on every offered (dataset, setting) of both tracks, once: the
-    public track carries the baselines too, so a debug run there is compared with something."""
+def ensure_baselines(session: Session, settings: Any) -> int:
+    """One current submission per built-in baseline on every offered (dataset, setting) of both tracks: the
+    public track carries the baselines too, so a debug run there is compared with something.
+
+    A baseline is queued again when its latest evaluation no longer fits the boards (:func:`stale_reason`): a
+    deployment upgraded across a physics version, or one that now offers more datasets or settings, or the
+    paper protocol, shows its baselines on every board again without the operator re-submitting them. The
+    older submission stays (its history); boards rank each baseline by its best current entry."""
     participant = session.execute(
         select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
     ).scalar_one()
     created = 0
     names = (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines
     for track in ("private", "public") if settings.public_baselines else ("private",):
-        existing = set(
-            session.execute(
-                select(Submission.policy_url).where(
-                    Submission.participant_id == participant.id, Submission.track == track
-                )
-            ).scalars()
-        )
+        latest: dict[str, Submission] = {}
+        for sub in session.execute(
+            select(Submission)
+            .where(Submission.participant_id == participant.id, Submission.track == track)
+            .order_by(Submission.id)
+        ).scalars():
+            latest[sub.policy_url] = sub
         for name in names:
             url = f"builtin:{name}"
-            if url in existing:
-                continue
+            if url in latest:
+                reason = stale_reason(session, latest[url], settings)
+                if reason is None:
+                    continue
+                log.warning("baseline %s (%s track) queued again: %s", name, track, reason)
             work.create_submission(
                 session,
                 participant,
@@ -75,6 +86,34 @@ def ensure_baselines(session: Any, settings: Any) -> int:
             )
             created += 1
     return created
+
+
+def stale_reason(session: Session, sub: Submission, settings: Any) -> str | None:
+    """Why a baseline's completed evaluation no longer fits the boards, or None (also while it is still
+    running, or when it failed: a failure is the operator's to look at, not to repeat at every start)."""
+    if sub.status != "completed":
+        return None
+    missing = sorted(set(settings.datasets) - set(sub.datasets)) + sorted(
+        set(settings.enabled_settings) - set(sub.settings)
+    )
+    if missing:
+        return f"it was not evaluated on {', '.join(missing)}"
+    protocols = set(session.execute(select(RunRow.protocol).where(RunRow.submission_id == sub.id)).scalars())
+    if work.paper_settings(list(sub.settings), sub.track) and "paper" not in protocols:
+        return "it has no paper-protocol runs (evaluated before the server computed them)"
+    old = session.execute(
+        select(EpisodeRow.physics_version)
+        .where(
+            EpisodeRow.submission_id == sub.id,
+            EpisodeRow.setting.in_(PHYSICAL),
+            EpisodeRow.status == "done",
+            EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION),
+        )
+        .limit(1)
+    ).first()
+    if old is not None:
+        return f"its physical episodes ran physics version {old[0] or 'unversioned'}, not {PHYSICS_VERSION}"
+    return None
 
 
 def bootstrap(runtime: Any) -> None:

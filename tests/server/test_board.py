@@ -200,3 +200,68 @@ def test_public_track_carries_the_baselines(board_app) -> None:
         == {u for t, u in tracks if t == "private"}
         == {f"builtin:{b}" for b in baselines}
     )
+
+
+def test_stale_baselines_are_queued_again(tmp_path: Path) -> None:
+    """An upgraded deployment: a baseline evaluated under an older physics version, or before the paper protocol
+    existed, or before a setting was offered, is queued again at start; a current one is not."""
+    from sqlalchemy import delete, update
+
+    from robobpp.db.models import EpisodeRow, RunRow
+    from robobpp.server.bootstrap import ensure_baselines
+
+    def configured(*offered: str) -> Settings:
+        return Settings(
+            database_url=f"sqlite:///{tmp_path / 'stale.sqlite3'}",
+            state_dir=tmp_path,
+            admin_token=ADMIN,
+            workers=0,
+            evaluate_baselines=False,
+            settings=offered,
+            datasets=("diverse",),
+            groups=GROUPS,
+            baselines=("dbl", "lsah", "hm", "random"),
+            public_baselines=False,
+            spec_provider="robobpp.worker.specs:offline_spec",
+        )
+
+    settings = configured("math", "physics")
+    app = create_app(settings, start_workers=False)
+    bootstrap(app.state.runtime)
+    try:
+        with app.state.runtime.session() as s:
+            assert ensure_baselines(s, settings) == 4
+            ids = {sub.policy_url: sub.id for sub in s.execute(select(Submission)).scalars()}
+            # every one "finished": its episodes done under the current physics
+            s.execute(update(Submission).values(status="completed"))
+            s.execute(update(EpisodeRow).values(status="done"))
+            s.execute(
+                update(EpisodeRow).where(EpisodeRow.setting == "physics").values(physics_version="4")
+            )
+            old_physics = ids["builtin:dbl"]
+            s.execute(
+                update(EpisodeRow)
+                .where(EpisodeRow.submission_id == old_physics, EpisodeRow.setting == "physics")
+                .values(physics_version="3")
+            )
+            no_paper = ids["builtin:lsah"]
+            s.execute(delete(RunRow).where(RunRow.submission_id == no_paper, RunRow.protocol == "paper"))
+            s.execute(
+                update(Submission).where(Submission.id == ids["builtin:hm"]).values(status="failed")
+            )
+        with app.state.runtime.session() as s:
+            assert ensure_baselines(s, settings) == 2
+            queued = s.execute(
+                select(Submission.policy_url).where(Submission.status == "queued").order_by(Submission.id)
+            ).scalars()
+            assert list(queued) == ["builtin:dbl", "builtin:lsah"]
+            assert ensure_baselines(s, settings) == 0  # the new ones are running: nothing more
+        # a setting offered since: every completed baseline lacks it
+        wider = configured("math", "physics", "execution")
+        with app.state.runtime.session() as s:
+            s.execute(update(Submission).values(status="completed"))
+            s.execute(update(EpisodeRow).values(status="done"))
+            s.execute(update(EpisodeRow).where(EpisodeRow.setting == "physics").values(physics_version="4"))
+            assert ensure_baselines(s, wider) == 4
+    finally:
+        app.state.runtime.dispose()

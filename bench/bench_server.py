@@ -12,17 +12,15 @@ computed from its episodes exactly as a worker writes them. 2 % of the submissio
 episode a policy error) and 2 % partial (Math Pack only), as on a real board.
 
     python bench/bench_server.py [--database-url URL] [--submissions 10000] [--readers 20] [--samples 60]
-        [--seed-only | --reuse [--cold]] [--accepts 40] [--state-dir DIR]
+        [--seed-only | --reuse [--cold]] [--add] [--episodes-every 1] [--accepts 40] [--state-dir DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import multiprocessing
 import os
-import random
 import re
 import subprocess
 import sys
@@ -30,255 +28,40 @@ import tempfile
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
-from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
 import httpx
 from _common import machine, median, percentile
 from _load import read_concurrently
-from sqlalchemy import insert, text
+from _seed import DATASETS, GROUPS, SETTINGS, seed
+from sqlalchemy import text
 
 from robobpp.client.serve import BackgroundServer, create_policy_app
-from robobpp.db import work
-from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
-from robobpp.db.work import run_figures
 from robobpp.policies.dbl import DBL
 from robobpp.scoring.boards import build_grid
-from robobpp.scoring.entries import part_of_run
-from robobpp.scoring.stats import group_figures
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
 from robobpp.server.services.board_engine import leaderboard
-from robobpp.sim.physics.config import PHYSICS_VERSION
 
 ADMIN = "bench-admin-token-0123456789abcdef"
-DATASETS = ("repetitive", "diverse", "longboard")
-SETTINGS = ("math", "physics", "execution")
-GROUPS = 30
-TEAMS = 100
-EPISODE_COLUMNS = (
-    "id",
-    "submission_id",
-    "run_id",
-    "dataset",
-    "setting",
-    "split",
-    "group",
-    "status",
-    "attempts",
-    "step",
-    "termination",
-    "termination_detail",
-    "boxes_total",
-    "boxes_placed",
-    "metrics",
-    "counters",
-    "finished_at",
-    "physics_version",
-    "protocol",
-)
 
 
-QUOTED = ", ".join(f'"{c}"' for c in EPISODE_COLUMNS)  # "group" is an SQL keyword
+def seed_rows(
+    runtime: Any, n: int, *, first: int = 0, fixed_quality: float | None = None, episodes_every: int = 1
+) -> int:
+    """Insert ``n`` finished submissions with their runs and episodes (``_seed.seed``); returns the episode
+    rows written. ``first``: how many the database already has (these are its next ones, finishing now);
+    ``fixed_quality``: theirs (0..1; default: drawn), e.g. 1 for a new best; ``episodes_every``: episode rows
+    for one submission in that many (and the newest 1,000)."""
+    return seed(runtime, n, first=first, fixed_quality=fixed_quality, episodes_every=episodes_every).episodes
 
 
-def episode_figures(
-    rng: random.Random, quality: float, setting: str
-) -> tuple[dict[str, float], dict[str, int]]:
-    """One episode's metrics and counters around a submission's quality (0..1)."""
-    u = min(1.0, max(0.0, rng.gauss(0.45 + 0.3 * quality, 0.08)))
-    m = {
-        "space_utilization": round(u, 5),
-        "occupancy": round(min(1.0, u + 0.2 + rng.random() * 0.1), 5),
-        "decision_time": round(0.001 + rng.random() * 0.01 * (2 - quality), 6),
-    }
-    c: dict[str, int] = {}
-    if setting != "math":
-        m["local_stability"] = round(rng.random() * 0.01, 6)
-        m["static_stability"] = round(0.8 + 0.2 * rng.random(), 5)
-    if setting == "execution":
-        m["trajectory_length"] = round(3 + 2 * rng.random(), 4)
-        c = {
-            "placements_attempted": 40,
-            "placements_collapsed": rng.randrange(4),
-            "operations": 40,
-            "operations_dangerous": rng.randrange(3),
-        }
-    return m, c
-
-
-def seed_rows(runtime: Any, n: int, *, first: int = 0, fixed_quality: float | None = None) -> int:
-    """Insert ``n`` finished submissions with their runs and episodes; returns the episode rows written.
-
-    ``first``: how many the database already has (these are its next ones, finishing now);
-    ``fixed_quality``: theirs (0..1; default: random), e.g. 1 for a new best."""
-    rng = random.Random(first)
-    now = utcnow()
-    engine = runtime.engine
-    postgres = engine.dialect.name == "postgresql"
-    if first == 0:
-        with runtime.session() as s:
-            s.add_all([Participant(name=f"team-{i:03d}") for i in range(TEAMS)])
-    with runtime.session() as s:
-        teams = [
-            p for (p,) in s.execute(text("SELECT id FROM participants WHERE name LIKE 'team-%' ORDER BY id"))
-        ]
-        run_id = s.execute(text("SELECT coalesce(max(id), 0) FROM runs")).scalar_one()
-        episode_id = s.execute(text("SELECT coalesce(max(id), 0) FROM episodes")).scalar_one()
-    subs, runs, episodes = [], [], 0
-    batch: list[tuple[Any, ...]] = []
-
-    def flush() -> None:
-        nonlocal batch
-        if batch:
-            write_episodes(engine, batch, postgres)
-            batch = []
-
-    for i in range(first, first + n):
-        kind = "failed" if i % 50 == 7 else "partial" if i % 50 == 23 else "ok"
-        settings = ("math",) if kind == "partial" else SETTINGS
-        # the server's runs: every setting closed loop, and the physical ones again under the paper protocol
-        boards = [(st, "closed") for st in settings] + [
-            (st, "paper") for st in work.paper_settings(list(settings), "private")
-        ]
-        quality = rng.random() if fixed_quality is None else fixed_quality
-        sub_id = i + 1
-        subs.append(
-            {
-                "id": sub_id,
-                "participant_id": teams[i % TEAMS],
-                "name": f"policy-{i}",
-                "policy_url": "https://example.org",
-                "track": "private",
-                "datasets": list(DATASETS),
-                "settings": list(settings),
-                "lookahead": 0,
-                "episodes_total": GROUPS * 3 * len(boards),
-                "status": "failed" if kind == "failed" else "completed",
-                "created_at": now - timedelta(days=1),
-                "finished_at": now - timedelta(seconds=first + n - i),
-            }
-        )
-        for d in DATASETS:
-            for st, protocol in boards:
-                run_id += 1
-                rows = []
-                for g in range(GROUPS):
-                    episode_id += 1
-                    m, c = episode_figures(rng, quality, st)
-                    term = "policy_error" if kind == "failed" else "completed"
-                    rows.append((m, c, term, 40, g))
-                    batch.append(
-                        (
-                            episode_id,
-                            sub_id,
-                            run_id,
-                            d,
-                            st,
-                            "test",
-                            g,
-                            "done",
-                            1,
-                            40,
-                            term,
-                            "",
-                            80,
-                            40,
-                            json.dumps(m),
-                            json.dumps(c),
-                            now,
-                            None if st == "math" else PHYSICS_VERSION,
-                            protocol,
-                        )
-                    )
-                metrics, extras = run_figures([r[:4] for r in rows], st)
-                figures = group_figures(({**m, **c, "group": g} for m, c, _t, _b, g in rows), st)
-                runs.append(
-                    {
-                        "id": run_id,
-                        "submission_id": sub_id,
-                        "dataset": d,
-                        "setting": st,
-                        "protocol": protocol,
-                        "status": "completed",
-                        "episodes_total": GROUPS,
-                        "metrics": metrics,
-                        "extras": extras,
-                        "figures": figures,
-                        "entry": part_of_run(figures, st),
-                        "completed_at": now,
-                    }
-                )
-                episodes += GROUPS
-        if len(batch) >= 200_000:
-            insert_parents(runtime, subs, runs)
-            subs, runs = [], []
-            flush()
-    insert_parents(runtime, subs, runs)
-    flush()
-    if postgres:
-        with engine.begin() as c:
-            for table in ("submissions", "runs", "episodes"):
-                c.execute(
-                    text(
-                        f"SELECT setval(pg_get_serial_sequence('{table}', 'id'), (SELECT max(id) FROM {table}))"
-                    )
-                )
-            c.execute(text("ANALYZE"))
-    return episodes
-
-
-def insert_parents(runtime: Any, subs: list[dict[str, Any]], runs: list[dict[str, Any]]) -> None:
-    with runtime.session() as s:
-        if subs:
-            s.execute(insert(Submission), subs)
-        if runs:
-            s.execute(insert(RunRow), runs)
-
-
-def write_episodes(engine: Any, rows: list[tuple[Any, ...]], postgres: bool) -> None:
-    if postgres:
-        buf = io.StringIO()
-        for r in rows:
-            buf.write("\t".join(_copy_field(v) for v in r) + "\n")
-        raw = engine.raw_connection()
-        try:
-            with (
-                raw.cursor() as cur,
-                cur.copy(f"COPY episodes ({QUOTED}) FROM STDIN") as copy,
-            ):
-                copy.write(buf.getvalue())
-            raw.commit()
-        finally:
-            raw.close()
-    else:
-        keys = EPISODE_COLUMNS
-        with engine.begin() as c:
-            c.execute(
-                insert(EpisodeRow),
-                [
-                    dict(zip(keys, r, strict=True))
-                    | {"metrics": json.loads(r[14]), "counters": json.loads(r[15])}
-                    for r in rows
-                ],
-            )
-
-
-def _copy_field(v: Any) -> str:
-    if v is None:
-        return "\\N"
-    if hasattr(v, "isoformat"):
-        return v.isoformat()
-    return str(v).replace("\\", "\\\\").replace("\t", "\\t").replace("\n", "\\n")
-
-
-def routes(sub_ids: list[int], cookie: str, episode_id: int) -> list[tuple[str, str, dict[str, str]]]:
+def routes(sid: int, cookie: str, episode_id: int) -> list[tuple[str, str, dict[str, str]]]:
     """(label, path, headers) of every page and API route a reader uses: public pages anonymous (as a
     visitor reads them), a submission's own page signed in (its owner's view; here the operator's), the
     API with a bearer token."""
-    sid = sub_ids[len(sub_ids) // 2]
     api = {"Authorization": f"Bearer {ADMIN}"}
     anonymous: dict[str, str] = {}
     owner = {"Cookie": cookie}
@@ -542,6 +325,17 @@ def main() -> None:
     parser.add_argument("--reuse", action="store_true", help="the database is already seeded")
     parser.add_argument("--seed-only", action="store_true", help="seed the database and stop")
     parser.add_argument(
+        "--add",
+        action="store_true",
+        help="seed --submissions more after those the database has (e.g. grow a copy of a seeded one)",
+    )
+    parser.add_argument(
+        "--episodes-every",
+        type=int,
+        default=1,
+        help="episode rows for one submission in this many (and the newest 1,000); runs are always all written",
+    )
+    parser.add_argument(
         "--cold", action="store_true", help="time the cold computation (default unless --reuse)"
     )
     parser.add_argument("--accepts", type=int, default=40)
@@ -569,14 +363,34 @@ def main() -> None:
     app = create_app(settings, start_workers=False)
     runtime = app.state.runtime
     bootstrap(runtime)
-    t0 = time.perf_counter()
-    episodes = 0 if args.reuse else seed_rows(runtime, args.submissions)
+    seeded = "reused"
+    if not args.reuse:
+        with runtime.read_session() as s:
+            have = s.execute(text("SELECT count(*) FROM submissions")).scalar_one() if args.add else 0
+        load = os.getloadavg()[0]
+        st = seed(runtime, args.submissions, first=have, episodes_every=args.episodes_every)
+        seeded = (
+            f"seeded {st.submissions:,} submissions, {st.runs:,} runs, {st.episodes:,} episodes in {st.wall_s:.0f} s: "
+            f"{st.rows / st.wall_s:,.0f} rows/s; CPU {st.cpu_s:.0f} s (generating {st.generate_cpu_s:.0f} s), writing {st.write_s:.0f} s "
+            f"(database CPU {st.database_cpu_s or float('nan'):.0f} s), generator waiting for the writer "
+            f"{st.write_wait_s:.0f} s; load average {load:.1f} before, {os.getloadavg()[0]:.1f} after; "
+            f"{st.checked} runs checked against the worker's functions"
+        )
     with runtime.read_session() as s:
         n_subs = s.execute(text("SELECT count(*) FROM submissions")).scalar_one()
         n_waiting = s.execute(text("SELECT count(*) FROM submissions WHERE finished_at IS NULL")).scalar_one()
         n_eps = s.execute(text("SELECT count(*) FROM episodes")).scalar_one()
-        sub_ids = [i for (i,) in s.execute(text("SELECT id FROM submissions ORDER BY id"))]
-    seeded = f"seeded in {time.perf_counter() - t0:.0f} s" if episodes else "reused"
+        # the middle submission (a complete one) with episode rows (``--episodes-every``: not all have them)
+        middle = s.execute(
+            text("SELECT id FROM submissions ORDER BY id OFFSET :k LIMIT 1"), {"k": n_subs // 2}
+        )
+        sid = s.execute(
+            text("SELECT min(submission_id) FROM episodes WHERE submission_id >= :m"),
+            {"m": middle.scalar_one()},
+        ).scalar_one()
+        episode_id = s.execute(
+            text("SELECT min(id) FROM episodes WHERE submission_id = :s"), {"s": sid}
+        ).scalar_one()
     print(
         f"{n_subs:,} submissions ({n_waiting:,} not finished), {n_eps:,} episode rows ({seeded}); database: "
         f"{runtime.engine.url.get_backend_name()}; {machine()}"
@@ -591,12 +405,7 @@ def main() -> None:
 
     proc, base = start_server(url, tmp, args.server_workers)
     try:
-        sid = sub_ids[len(sub_ids) // 2]
-        with runtime.read_session() as s:
-            episode_id = s.execute(
-                text("SELECT min(id) FROM episodes WHERE submission_id = :s"), {"s": sid}
-            ).scalar_one()
-        paths = routes(sub_ids, sign_in(base), episode_id)
+        paths = routes(sid, sign_in(base), episode_id)
         t0 = time.perf_counter()
         warm_up(base, paths)
         scrape = httpx.get(f"{base}/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text

@@ -314,3 +314,132 @@ def test_refresh_boards_command_has_the_worker_recompute(quiet_app, monkeypatch:
     assert not publisher(app, gate).publish("public") and gate.calls == 0  # the other track: untouched
     publisher(app, gate).publish("private")
     assert gate.calls == 1 and published(app)[1] is not None
+
+
+def _rankless(entry: Mapping[str, Any]) -> str:
+    served = {k: v for k, v in entry.items() if not k.startswith("_") and not k.startswith("best_")}
+    if "cells" in served:
+        served["cells"] = {k: {**c, "rank": None} for k, c in served["cells"].items()}
+    return json.dumps({**served, "rank": None}, default=str, sort_keys=True)
+
+
+def _contents(worker: BoardPublisher) -> dict[tuple[Any, int], tuple[str, Any]]:
+    """Every all-entries row of every board and grid of the private track as the worker's engine last
+    computed them: its content without ranks, and its ranks."""
+    out = {}
+    for key, board in worker.engine.current("private").items():  # type: ignore[attr-defined]
+        for e in board.get("entries", board.get("rows")):
+            ranks = (e["rank"], {k: c["rank"] for k, c in e.get("cells", {}).items()})
+            out[(key, e["submission_id"])] = (_rankless(e), ranks)
+    return out
+
+
+def test_an_update_writes_only_the_entry_rows_whose_content_changed(quiet_app) -> None:
+    """Through the real engine: the rows written are those whose content (ranks aside) changed, and the
+    pages read back are the engine's boards."""
+    app = quiet_app
+    for who, url in (("a", "builtin:random"), ("b", "builtin:lsah")):
+        submit(app, who, url)
+    drain(app)
+    worker = publisher(app)
+    assert worker.publish("private")
+    first = _contents(worker)
+    assert worker.rows_written == len(first)
+    submit(app, "c", "builtin:dbl")  # between the two
+    drain(app)
+    assert worker.publish("private")
+    second = _contents(worker)
+    moved = {k for k, v in second.items() if k not in first or first[k][0] != v[0]}
+    assert worker.rows_written == len(moved)
+    cache = reader(app)
+    shown = worker.engine.current("private")  # type: ignore[attr-defined]
+    for dataset in DATASETS:
+        got = cache.board_page(dataset, "math", "private", "closed", "all")
+        assert got == json.loads(to_json(board_view(shown[(dataset, "math")], "all")))
+    assert cache.grid_page("private", "closed", "all") == json.loads(to_json(grid_view(shown["grid"], "all")))
+
+
+def test_a_reader_of_the_previous_version_never_sees_rows_of_the_next(quiet_app) -> None:
+    """A reader that named a version reads that version's rows although the next one replaced some of
+    them; once that version is gone (two publications later) it reads the publication again."""
+    app = quiet_app
+    submit(app, "a", "builtin:random")
+    submit(app, "b", "builtin:dbl")
+    drain(app)
+    worker = publisher(app)
+    assert worker.publish("private")
+    before = board_view(worker.engine.current("private")[("diverse", "math")], "all")  # type: ignore[attr-defined]
+    slow = reader(app, refresh_s=3600)  # keeps the version it read first
+    assert slow.board_page("diverse", "math", view="best")["total"] == 2
+    submit(app, "c", "builtin:lsah")
+    drain(app)
+    assert worker.publish("private")
+    assert worker.rows_written > 0
+    assert slow.board_page("diverse", "math", view="all") == json.loads(to_json(before))
+    submit(app, "d", "builtin:random")
+    drain(app)
+    assert worker.publish("private")
+    fresh = reader(app).board_page("diverse", "math", view="all")
+    slow._parts.clear()  # its rows of the first version are gone from SQL too
+    with pytest.raises(boards_module._Gone):  # served bodies retry after reading the publication again
+        slow.board_page("diverse", "math", view="all")
+    slow.publication("private", force=True)
+    assert slow.board_page("diverse", "math", view="all") == fresh
+    assert len(fresh["entries"]) == 4
+
+
+class Scripted:
+    """An engine that hands out the boards it is given (one Math board), as the real one would."""
+
+    def __init__(self) -> None:
+        self.board: dict[str, Any] = {}
+
+    def keys(self) -> list[Any]:
+        return [("diverse", "math")]
+
+    def update(self, track: str) -> Mapping[Any, Any]:
+        return {("diverse", "math"): self.board}
+
+    refresh = update
+
+
+def _board(entries: list[tuple[int, float]]) -> dict[str, Any]:
+    """A board of entries (submission id, score), ranked by score."""
+    rows = []
+    for rank, (sid, score) in enumerate(sorted(entries, key=lambda e: -e[1]), start=1):
+        rows.append(
+            {
+                "submission_id": sid,
+                "name": f"n{sid}",
+                "participant": f"p{sid}",
+                "baseline": False,
+                "rank": rank,
+            }
+            | {"rank_low": None, "rank_high": None, "score": score, "best": True, "_column": rank - 1}
+        )
+    return {"dataset": "diverse", "setting": "math", "track": "private", "protocol": "closed"} | {
+        "entries": rows,
+        "unranked": [],
+        "_best": rows,
+    }
+
+
+def test_an_entry_ranked_above_others_writes_its_row_alone(quiet_app) -> None:
+    """An arriving entry moves the rank of everyone below it and nothing else of theirs: one row is written,
+    and the pages read back carry the new ranks."""
+    app = quiet_app
+    scripted = Scripted()
+    worker = publisher(app, scripted)  # type: ignore[arg-type]
+    scripted.board = _board([(1, 0.9), (2, 0.5), (3, 0.1)])
+    assert worker.publish("private", force=True) and worker.rows_written == 3
+    scripted.board = _board([(1, 0.9), (2, 0.5), (3, 0.1), (4, 0.7)])
+    assert worker.publish("private", force=True) and worker.rows_written == 1
+    page = reader(app).board_page("diverse", "math", view="all")
+    assert [(e["submission_id"], e["rank"]) for e in page["entries"]] == [(1, 1), (4, 2), (2, 3), (3, 4)]
+    assert page == json.loads(to_json(board_view(scripted.board, "all")))
+    scripted.board = _board([(1, 0.9), (2, 0.6), (3, 0.1), (4, 0.7)])  # one score moved, no rank
+    assert worker.publish("private", force=True) and worker.rows_written == 1
+    assert (
+        reader(app).board_page("diverse", "math", view="all", offset=2, limit=1)["entries"][0]["score"] == 0.6
+    )
+    assert not worker.publish("private", force=True) and worker.rows_written == 0  # nothing changed

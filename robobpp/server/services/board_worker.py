@@ -29,22 +29,30 @@ import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any, Protocol, cast
 
-from sqlalchemy import CursorResult, Update, delete, or_, update
+import numpy as np
+from sqlalchemy import CursorResult, Table, Update, bindparam, delete, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import BoardPart, BoardPublication, utcnow
 from robobpp.server.services.board_engine import BoardEngine
 from robobpp.server.services.boards import (
+    ROW_PREFIX,
     SessionFactory,
+    StoredBoard,
     board_source,
-    digest,
+    manifest,
+    manifest_of,
     parts_of,
     published_key,
     read_publication,
+    row_hash,
+    row_part,
+    to_json,
 )
 
 log = logging.getLogger("robobpp.server")
@@ -86,6 +94,13 @@ class BoardPublisher:
         #: Computations and publications so far, and the wall time of the last publication.
         self.computed = self.published = 0
         self.last_seconds = 0.0
+        #: Per published board: its rows' hashes by the object they were serialised from (an engine hands
+        #: out the same object while an entry's content stays: serialised once), and the ``rows`` manifest
+        #: of its published version (ids, row versions, hashes) to compare the next one against.
+        self._hashes: dict[tuple[str, str], dict[int, tuple[Mapping[str, Any], int, bytes | None]]] = {}
+        self._manifests: dict[tuple[str, str], tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+        #: Rows written by the last publication (its boards together), for the benchmark and the tests.
+        self.rows_written = 0
 
     def _new_engine(self) -> Engine:
         return self._given or BoardEngine(self.read, self.datasets, self.settings)
@@ -113,7 +128,9 @@ class BoardPublisher:
                 computed = self.engine.refresh(track) if full else self.engine.update(track)
                 self.computed += 1
                 boards = {published_key(k): v for k, v in computed.items()}
-                stored = {key: parts_of(key, value) for key, value in boards.items()}
+                stored = {
+                    key: self._rows_hashed(track, key, parts_of(key, value)) for key, value in boards.items()
+                }
             known = set(map(published_key, self.engine.keys()))
             return self._write(track, source, stored, known, time.perf_counter() - started)
         finally:
@@ -191,14 +208,55 @@ class BoardPublisher:
             done.set()
             beat.join()
 
+    def _rows_hashed(self, track: str, key: str, stored: StoredBoard) -> _Hashed:
+        """The board's rows with their content hashes; a row object seen at the last publication keeps its
+        hash (it is serialised again only if it must be written)."""
+        known = self._hashes.get((track, key), {})
+        seen: dict[int, tuple[Mapping[str, Any], int, bytes | None]] = {}
+        for sid, row in stored.rows.items():
+            hit = known.get(sid)
+            if hit is not None and hit[0] is row:
+                seen[sid] = hit
+            else:
+                body = to_json(row)
+                seen[sid] = (row, row_hash(body), body)
+        self._hashes[(track, key)] = {sid: (row, h, None) for sid, (row, h, _) in seen.items()}
+        ids = np.fromiter(seen, dtype=np.int64, count=len(seen))
+        hashes = np.fromiter((v[1] for v in seen.values()), dtype=np.int64, count=len(seen))
+        order = np.argsort(ids)
+        return _Hashed(stored, ids[order], hashes[order], seen)
+
+    def _manifest(
+        self, session: Session, track: str, key: str, version: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ``rows`` manifest of a published board version (kept from the last publication, or read)."""
+        kept = self._manifests.get((track, key))
+        if kept is not None and kept[0] == version:
+            return kept[1]
+        body = session.execute(
+            select(BoardPart.body).where(
+                BoardPart.track == track,
+                BoardPart.board == key,
+                BoardPart.version == version,
+                BoardPart.part == "rows",
+            )
+        ).scalar_one_or_none()
+        empty = np.zeros(0, dtype=np.int64)
+        return (empty, empty, empty) if body is None else manifest_of(body)
+
     def _write(
         self,
         track: str,
         source: list[Any],
-        stored: Mapping[str, Mapping[str, bytes]],
+        stored: Mapping[str, _Hashed],
         known: set[str],
         seconds: float,
     ) -> bool:
+        """Publish in one transaction: for each board whose content changed, its small parts and ``rows``
+        manifest under the new version, and only the rows whose content changed; the previous version's
+        parts are kept (a reader may just have named it), older ones removed."""
+        written = 0
+        manifests: dict[tuple[str, str], tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
         with self.write() as session:
             row = session.get(BoardPublication, track, with_for_update=True, populate_existing=True)
             if row is None or row.holder != self.holder:
@@ -208,34 +266,114 @@ class BoardPublisher:
             before: dict[str, Any] = dict(row.boards or {})
             after = {key: entry for key, entry in before.items() if key in known}  # the engine's unchanged
             changed = False
-            for key, parts in stored.items():
-                sha = digest(parts)
+            for key, hashed in stored.items():
+                sha = hashed.board.digest(hashed.hashes, hashed.ids)
                 old = before.get(key)
                 if old is not None and old[1] == sha:
                     after[key] = old
                     continue
                 changed = True
+                ids, hashes = hashed.ids, hashed.hashes
+                if old is not None:
+                    p_ids, p_versions, p_hashes = self._manifest(session, track, key, int(old[0]))
+                else:
+                    p_ids = p_versions = p_hashes = np.zeros(0, dtype=np.int64)
+                found, same, p_row_versions = _against(ids, hashes, p_ids, p_versions, p_hashes)
+                versions = np.where(same, p_row_versions, version)
+                fresh = ids[~same].tolist()
                 session.add_all(
                     BoardPart(track=track, board=key, version=version, part=name, body=body)
-                    for name, body in parts.items()
+                    for name, body in hashed.board.parts.items()
                 )
+                session.add(
+                    BoardPart(
+                        track=track,
+                        board=key,
+                        version=version,
+                        part="rows",
+                        body=manifest(ids, versions, hashes),
+                    )
+                )
+                session.add_all(
+                    BoardPart(
+                        track=track, board=key, version=version, part=row_part(sid), body=hashed.body(sid)
+                    )
+                    for sid in fresh
+                )
+                written += len(fresh)
                 after[key] = [version, sha]
+                manifests[(track, key)] = (version, (ids, versions, hashes))
                 if old is not None:  # keep the previous version for readers that just named it
                     session.execute(
                         delete(BoardPart).where(
-                            BoardPart.track == track, BoardPart.board == key, BoardPart.version < old[0]
+                            BoardPart.track == track,
+                            BoardPart.board == key,
+                            BoardPart.version < old[0],
+                            BoardPart.part.not_like(f"{ROW_PREFIX}%"),
                         )
                     )
+                    # a row replaced now: the one the previous version shows stays, older ones go
+                    replaced = found & ~same
+                    stale = [
+                        {"p": row_part(int(sid)), "v": int(v)}
+                        for sid, v in zip(ids[replaced], p_row_versions[replaced], strict=True)
+                    ]
+                    if stale:  # executemany, by (track, board, part, version): the unique key's index
+                        table = cast(Table, BoardPart.__table__)
+                        session.connection().execute(
+                            delete(table).where(
+                                table.c.track == track,
+                                table.c.board == key,
+                                table.c.part == bindparam("p"),
+                                table.c.version < bindparam("v"),
+                            ),
+                            stale,
+                        )
             for key in before.keys() - known:  # boards this server no longer publishes
                 changed = True
                 session.execute(delete(BoardPart).where(BoardPart.track == track, BoardPart.board == key))
             if changed:
                 row.version, row.boards = version, after
             row.source, row.seconds, row.published_at = source, seconds, utcnow()
+        self._manifests.update(manifests)
         self.published += 1
         self.last_seconds = seconds
-        log.info("published the %s boards (version %d) in %.2f s", track, row.version, seconds)
+        self.rows_written = written
+        log.info(
+            "published the %s boards (version %d) in %.2f s, %d entry rows written",
+            track,
+            row.version,
+            seconds,
+            written,
+        )
         return changed
+
+
+def _against(
+    ids: np.ndarray, hashes: np.ndarray, p_ids: np.ndarray, p_versions: np.ndarray, p_hashes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each row (ids ascending) against the previous manifest: whether it was there, whether its content is
+    the same, and the version of its row there (0 when absent)."""
+    if len(p_ids) == 0:
+        none = np.zeros(len(ids), dtype=bool)
+        return none, none, np.zeros(len(ids), dtype=np.int64)
+    at = np.minimum(np.searchsorted(p_ids, ids), len(p_ids) - 1)
+    found = p_ids[at] == ids
+    return found, found & (p_hashes[at] == hashes), np.where(found, p_versions[at], 0)
+
+
+@dataclass
+class _Hashed:
+    """A board version to publish with its rows' hashes (ids ascending) and the bodies serialised so far."""
+
+    board: StoredBoard
+    ids: np.ndarray
+    hashes: np.ndarray
+    seen: dict[int, tuple[Mapping[str, Any], int, bytes | None]]
+
+    def body(self, submission_id: int) -> bytes:
+        row, _, body = self.seen[submission_id]
+        return body if body is not None else to_json(row)
 
 
 def request_recompute(session: Session, track: str | None = None) -> int:

@@ -50,7 +50,7 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 #: Entries per stored chunk: a page of up to 500 (the API's largest) reads at most 6 chunks.
 CHUNK = 100
 #: Bumped when the layout of the stored parts changes: a server of another layout recomputes them.
-LAYOUT = 1
+LAYOUT = 2
 
 
 def board_version(session: Session, track: str) -> tuple[Any, ...]:
@@ -131,51 +131,118 @@ def _index(positions: Mapping[int, int]) -> bytes:
     return ids[order].tobytes() + where[order].tobytes()
 
 
-def board_parts(board: Mapping[str, Any]) -> dict[str, bytes]:
-    """A board (``robobpp.scoring.boards.build_board``) as stored parts: ``head`` (what every page of it
-    repeats, and each list's length), ``best:<i>``, ``all:<i>``, ``unranked:<i>`` (chunks of entries as
-    served) and ``index`` (a submission's ranked position ``i`` in ``all``, or ``-1 - i`` in ``unranked``)."""
-    lists = {
-        "best": [_served(e) for e in board["_best"]],
-        "all": [_served(e) for e in board["entries"]],
-        "unranked": [dict(e) for e in board["unranked"]],
-    }
+def row_part(submission_id: int) -> str:
+    """The part name of one entry's row of the all-entries view (``e:<submission id>``)."""
+    return f"{ROW_PREFIX}{submission_id}"
+
+
+#: Part names of the all-entries view's rows: one per entry, written only when its content changed.
+ROW_PREFIX = "e:"
+
+
+def row_hash(body: bytes) -> int:
+    """A row's content as a signed 64-bit integer (the ``rows`` manifest's hash)."""
+    return int.from_bytes(hashlib.blake2b(body, digest_size=8).digest(), "little", signed=True)
+
+
+@dataclass
+class StoredBoard:
+    """A board (or grid) version as the worker writes it.
+
+    ``parts``: what is written whole with every version — ``head``, the chunks of the best view and of the
+    unranked entries, ``index`` (submission id -> position) and ``order`` (the all-entries view: its
+    submission ids in rank order, their ranks, and for the grid each cell's rank). ``rows``: the
+    all-entries view's entries by submission id, each *without* its ranks (``"rank": null``, its cells'
+    too): an arriving entry moves the rank of everyone below it and nothing else of theirs, so only the rows
+    whose content changed are written (``e:<id>`` parts, services/board_worker.py). A row's value is the
+    served dict, or a dict handed out by the board engine that stays the same object while its content does
+    (``_base``): the worker serialises each such object once."""
+
+    parts: dict[str, bytes]
+    rows: dict[int, Mapping[str, Any]]
+
+    def digest(self, hashes: np.ndarray, ids: np.ndarray) -> str:
+        """What the version holds (its parts and its rows' content): an unchanged one is not written."""
+        h = hashlib.sha256()
+        for name in sorted(self.parts):
+            h.update(name.encode() + b"\0" + hashlib.sha256(self.parts[name]).digest())
+        h.update(ids.tobytes() + hashes.tobytes())
+        return h.hexdigest()[:32]
+
+
+def _order(ids: Sequence[int], ranks: Sequence[int], cells: np.ndarray | None = None) -> bytes:
+    """The all-entries view's order: a header (entries, cell columns), ids, ranks, cell ranks (entries × columns)."""
+    n, c = len(ids), 0 if cells is None else int(cells.shape[1])
+    out = np.array([n, c], dtype=np.int64).tobytes()
+    out += np.asarray(ids, dtype=np.int64).tobytes() + np.asarray(ranks, dtype=np.int64).tobytes()
+    return out + (b"" if cells is None else np.ascontiguousarray(cells, dtype=np.int64).tobytes())
+
+
+def _rankless(entry: Mapping[str, Any]) -> Mapping[str, Any]:
+    """A served entry of the all-entries view without its rank (the engine's ``_base`` when it gave one)."""
+    base = entry.get("_base")
+    return base if base is not None else {**_served(entry), "rank": None}
+
+
+def board_parts(board: Mapping[str, Any]) -> StoredBoard:
+    """A board (``robobpp.scoring.boards.build_board``) as stored: ``head`` (what every page of it repeats,
+    and each list's length), ``best:<i>``, ``unranked:<i>`` (chunks of entries as served), ``order`` and
+    ``index`` (a submission's ranked position ``i`` in ``all``, or ``-1 - i`` in ``unranked``), and a row
+    per entry of the all-entries view (:class:`StoredBoard`)."""
+    entries = board["entries"]
+    lists = {"best": [_served(e) for e in board["_best"]], "unranked": [dict(e) for e in board["unranked"]]}
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
-    parts = {"head": to_json({"head": head, "counts": {k: len(v) for k, v in lists.items()}})}
+    counts = {"best": len(lists["best"]), "all": len(entries), "unranked": len(lists["unranked"])}
+    parts = {"head": to_json({"head": head, "counts": counts})}
     for name, items in lists.items():
         parts |= _chunked(name, items)
-    positions = {e["submission_id"]: i for i, e in enumerate(lists["all"])}
+    ids = [e["submission_id"] for e in entries]
+    parts["order"] = _order(ids, [e["rank"] for e in entries])
+    positions = {sid: i for i, sid in enumerate(ids)}
     positions |= {e["submission_id"]: -1 - i for i, e in enumerate(lists["unranked"])}
     parts["index"] = _index(positions)
-    return parts
+    return StoredBoard(parts, {e["submission_id"]: _rankless(e) for e in entries})
 
 
-def grid_parts(grid: Mapping[str, Any]) -> dict[str, bytes]:
-    """The overall grid as stored parts: ``head`` and chunks of ``best``, ``all`` (rows), ``apart-best``
-    and ``apart-all`` (the rows of submissions not ranked on every board)."""
+def grid_cell_keys(head: Mapping[str, Any]) -> list[str]:
+    """The grid's boards in the order of the stored cell ranks (as ``build_grid`` orders them)."""
+    return [f"{s}/{d}" for s in head["settings"] for d in head["datasets"]]
+
+
+def _rankless_row(row: Mapping[str, Any]) -> Mapping[str, Any]:
+    base = row.get("_base")
+    if base is not None:
+        return base
+    served = _served(row)
+    cells = {k: {**c, "rank": None} for k, c in served["cells"].items()}
+    return {**served, "rank": None, "cells": cells}
+
+
+def grid_parts(grid: Mapping[str, Any]) -> StoredBoard:
+    """The overall grid as stored: ``head``, chunks of ``best``, ``apart-best`` and ``apart-all`` (the rows
+    of submissions not ranked on every board), ``order`` (with each ranked row's cell ranks) and a row per
+    ranked submission (:class:`StoredBoard`)."""
+    rows = grid["rows"]
     lists = {
         "best": [_served(r) for r in grid["_best"]],
-        "all": [_served(r) for r in grid["rows"]],
         "apart-best": [_served(r) for r in grid["_best_apart"]],
         "apart-all": [_served(r) for r in grid["apart"]],
     }
     head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
-    parts = {"head": to_json({"head": head, "counts": {k: len(v) for k, v in lists.items()}})}
+    counts = {k: len(v) for k, v in lists.items()} | {"all": len(rows)}
+    parts = {"head": to_json({"head": head, "counts": counts})}
     for name, items in lists.items():
         parts |= _chunked(name, items)
-    return parts
+    keys = grid_cell_keys(grid)
+    cells = np.array([[r["cells"][k]["rank"] for k in keys] for r in rows], dtype=np.int64).reshape(
+        len(rows), len(keys)
+    )
+    parts["order"] = _order([r["submission_id"] for r in rows], [r["rank"] for r in rows], cells)
+    return StoredBoard(parts, {r["submission_id"]: _rankless_row(r) for r in rows})
 
 
-def parts_of(key: str, value: Mapping[str, Any]) -> dict[str, bytes]:
+def parts_of(key: str, value: Mapping[str, Any]) -> StoredBoard:
     return grid_parts(value) if key.startswith("grid/") else board_parts(value)
-
-
-def digest(parts: Mapping[str, bytes]) -> str:
-    """What a board's parts hold: a board whose digest did not change is not written again."""
-    h = hashlib.sha256()
-    for name in sorted(parts):
-        h.update(name.encode() + b"\0" + hashlib.sha256(parts[name]).digest())
-    return h.hexdigest()[:32]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -231,7 +298,7 @@ class BoardCache:
         datasets: tuple[str, ...] = queries.DATASETS_ORDER,
         settings: tuple[str, ...] = queries.SETTINGS_ORDER,
         wake: Callable[[], None] | None = None,
-        parts_size: int = 512,
+        parts_size: int = 4096,
         responses_size: int = 512,
     ) -> None:
         self.session_factory = session_factory
@@ -377,6 +444,65 @@ class BoardCache:
         start = offset - (offset // CHUNK) * CHUNK
         return items[start : start + (stop - offset)]
 
+    def _all(self, track: str, key: str, total: int, offset: int, limit: int) -> list[Any]:
+        """Entries (or grid rows) ``offset`` to ``offset + limit`` of the all-entries view: their ids and
+        ranks from ``order``, each row of the version the ``rows`` manifest names, ranks put back."""
+        stop = min(total, offset + limit)
+        if offset >= stop:
+            return []
+        stored = self._read(track, key, ["order", "rows"])
+        ids, ranks, cells = stored["order"]
+        manifest_ids, versions = stored["rows"]
+        wanted = ids[offset:stop]
+        at = np.searchsorted(manifest_ids, wanted)
+        rows = self._rows(track, key, wanted.tolist(), versions[at].tolist())
+        out = []
+        cell_keys = grid_cell_keys(self._head(track, key)["head"]) if cells.shape[1] else []
+        for k, sid in enumerate(wanted.tolist()):
+            item = dict(rows[sid])
+            item["rank"] = int(ranks[offset + k])
+            if cell_keys:
+                item["cells"] = {
+                    name: {**item["cells"][name], "rank": int(cells[offset + k, j])}
+                    for j, name in enumerate(cell_keys)
+                }
+            out.append(item)
+        return out
+
+    def _rows(self, track: str, key: str, ids: list[int], versions: list[int]) -> dict[int, Any]:
+        """Rows of the all-entries view by submission id, each of the version given (cached: a row never
+        changes once written)."""
+        found: dict[int, Any] = {}
+        with self._lock:
+            for sid, version in zip(ids, versions, strict=True):
+                hit = self._parts.get((track, key, version, row_part(sid)))
+                if hit is not None:
+                    found[sid] = hit
+        missing = {
+            row_part(sid): version for sid, version in zip(ids, versions, strict=True) if sid not in found
+        }
+        if missing:
+            with self.session_factory() as session:
+                rows = session.execute(
+                    select(BoardPart.part, BoardPart.version, BoardPart.body).where(
+                        BoardPart.track == track,
+                        BoardPart.board == key,
+                        BoardPart.version.in_(set(missing.values())),
+                        BoardPart.part.in_(list(missing)),
+                    )
+                ).all()
+            got = {(name, version): body for name, version, body in rows if missing.get(name) == version}
+            if len(got) != len(missing):
+                raise _Gone(key)
+            with self._lock:
+                self.parts_read += len(got)
+                for (name, version), body in got.items():
+                    sid = int(name[len(ROW_PREFIX) :])
+                    found[sid] = self._parts[(track, key, version, name)] = json.loads(body)
+                while len(self._parts) > self.parts_size:
+                    self._parts.popitem(last=False)
+        return found
+
     def _head(self, track: str, key: str) -> dict[str, Any]:
         head: dict[str, Any] = self._read(track, key, ["head"])["head"]
         return head
@@ -397,12 +523,16 @@ class BoardCache:
         stored = self._head(track, key)
         counts = stored["counts"]
         if submission_id is None:
-            entries = self._slice(track, key, view, counts[view], offset, limit)
+            entries = (
+                self._all(track, key, counts["all"], offset, limit)
+                if view == "all"
+                else self._slice(track, key, view, counts[view], offset, limit)
+            )
             unranked = self._slice(track, key, "unranked", counts["unranked"], 0, limit)
             total, unranked_total = counts[view], counts["unranked"]
         else:
             at = self._locate(track, key, submission_id)
-            entries = [] if at is None or at < 0 else self._slice(track, key, "all", counts["all"], at, 1)
+            entries = [] if at is None or at < 0 else self._all(track, key, counts["all"], at, 1)
             unranked = (
                 []
                 if at is None or at >= 0
@@ -439,7 +569,11 @@ class BoardCache:
             "total": counts[view],
             "limit": limit,
             "offset": offset,
-            "rows": self._slice(track, key, view, counts[view], offset, limit),
+            "rows": (
+                self._all(track, key, counts["all"], offset, limit)
+                if view == "all"
+                else self._slice(track, key, view, counts[view], offset, limit)
+            ),
             "apart_total": counts[apart],
             "apart": self._slice(track, key, apart, counts[apart], 0, limit),
         }
@@ -473,4 +607,28 @@ def _decode(name: str, body: bytes) -> Any:
     if name == "index":
         n = len(body) // 16
         return np.frombuffer(body[: 8 * n], dtype=np.int64), np.frombuffer(body[8 * n :], dtype=np.int64)
+    if name == "order":
+        n, c = (int(x) for x in np.frombuffer(body, dtype=np.int64, count=2))
+        arrays = np.frombuffer(body, dtype=np.int64, offset=16)
+        return arrays[:n], arrays[n : 2 * n], arrays[2 * n :].reshape(n, c)
+    if name == "rows":
+        ids, versions, _hashes = manifest_of(body)
+        return ids, versions
     return json.loads(body)
+
+
+def manifest(ids: np.ndarray, versions: np.ndarray, hashes: np.ndarray) -> bytes:
+    """The ``rows`` part: which version of each entry's row a board version shows (ids ascending), and the
+    rows' content hashes (what the next version compares against)."""
+    return (
+        np.array([len(ids)], dtype=np.int64).tobytes()
+        + ids.astype(np.int64).tobytes()
+        + versions.astype(np.int64).tobytes()
+        + hashes.astype(np.int64).tobytes()
+    )
+
+
+def manifest_of(body: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = int(np.frombuffer(body, dtype=np.int64, count=1)[0])
+    arrays = np.frombuffer(body, dtype=np.int64, offset=8)
+    return arrays[:n], arrays[n : 2 * n], arrays[2 * n : 3 * n]

@@ -324,6 +324,7 @@ def build_grid(
                 "cells": {},
                 "unranked": {},
                 "_columns": {},
+                "_bases": {},  # each cell's board entry's ``_base`` (the board engine's), for the grid's own
             }
         return row
 
@@ -334,6 +335,7 @@ def build_grid(
             cell["pph"] = (e.get("extras") or {}).get("pph")
             row["cells"][key] = cell
             row["_columns"][key] = e["_column"]
+            row["_bases"][key] = e.get("_base")
         for e in boards[key]["unranked"]:
             row_for(e)["unranked"][key] = e["status"]
     complete = [r for r in rows.values() if len(r["cells"]) == len(keys) and keys]

@@ -73,6 +73,10 @@ class _Entry:
     public: dict[str, Any]
     scored: _Scored | None = None
     normalized: tuple[bytes, dict[str, float]] | None = None
+    #: The entry as served in the all-entries view without its rank, and what it was built from: the same
+    #: object while its content stays, so the publisher serialises it once (services/boards.py).
+    base: dict[str, Any] | None = None
+    base_of: tuple[Any, ...] = ()
 
 
 class BoardMatrix:
@@ -404,7 +408,40 @@ class BoardMatrix:
             self.dataset, self.setting, self.track, groups, entries, unranked, samples, stable, best_samples
         )
         board["protocol"] = self.protocol
+        for d in board["entries"]:
+            d["_base"] = _base(ranked[d["_column"]], d)
         return board
+
+
+def _base(entry: _Entry, served: dict[str, Any]) -> dict[str, Any]:
+    """The entry's all-entries row without its rank (``served`` is its entry on the board now): the object
+    kept from the last update when nothing it shows moved (an arriving entry moves the ranks below it and
+    nothing else of theirs)."""
+    s = entry.scored
+    normalized = entry.normalized[1] if entry.normalized is not None else None
+    of = (
+        s,
+        s.rank_ci if s else None,
+        served["score"],
+        normalized,
+        served["entries_submitted"],
+        served["best"],
+    )
+    old = entry.base_of
+    if (
+        entry.base is None
+        or old[0] is not of[0]
+        or old[3] is not of[3]
+        or old[1] != of[1]
+        or old[2] != of[2]
+        or old[4] != of[4]
+        or old[5] != of[5]
+    ):
+        entry.base = {
+            k: v for k, v in served.items() if not k.startswith("_") and not k.startswith("best_")
+        } | {"rank": None}
+        entry.base_of = of
+    return entry.base
 
 
 def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:

@@ -196,6 +196,23 @@ def finish_board(
         if e["best"]
     ]
     best.sort(key=lambda e: (e["rank"], e["submission_id"]))
+    return board_dict(
+        dataset, setting, track, groups, [entries[i] for i in order], unranked, best, samples, stable_samples
+    )
+
+
+def board_dict(
+    dataset: str,
+    setting: str,
+    track: str,
+    groups: int,
+    entries: list[dict[str, Any]],
+    unranked: list[dict[str, Any]],
+    best: list[dict[str, Any]],
+    samples: np.ndarray,
+    stable_samples: np.ndarray,
+) -> dict[str, Any]:
+    """The board dict from its entries in rank order, unranked ones and best entries, both sorted."""
     return {
         "dataset": dataset,
         "setting": setting,
@@ -207,11 +224,11 @@ def finish_board(
         "groups": groups,
         "resamples": stats.RESAMPLES,
         "confidence": stats.CONFIDENCE,
-        "entries": [entries[i] for i in order],
+        "entries": entries,
         "unranked": unranked,
         # copies: a slice would keep the full resample arrays alive in the cache
         "_best": best,  # the default view, ready to page
-        "_index": {entries[i]["submission_id"]: k for k, i in enumerate(order)},  # position in "entries"
+        "_index": {e["submission_id"]: k for k, e in enumerate(entries)},  # position in "entries"
         "_samples": samples[:GRID_RESAMPLES].copy(),
         "_stable_samples": stable_samples[:GRID_RESAMPLES].copy(),
     }
@@ -304,12 +321,15 @@ def build_grid(
     track: str,
     *,
     rank_intervals: Mapping[int, tuple[int, int]] | None = None,
+    cells: dict[str, dict[int, tuple[Any, int, dict[str, Any]]]] | None = None,
 ) -> dict[str, Any]:
     """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
     interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board.
 
     ``rank_intervals``: the rows' rank intervals of the all-rows view by submission id, as last computed,
-    instead of computing them (a row missing there has none yet); None: computed now."""
+    instead of computing them (a row missing there has none yet); None: computed now. ``cells``: the cells
+    of the last grid by board and submission id, reused for an entry whose ``_base`` (the board engine's:
+    the same object while its content stays) and rank did not move; updated here."""
     keys = [f"{s}/{d}" for s in settings for d in datasets]
     rows: dict[int, dict[str, Any]] = {}
 
@@ -329,13 +349,33 @@ def build_grid(
         return row
 
     for key in keys:
+        known = None if cells is None else cells.setdefault(key, {})
         for e in boards[key]["entries"]:
             row = row_for(e)
-            cell = dict(zip(_CELL_FIELDS, _cell_values(e), strict=True))
-            cell["pph"] = (e.get("extras") or {}).get("pph")
-            row["cells"][key] = cell
+            base = e.get("_base")
+            if known is not None and base is not None:
+                hit = known.get(e["submission_id"])
+                if hit is not None and hit[0] is base and hit[1] == e["rank"]:
+                    row["cells"][key] = hit[2]
+                    row["_columns"][key] = e["_column"]
+                    row["_bases"][key] = base
+                    continue
+            row["cells"][key] = {
+                "score": e["score"],
+                "score_low": e["score_low"],
+                "score_high": e["score_high"],
+                "rank": e["rank"],
+                "rank_low": e["rank_low"],
+                "rank_high": e["rank_high"],
+                "stable": e["stable"],
+                "stable_low": e["stable_low"],
+                "stable_high": e["stable_high"],
+                "pph": (e.get("extras") or {}).get("pph"),
+            }
             row["_columns"][key] = e["_column"]
-            row["_bases"][key] = e.get("_base")
+            row["_bases"][key] = base
+            if known is not None and base is not None:
+                known[e["submission_id"]] = (base, e["rank"], row["cells"][key])
         for e in boards[key]["unranked"]:
             row_for(e)["unranked"][key] = e["status"]
     complete = [r for r in rows.values() if len(r["cells"]) == len(keys) and keys]
@@ -396,15 +436,23 @@ def _grid_means(
         return
     rel = np.zeros((GRID_RESAMPLES, len(rows)), dtype=np.float64)
     stab = np.zeros_like(rel)
+    score_sum = np.zeros(len(rows))
+    stable_sum = np.zeros(len(rows))
     for key in keys:
-        cols = [r["_columns"][key] for r in rows]
+        cols = np.fromiter((r["_columns"][key] for r in rows), dtype=np.intp, count=len(rows))
         samples, stable = boards[key]["_samples"], boards[key]["_stable_samples"]
         rel[: samples.shape[0]] += samples[:, cols]
         stab[: stable.shape[0]] += stable[:, cols]
+        by_column = np.zeros((2, len(boards[key]["entries"])))
+        for e in boards[key]["entries"]:
+            by_column[:, e["_column"]] = e["score"], e["stable"]
+        # summed board by board in the order of ``keys``: the same additions as a sum over each row's cells
+        score_sum += by_column[0, cols]
+        stable_sum += by_column[1, cols]
     rel = np.round(rel / len(keys), 12)
     stab /= len(keys)
-    means = [round(sum(r["cells"][k]["score"] for k in keys) / len(keys), 12) for r in rows]
-    stables = [sum(r["cells"][k]["stable"] for k in keys) / len(keys) for r in rows]
+    means = [round(x, 12) for x in (score_sum / len(keys)).tolist()]
+    stables = (stable_sum / len(keys)).tolist()
     ranks = competition_ranks(means)
     lo, hi = stats.interval(rel)
     slo, shi = stats.interval(stab)

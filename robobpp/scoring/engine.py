@@ -30,8 +30,8 @@ import numpy as np
 from robobpp.scoring import stats
 from robobpp.scoring.boards import (
     GRID_RESAMPLES,
+    board_dict,
     classify_row,
-    finish_board,
     participant_key,
     public_fields,
 )
@@ -41,6 +41,10 @@ from robobpp.scoring.scores import WEIGHTS, competition_ranks, stable_scores
 
 #: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
+#: A board of up to this many entries keeps every entry's stored part in memory (a few kB each: ≈ 2 kB
+#: for a Math board, BENCHMARKS.md), so an entry that moves a resample's min or max renormalises the others
+#: without reading their parts from SQL again; a larger board keeps only its best entries' parts.
+KEEP_PARTS = 25_000
 #: Entries renormalised at a time (bounds the transient samples array: chunk × resamples × metrics).
 CHUNK = 512
 
@@ -67,6 +71,7 @@ class _Entry:
     policy_failed: bool
     submission_failed: bool
     who: str
+    sid: int
     points: np.ndarray  # (metrics,) point figures, NaN = missing
     stable: float  # the point stable score (its own metrics alone)
     ids: bytes | None
@@ -144,6 +149,7 @@ class BoardMatrix:
             policy_failed=stats.run_failed(extras.get("terminations"), episodes),
             submission_failed=row.get("submission_status") == "failed",
             who=participant_key(row),
+            sid=int(row["submission_id"]),
             points=np.array([_point(metrics.get(k)) for k in self.keys], dtype=np.float64),
             stable=stable_scores([metrics], self.setting)[0],
             ids=row.get("ids"),
@@ -196,8 +202,9 @@ class BoardMatrix:
             return self._relative(samples, self._lo, self._hi).T.astype(np.float32)
 
         board = self._assemble(everyone, ranked, groups, submitted, best_samples)
-        keep = {e["submission_id"] for e in board["_best"]}
-        self._parts = {s: p for s, p in self._parts.items() if s in keep}
+        if len(self._entries) > KEEP_PARTS:  # past it, a shift reloads the parts from SQL
+            keep = {e["submission_id"] for e in board["_best"]}
+            self._parts = {s: p for s, p in self._parts.items() if s in keep}
         return board
 
     # -- the parts of the computation
@@ -370,30 +377,33 @@ class BoardMatrix:
                 unranked.append(
                     {**e.public, "status": status, "reason": reason, "entries_submitted": submitted[e.who]}
                 )
+        unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
         scores, ranks, normalized = self._points(ranked)
-        entries = []
-        for i, e in enumerate(ranked):
-            s = e.scored
-            assert s is not None
-            entries.append(
-                {
-                    **e.public,
-                    "rank": ranks[i],
-                    "rank_low": None if s.rank_ci is None else s.rank_ci[0],
-                    "rank_high": None if s.rank_ci is None else s.rank_ci[1],
-                    "score": scores[i],
-                    "score_low": s.score_ci[0],
-                    "score_high": s.score_ci[1],
-                    "stable": e.stable,
-                    "stable_low": s.stable_ci[0],
-                    "stable_high": s.stable_ci[1],
-                    "normalized": normalized[i],
-                    "intervals": s.intervals,
-                    "entries_submitted": submitted[e.who],
-                    "_column": i,
-                }
-            )
         n = len(ranked)
+        sids = np.fromiter((e.sid for e in ranked), dtype=np.int64, count=n)
+        rank_of = np.asarray(ranks, dtype=np.int64).reshape(n)
+        # each participant's best entry (``boards._mark_best``): the least (rank, id) of theirs
+        codes: dict[str, int] = {}
+        who = np.fromiter((codes.setdefault(e.who, len(codes)) for e in ranked), dtype=np.int64, count=n)
+        by = np.lexsort((sids, rank_of, who))
+        firsts = by[np.r_[True, who[by][1:] != who[by][:-1]]] if n else by
+        chosen = np.sort(firsts).tolist()
+        best_ranks = competition_ranks([scores[i] for i in chosen])
+        if chosen:
+            low, high = stats.rank_interval(stats.rank_samples(best_samples(chosen)))
+        best_of = {i: (best_ranks[k], int(low[k]), int(high[k])) for k, i in enumerate(chosen)}
+        entries, best = [], []
+        for i in np.lexsort((sids, rank_of)).tolist():  # rank order, ties by id
+            e = ranked[i]
+            b = best_of.get(i)
+            base = _base(e, scores[i], normalized[i], submitted[e.who], b is not None)
+            d = base | {"rank": ranks[i], "_column": i}
+            if b is not None:
+                d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
+                best.append(d | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]})
+            d["_base"] = base
+            entries.append(d)
+        best.sort(key=lambda e: (e["rank"], e["submission_id"]))
         samples = (
             np.stack([e.scored.rel for e in ranked if e.scored is not None], axis=1)
             if n
@@ -404,43 +414,47 @@ class BoardMatrix:
             if n
             else np.zeros((GRID_RESAMPLES, 0), np.float32)
         )
-        board = finish_board(
-            self.dataset, self.setting, self.track, groups, entries, unranked, samples, stable, best_samples
+        board = board_dict(
+            self.dataset, self.setting, self.track, groups, entries, unranked, best, samples, stable
         )
         board["protocol"] = self.protocol
-        for d in board["entries"]:
-            d["_base"] = _base(ranked[d["_column"]], d)
         return board
 
 
-def _base(entry: _Entry, served: dict[str, Any]) -> dict[str, Any]:
-    """The entry's all-entries row without its rank (``served`` is its entry on the board now): the object
-    kept from the last update when nothing it shows moved (an arriving entry moves the ranks below it and
-    nothing else of theirs)."""
+def _base(
+    entry: _Entry, score: float, normalized: dict[str, float], submitted: int, best: bool
+) -> dict[str, Any]:
+    """The entry's all-entries row without its rank: the object kept from the last update when nothing it
+    shows moved (an arriving entry moves the ranks below it and nothing else of theirs)."""
     s = entry.scored
-    normalized = entry.normalized[1] if entry.normalized is not None else None
-    of = (
-        s,
-        s.rank_ci if s else None,
-        served["score"],
-        normalized,
-        served["entries_submitted"],
-        served["best"],
-    )
+    assert s is not None
     old = entry.base_of
     if (
         entry.base is None
-        or old[0] is not of[0]
-        or old[3] is not of[3]
-        or old[1] != of[1]
-        or old[2] != of[2]
-        or old[4] != of[4]
-        or old[5] != of[5]
+        or old[0] is not s
+        or old[3] is not normalized
+        or old[1] != s.rank_ci
+        or old[2] != score
+        or old[4] != submitted
+        or old[5] != best
     ):
         entry.base = {
-            k: v for k, v in served.items() if not k.startswith("_") and not k.startswith("best_")
-        } | {"rank": None}
-        entry.base_of = of
+            **entry.public,
+            "rank": None,
+            "rank_low": None if s.rank_ci is None else s.rank_ci[0],
+            "rank_high": None if s.rank_ci is None else s.rank_ci[1],
+            "score": score,
+            "score_low": s.score_ci[0],
+            "score_high": s.score_ci[1],
+            "stable": entry.stable,
+            "stable_low": s.stable_ci[0],
+            "stable_high": s.stable_ci[1],
+            "normalized": normalized,
+            "intervals": s.intervals,
+            "entries_submitted": submitted,
+            "best": best,
+        }
+        entry.base_of = (s, s.rank_ci, score, normalized, submitted, best)
     return entry.base
 
 

@@ -123,6 +123,8 @@ class _Track:
     grid_ranks: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
     #: Each grid row without its ranks (``_base``) and what it was built from, by grid key and submission id.
     grid_bases: dict[str, dict[int, tuple[tuple[Any, ...], dict[str, Any]]]] = field(default_factory=dict)
+    #: Each grid's cells by board and submission id, with the entry ``_base`` and rank they show.
+    grid_cells: dict[str, dict[str, dict[int, tuple[Any, int, dict[str, Any]]]]] = field(default_factory=dict)
 
 
 class BoardEngine:
@@ -236,7 +238,14 @@ class BoardEngine:
                 for d in self.datasets
             }
             known = None if full else state.grid_ranks.get(grid_key, {})
-            grid = build_grid(shown, self.datasets, self.settings, track, rank_intervals=known)
+            grid = build_grid(
+                shown,
+                self.datasets,
+                self.settings,
+                track,
+                rank_intervals=known,
+                cells=state.grid_cells.setdefault(grid_key, {}),
+            )
             grid["protocol"] = protocol
             if full:
                 state.grid_ranks[grid_key] = {

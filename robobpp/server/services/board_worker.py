@@ -281,24 +281,12 @@ class BoardPublisher:
                 found, same, p_row_versions = _against(ids, hashes, p_ids, p_versions, p_hashes)
                 versions = np.where(same, p_row_versions, version)
                 fresh = ids[~same].tolist()
-                session.add_all(
-                    BoardPart(track=track, board=key, version=version, part=name, body=body)
-                    for name, body in hashed.board.parts.items()
-                )
-                session.add(
-                    BoardPart(
-                        track=track,
-                        board=key,
-                        version=version,
-                        part="rows",
-                        body=manifest(ids, versions, hashes),
-                    )
-                )
-                session.add_all(
-                    BoardPart(
-                        track=track, board=key, version=version, part=row_part(sid), body=hashed.body(sid)
-                    )
-                    for sid in fresh
+                values = [{"part": name, "body": body} for name, body in hashed.board.parts.items()]
+                values.append({"part": "rows", "body": manifest(ids, versions, hashes)})
+                values += ({"part": row_part(sid), "body": hashed.body(sid)} for sid in fresh)
+                table = cast(Table, BoardPart.__table__)
+                session.connection().execute(  # executemany of Core rows: no ORM objects for thousands of rows
+                    table.insert().values(track=track, board=key, version=version), values
                 )
                 written += len(fresh)
                 after[key] = [version, sha]
@@ -319,7 +307,6 @@ class BoardPublisher:
                         for sid, v in zip(ids[replaced], p_row_versions[replaced], strict=True)
                     ]
                     if stale:  # executemany, by (track, board, part, version): the unique key's index
-                        table = cast(Table, BoardPart.__table__)
                         session.connection().execute(
                             delete(table).where(
                                 table.c.track == track,

@@ -637,6 +637,8 @@ def _progress(show: bool, total: int) -> Callable[[int | None, Stats, float], No
 
         def line(n: int | None, s: Stats, elapsed: float) -> None:
             nonlocal done, printed
+            if n is None and printed == 10:  # the last step said it all
+                return
             done += n or 0
             if n is not None and done < total and done * 10 // total == printed:
                 return

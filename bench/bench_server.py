@@ -6,10 +6,13 @@ The server runs for real in a subprocess (uvicorn, ``--server-workers`` processe
 runs it — no evaluation workers); the readers are a separate load-generator process (``_load.py``) over
 loopback HTTP, each issuing its next request as soon as the last one answered (closed loop, no think time),
 round-robin over every page and API route (``routes``). It prints p50/p95 per route, the server's CPU per
-request under load and per route alone, and the load generator's CPU. The database is seeded in bulk (PostgreSQL ``COPY``, SQLite
-``executemany``): per-group metrics random but fixed by a seed, each run's aggregate and per-group figures
-computed from its episodes exactly as a worker writes them. 2 % of the submissions are failed (every
-episode a policy error) and 2 % partial (Math Pack only), as on a real board.
+request under load, and per route alone (one request at a time: the server's CPU, the PostgreSQL backends'
+CPU and the wall time per request), the load generator's CPU and the API process's RSS. The database is
+seeded in bulk by ``_seed.py`` (PostgreSQL ``COPY``, SQLite ``executemany``): figures random but fixed by
+a seed, each run's aggregate, per-group figures and stored scoring part what a worker stores for its
+episodes (checked against the worker's functions as it seeds). 2 % of the submissions are failed (every
+episode a policy error) and 2 % partial (Math Pack only), as on a real board. ``--add`` grows a seeded
+database (a copy: ``createdb -T``) by ``--submissions`` more.
 
     python bench/bench_server.py [--database-url URL] [--submissions 10000] [--readers 20] [--samples 60]
         [--seed-only | --reuse [--cold]] [--add] [--episodes-every 1] [--accepts 40] [--state-dir DIR]
@@ -18,6 +21,7 @@ episode a policy error) and 2 % partial (Math Pack only), as on a real board.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import multiprocessing
 import os
@@ -152,18 +156,50 @@ def children(pid: int) -> list[int]:
 
 
 def cpu_per_request(
-    base: str, pid: int, paths: list[tuple[str, str, dict[str, str]]], n: int
-) -> dict[str, float]:
-    """Server CPU per request of each route, one request at a time (no queueing): ``n`` requests each."""
+    base: str, pid: int, paths: list[tuple[str, str, dict[str, str]]], n: int, database: Any = None
+) -> dict[str, tuple[float, float, float]]:
+    """Each route alone, one request at a time (no queueing), ``n`` requests each: (server CPU per request,
+    median wall time per request, PostgreSQL backends' CPU per request — NaN unless ``database``, an engine
+    of a local PostgreSQL server, is given)."""
     out = {}
     with httpx.Client(base_url=base, timeout=60) as client:
         for label, path, headers in paths:
             client.get(path, headers=headers)
-            c0 = cpu_seconds(pid)
+            backends = _backends(database)
+            c0, d0 = cpu_seconds(pid), _cpu_of(backends)
+            walls = []
             for _ in range(n):
+                t0 = time.perf_counter()
                 client.get(path, headers=headers)
-            out[label] = (cpu_seconds(pid) - c0) / n
+                walls.append(time.perf_counter() - t0)
+            out[label] = ((cpu_seconds(pid) - c0) / n, median(walls), (_cpu_of(backends) - d0) / n)
     return out
+
+
+def _backends(database: Any) -> list[int]:
+    """The PostgreSQL backends serving the benchmarked database (other than this query's), when local."""
+    if database is None or database.dialect.name != "postgresql":
+        return []
+    with database.connect() as c:
+        return [
+            int(p)
+            for (p,) in c.execute(
+                text(
+                    "SELECT pid FROM pg_stat_activity WHERE datname = current_database() "
+                    "AND pid <> pg_backend_pid() AND backend_type = 'client backend'"
+                )
+            )
+        ]
+
+
+def _cpu_of(pids: list[int]) -> float:
+    if not pids:
+        return float("nan")
+    total = 0.0
+    for p in pids:
+        with contextlib.suppress(OSError):  # a backend that ended
+            total += cpu_seconds(p)
+    return total
 
 
 def start_server(url: str, state: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
@@ -418,7 +454,7 @@ def main() -> None:
             f"{time.perf_counter() - t0:.0f} s; last publication "
             f"{float(snapshot.group(1)) if snapshot else float('nan'):.1f} s"
         )
-        alone = cpu_per_request(base, proc.pid, paths, 50)
+        alone = cpu_per_request(base, proc.pid, paths, 50, runtime.engine)
         load0 = os.getloadavg()[0]
         server0 = cpu_seconds(proc.pid)
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
@@ -439,15 +475,16 @@ def main() -> None:
         with httpx.Client(base_url=base, timeout=60) as client:
             sizes = {label: len(client.get(path, headers=headers).content) for label, path, headers in paths}
         print(
-            "\n| route | n | p50 (ms) | p95 (ms) | p99 (ms) | max (ms) | server CPU alone (ms) | body (kB) |\n"
-            "|---|---|---|---|---|---|---|---|"
+            "\n| route | n | p50 (ms) | p95 (ms) | p99 (ms) | max (ms) | alone: server CPU (ms) | alone: "
+            "PostgreSQL CPU (ms) | alone: wall p50 (ms) | body (kB) |\n|---|---|---|---|---|---|---|---|---|---|"
         )
         for label, values in samples.items():
             print(
-                f"| {label} | {len(values)} | {_ms(values)} | {alone[label] * 1e3:.1f} | {sizes[label] / 1e3:.1f} |"
+                f"| {label} | {len(values)} | {_ms(values)} | {alone[label][0] * 1e3:.1f} | "
+                f"{alone[label][2] * 1e3:.1f} | {alone[label][1] * 1e3:.1f} | {sizes[label] / 1e3:.1f} |"
             )
         everything = [v for values in samples.values() for v in values]
-        print(f"| all routes | {len(everything)} | {_ms(everything)} | | |")
+        print(f"| all routes | {len(everything)} | {_ms(everything)} | | | | |")
         others = ", ".join(f"{rss_mb(c):.0f} MB" for c in children(proc.pid))
         print(
             f"\nRSS after the readers: server process {rss_mb(proc.pid):.0f} MB; its children {others or 'none'}"

@@ -15,7 +15,7 @@ episode a policy error) and 2 % partial (Math Pack only), as on a real board. ``
 database (a copy: ``createdb -T``) by ``--submissions`` more.
 
     python bench/bench_server.py [--database-url URL] [--submissions 10000] [--readers 20] [--samples 60]
-        [--seed-only | --reuse [--cold]] [--add] [--episodes-every 1] [--accepts 40] [--state-dir DIR]
+        [--seed-only | --reuse [--cold]] [--add] [--episodes-every 1] [--only REGEX] [--accepts 40] [--state-dir DIR]
 """
 
 from __future__ import annotations
@@ -376,6 +376,11 @@ def main() -> None:
     )
     parser.add_argument("--accepts", type=int, default=40)
     parser.add_argument(
+        "--only",
+        default="",
+        help="only the routes whose label matches this regular expression (default: all)",
+    )
+    parser.add_argument(
         "--state-dir",
         default="",
         help="the server's state directory (default: a new one); "
@@ -441,7 +446,7 @@ def main() -> None:
 
     proc, base = start_server(url, tmp, args.server_workers)
     try:
-        paths = routes(sid, sign_in(base), episode_id)
+        paths = [r for r in routes(sid, sign_in(base), episode_id) if re.search(args.only, r[0])]
         t0 = time.perf_counter()
         warm_up(base, paths)
         scrape = httpx.get(f"{base}/metrics", headers={"Authorization": f"Bearer {ADMIN}"}).text

@@ -94,6 +94,8 @@ class BoardPublisher:
         #: Computations and publications so far, and the wall time of the last publication.
         self.computed = self.published = 0
         self.last_seconds = 0.0
+        #: CPU seconds of this process for the last computation and publication (its lease thread included).
+        self.last_cpu_seconds = 0.0
         #: Per published board: its rows' hashes by the object they were serialised from (an engine hands
         #: out the same object while an entry's content stays: serialised once), and the ``rows`` manifest
         #: of its published version (ids, row versions, hashes) to compare the next one against.
@@ -120,7 +122,7 @@ class BoardPublisher:
             self.engine = self._new_engine()
         if not self._claim(track):
             return False
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         try:
             with self._renewing(track):
                 with self.read() as session:  # read first: the boards are never older than what it names
@@ -132,7 +134,10 @@ class BoardPublisher:
                     key: self._rows_hashed(track, key, parts_of(key, value)) for key, value in boards.items()
                 }
             known = set(map(published_key, self.engine.keys()))
-            return self._write(track, source, stored, known, time.perf_counter() - started)
+            published = self._write(track, source, stored, known, time.perf_counter() - started)
+            self.last_cpu_seconds = time.process_time() - cpu
+            log.info("the %s boards took %.2f s of CPU in this process", track, self.last_cpu_seconds)
+            return published
         finally:
             self._release(track)
 

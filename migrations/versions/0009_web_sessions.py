@@ -20,7 +20,9 @@ def upgrade() -> None:
     op.create_table(
         "web_sessions",
         sa.Column("id", sa.Integer(), primary_key=True),
-        sa.Column("token_id", sa.Integer(), sa.ForeignKey("api_tokens.id", ondelete="CASCADE"), nullable=True),
+        sa.Column(
+            "token_id", sa.Integer(), sa.ForeignKey("api_tokens.id", ondelete="CASCADE"), nullable=True
+        ),
         sa.Column("admin", sa.Boolean(), nullable=False),
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("revoked_at", sa.DateTime(timezone=True), nullable=True),

@@ -235,9 +235,7 @@ def test_stale_baselines_are_queued_again(tmp_path: Path) -> None:
             # every one "finished": its episodes done under the current physics
             s.execute(update(Submission).values(status="completed"))
             s.execute(update(EpisodeRow).values(status="done"))
-            s.execute(
-                update(EpisodeRow).where(EpisodeRow.setting == "physics").values(physics_version="4")
-            )
+            s.execute(update(EpisodeRow).where(EpisodeRow.setting == "physics").values(physics_version="4"))
             old_physics = ids["builtin:dbl"]
             s.execute(
                 update(EpisodeRow)
@@ -246,9 +244,7 @@ def test_stale_baselines_are_queued_again(tmp_path: Path) -> None:
             )
             no_paper = ids["builtin:lsah"]
             s.execute(delete(RunRow).where(RunRow.submission_id == no_paper, RunRow.protocol == "paper"))
-            s.execute(
-                update(Submission).where(Submission.id == ids["builtin:hm"]).values(status="failed")
-            )
+            s.execute(update(Submission).where(Submission.id == ids["builtin:hm"]).values(status="failed"))
         with app.state.runtime.session() as s:
             assert ensure_baselines(s, settings) == 2
             queued = s.execute(

@@ -1,26 +1,38 @@
-"""Replay one of our Math Pack plans in the reference simulator itself (packsim 0.0.4, its Execution Pack) and log
+"""Replay our Math Pack plans in the reference simulator itself (packsim 0.0.4, its Execution Pack) and log
 why each place plan went as it did. A fact-finding tool about the reference, not part of robobpp.
 
-Two steps, two interpreters (the reference needs packages robobpp does not: install them into a separate
-virtual environment, never into robobpp's):
+Two interpreters: robobpp's, and one with the reference's packages (install them into a separate virtual
+environment, never into robobpp's: pandas trimesh scipy opencv-python-headless meshcat transforms3d pyvista gym
+numba shapely easydict torch pybullet ompl tqdm matplotlib pyyaml; NumPy, PyBullet and OMPL as robobpp's).
 
     python bench/reference_replay.py export --dataset diverse --policy hm --group 0 --out DIR   # robobpp's
-    REFERENCE_PYTHON bench/reference_replay.py run DIR      # pandas trimesh scipy opencv-python-headless meshcat
-                                                             # transforms3d pyvista gym numba shapely easydict torch
-                                                             # pybullet ompl
+    REFERENCE_PYTHON bench/reference_replay.py run DIR       # the reference's
     python bench/reference_replay.py show DIR
+
+    # every (heuristic, group): export, run (JOBS at a time), then the table beside ours and the paper's
+    nice python bench/paper_table.py --setting execution --open-loop --groups 5 --datasets diverse --json ours.json
+    nice python bench/reference_replay.py batch --dataset diverse --groups 0-4 --out DIR --jobs 1 \
+        --reference-python REFERENCE_PYTHON --ours ours.json --json table.json
+    python bench/reference_replay.py report DIR --ours ours.json      # the table of the runs finished so far
 
 ``export`` runs the heuristic in our Math Pack on one train group and writes the reference's inputs: its action
 list (rotation flag, x, y in its 1 cm cells), zero decision times, and the group's box sizes in its data format.
-``run`` unpacks the wheel the dataset importer keeps to a temporary directory and runs its own main loop in
-setting 3 on them, unchanged but for compatibility shims that change nothing it simulates: NumPy 2 aliases, a
-stand-in for PyMesh (box meshes built with trimesh), OMPL 2's Python bindings (the validity checker passed as a
-callable, states from ``allocState``), a Python 3.11 fix in its unused network code, and its wall-clock sleeps
-(2.2 s per box) skipped. Every place-plan check is logged: the IK error, whether the start and the goal states
-are in collision (and with what), whether the search found an exact path, its wall and CPU time and time limit;
-whether the operation was dangerous; which robot motion moved a placed box. Its dangerous rule is wall time
-(over 15 s), so on a loaded machine its searches get less CPU than the authors' and fail more often; the CPU
-times in the log show it.
+``run`` (no robobpp import: the reference's interpreter) unpacks the reference's wheel (the one the dataset
+importer keeps, or ``--wheel``) to a temporary directory and runs its own main loop in setting 3 on them,
+unchanged but for compatibility shims that change nothing it simulates: NumPy 2 aliases (and ``np.cross`` on
+2-vectors, gone in NumPy 2.5), a stand-in for PyMesh (box meshes built with trimesh), OMPL 2's Python bindings (the
+validity checker passed as a callable, states from ``allocState``), a Python 3.11 fix in its unused network code,
+and its wall-clock sleeps (2.2 s per box) skipped. Every place-plan check is logged: the IK error, whether the
+start and the goal states are in collision (and with what), whether the search found an exact path, its wall and
+CPU time and time limit; whether the operation was dangerous; which robot motion moved a placed box.
+
+``batch`` and ``report`` count each run as the reference does (its feasible boxes, their volume over the
+container) and say how it ended (by what its main loop printed) and what decided each place-plan search:
+``exact`` (a path found), ``goal_invalid`` (the pre-place pose in collision: the search runs to its time limit on
+any machine) or ``limit`` (a free pose, no exact path within the limit). Its dangerous rule is wall time (a plan
+over 15 s), and its time limits are wall time too: a ``limit`` search, and an ``exact`` one that still passed
+15 s, depend on the CPU the search got (``search_cpu_share`` in the JSON: CPU over wall seconds of its
+searches), a ``goal_invalid`` one does not.
 """
 
 from __future__ import annotations
@@ -77,6 +89,8 @@ def export(dataset: str, policy: str, group: int, out: Path) -> None:
     import numpy as np
 
     from robobpp.datasets import episode_specs
+    from robobpp.datasets.cache import wheels_dir
+    from robobpp.datasets.sources import WHEEL_NAME
     from robobpp.episode import run_episode
     from robobpp.policies import load_policy
     from robobpp.replay import recorded_answers
@@ -96,7 +110,15 @@ def export(dataset: str, policy: str, group: int, out: Path) -> None:
     sizes = np.array([[b.length, b.width, b.height] for b in spec.boxes[: len(actions)]]) / 100
     (out / "sizes.json").write_text(json.dumps(sizes.tolist()))
     (out / "ours.json").write_text(
-        json.dumps({"dataset": dataset, "policy": policy, "group": group, "math_placed": len(actions)})
+        json.dumps(
+            {
+                "dataset": dataset,
+                "policy": policy,
+                "group": group,
+                "math_placed": len(actions),
+                "wheel": str(wheels_dir() / WHEEL_NAME),  # so that ``run`` needs nothing of robobpp's
+            }
+        )
     )
     print(f"{dataset} {policy} group {group}: {len(actions)} actions written to {out}")
 
@@ -220,18 +242,28 @@ def _instrument(log: list[dict[str, Any]], out: Path) -> None:
         setattr(envs.Env, name, logged_motion)
 
 
-def run(out: Path) -> None:
+def _cross_2d(cross: Any) -> Any:
+    """``np.cross`` as NumPy 1 had it for 2-vectors (the z component of the 3-vectors they extend)."""
+    import numpy as np
+
+    def crossed(a: Any, b: Any, *args: Any, **kwargs: Any) -> Any:
+        a, b = np.asarray(a), np.asarray(b)
+        if a.shape[-1:] == (2,) and b.shape[-1:] == (2,) and not args and not kwargs:
+            return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+        return cross(a, b, *args, **kwargs)
+
+    return crossed
+
+
+def run(out: Path, wheel: Path | None = None) -> None:
     import numpy as np
     import torch
     import yaml
 
-    from robobpp.datasets.cache import wheels_dir
-    from robobpp.datasets.sources import WHEEL_NAME
-
     meta = json.loads((out / "ours.json").read_text())
     data = REFERENCE_DATA[meta["dataset"]]
-    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(wheels_dir() / WHEEL_NAME) as wheel:
-        wheel.extractall(tmp)
+    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(wheel or meta["wheel"]) as archive:
+        archive.extractall(tmp)
         for rel, old, new in SHIMS:
             path = Path(tmp) / rel
             text = path.read_text()
@@ -245,6 +277,7 @@ def run(out: Path) -> None:
         config["Data"][CONFIG_KEYS[data]]["data_path"] = str(out)
         (out / "config.yaml").write_text(yaml.safe_dump(config))
         np.float, np.int, np.math = float, int, math  # type: ignore[attr-defined]
+        np.cross = _cross_2d(np.cross)  # NumPy ≥ 2.5 no longer takes 2-vectors (its hull test uses them)
         sys.path.insert(0, tmp)
         os.chdir(Path(tmp) / "packsim")  # its assets are found relative to here
         time.sleep = lambda _s: None  # its 2.2 s of sleeps per box; no simulation step depends on them
@@ -303,6 +336,193 @@ def show(out: Path) -> None:
 CONTAINERS_M3 = {"repetitive": 1.34 * 1.25 * 1.0, "diverse": 1.2 * 1.0 * 1.7, "longboard": 1.2 * 2.5 * 1.0}
 
 
+#: How the reference's main loop ends an episode, by what it prints (first match; none: the plan ran out).
+ENDINGS = (
+    ("collapse", "Packing collapsed! Warning!"),
+    ("dangerous_operations", "Dangerous operations of the robotic arm occurred more than"),
+    ("place_plan_failed", "Move_ee_to fail!"),
+    ("not_placeable", "This box is not placeable!"),
+    ("add_failed", "Add_success fail!"),
+)
+#: The reference's dangerous rule: one place plan over this many seconds of wall time.
+DANGEROUS_WALL_S = 15.0
+
+
+def search_kind(check: dict[str, Any]) -> str:
+    """What decided one logged place-plan search: ``goal_invalid`` (the pre-place pose in collision or out of
+    IK reach: it searches to its time limit on any machine), ``exact`` (found a path), ``limit`` (a free goal,
+    no exact path within the time limit: depends on how much CPU the search got)."""
+    if check["goal"] != "ok":
+        return "goal_invalid"
+    return "exact" if check["exact"] else "limit"
+
+
+def episode(sub: Path) -> dict[str, Any] | None:
+    """One finished reference run, as the reference counts it: its feasible boxes, their volume over the
+    container, how it ended, and what decided each place-plan search and each dangerous operation."""
+    if not (sub / "reference.txt").exists():
+        return None
+    meta = json.loads((sub / "ours.json").read_text())
+    sizes = json.loads((sub / "sizes.json").read_text())
+    log = json.loads((sub / "reference.json").read_text())
+    text = (sub / "reference.txt").read_text()
+    placed = next(int(line.split(":")[1]) for line in text.splitlines() if line.startswith("Feasible Num"))
+    printed = (sub / "run.log").read_text(errors="replace") if (sub / "run.log").exists() else None
+    ending = "unknown" if printed is None else "plan_done"
+    for name, message in ENDINGS if printed is not None else ():
+        if message in printed:
+            ending = name
+            break
+    searches: dict[str, int] = {}
+    dangerous: dict[str, int] = {}
+    last: dict[str, Any] | None = None
+    for e in log:
+        if e["phase"] != "place":
+            continue
+        if e["ev"] == "check":
+            last = e
+            kind = search_kind(e)
+            searches[kind] = searches.get(kind, 0) + 1
+        elif e["ev"] == "placed" and e["dangerous"] and last is not None:
+            # dangerous with an exact path: the search itself passed 15 s (a loaded machine)
+            kind = search_kind(last)
+            kind = "slow_exact" if kind == "exact" else kind
+            dangerous[kind] = dangerous.get(kind, 0) + 1
+    checks = [e for e in log if e["ev"] == "check" and e["phase"] == "place"]
+    return {
+        "policy": meta["policy"],
+        "group": meta["group"],
+        "math_placed": meta["math_placed"],
+        "boxes": placed,
+        "space_utilization": sum(a * b * c for a, b, c in sizes[:placed]) / CONTAINERS_M3[meta["dataset"]],
+        "ending": ending,
+        "searches": searches,
+        "dangerous": dangerous,
+        "search_cpu_share": round(
+            sum(e["cpu_s"] for e in checks) / max(sum(e["wall_s"] for e in checks), 1e-9), 3
+        ),
+        "elapsed_s": float(text.split("All time is")[1].split()[0]) if "All time is" in text else None,
+    }
+
+
+def groups_of(text: str) -> list[int]:
+    """``0-4`` or ``0,2,5`` or ``3``."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out += list(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def batch(
+    dataset: str,
+    policies: list[str],
+    groups: list[int],
+    out: Path,
+    jobs: int,
+    reference_python: str,
+    wheel: Path | None,
+) -> None:
+    """Export every (heuristic, group) not yet exported, run the reference on every one not yet run (``jobs`` at a
+    time, each run's output kept in its folder's ``run.log``), then :func:`report`."""
+    import subprocess
+    from concurrent.futures import ThreadPoolExecutor
+
+    todo = []
+    for group in groups:  # group by group: a batch stopped early has every heuristic on its first groups
+        for policy in policies:
+            sub = out / f"{policy}-{group}"
+            if not (sub / "ours.json").exists():
+                export(dataset, policy, group, sub)
+            if not (sub / "reference.txt").exists():
+                todo.append(sub)
+
+    def one(sub: Path) -> None:
+        command = [reference_python, str(Path(__file__).resolve()), "run", str(sub)]
+        command += ["--wheel", str(wheel)] if wheel else []
+        t0 = time.time()
+        with open(sub / "run.log", "w") as log:
+            rc = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, check=False).returncode
+        load = " ".join(f"{v:.2f}" for v in os.getloadavg())
+        print(f"{sub.name}: exit {rc}, {time.time() - t0:.0f} s, load average {load}", flush=True)
+
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        list(pool.map(one, todo))
+
+
+def report(out: Path, dataset: str, ours_json: Path | None, json_out: Path | None) -> dict[str, Any]:
+    """Per heuristic: the reference's mean Space Utilization over its finished runs and how they ended, beside
+    ours on the same groups (a ``paper_table.py --setting execution --open-loop --json`` file) and the paper's
+    Execution figure; Spearman and mean |diff| against the paper for both."""
+    from paper_table import paper_figures
+
+    from robobpp.paper import PAPER_HEURISTICS
+    from robobpp.reproduction import spearman
+
+    runs = [e for sub in sorted(out.iterdir()) if sub.is_dir() and (e := episode(sub)) is not None]
+    theirs = json.loads(ours_json.read_text())["ours"][dataset] if ours_json else {}
+    paper = paper_figures("execution")[dataset]
+    rows: dict[str, dict[str, Any]] = {}
+    for policy in PAPER_HEURISTICS:
+        mine = [e for e in runs if e["policy"] == policy]
+        if not mine:
+            continue
+        groups = sorted(e["group"] for e in mine)
+        by_group = {e["group"]: e["space_utilization"] for e in theirs.get(policy, {}).get("episodes", ())}
+        endings: dict[str, int] = {}
+        for e in mine:
+            endings[e["ending"]] = endings.get(e["ending"], 0) + 1
+        rows[policy] = {
+            "groups": groups,
+            "reference": sum(e["space_utilization"] for e in mine) / len(mine),
+            "reference_boxes": sum(e["boxes"] for e in mine) / len(mine),
+            "ours": sum(by_group[g] for g in groups) / len(groups) if set(groups) <= set(by_group) else None,
+            "paper": paper[policy],
+            "endings": endings,
+        }
+    summary: dict[str, Any] = {}
+    for who in ("reference", "ours"):
+        names = [q for q in rows if rows[q][who] is not None]
+        if len(names) == len(rows) and names:
+            ours_col, paper_col = [rows[q][who] for q in names], [rows[q]["paper"] for q in names]
+            summary[who] = {
+                "spearman": spearman(ours_col, paper_col),
+                "mean_abs_diff": sum(abs(a - b) for a, b in zip(ours_col, paper_col, strict=True))
+                / len(names),
+            }
+    totals: dict[str, dict[str, int]] = {"searches": {}, "dangerous": {}}
+    for e in runs:
+        for key in totals:
+            for kind, n in e[key].items():
+                totals[key][kind] = totals[key].get(kind, 0) + n
+    print(
+        f"{dataset}, the reference (packsim 0.0.4's Execution Pack) replaying our Math Pack plans, train groups:"
+    )
+    print("| heuristic | groups | paper | reference | diff | boxes | endings | ours, same plans | diff |")
+    print("|---|---|---:|---:|---:|---:|---|---:|---:|")
+    for policy, r in rows.items():
+        ours_cells = (
+            ["–", "–"] if r["ours"] is None else [f"{r['ours']:.3f}", f"{r['ours'] - r['paper']:+.3f}"]
+        )
+        ending = ", ".join(f"{k} {v}" for k, v in sorted(r["endings"].items()))
+        print(
+            f"| {policy} | {len(r['groups'])} | {r['paper']:.3f} | {r['reference']:.3f} | "
+            f"{r['reference'] - r['paper']:+.3f} | {r['reference_boxes']:.1f} | {ending} | "
+            + " | ".join(ours_cells)
+            + " |"
+        )
+    for who, s in summary.items():
+        rho = "–" if s["spearman"] is None else f"{s['spearman']:.2f}"
+        print(f"{who}: Spearman {rho}, mean |diff| {s['mean_abs_diff']:.3f}")
+    print(
+        f"place-plan searches: {totals['searches']}; dangerous operations decided by: {totals['dangerous']}"
+    )
+    result = {"dataset": dataset, "rows": rows, "summary": summary, "totals": totals, "runs": runs}
+    if json_out:
+        json_out.write_text(json.dumps(result, indent=1))
+    return result
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -315,11 +535,41 @@ def main() -> None:
     ex.add_argument("--out", type=Path, required=True)
     for name in ("run", "show"):
         sub.add_parser(name).add_argument("out", type=Path)
+    sub.choices["run"].add_argument(
+        "--wheel", type=Path, help="the reference's wheel (default: the exported one)"
+    )
+    ba = sub.add_parser("batch", help="export, run and report every (heuristic, group)")
+    ba.add_argument("--dataset", choices=("repetitive", "diverse"), default="diverse")
+    ba.add_argument("--policies", default="dbl,hm,lsah,onlinebph,br,macs,sdfpack")
+    ba.add_argument("--groups", default="0-4", help="e.g. 0-4 or 0,3,7")
+    ba.add_argument("--out", type=Path, required=True)
+    ba.add_argument("--jobs", type=int, default=1)
+    ba.add_argument("--reference-python", required=True, help="the interpreter with the reference's packages")
+    ba.add_argument("--wheel", type=Path)
+    for parsed in (ba, rep := sub.add_parser("report", help="the table of a batch's finished runs")):
+        parsed.add_argument("--ours", type=Path, help="paper_table.py --setting execution --open-loop --json")
+        parsed.add_argument("--json", type=Path, help="also write the table and every run's record here")
+    rep.add_argument("out", type=Path)
+    rep.add_argument("--dataset", choices=("repetitive", "diverse"), default="diverse")
     args = parser.parse_args()
     if args.step == "export":
         export(args.dataset, args.policy, args.group, args.out)
     elif args.step == "run":
-        run(args.out.resolve())
+        run(args.out.resolve(), args.wheel.resolve() if args.wheel else None)
+    elif args.step == "batch":
+        policies = [q for q in args.policies.split(",") if q]
+        batch(
+            args.dataset,
+            policies,
+            groups_of(args.groups),
+            args.out,
+            args.jobs,
+            args.reference_python,
+            args.wheel,
+        )
+        report(args.out, args.dataset, args.ours, args.json)
+    elif args.step == "report":
+        report(args.out, args.dataset, args.ours, args.json)
     else:
         show(args.out)
 

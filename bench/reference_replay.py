@@ -450,45 +450,61 @@ def batch(
         list(pool.map(one, todo))
 
 
-def report(out: Path, dataset: str, ours_json: Path | None, json_out: Path | None) -> dict[str, Any]:
+def report(outs: list[Path], dataset: str, ours_jsons: list[Path], json_out: Path | None) -> dict[str, Any]:
     """Per heuristic: the reference's mean Space Utilization over its finished runs and how they ended, beside
-    ours on the same groups (a ``paper_table.py --setting execution --open-loop --json`` file) and the paper's
-    Execution figure; Spearman and mean |diff| against the paper for both."""
+    ours on the same groups (each a ``paper_table.py --setting execution --open-loop --json`` file, named by its
+    stem) and the paper's Execution figure; Spearman and mean |diff| against the paper for each, and in how many
+    episodes ours placed as many boxes as the reference. A (heuristic, group) run in several of ``outs`` is taken
+    from the first."""
     from paper_table import paper_figures
 
     from robobpp.paper import PAPER_HEURISTICS
     from robobpp.reproduction import spearman
 
-    runs = [e for sub in sorted(out.iterdir()) if sub.is_dir() and (e := episode(sub)) is not None]
-    theirs = json.loads(ours_json.read_text())["ours"][dataset] if ours_json else {}
+    found: dict[tuple[str, int], dict[str, Any]] = {}
+    for out in outs:
+        for sub in sorted(out.iterdir()):
+            e = episode(sub) if sub.is_dir() else None
+            if e is not None:
+                found.setdefault((e["policy"], e["group"]), e)
+    runs = list(found.values())
+    ours = {f.stem: json.loads(f.read_text())["ours"][dataset] for f in ours_jsons}
     paper = paper_figures("execution")[dataset]
     rows: dict[str, dict[str, Any]] = {}
     for policy in PAPER_HEURISTICS:
-        mine = [e for e in runs if e["policy"] == policy]
+        mine = sorted((e for e in runs if e["policy"] == policy), key=lambda e: e["group"])
         if not mine:
             continue
-        groups = sorted(e["group"] for e in mine)
-        by_group = {e["group"]: e["space_utilization"] for e in theirs.get(policy, {}).get("episodes", ())}
         endings: dict[str, int] = {}
         for e in mine:
             endings[e["ending"]] = endings.get(e["ending"], 0) + 1
-        rows[policy] = {
-            "groups": groups,
+        row: dict[str, Any] = {
+            "groups": [e["group"] for e in mine],
+            "paper": paper[policy],
             "reference": sum(e["space_utilization"] for e in mine) / len(mine),
             "reference_boxes": sum(e["boxes"] for e in mine) / len(mine),
-            "ours": sum(by_group[g] for g in groups) / len(groups) if set(groups) <= set(by_group) else None,
-            "paper": paper[policy],
             "endings": endings,
         }
+        for label, figures in ours.items():
+            by_group = {x["group"]: x for x in figures.get(policy, {}).get("episodes", ())}
+            if all(e["group"] in by_group for e in mine):
+                row[label] = sum(by_group[e["group"]]["space_utilization"] for e in mine) / len(mine)
+                row[f"{label}_same_boxes"] = sum(
+                    by_group[e["group"]]["boxes_placed"] == e["boxes"] for e in mine
+                )
+        rows[policy] = row
     summary: dict[str, Any] = {}
-    for who in ("reference", "ours"):
-        names = [q for q in rows if rows[q][who] is not None]
-        if len(names) == len(rows) and names:
-            ours_col, paper_col = [rows[q][who] for q in names], [rows[q]["paper"] for q in names]
+    for who in ("reference", *ours):
+        if rows and all(who in r for r in rows.values()):
+            col, paper_col = [r[who] for r in rows.values()], [r["paper"] for r in rows.values()]
+            ref_col = [r["reference"] for r in rows.values()]
             summary[who] = {
-                "spearman": spearman(ours_col, paper_col),
-                "mean_abs_diff": sum(abs(a - b) for a, b in zip(ours_col, paper_col, strict=True))
-                / len(names),
+                "spearman": spearman(col, paper_col),
+                "mean_abs_diff": sum(abs(a - b) for a, b in zip(col, paper_col, strict=True)) / len(col),
+                # how far from the reference itself on the same plans and groups
+                "spearman_vs_reference": spearman(col, ref_col),
+                "mean_abs_diff_vs_reference": sum(abs(a - b) for a, b in zip(col, ref_col, strict=True))
+                / len(col),
             }
     totals: dict[str, dict[str, int]] = {"searches": {}, "dangerous": {}}
     for e in runs:
@@ -498,24 +514,33 @@ def report(out: Path, dataset: str, ours_json: Path | None, json_out: Path | Non
     print(
         f"{dataset}, the reference (packsim 0.0.4's Execution Pack) replaying our Math Pack plans, train groups:"
     )
-    print("| heuristic | groups | paper | reference | diff | boxes | endings | ours, same plans | diff |")
-    print("|---|---|---:|---:|---:|---:|---|---:|---:|")
+    labels = [q for q in ours if q in summary]
+    print(
+        "| heuristic | groups | paper | reference | diff | boxes | endings |"
+        + "".join(f" {q} | same boxes |" for q in labels)
+    )
+    print("|---|---|---:|---:|---:|---:|---|" + "---:|---:|" * len(labels))
     for policy, r in rows.items():
-        ours_cells = (
-            ["–", "–"] if r["ours"] is None else [f"{r['ours']:.3f}", f"{r['ours'] - r['paper']:+.3f}"]
-        )
         ending = ", ".join(f"{k} {v}" for k, v in sorted(r["endings"].items()))
         print(
             f"| {policy} | {len(r['groups'])} | {r['paper']:.3f} | {r['reference']:.3f} | "
-            f"{r['reference'] - r['paper']:+.3f} | {r['reference_boxes']:.1f} | {ending} | "
-            + " | ".join(ours_cells)
-            + " |"
+            f"{r['reference'] - r['paper']:+.3f} | {r['reference_boxes']:.1f} | {ending} |"
+            + "".join(f" {r[q]:.3f} | {r[q + '_same_boxes']} |" for q in labels)
         )
     for who, s in summary.items():
         rho = "–" if s["spearman"] is None else f"{s['spearman']:.2f}"
-        print(f"{who}: Spearman {rho}, mean |diff| {s['mean_abs_diff']:.3f}")
+        line = f"{who}: against the paper Spearman {rho}, mean |diff| {s['mean_abs_diff']:.3f}"
+        if who != "reference":
+            vs = s["spearman_vs_reference"]
+            line += (
+                f"; against the reference Spearman {'–' if vs is None else f'{vs:.2f}'}, "
+                f"mean |diff| {s['mean_abs_diff_vs_reference']:.3f}"
+            )
+        print(line)
+    shares = sorted(e["search_cpu_share"] for e in runs)
     print(
-        f"place-plan searches: {totals['searches']}; dangerous operations decided by: {totals['dangerous']}"
+        f"{len(runs)} runs; place-plan searches: {totals['searches']}; dangerous operations decided by: "
+        f"{totals['dangerous']}; CPU share of the searches {shares[0]:.2f}–{shares[-1]:.2f}"
     )
     result = {"dataset": dataset, "rows": rows, "summary": summary, "totals": totals, "runs": runs}
     if json_out:
@@ -546,10 +571,17 @@ def main() -> None:
     ba.add_argument("--jobs", type=int, default=1)
     ba.add_argument("--reference-python", required=True, help="the interpreter with the reference's packages")
     ba.add_argument("--wheel", type=Path)
-    for parsed in (ba, rep := sub.add_parser("report", help="the table of a batch's finished runs")):
-        parsed.add_argument("--ours", type=Path, help="paper_table.py --setting execution --open-loop --json")
+    rep = sub.add_parser("report", help="the table of finished runs (a run in several folders: the first's)")
+    for parsed in (ba, rep):
+        parsed.add_argument(
+            "--ours",
+            type=Path,
+            action="append",
+            default=[],
+            help="paper_table.py --setting execution --open-loop --json (repeatable)",
+        )
         parsed.add_argument("--json", type=Path, help="also write the table and every run's record here")
-    rep.add_argument("out", type=Path)
+    rep.add_argument("out", type=Path, nargs="+")
     rep.add_argument("--dataset", choices=("repetitive", "diverse"), default="diverse")
     args = parser.parse_args()
     if args.step == "export":
@@ -567,7 +599,7 @@ def main() -> None:
             args.reference_python,
             args.wheel,
         )
-        report(args.out, args.dataset, args.ours, args.json)
+        report([args.out], args.dataset, args.ours, args.json)
     elif args.step == "report":
         report(args.out, args.dataset, args.ours, args.json)
     else:

@@ -154,7 +154,8 @@ def _cut_client_sockets(port: int) -> int:
     from websockets.sync.client import ClientConnection
 
     cut = 0
-    for conn in [o for o in gc.get_objects() if isinstance(o, ClientConnection)]:
+    # type(), not isinstance(): isinstance reads __class__, which wakes lazy module attributes (a torch warning)
+    for conn in [o for o in gc.get_objects() if issubclass(type(o), ClientConnection)]:
         try:
             if conn.socket.getpeername()[1] == port:
                 conn.socket.shutdown(socket.SHUT_RDWR)

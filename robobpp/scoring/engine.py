@@ -57,7 +57,7 @@ class _Scored:
     score_ci: tuple[float, float]
     stable_ci: tuple[float, float]
     intervals: dict[str, list[float] | None]
-    rel: np.ndarray  # float32 (GRID_RESAMPLES,): relative score samples, for the grid
+    rel: np.ndarray  # float32 (GRID_RESAMPLES,): relative score samples, for the grid (a view of the board's)
     stable: np.ndarray  # float32 (GRID_RESAMPLES,)
     rank_ci: tuple[int, int] | None = None
 
@@ -136,6 +136,8 @@ class BoardMatrix:
                 else:
                     self._basis = None
             self._entries[sid] = entry
+            if parts is None or sid not in parts:  # its part may have changed: read again when needed
+                self._parts.pop(sid, None)
         for sid, part in (parts or {}).items():
             self._parts[sid] = part
 
@@ -144,7 +146,7 @@ class BoardMatrix:
         episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
         metrics = row.get("metrics") or {}
         return _Entry(
-            row=dict(row),
+            row={k: row.get(k) for k in _KEPT},
             episodes=episodes,
             policy_failed=stats.run_failed(extras.get("terminations"), episodes),
             submission_failed=row.get("submission_status") == "failed",
@@ -315,7 +317,9 @@ class BoardMatrix:
         """Every entry's samples again: the min–max first, then each entry scored under it. Returns every
         entry's relative samples (resamples, entries) when ``keep``."""
         sids = [int(e.row["submission_id"]) for e in ranked]
-        self._parts.update(self.load([s for s, ok in zip(sids, usable, strict=True) if ok]))
+        missing = [s for s, ok in zip(sids, usable, strict=True) if ok and s not in self._parts]
+        if missing:  # the parts kept are current (``apply`` drops a replaced row's without a new one)
+            self._parts.update(self.load(missing))
         m = len(self.keys)
         lo = np.full((plan.shape[0], m), np.nan)
         hi = np.full((plan.shape[0], m), np.nan)
@@ -418,6 +422,13 @@ class BoardMatrix:
             self.dataset, self.setting, self.track, groups, entries, unranked, best, samples, stable
         )
         board["protocol"] = self.protocol
+        # one copy of the grid samples per board: each entry's become views of the board's columns (read-only:
+        # a shift copies an entry's before changing it), so the stacked arrays above were the only transients
+        kept_rel, kept_stable = board["_samples"], board["_stable_samples"]
+        kept_rel.flags.writeable = kept_stable.flags.writeable = False
+        for k, e in enumerate(ranked):
+            assert e.scored is not None
+            e.scored.rel, e.scored.stable = kept_rel[:, k], kept_stable[:, k]
         return board
 
 
@@ -484,6 +495,11 @@ def _side(values: np.ndarray, order: np.ndarray) -> np.ndarray:
     out[(values > order[:, 1:2]) & (values < order[:, 2:3])] = 1
     out[values > order[:, 3:4]] = 2
     return out
+
+
+#: What an entry keeps of its row (its scoring fields, ``classify_row``'s and its id; what it shows is in
+#: ``public``): the whole row again for each of 150,000 entries was ≈ 45 MB at 10,000 submissions.
+_KEPT = ("submission_id", "metrics", "extras", "ids", "submission_status", "episodes_total")
 
 
 def _scoring_fields(row: Mapping[str, Any]) -> tuple[Any, ...]:

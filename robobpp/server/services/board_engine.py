@@ -219,10 +219,16 @@ class BoardEngine:
         by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for run in runs:
             by_board.setdefault(self._key_of(run), []).append(run)
+        del runs  # each board's rows go as it is computed: its parts pass to it, read once
         for key, matrix in state.boards.items():
-            rows = by_board.get(key, [])
+            rows = by_board.pop(key, [])
             present = {int(r["submission_id"]) for r in rows}
-            matrix.apply([_row(r) for r in rows], [s for s in matrix.submission_ids() if s not in present])
+            matrix.apply(
+                [_row(r) for r in rows],
+                [s for s in matrix.submission_ids() if s not in present],
+                parts={r["submission_id"]: r["part"] for r in rows},
+            )
+            del rows
             state.out[key] = matrix.board(rank_intervals=True)
         state.seen = seen
         grids = self._grids(track, state, full=True)

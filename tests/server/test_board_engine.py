@@ -201,11 +201,19 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     for d in DATASETS:
         lifted[(d, "math")][0]["space_utilization"] = 1.0
     rows_before, recomputed = matrix.shifted_rows, matrix.recomputed
+    kept = engine._tracks["private"].out[("diverse", "math")]["_samples"]
+    kept_values = kept.copy()
     add_submission(factory, "team-8", 0.5, seed=103, episodes=lifted)
     changed = engine.update("private")
     shifted = matrix.shifted_rows - rows_before
     assert 0 < shifted < 500 and matrix.recomputed - recomputed < len(matrix.submission_ids())
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
+    # one copy of the grid samples per board: the entries' are its columns, and the shift wrote none of the
+    # previous version's
+    assert np.array_equal(kept, kept_values)
+    samples = engine._tracks["private"].out[("diverse", "math")]["_samples"]
+    scored = [e.scored for e in matrix._entries.values() if e.scored is not None]
+    assert scored and all(np.shares_memory(s.rel, samples) for s in scored)
 
     # a new best: it moves the maximum, every entry is renormalised
     best = add_submission(factory, "team-6", 3.0, seed=101)
@@ -227,8 +235,13 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     assert all(e["submission_id"] != best for e in changed[("diverse", "math")]["entries"])
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
 
-    # the refresh computes every rank interval: then everything equals a full computation, bit for bit
+    # the refresh computes every rank interval: then everything equals a full computation, bit for bit; the
+    # parts it read with the runs are the boards' (none read a second time)
+    loads: list[int] = []
+    for m in engine._tracks["private"].boards.values():
+        m.load = lambda sids, load=m.load: loads.append(len(sids)) or load(sids)  # type: ignore[method-assign]
     same(engine.refresh("private"), full(factory))
+    assert loads == []
 
 
 def test_a_finished_run_stores_its_scoring_part(factory: Any) -> None:

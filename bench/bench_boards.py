@@ -56,6 +56,15 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def resident_mb() -> float:
+    """This process's resident memory now (Linux; its peak elsewhere)."""
+    try:
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) / 1024 for line in status if line.startswith("VmRSS"))
+    except (OSError, StopIteration):
+        return rss_mb()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--database-url", default="")
@@ -112,7 +121,9 @@ def main() -> None:
     engine = BoardEngine(runtime.read_session, DATASETS, SETTINGS)
     _, wall, cpu = timed(lambda: engine.update("private"))
     figures["engine_start_cpu_s"], figures["engine_start_wall_s"] = round(cpu, 2), round(wall, 2)
+    figures["engine_rss_mb"], figures["engine_peak_rss_mb"] = round(resident_mb()), round(rss_mb())
     print(f"engine start (full, every rank interval): {wall:.1f} s ({cpu:.1f} s CPU)")
+    print(f"  RSS after it {figures['engine_rss_mb']} MB, peak {figures['engine_peak_rss_mb']} MB")
 
     for label, quality in (("", 0.5), ("_best", 1.0)):
         while count % 50 in (7, 23):  # bench_server makes these failed or partial: one on every board, timed
@@ -134,7 +145,9 @@ def main() -> None:
     if not args.skip_refresh:
         _, wall, cpu = timed(lambda: engine.refresh("private"))
         figures["refresh_cpu_s"], figures["refresh_wall_s"] = round(cpu, 2), round(wall, 2)
+        figures["refresh_rss_mb"] = round(resident_mb())
         print(f"refresh (full, every rank interval): {wall:.1f} s ({cpu:.1f} s CPU)")
+        print(f"  RSS after it {figures['refresh_rss_mb']} MB, peak {rss_mb():.0f} MB")
     figures["peak_rss_mb"] = round(rss_mb(), 0)  # of this process: the full recompute's, unless skipped
     figures["api_rss_mb"] = None  # the API process reads published boards: measured with the publication side
     print(f"peak RSS of this process {figures['peak_rss_mb']:.0f} MB")

@@ -314,6 +314,10 @@ _CELL_FIELDS = (
 _cell_values = operator.itemgetter(*_CELL_FIELDS)
 
 
+#: A grid row's own figures (its cells aside): the mean of its board scores and its stable score, with intervals.
+GRID_ROW_FIGURES = ("mean", "mean_low", "mean_high", "stable", "stable_low", "stable_high")
+
+
 def build_grid(
     boards: Mapping[str, Mapping[str, Any]],
     datasets: Sequence[str],
@@ -386,22 +390,7 @@ def build_grid(
         if r["submission_id"] not in ranked_ids:
             r["status"] = "failed" if "failed" in r["unranked"].values() else "partial"
             r["boards"] = len(r["cells"])
-            r.update(
-                dict.fromkeys(
-                    (
-                        "mean",
-                        "mean_low",
-                        "mean_high",
-                        "stable",
-                        "stable_low",
-                        "stable_high",
-                        "rank",
-                        "rank_low",
-                        "rank_high",
-                    )
-                ),
-                best=False,
-            )
+            r.update(dict.fromkeys((*GRID_ROW_FIGURES, "rank", "rank_low", "rank_high")), best=False)
             apart.append(r)
     complete.sort(key=lambda r: (r["rank"], r["submission_id"]))
     apart.sort(key=lambda r: (r["status"], -r["boards"], r["submission_id"]))

@@ -24,7 +24,7 @@ from sqlalchemy.orm import Session
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.replay import CLOSED, PAPER, PROTOCOLS
-from robobpp.scoring.boards import build_board, build_grid
+from robobpp.scoring.boards import GRID_ROW_FIGURES, build_board, build_grid
 from robobpp.scoring.engine import BoardMatrix, PartLoader
 from robobpp.scoring.entries import EntryPart, entry_part
 from robobpp.scoring.metrics import PHYSICAL
@@ -333,16 +333,7 @@ def _interned(ids: bytes) -> bytes:
 
 
 #: What a grid row shows besides its cells (whose content, ranks aside, is their board entries' ``_base``).
-_ROW_FIGURES = (
-    "mean",
-    "mean_low",
-    "mean_high",
-    "stable",
-    "stable_low",
-    "stable_high",
-    "rank_low",
-    "rank_high",
-)
+_ROW_FIGURES = (*GRID_ROW_FIGURES, "rank_low", "rank_high")
 
 
 def _grid_bases(

@@ -11,7 +11,6 @@ no other entry's score. In the overall grid, the Mean ranks only submissions ran
 
 from __future__ import annotations
 
-import operator
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -297,21 +296,6 @@ def board_view(
 
 def _served(entry: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in entry.items() if not k.startswith("_") and not k.startswith("best_")}
-
-
-#: What a grid cell shows of a board entry (and ``pph``).
-_CELL_FIELDS = (
-    "score",
-    "score_low",
-    "score_high",
-    "rank",
-    "rank_low",
-    "rank_high",
-    "stable",
-    "stable_low",
-    "stable_high",
-)
-_cell_values = operator.itemgetter(*_CELL_FIELDS)
 
 
 #: A grid row's own figures (its cells aside): the mean of its board scores and its stable score, with intervals.

@@ -16,6 +16,7 @@ from robobpp.policies import load_policy
 from robobpp.server.services.board_engine import leaderboard
 from robobpp.sim import make_setting
 from robobpp.sim.physics import PHYSICS_VERSION, PhysicsConfig
+from tests.server.conftest import complete_next_episode
 
 
 def test_results_record_the_physics_version() -> None:
@@ -73,27 +74,15 @@ def _finished_submission(factory, name: str, version: str | None) -> None:  # ty
         )
     # closed loop, then the paper protocol's replay of the Math episode (docs/server.md)
     for setting, protocol in (("math", "closed"), ("physics", "closed"), ("physics", "paper")):
+        metrics = {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01}
+        if setting == "physics":
+            metrics |= {"local_stability": 0.01, "static_stability": 0.4}
+        recorded = version if setting == "physics" else None
+        claim = complete_next_episode(factory, metrics, physics_version=recorded)
         with transaction(factory) as s:
-            claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
-            assert claim is not None
             row = s.get(EpisodeRow, claim.episode_id)
             assert row is not None and (row.setting, row.protocol) == (setting, protocol)
-            metrics = {"space_utilization": 0.5, "occupancy": 0.9, "decision_time": 0.01}
-            if setting == "physics":
-                metrics |= {"local_stability": 0.01, "static_stability": 0.4}
-            result = {
-                "termination": "completed",
-                "termination_detail": "",
-                "boxes_total": 3,
-                "boxes_placed": 3,
-                "metrics": metrics,
-                "counters": {},
-                "steps": [],
-                "physics_version": version if setting == "physics" else None,
-            }
-            assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
-            s.refresh(row)
-            assert row.physics_version == result["physics_version"]
+            assert row.physics_version == recorded
 
 
 def test_a_physics_board_shows_only_the_current_version(factory) -> None:  # type: ignore[no-untyped-def]

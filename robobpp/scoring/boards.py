@@ -225,11 +225,12 @@ def board_dict(
         "confidence": stats.CONFIDENCE,
         "entries": entries,
         "unranked": unranked,
-        # copies: a slice would keep the full resample arrays alive in the cache
         "_best": best,  # the default view, ready to page
         "_index": {e["submission_id"]: k for k, e in enumerate(entries)},  # position in "entries"
-        "_samples": samples[:GRID_RESAMPLES].copy(),
-        "_stable_samples": stable_samples[:GRID_RESAMPLES].copy(),
+        # the grid's resamples, a row per entry (by ``_column``: the grid gathers its rows' entries, and rows
+        # of a C-ordered matrix are contiguous); copies: a slice would keep the full resample arrays alive
+        "_samples": np.ascontiguousarray(samples[:GRID_RESAMPLES].T),
+        "_stable_samples": np.ascontiguousarray(stable_samples[:GRID_RESAMPLES].T),
     }
 
 
@@ -407,30 +408,36 @@ def _grid_means(
     """Mean over boards with interval, rank and rank interval; then each participant's best row."""
     if not rows:
         return
-    rel = np.zeros((GRID_RESAMPLES, len(rows)), dtype=np.float64)
+    n = len(rows)
+    rel = np.zeros((n, GRID_RESAMPLES), dtype=np.float64)  # a row per grid row: its samples contiguous
     stab = np.zeros_like(rel)
-    score_sum = np.zeros(len(rows))
-    stable_sum = np.zeros(len(rows))
+    score_sum = np.zeros(n)
+    stable_sum = np.zeros(n)
     for key in keys:
-        cols = np.fromiter((r["_columns"][key] for r in rows), dtype=np.intp, count=len(rows))
-        samples, stable = boards[key]["_samples"], boards[key]["_stable_samples"]
-        rel[: samples.shape[0]] += samples[:, cols]
-        stab[: stable.shape[0]] += stable[:, cols]
-        by_column = np.zeros((2, len(boards[key]["entries"])))
-        for e in boards[key]["entries"]:
-            by_column[:, e["_column"]] = e["score"], e["stable"]
+        board = boards[key]
+        cols = np.fromiter((r["_columns"][key] for r in rows), dtype=np.intp, count=n)
+        samples, stable = board["_samples"], board["_stable_samples"]
+        rel[:, : samples.shape[1]] += samples[cols]
+        stab[:, : stable.shape[1]] += stable[cols]
+        entries = board["entries"]
+        at = np.fromiter((e["_column"] for e in entries), dtype=np.intp, count=len(entries))
+        by_column = np.zeros((2, len(entries)))
+        by_column[0, at] = np.fromiter((e["score"] for e in entries), dtype=np.float64, count=len(entries))
+        by_column[1, at] = np.fromiter((e["stable"] for e in entries), dtype=np.float64, count=len(entries))
         # summed board by board in the order of ``keys``: the same additions as a sum over each row's cells
         score_sum += by_column[0, cols]
         stable_sum += by_column[1, cols]
-    rel = np.round(rel / len(keys), 12)
+    rel /= len(keys)
     stab /= len(keys)
     means = [round(x, 12) for x in (score_sum / len(keys)).tolist()]
     stables = (stable_sum / len(keys)).tolist()
     ranks = competition_ranks(means)
-    lo, hi = stats.interval(rel)
-    slo, shi = stats.interval(stab)
+    # the mean samples are rounded to 12 decimals (ties must tie); rounding is monotonic, so the interval
+    # rounds the order statistics it picks instead of every sample (the same numbers, a 20 MB pass less)
+    lo, hi = stats.interval(rel.T, decimals=12)
+    slo, shi = stats.interval(stab.T)
     if known is None:
-        rlo, rhi = stats.rank_interval(stats.rank_samples(rel))
+        rlo, rhi = stats.rank_interval(stats.rank_samples(np.round(rel.T, 12)))
         rank_ci: list[tuple[int, int] | None] = [(int(a), int(b)) for a, b in zip(rlo, rhi, strict=True)]
     else:
         rank_ci = [known.get(r["submission_id"]) for r in rows]
@@ -451,7 +458,7 @@ def _grid_means(
             rank_low=None if row_rank_ci is None else row_rank_ci[0],
             rank_high=None if row_rank_ci is None else row_rank_ci[1],
         )
-    _mark_best(rows, lambda chosen: rel[:, chosen], score="mean")
+    _mark_best(rows, lambda chosen: np.round(rel[chosen].T, 12), score="mean")
 
 
 def grid_view(

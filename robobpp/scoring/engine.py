@@ -57,9 +57,12 @@ class _Scored:
     score_ci: tuple[float, float]
     stable_ci: tuple[float, float]
     intervals: dict[str, list[float] | None]
-    rel: np.ndarray  # float32 (GRID_RESAMPLES,): relative score samples, for the grid (a view of the board's)
-    stable: np.ndarray  # float32 (GRID_RESAMPLES,)
+    #: float32 (GRID_RESAMPLES,): its relative and stable score samples for the grid, while they are its own
+    #: (computed or changed since the board was last assembled); None: row ``col`` of the board's matrices
+    rel: np.ndarray | None
+    stable: np.ndarray | None
     rank_ci: tuple[int, int] | None = None
+    col: int = -1
 
 
 @dataclass(slots=True)
@@ -103,6 +106,9 @@ class BoardMatrix:
         self._parts: dict[int, EntryPart | None] = {}  # of new entries and the best ones
         self._basis: tuple[Any, ...] | None = None
         self._lo = self._hi = np.zeros((0, 0))
+        #: The grid samples of the last assembled board, an entry per row (its ``_Scored.col``): kept as two
+        #: matrices, not an array per entry (10,000 arrays stacked again on every update cost 0.1 s a board)
+        self._grid_rel = self._grid_stable = np.zeros((0, GRID_RESAMPLES), np.float32)
         #: Bumped whenever entries already on the board were renormalised (a resample's min–max moved).
         self.epoch = 0
         #: Counters of what updates did (BENCHMARKS.md): renormalised rows, entries recomputed in full.
@@ -299,11 +305,15 @@ class BoardMatrix:
         grid_rows = moved < GRID_RESAMPLES
         self._lo, self._hi = lo, hi
         redo = [k for k in range(len(entries)) if not kept[k]]
-        for k in np.flatnonzero(kept).tolist():
-            scored = entries[k].scored
-            assert scored is not None
-            scored.rel = scored.rel.copy()
-            scored.rel[moved[grid_rows]] = after[k, grid_rows].astype(np.float32)
+        if grid_rows.any():  # only the grid's resamples are kept per entry
+            changed = after[:, grid_rows].astype(np.float32)
+            for k in np.flatnonzero(kept).tolist():
+                scored = entries[k].scored
+                assert scored is not None
+                if scored.rel is None:  # its row of the published board stays as it was: changed in a copy
+                    scored.rel = self._grid_rel[scored.col].copy()
+                    scored.stable = self._grid_stable[scored.col].copy()
+                scored.rel[moved[grid_rows]] = changed[k]
         for a in range(0, len(redo), CHUNK):
             chunk = [entries[k] for k in redo[a : a + CHUNK]]
             ok = usable[redo[a : a + CHUNK]]
@@ -408,28 +418,42 @@ class BoardMatrix:
             d["_base"] = base
             entries.append(d)
         best.sort(key=lambda e: (e["rank"], e["submission_id"]))
-        samples = (
-            np.stack([e.scored.rel for e in ranked if e.scored is not None], axis=1)
-            if n
-            else np.zeros((GRID_RESAMPLES, 0), np.float32)
-        )
-        stable = (
-            np.stack([e.scored.stable for e in ranked if e.scored is not None], axis=1)
-            if n
-            else np.zeros((GRID_RESAMPLES, 0), np.float32)
-        )
+        samples, stable = self._grid_matrices(ranked)
         board = board_dict(
             self.dataset, self.setting, self.track, groups, entries, unranked, best, samples, stable
         )
         board["protocol"] = self.protocol
-        # one copy of the grid samples per board: each entry's become views of the board's columns (read-only:
-        # a shift copies an entry's before changing it), so the stacked arrays above were the only transients
-        kept_rel, kept_stable = board["_samples"], board["_stable_samples"]
-        kept_rel.flags.writeable = kept_stable.flags.writeable = False
-        for k, e in enumerate(ranked):
-            assert e.scored is not None
-            e.scored.rel, e.scored.stable = kept_rel[:, k], kept_stable[:, k]
+        # the board's copies become the kept matrices (read-only: a shift changes an entry's samples in a copy;
+        # ``board_dict`` turns the transposed views back into row-per-entry matrices)
+        self._grid_rel, self._grid_stable = board["_samples"], board["_stable_samples"]
+        self._grid_rel.flags.writeable = self._grid_stable.flags.writeable = False
         return board
+
+    def _grid_matrices(self, ranked: Sequence[_Entry]) -> tuple[np.ndarray, np.ndarray]:
+        """The ranked entries' grid samples as two (GRID_RESAMPLES, entries) matrices (``board_dict`` keeps
+        them transposed): the rows of the last ones gathered at once, an entry's own samples put in; each
+        entry then refers to its new row."""
+        n = len(ranked)
+        scored = [e.scored for e in ranked if e.scored is not None]
+        if len(scored) != n:
+            raise AssertionError("an entry on the board is not scored")
+        own = [k for k, s in enumerate(scored) if s.rel is not None]
+        # as many resamples as the entries' own samples (a plan may have fewer than GRID_RESAMPLES), else as before
+        size = len(scored[own[0]].rel) if own else self._grid_rel.shape[1]  # type: ignore[arg-type]
+        rel = np.empty((n, size), np.float32)
+        stable = np.empty((n, size), np.float32)
+        if len(own) < n:
+            at = np.ones(n, dtype=bool)
+            at[own] = False
+            rows = np.fromiter((s.col for s in scored if s.rel is None), dtype=np.intp, count=n - len(own))
+            rel[at] = self._grid_rel[rows]
+            stable[at] = self._grid_stable[rows]
+        for k in own:
+            rel[k], stable[k] = scored[k].rel, scored[k].stable
+        for k, s in enumerate(scored):
+            s.rel = s.stable = None
+            s.col = k
+        return rel.T, stable.T
 
 
 def _base(

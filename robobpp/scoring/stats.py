@@ -102,24 +102,33 @@ def metric_samples(figures: Sequence[Mapping[str, Any]], key: str, counts: np.nd
     return top
 
 
-def interval(samples: np.ndarray, confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray]:
+def interval(
+    samples: np.ndarray, confidence: float = CONFIDENCE, *, decimals: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Percentile interval along axis 0, ignoring NaN (NaN where every sample is NaN).
 
     Linear interpolation between order statistics, as ``numpy.nanquantile`` does, with one sort over all
     columns: on 1,000 resamples × 10,000 entries this took 0.28 s where ``nanquantile`` took 0.8 s (numpy 2.4).
+    ``decimals``: the interval of the samples rounded so (``numpy.round``), computed by rounding only the
+    order statistics it interpolates between — rounding is monotonic, so they are the rounded samples'.
     """
     tail = (1.0 - confidence) / 2.0
     ordered = np.sort(samples, axis=0)  # NaN sorts last
     finite = np.isfinite(samples).sum(axis=0)
-    return _order_stat(ordered, finite, tail), _order_stat(ordered, finite, 1.0 - tail)
+    return (
+        _order_stat(ordered, finite, tail, decimals),
+        _order_stat(ordered, finite, 1.0 - tail, decimals),
+    )
 
 
-def _order_stat(ordered: np.ndarray, finite: np.ndarray, q: float) -> np.ndarray:
+def _order_stat(ordered: np.ndarray, finite: np.ndarray, q: float, decimals: int | None) -> np.ndarray:
     position = q * np.maximum(finite - 1, 0)
     below = np.floor(position).astype(np.intp)
     above = np.minimum(below + 1, np.maximum(finite - 1, 0))
     low = np.take_along_axis(ordered, below[None, ...], axis=0)[0]
     high = np.take_along_axis(ordered, above[None, ...], axis=0)[0]
+    if decimals is not None:
+        low, high = np.round(low, decimals), np.round(high, decimals)
     value = low + (high - low) * (position - below)
     return np.where(finite > 0, value, np.nan)
 

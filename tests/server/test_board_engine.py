@@ -3,10 +3,12 @@ what changed is returned."""
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import random
 import re
+import weakref
 from collections.abc import Iterator
 from typing import Any
 
@@ -213,7 +215,9 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     assert np.array_equal(kept, kept_values)
     samples = engine._tracks["private"].out[("diverse", "math")]["_samples"]
     scored = [e.scored for e in matrix._entries.values() if e.scored is not None]
-    assert scored and all(np.shares_memory(s.rel, samples) for s in scored)
+    assert scored and all(s.rel is None and s.stable is None for s in scored)
+    assert sorted(s.col for s in scored) == list(range(samples.shape[0]))
+    assert matrix._grid_rel is samples
 
     # a new best: it moves the maximum, every entry is renormalised
     best = add_submission(factory, "team-6", 3.0, seed=101)
@@ -311,3 +315,48 @@ def test_the_migration_computes_the_parts_of_runs_finished_before_it(db_url: str
                 assert run.entry == part_of_run(run.figures, "math")
     finally:
         engine.dispose()
+
+
+class _Cycle:
+    """An object in a reference cycle: only the cyclic garbage collector frees it."""
+
+    def __init__(self) -> None:
+        self.me = self
+
+
+def test_the_engine_computes_without_the_collector_and_frees_cycles_it_froze(factory: Any) -> None:
+    for i in range(4):
+        add_submission(factory, f"team-{i}", 0.3 + 0.1 * i, seed=i)
+    states: list[bool] = []
+
+    def watched() -> Any:
+        states.append(gc.isenabled())
+        return factory()
+
+    engine = BoardEngine(watched, DATASETS, SETTINGS)
+    assert gc.isenabled()
+    try:
+        garbage = _Cycle()
+        gone = weakref.ref(garbage)
+        del garbage  # cyclic garbage when the engine starts: collected, never frozen
+        engine.update("private")  # the first: a full computation
+        # what it kept is frozen (later collections skip it), the collector runs again
+        assert gc.get_freeze_count() > 0 and gc.isenabled()
+        assert gone() is None, "a full computation froze a cycle that was garbage already"
+
+        add_submission(factory, "team-9", 0.5, seed=9)
+        assert engine.update("private")
+        assert states and not any(states), "the engine read its data with the collector running"
+
+        # an object alive when frozen that became cyclic garbage later: the next full computation frees it
+        late = _Cycle()
+        late_ref = weakref.ref(late)
+        add_submission(factory, "team-10", 0.5, seed=10)
+        engine.update("private")
+        del late
+        gc.collect()
+        assert late_ref() is not None, "frozen objects are not collected between full computations"
+        engine.refresh("private")
+        assert late_ref() is None
+    finally:
+        gc.unfreeze()

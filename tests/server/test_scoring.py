@@ -185,3 +185,18 @@ def test_run_failed_share() -> None:
     assert not stats.run_failed({"completed": 27, "policy_timeout": 3}, 30)  # 10 % is allowed
     assert stats.run_failed({"completed": 26, "policy_timeout": 3, "invalid_action": 1}, 30)
     assert not stats.run_failed({"collapse": 30}, 30)  # a packing outcome, not a policy failure
+
+
+def test_an_interval_of_rounded_samples_rounds_only_its_order_statistics() -> None:
+    # the grid's mean samples are rounded to 12 decimals; its interval rounds the four values it interpolates
+    # between instead of every sample: the same bits, with ties and unmeasured (NaN) samples
+    rng = np.random.default_rng(3)
+    samples = rng.random((250, 400)) / 3.0
+    samples[:, 7] = samples[0, 7]  # every resample the same
+    samples[rng.random(samples.shape) < 0.02] = np.nan
+    samples[:, 11] = np.nan  # never measured
+    want = stats.interval(np.round(samples, 12))
+    got = stats.interval(samples, decimals=12)
+    for a, b in zip(want, got, strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert not np.array_equal(stats.interval(samples)[0], want[0], equal_nan=True)  # rounding shows

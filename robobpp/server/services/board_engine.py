@@ -12,9 +12,10 @@ physical setting under the paper protocol, and ``"grid"`` / ``"grid-paper"`` for
 from __future__ import annotations
 
 import ctypes
+import gc
 import threading
-from collections.abc import Callable, Mapping, Sequence
-from contextlib import AbstractContextManager
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -160,42 +161,47 @@ class BoardEngine:
     def update(self, track: str) -> dict[BoardKey, dict[str, Any]]:
         """The track's boards and grids that changed since the last call, now current."""
         with self._lock:
-            state = self._tracks.get(track)
-            if state is None:
-                return self._full(track)
-            with self.session_factory() as session:
-                seen = finished_submissions(session, track)
-                added = [s for s in seen if s not in state.seen]
-                changed = [s for s in seen if s in state.seen and seen[s] != state.seen[s]]
-                removed = [s for s in state.seen if s not in seen]
-                if not (added or changed or removed):
-                    return {}
-                runs = self._runs(session, track, added + changed) if added or changed else []
-            touched: set[tuple[str, ...]] = set()
-            by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
-            for run in runs:
-                by_board.setdefault(self._key_of(run), []).append(run)
-            for key, matrix in state.boards.items():
-                upsert = by_board.get(key, [])
-                present = {int(r["submission_id"]) for r in upsert}
-                gone = [s for s in (*removed, *changed) if s in matrix and s not in present]
-                if upsert or gone:
-                    matrix.apply(
-                        [_row(r) for r in upsert], gone, parts={r["submission_id"]: r["part"] for r in upsert}
-                    )
-                    touched.add(key)
-            state.seen = seen
-            changed_out: dict[BoardKey, dict[str, Any]] = {}
-            for key in touched:
-                state.out[key] = state.boards[key].board()
-                changed_out[key] = state.out[key]
-            if touched:
-                changed_out.update(self._grids(track, state, full=False))
-            return {k: _served(v) for k, v in changed_out.items()}
+            if track not in self._tracks:
+                with _collector_paused(full=True):
+                    return self._full(track)
+            with _collector_paused(full=False):
+                return self._update(track)
+
+    def _update(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+        state = self._tracks[track]
+        with self.session_factory() as session:
+            seen = finished_submissions(session, track)
+            added = [s for s in seen if s not in state.seen]
+            changed = [s for s in seen if s in state.seen and seen[s] != state.seen[s]]
+            removed = [s for s in state.seen if s not in seen]
+            if not (added or changed or removed):
+                return {}
+            runs = self._runs(session, track, added + changed) if added or changed else []
+        touched: set[tuple[str, ...]] = set()
+        by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+        for run in runs:
+            by_board.setdefault(self._key_of(run), []).append(run)
+        for key, matrix in state.boards.items():
+            upsert = by_board.get(key, [])
+            present = {int(r["submission_id"]) for r in upsert}
+            gone = [s for s in (*removed, *changed) if s in matrix and s not in present]
+            if upsert or gone:
+                matrix.apply(
+                    [_row(r) for r in upsert], gone, parts={r["submission_id"]: r["part"] for r in upsert}
+                )
+                touched.add(key)
+        state.seen = seen
+        changed_out: dict[BoardKey, dict[str, Any]] = {}
+        for key in touched:
+            state.out[key] = state.boards[key].board()
+            changed_out[key] = state.out[key]
+        if touched:
+            changed_out.update(self._grids(track, state, full=False))
+        return {k: _served(v) for k, v in changed_out.items()}
 
     def refresh(self, track: str) -> dict[BoardKey, dict[str, Any]]:
         """Every board and grid of the track computed in full (rank intervals of every entry included)."""
-        with self._lock:
+        with self._lock, _collector_paused(full=True):
             return self._full(track)
 
     def current(self, track: str) -> dict[BoardKey, dict[str, Any]]:
@@ -234,9 +240,7 @@ class BoardEngine:
         state.seen = seen
         grids = self._grids(track, state, full=True)
         self._tracks[track] = state
-        out = {k: _served(v) for k, v in {**state.out, **grids}.items()}
-        _trim()
-        return out
+        return {k: _served(v) for k, v in {**state.out, **grids}.items()}
 
     def _grids(self, track: str, state: _Track, *, full: bool) -> dict[BoardKey, dict[str, Any]]:
         out: dict[BoardKey, dict[str, Any]] = {}
@@ -311,6 +315,33 @@ class BoardEngine:
             return parts
 
         return load
+
+
+@contextmanager
+def _collector_paused(*, full: bool) -> Iterator[None]:
+    """Run a board computation without Python's cyclic garbage collector, then freeze what is alive.
+
+    The engine keeps millions of small objects between updates (≈ 3 million at 10,000 submissions: every
+    entry's row, figures and served row), hardly any of them in a reference cycle. An update allocates enough
+    to trigger the collector's full passes, and each walks all of them: 1.5–2.5 s of the ≈ 7 s a middling
+    update took at 10,000 submissions (BENCHMARKS.md, "Board updates"). So the collector waits while the
+    engine computes, and afterwards what is alive is frozen (``gc.freeze``): later passes skip it. A frozen
+    object is still freed when its last reference goes; only a cycle among frozen objects waits — for the next
+    full computation (``full``: the start, and the worker's timer), which unfreezes and collects everything
+    first and hands the freed heap back to the system at the end."""
+    enabled = gc.isenabled()
+    if full:
+        gc.unfreeze()
+        gc.collect()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+        gc.freeze()
+        if full:
+            _trim()
 
 
 def _trim() -> None:

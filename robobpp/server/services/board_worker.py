@@ -225,7 +225,10 @@ class BoardPublisher:
             else:
                 body = to_json(row)
                 seen[sid] = (row, row_hash(body), body)
-        self._hashes[(track, key)] = {sid: (row, h, None) for sid, (row, h, _) in seen.items()}
+        # kept without the bodies (only the rows written now need them); an unchanged row keeps its tuple
+        self._hashes[(track, key)] = {
+            sid: v if v[2] is None else (v[0], v[1], None) for sid, v in seen.items()
+        }
         ids = np.fromiter(seen, dtype=np.int64, count=len(seen))
         hashes = np.fromiter((v[1] for v in seen.values()), dtype=np.int64, count=len(seen))
         order = np.argsort(ids)

@@ -210,8 +210,16 @@ def board_dict(
     best: list[dict[str, Any]],
     samples: np.ndarray,
     stable_samples: np.ndarray,
+    by_column: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """The board dict from its entries in rank order, unranked ones and best entries, both sorted."""
+    """The board dict from its entries in rank order, unranked ones and best entries, both sorted.
+    ``by_column``: the entries' scores and stable scores by ``_column`` (2 × entries), when at hand."""
+    if by_column is None:
+        n = len(entries)
+        at = np.fromiter((e["_column"] for e in entries), dtype=np.intp, count=n)
+        by_column = np.zeros((2, n))
+        by_column[0, at] = np.fromiter((e["score"] for e in entries), dtype=np.float64, count=n)
+        by_column[1, at] = np.fromiter((e["stable"] for e in entries), dtype=np.float64, count=n)
     return {
         "dataset": dataset,
         "setting": setting,
@@ -231,6 +239,7 @@ def board_dict(
         # of a C-ordered matrix are contiguous); copies: a slice would keep the full resample arrays alive
         "_samples": np.ascontiguousarray(samples[:GRID_RESAMPLES].T),
         "_stable_samples": np.ascontiguousarray(stable_samples[:GRID_RESAMPLES].T),
+        "_by_column": by_column,  # for the grid's means
     }
 
 
@@ -419,11 +428,7 @@ def _grid_means(
         samples, stable = board["_samples"], board["_stable_samples"]
         rel[:, : samples.shape[1]] += samples[cols]
         stab[:, : stable.shape[1]] += stable[cols]
-        entries = board["entries"]
-        at = np.fromiter((e["_column"] for e in entries), dtype=np.intp, count=len(entries))
-        by_column = np.zeros((2, len(entries)))
-        by_column[0, at] = np.fromiter((e["score"] for e in entries), dtype=np.float64, count=len(entries))
-        by_column[1, at] = np.fromiter((e["stable"] for e in entries), dtype=np.float64, count=len(entries))
+        by_column = board["_by_column"]
         # summed board by board in the order of ``keys``: the same additions as a sum over each row's cells
         score_sum += by_column[0, cols]
         stable_sum += by_column[1, cols]

@@ -419,8 +419,18 @@ class BoardMatrix:
             entries.append(d)
         best.sort(key=lambda e: (e["rank"], e["submission_id"]))
         samples, stable = self._grid_matrices(ranked)
+        by_column = np.array([scores, [e.stable for e in ranked]], dtype=np.float64).reshape(2, n)
         board = board_dict(
-            self.dataset, self.setting, self.track, groups, entries, unranked, best, samples, stable
+            self.dataset,
+            self.setting,
+            self.track,
+            groups,
+            entries,
+            unranked,
+            best,
+            samples,
+            stable,
+            by_column,
         )
         board["protocol"] = self.protocol
         # the board's copies become the kept matrices (read-only: a shift changes an entry's samples in a copy;

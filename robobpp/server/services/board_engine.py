@@ -33,6 +33,8 @@ from robobpp.scoring.metrics import PHYSICAL
 SessionFactory = Callable[[], AbstractContextManager[Session]]
 #: A track's grids, by protocol.
 GRID_KEYS = ("grid", "grid-paper")
+#: What a board carries for its track's grids only (resample matrices, scores by column): never handed out.
+_GRID_ONLY = ("_samples", "_stable_samples", "_by_column")
 BoardKey = tuple[str, ...] | str
 
 
@@ -94,8 +96,8 @@ def compute_snapshot(
         }
         grids[protocol] = build_grid(shown, datasets, settings, track) | {"protocol": protocol}
     for b in boards.values():
-        b.pop("_samples", None)
-        b.pop("_stable_samples", None)
+        for key in _GRID_ONLY:
+            b.pop(key, None)
     return {"boards": boards, "grid": grids[CLOSED], "grid-paper": grids[PAPER]}
 
 
@@ -398,5 +400,5 @@ def _row(run: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _served(board: dict[str, Any]) -> dict[str, Any]:
-    """A board as handed out: without the resample arrays only the grids need."""
-    return {k: v for k, v in board.items() if k not in ("_samples", "_stable_samples")}
+    """A board as handed out: without the arrays only the grids need."""
+    return {k: v for k, v in board.items() if k not in _GRID_ONLY}

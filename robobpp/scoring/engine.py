@@ -410,8 +410,8 @@ class BoardMatrix:
         for i in np.lexsort((sids, rank_of)).tolist():  # rank order, ties by id
             e = ranked[i]
             b = best_of.get(i)
-            base = _base(e, scores[i], normalized[i], submitted[e.who], b is not None)
-            d = base | {"rank": ranks[i], "_column": i}
+            base = _base(e, scores[i], normalized[i], b is not None)
+            d = base | {"rank": ranks[i], "entries_submitted": submitted[e.who], "_column": i}
             if b is not None:
                 d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
                 best.append(d | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]})
@@ -466,22 +466,21 @@ class BoardMatrix:
         return rel.T, stable.T
 
 
-def _base(
-    entry: _Entry, score: float, normalized: dict[str, float], submitted: int, best: bool
-) -> dict[str, Any]:
-    """The entry's all-entries row without its rank: the object kept from the last update when nothing it
-    shows moved (an arriving entry moves the ranks below it and nothing else of theirs)."""
+def _base(entry: _Entry, score: float, normalized: dict[str, float], best: bool) -> dict[str, Any]:
+    """The entry's all-entries row without its rank (nor its participant's entry count, which moves with
+    every entry they add: the reader puts it in): the object kept from the last update when nothing it shows
+    moved (an arriving entry moves the ranks below it and nothing else of theirs). An entry scored again
+    (a shift renormalised it) keeps its row when its figures came out the same."""
     s = entry.scored
     assert s is not None
     old = entry.base_of
     if (
         entry.base is None
-        or old[0] is not s
-        or old[3] is not normalized
-        or old[1] != s.rank_ci
-        or old[2] != score
-        or old[4] != submitted
-        or old[5] != best
+        or old[2] is not normalized
+        or old[1] != score
+        or old[3] != best
+        or s.rank_ci != old[4]
+        or (old[0] is not s and not _same_figures(old[0], s))
     ):
         entry.base = {
             **entry.public,
@@ -496,11 +495,15 @@ def _base(
             "stable_high": s.stable_ci[1],
             "normalized": normalized,
             "intervals": s.intervals,
-            "entries_submitted": submitted,
             "best": best,
         }
-        entry.base_of = (s, s.rank_ci, score, normalized, submitted, best)
+    entry.base_of = (s, score, normalized, best, s.rank_ci)
     return entry.base
+
+
+def _same_figures(a: _Scored, b: _Scored) -> bool:
+    """Whether two scorings of an entry show the same figures (its row would not change)."""
+    return a.score_ci == b.score_ci and a.stable_ci == b.stable_ci and a.intervals == b.intervals
 
 
 def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections import Counter
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -403,19 +404,23 @@ class Scripted:
     refresh = update
 
 
-def _board(entries: list[tuple[int, float]]) -> dict[str, Any]:
-    """A board of entries (submission id, score), ranked by score."""
+def _board(entries: list[tuple[int, float]], owners: dict[int, str] | None = None) -> dict[str, Any]:
+    """A board of entries (submission id, score), ranked by score; ``owners``: participants by submission id
+    (by default each its own)."""
+    owner = {sid: (owners or {}).get(sid, f"p{sid}") for sid, _ in entries}
+    counts = Counter(owner.values())
     rows = []
     for rank, (sid, score) in enumerate(sorted(entries, key=lambda e: -e[1]), start=1):
         rows.append(
             {
                 "submission_id": sid,
                 "name": f"n{sid}",
-                "participant": f"p{sid}",
+                "participant": owner[sid],
                 "baseline": False,
                 "rank": rank,
             }
             | {"rank_low": None, "rank_high": None, "score": score, "best": True, "_column": rank - 1}
+            | {"entries_submitted": counts[owner[sid]]}
         )
     return {"dataset": "diverse", "setting": "math", "track": "private", "protocol": "closed"} | {
         "entries": rows,
@@ -443,3 +448,15 @@ def test_an_entry_ranked_above_others_writes_its_row_alone(quiet_app) -> None:
         reader(app).board_page("diverse", "math", view="all", offset=2, limit=1)["entries"][0]["score"] == 0.6
     )
     assert not worker.publish("private", force=True) and worker.rows_written == 0  # nothing changed
+    # a second entry of participant p1: its other entry's count moves, and that row is not written again
+    scripted.board = _board([(1, 0.9), (2, 0.6), (3, 0.1), (4, 0.7), (5, 0.3)], {5: "p1"})
+    assert worker.publish("private", force=True) and worker.rows_written == 1
+    page = reader(app).board_page("diverse", "math", view="all")
+    assert {e["submission_id"]: e["entries_submitted"] for e in page["entries"]} == {
+        1: 2,
+        2: 1,
+        3: 1,
+        4: 1,
+        5: 2,
+    }
+    assert page == json.loads(to_json(board_view(scripted.board, "all")))

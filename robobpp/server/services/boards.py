@@ -41,7 +41,7 @@ from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import queries
 from robobpp.db.models import BoardPart, BoardPublication, Submission
 from robobpp.replay import CLOSED, PAPER
-from robobpp.scoring.boards import _served
+from robobpp.scoring.boards import _served, participant_key
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
@@ -50,7 +50,8 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 #: Entries per stored chunk: a page of up to 500 (the API's largest) reads at most 6 chunks.
 CHUNK = 100
 #: Bumped when the layout of the stored parts changes: a server of another layout recomputes them.
-LAYOUT = 2
+#: 3: an all-entries row without ``entries_submitted`` (the head's ``submitted`` gives it by participant).
+LAYOUT = 3
 
 
 def board_version(session: Session, track: str) -> tuple[Any, ...]:
@@ -179,9 +180,15 @@ def _order(ids: Sequence[int], ranks: Sequence[int], cells: np.ndarray | None = 
 
 
 def _rankless(entry: Mapping[str, Any]) -> Mapping[str, Any]:
-    """A served entry of the all-entries view without its rank (the engine's ``_base`` when it gave one)."""
+    """A served entry of the all-entries view as stored: without its rank and its participant's entry count
+    (the engine's ``_base`` when it gave one). Each arriving entry moves the count of its participant's other
+    entries, so it is stored once per board (the head's ``submitted``), not in each of their rows."""
     base = entry.get("_base")
-    return base if base is not None else {**_served(entry), "rank": None}
+    if base is not None:
+        return base
+    row = {**_served(entry), "rank": None}
+    row.pop("entries_submitted", None)
+    return row
 
 
 def board_parts(board: Mapping[str, Any]) -> StoredBoard:
@@ -193,7 +200,8 @@ def board_parts(board: Mapping[str, Any]) -> StoredBoard:
     lists = {"best": [_served(e) for e in board["_best"]], "unranked": [dict(e) for e in board["unranked"]]}
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
     counts = {"best": len(lists["best"]), "all": len(entries), "unranked": len(lists["unranked"])}
-    parts = {"head": to_json({"head": head, "counts": counts})}
+    submitted = {participant_key(e): e["entries_submitted"] for e in entries}
+    parts = {"head": to_json({"head": head, "counts": counts, "submitted": submitted})}
     for name, items in lists.items():
         parts |= _chunked(name, items)
     ids = [e["submission_id"] for e in entries]
@@ -458,9 +466,12 @@ class BoardCache:
         rows = self._rows(track, key, wanted.tolist(), versions[at].tolist())
         out = []
         cell_keys = grid_cell_keys(self._head(track, key)["head"]) if cells.shape[1] else []
+        submitted = None if cells.shape[1] else self._head(track, key)["submitted"]
         for k, sid in enumerate(wanted.tolist()):
             item = dict(rows[sid])
             item["rank"] = int(ranks[offset + k])
+            if submitted is not None:  # a board's row (the grid's have no count)
+                item["entries_submitted"] = submitted[participant_key(item)]
             if cell_keys:
                 item["cells"] = {
                     name: {**item["cells"][name], "rank": int(cells[offset + k, j])}

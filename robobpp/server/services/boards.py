@@ -200,7 +200,8 @@ def board_parts(board: Mapping[str, Any]) -> StoredBoard:
     lists = {"best": [_served(e) for e in board["_best"]], "unranked": [dict(e) for e in board["unranked"]]}
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
     counts = {"best": len(lists["best"]), "all": len(entries), "unranked": len(lists["unranked"])}
-    submitted = {participant_key(e): e["entries_submitted"] for e in entries}
+    # every participant with a ranked entry has a best one, which carries their count
+    submitted = {participant_key(e): e["entries_submitted"] for e in board["_best"]}
     parts = {"head": to_json({"head": head, "counts": counts, "submitted": submitted})}
     for name, items in lists.items():
         parts |= _chunked(name, items)

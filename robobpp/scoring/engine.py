@@ -85,6 +85,9 @@ class _Entry:
     #: object while its content stays, so the publisher serialises it once (services/boards.py).
     base: dict[str, Any] | None = None
     base_of: tuple[Any, ...] = ()
+    #: The entry as the last board listed it (its ``base`` with rank, count and column): listed again as the
+    #: same object while those stay (the entries above a new one keep all three)
+    listed: dict[str, Any] | None = None
 
 
 class BoardMatrix:
@@ -411,11 +414,21 @@ class BoardMatrix:
             e = ranked[i]
             b = best_of.get(i)
             base = _base(e, scores[i], normalized[i], b is not None)
-            d = base | {"rank": ranks[i], "entries_submitted": submitted[e.who], "_column": i}
-            if b is not None:
-                d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
-                best.append(d | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]})
-            d["_base"] = base
+            d = e.listed
+            if (
+                b is not None
+                or d is None
+                or d["_base"] is not base
+                or d["rank"] != ranks[i]
+                or d["_column"] != i
+                or d["entries_submitted"] != submitted[e.who]
+            ):
+                d = base | {"rank": ranks[i], "entries_submitted": submitted[e.who], "_column": i}
+                if b is not None:
+                    d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
+                    best.append(d | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]})
+                d["_base"] = base
+                e.listed = d
             entries.append(d)
         best.sort(key=lambda e: (e["rank"], e["submission_id"]))
         samples, stable = self._grid_matrices(ranked)

@@ -266,4 +266,5 @@ class BoardPart(Base):
     part: Mapped[str] = mapped_column(String(32))
     body: Mapped[bytes] = mapped_column(LargeBinary)
 
-    __table_args__ = (UniqueConstraint("track", "board", "version", "part", name="uq_board_parts_key"),)
+    #: Part first: a publication deletes an entry row's older versions by part (migration 0012).
+    __table_args__ = (UniqueConstraint("track", "board", "part", "version", name="uq_board_parts_key"),)

@@ -300,7 +300,9 @@ class BoardPublisher:
                 values.append({"part": "rows", "body": manifest(ids, versions, hashes)})
                 values += ({"part": row_part(sid), "body": hashed.body(sid)} for sid in fresh)
                 table = cast(Table, BoardPart.__table__)
-                _insert_parts(session, table, track, key, version, values)
+                session.connection().execute(  # executemany of Core rows: no ORM objects for thousands of rows
+                    table.insert().values(track=track, board=key, version=version), values
+                )
                 written += len(fresh)
                 after[key] = [version, sha]
                 manifests[(track, key)] = (version, (ids, versions, hashes))
@@ -345,26 +347,6 @@ class BoardPublisher:
             written,
         )
         return changed
-
-
-def _insert_parts(
-    session: Session, table: Table, track: str, board: str, version: int, values: list[dict[str, Any]]
-) -> None:
-    """Insert a board version's parts: PostgreSQL by ``COPY`` (thousands of entry rows: about 5× an
-    executemany of INSERTs, BENCHMARKS.md "Board updates"), others by an executemany of Core rows."""
-    connection = session.connection()
-    if connection.dialect.name == "postgresql":
-        raw = connection.connection.driver_connection  # psycopg 3, in this session's transaction
-        with (
-            raw.cursor() as cursor,
-            cursor.copy(  # type: ignore[union-attr]
-                "COPY board_parts (track, board, version, part, body) FROM STDIN"
-            ) as copy,
-        ):
-            for value in values:
-                copy.write_row((track, board, version, value["part"], value["body"]))
-        return
-    connection.execute(table.insert().values(track=track, board=board, version=version), values)
 
 
 #: Parts named per delete statement (SQLite allows 32,766 bound values in one; PostgreSQL 65,535).

@@ -330,7 +330,7 @@ def _collector_paused(*, full: bool) -> Iterator[None]:
     engine computes, and afterwards what is alive is frozen (``gc.freeze``): later passes skip it. A frozen
     object is still freed when its last reference goes; only a cycle among frozen objects waits — for the next
     full computation (``full``: the start, and the worker's timer), which unfreezes and collects everything
-    first and hands the freed heap back to the system at the end."""
+    first, collects again what it replaced, and hands the freed heap back to the system at the end."""
     enabled = gc.isenabled()
     if full:
         gc.unfreeze()
@@ -341,6 +341,8 @@ def _collector_paused(*, full: bool) -> Iterator[None]:
     finally:
         if enabled:
             gc.enable()
+        if full:  # the objects it replaced, cycles included, go before the rest is frozen
+            gc.collect()
         gc.freeze()
         if full:
             _trim()

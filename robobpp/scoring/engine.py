@@ -118,6 +118,9 @@ class BoardMatrix:
         self.shifted_rows = 0
         self.recomputed = 0
 
+    def __len__(self) -> int:
+        return len(self._entries)
+
     def __contains__(self, submission_id: object) -> bool:
         return submission_id in self._entries
 

@@ -23,6 +23,7 @@ from robobpp.db.session import make_engine, make_session_factory, transaction
 from robobpp.db.work import run_figures
 from robobpp.scoring.entries import EntryPart, entry_part, part_of_run
 from robobpp.scoring.stats import group_figures
+from robobpp.server.services import board_engine
 from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
 from tests.server.conftest import complete_next_episode
 
@@ -331,7 +332,9 @@ class _Cycle:
         self.me = self
 
 
-def test_the_engine_computes_without_the_collector_and_frees_cycles_it_froze(factory: Any) -> None:
+def test_the_engine_computes_without_the_collector_and_frees_cycles_it_froze(
+    factory: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
     for i in range(4):
         add_submission(factory, f"team-{i}", 0.3 + 0.1 * i, seed=i)
     states: list[bool] = []
@@ -339,6 +342,11 @@ def test_the_engine_computes_without_the_collector_and_frees_cycles_it_froze(fac
     def watched() -> Any:
         states.append(gc.isenabled())
         return factory()
+
+    small = BoardEngine(factory, DATASETS, SETTINGS)
+    small.update("private")
+    assert gc.get_freeze_count() == 0, "a small engine froze its objects"
+    monkeypatch.setattr(board_engine, "FREEZE_ENTRIES", 1)  # as a large deployment's
 
     engine = BoardEngine(watched, DATASETS, SETTINGS)
     assert gc.isenabled()

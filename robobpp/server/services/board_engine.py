@@ -152,6 +152,11 @@ class BoardEngine:
         self._lock = threading.Lock()
         self._tracks: dict[str, _Track] = {}
 
+    def _large(self) -> bool:
+        """Whether the boards hold enough entries to freeze them (:data:`FREEZE_ENTRIES`)."""
+        entries = sum(len(m) for state in self._tracks.values() for m in state.boards.values())
+        return entries >= FREEZE_ENTRIES
+
     def keys(self) -> list[BoardKey]:
         """Every board and grid key of a track, in display order."""
         return [*self._board_keys(), *GRID_KEYS]
@@ -164,9 +169,9 @@ class BoardEngine:
         """The track's boards and grids that changed since the last call, now current."""
         with self._lock:
             if track not in self._tracks:
-                with _collector_paused(full=True):
+                with _collector_paused(full=True, large=self._large):
                     return self._full(track)
-            with _collector_paused(full=False):
+            with _collector_paused(full=False, large=self._large):
                 return self._update(track)
 
     def _update(self, track: str) -> dict[BoardKey, dict[str, Any]]:
@@ -203,7 +208,7 @@ class BoardEngine:
 
     def refresh(self, track: str) -> dict[BoardKey, dict[str, Any]]:
         """Every board and grid of the track computed in full (rank intervals of every entry included)."""
-        with self._lock, _collector_paused(full=True):
+        with self._lock, _collector_paused(full=True, large=self._large):
             return self._full(track)
 
     def current(self, track: str) -> dict[BoardKey, dict[str, Any]]:
@@ -319,31 +324,40 @@ class BoardEngine:
         return load
 
 
+#: Past this many entries on a deployment's boards (about 1,000 submissions) the engine freezes what it keeps
+#: after each computation (``_collector_paused``). Below it a full collection is cheap, and the collector
+#: runs as usual; a small deployment's full computations stay a fraction of a second.
+FREEZE_ENTRIES = 15_000
+
+
 @contextmanager
-def _collector_paused(*, full: bool) -> Iterator[None]:
-    """Run a board computation without Python's cyclic garbage collector, then freeze what is alive.
+def _collector_paused(*, full: bool, large: Callable[[], bool]) -> Iterator[None]:
+    """Run a board computation without Python's cyclic garbage collector; a ``large`` engine then freezes
+    what is alive.
 
     The engine keeps millions of small objects between updates (≈ 3 million at 10,000 submissions: every
-    entry's row, figures and served row), hardly any of them in a reference cycle. An update allocates enough
-    to trigger the collector's full passes, and each walks all of them: 1.5–2.5 s of the ≈ 7 s a middling
-    update took at 10,000 submissions (BENCHMARKS.md, "Board updates"). So the collector waits while the
-    engine computes, and afterwards what is alive is frozen (``gc.freeze``): later passes skip it. A frozen
-    object is still freed when its last reference goes; only a cycle among frozen objects waits — for the next
-    full computation (``full``: the start, and the worker's timer), which unfreezes and collects everything
-    first, collects again what it replaced, and hands the freed heap back to the system at the end."""
+    entry's row, figures and served row). An update allocates enough to trigger the collector's full passes,
+    and each walks all of them: 1.5–2.5 s of the ≈ 7 s a middling update took at 10,000 submissions
+    (BENCHMARKS.md, "Board updates"). So the collector waits while the engine computes, and afterwards what
+    is alive is frozen (``gc.freeze``): later passes skip it. A frozen object is still freed when its last
+    reference goes; only a cycle among frozen objects waits — for the next full computation (``full``: the
+    start, and the worker's timer), which unfreezes and collects everything before it freezes again (some of
+    the objects it replaced are in cycles: 500 MB at 10,000 submissions), and hands the freed heap back to
+    the system."""
     enabled = gc.isenabled()
-    if full:
-        gc.unfreeze()
-        gc.collect()
     gc.disable()
     try:
         yield
     finally:
         if enabled:
             gc.enable()
-        if full:  # the objects it replaced, cycles included, go before the rest is frozen
-            gc.collect()
-        gc.freeze()
+        freeze = large()
+        if full:
+            gc.unfreeze()
+            if freeze:
+                gc.collect()
+        if freeze:
+            gc.freeze()
         if full:
             _trim()
 

@@ -17,6 +17,8 @@ numba shapely easydict torch pybullet ompl tqdm matplotlib pyyaml; NumPy, PyBull
 
 ``export`` runs the heuristic in our Math Pack on one train group and writes the reference's inputs: its action
 list (rotation flag, x, y in its 1 cm cells), zero decision times, and the group's box sizes in its data format.
+Long Board's plan goes as it is: the reference's packer works in a 250 × 120 container, as ours, and its main loop
+itself swaps x and y (box sizes and positions) for its scene, whose container is 120 × 250.
 ``run`` (no robobpp import: the reference's interpreter) unpacks the reference's wheel (the one the dataset
 importer keeps, or ``--wheel``) to a temporary directory and runs its own main loop in setting 3 on them,
 unchanged but for compatibility shims that change nothing it simulates: NumPy 2 aliases (and ``np.cross`` on
@@ -102,8 +104,6 @@ def export(dataset: str, policy: str, group: int, out: Path) -> None:
     actions = [[int(a.orientation), round(a.x), round(a.y)] for a in placed]
     if any(abs(a.x - round(a.x)) > 1e-9 or abs(a.y - round(a.y)) > 1e-9 for a in placed):
         raise SystemExit("the plan is off the 1 cm grid; the reference takes cell indices")
-    if dataset == "longboard":
-        raise SystemExit("Long Board's frame is swapped in the reference; not exported")
     out.mkdir(parents=True, exist_ok=True)
     (out / "action.json").write_text(json.dumps(actions))
     (out / "planning_time.json").write_text(json.dumps([0.0] * len(actions)))
@@ -554,7 +554,7 @@ def main() -> None:
     )
     sub = parser.add_subparsers(dest="step", required=True)
     ex = sub.add_parser("export")
-    ex.add_argument("--dataset", choices=("repetitive", "diverse"), default="diverse")
+    ex.add_argument("--dataset", choices=tuple(REFERENCE_DATA), default="diverse")
     ex.add_argument("--policy", default="hm")
     ex.add_argument("--group", type=int, default=0)
     ex.add_argument("--out", type=Path, required=True)
@@ -564,7 +564,7 @@ def main() -> None:
         "--wheel", type=Path, help="the reference's wheel (default: the exported one)"
     )
     ba = sub.add_parser("batch", help="export, run and report every (heuristic, group)")
-    ba.add_argument("--dataset", choices=("repetitive", "diverse"), default="diverse")
+    ba.add_argument("--dataset", choices=tuple(REFERENCE_DATA), default="diverse")
     ba.add_argument("--policies", default="dbl,hm,lsah,onlinebph,br,macs,sdfpack")
     ba.add_argument("--groups", default="0-4", help="e.g. 0-4 or 0,3,7")
     ba.add_argument("--out", type=Path, required=True)
@@ -582,7 +582,7 @@ def main() -> None:
         )
         parsed.add_argument("--json", type=Path, help="also write the table and every run's record here")
     rep.add_argument("out", type=Path, nargs="+")
-    rep.add_argument("--dataset", choices=("repetitive", "diverse"), default="diverse")
+    rep.add_argument("--dataset", choices=tuple(REFERENCE_DATA), default="diverse")
     args = parser.parse_args()
     if args.step == "export":
         export(args.dataset, args.policy, args.group, args.out)

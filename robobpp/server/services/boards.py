@@ -463,7 +463,9 @@ class BoardCache:
         rows = self._rows(track, key, wanted.tolist(), versions[at].tolist())
         out = []
         cell_keys = grid_cell_keys(self._head(track, key)["head"]) if cells.shape[1] else []
-        submitted = None if cells.shape[1] else self._head(track, key)["submitted"]
+        # a board's counts by participant (None: a grid, or a version stored before layout 3, whose rows
+        # carry their own, served by an upgraded server until its first publication replaces them)
+        submitted = None if cells.shape[1] else self._head(track, key).get("submitted")
         for k, sid in enumerate(wanted.tolist()):
             item = dict(rows[sid])
             item["rank"] = int(ranks[offset + k])

@@ -449,8 +449,8 @@ class BoardMatrix:
             by_column,
         )
         board["protocol"] = self.protocol
-        # the board's copies become the kept matrices (read-only: a shift changes an entry's samples in a copy;
-        # ``board_dict`` turns the transposed views back into row-per-entry matrices)
+        # the board's matrices are the kept ones (``board_dict`` turns the transposed views back into the
+        # row-per-entry matrices built here, no copy); read-only: a shift changes an entry's samples in a copy
         self._grid_rel, self._grid_stable = board["_samples"], board["_stable_samples"]
         self._grid_rel.flags.writeable = self._grid_stable.flags.writeable = False
         return board

@@ -73,7 +73,8 @@ def board_version(session: Session, track: str) -> tuple[Any, ...]:
 
 def to_json(data: Any) -> bytes:
     """Compact JSON, a UTC time with ``Z`` (orjson: a published board's rows and pages, 13× faster than the
-    json module; the same bytes for them). A non-finite float, which no stored figure is, becomes null."""
+    json module, the same values; a float under 1e-4 is written without an exponent; ``bench/bench_serialise.py``).
+    A non-finite float, which no stored figure is, becomes null."""
     return orjson.dumps(data, option=orjson.OPT_UTC_Z | orjson.OPT_NON_STR_KEYS)
 
 

@@ -461,11 +461,155 @@ def test_an_entry_ranked_above_others_writes_its_row_alone(quiet_app) -> None:
         5: 2,
     }
     assert page == json.loads(to_json(board_view(scripted.board, "all")))
-    # a version stored by an older layout (no counts in its head) is still served while its successor is computed
+
+
+def _unranked(*sids: int) -> list[dict[str, Any]]:
+    return [
+        {"submission_id": sid, "name": f"n{sid}", "participant": f"p{sid}", "baseline": False}
+        | {"status": "partial", "reason": "not every group", "entries_submitted": 1}
+        for sid in sids
+    ]
+
+
+def _stored_parts(app: Any, key: str = "diverse/math/closed") -> dict[int, set[str]]:
+    """The board's parts in SQL other than its rows, by version."""
+    with app.state.runtime.read_session() as s:
+        rows = s.execute(
+            select(BoardPart.version, BoardPart.part).where(
+                BoardPart.board == key, BoardPart.part.not_like("e:%")
+            )
+        ).all()
+    out: dict[int, set[str]] = {}
+    for version, part in rows:
+        out.setdefault(version, set()).add(part)
+    return out
+
+
+def _shown(app: Any, version: int, key: str = "diverse/math/closed") -> set[tuple[str, int]]:
+    """The parts (other than rows) a published version reads: its head and order, and its chunks where its
+    head says they are."""
+    with app.state.runtime.read_session() as s:
+        head = json.loads(
+            s.execute(
+                select(BoardPart.body).where(
+                    BoardPart.board == key, BoardPart.version == version, BoardPart.part == "head"
+                )
+            ).scalar_one()
+        )
+    return {("head", version), ("order", version)} | {(n, at[0]) for n, at in head["parts"].items()}
+
+
+def test_an_unchanged_chunk_is_written_once_and_old_parts_go(quiet_app) -> None:
+    """A chunk whose content did not change (the unranked entries, the best view above a new entry) stays
+    where an earlier version wrote it and is read from there; what neither the current nor the previous
+    version shows is removed."""
+    app = quiet_app
+    scripted = Scripted()
+    worker = publisher(app, scripted)  # type: ignore[arg-type]
+    entries = [(i, 1.0 - i / 500) for i in range(1, 251)]  # three chunks of the best view
+    scripted.board = _board(entries) | {"unranked": _unranked(900, 901)}
+    assert worker.publish("private", force=True)
+    first = published(app)[0]
+    for k, score in enumerate((0.001, 0.0005, 0.0001)):  # each below everyone: only the last best chunk moves
+        scripted.board = _board([*entries, (300 + k, score)]) | {"unranked": _unranked(900, 901)}
+        entries.append((300 + k, score))
+        assert worker.publish("private", force=True)
+        version = published(app)[0]
+        page = reader(app).board_page("diverse", "math", view="all", limit=500)
+        assert page == json.loads(to_json(board_view(scripted.board, "all", limit=500)))
+        best = reader(app).board_page("diverse", "math", view="best", offset=0, limit=300)
+        assert best == json.loads(to_json(board_view(scripted.board, "best", limit=300)))
+        stored = _stored_parts(app)
+        assert "unranked:0" in stored[first] and all("unranked:0" not in stored[v] for v in stored if v != first)
+        assert "best:0" in stored[first] and "best:2" in stored[version]
+        # nothing is left that neither this version nor the previous one shows
+        shown = _shown(app, version) | _shown(app, version - 1)
+        assert {(n, v) for v, names in stored.items() for n in names} == shown
+    assert reader(app).board_page("diverse", "math", submission_id=901)["unranked"][0]["submission_id"] == 901
+    # the unranked entries change: their chunk is written again, and the first one goes once no version shows it
+    scripted.board = _board(entries) | {"unranked": _unranked(900)}
+    assert worker.publish("private", force=True)
+    scripted.board = _board(entries[:-1]) | {"unranked": _unranked(900)}
+    assert worker.publish("private", force=True)
+    assert "unranked:0" not in _stored_parts(app).get(first, set())
+    assert _stored_parts(app)[first] == {"best:0", "best:1"}  # still shown
+    page = reader(app).board_page("diverse", "math", view="all")
+    assert page == json.loads(to_json(board_view(scripted.board, "all")))
+
+
+def _as_layout_3(app: Any, key: str) -> None:
+    """Rewrite the published version of board ``key`` as layout 3 stored it: ``order`` as int64 (ids, ranks,
+    cells), a ``rows`` manifest (ids ascending, row versions, hashes), an ``index`` (id -> position), every
+    chunk at the version itself, a head without the chunks' versions."""
+    import numpy as np
+
+    from robobpp.server.services.boards import Order
+
     with app.state.runtime.session() as s:
-        for part in s.scalars(select(BoardPart).where(BoardPart.part == "head")):
-            stored = json.loads(part.body)
-            stored.pop("submitted", None)
-            part.body = to_json(stored)
-    old = reader(app).board_page("diverse", "math", view="all")
-    assert [e["submission_id"] for e in old["entries"]] == [e["submission_id"] for e in page["entries"]]
+        publication = s.get(BoardPublication, "private")
+        version = publication.boards[key][0]
+        publication.boards = {**publication.boards, key: [version, "digested by layout 3"]}
+        parts = {p.part: p for p in s.scalars(select(BoardPart).where(BoardPart.board == key))}
+        head_part = next(p for p in parts.values() if p.part == "head" and p.version == version)
+        order_part = next(p for p in parts.values() if p.part == "order" and p.version == version)
+        head = json.loads(head_part.body)
+        order = Order.decode(order_part.body)
+        n, c = len(order.ids), order.cells.shape[1]
+        order_part.body = (
+            np.array([n, c], dtype=np.int64).tobytes()
+            + order.ids.tobytes()
+            + order.ranks.tobytes()
+            + order.cells.astype(np.int64).tobytes()
+        )
+        ids, versions, hashes = order.by_id()
+        rows = np.array([n], dtype=np.int64).tobytes() + ids.tobytes() + versions.tobytes() + hashes.tobytes()
+        unranked = head.get("unranked", [])
+        every = np.concatenate([order.ids, np.array(unranked, dtype=np.int64)])
+        at = np.concatenate([np.arange(n), -1 - np.arange(len(unranked))])
+        by = np.argsort(every)
+        s.add(BoardPart(track="private", board=key, version=version, part="rows", body=rows))
+        if c == 0:
+            index = every[by].tobytes() + at[by].astype(np.int64).tobytes()
+            s.add(BoardPart(track="private", board=key, version=version, part="index", body=index))
+        for name, (held, _) in head.pop("parts").items():
+            if held != version:
+                body = s.execute(
+                    select(BoardPart.body).where(
+                        BoardPart.board == key, BoardPart.part == name, BoardPart.version == held
+                    )
+                ).scalar_one()
+                s.add(BoardPart(track="private", board=key, version=version, part=name, body=body))
+        head.pop("layout")
+        head.pop("unranked", None)
+        head_part.body = to_json(head)
+
+
+def test_a_version_stored_by_layout_3_is_served_and_replaced(quiet_app) -> None:
+    """After an upgrade, readers serve the boards an older server stored (layout 3) until the upgraded worker
+    publishes its own, which keeps the stored rows whose content is the same."""
+    app = quiet_app
+    for who, url in (("a", "builtin:random"), ("b", "builtin:lsah"), ("c", "builtin:dbl")):
+        submit(app, who, url)
+    submit_direct(app, "d", "builtin:random", datasets=("diverse",), groups=GROUPS)  # not on every board
+    drain(app)
+    worker = publisher(app)
+    assert worker.publish("private")
+    cache = reader(app)
+    pages = {
+        "board": cache.board_page("diverse", "math", "private", "closed", "all"),
+        "grid": cache.grid_page("private", "closed", "all"),
+        "one": cache.board_page("diverse", "math", "private", "closed", "all", submission_id=3),
+    }
+    assert pages["board"]["entries"] and pages["grid"]["rows"]
+    _as_layout_3(app, "diverse/math/closed")
+    _as_layout_3(app, "grid/closed")
+    old = reader(app)
+    assert old.board_page("diverse", "math", "private", "closed", "all") == pages["board"]
+    assert old.grid_page("private", "closed", "all") == pages["grid"]
+    assert old.board_page("diverse", "math", "private", "closed", "all", submission_id=3) == pages["one"]
+    upgraded = publisher(app)  # a fresh worker: it knows the stored version only from SQL
+    assert upgraded.publish("private", force=True)
+    assert upgraded.rows_written == 0  # every row's content is the same
+    fresh = reader(app)
+    assert fresh.board_page("diverse", "math", "private", "closed", "all") == pages["board"]
+    assert fresh.grid_page("private", "closed", "all") == pages["grid"]

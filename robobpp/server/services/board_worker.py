@@ -34,19 +34,23 @@ from datetime import timedelta
 from typing import Any, Protocol, cast
 
 import numpy as np
-from sqlalchemy import CursorResult, Table, Update, delete, or_, select, update
+from sqlalchemy import CursorResult, Table, Update, delete, or_, select, tuple_, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from robobpp.db.models import BoardPart, BoardPublication, utcnow
 from robobpp.server.services.board_engine import BoardEngine
 from robobpp.server.services.boards import (
+    LAYOUT,
+    LEGACY_PARTS,
     ROW_PREFIX,
+    VERSION_PARTS,
     SessionFactory,
     StoredBoard,
     board_source,
-    manifest,
-    manifest_of,
+    chunk_hash,
+    decode_version,
+    order_part,
     parts_of,
     published_key,
     read_publication,
@@ -97,10 +101,10 @@ class BoardPublisher:
         #: CPU seconds of this process for the last computation and publication (its lease thread included).
         self.last_cpu_seconds = 0.0
         #: Per published board: its rows' hashes by the object they were serialised from (an engine hands
-        #: out the same object while an entry's content stays: serialised once), and the ``rows`` manifest
-        #: of its published version (ids, row versions, hashes) to compare the next one against.
+        #: out the same object while an entry's content stays: serialised once), and what its published
+        #: version holds (:class:`_Held`) to compare the next one against.
         self._hashes: dict[tuple[str, str], dict[int, tuple[Mapping[str, Any], int, bytes | None]]] = {}
-        self._manifests: dict[tuple[str, str], tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+        self._held: dict[tuple[str, str], _Held] = {}
         #: Rows written by the last publication (its boards together), for the benchmark and the tests.
         self.rows_written = 0
 
@@ -241,23 +245,26 @@ class BoardPublisher:
         order = np.argsort(ids)
         return _Hashed(stored, ids[order], hashes[order], seen)
 
-    def _manifest(
-        self, session: Session, track: str, key: str, version: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The ``rows`` manifest of a published board version (kept from the last publication, or read)."""
-        kept = self._manifests.get((track, key))
-        if kept is not None and kept[0] == version:
-            return kept[1]
-        body = session.execute(
-            select(BoardPart.body).where(
+    def _held_by(self, session: Session, track: str, key: str, version: int) -> _Held:
+        """What a published board version holds (kept from the last publication, or read)."""
+        kept = self._held.get((track, key))
+        if kept is not None and kept.version == version:
+            return kept
+        rows = session.execute(
+            select(BoardPart.part, BoardPart.body).where(
                 BoardPart.track == track,
                 BoardPart.board == key,
                 BoardPart.version == version,
-                BoardPart.part == "rows",
+                BoardPart.part.in_(VERSION_PARTS + LEGACY_PARTS),
             )
-        ).scalar_one_or_none()
-        empty = np.zeros(0, dtype=np.int64)
-        return (empty, empty, empty) if body is None else manifest_of(body)
+        ).all()
+        parts = {name: body for name, body in rows}
+        if "head" not in parts or "order" not in parts:
+            return _Held.empty(version)
+        stored = decode_version(version, parts)
+        head_parts = stored.head.get("parts", {})  # a layout-3 version: no chunk is reused
+        chunks = {name: (int(at[0]), str(at[1])) for name, at in head_parts.items()}
+        return _Held(version, *stored.order.by_id(), chunks)
 
     def _write(
         self,
@@ -267,11 +274,12 @@ class BoardPublisher:
         known: set[str],
         seconds: float,
     ) -> bool:
-        """Publish in one transaction: for each board whose content changed, its small parts and ``rows``
-        manifest under the new version, and only the rows whose content changed; the previous version's
-        parts are kept (a reader may just have named it), older ones removed."""
+        """Publish in one transaction: for each board whose content changed, its head and order under the new
+        version, and only the chunks and rows whose content changed; what the previous version shows is
+        kept (a reader may just have named it), older parts removed."""
         written = 0
-        manifests: dict[tuple[str, str], tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+        held: dict[tuple[str, str], _Held] = {}
+        table = cast(Table, BoardPart.__table__)
         with self.write() as session:
             row = session.get(BoardPublication, track, with_for_update=True, populate_existing=True)
             if row is None or row.holder != self.holder:
@@ -282,60 +290,79 @@ class BoardPublisher:
             after = {key: entry for key, entry in before.items() if key in known}  # the engine's unchanged
             changed = False
             for key, hashed in stored.items():
-                sha = hashed.board.digest(hashed.hashes, hashed.ids)
+                board = hashed.board
+                sha = board.digest(hashed.hashes, hashed.ids)
                 old = before.get(key)
                 if old is not None and old[1] == sha:
                     after[key] = old
                     continue
                 changed = True
                 ids, hashes = hashed.ids, hashed.hashes
-                if old is not None:
-                    p_ids, p_versions, p_hashes = self._manifest(session, track, key, int(old[0]))
-                else:
-                    p_ids = p_versions = p_hashes = np.zeros(0, dtype=np.int64)
-                found, same, p_row_versions = _against(ids, hashes, p_ids, p_versions, p_hashes)
+                prev = self._held_by(session, track, key, int(old[0])) if old is not None else _Held.empty(0)
+                found, same, p_row_versions = _against(ids, hashes, prev.ids, prev.versions, prev.hashes)
                 versions = np.where(same, p_row_versions, version)
                 fresh = ids[~same].tolist()
-                values = [{"part": name, "body": body} for name, body in hashed.board.parts.items()]
-                values.append({"part": "rows", "body": manifest(ids, versions, hashes)})
+                values = []
+                chunks: dict[str, tuple[int, str]] = {}
+                for name, body in board.chunks.items():
+                    digest = chunk_hash(body)
+                    kept = prev.chunks.get(name)
+                    if kept is not None and kept[1] == digest:
+                        chunks[name] = kept
+                    else:
+                        chunks[name] = (version, digest)
+                        values.append({"part": name, "body": body})
+                head = {**board.head, "layout": LAYOUT, "parts": chunks}
+                at = np.searchsorted(ids, board.ids)  # the rows in rank order
+                values.append({"part": "head", "body": to_json(head)})
+                values.append(
+                    {
+                        "part": "order",
+                        "body": order_part(board.ids, board.ranks, versions[at], hashes[at], board.cells),
+                    }
+                )
                 values += ({"part": row_part(sid), "body": hashed.body(sid)} for sid in fresh)
-                table = cast(Table, BoardPart.__table__)
                 session.connection().execute(  # executemany of Core rows: no ORM objects for thousands of rows
                     table.insert().values(track=track, board=key, version=version), values
                 )
                 written += len(fresh)
                 after[key] = [version, sha]
-                manifests[(track, key)] = (version, (ids, versions, hashes))
-                if old is not None:  # keep the previous version for readers that just named it
-                    session.execute(
-                        delete(BoardPart).where(
-                            BoardPart.track == track,
-                            BoardPart.board == key,
-                            BoardPart.version < old[0],
-                            BoardPart.part.not_like(f"{ROW_PREFIX}%"),
-                        )
+                held[(track, key)] = _Held(version, ids, versions, hashes, chunks)
+                if old is None:
+                    continue
+                # older than the previous version and shown by neither it nor the new one: removed (a reader
+                # may just have named the previous version)
+                shown = {(name, v) for name, (v, _) in (*prev.chunks.items(), *chunks.items()) if v < old[0]}
+                session.execute(
+                    delete(BoardPart).where(
+                        BoardPart.track == track,
+                        BoardPart.board == key,
+                        BoardPart.version < old[0],
+                        BoardPart.part.not_like(f"{ROW_PREFIX}%"),
+                        *([tuple_(BoardPart.part, BoardPart.version).not_in(shown)] if shown else []),
                     )
-                    # a row replaced now: the one the previous version shows stays, older ones go — one
-                    # statement per version shown and chunk of parts (a few in all), not one per row
-                    replaced = found & ~same
-                    for shown in np.unique(p_row_versions[replaced]).tolist():
-                        parts = [row_part(int(sid)) for sid in ids[replaced & (p_row_versions == shown)]]
-                        for at in range(0, len(parts), _DELETE_CHUNK):
-                            session.connection().execute(
-                                delete(table).where(
-                                    table.c.track == track,
-                                    table.c.board == key,
-                                    table.c.version < shown,
-                                    table.c.part.in_(parts[at : at + _DELETE_CHUNK]),
-                                )
+                )
+                # a row replaced now: the one the previous version shows stays, older ones go — one
+                # statement per version shown and chunk of parts (a few in all), not one per row
+                replaced = found & ~same
+                for shown_at in np.unique(p_row_versions[replaced]).tolist():
+                    parts = [row_part(int(sid)) for sid in ids[replaced & (p_row_versions == shown_at)]]
+                    for start in range(0, len(parts), _DELETE_CHUNK):
+                        session.connection().execute(
+                            delete(table).where(
+                                table.c.track == track,
+                                table.c.board == key,
+                                table.c.version < shown_at,
+                                table.c.part.in_(parts[start : start + _DELETE_CHUNK]),
                             )
+                        )
             for key in before.keys() - known:  # boards this server no longer publishes
                 changed = True
                 session.execute(delete(BoardPart).where(BoardPart.track == track, BoardPart.board == key))
             if changed:
                 row.version, row.boards = version, after
             row.source, row.seconds, row.published_at = source, seconds, utcnow()
-        self._manifests.update(manifests)
+        self._held.update(held)
         self.published += 1
         self.last_seconds = seconds
         self.rows_written = written
@@ -364,6 +391,23 @@ def _against(
     at = np.minimum(np.searchsorted(p_ids, ids), len(p_ids) - 1)
     found = p_ids[at] == ids
     return found, found & (p_hashes[at] == hashes), np.where(found, p_versions[at], 0)
+
+
+@dataclass(frozen=True)
+class _Held:
+    """What a published board version holds: its rows (ids ascending, the version holding each, their
+    content hashes) and its chunks (name -> the version holding it, its content hash)."""
+
+    version: int
+    ids: np.ndarray
+    versions: np.ndarray
+    hashes: np.ndarray
+    chunks: dict[str, tuple[int, str]]
+
+    @classmethod
+    def empty(cls, version: int) -> _Held:
+        none = np.zeros(0, dtype=np.int64)
+        return cls(version, none, none, none, {})
 
 
 @dataclass

@@ -29,7 +29,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import orjson
@@ -51,7 +51,9 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 CHUNK = 100
 #: Bumped when the layout of the stored parts changes: a server of another layout recomputes them.
 #: 3: an all-entries row without ``entries_submitted`` (the head's ``submitted`` gives it by participant).
-LAYOUT = 3
+#: 4: no ``index`` nor ``rows`` part (``order`` holds each row's version and hash); a chunk is written only
+#: when its content changed (the head names the version holding each).
+LAYOUT = 4
 
 
 def board_version(session: Session, track: str) -> tuple[Any, ...]:
@@ -121,14 +123,6 @@ def _chunked(name: str, items: Sequence[Mapping[str, Any]]) -> dict[str, bytes]:
     return {f"{name}:{i // CHUNK}": to_json(list(items[i : i + CHUNK])) for i in range(0, len(items), CHUNK)}
 
 
-def _index(positions: Mapping[int, int]) -> bytes:
-    """Submission id -> position, as two int64 arrays sorted by id (looked up by binary search)."""
-    ids = np.fromiter(positions.keys(), dtype=np.int64, count=len(positions))
-    where = np.fromiter(positions.values(), dtype=np.int64, count=len(positions))
-    order = np.argsort(ids, kind="stable")
-    return ids[order].tobytes() + where[order].tobytes()
-
-
 def row_part(submission_id: int) -> str:
     """The part name of one entry's row of the all-entries view (``e:<submission id>``)."""
     return f"{ROW_PREFIX}{submission_id}"
@@ -139,41 +133,84 @@ ROW_PREFIX = "e:"
 
 
 def row_hash(body: bytes) -> int:
-    """A row's content as a signed 64-bit integer (the ``rows`` manifest's hash)."""
+    """A row's content as a signed 64-bit integer (what the next version compares against)."""
     return int.from_bytes(hashlib.blake2b(body, digest_size=8).digest(), "little", signed=True)
+
+
+def chunk_hash(body: bytes) -> str:
+    """A chunk's content, as the head names it (an unchanged chunk is not written again)."""
+    return hashlib.blake2b(body, digest_size=8).hexdigest()
 
 
 @dataclass
 class StoredBoard:
-    """A board (or grid) version as the worker writes it.
+    """A board (or grid) version as the worker writes it (its parts are assembled in board_worker.py).
 
-    ``parts``: what is written whole with every version — ``head``, the chunks of the best view and of the
-    unranked entries, ``index`` (submission id -> position) and ``order`` (the all-entries view: its
-    submission ids in rank order, their ranks, and for the grid each cell's rank). ``rows``: the
-    all-entries view's entries by submission id, each *without* its ranks (``"rank": null``, its cells'
-    too): an arriving entry moves the rank of everyone below it and nothing else of theirs, so only the rows
-    whose content changed are written (``e:<id>`` parts, services/board_worker.py). A row's value is the
-    served dict, or a dict handed out by the board engine that stays the same object while its content does
-    (``_base``): the worker serialises each such object once."""
+    ``head``: what every page repeats (with each list's length, and for a board its participants' entry
+    counts and its unranked entries' ids). ``chunks``: the best view, the unranked entries (the grid's rows
+    apart) in chunks of :data:`CHUNK` as served; a chunk whose content did not change stays where an earlier
+    version wrote it. ``ids``, ``ranks``, ``cells``: the all-entries view in rank order (and the grid's cell
+    ranks). ``rows``: that view's entries by submission id, each *without* its ranks (``"rank": null``, its
+    cells' too): an arriving entry moves the rank of everyone below it and nothing else of theirs, so only
+    the rows whose content changed are written (``e:<id>`` parts). A row's value is the served dict, or a
+    dict handed out by the board engine that stays the same object while its content does (``_base``): the
+    worker serialises each such object once."""
 
-    parts: dict[str, bytes]
+    head: dict[str, Any]
+    chunks: dict[str, bytes]
+    ids: np.ndarray
+    ranks: np.ndarray
+    cells: np.ndarray | None
     rows: dict[int, Mapping[str, Any]]
 
     def digest(self, hashes: np.ndarray, ids: np.ndarray) -> str:
         """What the version holds (its parts and its rows' content): an unchanged one is not written."""
-        h = hashlib.sha256()
-        for name in sorted(self.parts):
-            h.update(name.encode() + b"\0" + hashlib.sha256(self.parts[name]).digest())
-        h.update(ids.tobytes() + hashes.tobytes())
+        h = hashlib.sha256(to_json(self.head))
+        for name in sorted(self.chunks):
+            h.update(name.encode() + b"\0" + hashlib.sha256(self.chunks[name]).digest())
+        for array in (self.ids, self.ranks, self.cells, ids, hashes):
+            if array is not None:
+                h.update(np.ascontiguousarray(array, dtype=np.int64).tobytes())
         return h.hexdigest()[:32]
 
 
-def _order(ids: Sequence[int], ranks: Sequence[int], cells: np.ndarray | None = None) -> bytes:
-    """The all-entries view's order: a header (entries, cell columns), ids, ranks, cell ranks (entries × columns)."""
+def order_part(
+    ids: np.ndarray, ranks: np.ndarray, versions: np.ndarray, hashes: np.ndarray, cells: np.ndarray | None
+) -> bytes:
+    """The ``order`` part: the all-entries view in rank order — a header (entries, cell columns), then per
+    entry its row's content hash (int64), submission id, rank and the version holding its row (int32), and
+    the grid's cell ranks (int32, entries × columns). About 20 bytes an entry, rewritten with every version
+    (an arriving entry moves the ranks below it); the rows themselves are written only when they change."""
     n, c = len(ids), 0 if cells is None else int(cells.shape[1])
-    out = np.array([n, c], dtype=np.int64).tobytes()
-    out += np.asarray(ids, dtype=np.int64).tobytes() + np.asarray(ranks, dtype=np.int64).tobytes()
-    return out + (b"" if cells is None else np.ascontiguousarray(cells, dtype=np.int64).tobytes())
+    out = [np.array([n, c], dtype=np.int64), np.asarray(hashes, dtype=np.int64)]
+    out += [np.asarray(a, dtype=np.int32) for a in (ids, ranks, versions)]
+    if cells is not None:
+        out.append(np.ascontiguousarray(cells, dtype=np.int32))
+    return b"".join(a.tobytes() for a in out)
+
+
+@dataclass(frozen=True)
+class Order:
+    """A decoded ``order`` part (rank order; int64 arrays)."""
+
+    ids: np.ndarray
+    ranks: np.ndarray
+    versions: np.ndarray
+    hashes: np.ndarray
+    cells: np.ndarray
+
+    @classmethod
+    def decode(cls, body: bytes) -> Order:
+        n, c = (int(x) for x in np.frombuffer(body, dtype=np.int64, count=2))
+        hashes = np.frombuffer(body, dtype=np.int64, count=n, offset=16)
+        small = np.frombuffer(body, dtype=np.int32, offset=16 + 8 * n).astype(np.int64)
+        ids, ranks, versions = small[:n], small[n : 2 * n], small[2 * n : 3 * n]
+        return cls(ids, ranks, versions, hashes, small[3 * n :].reshape(n, c))
+
+    def by_id(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ids ascending, their row versions, their hashes): what the next version compares against."""
+        at = np.argsort(self.ids, kind="stable")
+        return self.ids[at], self.versions[at], self.hashes[at]
 
 
 def _rankless(entry: Mapping[str, Any]) -> Mapping[str, Any]:
@@ -189,25 +226,29 @@ def _rankless(entry: Mapping[str, Any]) -> Mapping[str, Any]:
 
 
 def board_parts(board: Mapping[str, Any]) -> StoredBoard:
-    """A board (``robobpp.scoring.boards.build_board``) as stored: ``head`` (what every page of it repeats,
-    and each list's length), ``best:<i>``, ``unranked:<i>`` (chunks of entries as served), ``order`` and
-    ``index`` (a submission's ranked position ``i`` in ``all``, or ``-1 - i`` in ``unranked``), and a row
-    per entry of the all-entries view (:class:`StoredBoard`)."""
+    """A board (``robobpp.scoring.boards.build_board``) as stored (:class:`StoredBoard`): chunks
+    ``best:<i>`` and ``unranked:<i>``; a page of one submission finds it by the order's ids or the head's
+    unranked ids."""
     entries = board["entries"]
     lists = {"best": [_served(e) for e in board["_best"]], "unranked": [dict(e) for e in board["unranked"]]}
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
     counts = {"best": len(lists["best"]), "all": len(entries), "unranked": len(lists["unranked"])}
     # every participant with a ranked entry has a best one, which carries their count
     submitted = {participant_key(e): e["entries_submitted"] for e in board["_best"]}
-    parts = {"head": to_json({"head": head, "counts": counts, "submitted": submitted})}
+    unranked = [e["submission_id"] for e in lists["unranked"]]
+    chunks: dict[str, bytes] = {}
     for name, items in lists.items():
-        parts |= _chunked(name, items)
-    ids = [e["submission_id"] for e in entries]
-    parts["order"] = _order(ids, [e["rank"] for e in entries])
-    positions = {sid: i for i, sid in enumerate(ids)}
-    positions |= {e["submission_id"]: -1 - i for i, e in enumerate(lists["unranked"])}
-    parts["index"] = _index(positions)
-    return StoredBoard(parts, {e["submission_id"]: _rankless(e) for e in entries})
+        chunks |= _chunked(name, items)
+    ids = np.fromiter((e["submission_id"] for e in entries), dtype=np.int64, count=len(entries))
+    ranks = np.fromiter((e["rank"] for e in entries), dtype=np.int64, count=len(entries))
+    return StoredBoard(
+        {"head": head, "counts": counts, "submitted": submitted, "unranked": unranked},
+        chunks,
+        ids,
+        ranks,
+        None,
+        {e["submission_id"]: _rankless(e) for e in entries},
+    )
 
 
 def grid_cell_keys(head: Mapping[str, Any]) -> list[str]:
@@ -225,9 +266,8 @@ def _rankless_row(row: Mapping[str, Any]) -> Mapping[str, Any]:
 
 
 def grid_parts(grid: Mapping[str, Any]) -> StoredBoard:
-    """The overall grid as stored: ``head``, chunks of ``best``, ``apart-best`` and ``apart-all`` (the rows
-    of submissions not ranked on every board), ``order`` (with each ranked row's cell ranks) and a row per
-    ranked submission (:class:`StoredBoard`)."""
+    """The overall grid as stored: chunks of ``best``, ``apart-best`` and ``apart-all`` (the rows of
+    submissions not ranked on every board), and its ranked rows with their cell ranks (:class:`StoredBoard`)."""
     rows = grid["rows"]
     lists = {
         "best": [_served(r) for r in grid["_best"]],
@@ -236,19 +276,90 @@ def grid_parts(grid: Mapping[str, Any]) -> StoredBoard:
     }
     head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
     counts = {k: len(v) for k, v in lists.items()} | {"all": len(rows)}
-    parts = {"head": to_json({"head": head, "counts": counts})}
+    chunks: dict[str, bytes] = {}
     for name, items in lists.items():
-        parts |= _chunked(name, items)
+        chunks |= _chunked(name, items)
     keys = grid_cell_keys(grid)
     cells = np.array([[r["cells"][k]["rank"] for k in keys] for r in rows], dtype=np.int64).reshape(
         len(rows), len(keys)
     )
-    parts["order"] = _order([r["submission_id"] for r in rows], [r["rank"] for r in rows], cells)
-    return StoredBoard(parts, {r["submission_id"]: _rankless_row(r) for r in rows})
+    ids = np.fromiter((r["submission_id"] for r in rows), dtype=np.int64, count=len(rows))
+    ranks = np.fromiter((r["rank"] for r in rows), dtype=np.int64, count=len(rows))
+    return StoredBoard(
+        {"head": head, "counts": counts},
+        chunks,
+        ids,
+        ranks,
+        cells,
+        {r["submission_id"]: _rankless_row(r) for r in rows},
+    )
 
 
 def parts_of(key: str, value: Mapping[str, Any]) -> StoredBoard:
     return grid_parts(value) if key.startswith("grid/") else board_parts(value)
+
+
+@dataclass(frozen=True)
+class StoredVersion:
+    """A board version as a reader decoded it: its head, the version holding each chunk, the all-entries
+    view's order and where each submission is (``locate``: ids ascending, and for each its position ``i`` in
+    the ranked view or ``-1 - i`` among the unranked)."""
+
+    head: dict[str, Any]
+    chunks: dict[str, int]
+    order: Order
+    located_ids: np.ndarray
+    located_at: np.ndarray
+
+    def locate(self, submission_id: int) -> int | None:
+        i = int(np.searchsorted(self.located_ids, submission_id))
+        if i < len(self.located_ids) and self.located_ids[i] == submission_id:
+            return int(self.located_at[i])
+        return None
+
+
+def _located(ids: np.ndarray, unranked: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    every = np.concatenate([ids, np.asarray(unranked, dtype=np.int64)])
+    at = np.concatenate([np.arange(len(ids)), -1 - np.arange(len(unranked))])
+    by = np.argsort(every, kind="stable")
+    return every[by], at[by]
+
+
+def decode_version(version: int, parts: Mapping[str, bytes]) -> StoredVersion:
+    """A board version from its ``head`` and ``order`` parts — or, stored by layout 3 (an upgrade's
+    publication, served until the upgraded worker replaces it), from its ``head``, ``order``, ``rows`` and
+    ``index``, every chunk at the version itself."""
+    head = json.loads(parts["head"])
+    if "parts" in head:  # layout 4
+        order = Order.decode(parts["order"])
+        chunks = {name: int(at[0]) for name, at in head["parts"].items()}
+        located = _located(order.ids, head.get("unranked", ()))
+        return StoredVersion(head, chunks, order, *located)
+    body = parts["order"]
+    n, c = (int(x) for x in np.frombuffer(body, dtype=np.int64, count=2))
+    arrays = np.frombuffer(body, dtype=np.int64, offset=16)
+    ids, ranks = arrays[:n], arrays[n : 2 * n]
+    m = int(np.frombuffer(parts["rows"], dtype=np.int64, count=1)[0])
+    manifest = np.frombuffer(parts["rows"], dtype=np.int64, offset=8)
+    at = np.searchsorted(manifest[:m], ids)
+    order = Order(
+        ids, ranks, manifest[m : 2 * m][at], manifest[2 * m : 3 * m][at], arrays[2 * n :].reshape(n, c)
+    )
+    k = len(parts.get("index", b"")) // 16
+    index = np.frombuffer(parts.get("index", b""), dtype=np.int64)
+    counts = head["counts"]
+    chunks = {
+        f"{name}:{i}": version
+        for name, total in counts.items()
+        if name != "all"
+        for i in range((total + CHUNK - 1) // CHUNK)
+    }
+    return StoredVersion(head, chunks, order, index[:k], index[k:])
+
+
+#: What a reader reads of a version to decode it (a layout-3 version: also ``rows`` and ``index``).
+VERSION_PARTS = ("head", "order")
+LEGACY_PARTS = ("rows", "index")
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -409,89 +520,17 @@ class BoardCache:
 
     # -- pages of a board -------------------------------------------------------------------------------
 
-    def _read(self, track: str, key: str, names: Sequence[str]) -> dict[str, Any]:
-        """Parts of the published version of board ``key``, decoded (``index``: its two arrays)."""
-        version = self.version(track, key)
+    def _fetch(self, track: str, key: str, wanted: Mapping[str, int], decode: bool = True) -> dict[str, Any]:
+        """Parts by name, each of the version given (cached: a part never changes once written); raises
+        :class:`_Gone` when one is no longer stored. ``decode``: JSON parts decoded (else raw bytes)."""
         found: dict[str, Any] = {}
         with self._lock:
-            for name in names:
+            for name, version in wanted.items():
                 hit = self._parts.get((track, key, version, name))
                 if hit is not None:
                     self._parts.move_to_end((track, key, version, name))
                     found[name] = hit
-        missing = [n for n in names if n not in found]
-        if missing:
-            with self.session_factory() as session:
-                rows = session.execute(
-                    select(BoardPart.part, BoardPart.body).where(
-                        BoardPart.track == track,
-                        BoardPart.board == key,
-                        BoardPart.version == version,
-                        BoardPart.part.in_(missing),
-                    )
-                ).all()
-            if len(rows) != len(missing):
-                raise _Gone(key)
-            with self._lock:
-                self.parts_read += len(rows)
-                for name, body in rows:
-                    found[name] = self._parts[(track, key, version, name)] = _decode(name, body)
-                while len(self._parts) > self.parts_size:
-                    self._parts.popitem(last=False)
-        return found
-
-    def _slice(self, track: str, key: str, name: str, total: int, offset: int, limit: int) -> list[Any]:
-        stop = min(total, offset + limit)
-        if offset >= stop:
-            return []
-        chunks = [f"{name}:{i}" for i in range(offset // CHUNK, (stop - 1) // CHUNK + 1)]
-        read = self._read(track, key, chunks)
-        items = [item for c in chunks for item in read[c]]
-        start = offset - (offset // CHUNK) * CHUNK
-        return items[start : start + (stop - offset)]
-
-    def _all(self, track: str, key: str, total: int, offset: int, limit: int) -> list[Any]:
-        """Entries (or grid rows) ``offset`` to ``offset + limit`` of the all-entries view: their ids and
-        ranks from ``order``, each row of the version the ``rows`` manifest names, ranks put back."""
-        stop = min(total, offset + limit)
-        if offset >= stop:
-            return []
-        stored = self._read(track, key, ["order", "rows"])
-        ids, ranks, cells = stored["order"]
-        manifest_ids, versions = stored["rows"]
-        wanted = ids[offset:stop]
-        at = np.searchsorted(manifest_ids, wanted)
-        rows = self._rows(track, key, wanted.tolist(), versions[at].tolist())
-        out = []
-        cell_keys = grid_cell_keys(self._head(track, key)["head"]) if cells.shape[1] else []
-        # a board's counts by participant (None: a grid, or a version stored before layout 3, whose rows
-        # carry their own, served by an upgraded server until its first publication replaces them)
-        submitted = None if cells.shape[1] else self._head(track, key).get("submitted")
-        for k, sid in enumerate(wanted.tolist()):
-            item = dict(rows[sid])
-            item["rank"] = int(ranks[offset + k])
-            if submitted is not None:  # a board's row (the grid's have no count)
-                item["entries_submitted"] = submitted[participant_key(item)]
-            if cell_keys:
-                item["cells"] = {
-                    name: {**item["cells"][name], "rank": int(cells[offset + k, j])}
-                    for j, name in enumerate(cell_keys)
-                }
-            out.append(item)
-        return out
-
-    def _rows(self, track: str, key: str, ids: list[int], versions: list[int]) -> dict[int, Any]:
-        """Rows of the all-entries view by submission id, each of the version given (cached: a row never
-        changes once written)."""
-        found: dict[int, Any] = {}
-        with self._lock:
-            for sid, version in zip(ids, versions, strict=True):
-                hit = self._parts.get((track, key, version, row_part(sid)))
-                if hit is not None:
-                    found[sid] = hit
-        missing = {
-            row_part(sid): version for sid, version in zip(ids, versions, strict=True) if sid not in found
-        }
+        missing = {name: version for name, version in wanted.items() if name not in found}
         if missing:
             with self.session_factory() as session:
                 rows = session.execute(
@@ -502,21 +541,90 @@ class BoardCache:
                         BoardPart.part.in_(list(missing)),
                     )
                 ).all()
-            got = {(name, version): body for name, version, body in rows if missing.get(name) == version}
+            got = {name: body for name, version, body in rows if missing.get(name) == version}
             if len(got) != len(missing):
                 raise _Gone(key)
             with self._lock:
                 self.parts_read += len(got)
-                for (name, version), body in got.items():
-                    sid = int(name[len(ROW_PREFIX) :])
-                    found[sid] = self._parts[(track, key, version, name)] = json.loads(body)
+                for name, body in got.items():
+                    value = json.loads(body) if decode else body
+                    found[name] = self._parts[(track, key, missing[name], name)] = value
                 while len(self._parts) > self.parts_size:
                     self._parts.popitem(last=False)
         return found
 
+    def _stored(self, track: str, key: str) -> StoredVersion:
+        """The published version of board ``key``, decoded (cached per version)."""
+        version = self.version(track, key)
+        with self._lock:
+            hit = self._parts.get((track, key, version, "#"))
+            if hit is not None:
+                self._parts.move_to_end((track, key, version, "#"))
+                return cast(StoredVersion, hit)
+        with self.session_factory() as session:
+            rows = session.execute(
+                select(BoardPart.part, BoardPart.body).where(
+                    BoardPart.track == track,
+                    BoardPart.board == key,
+                    BoardPart.version == version,
+                    BoardPart.part.in_(VERSION_PARTS + LEGACY_PARTS),
+                )
+            ).all()
+        parts = {name: body for name, body in rows}
+        if any(name not in parts for name in VERSION_PARTS):
+            raise _Gone(key)
+        stored = decode_version(version, parts)
+        with self._lock:
+            self.parts_read += len(parts)
+            self._parts[(track, key, version, "#")] = stored
+        return stored
+
+    def _slice(self, track: str, key: str, name: str, total: int, offset: int, limit: int) -> list[Any]:
+        stop = min(total, offset + limit)
+        if offset >= stop:
+            return []
+        chunks = [f"{name}:{i}" for i in range(offset // CHUNK, (stop - 1) // CHUNK + 1)]
+        held = self._stored(track, key).chunks
+        read = self._fetch(track, key, {c: held[c] for c in chunks})
+        items = [item for c in chunks for item in read[c]]
+        start = offset - (offset // CHUNK) * CHUNK
+        return items[start : start + (stop - offset)]
+
+    def _all(self, track: str, key: str, total: int, offset: int, limit: int) -> list[Any]:
+        """Entries (or grid rows) ``offset`` to ``offset + limit`` of the all-entries view: their ids, ranks
+        and row versions from ``order``, each row of the version named, ranks put back."""
+        stop = min(total, offset + limit)
+        if offset >= stop:
+            return []
+        stored = self._stored(track, key)
+        order = stored.order
+        wanted = order.ids[offset:stop].tolist()
+        rows = self._fetch(
+            track,
+            key,
+            {row_part(sid): v for sid, v in zip(wanted, order.versions[offset:stop].tolist(), strict=True)},
+        )
+        out = []
+        cells = order.cells
+        cell_keys = grid_cell_keys(stored.head["head"]) if cells.shape[1] else []
+        # a board's counts by participant (None: a grid, or a version stored before layout 3, whose rows
+        # carry their own)
+        submitted = None if cells.shape[1] else stored.head.get("submitted")
+        for k, sid in enumerate(wanted):
+            item = dict(rows[row_part(sid)])
+            item["rank"] = int(order.ranks[offset + k])
+            if submitted is not None:  # a board's row (the grid's have no count)
+                item["entries_submitted"] = submitted[participant_key(item)]
+            if cell_keys:
+                item["cells"] = {
+                    name: {**item["cells"][name], "rank": int(cells[offset + k, j])}
+                    for j, name in enumerate(cell_keys)
+                }
+            out.append(item)
+        return out
+
     def _head(self, track: str, key: str) -> dict[str, Any]:
-        head: dict[str, Any] = self._read(track, key, ["head"])["head"]
-        return head
+        return self._stored(track, key).head
 
     def board_page(
         self,
@@ -542,7 +650,7 @@ class BoardCache:
             unranked = self._slice(track, key, "unranked", counts["unranked"], 0, limit)
             total, unranked_total = counts[view], counts["unranked"]
         else:
-            at = self._locate(track, key, submission_id)
+            at = self._stored(track, key).locate(submission_id)
             entries = [] if at is None or at < 0 else self._all(track, key, counts["all"], at, 1)
             unranked = (
                 []
@@ -589,11 +697,6 @@ class BoardCache:
             "apart": self._slice(track, key, apart, counts[apart], 0, limit),
         }
 
-    def _locate(self, track: str, key: str, submission_id: int) -> int | None:
-        ids, where = self._read(track, key, ["index"])["index"]
-        i = int(np.searchsorted(ids, submission_id))
-        return int(where[i]) if i < len(ids) and ids[i] == submission_id else None
-
     def ranked_entry(
         self, dataset: str, setting: str, track: str, protocol: str, submission_id: int
     ) -> tuple[dict[str, Any] | None, int]:
@@ -612,34 +715,3 @@ class BoardCache:
 
     def _counts(self, track: str, dataset: str, setting: str, protocol: str) -> int:
         return int(self._head(track, board_key(dataset, setting, protocol))["counts"]["all"])
-
-
-def _decode(name: str, body: bytes) -> Any:
-    if name == "index":
-        n = len(body) // 16
-        return np.frombuffer(body[: 8 * n], dtype=np.int64), np.frombuffer(body[8 * n :], dtype=np.int64)
-    if name == "order":
-        n, c = (int(x) for x in np.frombuffer(body, dtype=np.int64, count=2))
-        arrays = np.frombuffer(body, dtype=np.int64, offset=16)
-        return arrays[:n], arrays[n : 2 * n], arrays[2 * n :].reshape(n, c)
-    if name == "rows":
-        ids, versions, _hashes = manifest_of(body)
-        return ids, versions
-    return json.loads(body)
-
-
-def manifest(ids: np.ndarray, versions: np.ndarray, hashes: np.ndarray) -> bytes:
-    """The ``rows`` part: which version of each entry's row a board version shows (ids ascending), and the
-    rows' content hashes (what the next version compares against)."""
-    return (
-        np.array([len(ids)], dtype=np.int64).tobytes()
-        + ids.astype(np.int64).tobytes()
-        + versions.astype(np.int64).tobytes()
-        + hashes.astype(np.int64).tobytes()
-    )
-
-
-def manifest_of(body: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    n = int(np.frombuffer(body, dtype=np.int64, count=1)[0])
-    arrays = np.frombuffer(body, dtype=np.int64, offset=8)
-    return arrays[:n], arrays[n : 2 * n], arrays[2 * n : 3 * n]

@@ -520,7 +520,9 @@ def test_an_unchanged_chunk_is_written_once_and_old_parts_go(quiet_app) -> None:
         best = reader(app).board_page("diverse", "math", view="best", offset=0, limit=300)
         assert best == json.loads(to_json(board_view(scripted.board, "best", limit=300)))
         stored = _stored_parts(app)
-        assert "unranked:0" in stored[first] and all("unranked:0" not in stored[v] for v in stored if v != first)
+        assert "unranked:0" in stored[first] and all(
+            "unranked:0" not in stored[v] for v in stored if v != first
+        )
         assert "best:0" in stored[first] and "best:2" in stored[version]
         # nothing is left that neither this version nor the previous one shows
         shown = _shown(app, version) | _shown(app, version - 1)

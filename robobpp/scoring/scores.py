@@ -123,6 +123,10 @@ def normalize(values: Sequence[float | None], better: str) -> list[float]:
 
 def competition_ranks(scores: Sequence[float]) -> list[int]:
     """1 + the number of strictly better scores ("1, 2, 2, 4"), in O(n log n)."""
+    values = np.asarray(scores, dtype=np.float64)
+    if len(values) > 64 and not np.isnan(values).any():  # numpy: 10,000 scores on every board update
+        descending = np.sort(-values)
+        return (np.searchsorted(descending, -values, side="left") + 1).tolist()
     order = sorted(range(len(scores)), key=lambda i: -scores[i])
     ranks = [0] * len(scores)
     for position, i in enumerate(order):

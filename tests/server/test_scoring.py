@@ -10,7 +10,15 @@ import pytest
 
 from robobpp.scoring import stats
 from robobpp.scoring.metrics import metrics_for
-from robobpp.scoring.scores import ANCHORS, WEIGHTS, anchored, normalize, score_board, score_entries
+from robobpp.scoring.scores import (
+    ANCHORS,
+    WEIGHTS,
+    anchored,
+    competition_ranks,
+    normalize,
+    score_board,
+    score_entries,
+)
 
 
 @pytest.mark.parametrize("setting", ["math", "physics", "execution"])
@@ -200,3 +208,12 @@ def test_an_interval_of_rounded_samples_rounds_only_its_order_statistics() -> No
     for a, b in zip(want, got, strict=True):
         assert np.array_equal(a, b, equal_nan=True)
     assert not np.array_equal(stats.interval(samples)[0], want[0], equal_nan=True)  # rounding shows
+
+
+def test_competition_ranks_of_a_large_board_count_the_strictly_better() -> None:
+    """1 + the number of strictly better scores, ties tied (the vectorised path of a large board)."""
+    rng = np.random.default_rng(7)
+    scores = np.round(rng.choice(rng.random(40), size=500), 12).tolist()  # many ties
+    ranks = competition_ranks(scores)
+    assert ranks == [1 + sum(t > s for t in scores) for s in scores]
+    assert competition_ranks([0.5, 0.9, 0.5, 0.1]) == [2, 1, 2, 4]

@@ -4,8 +4,9 @@ A board (scores, bootstrap intervals, rank intervals) is costly to compute and c
 of its track finishes. So it is computed by one board worker per deployment (services/board_worker.py) and
 *published* in SQL, pre-serialised: per track one ``board_publications`` row names the current version of
 each board, and ``board_parts`` holds each board version's parts — its head, its entries in chunks of
-:data:`CHUNK` per view (each participant's best, every entry, the unranked ones) and an index from
-submission id to position. A reader fetches the head and the one or few chunks a page covers, by key.
+:data:`CHUNK` (each participant's best, the unranked ones), one row per entry of the all-entries view, and
+its ``order`` (ids, ranks and the version holding each row; :class:`StoredBoard`). A reader fetches the
+head and order, then the one or few chunks or rows a page covers, by key.
 
 :class:`BoardCache` is an API process's reader. It reads the publication row at most every ``refresh_s``
 seconds (``ROBOBPP_BOARD_REFRESH_S``) and caches parts and served bodies by board version, so a read costs

@@ -11,7 +11,8 @@ no other entry's score. In the overall grid, the Mean ranks only submissions ran
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections import UserList
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,6 +31,47 @@ from robobpp.scoring.scores import (
 
 #: Resamples kept per board for the overall grid's Mean interval (of the board's ``stats.RESAMPLES``).
 GRID_RESAMPLES = 250
+
+
+@dataclass(frozen=True, slots=True)
+class RankedView:
+    """A board's (or the grid's) all-entries view as arrays, as the board engine hands it out beside the
+    entries (``board["_ranked"]``): what publishing and the grid need without building a ranked dict per
+    entry — an arriving entry moves the rank of everyone below it, and nothing else of theirs.
+
+    ``ids``, ``ranks``: rank order. ``ids_by_column`` (ascending) and ``rank_by_column``: by column (a board's
+    ranked entries in submission order; the grid's complete rows). ``bases``: each column's row without
+    ranks (the engine's ``_base``: the same object while its content stays); ``serials``: a number per
+    column that changes whenever its base does (the grid compares them as arrays). ``cells``: the grid's
+    cell ranks, rank order × boards."""
+
+    ids: np.ndarray
+    ranks: np.ndarray
+    ids_by_column: np.ndarray
+    rank_by_column: np.ndarray
+    bases: list[dict[str, Any]]
+    serials: np.ndarray
+    cells: np.ndarray | None = None
+
+
+class LazyRows(UserList[dict[str, Any]]):
+    """A list built on first use: the board engine's ranked entries (or grid rows) as dicts with their ranks,
+    which only the pages of a small deployment and the tests read (publishing uses the :class:`RankedView`)."""
+
+    def __init__(self, build: Callable[[], list[dict[str, Any]]] | Iterable[dict[str, Any]] = ()) -> None:  # noqa: D107
+        #: how to build UserList's ``data`` on first use (a slice or copy of a built one is built at once)
+        self._build: Callable[[], list[dict[str, Any]]] | None = build if callable(build) else None
+        self._data: list[dict[str, Any]] = [] if callable(build) else list(build)
+
+    @property
+    def data(self) -> list[dict[str, Any]]:
+        if self._build is not None:
+            self._data, self._build = self._build(), None
+        return self._data
+
+    @data.setter
+    def data(self, value: list[dict[str, Any]]) -> None:
+        self._data, self._build = value, None
 
 
 def participant_key(row: Mapping[str, Any]) -> str:
@@ -205,15 +247,17 @@ def board_dict(
     setting: str,
     track: str,
     groups: int,
-    entries: list[dict[str, Any]],
+    entries: Sequence[dict[str, Any]],
     unranked: list[dict[str, Any]],
     best: list[dict[str, Any]],
     samples: np.ndarray,
     stable_samples: np.ndarray,
     by_column: np.ndarray | None = None,
+    index: dict[int, int] | None = None,
 ) -> dict[str, Any]:
     """The board dict from its entries in rank order, unranked ones and best entries, both sorted.
-    ``by_column``: the entries' scores and stable scores by ``_column`` (2 × entries), when at hand."""
+    ``by_column``: the entries' scores and stable scores by ``_column`` (2 × entries), when at hand;
+    ``index``: each submission's position in ``entries``, when at hand."""
     if by_column is None:
         n = len(entries)
         at = np.fromiter((e["_column"] for e in entries), dtype=np.intp, count=n)
@@ -234,7 +278,8 @@ def board_dict(
         "entries": entries,
         "unranked": unranked,
         "_best": best,  # the default view, ready to page
-        "_index": {e["submission_id"]: k for k, e in enumerate(entries)},  # position in "entries"
+        # position in "entries"
+        "_index": {e["submission_id"]: k for k, e in enumerate(entries)} if index is None else index,
         # the grid's resamples, a row per entry (by ``_column``: the grid gathers its rows' entries, and rows
         # of a C-ordered matrix are contiguous); copies: a slice would keep the full resample arrays alive
         "_samples": np.ascontiguousarray(samples[:GRID_RESAMPLES].T),
@@ -317,17 +362,10 @@ def build_grid(
     datasets: Sequence[str],
     settings: Sequence[str],
     track: str,
-    *,
-    rank_intervals: Mapping[int, tuple[int, int]] | None = None,
-    cells: dict[str, dict[int, tuple[Any, int, dict[str, Any]]]] | None = None,
 ) -> dict[str, Any]:
     """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
     interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board.
-
-    ``rank_intervals``: the rows' rank intervals of the all-rows view by submission id, as last computed,
-    instead of computing them (a row missing there has none yet); None: computed now. ``cells``: the cells
-    of the last grid by board and submission id, reused for an entry whose ``_base`` (the board engine's:
-    the same object while its content stays) and rank did not move; updated here."""
+    (The board engine keeps a grid between updates: :class:`robobpp.scoring.grid.GridMatrix`, the same grid.)"""
     keys = [f"{s}/{d}" for s in settings for d in datasets]
     rows: dict[int, dict[str, Any]] = {}
 
@@ -345,19 +383,9 @@ def build_grid(
         return row
 
     for key in keys:
-        known = None if cells is None else cells.setdefault(key, {})
-        for e in boards[key]["entries"]:  # 90,000 cells at 10,000 submissions: kept lean
-            sid = e["submission_id"]
-            row = rows.get(sid) or row_for(e)
-            base = e.get("_base")
-            if known is not None and base is not None:
-                hit = known.get(sid)
-                if hit is not None and hit[0] is base and hit[1] == e["rank"]:
-                    row["cells"][key] = hit[2]
-                    row["_columns"][key] = e["_column"]
-                    row["_bases"][key] = base
-                    continue
-            cell = row["cells"][key] = {
+        for e in boards[key]["entries"]:
+            row = rows.get(e["submission_id"]) or row_for(e)
+            row["cells"][key] = {
                 "score": e["score"],
                 "score_low": e["score_low"],
                 "score_high": e["score_high"],
@@ -370,13 +398,11 @@ def build_grid(
                 "pph": (e.get("extras") or {}).get("pph"),
             }
             row["_columns"][key] = e["_column"]
-            row["_bases"][key] = base
-            if known is not None and base is not None:
-                known[sid] = (base, e["rank"], cell)
+            row["_bases"][key] = e.get("_base")
         for e in boards[key]["unranked"]:
             (rows.get(e["submission_id"]) or row_for(e))["unranked"][key] = e["status"]
     complete = [r for r in rows.values() if len(r["cells"]) == len(keys) and keys]
-    _grid_means(complete, boards, keys, rank_intervals)
+    _grid_means(complete, boards, keys)
     ranked_ids = {r["submission_id"] for r in complete}
     apart = []
     for r in rows.values():
@@ -407,62 +433,93 @@ def build_grid(
     }
 
 
-def _grid_means(
-    rows: list[dict[str, Any]],
-    boards: Mapping[str, Mapping[str, Any]],
-    keys: Sequence[str],
-    known: Mapping[int, tuple[int, int]] | None = None,
-) -> None:
-    """Mean over boards with interval, rank and rank interval; then each participant's best row."""
-    if not rows:
-        return
-    n = len(rows)
+@dataclass
+class GridFigures:
+    """The Mean of the grid's complete rows (in the order given) and what it is ranked by."""
+
+    means: list[float]
+    stables: list[float]
+    ranks: list[int]
+    #: the Mean's and the stable score's intervals (rounded to the float32 samples' precision)
+    low: np.ndarray
+    high: np.ndarray
+    stable_low: np.ndarray
+    stable_high: np.ndarray
+    #: the Mean's samples, a row per grid row (for the best rows' rank intervals)
+    samples: np.ndarray
+    #: the rows' rank intervals of the all-rows view, when computed
+    rank_low: np.ndarray | None = None
+    rank_high: np.ndarray | None = None
+
+    def best_samples(self, chosen: Sequence[int]) -> np.ndarray:
+        return np.round(self.samples[list(chosen)].T, 12)
+
+
+def grid_figures(
+    boards: Mapping[str, Mapping[str, Any]], keys: Sequence[str], cols: np.ndarray, *, rank_intervals: bool
+) -> GridFigures:
+    """The Mean over boards of rows whose cell on board ``keys[j]`` is column ``cols[i, j]`` of that board:
+    with interval, rank and (``rank_intervals``) the all-rows rank interval."""
+    n = cols.shape[0]
     rel = np.zeros((n, GRID_RESAMPLES), dtype=np.float64)  # a row per grid row: its samples contiguous
     stab = np.zeros_like(rel)
     score_sum = np.zeros(n)
     stable_sum = np.zeros(n)
-    for key in keys:
+    for j, key in enumerate(keys):
         board = boards[key]
-        cols = np.fromiter((r["_columns"][key] for r in rows), dtype=np.intp, count=n)
+        at = cols[:, j]
         samples, stable = board["_samples"], board["_stable_samples"]
-        rel[:, : samples.shape[1]] += samples[cols]
-        stab[:, : stable.shape[1]] += stable[cols]
+        rel[:, : samples.shape[1]] += samples[at]
+        stab[:, : stable.shape[1]] += stable[at]
         by_column = board["_by_column"]
         # summed board by board in the order of ``keys``: the same additions as a sum over each row's cells
-        score_sum += by_column[0, cols]
-        stable_sum += by_column[1, cols]
+        score_sum += by_column[0, at]
+        stable_sum += by_column[1, at]
     rel /= len(keys)
     stab /= len(keys)
     means = [round(x, 12) for x in (score_sum / len(keys)).tolist()]
-    stables = (stable_sum / len(keys)).tolist()
-    ranks = competition_ranks(means)
     # the mean samples are rounded to 12 decimals (ties must tie); rounding is monotonic, so the interval
     # rounds the order statistics it picks instead of every sample (the same numbers, a 20 MB pass less)
     lo, hi = stats.interval(rel.T, decimals=12)
     slo, shi = stats.interval(stab.T)
-    if known is None:
+    rlo = rhi = None
+    if rank_intervals:
         rlo, rhi = stats.rank_interval(stats.rank_samples(np.round(rel.T, 12)))
-        rank_ci: list[tuple[int, int] | None] = [(int(a), int(b)) for a, b in zip(rlo, rhi, strict=True)]
-    else:
-        rank_ci = [known.get(r["submission_id"]) for r in rows]
     # the samples are float32 (memory of a 10,000-entry cache): 6 decimals is their precision
     lo, hi, slo, shi = (np.round(a, 6) for a in (lo, hi, slo, shi))
+    return GridFigures(
+        means, (stable_sum / len(keys)).tolist(), competition_ranks(means), lo, hi, slo, shi, rel, rlo, rhi
+    )
+
+
+def _grid_means(
+    rows: list[dict[str, Any]],
+    boards: Mapping[str, Mapping[str, Any]],
+    keys: Sequence[str],
+) -> None:
+    """Mean over boards with interval, rank and rank interval; then each participant's best row."""
+    if not rows:
+        return
+    cols = np.array([[r["_columns"][key] for key in keys] for r in rows], dtype=np.intp).reshape(
+        len(rows), len(keys)
+    )
+    f = grid_figures(boards, keys, cols, rank_intervals=True)
+    assert f.rank_low is not None and f.rank_high is not None
     for i, r in enumerate(rows):
-        row_rank_ci = rank_ci[i]
         r.update(
             status="ranked",
             boards=len(keys),
-            mean=means[i],
-            mean_low=float(lo[i]),
-            mean_high=float(hi[i]),
-            stable=stables[i],
-            stable_low=float(slo[i]),
-            stable_high=float(shi[i]),
-            rank=ranks[i],
-            rank_low=None if row_rank_ci is None else row_rank_ci[0],
-            rank_high=None if row_rank_ci is None else row_rank_ci[1],
+            mean=f.means[i],
+            mean_low=float(f.low[i]),
+            mean_high=float(f.high[i]),
+            stable=f.stables[i],
+            stable_low=float(f.stable_low[i]),
+            stable_high=float(f.stable_high[i]),
+            rank=f.ranks[i],
+            rank_low=int(f.rank_low[i]),
+            rank_high=int(f.rank_high[i]),
         )
-    _mark_best(rows, lambda chosen: np.round(rel[chosen].T, 12), score="mean")
+    _mark_best(rows, f.best_samples, score="mean")
 
 
 def grid_view(

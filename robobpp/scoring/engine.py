@@ -20,6 +20,7 @@ each entry's own samples: an entry's samples are always computed alone), except 
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -30,6 +31,8 @@ import numpy as np
 from robobpp.scoring import stats
 from robobpp.scoring.boards import (
     GRID_RESAMPLES,
+    LazyRows,
+    RankedView,
     board_dict,
     classify_row,
     participant_key,
@@ -85,9 +88,8 @@ class _Entry:
     #: object while its content stays, so the publisher serialises it once (services/boards.py).
     base: dict[str, Any] | None = None
     base_of: tuple[Any, ...] = ()
-    #: The entry as the last board listed it (its ``base`` with rank, count and column): listed again as the
-    #: same object while those stay (the entries above a new one keep all three)
-    listed: dict[str, Any] | None = None
+    #: Changes whenever ``base`` is replaced (the grid compares its cells' serials as arrays)
+    serial: int = 0
 
 
 class BoardMatrix:
@@ -416,39 +418,37 @@ class BoardMatrix:
         if chosen:
             low, high = stats.rank_interval(stats.rank_samples(best_samples(chosen)))
         best_of = {i: (best_ranks[k], int(low[k]), int(high[k])) for k, i in enumerate(chosen)}
-        entries, best = [], []
-        for i in np.lexsort((sids, rank_of)).tolist():  # rank order, ties by id
-            e = ranked[i]
-            b = best_of.get(i)
-            s, of = e.scored, e.base_of
-            if (  # the entry's row as last built (``_base``), inline: 150,000 calls an update
+        bases: list[dict[str, Any]] = []
+        serials = np.empty(n, dtype=np.int64)
+        for i, e in enumerate(ranked):  # 150,000 entries an update: the unchanged row found inline
+            s, of, is_best = e.scored, e.base_of, i in best_of
+            if not (
                 of
                 and of[0] is s
                 and of[2] is normalized[i]
                 and of[1] == scores[i]
-                and of[3] == (b is not None)
+                and of[3] == is_best
                 and of[4] == s.rank_ci
             ):
-                base = e.base
-            else:
-                base = _base(e, scores[i], normalized[i], b is not None)
-            d = e.listed
-            count = submitted[e.who]
-            if (
-                b is not None
-                or d is None
-                or d["_base"] is not base
-                or d["rank"] != ranks[i]
-                or d["_column"] != i
-                or d["entries_submitted"] != count
-            ):
-                d = base | {"rank": ranks[i], "entries_submitted": count, "_column": i}
-                if b is not None:
-                    d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
-                    best.append(d | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]})
-                d["_base"] = base
-                e.listed = d
-            entries.append(d)
+                before = e.base
+                if _base(e, scores[i], normalized[i], is_best) is not before:
+                    e.serial = next(_SERIALS)
+            bases.append(e.base)  # type: ignore[arg-type]
+            serials[i] = e.serial
+        order = np.lexsort((sids, rank_of))  # rank order, ties by id
+        view = RankedView(sids[order], rank_of[order], sids, rank_of, bases, serials)
+
+        def listed(i: int) -> dict[str, Any]:
+            """Column ``i`` as the all-entries view lists it (``boards.finish_board``'s entry)."""
+            d = bases[i] | {"rank": ranks[i], "entries_submitted": submitted[ranked[i].who], "_column": i}
+            b = best_of.get(i)
+            if b is not None:
+                d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
+            return d
+
+        at = order.tolist()
+        entries = LazyRows(lambda: [listed(i) | {"_base": bases[i]} for i in at])
+        best = [listed(i) | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]} for i, b in best_of.items()]
         best.sort(key=lambda e: (e["rank"], e["submission_id"]))
         samples, stable = self._grid_matrices(ranked)
         by_column = np.array([scores, [e.stable for e in ranked]], dtype=np.float64).reshape(2, n)
@@ -463,8 +463,10 @@ class BoardMatrix:
             samples,
             stable,
             by_column,
+            index=dict(zip(view.ids.tolist(), range(n), strict=True)),
         )
         board["protocol"] = self.protocol
+        board["_ranked"] = view
         # the board's matrices are the kept ones (``board_dict`` turns the transposed views back into the
         # row-per-entry matrices built here, no copy); read-only: a shift changes an entry's samples in a copy
         self._grid_rel, self._grid_stable = board["_samples"], board["_stable_samples"]
@@ -565,6 +567,9 @@ def _side(values: np.ndarray, order: np.ndarray) -> np.ndarray:
     out[values > order[:, 3:4]] = 2
     return out
 
+
+#: Serial numbers of the entries' rows (:attr:`_Entry.serial`), unique in the process.
+_SERIALS = itertools.count(1)
 
 #: What an entry keeps of its row (its scoring fields, ``classify_row``'s and its id; what it shows is in
 #: ``public``): the whole row again for each of 150,000 entries was ≈ 45 MB at 10,000 submissions.

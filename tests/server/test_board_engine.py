@@ -9,7 +9,8 @@ import math
 import random
 import re
 import weakref
-from collections.abc import Iterator
+from collections import UserList
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -145,8 +146,12 @@ def same(a: Any, b: Any, path: str = "", *, ranks: bool = True, tol: float = 0.0
                 if "cells" not in served:  # a board's row is stored without its participant's entry count
                     served.pop("entries_submitted")
                 assert x["_base"] == served | {"rank": None}, path
-        # without it, and without which engine rows the grid's were made of
-        a, b = ({k: v for k, v in x.items() if k not in ("_base", "_bases")} for x in (a, b))
+        # without it, which engine rows the grid's were made of, and the engine's arrays of the same entries
+        # (``_ranked``: checked against the entries below)
+        for x in (a, b):
+            if "_ranked" in x:
+                ranked_view(x)
+        a, b = ({k: v for k, v in x.items() if k not in ("_base", "_bases", "_ranked")} for x in (a, b))
         assert set(a) == set(b), (path, set(a) ^ set(b))
         for k in a:
             # the best entries' rank intervals are always current; the others (entries, grid rows and cells)
@@ -154,7 +159,7 @@ def same(a: Any, b: Any, path: str = "", *, ranks: bool = True, tol: float = 0.0
             if not ranks and k in ("rank_low", "rank_high") and not re.search(r"/_best\[\d+\]$", path):
                 continue
             same(a[k], b[k], f"{path}/{k}", ranks=ranks, tol=tol)
-    elif isinstance(a, list | tuple):
+    elif isinstance(a, list | tuple | UserList):
         assert len(a) == len(b), path
         for i, (x, y) in enumerate(zip(a, b, strict=True)):
             same(x, y, f"{path}[{i}]", ranks=ranks, tol=tol)
@@ -162,6 +167,22 @@ def same(a: Any, b: Any, path: str = "", *, ranks: bool = True, tol: float = 0.0
         assert abs(a - b) <= tol or (math.isnan(a) and math.isnan(b)), (path, a, b)
     else:
         assert a == b, (path, a, b)
+
+
+def ranked_view(board: Mapping[str, Any]) -> None:
+    """A board's (or the grid's) arrays show its all-entries view: ids and ranks in rank order, each
+    column's row without ranks."""
+    view = board["_ranked"]
+    entries = board.get("entries", board.get("rows"))
+    assert view.ids.tolist() == [e["submission_id"] for e in entries]
+    assert view.ranks.tolist() == [e["rank"] for e in entries]
+    by_id = {e["submission_id"]: e for e in entries}
+    for column, sid in enumerate(view.ids_by_column.tolist()):
+        assert view.bases[column] is by_id[sid]["_base"]
+        assert view.rank_by_column[column] == by_id[sid]["rank"]
+    if view.cells is not None:
+        keys = [f"{s}/{d}" for s in board["settings"] for d in board["datasets"]]
+        assert view.cells.tolist() == [[e["cells"][k]["rank"] for k in keys] for e in entries]
 
 
 def full(factory: Any) -> dict[Any, Any]:
@@ -192,9 +213,14 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     # a middling entry: inside every resample's min–max, so nobody else is renormalised
     epoch = matrix.epoch
     middle = between(episodes_of(0.2, 0), episodes_of(0.2 + 0.6 * 9 / 10, 9))
+    grid_rows = {r["submission_id"]: r["_base"] for r in engine._tracks["private"].out["grid"]["rows"]}
     middling = add_submission(factory, "team-5", 0.5, seed=100, episodes=middle)
     changed = engine.update("private")
     assert matrix.epoch == epoch, "a middling entry renormalised the board"
+    # the grid rows it moved only in rank keep their row without ranks (not serialised nor written again)
+    now = {r["submission_id"]: r["_base"] for r in changed["grid"]["rows"]}
+    assert set(now) - set(grid_rows) == {middling}
+    assert all(now[sid] is base for sid, base in grid_rows.items())
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
     new_entry = changed[("diverse", "math")]["entries"]
     assert any(e["submission_id"] == middling and e["rank_low"] is None for e in new_entry)

@@ -25,9 +25,10 @@ from sqlalchemy.orm import Session
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.replay import CLOSED, PAPER, PROTOCOLS
-from robobpp.scoring.boards import GRID_ROW_FIGURES, build_board, build_grid
+from robobpp.scoring.boards import build_board, build_grid
 from robobpp.scoring.engine import BoardMatrix, PartLoader
 from robobpp.scoring.entries import EntryPart, entry_part
+from robobpp.scoring.grid import GridMatrix
 from robobpp.scoring.metrics import PHYSICAL
 
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -123,12 +124,8 @@ class _Track:
     seen: dict[int, tuple[Any, ...]]
     boards: dict[tuple[str, ...], BoardMatrix]
     out: dict[BoardKey, dict[str, Any]] = field(default_factory=dict)
-    #: The grids' all-rows rank intervals as last computed in full, by grid key and submission id.
-    grid_ranks: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
-    #: Each grid row without its ranks (``_base``) and what it was built from, by grid key and submission id.
-    grid_bases: dict[str, dict[int, tuple[tuple[Any, ...], dict[str, Any]]]] = field(default_factory=dict)
-    #: Each grid's cells by board and submission id, with the entry ``_base`` and rank they show.
-    grid_cells: dict[str, dict[str, dict[int, tuple[Any, int, dict[str, Any]]]]] = field(default_factory=dict)
+    #: The grids kept between updates, by grid key.
+    grids: dict[str, GridMatrix] = field(default_factory=dict)
 
 
 class BoardEngine:
@@ -257,21 +254,11 @@ class BoardEngine:
                 for st in self.settings
                 for d in self.datasets
             }
-            known = None if full else state.grid_ranks.get(grid_key, {})
-            grid = build_grid(
-                shown,
-                self.datasets,
-                self.settings,
-                track,
-                rank_intervals=known,
-                cells=state.grid_cells.setdefault(grid_key, {}),
-            )
+            matrix = state.grids.get(grid_key)
+            if matrix is None:
+                matrix = state.grids[grid_key] = GridMatrix(self.datasets, self.settings, track)
+            grid = matrix.grid(shown, rank_intervals=full)
             grid["protocol"] = protocol
-            if full:
-                state.grid_ranks[grid_key] = {
-                    r["submission_id"]: (r["rank_low"], r["rank_high"]) for r in grid["rows"]
-                }
-            state.grid_bases[grid_key] = _grid_bases(grid["rows"], state.grid_bases.get(grid_key, {}))
             state.out[grid_key] = out[grid_key] = grid
         return out
 
@@ -379,36 +366,6 @@ _IDS: dict[bytes, bytes] = {}
 def _interned(ids: bytes) -> bytes:
     """One object per distinct group-id list (every entry of a board has the same)."""
     return _IDS.setdefault(ids, ids)
-
-
-#: What a grid row shows besides its cells (whose content, ranks aside, is their board entries' ``_base``).
-_ROW_FIGURES = (*GRID_ROW_FIGURES, "rank_low", "rank_high")
-
-
-def _grid_bases(
-    rows: list[dict[str, Any]], known: Mapping[int, tuple[tuple[Any, ...], dict[str, Any]]]
-) -> dict[int, tuple[tuple[Any, ...], dict[str, Any]]]:
-    """Give each ranked grid row its ``_base`` (the row without its rank and its cells' ranks): the object
-    kept from the last update when neither its cells' board entries nor its own figures moved."""
-    out = {}
-    for r in rows:
-        sid = r["submission_id"]
-        bases = tuple(r["_bases"].values())
-        of = (bases, tuple(r["unranked"].items()), tuple(r[k] for k in _ROW_FIGURES), r["best"], r["name"])
-        old = known.get(sid)
-        if (
-            old is None
-            or None in bases
-            or len(old[0][0]) != len(bases)
-            or any(a is not b for a, b in zip(old[0][0], bases, strict=True))
-            or old[0][1:] != of[1:]
-        ):
-            served = {k: v for k, v in r.items() if not k.startswith("_") and not k.startswith("best_")}
-            cells = {k: {**c, "rank": None} for k, c in served["cells"].items()}
-            old = (of, served | {"rank": None, "cells": cells})
-        out[sid] = old
-        r["_base"] = old[1]
-    return out
 
 
 def _row(run: Mapping[str, Any]) -> dict[str, Any]:

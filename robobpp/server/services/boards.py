@@ -42,7 +42,7 @@ from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import queries
 from robobpp.db.models import BoardPart, BoardPublication, Submission
 from robobpp.replay import CLOSED, PAPER
-from robobpp.scoring.boards import _served, participant_key
+from robobpp.scoring.boards import RankedView, _served, participant_key
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
@@ -233,23 +233,31 @@ def board_parts(board: Mapping[str, Any]) -> StoredBoard:
     entries = board["entries"]
     lists = {"best": [_served(e) for e in board["_best"]], "unranked": [dict(e) for e in board["unranked"]]}
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
-    counts = {"best": len(lists["best"]), "all": len(entries), "unranked": len(lists["unranked"])}
+    ids, ranks, rows = _all_entries(board, entries, _rankless)
+    counts = {"best": len(lists["best"]), "all": len(ids), "unranked": len(lists["unranked"])}
     # every participant with a ranked entry has a best one, which carries their count
     submitted = {participant_key(e): e["entries_submitted"] for e in board["_best"]}
     unranked = [e["submission_id"] for e in lists["unranked"]]
     chunks: dict[str, bytes] = {}
     for name, items in lists.items():
         chunks |= _chunked(name, items)
+    head = {"head": head, "counts": counts, "submitted": submitted, "unranked": unranked}
+    return StoredBoard(head, chunks, ids, ranks, None, rows)
+
+
+def _all_entries(
+    board: Mapping[str, Any],
+    entries: Sequence[Mapping[str, Any]],
+    rankless: Callable[[Mapping[str, Any]], Mapping[str, Any]],
+) -> tuple[np.ndarray, np.ndarray, dict[int, Mapping[str, Any]]]:
+    """The all-entries view's ids and ranks (rank order) and rows without ranks: from the board engine's
+    arrays when it gave them (no ranked dict per entry), else from the entries."""
+    view: RankedView | None = board.get("_ranked")
+    if view is not None:
+        return view.ids, view.ranks, dict(zip(view.ids_by_column.tolist(), view.bases, strict=True))
     ids = np.fromiter((e["submission_id"] for e in entries), dtype=np.int64, count=len(entries))
     ranks = np.fromiter((e["rank"] for e in entries), dtype=np.int64, count=len(entries))
-    return StoredBoard(
-        {"head": head, "counts": counts, "submitted": submitted, "unranked": unranked},
-        chunks,
-        ids,
-        ranks,
-        None,
-        {e["submission_id"]: _rankless(e) for e in entries},
-    )
+    return ids, ranks, {e["submission_id"]: rankless(e) for e in entries}
 
 
 def grid_cell_keys(head: Mapping[str, Any]) -> list[str]:
@@ -276,24 +284,20 @@ def grid_parts(grid: Mapping[str, Any]) -> StoredBoard:
         "apart-all": [_served(r) for r in grid["apart"]],
     }
     head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
-    counts = {k: len(v) for k, v in lists.items()} | {"all": len(rows)}
+    ids, ranks, stored = _all_entries(grid, rows, _rankless_row)
+    counts = {k: len(v) for k, v in lists.items()} | {"all": len(ids)}
     chunks: dict[str, bytes] = {}
     for name, items in lists.items():
         chunks |= _chunked(name, items)
-    keys = grid_cell_keys(grid)
-    cells = np.array([[r["cells"][k]["rank"] for k in keys] for r in rows], dtype=np.int64).reshape(
-        len(rows), len(keys)
-    )
-    ids = np.fromiter((r["submission_id"] for r in rows), dtype=np.int64, count=len(rows))
-    ranks = np.fromiter((r["rank"] for r in rows), dtype=np.int64, count=len(rows))
-    return StoredBoard(
-        {"head": head, "counts": counts},
-        chunks,
-        ids,
-        ranks,
-        cells,
-        {r["submission_id"]: _rankless_row(r) for r in rows},
-    )
+    view: RankedView | None = grid.get("_ranked")
+    if view is not None and view.cells is not None:
+        cells = view.cells
+    else:
+        keys = grid_cell_keys(grid)
+        cells = np.array([[r["cells"][k]["rank"] for k in keys] for r in rows], dtype=np.int64).reshape(
+            len(rows), len(keys)
+        )
+    return StoredBoard({"head": head, "counts": counts}, chunks, ids, ranks, cells, stored)
 
 
 def parts_of(key: str, value: Mapping[str, Any]) -> StoredBoard:

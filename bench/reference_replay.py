@@ -8,6 +8,10 @@ numba shapely easydict torch pybullet ompl tqdm matplotlib pyyaml; NumPy, PyBull
     python bench/reference_replay.py export --dataset diverse --policy hm --group 0 --out DIR   # robobpp's
     REFERENCE_PYTHON bench/reference_replay.py run DIR       # the reference's
     python bench/reference_replay.py show DIR
+    python bench/reference_replay.py trace DIR     # box by box: which phase moved which placed box, by how much
+
+    # experiments on the reference itself: its Physics Pack (no robot), friction anchors on its boxes
+    REFERENCE_PYTHON bench/reference_replay.py run DIR --setting 2 [--experiment anchors]
 
     # every (heuristic, group): export, run (JOBS at a time), then the table beside ours and the paper's
     nice python bench/paper_table.py --setting execution --open-loop --groups 5 --datasets diverse --json ours.json
@@ -27,6 +31,12 @@ validity checker passed as a callable, states from ``allocState``), a Python 3.1
 and its wall-clock sleeps (2.2 s per box) skipped. Every place-plan check is logged: the IK error, whether the
 start and the goal states are in collision (and with what), whether the search found an exact path, its wall and
 CPU time and time limit; whether the operation was dangerous; which robot motion moved a placed box.
+
+``run`` also writes ``trace.json``: every box's pose at each boundary of the reference's sequence for a box
+(conveyor, pick, transfer, teleport and settle, homing, the settle its collapse rule reads), the simulation steps
+between them and the robot bodies that touched a placed box (``trace`` prints it). ``--setting 2`` runs its
+Physics Pack instead; ``--experiment anchors`` gives its boxes PyBullet's friction anchors (robobpp's physics
+since version 3): an experiment, not the reference's figure.
 
 ``batch`` and ``report`` count each run as the reference does (its feasible boxes, their volume over the
 container) and say how it ended (by what its main loop printed) and what decided each place-plan search:
@@ -242,6 +252,111 @@ def _instrument(log: list[dict[str, Any]], out: Path) -> None:
         setattr(envs.Env, name, logged_motion)
 
 
+def _trace(trace: list[dict[str, Any]], setting: int) -> None:
+    """Record where every box stands at each boundary of the reference's per-box sequence (its conveyor
+    load, the pick, the transfer to the pre-place pose, the teleport and settle, the homing, the final
+    settle its collapse rule reads), the simulation steps between them, and which robot body (arm link,
+    suction parts, the carried box) touched which placed box in each robot motion. Reads only: nothing
+    simulated changes (one ``getContactPoints`` per robot body per step; its robot moves by wall time, so
+    a slower step moves it less per step)."""
+    import pybullet as p
+    from packsim import task
+    from packsim.arm_pybullet_env.arm_envs import envs
+
+    st: dict[str, Any] = {"phase": "start", "steps": 0, "scene": None, "box": None, "touch": {}}
+    step = p.stepSimulation
+
+    def placed(scene: Any) -> list[int]:
+        return [int(b) for b in scene.packed_object_ids]
+
+    def counted(*a: Any, **k: Any) -> Any:
+        result = step(*a, **k)
+        st["steps"] += 1
+        scene = st["scene"]
+        if setting == 3 and scene is not None and st["phase"] in ("pick", "transfer", "home"):
+            mine = set(placed(scene))
+            robot = scene.robot
+            bodies = {"arm": robot.arm, "suction_base": robot.ee.base, "suction_head": robot.ee.body}
+            if robot.ee.attach_obj_ids is not None:
+                bodies["carried"] = robot.ee.attach_obj_ids
+            for label, body in bodies.items():
+                for c in p.getContactPoints(bodyA=body):
+                    if c[2] in mine:
+                        key = f"{st['phase']}|{label}|{c[3]}|{c[2]}"
+                        hit = st["touch"].setdefault(key, [0, 0.0])
+                        hit[0] += 1
+                        hit[1] = max(hit[1], round(float(c[9]), 2))
+        return result
+
+    p.stepSimulation = counted
+
+    def snap(label: str) -> None:
+        scene = st["scene"]
+        if scene is None:
+            return
+        ids = placed(scene)
+        if st["box"] is not None and st["box"] not in ids:
+            ids.append(st["box"])
+        poses = {}
+        for b in ids:
+            pos, orn = p.getBasePositionAndOrientation(b)
+            roll, pitch, yaw = (math.degrees(a) for a in p.getEulerFromQuaternion(orn))
+            poses[str(b)] = [round(v, 5) for v in pos] + [round(yaw, 3), round(roll, 3), round(pitch, 3)]
+        trace.append(
+            {"at": label, "box": st["box"], "steps": st["steps"], "poses": poses, "touch": st["touch"]}
+        )
+        st["touch"] = {}
+
+    def wrap(cls: Any, name: str, before: str | None, after: str | None, phase: str | None = None) -> None:
+        original = getattr(cls, name)
+
+        def wrapped(self: Any, *a: Any, **k: Any) -> Any:
+            if name == "load_scene":
+                st["scene"] = self
+            if phase is not None and name == "ompl_and_execute" and st["phase"] != "placed":
+                return original(self, *a, **k)  # only the homing after a placement
+            if before:
+                snap(before)
+            if phase:
+                st["phase"] = phase
+            result = original(self, *a, **k)
+            if name == "load_scene":
+                st["box"] = int(self.box_ids[0])
+            if name == "place_at":
+                trace.append({"at": "target", "box": st["box"], "target": [round(v, 4) for v in result[2]]})
+            if after:
+                snap(after)
+            st["phase"] = {"pick_block": "picked", "place_at": "placed", "move_ee_to": st["phase"]}.get(
+                name, "settle"
+            )
+            return result
+
+        setattr(cls, name, wrapped)
+
+    wrap(task.Pack_Env, "load_scene", "collapse_check", "loaded", "load")
+    wrap(task.Pack_Env, "pick_block", "before_pick", "picked", "pick")
+    wrap(task.Pack_Env, "place_at", "before_place", "placed", "transfer")
+    wrap(envs.Env, "ompl_and_execute", None, "homed", "home")
+
+    move = envs.Env.move_ee_to
+
+    def transfer(self: Any, *a: Any, **k: Any) -> Any:
+        result = move(self, *a, **k)
+        if st["phase"] == "transfer":
+            snap("transferred")
+            st["phase"] = "drop"
+        return result
+
+    envs.Env.move_ee_to = transfer
+    st["snap"] = snap
+    trace.append({"at": "setting", "setting": setting})
+    _TRACE_STATE.update(st)
+
+
+#: The tracer's state, so that ``run`` can take the last snapshot (the final collapse check) after the loop.
+_TRACE_STATE: dict[str, Any] = {}
+
+
 def _cross_2d(cross: Any) -> Any:
     """``np.cross`` as NumPy 1 had it for 2-vectors (the z component of the 3-vectors they extend)."""
     import numpy as np
@@ -255,7 +370,28 @@ def _cross_2d(cross: Any) -> Any:
     return crossed
 
 
-def run(out: Path, wheel: Path | None = None) -> None:
+#: Experiments on the reference itself (``run --experiment``): each changes what it simulates, so a run with one
+#: is not the reference's figure. ``anchors``: PyBullet's friction anchors on every box (robobpp's default since
+#: physics version 3).
+EXPERIMENTS = ("anchors",)
+
+
+def _experiment(names: list[str]) -> None:
+    import pybullet as p
+    from packsim import task
+
+    if "anchors" in names:
+        add_box = task.Pack_Env.add_box
+
+        def anchored(self: Any, *a: Any, **k: Any) -> Any:
+            result = add_box(self, *a, **k)
+            p.changeDynamics(result[0], -1, frictionAnchor=1)
+            return result
+
+        task.Pack_Env.add_box = anchored
+
+
+def run(out: Path, wheel: Path | None = None, setting: int = 3, experiments: list[str] | None = None) -> None:
     import numpy as np
     import torch
     import yaml
@@ -286,10 +422,13 @@ def run(out: Path, wheel: Path | None = None) -> None:
 
         log: list[dict[str, Any]] = []
         _instrument(log, out)
+        trace: list[dict[str, Any]] = []
+        _trace(trace, setting)
+        _experiment(experiments or [])
         try:
             text = main(
                 {
-                    "setting": 3,
+                    "setting": setting,
                     "data": data,
                     "method": "PCT",  # the only method name that reads action.json (decisions are the file's)
                     "test_data_config": 0,
@@ -302,6 +441,8 @@ def run(out: Path, wheel: Path | None = None) -> None:
             )
         finally:
             (out / "reference.json").write_text(json.dumps(log))
+            _TRACE_STATE["snap"]("end")
+            (out / "trace.json").write_text(json.dumps(trace))
         (out / "reference.txt").write_text(text)
 
 
@@ -330,6 +471,62 @@ def show(out: Path) -> None:
             n = int(line.split(":")[1])
             volume = sum(a * b * c for a, b, c in sizes[:n])
             print(f"{line}; Space Utilization of those boxes {volume / CONTAINERS_M3[meta['dataset']]:.3f}")
+
+
+def show_trace(out: Path) -> None:
+    """Box by box (``run``'s ``trace.json``): for each phase of the reference's sequence, its simulation steps,
+    the largest horizontal move of a box placed before (which, by how much, cm), the robot bodies that touched
+    placed boxes; at each collapse check the largest |dx| or |dy| of a placed box from its target."""
+    trace = json.loads((out / "trace.json").read_text())
+    phases = {
+        ("collapse_check", "loaded"): "conveyor",
+        ("loaded", "before_pick"): "wait",
+        ("before_pick", "picked"): "pick",
+        ("picked", "before_place"): "-",
+        ("before_place", "transferred"): "transfer",
+        ("transferred", "placed"): "drop+settle",
+        ("before_place", "placed"): "drop+settle",
+        ("placed", "homed"): "home",
+        ("homed", "collapse_check"): "settle",
+        ("homed", "end"): "settle",
+        ("placed", "collapse_check"): "settle",
+        ("placed", "end"): "settle",
+    }
+    targets: dict[str, list[float]] = {}
+    snaps = [e for e in trace if "poses" in e]
+    for e in trace:
+        if e["at"] == "target":
+            targets[str(e["box"])] = e["target"]
+    first = next((e["box"] for e in snaps if e["box"] is not None), 0)
+    print("| box | phase | steps | moved most (box: cm) | touched (phase, body, link → box: steps) |")
+    print("|---:|---|---:|---|---|")
+    for a, b in zip(snaps, snaps[1:], strict=False):
+        phase = phases.get((a["at"], b["at"]), f"{a['at']}→{b['at']}")
+        before = {k: v for k, v in a["poses"].items() if k != str(b["box"]) or a["at"] == "homed"}
+        moves = [
+            (math.hypot(b["poses"][k][0] - v[0], b["poses"][k][1] - v[1]) * 100, k)
+            for k, v in before.items()
+            if k in b["poses"] and k in targets
+        ]
+        most = max(moves, default=(0.0, None))
+        touches = ", ".join(
+            f"{key.split('|')[1]}/{key.split('|')[2]}→{int(key.split('|')[3]) - first}: {n}"
+            for key, (n, _force) in sorted(b["touch"].items())
+        )
+        label = b["box"] - first if b["box"] is not None else "-"
+        moved = f"{int(most[1]) - first}: {most[0]:.2f}" if most[1] is not None and most[0] >= 0.05 else ""
+        print(f"| {label} | {phase} | {b['steps'] - a['steps']} | {moved} | {touches} |")
+        if b["at"] in ("collapse_check", "end"):
+            offs = [
+                (max(abs(v[0] - targets[k][0]), abs(v[1] - targets[k][1])) * 100, k)
+                for k, v in b["poses"].items()
+                if k in targets
+            ]
+            worst = max(offs, default=(0.0, None))
+            if worst[1] is not None:
+                print(
+                    f"| | **collapse check** | | largest offset: box {int(worst[1]) - first}, {worst[0]:.2f} cm | |"
+                )
 
 
 #: Container volumes (m³) as the reference divides by (its cells of 1 cm).
@@ -563,6 +760,19 @@ def main() -> None:
     sub.choices["run"].add_argument(
         "--wheel", type=Path, help="the reference's wheel (default: the exported one)"
     )
+    sub.choices["run"].add_argument(
+        "--setting", type=int, choices=(2, 3), default=3, help="its Physics Pack (2) or Execution Pack (3)"
+    )
+    sub.choices["run"].add_argument(
+        "--experiment",
+        action="append",
+        choices=EXPERIMENTS,
+        default=[],
+        help="change what the reference simulates (not its figure then; repeatable)",
+    )
+    sub.add_parser("trace", help="box by box: what moved the placed boxes, phase by phase").add_argument(
+        "out", type=Path
+    )
     ba = sub.add_parser("batch", help="export, run and report every (heuristic, group)")
     ba.add_argument("--dataset", choices=tuple(REFERENCE_DATA), default="diverse")
     ba.add_argument("--policies", default="dbl,hm,lsah,onlinebph,br,macs,sdfpack")
@@ -587,7 +797,9 @@ def main() -> None:
     if args.step == "export":
         export(args.dataset, args.policy, args.group, args.out)
     elif args.step == "run":
-        run(args.out.resolve(), args.wheel.resolve() if args.wheel else None)
+        run(args.out.resolve(), args.wheel.resolve() if args.wheel else None, args.setting, args.experiment)
+    elif args.step == "trace":
+        show_trace(args.out)
     elif args.step == "batch":
         policies = [q for q in args.policies.split(",") if q]
         batch(

@@ -138,3 +138,43 @@ def test_a_resting_stack_does_not_creep() -> None:
     step (docs/physics.md, "Creep")."""
     assert _resting_drift_um(PhysicsConfig()) < 10
     assert _resting_drift_um(PhysicsConfig(friction_anchor=False)) > 100
+
+
+#: Long Board DBL train group 0's first cantilever as its Math plan stacks it (x, y, z, length, width, height, cm):
+#: a 218 cm board on a 133 cm one, 85 cm of it overhanging, six boxes on it, the pile's centre of mass 6 cm inside
+#: the support's end.
+LONG_BOARD_CANTILEVER = (
+    (0, 0, 0, 133, 60, 9.5),
+    (0, 0, 9.5, 218, 64, 6.5),
+    (0, 0, 16, 150, 62, 8.5),
+    (150, 0, 16, 76, 64, 12),
+    (0, 0, 24.5, 73, 63, 12.5),
+    (73, 0, 24.5, 73, 63, 12.5),
+    (146, 0, 28, 72, 60, 5.5),
+    (146, 0, 33.5, 87, 63, 12.5),
+)
+
+
+def _cantilever_drift_cm(config: PhysicsConfig) -> float:
+    """The largest horizontal drift (cm) of the Long Board cantilever over the reference implementation's
+    simulation steps for one placement in its Physics Pack (3,815), after 1 s of settling."""
+    with PhysicsWorld(config) as world:
+        world.add_pallet(ContainerSpec(250, 120, 100))
+        for x, y, z, length, width, height in LONG_BOARD_CANTILEVER:
+            world.add_box(
+                (x + length / 2, y + width / 2, z + height / 2 + 0.001), (length, width, height), 0.5
+            )
+        world.step(240)
+        before = world.poses_cm()[0]
+        world.step(3815)
+        after = world.poses_cm()[0]
+    return float(abs(after[:, :2] - before[:, :2]).max())
+
+
+def test_a_long_board_cantilever_stands_and_creeps_only_without_anchors() -> None:
+    """The pile stands (friction 1, its centre of mass over its support): with friction anchors nothing moves.
+    Without them, as in the reference implementation, it creeps about 1 cm per placement's worth of steps; the
+    reference's Long Board piles end by its 7 cm collapse rule that way (docs/execution.md, "Why the reference's
+    Long Board piles collapse")."""
+    assert _cantilever_drift_cm(PhysicsConfig()) < 0.01
+    assert _cantilever_drift_cm(PhysicsConfig(friction_anchor=False)) > 0.5

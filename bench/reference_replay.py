@@ -455,6 +455,7 @@ def show(out: Path) -> None:
     print("| box | goal state | exact path | wall s | CPU s | limit s | dangerous | moved (m) |")
     print("|---:|---|---|---:|---:|---:|---|---|")
     first = None
+    row: list[Any] = []
     for e in log:
         if e["phase"] != "place" or e["box"] is None:
             continue
@@ -462,7 +463,9 @@ def show(out: Path) -> None:
         if e["ev"] == "check":
             row = [e["box"] - first, e["goal"], e["exact"], e["wall_s"], e["cpu_s"], e["limit_s"]]
         elif e["ev"] == "placed":
+            row = row or [e["box"] - first, "–", "–", "–", "–", "–"]  # its Physics Pack plans nothing
             print("| " + " | ".join(str(v) for v in row) + f" | {e['dangerous']} | |")
+            row = []
     for e in log:
         if e["ev"] == "moved":
             print(f"moved during {e['during']} (box {e['box']}): {e['dxy_m']} m")

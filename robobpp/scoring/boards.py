@@ -353,6 +353,21 @@ def _served(entry: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in entry.items() if not k.startswith("_") and not k.startswith("best_")}
 
 
+def new_grid_row(entry: Mapping[str, Any]) -> dict[str, Any]:
+    """A grid row of ``entry``'s submission before its cells are put in (``_columns``: each cell's column on
+    its board; ``_bases``: its board entry's ``_base``, the board engine's, for the grid's own)."""
+    return {
+        "submission_id": entry["submission_id"],
+        "name": entry["name"],
+        "participant": entry["participant"],
+        "baseline": entry["baseline"],
+        "cells": {},
+        "unranked": {},
+        "_columns": {},
+        "_bases": {},
+    }
+
+
 #: A grid row's own figures (its cells aside): the mean of its board scores and its stable score, with intervals.
 GRID_ROW_FIGURES = ("mean", "mean_low", "mean_high", "stable", "stable_low", "stable_high")
 
@@ -370,16 +385,7 @@ def build_grid(
     rows: dict[int, dict[str, Any]] = {}
 
     def row_for(e: Mapping[str, Any]) -> dict[str, Any]:
-        row = rows[e["submission_id"]] = {  # built once per submission, not once per board
-            "submission_id": e["submission_id"],
-            "name": e["name"],
-            "participant": e["participant"],
-            "baseline": e["baseline"],
-            "cells": {},
-            "unranked": {},
-            "_columns": {},
-            "_bases": {},  # each cell's board entry's ``_base`` (the board engine's), for the grid's own
-        }
+        row = rows[e["submission_id"]] = new_grid_row(e)  # built once per submission, not once per board
         return row
 
     for key in keys:

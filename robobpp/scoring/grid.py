@@ -24,6 +24,7 @@ from robobpp.scoring.boards import (
     LazyRows,
     RankedView,
     grid_figures,
+    new_grid_row,
     participant_key,
 )
 from robobpp.scoring.scores import RANKED_BY, competition_ranks
@@ -247,19 +248,9 @@ class GridMatrix:
         rows: dict[int, dict[str, Any]] = {}
 
         def row_for(e: Mapping[str, Any]) -> dict[str, Any]:
-            sid = e["submission_id"]
-            row = rows.get(sid)
+            row = rows.get(e["submission_id"])
             if row is None:
-                row = rows[sid] = {
-                    "submission_id": sid,
-                    "name": e["name"],
-                    "participant": e["participant"],
-                    "baseline": e["baseline"],
-                    "cells": {},
-                    "unranked": {},
-                    "_columns": {},
-                    "_bases": {},
-                }
+                row = rows[e["submission_id"]] = new_grid_row(e)
             return row
 
         for key, v in zip(self.keys, views, strict=True):

@@ -34,7 +34,7 @@ from datetime import timedelta
 from typing import Any, Protocol, cast
 
 import numpy as np
-from sqlalchemy import CursorResult, Table, Update, delete, or_, select, tuple_, update
+from sqlalchemy import CursorResult, Table, Update, delete, or_, tuple_, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -42,7 +42,6 @@ from robobpp.db.models import BoardPart, BoardPublication, utcnow
 from robobpp.server.services.board_engine import BoardEngine
 from robobpp.server.services.boards import (
     LAYOUT,
-    LEGACY_PARTS,
     ROW_PREFIX,
     VERSION_PARTS,
     SessionFactory,
@@ -57,6 +56,7 @@ from robobpp.server.services.boards import (
     row_hash,
     row_part,
     to_json,
+    version_parts,
 )
 
 log = logging.getLogger("robobpp.server")
@@ -250,16 +250,8 @@ class BoardPublisher:
         kept = self._held.get((track, key))
         if kept is not None and kept.version == version:
             return kept
-        rows = session.execute(
-            select(BoardPart.part, BoardPart.body).where(
-                BoardPart.track == track,
-                BoardPart.board == key,
-                BoardPart.version == version,
-                BoardPart.part.in_(VERSION_PARTS + LEGACY_PARTS),
-            )
-        ).all()
-        parts = {name: body for name, body in rows}
-        if "head" not in parts or "order" not in parts:
+        parts = version_parts(session, track, key, version)
+        if any(name not in parts for name in VERSION_PARTS):
             return _Held.empty(version)
         stored = decode_version(version, parts)
         head_parts = stored.head.get("parts", {})  # a layout-3 version: no chunk is reused

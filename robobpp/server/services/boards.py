@@ -367,6 +367,19 @@ VERSION_PARTS = ("head", "order")
 LEGACY_PARTS = ("rows", "index")
 
 
+def version_parts(session: Session, track: str, key: str, version: int) -> dict[str, bytes]:
+    """The parts of a board version that :func:`decode_version` reads, by name (those stored)."""
+    rows = session.execute(
+        select(BoardPart.part, BoardPart.body).where(
+            BoardPart.track == track,
+            BoardPart.board == key,
+            BoardPart.version == version,
+            BoardPart.part.in_(VERSION_PARTS + LEGACY_PARTS),
+        )
+    ).all()
+    return {name: body for name, body in rows}
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Reading
 
@@ -567,15 +580,7 @@ class BoardCache:
                 self._parts.move_to_end((track, key, version, "#"))
                 return cast(StoredVersion, hit)
         with self.session_factory() as session:
-            rows = session.execute(
-                select(BoardPart.part, BoardPart.body).where(
-                    BoardPart.track == track,
-                    BoardPart.board == key,
-                    BoardPart.version == version,
-                    BoardPart.part.in_(VERSION_PARTS + LEGACY_PARTS),
-                )
-            ).all()
-        parts = {name: body for name, body in rows}
+            parts = version_parts(session, track, key, version)
         if any(name not in parts for name in VERSION_PARTS):
             raise _Gone(key)
         stored = decode_version(version, parts)

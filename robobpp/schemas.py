@@ -277,6 +277,11 @@ class Leaderboard(BaseModel):
     entries: list[LeaderboardEntry]
     unranked_total: int
     unranked: list[UnrankedEntry]
+    column_tops: dict[str, list[float]] = Field(
+        default_factory=dict,
+        description="The view's best distinct values of each column (score, each metric), best first: what a "
+        "page of it highlights (a page shows a slice of the view)",
+    )
 
 
 class GridCell(BaseModel):
@@ -330,6 +335,11 @@ class OverallGrid(BaseModel):
     rows: list[GridRow]
     apart_total: int
     apart: list[GridRow]
+    column_tops: dict[str, list[float]] = Field(
+        default_factory=dict,
+        description="The view's best distinct scores of each board's column (``setting/dataset``), best "
+        "first: what a page of it highlights",
+    )
 
 
 class ServiceInfo(BaseModel):

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from robobpp.scoring import stats
-from robobpp.scoring.metrics import metrics_for
+from robobpp.scoring.metrics import METRIC_BY_KEY, metrics_for
 from robobpp.scoring.scores import (
     ANCHORS_VERSION,
     RANKED_BY,
@@ -72,6 +72,42 @@ class LazyRows(UserList[dict[str, Any]]):
     @data.setter
     def data(self, value: list[dict[str, Any]]) -> None:
         self._data, self._build = value, None
+
+
+#: How many distinct best values of each column a board's pages highlight.
+COLUMN_TOP = 4
+
+
+def top_values(values: Iterable[Any], better: str = "up", top: int = COLUMN_TOP) -> list[float]:
+    """The ``top`` best distinct finite values of a column, best first: what a page of a view highlights
+    (a page shows a slice of the view; its best values are not the column's)."""
+    column = np.array(
+        [v if isinstance(v, int | float) and not isinstance(v, bool) else np.nan for v in values]
+    )
+    return _top(column, better, top)
+
+
+def _top(column: np.ndarray, better: str, top: int = COLUMN_TOP) -> list[float]:
+    distinct = np.unique(column[np.isfinite(column)])  # ascending
+    best = distinct[::-1][:top] if better == "up" else distinct[:top]
+    return [float(v) for v in best.tolist()]
+
+
+def board_tops(scores: np.ndarray, metrics: np.ndarray, keys: Sequence[str]) -> dict[str, list[float]]:
+    """A view's column tops: its entries' scores and metrics (entries × ``keys``, NaN where missing)."""
+    tops = {"score": _top(np.asarray(scores, dtype=np.float64), "up")}
+    for j, key in enumerate(keys):
+        tops[key] = _top(metrics[:, j], METRIC_BY_KEY[key].better)
+    return tops
+
+
+def _metric_matrix(keys: Sequence[str], entries: Sequence[Mapping[str, Any]]) -> np.ndarray:
+    rows = [[(e.get("metrics") or {}).get(k) for k in keys] for e in entries]
+    out = np.array(
+        [[v if isinstance(v, int | float) and not isinstance(v, bool) else np.nan for v in r] for r in rows],
+        dtype=np.float64,
+    )
+    return out.reshape(len(entries), len(keys))
 
 
 def participant_key(row: Mapping[str, Any]) -> str:
@@ -254,6 +290,7 @@ def board_dict(
     stable_samples: np.ndarray,
     by_column: np.ndarray | None = None,
     index: dict[int, int] | None = None,
+    tops: dict[str, dict[str, list[float]]] | None = None,
 ) -> dict[str, Any]:
     """The board dict from its entries in rank order, unranked ones and best entries, both sorted.
     ``by_column``: the entries' scores and stable scores by ``_column`` (2 × entries), when at hand;
@@ -264,6 +301,12 @@ def board_dict(
         by_column = np.zeros((2, n))
         by_column[0, at] = np.fromiter((e["score"] for e in entries), dtype=np.float64, count=n)
         by_column[1, at] = np.fromiter((e["stable"] for e in entries), dtype=np.float64, count=n)
+    if tops is None:  # each view's column tops (the board engine hands them in from its arrays)
+        keys = [m.key for m in metrics_for(setting)]
+        tops = {
+            view: board_tops(np.array([e["score"] for e in listed]), _metric_matrix(keys, listed), keys)
+            for view, listed in (("best", best), ("all", entries))
+        }
     return {
         "dataset": dataset,
         "setting": setting,
@@ -285,6 +328,7 @@ def board_dict(
         "_samples": np.ascontiguousarray(samples[:GRID_RESAMPLES].T),
         "_stable_samples": np.ascontiguousarray(stable_samples[:GRID_RESAMPLES].T),
         "_by_column": by_column,  # for the grid's means
+        "_tops": tops,  # each view's column tops: what its pages highlight
     }
 
 
@@ -346,6 +390,7 @@ def board_view(
         "entries": [_served(e) for e in entries[offset : offset + limit]],
         "unranked_total": len(unranked),
         "unranked": [dict(e) for e in unranked[:limit]],
+        "column_tops": board.get("_tops", {}).get(view, {}),
     }
 
 
@@ -427,6 +472,10 @@ def build_grid(
     best.sort(key=lambda r: (r["rank"], r["submission_id"]))
     ranked = {participant_key(r) for r in best}
     return {
+        "_tops": {
+            view: {k: top_values(r["cells"][k]["score"] for r in listed) for k in keys}
+            for view, listed in (("best", best), ("all", complete))
+        },
         "datasets": list(datasets),
         "settings": list(settings),
         "track": track,
@@ -544,4 +593,5 @@ def grid_view(
         "rows": [_served(r) for r in rows[offset : offset + limit]],
         "apart_total": len(apart),
         "apart": [_served(r) for r in apart[:limit]],
+        "column_tops": grid.get("_tops", {}).get(view, {}),
     }

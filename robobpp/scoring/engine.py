@@ -34,6 +34,7 @@ from robobpp.scoring.boards import (
     LazyRows,
     RankedView,
     board_dict,
+    board_tops,
     classify_row,
     participant_key,
     public_fields,
@@ -354,7 +355,9 @@ class BoardMatrix:
                 rel_all[:, a : a + len(chunk_entries)] = rel.T
         return rel_all
 
-    def _points(self, ranked: Sequence[_Entry]) -> tuple[list[float], list[int], list[dict[str, float]]]:
+    def _points(
+        self, ranked: Sequence[_Entry]
+    ) -> tuple[list[float], list[int], list[dict[str, float]], np.ndarray]:
         """Point scores, competition ranks and normalised metrics (``scores.score_entries``, vectorised:
         the same operations in the same order, so the same numbers)."""
         n = len(ranked)
@@ -384,7 +387,7 @@ class BoardMatrix:
                     rows = norm.tolist()
                 known = e.normalized = (key, dict(zip(self.keys, rows[k], strict=True)))
             normalized.append(known[1])
-        return scores, competition_ranks(scores), normalized
+        return scores, competition_ranks(scores), normalized, points
 
     def _assemble(
         self,
@@ -404,7 +407,7 @@ class BoardMatrix:
                     {**e.public, "status": status, "reason": reason, "entries_submitted": submitted[e.who]}
                 )
         unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
-        scores, ranks, normalized = self._points(ranked)
+        scores, ranks, normalized, points = self._points(ranked)
         n = len(ranked)
         sids = np.fromiter((e.sid for e in ranked), dtype=np.int64, count=n)
         rank_of = np.asarray(ranks, dtype=np.int64).reshape(n)
@@ -464,6 +467,10 @@ class BoardMatrix:
             stable,
             by_column,
             index=dict(zip(view.ids.tolist(), range(n), strict=True)),
+            tops={
+                "best": board_tops(np.asarray(scores)[chosen], points[chosen], self.keys),
+                "all": board_tops(np.asarray(scores), points, self.keys),
+            },
         )
         board["protocol"] = self.protocol
         board["_ranked"] = view

@@ -26,6 +26,7 @@ from robobpp.scoring.boards import (
     grid_figures,
     new_grid_row,
     participant_key,
+    top_values,
 )
 from robobpp.scoring.scores import RANKED_BY, competition_ranks
 
@@ -90,14 +91,20 @@ class GridMatrix:
         for i, sid in enumerate(sids):
             if sid not in self._who:
                 self._who[sid] = participant_key(views[0].bases[cols[i, 0]])
+        tops: dict[str, dict[str, list[float]]] = {"best": {}, "all": {}}
         if n:
             rows, best, view = self._ranked(
                 boards, views, complete, sids, cols, serials, cell_ranks, rank_intervals
             )
+            chosen = np.isin(complete, [r["submission_id"] for r in best])
+            for j, key in enumerate(self.keys):  # each view's column tops: what its pages highlight
+                scores = boards[key]["_by_column"][0, cols[:, j]]
+                tops["all"][key], tops["best"][key] = top_values(scores), top_values(scores[chosen])
         else:
             none = np.zeros(0, dtype=np.int64)
             rows, best, view = LazyRows(list), [], RankedView(none, none, none, none, [], none, cell_ranks)
             self._sids, self._serials, self._figures, self._bases = none, serials, np.zeros((0, 9)), {}
+            tops = {v: {key: [] for key in self.keys} for v in ("best", "all")}
         apart = self._apart(boards, views, complete)
         ranked = {participant_key(r) for r in best}
         return {
@@ -111,6 +118,7 @@ class GridMatrix:
             "_best": best,
             "_best_apart": [r for r in apart if participant_key(r) not in ranked],
             "_ranked": view,
+            "_tops": tops,
         }
 
     def _ranked(

@@ -58,6 +58,18 @@ def dense_top(values: Sequence[float | None], better: str, top: int = TOP) -> li
     return [best.index(v) + 1 if _finite(v) and v in best else None for v in values]
 
 
+def places(
+    values: Sequence[float | None], better: str, tops: Sequence[float] | None = None
+) -> list[int | None]:
+    """Each value's place among ``tops`` (the view's best distinct values of the column, best first: a page
+    shows a slice of its view, so its own best values are not the column's), or among the values given when
+    the view's are not known."""
+    if tops is None:
+        return dense_top(values, better)
+    best = list(tops)
+    return [best.index(v) + 1 if _finite(v) and v in best else None for v in values]
+
+
 def _finite(v: Any) -> TypeGuard[float]:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
@@ -114,10 +126,12 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
     setting = board["setting"]
     columns = metric_columns(setting)
     entries = list(board.get("entries", []))
-    places = {
-        c.key: dense_top([(e.get("metrics") or {}).get(c.key) for e in entries], c.better) for c in columns
+    tops = board.get("column_tops") or {}
+    column_places = {
+        c.key: places([(e.get("metrics") or {}).get(c.key) for e in entries], c.better, tops.get(c.key))
+        for c in columns
     }
-    score_places = dense_top([e.get("score") for e in entries], "up")
+    score_places = places([e.get("score") for e in entries], "up", tops.get("score"))
     rows = []
     for i, e in enumerate(entries):
         metrics = e.get("metrics") or {}
@@ -143,7 +157,7 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
                     {
                         "key": c.key,
                         "value": metrics.get(c.key),
-                        "place": places[c.key][i],
+                        "place": column_places[c.key][i],
                         "ci": metric_span(*_bounds(intervals.get(c.key)), c.key),
                         "normalized": (e.get("normalized") or {}).get(c.key),
                     }
@@ -182,8 +196,10 @@ def grid_table(grid: Mapping[str, Any]) -> dict[str, Any]:
     datasets = list(grid.get("datasets", []))
     keys = [f"{s}/{d}" for s in settings for d in datasets]
     rows = list(grid.get("rows", []))
-    places = {
-        k: dense_top([(r.get("cells") or {}).get(k, {}).get("score") for r in rows], "up") for k in keys
+    tops = grid.get("column_tops") or {}
+    cell_places = {
+        k: places([(r.get("cells") or {}).get(k, {}).get("score") for r in rows], "up", tops.get(k))
+        for k in keys
     }
 
     def shaped(r: Mapping[str, Any], i: int | None) -> dict[str, Any]:
@@ -200,7 +216,7 @@ def grid_table(grid: Mapping[str, Any]) -> dict[str, Any]:
                     if cell
                     else "",
                     "unranked": (r.get("unranked") or {}).get(k),
-                    "place": places[k][i] if i is not None else None,
+                    "place": cell_places[k][i] if i is not None else None,
                 }
             )
         return {

@@ -358,6 +358,14 @@ def test_an_update_writes_only_the_entry_rows_whose_content_changed(quiet_app) -
     for dataset in DATASETS:
         got = cache.board_page(dataset, "math", "private", "closed", "all")
         assert got == json.loads(to_json(board_view(shown[(dataset, "math")], "all")))
+        # a page of one entry carries the whole view's column tops (what its pages highlight)
+        one = cache.board_page(dataset, "math", "private", "closed", "all", limit=1, offset=2)
+        scores = [e["score"] for e in got["entries"]]
+        assert one["column_tops"]["score"] == sorted(set(scores), reverse=True)[:4]
+        assert (
+            one["column_tops"]["space_utilization"]
+            == sorted({e["metrics"]["space_utilization"] for e in got["entries"]}, reverse=True)[:4]
+        )
     assert cache.grid_page("private", "closed", "all") == json.loads(to_json(grid_view(shown["grid"], "all")))
 
 

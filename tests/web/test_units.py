@@ -162,6 +162,31 @@ def test_board_table_columns_and_places() -> None:
     assert not table["has_pph"]
 
 
+def test_a_later_page_highlights_the_columns_best_values_not_its_own() -> None:
+    """Page 2 of a board shows a slice of its view: a value is marked only where it is among the view's best
+    (``column_tops``), never because it is the best of the rows shown."""
+    page = _board() | {
+        "column_tops": {
+            "score": [1.0, 0.95, 0.93, 0.9],
+            "space_utilization": [0.7, 0.6, 0.505, 0.5],
+            "occupancy": [0.99, 0.98, 0.97, 0.96],
+            "decision_time": [0.0001, 0.0002, 0.0005, 0.001],
+        }
+    }
+    first, second = board_table(page)["rows"]
+    assert first["score_place"] == 4 and second["score_place"] is None
+    assert [c["place"] for c in first["cells"]] == [3, None, None]
+    assert [c["place"] for c in second["cells"]] == [None, None, 4]
+    grid = {
+        "settings": ["math"],
+        "datasets": ["diverse"],
+        "rows": [{"cells": {"math/diverse": {"score": 0.5, "rank": 60}}}],
+        "column_tops": {"math/diverse": [0.9, 0.8, 0.7, 0.6]},
+    }
+    assert grid_table(grid)["rows"][0]["cells"][0]["place"] is None
+    assert grid_table({**grid, "column_tops": {}})["rows"][0]["cells"][0]["place"] == 1  # tops unknown
+
+
 def test_grid_table_and_radar() -> None:
     grid = {
         "settings": ["math"],

@@ -242,6 +242,7 @@ def board_parts(board: Mapping[str, Any]) -> StoredBoard:
     for name, items in lists.items():
         chunks |= _chunked(name, items)
     head = {"head": head, "counts": counts, "submitted": submitted, "unranked": unranked}
+    head["tops"] = board.get("_tops", {})  # each view's column tops (what a page highlights)
     return StoredBoard(head, chunks, ids, ranks, None, rows)
 
 
@@ -297,7 +298,8 @@ def grid_parts(grid: Mapping[str, Any]) -> StoredBoard:
         cells = np.array([[r["cells"][k]["rank"] for k in keys] for r in rows], dtype=np.int64).reshape(
             len(rows), len(keys)
         )
-    return StoredBoard({"head": head, "counts": counts}, chunks, ids, ranks, cells, stored)
+    head_part = {"head": head, "counts": counts, "tops": grid.get("_tops", {})}
+    return StoredBoard(head_part, chunks, ids, ranks, cells, stored)
 
 
 def parts_of(key: str, value: Mapping[str, Any]) -> StoredBoard:
@@ -677,6 +679,7 @@ class BoardCache:
             "entries": entries,
             "unranked_total": unranked_total,
             "unranked": unranked,
+            "column_tops": stored.get("tops", {}).get(view, {}),
         }
 
     def grid_page(
@@ -705,6 +708,7 @@ class BoardCache:
             ),
             "apart_total": counts[apart],
             "apart": self._slice(track, key, apart, counts[apart], 0, limit),
+            "column_tops": stored.get("tops", {}).get(view, {}),
         }
 
     def ranked_entry(

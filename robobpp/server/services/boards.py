@@ -53,8 +53,9 @@ CHUNK = 100
 #: Bumped when the layout of the stored parts changes: a server of another layout recomputes them.
 #: 3: an all-entries row without ``entries_submitted`` (the head's ``submitted`` gives it by participant).
 #: 4: no ``index`` nor ``rows`` part (``order`` holds each row's version and hash); a chunk is written only
-#: when its content changed (the head names the version holding each).
-LAYOUT = 4
+#: when its content changed (the head names the version holding each). 5: the head carries each view's column
+#: tops (what its pages highlight).
+LAYOUT = 5
 
 
 def board_version(session: Session, track: str) -> tuple[Any, ...]:
@@ -337,7 +338,7 @@ def decode_version(version: int, parts: Mapping[str, bytes]) -> StoredVersion:
     publication, served until the upgraded worker replaces it), from its ``head``, ``order``, ``rows`` and
     ``index``, every chunk at the version itself."""
     head = json.loads(parts["head"])
-    if "parts" in head:  # layout 4
+    if "parts" in head:  # layout 4 and later
         order = Order.decode(parts["order"])
         chunks = {name: int(at[0]) for name, at in head["parts"].items()}
         located = _located(order.ids, head.get("unranked", ()))

@@ -81,6 +81,8 @@ COLUMN_TOP = 4
 def top_values(values: Iterable[Any], better: str = "up", top: int = COLUMN_TOP) -> list[float]:
     """The ``top`` best distinct finite values of a column, best first: what a page of a view highlights
     (a page shows a slice of the view; its best values are not the column's)."""
+    if isinstance(values, np.ndarray):  # the board engine's arrays
+        return _top(values.astype(np.float64), better, top)
     column = np.array(
         [v if isinstance(v, int | float) and not isinstance(v, bool) else np.nan for v in values]
     )

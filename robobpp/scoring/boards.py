@@ -357,6 +357,28 @@ def _mark_best(
         )
 
 
+def best_of_participants(
+    who: Iterable[str],
+    ids: np.ndarray,
+    ranks: np.ndarray,
+    scores: Sequence[float],
+    samples: Callable[[list[int]], np.ndarray],
+) -> dict[int, tuple[int, int, int]]:
+    """:func:`_mark_best` by arrays (the board engine's boards and grid): each participant's best position
+    (the least rank, then id, of theirs) -> its rank among the best ones and its rank interval
+    (``samples(positions)``: those positions' score samples, resamples × positions)."""
+    codes: dict[str, int] = {}
+    n = len(ids)
+    code = np.fromiter((codes.setdefault(w, len(codes)) for w in who), dtype=np.int64, count=n)
+    by = np.lexsort((ids, ranks, code))
+    chosen = np.sort(by[np.r_[True, code[by][1:] != code[by][:-1]]] if n else by).tolist()
+    if not chosen:
+        return {}
+    best_ranks = competition_ranks([scores[i] for i in chosen])
+    low, high = stats.rank_interval(stats.rank_samples(samples(chosen)))
+    return {i: (best_ranks[k], int(low[k]), int(high[k])) for k, i in enumerate(chosen)}
+
+
 def find_entry(board: Mapping[str, Any], submission_id: int) -> Mapping[str, Any] | None:
     """A submission's ranked entry on a board, or None (a dictionary lookup on a board built here)."""
     entries = board.get("entries") or []

@@ -33,6 +33,7 @@ from robobpp.scoring.boards import (
     GRID_RESAMPLES,
     LazyRows,
     RankedView,
+    best_of_participants,
     board_dict,
     board_tops,
     classify_row,
@@ -411,16 +412,8 @@ class BoardMatrix:
         n = len(ranked)
         sids = np.fromiter((e.sid for e in ranked), dtype=np.int64, count=n)
         rank_of = np.asarray(ranks, dtype=np.int64).reshape(n)
-        # each participant's best entry (``boards._mark_best``): the least (rank, id) of theirs
-        codes: dict[str, int] = {}
-        who = np.fromiter((codes.setdefault(e.who, len(codes)) for e in ranked), dtype=np.int64, count=n)
-        by = np.lexsort((sids, rank_of, who))
-        firsts = by[np.r_[True, who[by][1:] != who[by][:-1]]] if n else by
-        chosen = np.sort(firsts).tolist()
-        best_ranks = competition_ranks([scores[i] for i in chosen])
-        if chosen:
-            low, high = stats.rank_interval(stats.rank_samples(best_samples(chosen)))
-        best_of = {i: (best_ranks[k], int(low[k]), int(high[k])) for k, i in enumerate(chosen)}
+        best_of = best_of_participants((e.who for e in ranked), sids, rank_of, scores, best_samples)
+        chosen = sorted(best_of)
         bases: list[dict[str, Any]] = []
         serials = np.empty(n, dtype=np.int64)
         for i, e in enumerate(ranked):  # 150,000 entries an update: the unchanged row found inline

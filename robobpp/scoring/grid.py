@@ -18,17 +18,18 @@ from typing import Any
 
 import numpy as np
 
-from robobpp.scoring import stats
 from robobpp.scoring.boards import (
     GRID_ROW_FIGURES,
+    GridFigures,
     LazyRows,
     RankedView,
+    best_of_participants,
     grid_figures,
     new_grid_row,
     participant_key,
     top_values,
 )
-from robobpp.scoring.scores import RANKED_BY, competition_ranks
+from robobpp.scoring.scores import RANKED_BY
 
 #: A cell's figures as its board entry shows them (``build_grid``'s cell, in its order; ``pph`` last).
 _CELL_FIGURES = (
@@ -146,16 +147,9 @@ class GridMatrix:
                 at = np.minimum(np.searchsorted(known_ids, complete), len(known_ids) - 1)
                 hit = known_ids[at] == complete
                 rank_low[hit], rank_high[hit] = low[at[hit]], high[at[hit]]
-        # each participant's best row (``boards._mark_best``): the least (rank, id) of theirs
-        codes: dict[str, int] = {}
-        who = np.fromiter((codes.setdefault(self._who[s], len(codes)) for s in sids), dtype=np.int64, count=n)
-        by = np.lexsort((complete, ranks, who))
-        chosen = np.sort(by[np.r_[True, who[by][1:] != who[by][:-1]]]).tolist()
-        best_ranks = competition_ranks([f.means[i] for i in chosen])
-        best_low, best_high = stats.rank_interval(stats.rank_samples(f.best_samples(chosen)))
-        best_of = {i: (best_ranks[c], int(best_low[c]), int(best_high[c])) for c, i in enumerate(chosen)}
+        best_of = best_of_participants((self._who[s] for s in sids), complete, ranks, f.means, f.best_samples)
         is_best = np.zeros(n)
-        is_best[chosen] = 1.0
+        is_best[list(best_of)] = 1.0
         figures = np.column_stack(
             [f.means, f.low, f.high, f.stables, f.stable_low, f.stable_high, rank_low, rank_high, is_best]
         )
@@ -216,10 +210,10 @@ class GridMatrix:
         cols: np.ndarray,
         serials: np.ndarray,
         figures: np.ndarray,
-        f: Any,
+        f: GridFigures,
         i: int,
     ) -> dict[str, Any]:
-        """A complete row without its ranks (what ``_grid_bases`` made of ``build_grid``'s row)."""
+        """A complete row without its ranks (``build_grid``'s row as the publisher stores it)."""
         cells = {}
         for j, key in enumerate(self.keys):
             known = self._cells[j].get(sid)

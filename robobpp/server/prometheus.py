@@ -57,29 +57,6 @@ class _QueueCollector(Collector):
             labels=["status"],
         )
         submissions = GaugeMetricFamily("robobpp_submissions", "Submissions by status", labels=["status"])
-        try:
-            with self.app.state.runtime.read_session() as session:
-                queue, active, marker = queries.queue_snapshot(session)  # one round trip
-                if self._finished is None or self._finished[0] != marker:
-                    finished = queries.submission_status_counts(session, FINISHED_SUBMISSIONS)
-                    self._finished = (marker, finished)
-            for status, n in queue.items():
-                episodes.add_metric([status], n)
-            for status, n in {**active, **self._finished[1]}.items():
-                submissions.add_metric([status], n)
-        except Exception:  # noqa: BLE001 - a scrape must not fail because the database blinked
-            pass
-        yield episodes
-        yield submissions
-        yield from self._boards()
-
-    def _boards(self) -> Iterable[GaugeMetricFamily]:
-        """Each track's published boards (services/board_worker.py), whichever process computed them."""
-        from sqlalchemy import select
-
-        from robobpp.db.models import BoardPublication
-        from robobpp.server.services.board_worker import TRACKS
-
         version = GaugeMetricFamily(
             "robobpp_board_version", "Publications of the track's boards so far", labels=["track"]
         )
@@ -89,19 +66,39 @@ class _QueueCollector(Collector):
             labels=["track"],
         )
         try:
-            with self.app.state.runtime.read_session() as session:
-                rows = session.execute(
-                    select(BoardPublication.track, BoardPublication.version, BoardPublication.seconds).where(
-                        BoardPublication.track.in_(TRACKS)  # by primary key, as every scrape query
-                    )
-                ).all()
-            for track, published, took in rows:
-                version.add_metric([track], published)
+            with self.app.state.runtime.read_session() as session:  # one transaction for the whole scrape
+                queue, active, marker = queries.queue_snapshot(session)  # one round trip
+                if self._finished is None or self._finished[0] != marker:
+                    finished = queries.submission_status_counts(session, FINISHED_SUBMISSIONS)
+                    self._finished = (marker, finished)
+                published = self._boards(session)
+            for status, n in queue.items():
+                episodes.add_metric([status], n)
+            for status, n in {**active, **self._finished[1]}.items():
+                submissions.add_metric([status], n)
+            for track, at, took in published:
+                version.add_metric([track], at)
                 seconds.add_metric([track], took)
         except Exception:  # noqa: BLE001 - a scrape must not fail because the database blinked
             pass
-        yield version
-        yield seconds
+        yield from (episodes, submissions, version, seconds)
+
+    @staticmethod
+    def _boards(session: Any) -> list[tuple[str, int, float]]:
+        """Each track's published boards (services/board_worker.py), whichever process computed them."""
+        from sqlalchemy import select
+
+        from robobpp.db.models import BoardPublication
+        from robobpp.server.services.board_worker import TRACKS
+
+        return [
+            (track, published, took)
+            for track, published, took in session.execute(
+                select(BoardPublication.track, BoardPublication.version, BoardPublication.seconds).where(
+                    BoardPublication.track.in_(TRACKS)  # by primary key, as every scrape query
+                )
+            ).all()
+        ]
 
 
 def route_template(scope: Mapping[str, Any]) -> str:

@@ -18,9 +18,11 @@ from sqlalchemy import select, update
 
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.db import work
-from robobpp.db.models import EpisodeRow, Participant
+from robobpp.db.models import EpisodeRow, Participant, Submission, utcnow
 from robobpp.policies.dbl import DBL
+from robobpp.server import pages
 from robobpp.server.app import create_app
+from robobpp.server.site.render import CSRF_SLOT
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.run import claim_and_run
 from tests.server.conftest import ADMIN_TOKEN, OFFLINE
@@ -234,3 +236,71 @@ def test_the_ids_a_policy_sees_name_neither_split_nor_group(app: Any) -> None:
         assert set(s.execute(select(EpisodeRow.status).where(EpisodeRow.submission_id == sid)).scalars()) == {
             "done"
         }
+
+
+def _finish(app: Any, sid: int) -> None:
+    with app.state.runtime.session() as s:
+        s.execute(
+            update(Submission).where(Submission.id == sid).values(status="completed", finished_at=utcnow())
+        )
+
+
+def test_a_finished_submissions_page_is_rendered_once_and_carries_each_viewers_own_nonce(
+    app: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Kept per kind of viewer and publication, the page still carries the nonce of the browser that asks:
+    its forms (sign-out) work for that browser and for no other."""
+    with TestClient(app) as admin_client:
+        token = _participant(admin_client, "erin")
+    sid = _submission(app, "erin", track="private")
+    _finish(app, sid)
+    rendered: list[str] = []
+    original = pages.render
+
+    def counting(request: Any, template: str, *args: Any, **kwargs: Any) -> Any:
+        rendered.append(template)
+        return original(request, template, *args, **kwargs)
+
+    monkeypatch.setattr(pages, "render", counting)
+    with TestClient(app) as one, TestClient(app) as two:
+        assert _sign_in(one, token).status_code == _sign_in(two, token).status_code == 303
+        first, second = one.get(f"/submissions/{sid}"), two.get(f"/submissions/{sid}")
+        assert first.status_code == second.status_code == 200
+        assert rendered.count("submission.html") == 1  # the second viewer got the kept page
+        assert CSRF_SLOT not in first.text and CSRF_SLOT not in second.text
+        assert first.headers["cache-control"] == second.headers["cache-control"] == "private, no-store"
+        mine, theirs = _csrf(first.text), _csrf(second.text)
+        assert mine != theirs and mine == _csrf(one.get("/account").text)
+        assert two.post("/sign-out", data={"csrf": mine}, follow_redirects=False).status_code == 403
+        assert two.post("/sign-out", data={"csrf": theirs}, follow_redirects=False).status_code == 303
+        assert two.get(f"/submissions/{sid}").status_code == 404  # signed out: not its page any more
+        assert one.get(f"/submissions/{sid}").status_code == 200
+
+
+@pytest.mark.parametrize(
+    "path", ["/account", "/submissions/{sid}", "/submissions/{sid}/status.json", "/operator"]
+)
+def test_a_signed_in_page_reads_its_viewer_in_its_own_transaction(app: Any, path: str) -> None:
+    """The session and token rows are read in the page's one transaction, not in one of their own before it
+    (each costs a worker-thread hand-off and four round trips under load)."""
+    with TestClient(app) as admin_client:
+        token = _participant(admin_client, "frank")
+    sid = _submission(app, "frank", track="private")
+    runtime = app.state.runtime
+    opened: list[int] = []
+    original = runtime.read_session
+
+    def counting() -> Any:
+        opened.append(1)
+        return original()
+
+    with TestClient(app) as browser:
+        assert _sign_in(browser, ADMIN_TOKEN if path == "/operator" else token).status_code == 303
+        url = path.format(sid=sid)
+        assert browser.get(url).status_code == 200  # warm: the kept forms
+        runtime.read_session = counting
+        try:
+            assert browser.get(url).status_code == 200
+        finally:
+            del runtime.read_session
+        assert len(opened) == 1

@@ -12,6 +12,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Path, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import ValidationError
+from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from robobpp.datasets import DATASETS
@@ -24,7 +25,7 @@ from robobpp.server.services import access, accounts, admission
 from robobpp.server.services.submissions import finished_views, submission_models
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import not_found, redirect, refused, render
-from robobpp.server.site.session import Viewer, load_viewer, viewer
+from robobpp.server.site.session import Viewer, load_viewer, resolved_in_handler, viewer
 
 router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
@@ -35,13 +36,17 @@ BAD_CSRF = "This form has expired or did not come from this site. Reload the pag
 PULL_OFFERED = "mode" in SubmissionCreate.model_fields
 
 
-def principal_of(request: Request, who: Viewer) -> Principal | None:
-    """The API's principal for a signed-in viewer (a fresh participant row), or None when signed out."""
+def principal_of(request: Request, who: Viewer, session: Session | None = None) -> Principal | None:
+    """The API's principal for a signed-in viewer (a fresh participant row), or None when signed out.
+    ``session``: the caller's transaction (else one of its own)."""
     if who.admin:
         return Principal(None, admin=True)
     if who.participant_id is None:
         return None
-    with request.app.state.runtime.read_session() as session:
+    if session is None:
+        with request.app.state.runtime.read_session() as own:
+            participant = own.get(Participant, who.participant_id)
+    else:
         participant = session.get(Participant, who.participant_id)
     return None if participant is None else Principal(participant, token_id=who.token_id)
 
@@ -125,13 +130,14 @@ Page = Annotated[int, Query(ge=1, le=10**5)]
 
 
 @router.get("/account", response_class=HTMLResponse)
+@resolved_in_handler
 def account_page(request: Request, page: Page = 1) -> Response:
-    who = viewer(request)
-    principal = principal_of(request, who)
-    if principal is None:
-        return _need_sign_in(request)
     settings = request.app.state.settings
     with request.app.state.runtime.read_session() as session:
+        who = viewer(request, session)
+        principal = principal_of(request, who, session)
+        if principal is None:
+            return _need_sign_in(request)
         me = accounts.me_of(session, principal, settings)
         # one more than a page: whether a next page exists, without counting every submission
         subs = submission_models(

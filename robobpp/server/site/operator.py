@@ -24,7 +24,7 @@ from robobpp.server.services.submissions import finished_views, submission_model
 from robobpp.server.site import session as web_session
 from robobpp.server.site.account import ACCOUNT_PAGE_SIZE, BAD_CSRF, Page, Text, problem_page, problem_text
 from robobpp.server.site.render import not_found, redirect, refused, render, root
-from robobpp.server.site.session import load_viewer, viewer
+from robobpp.server.site.session import load_viewer, resolved_in_handler, viewer
 from robobpp.web import environment
 
 router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
@@ -52,9 +52,13 @@ def _participants_page(
     error: str | None = None,
     name: str = "",
     status_code: int = 200,
+    check_admin: bool = False,
 ) -> Response:
+    """``check_admin``: the viewer is resolved here, in this page's transaction (the GET route)."""
     state = request.app.state
     with state.runtime.read_session() as session:
+        if check_admin and not viewer(request, session).admin:
+            return not_found(request, "There is no such page.")
         # the counts change only with a new participant, token or submission, or a revoked token
         version, kept = queries.participants_version(session), getattr(state, "operator_rows", None)
         if kept is not None and kept[0] == version:
@@ -84,10 +88,9 @@ def _participants_table(base: str, rows: tuple[queries.ParticipantSummary, ...])
 
 
 @router.get("/operator", response_class=HTMLResponse)
+@resolved_in_handler
 def operator_page(request: Request) -> Response:
-    if not _is_admin(request):
-        return not_found(request, "There is no such page.")
-    return _participants_page(request)
+    return _participants_page(request, check_admin=True)
 
 
 @router.post("/operator/participants", response_class=HTMLResponse)

@@ -13,13 +13,16 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Any
+from functools import lru_cache
+from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
 from fastapi import Request, Response
 from itsdangerous import BadSignature, URLSafeTimedSerializer
+from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from robobpp.db.models import ApiToken, WebSession, utcnow
@@ -51,7 +54,13 @@ class Viewer:
 
 
 def _serializer(settings: Settings) -> URLSafeTimedSerializer:
-    key = hmac.new(settings.effective_admin_token.encode(), b"robobpp web session v1", hashlib.sha256)
+    return _serializer_for(settings.effective_admin_token)
+
+
+@lru_cache(maxsize=4)
+def _serializer_for(admin_token: str) -> URLSafeTimedSerializer:
+    """Built once per admin token (not per request: the key derivation is a third of reading a cookie)."""
+    key = hmac.new(admin_token.encode(), b"robobpp web session v1", hashlib.sha256)
     return URLSafeTimedSerializer(key.digest(), salt="robobpp.session")
 
 
@@ -66,9 +75,10 @@ def _load(request: Request) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
-def viewer(request: Request) -> Viewer:
+def viewer(request: Request, session: Session | None = None) -> Viewer:
     """The request's viewer, looked up once per request (the session row and the token row decide, not the
-    cookie alone)."""
+    cookie alone). ``session``: the handler's own read transaction, when the viewer was left to it
+    (:func:`resolved_in_handler`); otherwise a transaction of its own."""
     cached = getattr(request.state, "viewer", None)
     if cached is not None:
         return cached
@@ -76,35 +86,60 @@ def viewer(request: Request) -> Viewer:
     nonce = found if isinstance(found := data.get("n"), str) else ""
     found = Viewer(nonce=nonce)
     if isinstance(data.get("s"), int):
-        with request.app.state.runtime.read_session() as session:
-            row = session.get(WebSession, data["s"])
-            if row is not None and row.revoked_at is None and _fresh(row.created_at):
-                if row.admin:
-                    found = Viewer(nonce=nonce, admin=True, name="operator", session_id=row.id)
-                elif row.token_id is not None:
-                    token = session.get(ApiToken, row.token_id)
-                    if token is not None and token.revoked_at is None and not token.participant.is_builtin:
-                        found = Viewer(
-                            nonce=nonce,
-                            participant_id=token.participant_id,
-                            name=token.participant.name,
-                            token_id=token.id,
-                            session_id=row.id,
-                        )
+        if session is None:
+            with request.app.state.runtime.read_session() as own:
+                found = _signed_in(own, data["s"], nonce) or found
+        else:
+            found = _signed_in(session, data["s"], nonce) or found
     request.state.viewer = found
     return found
+
+
+def _signed_in(session: Session, session_id: int, nonce: str) -> Viewer | None:
+    row = session.get(WebSession, session_id)
+    if row is None or row.revoked_at is not None or not _fresh(row.created_at):
+        return None
+    if row.admin:
+        return Viewer(nonce=nonce, admin=True, name="operator", session_id=row.id)
+    if row.token_id is None:
+        return None
+    token = session.get(ApiToken, row.token_id)
+    if token is None or token.revoked_at is not None or token.participant.is_builtin:
+        return None
+    return Viewer(
+        nonce=nonce,
+        participant_id=token.participant_id,
+        name=token.participant.name,
+        token_id=token.id,
+        session_id=row.id,
+    )
 
 
 def _fresh(created_at: datetime) -> bool:
     return utcnow() - created_at < timedelta(seconds=MAX_AGE_S)
 
 
-async def load_viewer(request: Request) -> Viewer:
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def resolved_in_handler(endpoint: F) -> F:
+    """Marks a route whose handler reads SQL in one transaction of its own and calls
+    ``viewer(request, session)`` there first: a signed-in viewer's rows are then read in that transaction,
+    not in a worker-thread hand-off and a transaction of their own before it (under 20 readers each
+    hand-off waits for the GIL: BENCHMARKS.md)."""
+    endpoint.__dict__["_viewer_in_handler"] = True
+    return endpoint
+
+
+async def load_viewer(request: Request) -> Viewer | None:
     """Router dependency: resolve (and cache) the viewer before the handler opens its own transaction.
 
     Async, so an anonymous visitor (whose cookie alone decides) costs no worker thread; a signed-in one's
-    session and token rows are read in one."""
+    session and token rows are read in one — or in the handler's own transaction where the route says so
+    (:func:`resolved_in_handler`)."""
     if getattr(request.state, "viewer", None) is None and isinstance(_load(request).get("s"), int):
+        if getattr(request.scope.get("endpoint"), "_viewer_in_handler", False):
+            return None
         return await run_in_threadpool(viewer, request)
     return viewer(request)
 

@@ -304,3 +304,23 @@ def test_a_signed_in_page_reads_its_viewer_in_its_own_transaction(app: Any, path
         finally:
             del runtime.read_session
         assert len(opened) == 1
+
+
+def test_a_kept_submission_row_carries_each_viewers_own_nonce(app: Any) -> None:
+    """The account page's rows are kept as HTML for every viewer; the cancel form of an active submission
+    must still carry the nonce of the browser that reads it."""
+    with TestClient(app) as admin_client:
+        token = _participant(admin_client, "gina")
+    sid = _submission(app, "gina", track="private")  # queued: its row has a cancel form
+    with TestClient(app) as one, TestClient(app) as two:
+        assert _sign_in(one, token).status_code == _sign_in(two, token).status_code == 303
+        first, second = one.get("/account").text, two.get("/account").text
+        forms = [
+            re.findall(rf'/submissions/{sid}/cancel".*?name="csrf" value="([^"]+)"', t)
+            for t in (first, second)
+        ]
+        assert forms[0] == [_csrf(one.get("/account").text)] and forms[1] == [_csrf(second)]
+        assert forms[0] != forms[1] and CSRF_SLOT not in first + second
+        cancel = f"/submissions/{sid}/cancel"
+        assert two.post(cancel, data={"csrf": forms[0][0]}, follow_redirects=False).status_code == 403
+        assert two.post(cancel, data={"csrf": forms[1][0]}, follow_redirects=False).status_code == 303

@@ -24,8 +24,6 @@ from sqlalchemy.orm import Session
 
 from robobpp.db import queries
 from robobpp.db.models import Submission
-from robobpp.schemas import SubmissionPublic
-from robobpp.server.principal import Principal
 
 T = TypeVar("T")
 FINISHED = ("completed", "failed", "cancelled")
@@ -125,11 +123,3 @@ def listed_forms(
         ]
 
     return views.get_many(kind, keys, build_missing, counts)
-
-
-def submission_models(
-    views: FinishedViews, session: Session, principal: Principal, limit: int = 50, offset: int = 0
-) -> list[SubmissionPublic]:
-    """The listed submissions as models (the account pages); see :func:`listed_forms`."""
-    owner = None if principal.admin else principal.participant_id
-    return listed_forms(views, session, owner, limit, offset, ("model",), SubmissionPublic.model_validate)

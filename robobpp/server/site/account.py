@@ -11,6 +11,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Form, Path, Query, Request
 from fastapi.responses import HTMLResponse, Response
+from markupsafe import Markup
 from pydantic import ValidationError
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
@@ -18,14 +19,15 @@ from starlette.concurrency import run_in_threadpool
 from robobpp.datasets import DATASETS
 from robobpp.db import queries
 from robobpp.db.models import Participant
-from robobpp.schemas import SubmissionCreate
+from robobpp.schemas import SubmissionCreate, SubmissionPublic
 from robobpp.server.principal import Principal, auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, accounts, admission
-from robobpp.server.services.submissions import finished_views, submission_models
+from robobpp.server.services.submissions import finished_views, listed_forms
 from robobpp.server.site import session as web_session
-from robobpp.server.site.render import not_found, redirect, refused, render
+from robobpp.server.site.render import CSRF_SLOT, not_found, redirect, refused, render, root
 from robobpp.server.site.session import Viewer, load_viewer, resolved_in_handler, viewer
+from robobpp.web import environment
 
 router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
@@ -124,6 +126,33 @@ def _need_sign_in(request: Request) -> Response:
 # ---- your submissions ------------------------------------------------------------------------------------
 
 
+def submission_rows(
+    request: Request, session: Session, owner: int | None, page: int, *, show_participant: bool
+) -> tuple[Markup, bool]:
+    """A page of submissions (newest first; ``owner``'s, or everyone's) as the rows of the submissions table,
+    and whether an older page exists. Each row is kept as HTML with its submission's other served forms
+    (services/submissions.py) and its CSRF nonce put in for this viewer: a page renders only the rows whose
+    submission changed, not fifty (a third of the page's CPU before)."""
+    base = root(request)
+    row = environment().get_template("_submissions.html").module.submission_row  # type: ignore[attr-defined]
+
+    def build(view: dict[str, Any]) -> str:
+        return str(row(SubmissionPublic.model_validate(view), base, CSRF_SLOT, show_participant))
+
+    # one more than a page: whether an older page exists, without counting every submission
+    rows = listed_forms(
+        finished_views(request.app.state),
+        session,
+        owner,
+        ACCOUNT_PAGE_SIZE + 1,
+        (page - 1) * ACCOUNT_PAGE_SIZE,
+        ("row-html", base, show_participant),
+        build,
+    )
+    html = "".join(rows[:ACCOUNT_PAGE_SIZE]).replace(CSRF_SLOT, viewer(request).nonce)
+    return Markup(html), len(rows) > ACCOUNT_PAGE_SIZE
+
+
 #: Submissions per page of the account page and an operator's participant page (newest first).
 ACCOUNT_PAGE_SIZE = 50
 Page = Annotated[int, Query(ge=1, le=10**5)]
@@ -140,12 +169,8 @@ def account_page(request: Request, page: Page = 1) -> Response:
             return _need_sign_in(request)
         me = accounts.me_of(session, principal, settings)
         # one more than a page: whether a next page exists, without counting every submission
-        subs = submission_models(
-            finished_views(request.app.state),
-            session,
-            principal,
-            limit=ACCOUNT_PAGE_SIZE + 1,
-            offset=(page - 1) * ACCOUNT_PAGE_SIZE,
+        rows, more = submission_rows(
+            request, session, principal.participant_id, page, show_participant=who.admin
         )
         tokens = accounts.list_tokens(session, principal) if not who.admin else []
     return render(
@@ -154,10 +179,10 @@ def account_page(request: Request, page: Page = 1) -> Response:
         title="Your submissions" if not who.admin else "All submissions",
         nav="account",
         me=me,
-        subs=subs[:ACCOUNT_PAGE_SIZE],
+        rows=rows,
         tokens=tokens,
         page=page,
-        more=len(subs) > ACCOUNT_PAGE_SIZE,
+        more=more,
     )
 
 

@@ -20,9 +20,8 @@ from robobpp.schemas import ParticipantCreate, TokenCreated
 from robobpp.server.principal import Principal
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import accounts
-from robobpp.server.services.submissions import finished_views, submission_models
 from robobpp.server.site import session as web_session
-from robobpp.server.site.account import ACCOUNT_PAGE_SIZE, BAD_CSRF, Page, Text, problem_page, problem_text
+from robobpp.server.site.account import BAD_CSRF, Page, Text, problem_page, problem_text, submission_rows
 from robobpp.server.site.render import not_found, redirect, refused, render, root
 from robobpp.server.site.session import load_viewer, resolved_in_handler, viewer
 from robobpp.web import environment
@@ -120,14 +119,7 @@ def _participant_page(
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")
         tokens = accounts.list_tokens(session, ADMIN, participant_id)
-        # one more than a page: whether an older page exists, without counting every submission
-        subs = submission_models(
-            finished_views(request.app.state),
-            session,
-            Principal(participant, admin=False),
-            limit=ACCOUNT_PAGE_SIZE + 1,
-            offset=(page - 1) * ACCOUNT_PAGE_SIZE,
-        )
+        rows, more = submission_rows(request, session, participant.id, page, show_participant=False)
         info = {
             "id": participant.id,
             "name": participant.name,
@@ -142,10 +134,10 @@ def _participant_page(
         nav="operator",
         participant=info,
         tokens=tokens,
-        subs=subs[:ACCOUNT_PAGE_SIZE],
+        rows=rows,
         created=created,
         page=page,
-        more=len(subs) > ACCOUNT_PAGE_SIZE,
+        more=more,
     )
 
 

@@ -25,7 +25,7 @@ from robobpp.server.services import board_engine
 from robobpp.server.services import boards as boards_module
 from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
 from robobpp.server.services.board_worker import BoardPublisher, BoardWorker, request_recompute
-from robobpp.server.services.boards import BoardCache, to_json
+from robobpp.server.services.boards import BoardCache, board_key, to_json
 from tests.server.conftest import submit_direct
 from tests.server.test_scale import DATASETS, GROUPS, drain, make_app, operator_browser, submit
 
@@ -623,3 +623,23 @@ def test_a_version_stored_by_layout_3_is_served_and_replaced(quiet_app) -> None:
     fresh = reader(app)
     assert fresh.board_page("diverse", "math", "private", "closed", "all") == pages["board"]
     assert fresh.grid_page("private", "closed", "all") == pages["grid"]
+
+
+def test_a_reader_keeps_only_the_current_version_of_a_boards_order(quiet_app) -> None:
+    """A reader decodes each board's version once and drops the older version's decoded order when a newer
+    one is read (it grew with N on every publication before, kept until 4,096 newer parts pushed it out)."""
+    app = quiet_app
+    submit(app, "alice", "builtin:random", name="first-entry")
+    drain(app)
+    assert publisher(app).publish("private")
+    cache = reader(app)
+    key = board_key("diverse", "math", "closed")
+    cache.board_page("diverse", "math", "private", "closed", "all", 10, 0)
+    first = published(app)[0]
+    submit(app, "bob", "builtin:dbl", name="second-entry")
+    drain(app)
+    assert publisher(app).publish("private")
+    cache.publication("private", force=True)
+    cache.board_page("diverse", "math", "private", "closed", "all", 10, 0)
+    versions = [k[2] for k in cache._parts if k[3] == "#" and k[:2] == ("private", key)]
+    assert len(versions) == 1 and versions[0] > first

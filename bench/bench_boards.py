@@ -33,13 +33,12 @@ from typing import Any
 
 import httpx
 from _common import machine
-from bench_server import GROUPS, SETTINGS, children, seed_rows, start_server
+from bench_server import SETTINGS, bench_settings, children, seed_rows, start_server
 from bench_server import rss_mb as process_rss_mb
 from sqlalchemy import text
 
 from robobpp.scoring.metrics import PHYSICAL
 from robobpp.server.bootstrap import bootstrap
-from robobpp.server.config import Settings
 from robobpp.server.runtime import Runtime
 from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
 
@@ -82,17 +81,7 @@ def main() -> None:
 
     tmp = Path(tempfile.mkdtemp(prefix="robobpp-bench-boards-"))
     url = args.database_url or f"sqlite:///{tmp / 'bench.sqlite3'}"
-    runtime = Runtime(
-        Settings(
-            database_url=url,
-            state_dir=tmp,
-            workers=0,
-            evaluate_baselines=False,
-            settings=SETTINGS,
-            groups=GROUPS,
-            spec_provider="robobpp.worker.specs:offline_spec",
-        )
-    )
+    runtime = Runtime(bench_settings(url, tmp))
     bootstrap(runtime)
     figures: dict[str, Any] = {"machine": machine()}
     if not args.reuse:

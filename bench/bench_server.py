@@ -52,6 +52,21 @@ from robobpp.server.services.board_engine import leaderboard
 ADMIN = "bench-admin-token-0123456789abcdef"
 
 
+def bench_settings(url: str, state_dir: Path) -> Settings:
+    """The server settings every bench's database is seeded and read with (the nine boards, 30 groups, no
+    workers, no baselines; the offline spec provider, so no dataset download is needed)."""
+    return Settings(
+        database_url=url,
+        state_dir=state_dir,
+        admin_token=ADMIN,
+        workers=0,
+        evaluate_baselines=False,
+        settings=SETTINGS,
+        groups=GROUPS,
+        spec_provider="robobpp.worker.specs:offline_spec",
+    )
+
+
 def seed_rows(
     runtime: Any, n: int, *, first: int = 0, fixed_quality: float | None = None, episodes_every: int = 1
 ) -> int:
@@ -391,17 +406,7 @@ def main() -> None:
     tmp = Path(args.state_dir) if args.state_dir else Path(tempfile.mkdtemp(prefix="robobpp-bench-"))
     tmp.mkdir(parents=True, exist_ok=True)
     url = args.database_url or f"sqlite:///{tmp / 'bench.sqlite3'}"
-    settings = Settings(
-        database_url=url,
-        state_dir=tmp,
-        admin_token=ADMIN,
-        workers=0,
-        evaluate_baselines=False,
-        settings=SETTINGS,
-        groups=GROUPS,
-        spec_provider="robobpp.worker.specs:offline_spec",
-    )
-    app = create_app(settings, start_workers=False)
+    app = create_app(bench_settings(url, tmp), start_workers=False)
     runtime = app.state.runtime
     bootstrap(runtime)
     seeded = "reused"
@@ -423,7 +428,7 @@ def main() -> None:
         n_eps = s.execute(text("SELECT count(*) FROM episodes")).scalar_one()
         # the middle submission (a complete one) with episode rows (``--episodes-every``: not all have them)
         middle = s.execute(
-            text("SELECT id FROM submissions ORDER BY id OFFSET :k LIMIT 1"), {"k": n_subs // 2}
+            text("SELECT id FROM submissions ORDER BY id LIMIT 1 OFFSET :k"), {"k": n_subs // 2}
         )
         sid = s.execute(
             text("SELECT min(submission_id) FROM episodes WHERE submission_id >= :m"),

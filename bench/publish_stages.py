@@ -19,13 +19,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_server import GROUPS, SETTINGS, seed_rows
+from bench_server import SETTINGS, bench_settings, seed_rows
 from sqlalchemy import text
 
 from robobpp.scoring import engine as scoring_engine
 from robobpp.scoring import grid as scoring_grid
 from robobpp.server.bootstrap import bootstrap
-from robobpp.server.config import Settings
 from robobpp.server.runtime import Runtime
 from robobpp.server.services import board_worker
 
@@ -72,15 +71,7 @@ def main() -> None:
     board_worker.parts_of = counted_parts  # type: ignore[assignment]
 
     runtime = Runtime(
-        Settings(
-            database_url=args.database_url,
-            state_dir=Path(tempfile.mkdtemp(prefix="robobpp-bench-publish-")),
-            workers=0,
-            evaluate_baselines=False,
-            settings=SETTINGS,
-            groups=GROUPS,
-            spec_provider="robobpp.worker.specs:offline_spec",
-        )
+        bench_settings(args.database_url, Path(tempfile.mkdtemp(prefix="robobpp-bench-publish-")))
     )
     bootstrap(runtime)
     publisher = board_worker.BoardPublisher(runtime.read_session, runtime.session, DATASETS, SETTINGS)

@@ -45,11 +45,8 @@ def principal_of(request: Request, who: Viewer, session: Session | None = None) 
         return Principal(None, admin=True)
     if who.participant_id is None:
         return None
-    if session is None:
-        with request.app.state.runtime.read_session() as own:
-            participant = own.get(Participant, who.participant_id)
-    else:
-        participant = session.get(Participant, who.participant_id)
+    with web_session.reading(request, session) as s:
+        participant = s.get(Participant, who.participant_id)
     return None if participant is None else Principal(participant, token_id=who.token_id)
 
 

@@ -13,7 +13,8 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from functools import cache, lru_cache
@@ -87,13 +88,20 @@ def viewer(request: Request, session: Session | None = None) -> Viewer:
     nonce = found if isinstance(found := data.get("n"), str) else ""
     found = Viewer(nonce=nonce)
     if isinstance(data.get("s"), int):
-        if session is None:
-            with request.app.state.runtime.read_session() as own:
-                found = _signed_in(own, data["s"], nonce) or found
-        else:
-            found = _signed_in(session, data["s"], nonce) or found
+        with reading(request, session) as s:
+            found = _signed_in(s, data["s"], nonce) or found
     request.state.viewer = found
     return found
+
+
+@contextmanager
+def reading(request: Request, session: Session | None) -> Iterator[Session]:
+    """``session`` when the caller has a transaction open, else a read transaction of its own."""
+    if session is not None:
+        yield session
+        return
+    with request.app.state.runtime.read_session() as own:
+        yield own
 
 
 def _signed_in(session: Session, session_id: int, nonce: str) -> Viewer | None:

@@ -119,7 +119,7 @@ def test_episodes_recorded_once_after_the_broker_loses_its_queue(
     finally:
         executor.stop()
         fleet.stop()
-        relay.down()
+        relay.close()
         engine.dispose()
     rows = episodes(factory, sub)
     assert [(r.status, r.attempts) for r in rows] == [("done", 1)] * 8, episode_states(factory, sub)

@@ -201,7 +201,7 @@ def test_a_bus_cut_off_from_redis_answers_gone_then_works_again_when_redis_is_ba
     try:
         asyncio.run(main())
     finally:
-        relay.down()
+        relay.close()
 
 
 @pytest.fixture

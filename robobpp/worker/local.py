@@ -127,11 +127,20 @@ class LocalExecutor:
         deadline = time.monotonic() + timeout_s
         with self._lock:
             procs = list(self._procs)
+        busy = sum(p.is_alive() for p in procs)
+        if busy:  # the wait can last the timeout: say why the process has not exited yet
+            log.info("stopping %d local worker(s): each finishes its episode within %.0f s", busy, timeout_s)
         for p in procs:
             p.join(max(0.0, deadline - time.monotonic()))
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
-                p.join(2)
+        cut = [p for p in procs if p.is_alive()]
+        if cut:
+            log.info(
+                "%d worker(s) still in an episode after %.0f s: stopped; their episodes run again after the next start",
+                len(cut),
+                timeout_s,
+            )
+        for p in cut:
+            p.terminate()
+            p.join(2)
         if self._supervisor.is_alive():
             self._supervisor.join(2)

@@ -75,8 +75,9 @@ def test_broker_outage_logs_one_line_down_and_one_up(
     records = [
         r for r in caplog.records if r.name == "robobpp.worker.celery" and r.levelno >= logging.WARNING
     ]
-    assert _still_unreachable(caplog) >= 3, "the outage should have spanned several failed rounds:\n" + "\n".join(
-        r.getMessage() for r in caplog.records
+    assert _still_unreachable(caplog) >= 3, (
+        "the outage should have spanned several failed rounds:\n"
+        + "\n".join(r.getMessage() for r in caplog.records)
     )
     outage = [
         r.getMessage()

@@ -217,7 +217,6 @@ class BoardEngine:
     def _full(self, track: str) -> dict[BoardKey, dict[str, Any]]:
         with self.session_factory() as session:
             seen = finished_submissions(session, track)
-            runs = self._runs(session, track, None)
         state = self._tracks.get(track)
         if state is None:
             boards = {
@@ -227,12 +226,13 @@ class BoardEngine:
                 for key in self._board_keys()
             }
             state = _Track(seen, boards)
-        by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
-        for run in runs:
-            by_board.setdefault(self._key_of(run), []).append(run)
-        del runs  # each board's rows go as it is computed: its parts pass to it, read once
         for key, matrix in state.boards.items():
-            rows = by_board.pop(key, [])
+            # One board's runs at a time, read after ``seen`` (so never older than it), computed and dropped
+            # before the next board's are read: every run of the track decoded at once (its row and stored
+            # part, ≈ 6 kB a run) made the start-up peak far above what the boards keep (100,000
+            # submissions: past 21 GB). Its parts pass to the board, read once.
+            with self.session_factory() as session:
+                rows = self._runs(session, track, None, keys=[key])
             present = {int(r["submission_id"]) for r in rows}
             matrix.apply(
                 [_row(r) for r in rows],
@@ -267,9 +267,16 @@ class BoardEngine:
             return (run["dataset"], run["setting"], PAPER)
         return (run["dataset"], run["setting"])
 
-    def _runs(self, session: Session, track: str, submission_ids: list[int] | None) -> list[dict[str, Any]]:
-        """The track's runs on this engine's boards, each with its ``part`` (and the group ``ids``)."""
-        boards = [(k[0], k[1], k[2] if len(k) > 2 else CLOSED) for k in self._board_keys()]
+    def _runs(
+        self,
+        session: Session,
+        track: str,
+        submission_ids: list[int] | None,
+        keys: Sequence[tuple[str, ...]] | None = None,
+    ) -> list[dict[str, Any]]:
+        """The track's runs on this engine's boards (``keys``: on those), each with its ``part`` (and the
+        group ``ids``)."""
+        boards = [(k[0], k[1], k[2] if len(k) > 2 else CLOSED) for k in (keys or self._board_keys())]
         runs = queries.board_runs(session, track, boards=boards, submission_ids=submission_ids)
         missing: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for run in runs:

@@ -643,3 +643,35 @@ def test_a_reader_keeps_only_the_current_version_of_a_boards_order(quiet_app) ->
     cache.board_page("diverse", "math", "private", "closed", "all", 10, 0)
     versions = [k[2] for k in cache._parts if k[3] == "#" and k[:2] == ("private", key)]
     assert len(versions) == 1 and versions[0] > first
+
+
+def test_a_publication_serialises_each_board_as_it_writes_it(
+    quiet_app, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A first publication serialises every row of every board; holding every board's bodies at once was
+    gigabytes at 100,000 submissions. Each board's are made when it is written, the previous board's gone."""
+    import gc
+    import weakref
+
+    app = quiet_app
+    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
+        submit(app, who, url)
+    drain(app)
+    worker = publisher(app)
+    made: list[weakref.ref[Any]] = []
+    alive_at_each: list[int] = []
+    real = BoardPublisher._stored
+
+    def watched(self: BoardPublisher, track: str, key: str, board: Mapping[str, Any]) -> Any:
+        gc.collect()
+        alive_at_each.append(sum(r() is not None for r in made))
+        hashed = real(self, track, key, board)
+        made.append(weakref.ref(hashed))
+        return hashed
+
+    monkeypatch.setattr(BoardPublisher, "_stored", watched)
+    assert worker.publish("private")
+    assert len(made) >= 3, "every board and grid of the track is serialised"
+    # the board written last is still referenced when the next is made, no earlier one
+    assert max(alive_at_each) <= 1, alive_at_each
+    assert names(TestClient(app)), "and the publication is served"

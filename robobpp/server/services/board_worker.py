@@ -19,6 +19,7 @@ tests) or ``off`` (another process or host runs it).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import multiprocessing
@@ -134,8 +135,10 @@ class BoardPublisher:
                 computed = self.engine.refresh(track) if full else self.engine.update(track)
                 self.computed += 1
                 boards = {published_key(k): v for k, v in computed.items()}
+                # each board serialised as it is written, not all first: a first publication serialises
+                # every row, and every board's bodies at once were gigabytes at 100,000 submissions
                 stored = {
-                    key: self._rows_hashed(track, key, parts_of(key, value)) for key, value in boards.items()
+                    key: functools.partial(self._stored, track, key, value) for key, value in boards.items()
                 }
             known = set(map(published_key, self.engine.keys()))
             computed_s = time.perf_counter() - started
@@ -224,6 +227,9 @@ class BoardPublisher:
             done.set()
             beat.join()
 
+    def _stored(self, track: str, key: str, board: Mapping[str, Any]) -> _Hashed:
+        return self._rows_hashed(track, key, parts_of(key, board))
+
     def _rows_hashed(self, track: str, key: str, stored: StoredBoard) -> _Hashed:
         """The board's rows with their content hashes; a row object seen at the last publication keeps its
         hash (it is serialised again only if it must be written)."""
@@ -262,13 +268,14 @@ class BoardPublisher:
         self,
         track: str,
         source: list[Any],
-        stored: Mapping[str, _Hashed],
+        stored: Mapping[str, Callable[[], _Hashed]],
         known: set[str],
         seconds: float,
     ) -> bool:
         """Publish in one transaction: for each board whose content changed, its head and order under the new
         version, and only the chunks and rows whose content changed; what the previous version shows is
-        kept (a reader may just have named it), older parts removed."""
+        kept (a reader may just have named it), older parts removed. ``stored``: each board's serialised
+        parts, made when that board is written (one board's bodies in memory at a time)."""
         written = 0
         held: dict[tuple[str, str], _Held] = {}
         table = cast(Table, BoardPart.__table__)
@@ -281,7 +288,8 @@ class BoardPublisher:
             before: dict[str, Any] = dict(row.boards or {})
             after = {key: entry for key, entry in before.items() if key in known}  # the engine's unchanged
             changed = False
-            for key, hashed in stored.items():
+            for key, serialised in stored.items():
+                hashed = serialised()
                 board = hashed.board
                 sha = board.digest(hashed.hashes, hashed.ids)
                 old = before.get(key)

@@ -4,7 +4,7 @@ Switched off, every open connection is cut and every new one is reset as soon as
 broker restart looks like to its clients, without touching the broker itself (it is shared with other tests
 and other runs).
 
-The listening socket stays bound from the first ``up`` to ``close``. An earlier relay closed it while down,
+The listening socket stays bound from the relay's creation to ``close``. An earlier relay closed it while down,
 which freed its port for anyone: another test's relay (to the same Redis) or server could be handed that
 port by the kernel, and the "unreachable" broker then answered through it — the outage this relay was meant
 to cause never happened (a CI run saw no failed round at all).

@@ -7,9 +7,11 @@ without computing, two readers agree, and the process mode publishes on its own.
 
 from __future__ import annotations
 
+import gc
 import json
 import threading
 import time
+import weakref
 from collections import Counter
 from collections.abc import Mapping
 from pathlib import Path
@@ -650,9 +652,6 @@ def test_a_publication_serialises_each_board_as_it_writes_it(
 ) -> None:
     """A first publication serialises every row of every board; holding every board's bodies at once was
     gigabytes at 100,000 submissions. Each board's are made when it is written, the previous board's gone."""
-    import gc
-    import weakref
-
     app = quiet_app
     for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
         submit(app, who, url)

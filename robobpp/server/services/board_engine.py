@@ -276,7 +276,10 @@ class BoardEngine:
     ) -> list[dict[str, Any]]:
         """The track's runs on this engine's boards (``keys``: on those), each with its ``part`` (and the
         group ``ids``)."""
-        boards = [(k[0], k[1], k[2] if len(k) > 2 else CLOSED) for k in (keys or self._board_keys())]
+        boards = [
+            (k[0], k[1], k[2] if len(k) > 2 else CLOSED)
+            for k in (self._board_keys() if keys is None else keys)
+        ]
         runs = queries.board_runs(session, track, boards=boards, submission_ids=submission_ids)
         missing: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for run in runs:

@@ -33,10 +33,14 @@ def make_engine(url: str, *, read_only: bool = False, **kwargs: Any) -> Engine:
         def _on_connect(dbapi_connection: Any, _record: Any) -> None:
             dbapi_connection.isolation_level = None  # let SQLAlchemy's BEGIN below drive transactions
             cursor = dbapi_connection.cursor()
-            cursor.execute("PRAGMA journal_mode=WAL")
+            cursor.execute("PRAGMA busy_timeout=60000")
+            # WAL is a property of the file: set once. Asking for it again on every new connection could fail
+            # at once with "database is locked" while another connection was writing (the busy timeout does
+            # not cover it): a test's first write lost that race against the dispatcher's.
+            if str(cursor.execute("PRAGMA journal_mode").fetchone()[0]).lower() != "wal":
+                cursor.execute("PRAGMA journal_mode=WAL")
             cursor.execute("PRAGMA synchronous=NORMAL")
             cursor.execute("PRAGMA foreign_keys=ON")
-            cursor.execute("PRAGMA busy_timeout=60000")
             if read_only:
                 cursor.execute("PRAGMA query_only=ON")
             cursor.close()

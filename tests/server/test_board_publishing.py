@@ -674,3 +674,95 @@ def test_a_publication_serialises_each_board_as_it_writes_it(
     # the board written last is still referenced when the next is made, no earlier one
     assert max(alive_at_each) <= 1, alive_at_each
     assert names(TestClient(app)), "and the publication is served"
+
+
+def _together(n: int, call: Any) -> list[Any]:
+    """``call()`` in ``n`` threads released at once; their results."""
+    start = threading.Barrier(n)
+    out: list[Any] = [None] * n
+
+    def run(i: int) -> None:
+        start.wait()
+        out[i] = call()
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    return out
+
+
+def test_readers_of_a_new_version_decode_it_and_build_its_page_once(
+    quiet_app, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Twenty readers arriving together at a version nobody read yet (every reader after a publication): one
+    decodes it and builds the page, the others wait for it and get the same body. At 100,000 entries each
+    decoding the grid's order, and each building the page, made them queue for hundreds of milliseconds."""
+    app = quiet_app
+    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
+        submit(app, who, url)
+    drain(app)
+    assert publisher(app).publish("private")
+    decoded, built = Counter[str](), Counter[str]()
+    real_decode = boards_module.decode_version
+
+    def slow_decode(version: int, parts: Mapping[str, bytes]) -> Any:
+        decoded["order"] += 1
+        time.sleep(0.2)  # long enough for every other reader to arrive meanwhile
+        return real_decode(version, parts)
+
+    monkeypatch.setattr(boards_module, "decode_version", slow_decode)
+    cache = reader(app)
+
+    def page() -> bytes:
+        built["page"] += 1
+        time.sleep(0.1)
+        return to_json(cache.grid_page("private", "closed", "all"))
+
+    key = ("grid", "all")
+    bodies = _together(20, lambda: cache.response("private", "grid/closed", key, page))
+    assert decoded["order"] == 1 and built["page"] == 1, (decoded, built)
+    assert len(set(bodies)) == 1 and json.loads(bodies[0])["rows"]
+
+
+def test_one_reader_reads_the_publication_while_the_others_serve_the_one_they_know(
+    quiet_app, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Past ``refresh_s``, one reader asks SQL for the track's publication (at 100,000 submissions its
+    version is a count of them); readers arriving meanwhile are answered from the one read before, the
+    served body without a thread. Nobody waits unless nothing was read yet."""
+    app = quiet_app
+    submit(app, "a", "builtin:dbl")
+    drain(app)
+    assert publisher(app).publish("private")
+    cache = reader(app, refresh_s=0.05)
+    key = ("grid", "best")
+    body = cache.response("private", "grid/closed", key, lambda: to_json(cache.grid_page("private")))
+    asked = Counter[str]()
+    inside, release = threading.Event(), threading.Event()
+    real_source = boards_module.board_source
+
+    def slow_source(*args: Any) -> Any:
+        asked["source"] += 1
+        inside.set()
+        assert release.wait(30)
+        return real_source(*args)
+
+    monkeypatch.setattr(boards_module, "board_source", slow_source)
+    time.sleep(0.1)  # the publication read above is now due again
+    assert cache.fresh_response("private", "grid/closed", key) is None  # due: a thread is to read it
+    first = threading.Thread(target=cache.publication, args=("private",))
+    first.start()
+    assert inside.wait(30)
+    t0 = time.perf_counter()
+    others = _together(10, lambda: cache.publication("private"))
+    waited = time.perf_counter() - t0
+    assert cache.fresh_response("private", "grid/closed", key) == body  # one read in flight: served as known
+    release.set()
+    first.join(30)
+    assert asked["source"] == 1 and waited < 5, (asked, waited)
+    assert {p.version for p in others} == {published(app)[0]}
+    forced = _together(3, lambda: cache.publication("private", force=True))
+    assert asked["source"] >= 2, "forced: read again (by this reader or one that began after it asked)"
+    assert all(p is not None and p.version == published(app)[0] for p in forced)

@@ -48,6 +48,8 @@ from robobpp.sim.physics.config import PHYSICS_VERSION
 
 log = logging.getLogger("robobpp.server")
 SessionFactory = Callable[[], AbstractContextManager[Session]]
+#: Locks a reader spreads its single-flight reads over (:class:`BoardCache`).
+STRIPES = 32
 #: Entries per stored chunk: a page of up to 500 (the API's largest) reads at most 6 chunks.
 CHUNK = 100
 #: Bumped when the layout of the stored parts changes: a server of another layout recomputes them.
@@ -445,6 +447,14 @@ class BoardCache:
         self.wake = wake
         self._lock = threading.Lock()
         self._publications: dict[str, tuple[float, Publication | None]] = {}
+        #: One thread at a time reads a track's publication, decodes a board version or builds a served body:
+        #: after a publication at 100,000 entries, twenty readers each decoding the same grid (and each asking
+        #: SQL for the track's version) made a queue of hundreds of milliseconds. The others wait for that one
+        #: (a decode, a body) or, for the publication, serve the one they know meanwhile. Striped by key;
+        #: a build may take a decode's lock, never the reverse.
+        self._reading: dict[str, threading.Lock] = {}
+        self._decoding = tuple(threading.Lock() for _ in range(STRIPES))
+        self._building = tuple(threading.Lock() for _ in range(STRIPES))
         self._parts: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
         self.parts_size = parts_size
         self._responses: OrderedDict[tuple[Any, ...], tuple[int, bytes]] = OrderedDict()
@@ -456,20 +466,33 @@ class BoardCache:
     # -- the publication --------------------------------------------------------------------------------
 
     def publication(self, track: str, *, force: bool = False) -> Publication | None:
-        """The track's publication, read from SQL at most every ``refresh_s`` seconds per process."""
+        """The track's publication, read from SQL at most every ``refresh_s`` seconds per process. While one
+        thread reads it, the others get the one read before (stale by at most that read's duration), unless
+        there is none yet or ``force``: then they wait for it."""
         now = time.monotonic()
         with self._lock:
             known = self._publications.get(track)
+            gate = self._reading.setdefault(track, threading.Lock())
         if not force and known is not None and now - known[0] < self.refresh_s:
             return known[1]
-        with self.session_factory() as session:
-            pub = read_publication(session, track)
-            source = board_source(session, track, self.datasets, self.settings)
-        if (pub is None or pub.source != source) and (pub is None or pub.seconds <= self.wait_s):
-            pub = self._wait_for_worker(track, pub)
-        with self._lock:
-            self._publications[track] = (now, pub)
-        return pub
+        if not gate.acquire(blocking=force or known is None or known[1] is None):
+            return cast(tuple[float, Publication], known)[1]  # another thread is reading it
+        try:
+            with self._lock:
+                again = self._publications.get(track)
+            if again is not None and again[0] >= now:
+                return again[1]  # read by the thread this one waited for, after this call began
+            read_at = time.monotonic()
+            with self.session_factory() as session:
+                pub = read_publication(session, track)
+                source = board_source(session, track, self.datasets, self.settings)
+            if (pub is None or pub.source != source) and (pub is None or pub.seconds <= self.wait_s):
+                pub = self._wait_for_worker(track, pub)
+            with self._lock:
+                self._publications[track] = (read_at, pub)
+            return pub
+        finally:
+            gate.release()
 
     def _wait_for_worker(self, track: str, pub: Publication | None) -> Publication | None:
         """Behind the data and quick to publish: wait up to ``wait_s`` for the worker to catch up."""
@@ -504,8 +527,11 @@ class BoardCache:
         now = time.monotonic()
         with self._lock:
             known = self._publications.get(track)
-            if known is None or known[1] is None or now - known[0] >= self.refresh_s:
+            gate = self._reading.get(track)
+            if known is None or known[1] is None:
                 return None
+            if now - known[0] >= self.refresh_s and (gate is None or not gate.locked()):
+                return None  # due for a read of the publication (one in flight: the known one serves)
             version = known[1].version if board is None else known[1].boards.get(board, (None,))[0]
             hit = self._responses.get(key)
             if hit is None or hit[0] != version:
@@ -520,24 +546,34 @@ class BoardCache:
         readers of the same page share it instead of each serialising or rendering it."""
         for attempt in (0, 1):
             version = self.version(track, board)
-            with self._lock:
-                hit = self._responses.get(key)
-                if hit is not None and hit[0] == version:
-                    self._responses.move_to_end(key)
-                    return hit[1]
-            try:
-                body = build()
-            except _Gone:
-                if attempt:
-                    raise
-                self.publication(track, force=True)
-                continue
-            with self._lock:
-                self._responses[key] = (version, body)
-                while len(self._responses) > self.responses_size:
-                    self._responses.popitem(last=False)
+            hit = self._response_of(key, version)
+            if hit is not None:
+                return hit
+            with self._building[hash(key) % STRIPES]:  # readers of the same page wait for one build
+                hit = self._response_of(key, version)
+                if hit is not None:
+                    return hit
+                try:
+                    body = build()
+                except _Gone:
+                    if attempt:
+                        raise
+                    self.publication(track, force=True)
+                    continue
+                with self._lock:
+                    self._responses[key] = (version, body)
+                    while len(self._responses) > self.responses_size:
+                        self._responses.popitem(last=False)
             return body
         raise AssertionError("unreachable")
+
+    def _response_of(self, key: tuple[Any, ...], version: int) -> bytes | None:
+        with self._lock:
+            hit = self._responses.get(key)
+            if hit is None or hit[0] != version:
+                return None
+            self._responses.move_to_end(key)
+            return hit[1]
 
     # -- pages of a board -------------------------------------------------------------------------------
 
@@ -577,11 +613,21 @@ class BoardCache:
     def _stored(self, track: str, key: str) -> StoredVersion:
         """The published version of board ``key``, decoded (cached per version)."""
         version = self.version(track, key)
+        hit = self._decoded(track, key, version)
+        if hit is not None:
+            return hit
+        with self._decoding[hash((track, key)) % STRIPES]:  # its other readers wait for this decode
+            hit = self._decoded(track, key, version)
+            return hit if hit is not None else self._decode(track, key, version)
+
+    def _decoded(self, track: str, key: str, version: int) -> StoredVersion | None:
         with self._lock:
             hit = self._parts.get((track, key, version, "#"))
             if hit is not None:
                 self._parts.move_to_end((track, key, version, "#"))
-                return cast(StoredVersion, hit)
+            return cast(StoredVersion | None, hit)
+
+    def _decode(self, track: str, key: str, version: int) -> StoredVersion:
         with self.session_factory() as session:
             parts = version_parts(session, track, key, version)
         if any(name not in parts for name in VERSION_PARTS):

@@ -766,3 +766,12 @@ def test_one_reader_reads_the_publication_while_the_others_serve_the_one_they_kn
     forced = _together(3, lambda: cache.publication("private", force=True))
     assert asked["source"] >= 2, "forced: read again (by this reader or one that began after it asked)"
     assert all(p is not None and p.version == published(app)[0] for p in forced)
+
+
+def test_readers_of_a_server_with_nothing_published_wait_for_the_worker_together(quiet_app) -> None:
+    """Before the first publication every reader waits up to ``wait_s`` for the worker: one of them reads
+    and waits, the others take what it found (they neither wait in turn nor each poll SQL)."""
+    cache = reader(quiet_app, wait_s=0.3)
+    found = _together(10, lambda: cache.publication("private"))
+    assert found == [None] * 10
+    assert cache.waited == 1, cache.waited

@@ -480,8 +480,11 @@ class BoardCache:
         try:
             with self._lock:
                 again = self._publications.get(track)
-            if again is not None and again[0] >= now:
-                return again[1]  # read by the thread this one waited for, after this call began
+            # read by the thread this one waited for (forced: one that began after this call, since the
+            # version this caller knew is gone); a fresh server's readers waiting for its first publication
+            # take the one read that waited for the worker, rather than each waiting ``wait_s`` in turn
+            if again is not None and again is not known and (not force or again[0] >= now):
+                return again[1]
             read_at = time.monotonic()
             with self.session_factory() as session:
                 pub = read_publication(session, track)

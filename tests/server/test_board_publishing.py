@@ -24,6 +24,7 @@ from sqlalchemy import select
 from robobpp.db.models import BoardPart, BoardPublication
 from robobpp.scoring.boards import board_view, grid_view
 from robobpp.server.services import board_engine
+from robobpp.server.services import board_worker as board_worker_module
 from robobpp.server.services import boards as boards_module
 from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
 from robobpp.server.services.board_worker import BoardPublisher, BoardWorker, request_recompute
@@ -775,3 +776,52 @@ def test_readers_of_a_server_with_nothing_published_wait_for_the_worker_together
     found = _together(10, lambda: cache.publication("private"))
     assert found == [None] * 10
     assert cache.waited == 1, cache.waited
+
+
+def test_timed_full_computations_take_at_most_a_tenth_of_the_workers_time(
+    quiet_app, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A full computation is due ``full_s`` after the last, but no sooner than ten times its duration: at
+    100,000 submissions one takes 18 minutes, and every 300 s the worker would compute in full most of the
+    time while finished submissions wait for it."""
+    app = quiet_app
+    now = [0.0]
+
+    class Clock:
+        def __getattr__(self, name: str) -> Any:
+            return getattr(time, name)
+
+        def monotonic(self) -> float:
+            return now[0]
+
+    class Timed(Scripted):
+        """An update costs 5 s of the worker's clock, a full computation 1,000 s."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.calls: list[str] = []
+
+        def update(self, track: str) -> Mapping[Any, Any]:
+            return self._computed("update", 5.0)
+
+        def refresh(self, track: str) -> Mapping[Any, Any]:
+            return self._computed("full", 1000.0)
+
+        def _computed(self, kind: str, cost: float) -> Mapping[Any, Any]:
+            self.calls.append(kind)
+            now[0] += cost
+            return {("diverse", "math"): self.board}
+
+    monkeypatch.setattr(board_worker_module, "time", Clock())
+    timed = Timed()
+    timed.board = _board([(1, 0.9)])
+    worker = BoardWorker(publisher(app, timed), full_s=300, cheap_s=0, tracks=("private",))
+    worker.run_once()  # the first pass is a full one (1,000 s)
+    now[0] += 400  # past full_s, but a full pass now would be its 1,000 s in 1,400
+    submit(app, "a", "builtin:random")
+    drain(app)
+    worker.run_once()
+    assert timed.calls == ["full", "update"]
+    now[0] += 10_000 - 405  # ten times the last full computation after it
+    worker.run_once()
+    assert timed.calls[-1] == "full", "due again after ten times its duration"

@@ -452,10 +452,18 @@ def await_first_publication(read: SessionFactory, timeout_s: float, tracks: tupl
         time.sleep(0.1)
 
 
+#: The largest share of the worker's time its timed full computations may take: one is due ``full_s`` after
+#: the last, and no sooner than its duration / FULL_SHARE. A full computation takes a minute at 10,000
+#: submissions but 18 at 100,000; every 300 s there, the worker would be computing in full most of the time,
+#: and a finished submission waits for the pass in progress before its update (BENCHMARKS.md).
+FULL_SHARE = 0.1
+
+
 class BoardWorker:
     """Publishes every track whenever it changed: polls every ``poll_s`` seconds, or at once when woken; and
-    every ``full_s`` seconds recomputes each track in full (``BoardEngine.refresh``). A track whose full
-    computation took under ``cheap_s`` is always computed in full (every rank interval current at once)."""
+    every ``full_s`` seconds (or ten times as long as the last one took, :data:`FULL_SHARE`) recomputes each
+    track in full (``BoardEngine.refresh``). A track whose full computation took under ``cheap_s`` is always
+    computed in full (every rank interval current at once)."""
 
     def __init__(
         self,
@@ -479,7 +487,7 @@ class BoardWorker:
         published = []
         for track in self.tracks:
             started, computed = time.monotonic(), self.publisher.computed
-            due = started - self._last_full[track] >= self.full_s
+            due = started - self._last_full[track] >= max(self.full_s, self._full_cost[track] / FULL_SHARE)
             full = due or self._full_cost[track] < self.cheap_s
             try:
                 if self.publisher.publish(track, full=full, force=due):

@@ -12,9 +12,18 @@ import asyncio
 import resource
 import time
 from collections.abc import Sequence
+from typing import TypedDict
 from urllib.parse import urlsplit
 
 Route = tuple[str, str, dict[str, str]]  # (label, path, extra headers)
+
+
+class LoadResult(TypedDict):
+    latencies: dict[str, list[float]]  # per route label, s
+    errors: list[str]  # the first five
+    error_count: int
+    elapsed: float  # the measured phase's wall time, s
+    cpu: float  # this process's CPU time over it, s
 
 
 async def _read_response(reader: asyncio.StreamReader) -> tuple[int, int]:
@@ -49,7 +58,7 @@ async def _run(
     readers: int,
     samples: int,
     warm: int,
-) -> dict[str, object]:
+) -> LoadResult:
     split = urlsplit(base)
     host, port = split.hostname or "127.0.0.1", split.port or 80
     out: dict[str, list[float]] = {label: [] for label, _, _ in routes}
@@ -112,7 +121,7 @@ def read_concurrently(
     readers: int,
     samples: int,
     warm: int = 1,
-) -> dict[str, object]:
+) -> LoadResult:
     """Run in a child process: per-route latencies (s), errors, the measured phase's wall time and this
     process's CPU time over it."""
     return asyncio.run(_run(base, routes, readers, samples, warm))

@@ -411,6 +411,11 @@ def _figures(
         if collapsed is not None and dangerous is not None
         else {}
     )
+    pooled_counts = (
+        {"collapsed_placement": collapsed, "dangerous_operation": dangerous}
+        if collapsed is not None and dangerous is not None
+        else {}
+    )
     group_ids = np.arange(GROUPS, dtype=np.int64)
     listed = {k: v.tolist() for k, v in values.items()}
     mean_lists = {k: v.tolist() for k, v in (means | pooled_sum).items()}
@@ -434,12 +439,7 @@ def _figures(
             "ids": list(range(GROUPS)),
             "values": {k: listed[k][x] for k in order if k not in POOLED},
             "pooled": {
-                k: [
-                    [float(a), float(PLACED)]
-                    for a in (collapsed if k == "collapsed_placement" else dangerous)[x]
-                ]  # type: ignore[index]
-                for k in order
-                if k in POOLED
+                k: [[float(a), float(PLACED)] for a in pooled_counts[k][x]] for k in order if k in POOLED
             },
         }
         r.entry = EntryPart(

@@ -59,6 +59,8 @@ def run(dataset: str, groups: int, synthetic: bool) -> dict[str, Any]:
         results.append(episode.result("dbl"))
         pack.close()
     metrics = [r.metrics for r in results]
+    utilization = [u for m in metrics if (u := m["space_utilization"]) is not None]
+    assert len(utilization) == len(metrics)  # every setting measures it
     return {
         "boxes": len(per_box),
         "cpu_per_box": statistics.mean(per_box) if per_box else float("nan"),
@@ -71,7 +73,7 @@ def run(dataset: str, groups: int, synthetic: bool) -> dict[str, Any]:
         "terminations": [r.termination for r in results],
         "traj": statistics.mean(m.get("trajectory_length") or 0.0 for m in metrics),
         "danger": statistics.mean(m.get("dangerous_operation") or 0.0 for m in metrics),
-        "util": statistics.mean(m["space_utilization"] for m in metrics),
+        "util": statistics.mean(utilization),
     }
 
 

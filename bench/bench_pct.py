@@ -30,7 +30,10 @@ def main() -> None:
     parser.add_argument("--dataset", default="repetitive")
     args = parser.parse_args()
     specs = episode_specs(args.dataset, split="train", groups=args.groups, seed=0)
-    cpu, wall, build, utils = [], [], [], []
+    cpu: list[float] = []
+    wall: list[float] = []
+    build: list[float] = []
+    utils: list[float] = []
     for k, spec in enumerate(specs, 1):
         policy = load_policy("pct")
         episode = Episode(spec, "math")
@@ -45,7 +48,9 @@ def main() -> None:
             wall.append(time.perf_counter() - w0)
             build.append(c1 - c0)
             episode.step(action, wall[-1])
-        utils.append(episode.result("pct").metrics["space_utilization"])
+        util = episode.result("pct").metrics["space_utilization"]
+        assert util is not None  # every setting measures it
+        utils.append(util)
         print(f"\r{k}/{len(specs)}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     ms = [1000 * t for t in cpu]

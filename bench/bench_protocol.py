@@ -121,8 +121,9 @@ class PullRig:
 
         factory = make_session_factory(make_engine(db))
         with factory() as session, session.begin():
-            self.claim = work.claim_episode(session, "bench:worker", lease_s=3600, max_attempts=3)
-        assert self.claim is not None and self.claim.mode == "pull"
+            claim = work.claim_episode(session, "bench:worker", lease_s=3600, max_attempts=3)
+        assert claim is not None and claim.mode == "pull"
+        self.claim = claim
         if redis_url:  # a second API process on the same database: the worker's side of the relay
             port = free_port()
             self.worker_url = f"http://127.0.0.1:{port}"
@@ -263,8 +264,12 @@ def main() -> None:
         cpu_overhead = spent / steps * 1000.0
     # pull mode: CPU of the API process(es) relaying, per step (both of them with --relay redis)
     relay_cpu = None
-    if relays and None not in relay_before and None not in relay_after:
-        relay_cpu = sum(a - b for a, b in zip(relay_after, relay_before, strict=True)) / steps * 1000.0  # type: ignore[operator]
+    if relays:
+        spent_s = [
+            a - b for a, b in zip(relay_after, relay_before, strict=True) if a is not None and b is not None
+        ]
+        if len(spent_s) == len(relays):  # every relay's CPU time read, before and after
+            relay_cpu = sum(spent_s) / steps * 1000.0
     figures = {
         "mode": args.mode,
         "relay": args.relay if args.mode == "pull" else None,

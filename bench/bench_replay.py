@@ -96,15 +96,20 @@ def screenshot(page_file: Path, out: Path, at: float) -> None:
 
 
 def browser_times(page_file: Path, loads: int) -> tuple[list[float], list[float]]:
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import Error, sync_playwright
 
-    opened, scrub = [], []
+    opened: list[float] = []
+    scrub: list[float] = []
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=["--headless", "--no-sandbox"])
         for _ in range(loads):
             page = browser.new_page(viewport={"width": 1360, "height": 900})
             errors: list[str] = []
-            page.on("pageerror", lambda e, errors=errors: errors.append(str(e)))
+
+            def on_error(e: Error, errors: list[str] = errors) -> None:
+                errors.append(str(e))
+
+            page.on("pageerror", on_error)
             t0 = time.perf_counter()
             page.goto(page_file.as_uri())
             page.wait_for_function("() => document.querySelector('[data-replay]').dataset.frame === '0'")

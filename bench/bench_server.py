@@ -40,6 +40,7 @@ import httpx
 from _common import machine, median, percentile
 from _load import read_concurrently
 from _seed import DATASETS, GROUPS, SETTINGS, seed
+from pydantic import SecretStr
 from sqlalchemy import text
 
 from robobpp.client.serve import BackgroundServer, create_policy_app
@@ -59,7 +60,7 @@ def bench_settings(url: str, state_dir: Path) -> Settings:
     return Settings(
         database_url=url,
         state_dir=state_dir,
-        admin_token=ADMIN,
+        admin_token=SecretStr(ADMIN),
         workers=0,
         evaluate_baselines=False,
         settings=SETTINGS,

@@ -87,6 +87,8 @@ def main() -> None:
                 r = api.post("/submissions", json={"name": name, "policy_url": f"builtin:{name}"})
                 r.raise_for_status()
                 ids.append(r.json()["id"])
+            from sqlalchemy.orm import Session
+
             from robobpp.db import queries
             from robobpp.db.session import make_engine, make_session_factory
             from robobpp.server.services.board_engine import leaderboard
@@ -99,7 +101,7 @@ def main() -> None:
             lock = threading.Lock()
             stop = time.monotonic() + args.seconds
 
-            def read(session, k: int) -> None:  # type: ignore[no-untyped-def]
+            def read(session: Session, k: int) -> None:
                 sub_id = ids[k % len(ids)]
                 if k % 4 == 0:
                     queries.episode_rows(session, sub_id)

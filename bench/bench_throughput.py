@@ -110,7 +110,11 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
         elapsed = time.monotonic() - t0
         with factory() as s:
             rows = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sub)).scalars().all()
-            durations = [(r.finished_at - r.started_at).total_seconds() for r in rows if r.status == "done"]
+            durations = []
+            for r in rows:
+                if r.status == "done":
+                    assert r.finished_at is not None and r.started_at is not None  # set when it finished
+                    durations.append((r.finished_at - r.started_at).total_seconds())
         if status != "completed" or len(durations) != episodes:
             raise RuntimeError(f"submission ended {status} with {len(durations)}/{episodes} episodes done")
         return {

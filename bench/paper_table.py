@@ -62,7 +62,7 @@ def switch_on_support_in_math() -> None:
 
     candidates._support_model = lru_cache(maxsize=4)(
         lambda placed: SupportModel(placed, CONTACT_TOLERANCE_CM)
-    )  # type: ignore[assignment]
+    )
     plain_apply = MathPack.apply
 
     def apply(self: MathPack, box: Any, action: Any, index: int) -> StepOutcome:
@@ -139,9 +139,11 @@ def make_policy(name: str, spec: Any, item_set: bool = False) -> Any:
     group's whole item set, as the reference's environment has it, instead of the sides seen so far."""
     from robobpp.core.heightmap import cells_spanned
     from robobpp.policies import load_policy
+    from robobpp.policies.onlinebph import OnlineBPH
 
     policy = load_policy(name)
     if item_set and name == "onlinebph":
+        assert isinstance(policy, OnlineBPH)
         smallest = min(min(cells_spanned(b.length), cells_spanned(b.width), b.height) for b in spec.boxes)
         plain_reset = policy.reset
 
@@ -149,7 +151,7 @@ def make_policy(name: str, spec: Any, item_set: bool = False) -> Any:
             plain_reset(info)
             policy._smallest = smallest
 
-        policy.reset = reset
+        policy.reset = reset  # type: ignore[method-assign]
     return policy
 
 

@@ -68,7 +68,7 @@ def main() -> None:
         STAGES["chunks_mb"] += sum(len(b) for b in stored.chunks.values()) / 1e6
         return stored
 
-    board_worker.parts_of = counted_parts  # type: ignore[assignment]
+    board_worker.parts_of = counted_parts
 
     runtime = Runtime(
         bench_settings(args.database_url, Path(tempfile.mkdtemp(prefix="robobpp-bench-publish-")))

@@ -56,7 +56,7 @@ def main() -> None:
             target: np.ndarray, quat: tuple[float, ...], start: np.ndarray | list[float]
         ) -> np.ndarray | None:
             set_q(start)
-            q = np.float32(
+            q = np.asarray(
                 p.calculateInverseKinematics(
                     arm,
                     TIP,
@@ -69,7 +69,8 @@ def main() -> None:
                     maxNumIterations=100,
                     residualThreshold=1e-5,
                     physicsClientId=client,
-                )
+                ),
+                dtype=np.float32,
             )
             q[2:] = (q[2:] + np.pi) % (2 * np.pi) - np.pi
             set_q(q)

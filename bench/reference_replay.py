@@ -569,10 +569,11 @@ def episode(sub: Path) -> dict[str, Any] | None:
     placed = next(int(line.split(":")[1]) for line in text.splitlines() if line.startswith("Feasible Num"))
     printed = (sub / "run.log").read_text(errors="replace") if (sub / "run.log").exists() else None
     ending = "unknown" if printed is None else "plan_done"
-    for name, message in ENDINGS if printed is not None else ():
-        if message in printed:
-            ending = name
-            break
+    if printed is not None:
+        for name, message in ENDINGS:
+            if message in printed:
+                ending = name
+                break
     searches: dict[str, int] = {}
     dangerous: dict[str, int] = {}
     last: dict[str, Any] | None = None

@@ -825,3 +825,20 @@ def test_timed_full_computations_take_at_most_a_tenth_of_the_workers_time(
     now[0] += 10_000 - 405  # ten times the last full computation after it
     worker.run_once()
     assert timed.calls[-1] == "full", "due again after ten times its duration"
+
+
+def test_a_long_full_computation_says_how_far_it_is(
+    quiet_app, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Past ``PROGRESS_AFTER_S`` a full computation logs each board it finished (18 silent minutes at
+    100,000 submissions before)."""
+    submit(quiet_app, "a", "builtin:dbl")
+    drain(quiet_app)
+    monkeypatch.setattr(board_engine, "PROGRESS_AFTER_S", 0.0)
+    with caplog.at_level("INFO", logger="robobpp.server"):
+        engine(quiet_app).update("private")
+    said = [r.getMessage() for r in caplog.records if "in full" in r.getMessage()]
+    assert len(said) == len(DATASETS), said  # one Math board per dataset here
+    assert said[-1].startswith(
+        f"computing the private boards in full: {len(DATASETS)} of {len(DATASETS)} done"
+    )

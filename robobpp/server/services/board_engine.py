@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import ctypes
 import gc
+import logging
 import threading
+import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
@@ -31,7 +33,11 @@ from robobpp.scoring.entries import EntryPart, entry_part
 from robobpp.scoring.grid import GridMatrix
 from robobpp.scoring.metrics import PHYSICAL
 
+log = logging.getLogger("robobpp.server")
 SessionFactory = Callable[[], AbstractContextManager[Session]]
+#: A full computation that has run this long says how far it is after each board (at 100,000 submissions one
+#: takes 18 minutes, during which the worker was silent).
+PROGRESS_AFTER_S = 30.0
 #: A track's grids, by protocol.
 GRID_KEYS = ("grid", "grid-paper")
 #: What a board carries for its track's grids only (resample matrices, scores by column): never handed out.
@@ -226,7 +232,8 @@ class BoardEngine:
                 for key in self._board_keys()
             }
             state = _Track(seen, boards)
-        for key, matrix in state.boards.items():
+        started = time.monotonic()
+        for done, (key, matrix) in enumerate(state.boards.items(), start=1):
             # One board's runs at a time, read after ``seen`` (so never older than it), computed and dropped
             # before the next board's are read: every run of the track decoded at once (its row and stored
             # part, ≈ 6 kB a run) made the start-up peak far above what the boards keep (100,000
@@ -241,6 +248,16 @@ class BoardEngine:
             )
             del rows
             state.out[key] = matrix.board(rank_intervals=True)
+            if (elapsed := time.monotonic() - started) >= PROGRESS_AFTER_S:
+                log.info(
+                    "computing the %s boards in full: %d of %d done (%s, %d entries) after %.0f s",
+                    track,
+                    done,
+                    len(state.boards),
+                    "/".join(key),
+                    len(matrix),
+                    elapsed,
+                )
         state.seen = seen
         grids = self._grids(track, state, full=True)
         self._tracks[track] = state

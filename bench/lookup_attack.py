@@ -64,17 +64,17 @@ def attack(index: PublicIndex, groups: list[np.ndarray]) -> dict[str, Any]:
     }
 
 
-def draws(seed: int | None, groups: int) -> dict[str, dict[str, int]]:
+def draws(seed: int | None) -> dict[str, int]:
     """Seeds of the three draws: a server's private split and its hold-out draw, and a fresh build-private."""
-    pick = (lambda _: secrets.randbits(63)) if seed is None else (lambda i: seed + i)
-    return {"server private": pick(0), "server hold-out": pick(1), "fresh build-private": pick(2)}
+    names = ("server private", "server hold-out", "fresh build-private")
+    return {name: secrets.randbits(63) if seed is None else seed + i for i, name in enumerate(names)}
 
 
 def run_attack(seed: int | None, groups: int) -> list[dict[str, Any]]:
     index = public_index()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (draw, draw_seed) in enumerate(draws(seed, groups).items()):
+        for i, (draw, draw_seed) in enumerate(draws(seed).items()):
             # Where the server keeps them (robobpp/server/bootstrap.py): the hold-out beside the private set.
             root = Path(tmp) / ("private" if i != 1 else f"private/{HOLDOUT_DIR}")
             if i == 2:
@@ -133,7 +133,9 @@ def run_stats(groups: int, seed: int) -> dict[str, Any]:
     after = [as_table(s) for s in episode_specs("repetitive", PRIVATE_SPLIT, groups=groups, seed=seed)]
     return {
         "v1 (consecutive)": group_stats(v1_groups("repetitive", seed, groups), table),
-        f"v{SAMPLER_VERSION} ({DATASETS['repetitive'].sampling_of(PRIVATE_SPLIT)})": group_stats(after, table),
+        f"v{SAMPLER_VERSION} ({DATASETS['repetitive'].sampling_of(PRIVATE_SPLIT)})": group_stats(
+            after, table
+        ),
     }
 
 
@@ -145,7 +147,9 @@ def main() -> None:
     parser.add_argument("--json", help="also write every figure here")
     args = parser.parse_args()
     out: dict[str, Any] = {"sampler": SAMPLER_VERSION, "attack": run_attack(args.seed, args.groups)}
-    print(f"Lookup attack, {args.groups} groups per draw; told: every public match continues as the group does")
+    print(
+        f"Lookup attack, {args.groups} groups per draw; told: every public match continues as the group does"
+    )
     print("| draw | dataset | before (v1): told / groups (≤ 10 boxes), median boxes | after: told / groups |")
     print("|---|---|---|---|")
     for row in out["attack"]:

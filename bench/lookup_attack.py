@@ -11,6 +11,7 @@ registry's ``sampling``), "after" with the current sampler.
     python bench/lookup_attack.py                      # fresh secret seeds, 30 groups per draw
     python bench/lookup_attack.py --seed 1 --json out.json
     python bench/lookup_attack.py --stats 2000         # also: Repetitive test groups, v1 against current rule
+    python bench/lookup_attack.py --stats 2000 --candidates   # and the rules tried before palette (experiment)
 """
 
 from __future__ import annotations
@@ -125,18 +126,87 @@ def group_stats(groups: list[np.ndarray], pool_table: np.ndarray) -> dict[str, A
     }
 
 
-def run_stats(groups: int, seed: int) -> dict[str, Any]:
+def candidates(groups: int, seed: int) -> dict[str, list[np.ndarray]]:
+    """Experiment: the rules tried for the test split before ``palette`` (docs/datasets.md says why each lost).
+
+    records: records drawn uniformly with replacement from the whole pool, each expanded to its quantity;
+    local records / local runs: records (runs) drawn with replacement from those a random window covers;
+    palette, unweighted: the palette rule with every run equally likely (no L / shown(L) weight)."""
+    from robobpp.datasets.sampling import runs
+
+    pool = load_pool("repetitive", PRIVATE_SPLIT)
+    table = np.column_stack([pool.dims, pool.masses])
+    run_start, run_length = runs(pool)
+    record_start = np.searchsorted(pool.record_index, np.arange(pool.records))
+    quantity = np.bincount(pool.record_index, minlength=pool.records)
+    rng = np.random.default_rng(seed)
+
+    def expand(units: np.ndarray, start: np.ndarray, length: np.ndarray) -> np.ndarray:
+        picked: list[int] = []
+        while len(picked) < GROUP_SIZE:
+            u = int(units[rng.integers(len(units))])
+            picked += range(int(start[u]), int(start[u] + length[u]))
+        return table[picked[:GROUP_SIZE]]
+
+    out: dict[str, list[np.ndarray]] = {
+        "records": [],
+        "local records": [],
+        "local runs": [],
+        "palette, unweighted": [],
+    }
+    for _ in range(groups):
+        first = int(rng.integers(0, len(pool) - GROUP_SIZE + 1))
+        window = np.arange(first, first + GROUP_SIZE)
+        covered = np.unique(np.searchsorted(run_start, window, side="right") - 1)
+        out["records"].append(expand(np.arange(pool.records), record_start, quantity))
+        out["local records"].append(expand(np.unique(pool.record_index[window]), record_start, quantity))
+        out["local runs"].append(expand(covered, run_start, run_length))
+        palette = rng.integers(0, len(run_start), size=len(covered))
+        out["palette, unweighted"].append(expand(palette, run_start, run_length))
+    return out
+
+
+def window_leak(groups: list[np.ndarray], pool_table: np.ndarray, shown: int = 10) -> dict[str, Any]:
+    """A softer attack, on rules that draw from a stretch of the pool: after ``shown`` boxes, take every window of
+    the test pool holding all the sizes seen, and guess that the sizes still unseen come from those windows.
+    Reports how many of the group's later boxes of an unseen size the guess holds, and how many sizes it names."""
+    _, inverse = np.unique(pool_table[:, :3], axis=0, return_inverse=True)
+    sizes = {tuple(r): i for i, r in enumerate(np.unique(pool_table[:, :3], axis=0).tolist())}
+    inverse = inverse.ravel()
+    starts = np.arange(len(inverse) - GROUP_SIZE + 1)
+    holds = np.zeros((len(starts), len(sizes)), dtype=bool)
+    for offset in range(GROUP_SIZE):
+        holds[starts, inverse[starts + offset]] = True
+    caught = unseen = 0
+    named: list[int] = []
+    for g in groups:
+        ids = np.array([sizes[tuple(r)] for r in g[:, :3].tolist()])
+        seen = np.zeros(len(sizes), dtype=bool)
+        seen[ids[:shown]] = True
+        windows = holds[np.all(holds[:, seen], axis=1)]
+        guess = windows.any(axis=0) & ~seen
+        later = ids[shown:][~seen[ids[shown:]]]
+        caught += int(guess[later].sum())
+        unseen += len(later)
+        named.append(int(guess.sum()))
+    return {
+        "later_boxes_of_unseen_sizes_guessed": round(caught / max(unseen, 1), 3),
+        "sizes_named_median": float(np.median(named)),
+        "of_sizes": len(sizes),
+    }
+
+
+def run_stats(groups: int, seed: int, tried: bool = False) -> dict[str, Any]:
     from robobpp.datasets import episode_specs
 
     pool = load_pool("repetitive", PRIVATE_SPLIT)
     table = np.column_stack([pool.dims, pool.masses])
     after = [as_table(s) for s in episode_specs("repetitive", PRIVATE_SPLIT, groups=groups, seed=seed)]
-    return {
-        "v1 (consecutive)": group_stats(v1_groups("repetitive", seed, groups), table),
-        f"v{SAMPLER_VERSION} ({DATASETS['repetitive'].sampling_of(PRIVATE_SPLIT)})": group_stats(
-            after, table
-        ),
-    }
+    rule = DATASETS["repetitive"].sampling_of(PRIVATE_SPLIT)
+    drawn = {"v1 (consecutive)": v1_groups("repetitive", seed, groups), f"v{SAMPLER_VERSION} ({rule})": after}
+    if tried:
+        drawn |= {f"tried: {name}": g for name, g in candidates(groups, seed).items()}
+    return {name: group_stats(g, table) | window_leak(g, table) for name, g in drawn.items()}
 
 
 def main() -> None:
@@ -144,6 +214,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, help="first of the draws' seeds (default: fresh secret seeds)")
     parser.add_argument("--groups", type=int, default=EVAL_GROUPS)
     parser.add_argument("--stats", type=int, default=0, help="also compare this many Repetitive test groups")
+    parser.add_argument("--candidates", action="store_true", help="with --stats: the rules tried before")
     parser.add_argument("--json", help="also write every figure here")
     args = parser.parse_args()
     out: dict[str, Any] = {"sampler": SAMPLER_VERSION, "attack": run_attack(args.seed, args.groups)}
@@ -160,7 +231,7 @@ def main() -> None:
             f"{a['matched_prefix_median']}, max {a['matched_prefix_max']}) |"
         )
     if args.stats:
-        out["stats"] = run_stats(args.stats, args.seed or 0)
+        out["stats"] = run_stats(args.stats, args.seed or 0, args.candidates)
         print(f"\nRepetitive test groups ({args.stats}), v1 against v{SAMPLER_VERSION}:")
         for name, figures in out["stats"].items():
             print(name, json.dumps(figures))

@@ -111,6 +111,12 @@ def group_stats(groups: list[np.ndarray], pool_table: np.ndarray) -> dict[str, A
     drawn = np.bincount([keys[tuple(r)] for g in groups for r in g[:, :3].tolist()], minlength=len(keys))
     share = np.bincount(pool_inverse.ravel(), minlength=len(keys)) / len(pool_table)
     rl = np.array(run_lengths)
+    change = np.flatnonzero(np.any(pool_table[1:] != pool_table[:-1], axis=1))
+    starts = np.r_[0, change + 1]
+    lengths = np.diff(np.r_[starts, len(pool_table)])
+    long_run_sizes = sorted(
+        {int(pool_inverse.ravel()[a]) for a, n in zip(starts, lengths, strict=True) if n > GROUP_SIZE}
+    )
     return {
         "groups": len(groups),
         "distinct_sizes_p10_p50_p90": np.percentile(sizes, [10, 50, 90]).tolist(),
@@ -123,6 +129,10 @@ def group_stats(groups: list[np.ndarray], pool_table: np.ndarray) -> dict[str, A
         "volume_l_mean": round(float(volume_l.mean()), 2),
         "mass_kg_mean": round(float(np.concatenate([g[:, 3] for g in groups]).mean()), 3),
         "size_share_tv_to_pool": round(float(0.5 * np.abs(drawn / drawn.sum() - share).sum()), 3),
+        # the sizes of the pool's runs longer than a group: drawn share / pool share
+        "long_run_sizes_share_ratio": [
+            round(float(drawn[i] / drawn.sum() / share[i]), 2) for i in long_run_sizes
+        ],
     }
 
 
@@ -206,7 +216,21 @@ def run_stats(groups: int, seed: int, tried: bool = False) -> dict[str, Any]:
     drawn = {"v1 (consecutive)": v1_groups("repetitive", seed, groups), f"v{SAMPLER_VERSION} ({rule})": after}
     if tried:
         drawn |= {f"tried: {name}": g for name, g in candidates(groups, seed).items()}
-    return {name: group_stats(g, table) | window_leak(g, table) for name, g in drawn.items()}
+    index = public_index()
+    return {
+        name: group_stats(g, table) | window_leak(g, table) | looked_up(index, g) for name, g in drawn.items()
+    }
+
+
+def looked_up(index: PublicIndex, groups: list[np.ndarray]) -> dict[str, Any]:
+    looks = [index.lookup(g) for g in groups]
+    prefix = [x.matched_prefix for x in looks]
+    return {
+        "told": sum(x.told_after is not None for x in looks),
+        "whole_group_a_public_run": sum(p == GROUP_SIZE for p in prefix),
+        "one_box_only": sum(len(np.unique(g, axis=0)) == 1 for g in groups),
+        "public_prefix_p50_p90_p99": np.percentile(prefix, [50, 90, 99]).tolist(),
+    }
 
 
 def main() -> None:

@@ -48,7 +48,7 @@ def ensure_private_split(settings: Any) -> bool:
         why = (
             "first start"
             if not (root / "manifest.json").is_file()
-            else f"not drawn by sampler {SAMPLER_VERSION}"
+            else f"absent, or not drawn by sampler {SAMPLER_VERSION}"
         )
         log.warning("building the private split of %s in %s with a fresh secret seed (%s)", stale, root, why)
         build(root, seed=secrets.randbits(63), groups=settings.groups, datasets=stale)

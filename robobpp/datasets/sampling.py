@@ -59,10 +59,11 @@ def _palette(pool: Pool, rng: np.random.Generator, group_size: int) -> np.ndarra
     (only that count is taken from the window, not its boxes), so a group repeats as few sizes as the time
     series does locally. Runs keep their lengths, and a group ends inside its last run. A run of length L
     enters the palette with probability ∝ L / shown(L), where shown(L) is the boxes of it a group holds on
-    average over the ``group_size`` places it can start at (min(L, group_size − u)): so each box of the pool
-    is as likely to be in a group as in a window (without it, the test pool's three runs of 112–145 boxes,
-    6 % of its boxes, were half as frequent). Nothing ties the order to the pool's: no stretch of the public
-    sequence tells what follows (docs/datasets.md, "Private groups nobody can look up").
+    average over the ``group_size`` places u it can start at (mean of min(L, group_size − u)), so a box of a
+    long run is about as likely to be drawn as a box of a short one (without the weight, the sizes of the test
+    pool's three runs of 112–145 boxes, 6 % of its boxes, came out at half their share; with it, 0.74–0.82).
+    Nothing ties the order to the pool's: no stretch of the public sequence tells what follows
+    (docs/datasets.md, "Private groups nobody can look up").
     """
     starts, lengths = runs(pool)
     start = _window_start(pool, rng, group_size)

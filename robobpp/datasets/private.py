@@ -3,6 +3,10 @@
 ``build_private`` writes ``<root>/<dataset>.json`` (episode-set format) and ``<root>/manifest.json`` with
 their sha256; ``load_private`` refuses a file that is missing, altered, or disagrees with the registry.
 The seed itself is not stored: the per-group seeds in the files are one-way derivations of it.
+
+Each manifest entry records the sampler version that drew it. A set drawn by another version is refused at load
+(version 1's Repetitive groups are windows of the public test pool: docs/datasets.md, "Private groups nobody can
+look up"); ``robobpp serve`` rebuilds such a set at start (:func:`stale_datasets`).
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from typing import Any
 from robobpp.core import EpisodeSpec
 from robobpp.datasets.errors import SpecFileError
 from robobpp.datasets.registry import DATASETS, EVAL_GROUPS, GROUP_SIZE, get_dataset
-from robobpp.datasets.sampling import episode_specs
+from robobpp.datasets.sampling import SAMPLER_VERSION, episode_specs
 from robobpp.datasets.sources import WHEEL_SHA256, sha256_file
 from robobpp.datasets.specfile import read_json, write_json_atomic, write_specs
 
@@ -26,6 +30,8 @@ PRIVATE_FORMAT = "robobpp-private/1"
 HOLDOUT_DIR = "holdout"
 PRIVATE_SPLIT = "test"
 HINT = "run `robobpp datasets build-private` to (re)build it"
+#: The sampler version of an entry written before entries recorded theirs.
+UNRECORDED_SAMPLER = "1"
 
 
 def build_private(
@@ -50,6 +56,7 @@ def build_private(
             "sha256": sha256_file(path),
             "groups": groups,
             "group_size": GROUP_SIZE,
+            "sampler": SAMPLER_VERSION,
         }
     manifest_path = root / "manifest.json"
     manifest = _read_manifest(manifest_path) if manifest_path.is_file() else {}
@@ -76,6 +83,24 @@ def _read_manifest(path: Path) -> dict[str, Any]:
     return manifest
 
 
+def _sampler_of(entry: dict[str, Any]) -> str:
+    return str(entry.get("sampler", UNRECORDED_SAMPLER))
+
+
+def stale_datasets(root: Path, datasets: list[str]) -> list[str]:
+    """Those of ``datasets`` that the set in ``root`` lacks or drew with another sampler version (all of them
+    when there is no manifest); an unreadable manifest raises :class:`SpecFileError`."""
+    manifest_path = Path(root) / "manifest.json"
+    if not manifest_path.is_file():
+        return list(datasets)
+    entries = _read_manifest(manifest_path).get("datasets", {})
+    return [
+        name
+        for name in datasets
+        if not isinstance(entries.get(name), dict) or _sampler_of(entries[name]) != SAMPLER_VERSION
+    ]
+
+
 def load_private(dataset: str, root: Path) -> list[EpisodeSpec]:
     """The private episodes of ``dataset``, after checking checksum, container, threshold and sizes."""
     spec = get_dataset(dataset)
@@ -86,6 +111,12 @@ def load_private(dataset: str, root: Path) -> list[EpisodeSpec]:
     entry = _read_manifest(manifest_path).get("datasets", {}).get(dataset)
     if not isinstance(entry, dict):
         raise SpecFileError(f"{manifest_path}: has no entry for {dataset}; {HINT}")
+    if _sampler_of(entry) != SAMPLER_VERSION:
+        raise SpecFileError(
+            f"{manifest_path}: {dataset} was drawn by sampler version {_sampler_of(entry)}, this robobpp "
+            f"draws with version {SAMPLER_VERSION} (version 1's Repetitive groups can be looked up in the "
+            f"public data); {HINT} (`robobpp serve` rebuilds it at start)"
+        )
     path = root / str(entry.get("file"))
     if not path.is_file():
         raise SpecFileError(f"{path}: missing (expected sha256 {entry.get('sha256')}); {HINT}")
@@ -97,6 +128,10 @@ def load_private(dataset: str, root: Path) -> list[EpisodeSpec]:
         if s.dataset != dataset or s.split != PRIVATE_SPLIT:
             raise SpecFileError(
                 f"{path}: holds {s.dataset}/{s.split} episodes, expected {dataset}/{PRIVATE_SPLIT}"
+            )
+        if s.sampler_version not in (None, SAMPLER_VERSION):
+            raise SpecFileError(
+                f"{path}: drawn by sampler version {s.sampler_version}, not {SAMPLER_VERSION}; {HINT}"
             )
         if s.container != spec.container or s.collapse_threshold_cm != spec.collapse_threshold_cm:
             raise SpecFileError(

@@ -7,7 +7,7 @@ from typing import Literal
 
 from robobpp.core import ContainerSpec
 
-Sampling = Literal["consecutive", "weighted", "uniform"]
+Sampling = Literal["consecutive", "palette", "weighted", "uniform"]
 
 #: Boxes per episode (docs/benchmark.md, "Datasets").
 GROUP_SIZE = 80
@@ -31,6 +31,14 @@ class DatasetSpec:
     #: How the public/private pools are split (the rule is documented in docs/datasets.md).
     split_rule: str = ""
     splits: tuple[str, ...] = ("train", "test")
+    #: Rule of the ``test`` split when it differs from ``sampling``. The test pool ships in the public data,
+    #: so a private group must not be a stretch of it that a policy could look up (docs/datasets.md,
+    #: "Private groups nobody can look up"); ``sampling`` stays the paper's rule for the public split.
+    test_sampling: Sampling | None = None
+
+    def sampling_of(self, split: str) -> Sampling:
+        """The rule groups of ``split`` are drawn with."""
+        return self.test_sampling if split == "test" and self.test_sampling is not None else self.sampling
 
 
 DATASETS: dict[str, DatasetSpec] = {
@@ -44,6 +52,7 @@ DATASETS: dict[str, DatasetSpec] = {
         "Time-ordered pick records of an assembly-line warehouse; identical boxes arrive in runs.",
         "packsim/data/time_series/pg.xlsx (sheet E1_E2)",
         "test = the earliest 20 % of records (the authors' pg_test.xlsx), train = the rest (pg_train.xlsx)",
+        test_sampling="palette",
     ),
     "diverse": DatasetSpec(
         "diverse",

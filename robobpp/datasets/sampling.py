@@ -19,7 +19,9 @@ from robobpp.datasets.registry import GROUP_SIZE, check_split
 #: Version of the group sampler (the per-group seeds of :func:`group_seed` and the rules of
 #: :func:`sample_indices`). Every result records it (``EpisodeResult.sampler_version``) and a board never mixes
 #: versions: a change that draws other boxes for the same (dataset, split, seed, group) is a new version.
-SAMPLER_VERSION = "1"
+#: Version 2: the test split of ``repetitive`` (the private pool's) is drawn with ``palette``, no longer as a
+#: window of the public test pool; every other (dataset, split) draws the same boxes as version 1.
+SAMPLER_VERSION = "2"
 
 
 def group_seed(dataset: str, split: str, seed: int, group: int) -> int:
@@ -30,19 +32,65 @@ def group_seed(dataset: str, split: str, seed: int, group: int) -> int:
     return int(sequence.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
 
 
+def runs(pool: Pool) -> tuple[np.ndarray, np.ndarray]:
+    """Start and length of each maximal run of identical boxes (size and mass) in pool order."""
+    table = np.column_stack([pool.dims, pool.masses])
+    starts = np.flatnonzero(np.r_[True, np.any(table[1:] != table[:-1], axis=1)])
+    return starts, np.diff(np.r_[starts, len(pool)])
+
+
+def _window_start(pool: Pool, rng: np.random.Generator, group_size: int) -> int:
+    n = len(pool)
+    if n < group_size:
+        raise ValueError(f"{pool.dataset}/{pool.split} has {n} boxes, fewer than a group of {group_size}")
+    return int(rng.integers(0, n - group_size + 1))
+
+
+def _inverse_cdf(weights: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """Draws from ``weights`` by inverse CDF of uniforms: independent of how numpy implements choice()."""
+    cdf = np.cumsum(weights)
+    return np.minimum(np.searchsorted(cdf, uniforms * cdf[-1], side="right"), len(weights) - 1)
+
+
+def _palette(pool: Pool, rng: np.random.Generator, group_size: int) -> np.ndarray:
+    """Runs of the pool drawn with replacement from a palette of runs drawn with replacement from the pool.
+
+    The palette holds as many runs as a window of ``group_size`` consecutive boxes at a uniform start covers
+    (only that count is taken from the window, not its boxes), so a group repeats as few sizes as the time
+    series does locally. Runs keep their lengths, and a group ends inside its last run. A run of length L
+    enters the palette with probability ∝ L / shown(L), where shown(L) is the boxes of it a group holds on
+    average over the ``group_size`` places u it can start at (mean of min(L, group_size − u)), so a box of a
+    long run is about as likely to be drawn as a box of a short one (without the weight, the sizes of the test
+    pool's three runs of 112–145 boxes, 6 % of its boxes, came out at half their share; with it, 0.74–0.82).
+    Nothing ties the order to the pool's: no stretch of the public sequence tells what follows
+    (docs/datasets.md, "Private groups nobody can look up").
+    """
+    starts, lengths = runs(pool)
+    start = _window_start(pool, rng, group_size)
+    first, last = np.searchsorted(starts, [start, start + group_size - 1], side="right") - 1
+    cut = np.minimum(lengths, group_size)
+    shown = (cut * (cut + 1) / 2 + cut * (group_size - cut)) / group_size
+    palette = _inverse_cdf(lengths / shown, rng.random(int(last - first + 1)))
+    parts, total = [], 0
+    while total < group_size:
+        run = int(palette[rng.integers(0, len(palette))])
+        take = min(int(lengths[run]), group_size - total)
+        parts.append(np.arange(starts[run], starts[run] + take))
+        total += take
+    return np.concatenate(parts)
+
+
 def sample_indices(pool: Pool, sampling: str, rng: np.random.Generator, group_size: int) -> np.ndarray:
     """Pool indices of one group under a sampling rule (docs/benchmark.md, "Datasets")."""
     n = len(pool)
     if sampling == "consecutive":
-        if n < group_size:
-            raise ValueError(f"{pool.dataset}/{pool.split} has {n} boxes, fewer than a group of {group_size}")
-        start = int(rng.integers(0, n - group_size + 1))
+        start = _window_start(pool, rng, group_size)
         return np.arange(start, start + group_size)
+    if sampling == "palette":
+        return _palette(pool, rng, group_size)
     if sampling == "weighted":
         assert pool.weights is not None
-        cdf = np.cumsum(pool.weights)
-        # Inverse-CDF draws from uniforms: independent of how numpy implements choice().
-        return np.minimum(np.searchsorted(cdf, rng.random(group_size) * cdf[-1], side="right"), n - 1)
+        return _inverse_cdf(pool.weights, rng.random(group_size))
     if sampling == "uniform":
         return rng.integers(0, n, size=group_size)
     raise ValueError(f"unknown sampling rule {sampling!r}")
@@ -74,7 +122,7 @@ def episode_specs(
     out = []
     for group in range(groups):
         gseed = group_seed(dataset, split, int(seed), group)
-        indices = sample_indices(pool, spec.sampling, np.random.default_rng(gseed), group_size)
+        indices = sample_indices(pool, spec.sampling_of(split), np.random.default_rng(gseed), group_size)
         out.append(
             EpisodeSpec(
                 dataset,

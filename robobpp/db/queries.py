@@ -306,10 +306,11 @@ def run_entries_of(
 
 def current_rules(extras: Mapping[str, Any] | None) -> bool:
     """Whether a run ran the current Math rules and sampler (a board never mixes versions). A run recorded
-    before they were versioned has none: it ran version 1 of both."""
+    before they were versioned has none: it ran version 1 of both. A version recorded as null: boxes not
+    drawn by the sampler (a spec provider's), rules not applied."""
     recorded = (extras or {}).get("provenance") or {}
     return all(
-        recorded.get(key) in (None, version)
+        recorded.get(key, "1") in (None, version)
         for key, version in (("math_rules", MATH_RULES_VERSION), ("sampler", SAMPLER_VERSION))
     )
 

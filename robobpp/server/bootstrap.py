@@ -12,7 +12,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from robobpp.db import work
+from robobpp.db import queries, work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission
 from robobpp.policies import BASELINES, LEARNED, TITLES
@@ -26,7 +26,9 @@ BUILTIN_PARTICIPANT = "baselines"
 
 
 def ensure_private_split(settings: Any) -> bool:
-    """Build the private split with a random secret seed if it is absent. ``False`` if impossible."""
+    """Build the private split with a random secret seed if it is absent, and again (fresh seed) for each
+    dataset drawn by another sampler version: version 1's Repetitive groups can be looked up in the public
+    data, so an upgraded server must not keep serving them. ``False`` if impossible."""
     if settings.spec_provider:
         return True
     from robobpp import datasets
@@ -35,14 +37,21 @@ def ensure_private_split(settings: Any) -> bool:
     if build is None:
         log.warning("robobpp.datasets.build_private is not available; the private track cannot run")
         return False
-    from robobpp.datasets.private import HOLDOUT_DIR
+    from robobpp.datasets.private import HOLDOUT_DIR, stale_datasets
+    from robobpp.datasets.sampling import SAMPLER_VERSION
 
     # The split every submission plays, and the hold-out draw that only verifications play (own seed).
     for root in (settings.private_dir, settings.private_dir / HOLDOUT_DIR):
-        if (root / "manifest.json").is_file():
+        stale = stale_datasets(root, list(settings.datasets))
+        if not stale:
             continue
-        log.warning("building the private split in %s with a fresh secret seed (first start)", root)
-        build(root, seed=secrets.randbits(63), groups=settings.groups, datasets=list(settings.datasets))
+        why = (
+            "first start"
+            if not (root / "manifest.json").is_file()
+            else f"absent, or not drawn by sampler {SAMPLER_VERSION}"
+        )
+        log.warning("building the private split of %s in %s with a fresh secret seed (%s)", stale, root, why)
+        build(root, seed=secrets.randbits(63), groups=settings.groups, datasets=stale)
     return True
 
 
@@ -113,6 +122,11 @@ def stale_reason(session: Session, sub: Submission, settings: Any) -> str | None
     ).first()
     if old is not None:
         return f"its physical episodes ran physics version {old[0] or 'unversioned'}, not {PHYSICS_VERSION}"
+    # A board leaves out a run of other Math rules or another sampler version (runs recorded before either was
+    # versioned carry no provenance: not queued again here).
+    for extras in session.execute(select(RunRow.extras).where(RunRow.submission_id == sub.id)).scalars():
+        if (extras or {}).get("provenance") is not None and not queries.current_rules(extras):
+            return "its runs used another sampler version or other Math rules than the boards show"
     return None
 
 

@@ -8,6 +8,9 @@ from pathlib import Path
 import pytest
 
 from robobpp.datasets import DATASETS, SpecFileError, build_private, episode_specs, load_private
+from robobpp.datasets.private import stale_datasets
+from robobpp.datasets.sampling import SAMPLER_VERSION
+from robobpp.datasets.sources import sha256_file
 
 pytestmark = pytest.mark.network
 
@@ -54,3 +57,31 @@ def test_building_one_dataset_keeps_the_others(real_data: Path, tmp_path: Path) 
     build_private(root, seed=1, groups=2, datasets=["diverse"])
     build_private(root, seed=2, groups=3, datasets=["longboard"])
     assert len(load_private("diverse", root)) == 2 and len(load_private("longboard", root)) == 3
+
+
+def test_the_manifest_records_the_sampler_and_a_set_of_another_version_is_refused(
+    real_data: Path, tmp_path: Path
+) -> None:
+    root = tmp_path / "private"
+    build_private(root, seed=3, groups=2, datasets=["repetitive"])
+    path = root / "manifest.json"
+    manifest = json.loads(path.read_text())
+    assert manifest["datasets"]["repetitive"]["sampler"] == SAMPLER_VERSION
+    assert stale_datasets(root, ["repetitive", "diverse"]) == ["diverse"]  # diverse: not built
+    # A set built before entries recorded their sampler was drawn by version 1 (windows of the public pool).
+    del manifest["datasets"]["repetitive"]["sampler"]
+    path.write_text(json.dumps(manifest))
+    with pytest.raises(SpecFileError, match=r"repetitive was drawn by sampler version 1.*build-private"):
+        load_private("repetitive", root)
+    assert stale_datasets(root, ["repetitive"]) == ["repetitive"]
+    # A file of another version under a manifest that claims the current one is refused too.
+    build_private(root, seed=3, groups=2, datasets=["repetitive"])
+    doc = json.loads((root / "repetitive.json").read_text())
+    doc["sampler"] = "1"
+    (root / "repetitive.json").write_text(json.dumps(doc))
+    manifest = json.loads(path.read_text())
+    manifest["datasets"]["repetitive"]["sha256"] = sha256_file(root / "repetitive.json")
+    path.write_text(json.dumps(manifest))
+    with pytest.raises(SpecFileError, match=r"drawn by sampler version 1, not " + SAMPLER_VERSION):
+        load_private("repetitive", root)
+    assert stale_datasets(tmp_path / "nothing", ["longboard"]) == ["longboard"]

@@ -16,7 +16,7 @@ from robobpp.datasets import (
     load_pool,
 )
 from robobpp.datasets.pool import Pool
-from robobpp.datasets.sampling import sample_indices
+from robobpp.datasets.sampling import runs, sample_indices
 
 
 def _toy_pool(n: int, weights: np.ndarray | None = None) -> Pool:
@@ -40,6 +40,58 @@ def test_consecutive_windows_are_contiguous_and_cover_the_ends() -> None:
 def test_consecutive_needs_a_pool_at_least_one_group_long() -> None:
     with pytest.raises(ValueError, match="fewer than a group"):
         sample_indices(_toy_pool(50), "consecutive", np.random.default_rng(0), 80)
+
+
+def _runs_pool(lengths: list[int]) -> Pool:
+    """A pool of runs of identical boxes: run i has ``lengths[i]`` boxes of size i + 1."""
+    sizes = np.repeat(np.arange(1, len(lengths) + 1, dtype=float), lengths)
+    dims = np.column_stack([sizes, np.ones(len(sizes)), np.ones(len(sizes))])
+    return Pool("toy", "test", dims, np.ones(len(sizes)), None, np.arange(len(sizes)), len(sizes))
+
+
+def _drawn_runs(group: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> list[int]:
+    """The runs a palette group is made of, checking each is whole (the last one may be cut at the end)."""
+    drawn, j = [], 0
+    while j < len(group):
+        run = int(np.searchsorted(starts, group[j], side="right") - 1)
+        assert group[j] == starts[run], "a drawn run starts at its first box"
+        take = min(int(lengths[run]), len(group) - j)
+        np.testing.assert_array_equal(group[j : j + take], np.arange(starts[run], starts[run] + take))
+        drawn.append(run)
+        j += take
+    return drawn
+
+
+def test_palette_groups_are_whole_runs_of_the_pool_in_an_order_of_their_own() -> None:
+    lengths = [3, 1, 7, 2, 5, 1, 4, 2, 6, 3] * 6
+    pool = _runs_pool(lengths)
+    starts, run_lengths = runs(pool)
+    assert run_lengths.tolist() == lengths
+    in_pool_order = []
+    for seed in range(200):
+        group = sample_indices(pool, "palette", np.random.default_rng(seed), 80)
+        assert len(group) == 80
+        drawn = _drawn_runs(group, starts, run_lengths)
+        # a window's runs follow each other in pool order; a palette group's follow the draw's
+        in_pool_order.append(np.mean(np.diff(drawn) == 1))
+    assert max(in_pool_order) < 0.5 and np.mean(in_pool_order) < 0.1
+
+
+def test_a_palette_holds_as_many_runs_as_a_window_covers() -> None:
+    def sizes(pool: Pool, seed: int) -> int:
+        return len(
+            np.unique(pool.dims[sample_indices(pool, "palette", np.random.default_rng(seed), 80)][:, 0])
+        )
+
+    # 81 of the 282 windows lie inside the long run: a palette of one run, a group of one size, whichever run
+    # it drew (more groups are, whose small palette drew the long run first). Records drawn with replacement
+    # from the whole pool would give one size only when the long run comes first (~6 %).
+    middle = _runs_pool([1] * 40 + [200] + [1] * 40)
+    assert np.mean([sizes(middle, s) == 1 for s in range(400)]) > 0.25
+    # Runs of one box: a window covers 80 runs, so a group draws 80 times from a palette of 80 runs.
+    singles = _runs_pool([1] * 500)
+    distinct = np.mean([sizes(singles, s) for s in range(50)])
+    assert 40 < distinct < 80 * (1 - (1 - 1 / 80) ** 80) + 3  # 80 draws from 80 runs, some drawn twice
 
 
 def test_weighted_draws_follow_the_weights() -> None:
@@ -105,10 +157,11 @@ def test_specs_are_deterministic_and_group_independent(real_data: Path, dataset:
 
 
 @pytest.mark.network
-def test_repetitive_groups_are_consecutive_windows_of_the_time_ordered_pool(real_data: Path) -> None:
-    pool = load_pool("repetitive", "test")
+def test_repetitive_train_groups_are_consecutive_windows_of_the_time_ordered_pool(real_data: Path) -> None:
+    """The public split keeps the paper's rule (its groups are what ``robobpp reproduce`` compares)."""
+    pool = load_pool("repetitive", "train")
     table = np.column_stack([pool.dims, pool.masses])
-    for spec in episode_specs("repetitive", "test", groups=5, seed=3):
+    for spec in episode_specs("repetitive", "train", groups=5, seed=3):
         group = np.array([[b.length, b.width, b.height, b.mass] for b in spec.boxes])
         idx = sample_indices(pool, "consecutive", np.random.default_rng(spec.seed), 80)
         np.testing.assert_array_equal(group, table[idx])
@@ -169,3 +222,44 @@ def test_masses_follow_the_registry(real_data: Path) -> None:
     heavier = episode_specs("diverse", "train", groups=1, density_kg_m3=500.0)[0]
     normal = episode_specs("diverse", "train", groups=1)[0]
     assert [b.mass for b in heavier.boxes] == pytest.approx([2 * b.mass for b in normal.boxes])
+
+
+@pytest.mark.network
+def test_repetitive_test_groups_keep_the_pools_runs_sizes_and_their_shares(real_data: Path) -> None:
+    """The private pool's rule (docs/datasets.md): whole runs of the test pool, sizes in the pool's shares, as
+    few sizes per group as its windows hold (and far fewer than records drawn from the whole pool)."""
+    pool = load_pool("repetitive", "test")
+    starts, lengths = runs(pool)
+    specs = episode_specs("repetitive", "test", groups=1000, seed=9)
+    sizes, index = np.unique(pool.dims, axis=0, return_inverse=True)
+    key = {tuple(d): i for i, d in enumerate(sizes.tolist())}
+    drawn = np.zeros(len(sizes))
+    distinct, window_distinct = [], []
+    for spec in specs:
+        idx = sample_indices(pool, "palette", np.random.default_rng(spec.seed), 80)
+        np.testing.assert_array_equal(
+            np.array([[b.length, b.width, b.height] for b in spec.boxes]), pool.dims[idx]
+        )
+        _drawn_runs(idx, starts, lengths)
+        ids = [key[(b.length, b.width, b.height)] for b in spec.boxes]
+        drawn += np.bincount(ids, minlength=len(sizes))
+        distinct.append(len(set(ids)))
+        window = sample_indices(pool, "consecutive", np.random.default_rng(spec.seed), 80)
+        window_distinct.append(len(set(index.ravel()[window].tolist())))
+    share = np.bincount(index.ravel(), minlength=len(sizes)) / len(pool)
+    top = np.argsort(share)[-10:]
+    # The sizes of the pool's three runs of 112-145 boxes come out at 0.74-0.82 of their share (20,000 groups,
+    # docs/datasets.md); at 1,000 groups the ten largest shares are within 43 % of the pool's.
+    np.testing.assert_allclose(drawn[top] / drawn.sum(), share[top], rtol=0.5)
+    assert np.median(distinct) <= np.median(window_distinct) + 5
+    # Against records drawn with replacement from the whole pool and expanded to their quantities:
+    rng, iid = np.random.default_rng(0), []
+    record_start = np.searchsorted(pool.record_index, np.arange(pool.records))
+    quantity = np.bincount(pool.record_index, minlength=pool.records)
+    for _ in range(200):
+        picked: list[int] = []
+        while len(picked) < 80:
+            r = int(rng.integers(pool.records))
+            picked += range(record_start[r], record_start[r] + quantity[r])
+        iid.append(len(set(index.ravel()[picked[:80]].tolist())))
+    assert np.median(distinct) < 0.7 * np.median(iid)

@@ -55,7 +55,9 @@ def _finished(factory, name: str, rules: str | None, sampler: str | None) -> int
 def test_a_board_shows_only_the_current_math_rules_and_sampler(factory) -> None:  # type: ignore[no-untyped-def]
     now = _finished(factory, "now", MATH_RULES_VERSION, SAMPLER_VERSION)
     _finished(factory, "old rules", "0", SAMPLER_VERSION)
-    _finished(factory, "old sampler", MATH_RULES_VERSION, "0")
+    # Sampler 1 drew Repetitive's private groups as windows of the public test pool: never beside version 2.
+    _finished(factory, "sampler 1", MATH_RULES_VERSION, "1")
+    hand_built = _finished(factory, "boxes not drawn by the sampler", MATH_RULES_VERSION, None)
     before = _finished(factory, "before versions", MATH_RULES_VERSION, SAMPLER_VERSION)
     with transaction(factory) as s:  # a run recorded before 0008 has no provenance: version 1 of both
         run = s.execute(select(RunRow).where(RunRow.submission_id == before)).scalar_one()
@@ -65,7 +67,8 @@ def test_a_board_shows_only_the_current_math_rules_and_sampler(factory) -> None:
             "provenance"
         ]
         names = sorted(e["name"] for e in leaderboard(s, "diverse", "math", track="private")["entries"])
-    assert names == ["before versions", "now"]
+    assert SAMPLER_VERSION == "2"  # what "before versions" (version 1) and "sampler 1" are kept apart from
+    assert names == ["boxes not drawn by the sampler", "now"], hand_built
     assert recorded == {
         **provenance.environment(),
         "physics": None,

@@ -264,6 +264,9 @@ def test_datasets_page_shows_public_split_distributions(server: Server, probe: P
         assert "repeat rate" in probe.page.locator("#repetitive").inner_text()
     else:
         assert "not been fetched" in probe.page.locator(".notice").inner_text()
+    # Repetitive's private groups are drawn another way than its public ones (docs/datasets.md): the page says so.
+    assert "private groups" in probe.page.locator("#repetitive").inner_text()
+    assert "private groups" not in probe.page.locator("#diverse").inner_text()
     probe.shot("datasets")
     probe.assert_clean()
 

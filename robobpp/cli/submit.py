@@ -254,7 +254,8 @@ RUN_ENDINGS = {
 
 
 def _standing_line(s: Standing) -> str:
-    """ "score 0.812 [0.790, 0.835] · rank 2 (1–3) of 9 · stable 0.640 [0.612, 0.668]", or why not."""
+    """A board's line: its score, rank and stable score with the board's intervals ("score 0.812 [0.790,
+    0.835] · rank 2 (1–3) of 9 · stable 0.640 [0.612, 0.668]"), or why it has none."""
     if s.rank is not None:
         rank = f"rank {_rank(s.rank, s.rank_low, s.rank_high)} of {s.entries}"
         if s.rank_low is None:  # a large board between two full computations (docs/server.md)

@@ -1,8 +1,8 @@
 """A submission's own page shows its results as the boards do (issue 37, item 6): the rank with its rank
 interval, the relative and the stable score with their intervals, each metric's interval, what they mean, and,
 for an entry ranked apart, why it has none. Every figure is the published board's own (the API's
-``?submission=`` answer), formatted by the boards' helpers. A real app on SQLite, episodes run by a real
-worker unit (a failing policy served over HTTP)."""
+``?submission=`` answer), formatted by the boards' helpers. A real app on SQLite; each episode's result is
+recorded as a worker records it, with figures planned so that two entries' rank intervals overlap."""
 
 from __future__ import annotations
 
@@ -15,28 +15,54 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from robobpp.db import work
+from robobpp.db.session import transaction
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
 from robobpp.web import fmt_metric, fmt_num
 from robobpp.web.tables import metric_span, rank_span, span
-from robobpp.worker.options import worker_options
-from robobpp.worker.run import claim_and_run
 from tests.server.conftest import submit_direct
-from tests.server.test_board import NaNPolicy
 
 ADMIN_TOKEN = "results-admin-token-0123456789abcdef"
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 GROUPS = 2
-#: Heuristics that place these episodes alike (the same utilisation): ranked apart by the noise of their
-#: decision times, so their rank intervals overlap.
-ALIKE = ("hm", "lsah", "packe-rules")
+#: Space utilisation per group. "a" is better on group 0 and "b" on group 1, so resampling the groups ranks
+#: each of them first in some resamples: their rank intervals are 1–2. "c" is last in every resample. The
+#: other metrics are the same for all, so no timing noise decides anything.
+PLAN = {"a": (0.72, 0.50), "b": (0.50, 0.70), "c": (0.30, 0.32), "partial": (0.60,)}
+
+
+def _record(factory: Any, names: dict[int, str]) -> None:
+    """Every episode claimed and recorded as a worker records it: the planned figures, or (``failed``) an
+    error of the policy in each."""
+    while True:
+        with transaction(factory) as s:
+            claim = work.claim_episode(s, "w", lease_s=10, max_attempts=3)
+            if claim is None:
+                return
+            name = names[claim.submission_id]
+            failed = name == "failed"
+            result = {
+                "termination": "policy_error" if failed else "completed",
+                "termination_detail": "",
+                "boxes_total": 3,
+                "boxes_placed": 0 if failed else 3,
+                "metrics": {
+                    "space_utilization": 0.0 if failed else PLAN[name][claim.group],
+                    "occupancy": 0.9,
+                    "decision_time": 0.01,
+                },
+                "counters": {},
+                "steps": [],
+            }
+            assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
 
 
 @pytest.fixture
-def world(tmp_path: Path, policy_server: Any) -> Iterator[tuple[TestClient, dict[str, int]]]:
-    """One Math board (diverse): five ranked entries (three heuristics that place alike, so their rank
-    intervals overlap), a partial one (1 group of 2) and a failed one."""
+def world(tmp_path: Path) -> Iterator[tuple[TestClient, dict[str, int]]]:
+    """One Math board (diverse): three ranked entries, a partial one (1 group of 2) and a failed one; the
+    operator signed in (every submission page is theirs to read)."""
     settings = Settings(
         database_url=f"sqlite:///{tmp_path / 'results.sqlite3'}",
         state_dir=tmp_path,
@@ -46,25 +72,18 @@ def world(tmp_path: Path, policy_server: Any) -> Iterator[tuple[TestClient, dict
         settings=("math",),
         datasets=("diverse",),
         groups=GROUPS,
-        allow_private_policy_urls=True,
         board_refresh_s=0,
         spec_provider="robobpp.worker.specs:offline_spec",
     )
     app = create_app(settings, start_workers=False)
     bootstrap(app.state.runtime)
-    one = ("diverse",)
     ids = {
-        "dbl": submit_direct(app, "alice", "builtin:dbl", datasets=one, groups=GROUPS),
-        "random": submit_direct(app, "bob", "builtin:random", datasets=one, groups=GROUPS),
-        **{p: submit_direct(app, p, f"builtin:{p}", datasets=one, groups=GROUPS) for p in ALIKE},
-        "partial": submit_direct(app, "carol", "builtin:hm", datasets=one, groups=1),
-        "failed": submit_direct(
-            app, "mallory", policy_server(NaNPolicy, secret=None).url, datasets=one, groups=GROUPS
-        ),
+        name: submit_direct(
+            app, name, "builtin:dbl", datasets=("diverse",), groups=1 if name == "partial" else GROUPS
+        )
+        for name in ("a", "b", "c", "partial", "failed")
     }
-    runtime = app.state.runtime
-    while claim_and_run(runtime.session_factory, worker_options(runtime.settings), "test:host:1") is not None:
-        pass
+    _record(app.state.runtime.session_factory, {sid: name for name, sid in ids.items()})
     with TestClient(app) as client:
         signed = client.post(
             "/sign-in",
@@ -73,7 +92,7 @@ def world(tmp_path: Path, policy_server: Any) -> Iterator[tuple[TestClient, dict
         )
         assert signed.status_code == 303, signed.text
         yield client, ids
-    runtime.dispose()
+    app.state.runtime.dispose()
 
 
 def _csrf(page: str) -> str:
@@ -98,19 +117,13 @@ def _on_board(client: TestClient, sid: int) -> dict[str, Any]:
 
 def test_the_page_shows_the_boards_intervals_and_the_stable_score(world: Any) -> None:
     client, ids = world
-    full = client.get("/api/v1/leaderboards/diverse/math", params={"view": "all"}).json()
-    ranked = full["total"]
-    assert ranked == 2 + len(ALIKE) and all(
-        e["rank_low"] is not None for e in full["entries"]
-    )  # a small board
-    # one whose rank interval is not its rank alone, so that the page must show it
-    sid = next((e["submission_id"] for e in full["entries"] if e["rank_low"] < e["rank_high"]), None)
-    assert sid is not None, [(e["name"], e["rank_low"], e["rank_high"]) for e in full["entries"]]
-    board = _on_board(client, sid)
+    ranked = client.get("/api/v1/leaderboards/diverse/math", params={"view": "all"}).json()["total"]
+    board = _on_board(client, ids["b"])
     (entry,) = board["entries"]
-    page = client.get(f"/submissions/{sid}").text
+    assert ranked == 3 and (entry["rank_low"], entry["rank_high"]) == (1, 2)  # as planned
+    page = client.get(f"/submissions/{ids['b']}").text
     rank = rank_span(entry["rank"], entry["rank_low"], entry["rank_high"])
-    assert _cell(page, "rank") == f"{rank} of {ranked}"
+    assert _cell(page, "rank") == f"{rank} of {ranked}" == f"{entry['rank']} (1–2) of 3"
     assert (
         _cell(page, "score") == f"{fmt_num(entry['score'])} {span(entry['score_low'], entry['score_high'])}"
     )
@@ -119,6 +132,7 @@ def test_the_page_shows_the_boards_intervals_and_the_stable_score(world: Any) ->
     for key in board["metrics"]:  # each metric in its unit, the board's interval under it
         low, high = entry["intervals"][key]
         assert _cell(page, key) == f"{fmt_metric(entry['metrics'][key], key)} {metric_span(low, high, key)}"
+    assert _cell(page, "space_utilization") == "60.0% 50.0%–70.0%"  # b's two groups, in the board's unit
     note = _cell_free(page, "interval-note")
     assert f"bootstrap 95 % interval over the board's {GROUPS} groups (1000 seeded resamples)" in note
     assert "a rank “3 (2–5)” means rank 3, and 2 to 5 in 95 % of resamples" in note

@@ -351,7 +351,10 @@ def _standing(
     entry, of = cache.ranked_entry(dataset, setting, sub.track, protocol, sub.id)
     for attempt in (0, 1):
         try:
-            return entry, of, cache.board_page(dataset, setting, sub.track, protocol, "all", 1, 0, sub.id)
+            board = cache.board_page(
+                dataset, setting, sub.track, protocol, view="all", limit=1, submission_id=sub.id
+            )
+            return entry, of, board
         except BoardsUnavailable:
             raise
         except LookupError:  # the version just read was replaced meanwhile (services/boards.py): read again

@@ -176,7 +176,7 @@ def _print_results(client: ServerClient, sub: SubmissionPublic, wait_s: float = 
     """The finished submission's table with its score and rank: boards are recomputed in the background a
     moment after a submission finishes, so wait (bounded) until they include it, and say so if they do not."""
     standings = client.standings(sub, wait_s=wait_s)
-    table_console().print(_standings_table(sub, standings))
+    _print_standings(sub, standings)
     _print_provenance(sub)
     late = [s.board for s in standings if s.status == "completed" and s.board_status is None]
     if late and sub.status in ("completed", "failed"):
@@ -230,36 +230,92 @@ def _finish(sub: SubmissionPublic) -> None:
     fail(escape(f"submission {sub.id} {sub.status}{why}"), code=1)
 
 
-def _standings_table(sub: SubmissionPublic, standings: list[Standing]) -> Table:
+def _print_standings(sub: SubmissionPublic, standings: list[Standing]) -> None:
+    """A submission's results as its boards show them: per board one line with the score, rank and stable
+    score, each with the board's 95 % interval (or why it has none), then the metrics with theirs, then what
+    the intervals mean. All on stdout, whole lines also off a terminal (a log, a pipe)."""
+    out = table_console()
+    out.print(f"#{sub.id} {escape(sub.name)} · {sub.status} · {sub.track} track", soft_wrap=True)
+    width = max((len(s.board) for s in standings), default=0)
+    for s in standings:
+        style = "bold green" if s.rank == 1 else None
+        out.print(f"{s.board:<{width}}  {_standing_line(s)}", style=style, soft_wrap=True)
+    if any(s.metrics for s in standings):
+        out.print(_metrics_table(standings))
+    for line in _legend(standings):
+        out.print(line, soft_wrap=True)
+
+
+#: Why a run that did not complete has no result.
+RUN_ENDINGS = {
+    "failed": "the service could not evaluate all of its episodes",
+    "cancelled": "it was cancelled",
+}
+
+
+def _standing_line(s: Standing) -> str:
+    """A board's line: its score, rank and stable score with the board's intervals ("score 0.812 [0.790,
+    0.835] · rank 2 (1–3) of 9 · stable 0.640 [0.612, 0.668]"), or why it has none."""
+    if s.rank is not None:
+        rank = f"rank {_rank(s.rank, s.rank_low, s.rank_high)} of {s.entries}"
+        if s.rank_low is None:  # a large board between two full computations (docs/server.md)
+            rank += " [dim](its rank interval comes with the board's next full computation)[/]"
+        return (
+            f"score {_fmt(s.score, 3)}{_ci(s.score_low, s.score_high)} · {rank} · "
+            f"stable {_fmt(s.stable, 3)}{_ci(s.stable_low, s.stable_high)}"
+        )
+    if s.board_status in ("failed", "partial"):
+        return (
+            f"not ranked — {s.board_status}: {escape(s.reason or '')}; a failed or partial entry gets no "
+            "score, rank or interval"
+        )
+    if s.status != "completed":
+        why = RUN_ENDINGS.get(s.status, "it has not finished")
+        return f"no result — {why}, so no score, rank or interval"
+    return "not on its board yet (boards are recomputed in the background)"
+
+
+def _metrics_table(standings: list[Standing]) -> Table:
+    """Each board's metrics (means over its groups), the board's 95 % interval under each."""
     keys: list[str] = []
     for s in standings:
         keys += [k for k in s.metric_keys or list(s.metrics) if k not in keys]
-    table = Table(title=f"#{sub.id} {escape(sub.name)} · {sub.status} · {sub.track} track")
-    for col in ("board", "status"):
-        table.add_column(col)
+    table = Table(title="metrics: mean over groups, 95 % interval under it")
+    table.add_column("board")
     for k in keys:
         table.add_column(_label(k), justify="right")
-    table.add_column("score", justify="right")
-    table.add_column("stable", justify="right")
-    table.add_column("rank", justify="right")
     for s in standings:
-        rank = f"{s.rank} / {s.entries}" if s.rank is not None else s.board_status or "—"
-        style = "bold green" if s.rank == 1 else None
-        table.add_row(
-            s.board,
-            s.status,
-            *(_fmt(s.metrics.get(k)) if k in s.metrics else "" for k in keys),
-            _fmt(s.score, 3),
-            _fmt(s.stable, 3),
-            rank,
-            style=style,
-        )
-    # Alone on a board the relative score is 0 by construction: say which figure to read then.
-    table.caption = (
-        "score: relative to the board's other entries (0 when alone on it); "
-        "stable: against fixed anchors, it never moves when others arrive"
-    )
+        cells = []
+        for k in keys:
+            if k not in s.metrics:
+                cells.append("")
+                continue
+            low, high = s.intervals.get(k) or (None, None)
+            interval = _ci(low, high, digits=4).strip()
+            cells.append(_fmt(s.metrics[k]) + (f"\n{interval}" if interval else ""))
+        table.add_row(s.board, *cells)
     return table
+
+
+def _legend(standings: list[Standing]) -> list[str]:
+    """What the intervals and the two scores mean, in the boards' words (board page, docs/benchmark.md)."""
+    ranked = [s for s in standings if s.rank is not None]
+    if not ranked:
+        return []
+    groups = sorted({s.groups for s in ranked})
+    over = f"the board's {groups[0]} groups" if len(groups) == 1 else "each board's groups"
+    few = "; with few groups a figure can sit at an end of its interval" if groups[0] < 10 else ""
+    level = f"{ranked[0].confidence * 100:.0f} %"
+    return [
+        escape(
+            f"[low, high]: the bootstrap {level} interval over {over} ({ranked[0].resamples} seeded resamples"
+            f"{few}). A rank “3 (2–5) of 14” is rank 3 of 14 ranked entries, and 2 to 5 in {level} of "
+            f"resamples (a rank alone: that rank in {level} of them); entries whose rank intervals overlap "
+            "are not clearly apart."
+        ),
+        "score: relative to the board's other entries (0 when alone on it); stable: against fixed anchors, "
+        "it never moves when others arrive",
+    ]
 
 
 # -- submissions --------------------------------------------------------------------------------------
@@ -318,7 +374,7 @@ def show_command(
     )
     if sub.error:
         err.print(f"[red]{escape(sub.error)}[/]")
-    table_console().print(_standings_table(sub, standings))
+    _print_standings(sub, standings)
     _print_provenance(sub)
 
 
@@ -443,8 +499,9 @@ def _who(name: str, participant: str, baseline: bool) -> str:
     return f"{escape(name)} [dim]({escape(participant)}{', baseline' if baseline else ''})[/]"
 
 
-def _ci(low: float | None, high: float | None) -> str:
-    return "" if low is None or high is None else f" [dim][{low:.3f}, {high:.3f}][/]"
+def _ci(low: float | None, high: float | None, digits: int = 3) -> str:
+    """A 95 % interval after its figure: " [0.790, 0.835]" (dimmed); empty when the board has none."""
+    return "" if low is None or high is None else f" [dim][{_fmt(low, digits)}, {_fmt(high, digits)}][/]"
 
 
 def _rank(rank: int | None, low: int | None, high: int | None) -> str:

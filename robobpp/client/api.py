@@ -14,7 +14,7 @@ import contextlib
 import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal, TypeVar
 from urllib.parse import urlsplit
 
@@ -92,10 +92,42 @@ class Standing:
     #: The score against fixed anchors (never moves when others arrive; None while not ranked): alone on a
     #: board, the relative ``score`` is 0 by construction, and this is the figure that says how well it did.
     stable: float | None = None
+    #: The board's own 95 % intervals of the entry (a bootstrap over the board's groups; None while not
+    #: ranked): of the relative and the stable score, and the rank interval — the ranks it takes in 95 % of
+    #: resamples (None on a large board until its next full computation, docs/server.md).
+    score_low: float | None = None
+    score_high: float | None = None
+    stable_low: float | None = None
+    stable_high: float | None = None
+    rank_low: int | None = None
+    rank_high: int | None = None
+    #: Each metric's 95 % interval ``[low, high]`` on the board (None where the board has none).
+    intervals: dict[str, list[float] | None] = field(default_factory=dict)
+    #: Why a run listed apart (``board_status`` failed or partial) is not ranked, in the board's words.
+    reason: str | None = None
+    #: The board's bootstrap: its groups, seeded resamples and confidence level.
+    groups: int = 0
+    resamples: int = 0
+    confidence: float = 0.95
 
     @property
     def board(self) -> str:
         return f"{self.setting}/{self.dataset}" + (" (paper protocol)" if self.protocol != "closed" else "")
+
+
+#: What a ranked run's :class:`Standing` takes from its board entry.
+RANKED_FIGURES: set[str] = {
+    "rank",
+    "rank_low",
+    "rank_high",
+    "score",
+    "score_low",
+    "score_high",
+    "stable",
+    "stable_low",
+    "stable_high",
+    "intervals",
+}
 
 
 def _one_line(text: str, limit: int = 200) -> str:
@@ -401,19 +433,22 @@ class ServerClient:
         )
         apart = next((e for e in board.unranked if e.submission_id == submission.id), None)
         metrics = dict(entry.metrics if entry else run.metrics or {})
-        rank, score, stable = (entry.rank, entry.score, entry.stable) if entry else (None, None, None)
+        # the board's own figures, as it serves them (none computed here: one source of truth)
+        figures = entry.model_dump(include=RANKED_FIGURES) if entry else {"rank": None, "score": None}
         return Standing(
             dataset=run.dataset,
             setting=run.setting,
             status=run.status,
             metrics=metrics,
             metric_keys=list(board.metrics),
-            rank=rank,
-            score=score,
             entries=self.leaderboard(
                 run.dataset, run.setting, track=track, view="all", limit=1, protocol=protocol
             ).total,
             board_status="ranked" if entry else apart.status if apart else None,
             protocol=protocol,
-            stable=stable,
+            reason=apart.reason if apart else None,
+            groups=board.groups,
+            resamples=board.resamples,
+            confidence=board.confidence,
+            **figures,
         )

@@ -260,18 +260,21 @@ def _render_submission(
     csrf_slot: bool = False,
 ) -> HTMLResponse:
     view = _page_view(request, session, sub, owner)
-    ranks, entries = {}, {}
+    ranks, entries, apart, bootstrap = {}, {}, {}, []
     for r in view["runs"]:
         if r["status"] != "completed":
             continue
         key = (r["dataset"], r["setting"], r["protocol"])
         try:
-            entry, of = cache.ranked_entry(r["dataset"], r["setting"], sub.track, r["protocol"], sub.id)
+            entry, of, board = _standing(cache, sub, *key)
         except BoardsUnavailable:  # not published yet (a fresh server): the page shows no rank
             continue
         if entry is not None:
-            ranks[key] = {"rank": entry["rank"], "score": entry["score"], "of": of}
+            ranks[key] = tables.standing(entry, of)  # the board's own figures, as its rows show them
             entries[key] = (entry, of)
+            bootstrap.append(board)
+        elif board["unranked"]:  # failed or partial: the board's reason for ranking it apart
+            apart[key] = board["unranked"][0]
     closed = [r for r in view["runs"] if r["protocol"] == "closed"]  # the radar: the benchmark's boards
     # the results table lists a paper-protocol run right under its closed-loop run
     place = {(r["dataset"], r["setting"]): i for i, r in enumerate(closed)}
@@ -328,6 +331,8 @@ def _render_submission(
         and (sub.track != "verify" or viewer(request).admin),
         episodes_table=table,
         ranks=ranks,
+        apart=apart,
+        bootstrap=_bootstrap(bootstrap),
         charts=charts,
         metrics=columns,
         public=public,
@@ -335,6 +340,41 @@ def _render_submission(
         neutral=NEUTRAL_ENDINGS,
         csrf_slot=csrf_slot,
     )
+
+
+def _standing(
+    cache: BoardCache, sub: Submission, dataset: str, setting: str, protocol: str
+) -> tuple[dict[str, Any] | None, int, dict[str, Any]]:
+    """The submission's ranked entry on a board (None: not ranked), how many entries it ranks, and the board
+    as seen from that submission alone: its bootstrap (groups, resamples, confidence) and, for an entry
+    listed apart, its ``unranked`` row with the board's reason."""
+    entry, of = cache.ranked_entry(dataset, setting, sub.track, protocol, sub.id)
+    for attempt in (0, 1):
+        try:
+            board = cache.board_page(
+                dataset, setting, sub.track, protocol, view="all", limit=1, submission_id=sub.id
+            )
+            return entry, of, board
+        except BoardsUnavailable:
+            raise
+        except LookupError:  # the version just read was replaced meanwhile (services/boards.py): read again
+            if attempt:
+                raise
+            cache.publication(sub.track, force=True)
+    raise AssertionError("unreachable")
+
+
+def _bootstrap(boards: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """What the page's note on intervals says: the boards' confidence, resamples and groups ("2", or "2–30"
+    when its boards differ); None when no board ranks the submission."""
+    if not boards:
+        return None
+    groups = sorted({b["groups"] for b in boards})
+    return {
+        "confidence": boards[0]["confidence"],
+        "resamples": boards[0]["resamples"],
+        "groups": str(groups[0]) if len(groups) == 1 else f"{groups[0]}–{groups[-1]}",
+    }
 
 
 @router.get("/submissions/{submission_id}/status.json")

@@ -121,6 +121,24 @@ def rank_span(rank: Any, low: Any, high: Any) -> str:
     return str(rank) if low == high == rank or low is None else f"{rank} ({low}–{high})"
 
 
+def standing(entry: Mapping[str, Any], ranked: int) -> dict[str, Any]:
+    """A submission's ranked entry on one board as its own page shows it, in the board's formats: the rank
+    with its rank interval (``rank_pending``: none yet, a large board between two full computations), the
+    relative and the stable score with their intervals, and each metric's interval in its unit. ``ranked``:
+    how many entries the board ranks."""
+    return {
+        "rank": entry.get("rank"),
+        "of": ranked,
+        "rank_text": rank_span(entry.get("rank"), entry.get("rank_low"), entry.get("rank_high")),
+        "rank_pending": entry.get("rank_low") is None,
+        "score": entry.get("score"),
+        "score_ci": span(entry.get("score_low"), entry.get("score_high")),
+        "stable": entry.get("stable"),
+        "stable_ci": span(entry.get("stable_low"), entry.get("stable_high")),
+        "metric_ci": {k: metric_span(*_bounds(v), k) for k, v in (entry.get("intervals") or {}).items()},
+    }
+
+
 def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
     """Rows and columns of one leaderboard page from a ``board_view(...)`` result."""
     setting = board["setting"]

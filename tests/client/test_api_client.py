@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner, Result
 
 from robobpp import __version__ as robobpp_version
-from robobpp.client.api import ServerClient, ServerError
+from robobpp.client.api import ServerClient, ServerError, Standing
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.policies.dbl import DBL
 from robobpp.schemas import SubmissionPublic
@@ -27,9 +27,14 @@ from tests.server.conftest import (
     server_env,
     wait_for,
 )
+from tests.server.test_board import NaNPolicy
 
 SECRET = "policy-secret-123"
-RANK = re.compile(r"math/diverse\s.*\scompleted\s.*\s(\d+) / (\d+)")
+#: A board's line in the results: "math/diverse  score 0.812 [0.790, 0.835] · rank 2 (1–3) of 9 · stable …".
+RANK = re.compile(
+    r"math/diverse\s+score \d\.\d{3} \[\d\.\d{3}, \d\.\d{3}\] · rank (\d+)(?: \(\d+–\d+\))? of (\d+) · "
+    r"stable \d\.\d{3} \[\d\.\d{3}, \d\.\d{3}\]"
+)
 
 
 @pytest.fixture(scope="module")
@@ -93,6 +98,16 @@ def cli_env(server: ServerProcess, token: str) -> dict[str, str]:
     return {**env, "ROBOBPP_SERVER": server.url, "ROBOBPP_TOKEN": token, "COLUMNS": "200"}
 
 
+def board_line(s: Standing) -> str:
+    """What the results say of a ranked standing, written out here from the board's figures."""
+    assert s.score is not None and s.stable is not None and s.score_low is not None
+    rank = str(s.rank) if s.rank_low == s.rank_high == s.rank else f"{s.rank} ({s.rank_low}–{s.rank_high})"
+    return (
+        f"{s.board}  score {s.score:.3f} [{s.score_low:.3f}, {s.score_high:.3f}] · rank {rank} of {s.entries}"
+        f" · stable {s.stable:.3f} [{s.stable_low:.3f}, {s.stable_high:.3f}]"
+    )
+
+
 def robobpp(*args: str) -> list[str]:
     """The real command line (entry point, exit code), not an in-process call."""
     return [sys.executable, "-m", "robobpp.cli", *args]
@@ -122,10 +137,34 @@ def test_submit_wait_prints_the_results_with_rank_per_board(
     (standing,) = api.standings(sub)
     assert standing.board == "math/diverse" and standing.rank is not None
     assert (int(match[1]), int(match[2])) == (standing.rank, standing.entries)
-    assert f"{standing.metrics['space_utilization']:.4f}" in done.stdout
-    # the stable score too: alone on a board the relative score is 0, and the stable one says how well it did
-    assert standing.stable is not None and re.search(rf"\s{standing.stable:.3f}\s.*\s{match[1]} / ", match[0])
-    assert "stable: against fixed anchors" in " ".join(done.stdout.split())  # the caption, maybe wrapped
+    # every figure with the board's own interval: the standing's are the published board entry's
+    entry = next(
+        e for e in api.leaderboard("diverse", "math", view="all").entries if e.submission_id == sub.id
+    )
+    assert (standing.score_low, standing.score_high, standing.stable_low, standing.stable_high) == (
+        entry.score_low,
+        entry.score_high,
+        entry.stable_low,
+        entry.stable_high,
+    )
+    assert (standing.rank_low, standing.rank_high, standing.intervals) == (
+        entry.rank_low,
+        entry.rank_high,
+        entry.intervals,
+    )
+    assert (standing.groups, standing.resamples, standing.confidence) == (2, 1000, 0.95)
+    # the score, the rank and the stable score (alone on a board the relative score is 0, and the stable one
+    # says how well it did), each with its interval, in one line
+    assert board_line(standing) in done.stdout.splitlines(), done.stdout
+    for key, value in standing.metrics.items():  # each metric, its interval under it
+        low, high = standing.intervals[key] or (None, None)
+        assert f"{value:.4f}" in done.stdout and f"[{low:.4f}, {high:.4f}]" in done.stdout, key
+    words = " ".join(done.stdout.split())
+    assert (
+        "[low, high]: the bootstrap 95 % interval over the board's 2 groups (1000 seeded resamples" in words
+    )
+    assert "2 to 5 in 95 % of resamples" in words and "are not clearly apart" in words
+    assert "stable: against fixed anchors" in words
     # the DBL baseline ran in-process on the same episodes: same geometry as the remote DBL
     assert baseline.metrics["space_utilization"] == pytest.approx(standing.metrics["space_utilization"])
 
@@ -178,9 +217,12 @@ def test_submit_wait_and_connect_show_the_rank_the_board_gets_a_moment_later(
                     if proc.poll() is None:
                         proc.kill()
                 assert proc.returncode == 0, (label, errs + out)
-                match = RANK.search(out)
+                match = RANK.search(
+                    out
+                )  # the score, rank and stable score with intervals, off a terminal too
                 assert match, (label, out)
                 assert int(match[1]) >= 1 and int(match[2]) >= 2, (label, out)  # the baseline and this one
+                assert "bootstrap 95 % interval" in out, (label, out)
                 assert "did not include" not in errs, (label, errs)
                 assert f"provenance: robobpp {robobpp_version}" in errs and "math_rules" in errs, (
                     label,
@@ -241,7 +283,9 @@ def test_cancel_list_and_episodes_through_the_cli(
         waiting.kill()
     assert waiting.returncode == 1, errs
     assert f"error: submission {sub.id} cancelled" in errs and "Traceback" not in errs
-    assert "cancelled" in out  # the final table was still printed
+    # the results were still printed, saying why there is no score (each run ended with the cancellation)
+    assert re.search(r"math/diverse\s+no result — it was cancelled, so no score, rank or interval", out), out
+    assert "[low, high]" not in out  # no interval shown: none explained
 
     listed = run_cli(cli, server, token, "submissions", "list")
     assert listed.exit_code == 0 and re.search(rf"\b{sub.id}\b.*slow one.*cancelled", listed.stdout)
@@ -249,6 +293,43 @@ def test_cancel_list_and_episodes_through_the_cli(
     assert episodes.exit_code == 0 and episodes.stdout.count("cancelled") == 4
     again = run_cli(cli, server, token, "submissions", "cancel", str(sub.id))
     assert again.exit_code == 1 and again.stderr.startswith("error: 409: Already finished:")
+
+
+def test_a_failed_submission_says_why_it_has_no_score_rank_or_interval(
+    server: ServerProcess, token: str, api: ServerClient, cli: CliRunner
+) -> None:
+    """A policy that answers NaN fails every episode: its run is listed apart on the board, and the results
+    say so in the board's words rather than show a blank rank."""
+    with BackgroundServer(create_policy_app(NaNPolicy, None)) as nan:
+        args = robobpp(
+            "submit", nan.url, "--name", "nan one", "--dataset", "diverse", "--wait", "--poll", "0.3"
+        )
+        done = subprocess.run(args, env=cli_env(server, token), capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
+    sub = next(s for s in api.submissions() if s.name == "nan one")
+    (apart,) = api.leaderboard("diverse", "math", view="all", submission=sub.id).unranked
+    (standing,) = api.standings(sub)
+    assert (standing.board_status, standing.reason, standing.rank) == ("failed", apart.reason, None)
+    line = f"math/diverse  not ranked — failed: {apart.reason}; a failed or partial entry gets no score, rank or interval"
+    assert line in done.stdout.splitlines(), done.stdout
+    assert "[low, high]" not in done.stdout  # no interval shown: none explained
+    shown = run_cli(cli, server, token, "submissions", "show", str(sub.id))
+    assert shown.exit_code == 0 and line in shown.stdout.splitlines(), shown.output
+
+
+def test_a_rank_without_its_interval_yet_says_when_it_comes() -> None:
+    """On a large board a new entry's all-entries rank interval waits for the board's next full computation
+    (docs/server.md): the line says so rather than pass the rank alone off as certain."""
+    from robobpp.cli.submit import _standing_line
+
+    common = dict(
+        dataset="diverse", setting="math", status="completed", metrics={}, metric_keys=[], entries=14
+    )
+    figures = dict(score=0.5, score_low=0.4, score_high=0.6, stable=0.7, stable_low=0.65, stable_high=0.75)
+    waiting = _standing_line(Standing(**common, **figures, rank=3, board_status="ranked"))
+    assert "rank 3 of 14 [dim](its rank interval comes with the board's next full computation)[/]" in waiting
+    known = _standing_line(Standing(**common, **figures, rank=3, rank_low=2, rank_high=5))
+    assert "rank 3 [dim](2–5)[/] of 14 · " in known and "full computation" not in known
 
 
 def test_leaderboard_command_shows_boards_and_the_grid(
@@ -265,7 +346,10 @@ def test_leaderboard_command_shows_boards_and_the_grid(
     as_json = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse", "--setting", "math", "--json")
     assert '"entries"' in as_json.stdout
     shown = run_cli(cli, server, token, "submissions", "show", str(sub.id))
-    assert shown.exit_code == 0 and re.search(r"math/diverse.*completed.*\d+ / \d+", shown.stdout)
+    assert shown.exit_code == 0, shown.output
+    (standing,) = api.standings(sub)
+    assert board_line(standing) in shown.stdout.splitlines(), shown.stdout
+    assert "bootstrap 95 % interval" in shown.stdout
     bad = run_cli(cli, server, None, "leaderboard", "--dataset", "diverse")
     assert bad.exit_code == 2 and "both --dataset and --setting" in bad.stderr
 

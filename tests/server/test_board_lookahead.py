@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -97,7 +98,7 @@ def test_the_reproduction_compares_lookahead_zero_baselines_only(factory: Any) -
 
 
 @pytest.fixture
-def app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
+def app(db_url: str, tmp_path: Path) -> Iterator[Any]:
     """Boards published by a test's own publisher; readers never wait."""
     app = make_app(db_url, tmp_path, board_worker="off", board_wait_s=0)
     yield app

@@ -53,9 +53,11 @@ _LOOKAHEAD_GRID = "grid-lookahead-"
 def board_id(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> tuple[str, ...]:
     """A board's key in the engine (module docstring): the one place it is built. A Math Pack board is one
     board under both protocols; a lookahead K > 0 has closed-loop boards only."""
-    if lookahead:
-        return (dataset, setting, CLOSED, str(lookahead))
     protocol = queries.board_protocol(setting, protocol)
+    if lookahead:
+        if protocol != CLOSED:
+            raise ValueError("a lookahead K > 0 has closed-loop boards only")
+        return (dataset, setting, CLOSED, str(lookahead))
     return (dataset, setting) if protocol == CLOSED else (dataset, setting, protocol)
 
 

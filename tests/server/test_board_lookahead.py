@@ -156,6 +156,7 @@ def test_api_pages_cli_and_exports_show_which_lookahead_a_board_is(app: Any) -> 
     # the CLI over HTTP, and its exports
     from robobpp.cli import _register
     from robobpp.cli import app as cli_app
+    from robobpp.client.api import ServerClient
     from robobpp.client.serve import BackgroundServer
 
     _register()
@@ -187,6 +188,11 @@ def test_api_pages_cli_and_exports_show_which_lookahead_a_board_is(app: Any) -> 
         assert md.startswith("**math/diverse · lookahead 10 · private track**") and "lookahead 10" in md
         shown = run("--dataset", "diverse", "--setting", "math", "--lookahead", "10")
         assert "lookahead 10" in shown and "seer" in shown and "alice" not in shown
+        # the SDK reads a submission's standings on the boards of its lookahead
+        with ServerClient(served.url, ADMIN) as api:
+            standings = api.standings(api.submission(seer))
+        assert {(s.rank, s.entries, s.lookahead) for s in standings} == {(1, 1, 10)}
+        assert standings[0].board == "math/diverse (lookahead 10)"
         refused = cli.invoke(
             cli_app, ["leaderboard", "--lookahead", "10", "--protocol", "paper", "--server", served.url]
         )

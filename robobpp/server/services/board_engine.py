@@ -42,8 +42,6 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 #: A full computation that has run this long says how far it is after each board (at 100,000 submissions one
 #: takes 18 minutes, during which the worker was silent).
 PROGRESS_AFTER_S = 30.0
-#: A track's grids, by protocol (lookahead 0).
-GRID_KEYS = ("grid", "grid-paper")
 #: What a board carries for its track's grids only (resample matrices, scores by column): never handed out.
 _GRID_ONLY = ("_samples", "_stable_samples", "_by_column")
 BoardKey = tuple[str, ...] | str

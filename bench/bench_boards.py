@@ -11,6 +11,9 @@ and stored scoring parts, as a worker writes them), then:
   track (the boards it is on, and the grids), CPU of this process; ``recompute_best_cpu_s``: one that is a
   new best (it moves the normalisation of every board: every entry renormalised);
 * ``visible_after_s``: from the submission's commit to its boards computed by the engine (wall);
+* with ``--lookahead-entries N``: N of the seeded submissions made with lookahead 10 (boards of their own,
+  docs/server.md, "Boards per lookahead") before the engine starts, and ``recompute_lookahead_cpu_s``: one more
+  finished lookahead-10 submission (its boards and grid only);
 * with ``--served``, end to end as a user meets it: the server runs for real (a subprocess as in
   ``bench_server.py``, its board worker publishing to SQL), and ``served_visible_after_s`` is the wall time
   from a finished submission's commit until every board route of the API (15 boards: closed loop and the
@@ -75,6 +78,9 @@ def main() -> None:
     parser.add_argument("--seed-only", action="store_true", help="seed the database and stop")
     parser.add_argument("--skip-refresh", action="store_true", help="do not time the refresh")
     parser.add_argument(
+        "--lookahead-entries", type=int, default=0, help="this many seeded submissions saw 10 next boxes"
+    )
+    parser.add_argument(
         "--served", action="store_true", help="only the end-to-end figures, through a real server and its API"
     )
     args = parser.parse_args()
@@ -108,6 +114,16 @@ def main() -> None:
         figures["before_cpu_s"], figures["before_wall_s"] = round(cpu, 2), round(wall, 2)
         print(f"before: full recompute of the track {wall:.1f} s ({cpu:.1f} s CPU)")
 
+    if args.lookahead_entries:
+        with runtime.session() as s:  # spread over the seeded ones (their quality is drawn)
+            step = max(1, count // args.lookahead_entries)
+            s.execute(
+                text(
+                    "UPDATE submissions SET lookahead = 10 WHERE id IN (SELECT id FROM submissions WHERE id % :step = 3 ORDER BY id LIMIT :n)"
+                ),
+                {"step": step, "n": args.lookahead_entries},
+            )
+        figures["lookahead_entries"] = args.lookahead_entries
     engine = BoardEngine(runtime.read_session, DATASETS, SETTINGS)
     _, wall, cpu = timed(lambda: engine.update("private"))
     figures["engine_start_cpu_s"], figures["engine_start_wall_s"] = round(cpu, 2), round(wall, 2)
@@ -131,6 +147,23 @@ def main() -> None:
         print(
             f"one finished submission (quality {quality}): {len(changed)} boards and grids updated in "
             f"{wall:.2f} s ({cpu:.2f} s CPU)"
+        )
+    if args.lookahead_entries:
+        while count % 50 in (7, 23):
+            seed_rows(runtime, 1, first=count)
+            count += 1
+            engine.update("private")
+        seed_rows(runtime, 1, first=count, fixed_quality=0.5)
+        count += 1
+        with runtime.session() as s:
+            s.execute(
+                text("UPDATE submissions SET lookahead = 10 WHERE id = (SELECT max(id) FROM submissions)")
+            )
+        changed, wall, cpu = timed(lambda: engine.update("private"))
+        figures["recompute_lookahead_cpu_s"] = round(cpu, 3)
+        figures["boards_changed_lookahead"] = len(changed)
+        print(
+            f"one finished lookahead-10 submission: {len(changed)} boards and grids updated in {wall:.2f} s ({cpu:.2f} s CPU)"
         )
     if not args.skip_refresh:
         _, wall, cpu = timed(lambda: engine.refresh("private"))

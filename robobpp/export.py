@@ -71,6 +71,7 @@ def group_csv(payload: Mapping[str, Any]) -> str:
         "dataset",
         "setting",
         "protocol",
+        "lookahead",
         "split",
         "group",
         "episode_id",
@@ -102,6 +103,7 @@ def group_csv(payload: Mapping[str, Any]) -> str:
                     e["dataset"],
                     e["setting"],
                     e.get("protocol", "closed"),
+                    run.get("lookahead"),
                     e["split"],
                     e["group"],
                     e["episode_id"],
@@ -163,9 +165,20 @@ def board_provenance(board: Mapping[str, Any]) -> dict[str, Any]:
         **produced,
         "anchors": board.get("anchors"),
         "protocol": board.get("protocol", "closed"),
+        "lookahead": board.get("lookahead", 0),
         "split": SPLIT_OF_TRACK.get(str(board.get("track")), board.get("track")),
         "groups": board.get("groups"),
     }
+
+
+#: Provenance fields a board's CSV writes once per board, not from each entry's runs (every entry of a board
+#: shares them: a board never mixes protocols nor lookaheads).
+_BOARD_WIDE = ("anchors", "protocol", "lookahead", "split", "groups")
+
+
+def lookahead_title(lookahead: Any) -> str:
+    """What a title adds for a board or grid of lookahead K > 0 (lookahead 0, the leaderboard, goes unsaid)."""
+    return f" · lookahead {lookahead}" if lookahead else ""
 
 
 def board_csv(board: Mapping[str, Any]) -> str:
@@ -177,6 +190,7 @@ def board_csv(board: Mapping[str, Any]) -> str:
         "setting",
         "track",
         "protocol",
+        "lookahead",
         "status",
         "rank",
         "rank_low",
@@ -195,11 +209,17 @@ def board_csv(board: Mapping[str, Any]) -> str:
     ]
     for k in keys:
         head += [k, f"{k}_low", f"{k}_high"]
-    head += [f for f in FIELDS if f not in ("anchors", "protocol", "split", "groups")] + ["anchors", "groups"]
+    head += [f for f in FIELDS if f not in _BOARD_WIDE] + ["anchors", "groups"]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(head)
-    common = [board["dataset"], board["setting"], board.get("track"), board.get("protocol", "closed")]
+    common = [
+        board["dataset"],
+        board["setting"],
+        board.get("track"),
+        board.get("protocol", "closed"),
+        board.get("lookahead", 0),
+    ]
     for status, entries in (("ranked", board.get("entries") or []), (None, board.get("unranked") or [])):
         for e in entries:
             intervals = e.get("intervals") or {}
@@ -225,7 +245,7 @@ def board_csv(board: Mapping[str, Any]) -> str:
                 ci = intervals.get(k) or (None, None)
                 row += [(e.get("metrics") or {}).get(k), ci[0], ci[1]]
             prov = (e.get("extras") or {}).get("provenance") or {}
-            row += [prov.get(f) for f in FIELDS if f not in ("anchors", "protocol", "split", "groups")]
+            row += [prov.get(f) for f in FIELDS if f not in _BOARD_WIDE]
             row += [board.get("anchors"), board.get("groups")]
             writer.writerow([_cell(v, SUMMARY_DECIMALS) for v in row])
     return out.getvalue()
@@ -236,7 +256,8 @@ def board_sheet(board: Mapping[str, Any]) -> Sheet:
     keys = list(board.get("metrics") or [])
     protocol = " · paper protocol" if board.get("protocol") == "paper" else ""  # closed loop goes unsaid
     sheet = Sheet(
-        f"{board['setting']}/{board['dataset']}{protocol} · {board.get('track')} track",
+        f"{board['setting']}/{board['dataset']}{protocol}{lookahead_title(board.get('lookahead'))} · "
+        f"{board.get('track')} track",
         ["rank", "entry", *(_label(k) for k in keys), "score ↑", "stable score ↑"],
     )
     for e in board.get("entries") or []:
@@ -274,6 +295,7 @@ def grid_csv(grid: Mapping[str, Any]) -> str:
     head = [
         "track",
         "protocol",
+        "lookahead",
         "status",
         "rank",
         "rank_low",
@@ -298,6 +320,7 @@ def grid_csv(grid: Mapping[str, Any]) -> str:
         row = [
             grid.get("track"),
             grid.get("protocol", "closed"),
+            grid.get("lookahead", 0),
             r.get("status"),
             r.get("rank"),
             r.get("rank_low"),
@@ -324,7 +347,8 @@ def grid_sheet(grid: Mapping[str, Any]) -> Sheet:
     """The overall grid as the paper's table: each board's score (rank), the Mean with its interval."""
     boards = _grid_boards(grid)
     sheet = Sheet(
-        f"overall · {grid.get('track')} track · protocol {grid.get('protocol', 'closed')}",
+        f"overall · {grid.get('track')} track · protocol {grid.get('protocol', 'closed')}"
+        f"{lookahead_title(grid.get('lookahead'))}",
         ["rank", "entry", *boards, "mean ↑", "stable score ↑"],
     )
     for r in [*(grid.get("rows") or []), *(grid.get("apart") or [])]:
@@ -352,8 +376,10 @@ def grid_sheet(grid: Mapping[str, Any]) -> Sheet:
     split = SPLIT_OF_TRACK.get(str(grid.get("track")), grid.get("track"))
     sheet.note = (
         f"Each board: relative score (rank). Mean over {grid.get('boards')} boards with its bootstrap 95 % "
-        f"interval; rank (interval) in 95 % of resamples; split {split}. Each board's provenance: "
-        "robobpp leaderboard --dataset D --setting S --format csv."
+        f"interval; rank (interval) in 95 % of resamples; split {split}; lookahead {grid.get('lookahead', 0)}. "
+        "Each board's provenance: robobpp leaderboard --dataset D --setting S"
+        + (f" --lookahead {grid['lookahead']}" if grid.get("lookahead") else "")
+        + " --format csv."
     )
     return sheet
 

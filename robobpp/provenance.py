@@ -3,8 +3,9 @@
 A figure can be compared with another only when the same rules produced both. Each result therefore carries
 the versions of everything that decides its figures: the robobpp code (and its git commit when it runs from a
 checkout), the datasets it drew from, the physics, the Math Pack rules, the group sampler, the stable score's
-anchors; and what was run: protocol, split, seed, groups. Boards never mix versions of the physics, the rules
-or the sampler (robobpp/db/queries.py).
+anchors; and what was run: protocol, lookahead (the next boxes the policy saw), split, seed, groups. Boards
+never mix versions of the physics, the rules or the sampler (robobpp/db/queries.py), nor lookaheads (each has
+boards of its own).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ FIELDS = (
     "sampler",
     "anchors",
     "protocol",
+    "lookahead",
     "split",
     "seed",
     "groups",
@@ -114,10 +116,17 @@ def merge(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def of_results(
-    results: Iterable[Any], *, protocol: str, split: str, seed: int | None, groups: int
+    results: Iterable[Any],
+    *,
+    protocol: str,
+    split: str,
+    seed: int | None,
+    groups: int,
+    lookahead: int = 0,
 ) -> dict[str, Any]:
     """The provenance of a local run (``robobpp evaluate``) from its ``EpisodeResult``s; ``protocol`` is the
-    one asked for (the paper protocol's Math episodes are closed loop, its replays ``paper``)."""
+    one asked for (the paper protocol's Math episodes are closed loop, its replays ``paper``); ``lookahead``:
+    the next boxes the policy was shown."""
     from robobpp.scoring.scores import ANCHORS_VERSION
 
     rows = list(results)
@@ -128,6 +137,7 @@ def of_results(
         "sampler": merged(r.sampler_version for r in rows),
         "anchors": ANCHORS_VERSION,
         "protocol": protocol,
+        "lookahead": lookahead,
         "split": split,
         "seed": seed,
         "groups": groups,

@@ -86,6 +86,10 @@ class Me(BaseModel):
     quota: dict[str, int] | None = None
 
 
+#: The most next boxes a submission's policy may be shown (each lookahead ranks on boards of its own).
+MAX_SUBMISSION_LOOKAHEAD = 10
+
+
 class SubmissionCreate(Strict):
     name: Name | None = Field(
         default=None,
@@ -107,7 +111,7 @@ class SubmissionCreate(Strict):
     datasets: list[DatasetName] | None = Field(default=None, min_length=1, max_length=3)
     settings: list[SettingName] | None = Field(default=None, min_length=1, max_length=3)
     track: Literal["private", "public"] = "private"
-    lookahead: int = Field(default=0, ge=0, le=10)
+    lookahead: int = Field(default=0, ge=0, le=MAX_SUBMISSION_LOOKAHEAD)
 
     @model_validator(mode="after")
     def _url_matches_mode(self) -> SubmissionCreate:
@@ -165,7 +169,9 @@ class SubmissionPublic(BaseModel):
     track: str
     datasets: list[str]
     settings: list[str]
-    lookahead: int
+    lookahead: int = Field(
+        description="Next boxes its policy saw at each step: it ranks on the boards of this lookahead only"
+    )
     status: str
     created_at: datetime
     finished_at: datetime | None
@@ -178,8 +184,8 @@ class SubmissionPublic(BaseModel):
     #: Only while queued, and only on the one-submission answers (``GET /submissions/{id}``, its page).
     queue: QueuePlace | None = None
     #: What produced its results and what it ran (docs/benchmark.md, "Provenance"): robobpp version and
-    #: commit, datasets manifest sha256, physics, Math rules, sampler and anchors versions, protocol, split,
-    #: seed (null: the secret test draw), groups. A version that differs between episodes is a list.
+    #: commit, datasets manifest sha256, physics, Math rules, sampler and anchors versions, protocol,
+    #: lookahead, split, seed (null: the secret test draw), groups. A version that differs between episodes is a list.
     provenance: dict[str, Any] | None = None
 
 
@@ -258,11 +264,21 @@ class UnrankedEntry(BaseModel):
     verification: str | None = None
 
 
+#: The lookahead fields of a board and of the grid (docs/server.md, "Boards per lookahead").
+LOOKAHEAD_HELP = (
+    "The next boxes its entries' policies saw: 0, the leaderboard; a submission made with lookahead K > 0 "
+    "ranks only on the boards of K (closed loop)"
+)
+LOOKAHEADS_HELP = "The lookaheads with boards on this track: 0 and each K > 0 some entry saw, ascending"
+
+
 class Leaderboard(BaseModel):
     dataset: str
     setting: str
     track: str
     protocol: ProtocolName = Field("closed", description=PROTOCOL_HELP)
+    lookahead: int = Field(0, description=LOOKAHEAD_HELP)
+    lookaheads: list[int] = Field(default_factory=lambda: [0], description=LOOKAHEADS_HELP)
     metrics: list[str]
     weights: dict[str, float]
     ranked_by: str = Field(description="Which score orders the board: relative (the paper's min–max)")
@@ -326,6 +342,8 @@ class OverallGrid(BaseModel):
     settings: list[str]
     track: str
     protocol: ProtocolName = Field("closed", description=PROTOCOL_HELP)
+    lookahead: int = Field(0, description=LOOKAHEAD_HELP)
+    lookaheads: list[int] = Field(default_factory=lambda: [0], description=LOOKAHEADS_HELP)
     boards: int
     ranked_by: str
     view: Literal["best", "all"]

@@ -69,6 +69,8 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
                         "figures": figures,
                         "episodes": sorted(e["episode_id"] for e in mine),
                         "versions": versions,
+                        # next boxes the policy saw (files from before it was recorded: 0, the default)
+                        "lookahead": int((payload.get("provenance") or {}).get("lookahead") or 0),
                         "provenance": payload.get("provenance"),
                     }
                 )
@@ -92,6 +94,12 @@ def score_boards(entries: list[dict[str, Any]]) -> dict[tuple[str, str, str], li
                 fail(
                     f"{dataset}/{setting}: {row['file']} and {reference['file']} ran different episodes "
                     "(use the same --split, --seed and --groups)"
+                )
+            if row["lookahead"] != reference["lookahead"]:  # nor lookaheads (docs/benchmark.md)
+                fail(
+                    f"{dataset}/{setting}: {row['file']} saw {row['lookahead']} next boxes (--lookahead), "
+                    f"{reference['file']} {reference['lookahead']}: not comparable; the leaderboard ranks "
+                    "each lookahead on boards of its own"
                 )
             for key, mine in row["versions"].items():  # a board never mixes versions (docs/benchmark.md)
                 theirs = reference["versions"].get(key)

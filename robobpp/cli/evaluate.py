@@ -137,7 +137,9 @@ def evaluate(
     }
     results = [r for rs in runs.values() for r in rs]
     summary = _summarise(runs)
-    provenance = of_results(results, protocol=protocol, split=split, seed=seed, groups=groups)
+    provenance = of_results(
+        results, protocol=protocol, split=split, seed=seed, groups=groups, lookahead=lookahead
+    )
     out = table_console()
     out.print(_table(agent.name, summary, protocol, provenance))
     for note in failure_notes(runs):
@@ -148,6 +150,7 @@ def evaluate(
         "seed": seed,
         "groups": groups,
         "protocol": protocol,
+        "lookahead": lookahead,
         "confidence": stats.CONFIDENCE,
         "resamples": stats.RESAMPLES,
         "provenance": provenance,

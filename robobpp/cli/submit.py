@@ -452,6 +452,15 @@ def leaderboard(
             "protocol: the Math Pack actions replayed)."
         ),
     ] = "closed",
+    lookahead: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            max=10,
+            help="The boards of submissions that saw this many next boxes (0: the leaderboard); "
+            "each lookahead ranks apart, closed loop only.",
+        ),
+    ] = 0,
     server: ServerOpt = "http://127.0.0.1:8000",
     token: TokenOpt = None,
 ) -> None:
@@ -469,15 +478,19 @@ def leaderboard(
             fail(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
     if view not in ("best", "all"):
         fail(f"unknown view {view!r}; expected best or all")
+    if lookahead and protocol != "closed" and setting != "math":
+        fail("the paper-protocol boards are lookahead 0 only; a lookahead K > 0 has closed-loop boards")
     if dataset is not None and dataset not in DATASETS:
         fail(f"unknown dataset {dataset!r}; expected one of {', '.join(DATASETS)}")
     if setting is not None and setting not in SETTINGS:
         fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")
     with _client(server, token, need_token=False) as client:
         data = (
-            client.leaderboard(dataset, setting, _track(track), view=view, protocol=protocol)
+            client.leaderboard(
+                dataset, setting, _track(track), view=view, protocol=protocol, lookahead=lookahead
+            )
             if dataset and setting
-            else client.grid(_track(track), view=view, protocol=protocol)
+            else client.grid(_track(track), view=view, protocol=protocol, lookahead=lookahead)
         )
     if as_json:
         print(data.model_dump_json(indent=2))
@@ -493,6 +506,11 @@ def leaderboard(
         return
 
     table_console().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))
+    if others := [k for k in data.lookaheads if k != data.lookahead]:  # each lookahead ranks apart
+        listed = ", ".join(f"--lookahead {k}" for k in others)
+        err.print(
+            f"[dim]lookahead {data.lookahead} board; entries with another lookahead rank apart: {listed}[/]"
+        )
 
 
 def _who(name: str, participant: str, baseline: bool) -> str:
@@ -513,6 +531,7 @@ def _rank(rank: int | None, low: int | None, high: int | None) -> str:
 def _board_table(board: Leaderboard) -> Table:
     """Ranks with their 95 % rank interval, scores with their bootstrap interval, failed/partial apart."""
     protocol = " · paper protocol" if board.protocol == "paper" else ""
+    protocol += f" · lookahead {board.lookahead}" if board.lookahead else ""
     table = Table(
         title=f"{board.setting}/{board.dataset}{protocol} · {board.track} track · {board.view} "
         f"({board.total} ranked, by the {board.ranked_by} score)"
@@ -565,6 +584,7 @@ def _board_table(board: Leaderboard) -> Table:
 def _grid_table(grid: OverallGrid) -> Table:
     """Score (rank) per board and the Mean with intervals; partial or failed submissions after, unranked."""
     protocol = " · Physics/Execution under the paper protocol" if grid.protocol == "paper" else ""
+    protocol += f" · lookahead {grid.lookahead}" if grid.lookahead else ""
     table = Table(title=f"overall{protocol} · {grid.track} track · {grid.view}")
     table.add_column("rank", justify="right")
     table.add_column("submission")

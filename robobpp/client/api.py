@@ -109,10 +109,18 @@ class Standing:
     groups: int = 0
     resamples: int = 0
     confidence: float = 0.95
+    #: The next boxes its policy saw: it ranks on the boards of this lookahead (docs/server.md).
+    lookahead: int = 0
+    #: False for a run no board shows (a lookahead K > 0 under the paper protocol: lookahead-0 boards only).
+    boarded: bool = True
 
     @property
     def board(self) -> str:
-        return f"{self.setting}/{self.dataset}" + (" (paper protocol)" if self.protocol != "closed" else "")
+        return (
+            f"{self.setting}/{self.dataset}"
+            + (" (paper protocol)" if self.protocol != "closed" else "")
+            + (f" (lookahead {self.lookahead})" if self.lookahead else "")
+        )
 
 
 #: What a ranked run's :class:`Standing` takes from its board entry.
@@ -308,17 +316,22 @@ class ServerClient:
         offset: int = 0,
         submission: int | None = None,
         protocol: str = "closed",
+        lookahead: int = 0,
     ) -> Leaderboard:
         """One page of a board: each participant's best entry (``view="best"``) or ``"all"`` entries;
-        ``protocol="paper"``: a physical setting's board under the paper protocol (docs/server.md)."""
+        ``protocol="paper"``: a physical setting's board under the paper protocol (docs/server.md);
+        ``lookahead``: the board of the submissions that saw that many next boxes (0: the leaderboard)."""
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
         if submission is not None:
             params["submission"] = submission
         if protocol != "closed":  # the default goes unsaid: a server from before protocols answers alike
             params["protocol"] = protocol
+        if lookahead:
+            params["lookahead"] = lookahead
         board: Leaderboard = self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
         if setting != "math":
             self._check_protocol(board.protocol, protocol)
+        self._check_lookahead(board.lookahead, lookahead)
         return board
 
     def grid(
@@ -329,15 +342,31 @@ class ServerClient:
         limit: int = 50,
         offset: int = 0,
         protocol: str = "closed",
+        lookahead: int = 0,
     ) -> OverallGrid:
         """The overall grid: ranked rows (a score and rank per ``setting/dataset`` board, and the Mean) and
-        the partial or failed ones apart; ``protocol="paper"``: its physical columns under the paper protocol."""
+        the partial or failed ones apart; ``protocol="paper"``: its physical columns under the paper protocol;
+        ``lookahead``: of the submissions that saw that many next boxes."""
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
         if protocol != "closed":
             params["protocol"] = protocol
+        if lookahead:
+            params["lookahead"] = lookahead
         grid: OverallGrid = self._get("/leaderboards", OverallGrid, params=params)
         self._check_protocol(grid.protocol, protocol)
+        self._check_lookahead(grid.lookahead, lookahead)
         return grid
+
+    def _check_lookahead(self, served: int, asked: int) -> None:
+        """A server from before boards per lookahead ignores ``lookahead`` and serves its one board: say so."""
+        if served != asked:
+            raise ServerError(
+                None,
+                "Lookahead not offered",
+                f"the server at {self.base_url} served the lookahead-{served} board, not lookahead {asked} "
+                "(it predates boards per lookahead)",
+                kind="protocol",
+            )
 
     def _check_protocol(self, served: str, asked: str) -> None:
         """A server from before protocols ignores ``protocol=paper`` and serves closed-loop boards: say so."""
@@ -417,16 +446,39 @@ class ServerClient:
         while True:
             out = [self._standing(submission, run) for run in submission.runs]
             awaited = submission.status in ("completed", "failed")
-            missing = [s for s in out if awaited and s.status == "completed" and s.board_status is None]
+            missing = [
+                s for s in out if awaited and s.status == "completed" and s.board_status is None and s.boarded
+            ]
             if not missing or time.monotonic() + poll_s > deadline:
                 return out
             time.sleep(poll_s)
 
     def _standing(self, submission: SubmissionPublic, run: Any) -> Standing:
         track: Track = "public" if submission.track == "public" else "private"
-        protocol = run.protocol
+        protocol, lookahead = run.protocol, submission.lookahead
+        if lookahead and protocol != "closed" and run.setting != "math":
+            # the paper-protocol boards are lookahead 0 only: this run is on none
+            return Standing(
+                dataset=run.dataset,
+                setting=run.setting,
+                status=run.status,
+                metrics=dict(run.metrics or {}),
+                metric_keys=list(run.metrics or {}),
+                rank=None,
+                score=None,
+                entries=0,
+                protocol=protocol,
+                lookahead=lookahead,
+                boarded=False,
+            )
         board = self.leaderboard(
-            run.dataset, run.setting, track=track, view="all", submission=submission.id, protocol=protocol
+            run.dataset,
+            run.setting,
+            track=track,
+            view="all",
+            submission=submission.id,
+            protocol=protocol,
+            lookahead=lookahead,
         )
         entry: LeaderboardEntry | None = next(
             (e for e in board.entries if e.submission_id == submission.id), None
@@ -442,7 +494,13 @@ class ServerClient:
             metrics=metrics,
             metric_keys=list(board.metrics),
             entries=self.leaderboard(
-                run.dataset, run.setting, track=track, view="all", limit=1, protocol=protocol
+                run.dataset,
+                run.setting,
+                track=track,
+                view="all",
+                limit=1,
+                protocol=protocol,
+                lookahead=lookahead,
             ).total,
             board_status="ranked" if entry else apart.status if apart else None,
             protocol=protocol,
@@ -450,5 +508,6 @@ class ServerClient:
             groups=board.groups,
             resamples=board.resamples,
             confidence=board.confidence,
+            lookahead=lookahead,
             **figures,
         )

@@ -243,7 +243,8 @@ class BoardPublication(Base):
     #: ``services.boards.board_source`` when they were computed (the data's version and the code's); None asks
     #: the board worker to recompute (``robobpp db refresh-boards``).
     source: Mapped[list[Any] | None] = mapped_column(default=None)
-    #: Board key (``repetitive/math/closed``, ``grid/closed``) -> [its parts' version, digest of its parts].
+    #: Board key (``repetitive/math/closed``, ``grid/closed``; a lookahead K > 0's end in ``/lookahead-K``) ->
+    #: [its parts' version, digest of its parts].
     boards: Mapped[dict[str, Any]] = mapped_column(default=dict)
     #: Wall time of the last publication (computation and writing).
     seconds: Mapped[float] = mapped_column(Float, default=0.0)

@@ -174,11 +174,13 @@ def board_protocol(setting: str, protocol: str) -> str:
 
 
 def board_rows(
-    session: Session, dataset: str, setting: str, track: str, protocol: str = "closed"
+    session: Session, dataset: str, setting: str, track: str, protocol: str = "closed", lookahead: int = 0
 ) -> list[dict[str, Any]]:
     """Every completed run on the board of a finished submission (failed ones too: they are shown apart),
-    with its per-group ``figures``."""
-    return board_runs(session, track, boards=[(dataset, setting, protocol)], figures=True)
+    with its per-group ``figures``; ``lookahead``: the board of submissions that saw that many next boxes."""
+    return board_runs(
+        session, track, boards=[(dataset, setting, protocol)], lookahead=lookahead, figures=True
+    )
 
 
 _BOARD_KEYS = (
@@ -196,6 +198,7 @@ _BOARD_KEYS = (
     "dataset",
     "setting",
     "protocol",
+    "lookahead",
 )
 
 
@@ -205,16 +208,56 @@ def board_runs(
     *,
     boards: Sequence[tuple[str, str, str]] | None = None,
     submission_ids: Sequence[int] | None = None,
+    lookahead: int | None = None,
     figures: bool = False,
 ) -> list[dict[str, Any]]:
     """The completed runs shown on the track's boards (``boards``: only those (dataset, setting, protocol);
-    ``submission_ids``: only theirs), by submission id, each with ``dataset``, ``setting``, ``protocol``,
-    and its per-group ``figures`` or (``figures=False``) its stored scoring part ``entry`` (bytes or None)."""
+    ``submission_ids``: only theirs; ``lookahead``: only submissions that saw that many next boxes), by
+    submission id, each with ``dataset``, ``setting``, ``protocol``, its submission's ``lookahead``, and its
+    per-group ``figures`` or (``figures=False``) its stored scoring part ``entry`` (bytes or None)."""
+    where = _board_where(track, boards)
+    if submission_ids is not None:
+        where.append(RunRow.submission_id.in_(list(submission_ids)))
+    if lookahead is not None:  # boards never mix lookaheads (docs/benchmark.md, "Scoring")
+        where.append(Submission.lookahead == lookahead)
+    rows = session.execute(
+        select(
+            RunRow.submission_id,
+            RunRow.metrics,
+            RunRow.extras,
+            RunRow.figures if figures else RunRow.entry,
+            RunRow.episodes_total,
+            RunRow.completed_at,
+            Submission.name,
+            Submission.status,
+            Participant.name,
+            Participant.is_builtin,
+            Submission.verification,
+            RunRow.dataset,
+            RunRow.setting,
+            RunRow.protocol,
+            Submission.lookahead,
+        )
+        .join(Submission, Submission.id == RunRow.submission_id)
+        .join(Participant, Participant.id == Submission.participant_id)
+        .where(*where)
+        .order_by(RunRow.submission_id)
+    ).all()
+    keys = _BOARD_KEYS if figures else tuple("entry" if k == "figures" else k for k in _BOARD_KEYS)
+    return [
+        dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": board_verdict(r[10])}
+        for r in rows
+        if current_rules(r[2])
+    ]
+
+
+def _board_where(track: str, boards: Sequence[tuple[str, str, str]] | None) -> list[Any]:
+    """What puts a run on the track's boards (``boards``: on one of those (dataset, setting, protocol))."""
     # A physical setting's board shows only runs whose every episode ran the current physics version.
     other_physics = exists().where(
         EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
     )
-    where = [
+    where: list[Any] = [
         RunRow.status == "completed",
         Submission.track == track,
         Submission.status.in_(("completed", "failed")),
@@ -233,36 +276,19 @@ def board_runs(
                 )
             )
         )
-    if submission_ids is not None:
-        where.append(RunRow.submission_id.in_(list(submission_ids)))
+    return where
+
+
+def board_lookaheads(session: Session, track: str, boards: Sequence[tuple[str, str, str]]) -> list[int]:
+    """The lookaheads K > 0 with a run on one of the track's ``boards`` (dataset, setting, protocol): each has
+    boards of its own (lookahead 0, the leaderboard, always has them). Reads only the runs of submissions that
+    saw next boxes (few), with what :func:`board_runs` checks."""
     rows = session.execute(
-        select(
-            RunRow.submission_id,
-            RunRow.metrics,
-            RunRow.extras,
-            RunRow.figures if figures else RunRow.entry,
-            RunRow.episodes_total,
-            RunRow.completed_at,
-            Submission.name,
-            Submission.status,
-            Participant.name,
-            Participant.is_builtin,
-            Submission.verification,
-            RunRow.dataset,
-            RunRow.setting,
-            RunRow.protocol,
-        )
+        select(Submission.lookahead, RunRow.extras)
         .join(Submission, Submission.id == RunRow.submission_id)
-        .join(Participant, Participant.id == Submission.participant_id)
-        .where(*where)
-        .order_by(RunRow.submission_id)
+        .where(*_board_where(track, boards), Submission.lookahead > 0)
     ).all()
-    keys = _BOARD_KEYS if figures else tuple("entry" if k == "figures" else k for k in _BOARD_KEYS)
-    return [
-        dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": board_verdict(r[10])}
-        for r in rows
-        if current_rules(r[2])
-    ]
+    return sorted({int(k) for k, extras in rows if current_rules(extras)})
 
 
 def run_figures_of(
@@ -443,15 +469,18 @@ def submission_view(
 
 def submission_provenance(sub: Submission, runs: Sequence[RunRow]) -> dict[str, Any]:
     """What produced a submission's results (its completed runs' provenance, merged; docs/benchmark.md,
-    "Provenance") and what it ran: protocol, split, seed (the public groups' 0; the test draw's is secret),
-    groups."""
+    "Provenance") and what it ran: protocol, lookahead (the next boxes its policy saw), split, seed (the public
+    groups' 0; the test draw's is secret), groups."""
     from robobpp.db.work import SPLIT_OF_TRACK
 
     produced = merge((r.extras or {}).get("provenance") or {} for r in runs if r.status == "completed")
     return {
-        **{k: v for k, v in produced.items() if k not in ("protocol", "split", "seed", "groups")},
+        **{
+            k: v for k, v in produced.items() if k not in ("protocol", "lookahead", "split", "seed", "groups")
+        },
         "anchors": ANCHORS_VERSION,
         "protocol": merged(r.protocol for r in runs) or "closed",
+        "lookahead": sub.lookahead,
         "split": SPLIT_OF_TRACK.get(sub.track, sub.track),
         "seed": 0 if sub.track == "public" else None,
         "groups": max((r.episodes_total for r in runs), default=0),
@@ -619,8 +648,8 @@ def get_episode(session: Session, submission_id: int, episode_id: int) -> Episod
 
 def baseline_runs(session: Session, track: str) -> list[dict[str, Any]]:
     """The built-in baselines' completed runs as the paper made its tables: Math Pack, and the physical
-    settings under the paper protocol (current physics version only, as on a board), of finished submissions,
-    oldest first (a later run of the same policy and board replaces an earlier one for the caller)."""
+    settings under the paper protocol (current physics version only, as on a board), lookahead 0, of finished
+    submissions, oldest first (a later run of the same policy and board replaces an earlier one for the caller)."""
     current = ~exists().where(
         EpisodeRow.run_id == RunRow.id, EpisodeRow.physics_version.is_distinct_from(PHYSICS_VERSION)
     )
@@ -639,6 +668,7 @@ def baseline_runs(session: Session, track: str) -> list[dict[str, Any]]:
         .where(
             Participant.is_builtin.is_(True),
             Submission.track == track,
+            Submission.lookahead == 0,  # the paper's methods see one box at a time
             Submission.status.in_(("completed", "failed")),
             RunRow.status == "completed",
             or_(

@@ -95,16 +95,19 @@ class _Entry:
 
 
 class BoardMatrix:
-    """One board (dataset × setting × protocol of a track) kept between updates.
+    """One board (dataset × setting × protocol × lookahead of a track) kept between updates.
 
     ``rows`` are what :func:`robobpp.db.queries.board_runs` returns without ``entry``, with ``ids``: the
     run's group ids as bytes (None without figures). ``load`` reads stored parts by submission id.
     """
 
-    def __init__(self, dataset: str, setting: str, track: str, protocol: str, load: PartLoader) -> None:
+    def __init__(
+        self, dataset: str, setting: str, track: str, protocol: str, load: PartLoader, lookahead: int = 0
+    ) -> None:
         if setting not in WEIGHTS:
             raise ValueError(f"unknown setting {setting!r}; expected one of {', '.join(WEIGHTS)}")
         self.dataset, self.setting, self.track, self.protocol = dataset, setting, track, protocol
+        self.lookahead = lookahead
         self.load = load
         self.keys = metric_keys(setting)
         self._up = np.array([METRIC_BY_KEY[k].better == "up" for k in self.keys])
@@ -466,6 +469,7 @@ class BoardMatrix:
             },
         )
         board["protocol"] = self.protocol
+        board["lookahead"] = self.lookahead
         board["_ranked"] = view
         # the board's matrices are the kept ones (``board_dict`` turns the transposed views back into the
         # row-per-entry matrices built here, no copy); read-only: a shift changes an entry's samples in a copy

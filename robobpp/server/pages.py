@@ -23,10 +23,11 @@ from robobpp.datasets import DATASETS
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
+from robobpp.schemas import MAX_SUBMISSION_LOOKAHEAD
 from robobpp.scoring.metrics import METRICS, PHYSICAL
 from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
-from robobpp.server.api.leaderboards import board_cache, cached_body
+from robobpp.server.api.leaderboards import board_cache, cached_body, known_lookaheads
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access
 from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key
@@ -61,6 +62,12 @@ def _board_names(settings: SettingsDep) -> tuple[tuple[str, ...], tuple[str, ...
 
 View = Literal["best", "all"]
 Page = Annotated[int, Query(ge=1, le=10**5)]
+#: The boards of the submissions that saw this many next boxes (0: the leaderboard's).
+Lookahead = Annotated[int, Query(ge=0, le=MAX_SUBMISSION_LOOKAHEAD)]
+PAPER_LOOKAHEAD = (
+    "The paper-protocol boards are lookahead 0 only (the paper’s tables were made without lookahead); "
+    "a lookahead above 0 has closed-loop boards."
+)
 
 
 @router.get("/", response_class=HTMLResponse)
@@ -71,11 +78,16 @@ async def overall_page(
     view: View = "best",
     page: Page = 1,
     protocol: Protocol = "closed",
+    lookahead: Lookahead = 0,
 ):
     datasets, setting_names = _board_names(settings)
+    if lookahead and protocol != "closed":
+        return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
-        shown = cache.grid_page(track, protocol, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE)
+        shown = cache.grid_page(
+            track, protocol, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE, lookahead
+        )
         return render(
             request,
             "index.html",
@@ -89,10 +101,17 @@ async def overall_page(
             pages=tables.pages(shown, page),
             protocol=protocol,
             has_physical=bool(set(setting_names) & set(PHYSICAL)),
+            lookahead=lookahead,
+            lookaheads=shown.get("lookaheads", [0]),
         )
 
     return await _shared(
-        request, track, grid_key(protocol), ("home", root(request), track, view, page, protocol), build
+        request,
+        track,
+        grid_key(protocol, lookahead),
+        ("home", root(request), track, view, page, protocol, lookahead),
+        build,
+        lookahead,
     )
 
 
@@ -102,16 +121,24 @@ async def _shared(
     board: str | None,
     key: tuple[Any, ...],
     build: Callable[[BoardCache], HTMLResponse],
+    lookahead: int = 0,
 ) -> HTMLResponse:
     """An anonymous visitor's board page, rendered once per version of ``board`` and shared by every such
     reader (services/boards.py; answered on the event loop while current); a page naming its viewer or
-    carrying a CSRF nonce is rendered for that viewer, in a worker thread."""
+    carrying a CSRF nonce is rendered for that viewer, in a worker thread. A lookahead no entry saw: 404."""
     who = viewer(request)
     try:
         if who.signed_in or who.nonce:
             return await run_in_threadpool(build, board_cache(request))
-        return HTMLResponse(await cached_body(request, track, board, key, lambda c: bytes(build(c).body)))
-    except (BoardsUnavailable, ProblemError):
+        return HTMLResponse(
+            await cached_body(request, track, board, key, lambda c: bytes(build(c).body), lookahead)
+        )
+    except (BoardsUnavailable, ProblemError) as exc:
+        if isinstance(exc, ProblemError) and exc.status == 404:
+            return not_found(request, exc.detail)
+        known = await run_in_threadpool(known_lookaheads, board_cache(request), track) if lookahead else None
+        if known is not None and lookahead not in known:
+            return not_found(request, f"No entry on this track saw lookahead {lookahead}.")
         page = render(
             request, "error.html", 503, title="Boards not ready", nav="leaderboard", message=NOT_READY
         )
@@ -142,19 +169,31 @@ async def board_page(
     view: View = "best",
     page: Page = 1,
     protocol: Protocol = "closed",
+    lookahead: Lookahead = 0,
 ):
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
     served = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
+    if lookahead and served != "closed":
+        return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
         shown = cache.board_page(
-            dataset, setting, track, served, view, tables.PAGE_SIZE, (page - 1) * tables.PAGE_SIZE
+            dataset,
+            setting,
+            track,
+            served,
+            view,
+            tables.PAGE_SIZE,
+            (page - 1) * tables.PAGE_SIZE,
+            lookahead=lookahead,
         )
         title = f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}"
         if served != "closed":
             title += " · paper protocol"
+        if lookahead:
+            title += f" · lookahead {lookahead}"
         return render(
             request,
             "board.html",
@@ -171,6 +210,8 @@ async def board_page(
             board=shown,
             protocol=served,
             has_physical=setting in PHYSICAL,
+            lookahead=lookahead,
+            lookaheads=shown.get("lookaheads", [0]),
             other_boards=[
                 (d, s, f"{DATASETS[d].title} · {SETTING_TITLES[s]}")  # as the titles read
                 for s in setting_names
@@ -181,9 +222,10 @@ async def board_page(
     return await _shared(
         request,
         track,
-        board_key(dataset, setting, served),
-        ("board-page", root(request), dataset, setting, track, view, page, served),
+        board_key(dataset, setting, served, lookahead),
+        ("board-page", root(request), dataset, setting, track, view, page, served, lookahead),
         build,
+        lookahead,
     )
 
 
@@ -266,9 +308,12 @@ def _render_submission(
             continue
         key = (r["dataset"], r["setting"], r["protocol"])
         try:
-            entry, of, board = _standing(cache, sub, *key)
+            standing = _standing(cache, sub, *key)
         except BoardsUnavailable:  # not published yet (a fresh server): the page shows no rank
             continue
+        if standing is None:  # a lookahead K > 0 under the paper protocol: no board shows it
+            continue
+        entry, of, board = standing
         if entry is not None:
             ranks[key] = tables.standing(entry, of)  # the board's own figures, as its rows show them
             entries[key] = (entry, of)
@@ -344,15 +389,25 @@ def _render_submission(
 
 def _standing(
     cache: BoardCache, sub: Submission, dataset: str, setting: str, protocol: str
-) -> tuple[dict[str, Any] | None, int, dict[str, Any]]:
-    """The submission's ranked entry on a board (None: not ranked), how many entries it ranks, and the board
-    as seen from that submission alone: its bootstrap (groups, resamples, confidence) and, for an entry
-    listed apart, its ``unranked`` row with the board's reason."""
-    entry, of = cache.ranked_entry(dataset, setting, sub.track, protocol, sub.id)
+) -> tuple[dict[str, Any] | None, int, dict[str, Any]] | None:
+    """The submission's ranked entry on a board of its lookahead (None: not ranked), how many entries it
+    ranks, and the board as seen from that submission alone: its bootstrap (groups, resamples, confidence)
+    and, for an entry listed apart, its ``unranked`` row with the board's reason. None where no board can
+    show the run (a lookahead K > 0 has no paper-protocol boards)."""
+    if sub.lookahead and queries.board_protocol(setting, protocol) != "closed":
+        return None
+    entry, of = cache.ranked_entry(dataset, setting, sub.track, protocol, sub.id, sub.lookahead)
     for attempt in (0, 1):
         try:
             board = cache.board_page(
-                dataset, setting, sub.track, protocol, view="all", limit=1, submission_id=sub.id
+                dataset,
+                setting,
+                sub.track,
+                protocol,
+                view="all",
+                limit=1,
+                submission_id=sub.id,
+                lookahead=sub.lookahead,
             )
             return entry, of, board
         except BoardsUnavailable:

@@ -166,6 +166,44 @@ def test_per_group_csv_and_summary_tables(evaluated, tmp_path):
     assert bad.returncode == 2 and "unknown format 'docx'" in bad.stderr
 
 
+@pytest.mark.network
+def test_a_run_says_its_lookahead_and_compare_keeps_lookaheads_apart(evaluated, real_data, tmp_path):
+    """A policy shown the next boxes solved another task: its lookahead is in the provenance, the per-group CSV
+    and the tables, and `compare` refuses to rank it beside a lookahead-0 run of the same episodes."""
+    _proc, plain, _csv = evaluated
+    out, table = tmp_path / "seer.json", tmp_path / "seer.csv"
+    proc = run_cli(
+        "evaluate",
+        "--policy",
+        "dbl",
+        "--dataset",
+        "diverse",
+        "--groups",
+        "5",
+        "--seed",
+        "3",
+        "--lookahead",
+        "3",
+        "--json",
+        str(out),
+        "--csv",
+        str(table),
+        env_extra={"ROBOBPP_DATA_DIR": str(real_data)},
+    )
+    assert proc.returncode == 0, proc.stderr
+    payload = json.loads(out.read_text())
+    assert payload["lookahead"] == payload["provenance"]["lookahead"] == 3
+    assert plain["provenance"]["lookahead"] == 0
+    assert "lookahead 3" in proc.stdout  # the table's caption
+    assert {r["lookahead"] for r in csv.DictReader(io.StringIO(table.read_text()))} == {"3"}
+    md = run_cli("export", str(out), "--format", "md")
+    assert md.returncode == 0 and "lookahead 3" in md.stdout
+    source = tmp_path / "plain.json"
+    source.write_text(json.dumps(plain))
+    refused = run_cli("compare", str(source), str(out))
+    assert refused.returncode != 0 and "not comparable" in refused.stderr and "lookahead" in refused.stderr
+
+
 def test_export_refuses_what_is_not_an_evaluate_file(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text('{"runs": [{"dataset": 1}]}')

@@ -258,7 +258,14 @@ def db_rows(url: str, sql: str, **params: Any) -> list[Any]:
 
 
 def submit_direct(
-    app: Any, participant: str, url: str, *, datasets: tuple[str, ...], groups: int, name: str | None = None
+    app: Any,
+    participant: str,
+    url: str,
+    *,
+    datasets: tuple[str, ...],
+    groups: int,
+    name: str | None = None,
+    lookahead: int = 0,
 ) -> int:
     """A Math-setting submission written straight into the app's database (no HTTP, no quota), for tests
     that need many entries quickly; the participant is created on first use."""
@@ -276,6 +283,7 @@ def submit_direct(
             datasets=list(datasets),
             settings=["math"],
             groups=groups,
+            lookahead=lookahead,
         ).id
 
 

@@ -81,13 +81,18 @@ def add_submission(
     seed: int,
     settings: tuple[str, ...] = SETTINGS,
     episodes: dict[Any, list[Any]] | None = None,
+    lookahead: int = 0,
+    paper: bool = False,
+    builtin: bool = False,
 ) -> int:
-    """A finished private submission whose runs are written as a worker writes them."""
+    """A finished private submission whose runs are written as a worker writes them (``lookahead``: next
+    boxes its policy saw; ``paper``: its physical runs also under the paper protocol, with the same figures;
+    ``builtin``: a built-in baseline's)."""
     episodes = episodes or episodes_of(quality, seed, settings)
     with transaction(factory) as s:
         p = s.query(Participant).filter_by(name=participant).one_or_none()
         if p is None:
-            p = Participant(name=participant)
+            p = Participant(name=participant, is_builtin=builtin)
             s.add(p)
             s.flush()
         now = utcnow()
@@ -102,11 +107,14 @@ def add_submission(
             status="completed",
             created_at=now,
             finished_at=now,
+            lookahead=lookahead,
         )
         s.add(sub)
         s.flush()
         for d in DATASETS:
-            for st in settings:
+            for st, protocol in [(st, "closed") for st in settings] + [
+                (st, "paper") for st in settings if paper and st != "math"
+            ]:
                 eps = episodes[(d, st)]
                 metrics, extras = run_figures(
                     [({k: v for k, v in e.items() if k != "group"}, {}, "completed", 20) for e in eps], st
@@ -116,7 +124,7 @@ def add_submission(
                         submission_id=sub.id,
                         dataset=d,
                         setting=st,
-                        protocol="closed",
+                        protocol=protocol,
                         status="completed",
                         episodes_total=GROUPS,
                         metrics=metrics,
@@ -129,9 +137,10 @@ def add_submission(
 
 
 def scratch(factory: Any) -> dict[Any, Any]:
+    """Every board and grid of the private track computed from scratch, by engine key."""
     with factory() as s:
         snap = compute_snapshot(s, DATASETS, SETTINGS, "private")
-    return {**snap["boards"], "grid": snap["grid"], "grid-paper": snap["grid-paper"]}
+    return {**snap.pop("boards"), **snap}
 
 
 def same(a: Any, b: Any, path: str = "", *, ranks: bool = True, tol: float = 0.0) -> None:

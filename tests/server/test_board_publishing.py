@@ -73,8 +73,8 @@ class Gate:
         self.entered, self.go = threading.Event(), threading.Event()
         self.calls = 0
 
-    def keys(self) -> list[Any]:
-        return self.inner.keys()
+    def keys(self, track: str) -> list[Any]:
+        return self.inner.keys(track)
 
     def update(self, track: str) -> Mapping[Any, Any]:
         self.calls += 1
@@ -407,7 +407,7 @@ class Scripted:
     def __init__(self) -> None:
         self.board: dict[str, Any] = {}
 
-    def keys(self) -> list[Any]:
+    def keys(self, track: str) -> list[Any]:
         return [("diverse", "math")]
 
     def update(self, track: str) -> Mapping[Any, Any]:

@@ -89,6 +89,8 @@ def served(tmp_path: Path, policy_server):  # type: ignore[no-untyped-def]
         "done": submit_direct(app, "alice", "builtin:dbl", datasets=both, groups=GROUPS),
         "random": submit_direct(app, "bob", "builtin:random", datasets=both, groups=GROUPS),
         "partial": submit_direct(app, "carol", "builtin:hm", datasets=("diverse",), groups=GROUPS),
+        # the boards of lookahead 10 are served beside the leaderboard's (lookahead 0)
+        "lookahead": submit_direct(app, "olga", "builtin:dbl", datasets=both, groups=GROUPS, lookahead=10),
         "failed": submit_direct(
             app, "mallory", policy_server(NaNPolicy, secret=None).url, datasets=both, groups=GROUPS
         ),
@@ -108,11 +110,11 @@ def test_every_json_route_serves_its_declared_schema(served) -> None:  # type: i
     board_queries: list[dict[str, Any]] = [
         {"view": view, "track": track} for view in ("best", "all") for track in ("private", "public")
     ]
-    board_queries += [{"view": "all", "limit": 1, "offset": 1}, {"protocol": "paper"}]
+    board_queries += [{"view": "all", "limit": 1, "offset": 1}, {"protocol": "paper"}, {"lookahead": 10}]
     checked = []
     for path, validator in validators.items():
         queries = board_queries if path.startswith("/api/v1/leaderboards") else [{}]
-        for name in ("done", "failed", "partial", "queued"):
+        for name in ("done", "failed", "partial", "queued", "lookahead"):
             episodes = client.get(f"/api/v1/submissions/{ids[name]}/episodes", headers=ADMIN).json()
             url = path.format(
                 dataset="diverse", setting="math", submission_id=ids[name], episode_id=episodes[0]["id"]

@@ -28,6 +28,7 @@ from tests._orphans import with_parent_death
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 ADMIN_TOKEN = "web-tests-admin-token-0123456789"
+LOOKAHEAD_SUBMISSION = "DBL seeing 10 boxes ahead"
 HOSTILE_PARTICIPANT = "<script>alert(1)</script>"
 HOSTILE_SUBMISSION = '<img src=x onerror="alert(2)">'
 #: Where the tests' screenshots go: a temporary folder, so a test run leaves the working tree as it was;
@@ -83,6 +84,16 @@ class Server:
 
 def _seed_hostile(database_url: str) -> int:
     """A participant whose name is a script tag, with a real (built-in) policy evaluated by the workers."""
+    return _seed(
+        database_url, HOSTILE_PARTICIPANT, HOSTILE_SUBMISSION, "builtin:onlinebph", ["math", "physics"]
+    )
+
+
+def _seed(
+    database_url: str, participant: str, name: str, policy_url: str, settings: list[str], lookahead: int = 0
+) -> int:
+    """A private submission of a built-in policy on every dataset, written into the server's database (its
+    workers evaluate it); the participant is new."""
     from robobpp.db import work
     from robobpp.db.models import Participant
     from robobpp.db.session import make_engine, make_session_factory
@@ -91,17 +102,18 @@ def _seed_hostile(database_url: str) -> int:
     try:
         factory = make_session_factory(engine)
         with factory() as session, session.begin():
-            participant = Participant(name=HOSTILE_PARTICIPANT)
-            session.add(participant)
+            who = Participant(name=participant)
+            session.add(who)
             session.flush()
             sub = work.create_submission(
                 session,
-                participant,
-                name=HOSTILE_SUBMISSION,
-                policy_url="builtin:onlinebph",
+                who,
+                name=name,
+                policy_url=policy_url,
                 datasets=["repetitive", "diverse", "longboard"],
-                settings=["math", "physics"],
+                settings=settings,
                 groups=2,
+                lookahead=lookahead,
             )
             session.flush()
             return sub.id
@@ -171,6 +183,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         srv.wait_until(healthy, "start")
         database_url = f"sqlite:///{(data_dir / 'robobpp-data' / 'robobpp.sqlite3').resolve()}"
         srv.ids["hostile"] = _seed_hostile(database_url)
+        # a policy shown the next 10 boxes: on boards of its own (Math Pack only, to keep the start short)
+        srv.ids["lookahead"] = _seed(database_url, "seer", LOOKAHEAD_SUBMISSION, "builtin:dbl", ["math"], 10)
         r = srv.client.post(
             "/api/v1/submissions", json={"name": "DBL public", "policy_url": "builtin:dbl", "track": "public"}
         )

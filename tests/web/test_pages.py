@@ -13,6 +13,7 @@ from tests.web.conftest import (
     ADMIN_TOKEN,
     HOSTILE_PARTICIPANT,
     HOSTILE_SUBMISSION,
+    LOOKAHEAD_SUBMISSION,
     PageProbe,
     Server,
     sign_in,
@@ -86,6 +87,33 @@ def test_overall_grid_highlights_top_four_and_links_boards(server: Server, probe
     first.click()
     probe.page.wait_for_url("**/boards/repetitive/math")
     assert "Repetitive · Math Pack" in probe.page.locator("h1").inner_text()
+    probe.assert_clean()
+
+
+def test_the_lookahead_switch_opens_the_boards_of_a_lookahead(server: Server, probe: PageProbe) -> None:
+    """A submission that saw the next 10 boxes ranks on boards of its own: the leaderboard (lookahead 0) does not
+    list it; the switch opens the lookahead-10 grid and boards, which say so and list it alone."""
+    probe.page.goto(server.url + "/")
+    switch = probe.page.locator("[data-role=lookahead]")
+    assert "0 (the leaderboard)" in switch.locator("strong").inner_text()
+    assert LOOKAHEAD_SUBMISSION not in probe.page.locator("main").inner_text()
+    switch.locator("a", has_text="10").click()
+    probe.page.wait_for_url("**/?view=best&lookahead=10")
+    assert probe.page.locator("h1").inner_text() == "Leaderboard · lookahead 10"
+    assert "next 10 boxes" in probe.page.locator("[data-role=lookahead-note]").inner_text()
+    assert probe.page.locator("[data-role=protocol]").count() == 0  # the paper protocol is lookahead 0 only
+    # Math Pack only: partial on the grid (it has physics columns), ranked on its Math boards
+    assert LOOKAHEAD_SUBMISSION in probe.page.locator("#overall-apart").inner_text()
+    probe.page.locator("#overall thead a").first.click()
+    probe.page.wait_for_url("**/boards/repetitive/math?lookahead=10")
+    assert "lookahead 10" in probe.page.locator("h1").inner_text()
+    rows = probe.page.locator("#board tbody tr")
+    assert rows.count() == 1 and LOOKAHEAD_SUBMISSION in rows.first.inner_text()
+    probe.shot("board-lookahead")
+    probe.page.locator("[data-role=lookahead] a", has_text="0 (the leaderboard)").click()
+    probe.page.wait_for_url("**/boards/repetitive/math?view=best")
+    assert probe.page.locator("#board tbody tr").count() == 6
+    assert LOOKAHEAD_SUBMISSION not in probe.page.locator("#board").inner_text()
     probe.assert_clean()
 
 

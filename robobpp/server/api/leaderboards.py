@@ -11,6 +11,7 @@ from starlette.concurrency import run_in_threadpool
 
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.schemas import (
+    MAX_SUBMISSION_LOOKAHEAD,
     PROTOCOL_HELP,
     DatasetName,
     Leaderboard,
@@ -56,11 +57,12 @@ async def cached_body(
     board: str | None,
     key: tuple[Any, ...],
     build: Callable[[BoardCache], bytes],
+    lookahead: int = 0,
 ) -> bytes:
     """A served body of ``board`` (None: of the track's whole publication) shared by every reader of ``key``
     (services.boards): answered on the event loop when it is current (no thread, no query), else built or
     version-checked in a worker thread. A board not published yet answers 503 with Retry-After (a fresh
-    server's first computation)."""
+    server's first computation); a board of a lookahead K > 0 that no entry saw, 404."""
     cache = board_cache(request)
     body = cache.fresh_response(track, board, key)
     if body is not None:
@@ -68,6 +70,16 @@ async def cached_body(
     try:
         return await run_in_threadpool(cache.response, track, board, key, lambda: build(cache))
     except BoardsUnavailable as exc:
+        if lookahead:
+            known = await run_in_threadpool(known_lookaheads, cache, track)
+            if known is not None and lookahead not in known:
+                raise ProblemError(
+                    404,
+                    "not-found",
+                    "No such board",
+                    f"no {track}-track entry saw lookahead {lookahead}; this track has boards for "
+                    f"lookahead {', '.join(map(str, known))}",
+                ) from exc
         raise ProblemError(
             503,
             "boards-not-ready",
@@ -77,6 +89,26 @@ async def cached_body(
         ) from exc
 
 
+def known_lookaheads(cache: BoardCache, track: str) -> list[int] | None:
+    """The lookaheads the track's publication has boards of (None: nothing published yet)."""
+    try:
+        return cache.lookaheads(track)
+    except BoardsUnavailable:
+        return None
+
+
+def lookahead_board(protocol: str, setting: str | None, lookahead: int) -> None:
+    """A lookahead K > 0 has closed-loop boards only (docs/server.md, "Boards per lookahead")."""
+    if lookahead and protocol != "closed" and setting != "math":
+        raise ProblemError(
+            404,
+            "not-found",
+            "No such board",
+            "the paper-protocol boards are lookahead 0 only (the paper's tables were made without lookahead); "
+            "a lookahead K > 0 has closed-loop boards",
+        )
+
+
 View = Annotated[
     Literal["best", "all"],
     Query(description="best: each participant's best entry (default); all: every entry"),
@@ -84,6 +116,15 @@ View = Annotated[
 Protocol = Annotated[ProtocolName, Query(description=PROTOCOL_HELP)]
 Limit = Annotated[int, Query(ge=1, le=500)]
 Offset = Annotated[int, Query(ge=0, le=10**7)]
+Lookahead = Annotated[
+    int,
+    Query(
+        ge=0,
+        le=MAX_SUBMISSION_LOOKAHEAD,
+        description="The boards of the submissions that saw this many next boxes (0: the leaderboard); "
+        "each lookahead ranks apart",
+    ),
+]
 
 
 @router.get(
@@ -99,13 +140,16 @@ async def overall(
     limit: Limit = 50,
     offset: Offset = 0,
     protocol: Protocol = "closed",
+    lookahead: Lookahead = 0,
 ) -> Response:
+    lookahead_board(protocol, None, lookahead)
     body = await cached_body(
         request,
         track,
-        grid_key(protocol),
-        ("api-grid", track, view, limit, offset, protocol),
-        lambda cache: to_json(cache.grid_page(track, protocol, view, limit, offset)),
+        grid_key(protocol, lookahead),
+        ("api-grid", track, view, limit, offset, protocol, lookahead),
+        lambda cache: to_json(cache.grid_page(track, protocol, view, limit, offset, lookahead)),
+        lookahead,
     )
     return Response(body, media_type="application/json")
 
@@ -125,19 +169,22 @@ async def board(
     offset: Offset = 0,
     submission: Annotated[int | None, Query(ge=1, le=2**62, description="Only this submission")] = None,
     protocol: Protocol = "closed",
+    lookahead: Lookahead = 0,
 ) -> Response:
     settings_ = request.app.state.settings
     if dataset not in settings_.datasets or setting not in settings_.enabled_settings:
         raise ProblemError(404, "not-found", "Not found", f"this server has no {dataset} × {setting} board")
-    key = ("api-board", dataset, setting, track, view, limit, offset, submission, protocol)
+    lookahead_board(protocol, setting, lookahead)
+    key = ("api-board", dataset, setting, track, view, limit, offset, submission, protocol, lookahead)
     body = await cached_body(
         request,
         track,
-        board_key(dataset, setting, protocol),
+        board_key(dataset, setting, protocol, lookahead),
         key,
         lambda cache: to_json(
-            cache.board_page(dataset, setting, track, protocol, view, limit, offset, submission)
+            cache.board_page(dataset, setting, track, protocol, view, limit, offset, submission, lookahead)
         ),
+        lookahead,
     )
     return Response(body, media_type="application/json")
 

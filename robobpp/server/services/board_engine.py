@@ -5,8 +5,12 @@ with the database and returns the ones that changed since its last call. The fun
 board or grid from scratch (``leaderboard``, ``overall_grid``, ``compute_snapshot``): what the engine must
 always equal, and what the CLI, the verification route and the tests use directly.
 
-Keys of a track's boards: ``(dataset, setting)`` for the closed loop, ``(dataset, setting, "paper")`` for a
-physical setting under the paper protocol, and ``"grid"`` / ``"grid-paper"`` for the overall grids.
+Keys of a track's boards (:func:`board_id`, :func:`grid_id`): ``(dataset, setting)`` for the closed loop,
+``(dataset, setting, "paper")`` for a physical setting under the paper protocol, and ``"grid"`` /
+``"grid-paper"`` for the overall grids — the leaderboard, lookahead 0. Submissions that saw K > 0 next boxes
+rank on boards of their own, closed loop only (the paper protocol is there to compare with the paper's tables,
+made without lookahead): ``(dataset, setting, "closed", "K")`` and ``"grid-lookahead-K"``, only for the
+lookaheads that have entries. Every board and grid carries its ``lookahead`` and the track's ``lookaheads``.
 """
 
 from __future__ import annotations
@@ -38,25 +42,74 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 #: A full computation that has run this long says how far it is after each board (at 100,000 submissions one
 #: takes 18 minutes, during which the worker was silent).
 PROGRESS_AFTER_S = 30.0
-#: A track's grids, by protocol.
-GRID_KEYS = ("grid", "grid-paper")
 #: What a board carries for its track's grids only (resample matrices, scores by column): never handed out.
 _GRID_ONLY = ("_samples", "_stable_samples", "_by_column")
 BoardKey = tuple[str, ...] | str
+_LOOKAHEAD_GRID = "grid-lookahead-"
+
+
+def board_id(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> tuple[str, ...]:
+    """A board's key in the engine (module docstring): the one place it is built. A Math Pack board is one
+    board under both protocols; a lookahead K > 0 has closed-loop boards only."""
+    protocol = queries.board_protocol(setting, protocol)
+    if lookahead:
+        if protocol != CLOSED:
+            raise ValueError("a lookahead K > 0 has closed-loop boards only")
+        return (dataset, setting, CLOSED, str(lookahead))
+    return (dataset, setting) if protocol == CLOSED else (dataset, setting, protocol)
+
+
+def grid_id(protocol: str = CLOSED, lookahead: int = 0) -> str:
+    """A grid's key in the engine: ``grid``, ``grid-paper``, ``grid-lookahead-K``."""
+    if lookahead:
+        return f"{_LOOKAHEAD_GRID}{lookahead}"
+    return "grid" if protocol == CLOSED else f"grid-{protocol}"
+
+
+def board_of(key: tuple[str, ...]) -> tuple[str, str, str, int]:
+    """What a board key names: (dataset, setting, protocol, lookahead)."""
+    protocol = key[2] if len(key) > 2 else CLOSED
+    return key[0], key[1], protocol, int(key[3]) if len(key) > 3 else 0
+
+
+def grid_of(key: str) -> tuple[str, int]:
+    """What a grid key names: (protocol, lookahead)."""
+    if key.startswith(_LOOKAHEAD_GRID):
+        return CLOSED, int(key.removeprefix(_LOOKAHEAD_GRID))
+    return (PAPER if key.endswith(PAPER) else CLOSED), 0
+
+
+def lookahead_of(key: BoardKey) -> int:
+    return grid_of(key)[1] if isinstance(key, str) else board_of(key)[3]
+
+
+def lookahead_protocols(lookahead: int) -> tuple[str, ...]:
+    """The protocols a lookahead has boards under: both for 0, the closed loop only for K > 0."""
+    return PROTOCOLS if lookahead == 0 else (CLOSED,)
 
 
 def leaderboard(
-    session: Session, dataset: str, setting: str, *, track: str = "private", protocol: str = CLOSED
+    session: Session,
+    dataset: str,
+    setting: str,
+    *,
+    track: str = "private",
+    protocol: str = CLOSED,
+    lookahead: int = 0,
 ) -> dict[str, Any]:
     """One board, computed now: see :func:`robobpp.scoring.boards.build_board`.
 
     ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
-    board is the same under both."""
+    board is the same under both. ``lookahead``: the board of the submissions that saw that many next boxes
+    (0: the leaderboard's)."""
     protocol = queries.board_protocol(setting, protocol)
+    if lookahead and protocol != CLOSED:
+        raise ValueError("a lookahead K > 0 has closed-loop boards only")
     board = build_board(
-        queries.board_rows(session, dataset, setting, track, protocol), dataset, setting, track
+        queries.board_rows(session, dataset, setting, track, protocol, lookahead), dataset, setting, track
     )
     board["protocol"] = protocol
+    board["lookahead"] = lookahead
     return board
 
 
@@ -67,45 +120,68 @@ def overall_grid(
     settings: tuple[str, ...] = queries.SETTINGS_ORDER,
     track: str = "private",
     protocol: str = CLOSED,
+    lookahead: int = 0,
 ) -> dict[str, Any]:
     """The paper's overall table (see :func:`robobpp.scoring.boards.build_grid`), computed now;
-    ``protocol="paper"``: its physical columns under the paper protocol (the Mean then averages those)."""
+    ``protocol="paper"``: its physical columns under the paper protocol (the Mean then averages those);
+    ``lookahead``: of the submissions that saw that many next boxes."""
     boards = {
-        f"{s}/{d}": leaderboard(session, d, s, track=track, protocol=protocol)
+        f"{s}/{d}": leaderboard(session, d, s, track=track, protocol=protocol, lookahead=lookahead)
         for s in settings
         for d in datasets
     }
     grid = build_grid(boards, datasets, settings, track)
-    grid["protocol"] = protocol
+    grid["protocol"], grid["lookahead"] = protocol, lookahead
     return grid
+
+
+def board_triples(datasets: Sequence[str], settings: Sequence[str]) -> list[tuple[str, str, str]]:
+    """The (dataset, setting, protocol) of a track's lookahead-0 boards: every run any board shows is on one."""
+    return [(d, st, CLOSED) for st in settings for d in datasets] + [
+        (d, st, PAPER) for st in settings if st in PHYSICAL for d in datasets
+    ]
+
+
+def track_lookaheads(
+    session: Session, track: str, datasets: Sequence[str], settings: Sequence[str]
+) -> list[int]:
+    """The lookaheads with boards on ``track``: 0 (the leaderboard) and each K > 0 some closed-loop run saw."""
+    closed = [t for t in board_triples(datasets, settings) if t[2] == CLOSED]
+    return [0, *queries.board_lookaheads(session, track, closed)]
 
 
 def compute_snapshot(
     session: Session, datasets: tuple[str, ...], settings: tuple[str, ...], track: str
 ) -> dict[str, Any]:
     """Every board of a track and its overall grids, computed now: ``{"boards": {(dataset, setting): board,
-    (dataset, setting, "paper"): board}, "grid": grid, "grid-paper": grid}`` — closed loop, and the physical
-    settings under the paper protocol (a Math Pack board is the same under both). The boards lose the resample
-    arrays only the grids need (tens of MB at 10,000 entries)."""
-    boards: dict[tuple[str, ...], dict[str, Any]] = {
-        (d, st): leaderboard(session, d, st, track=track) for st in settings for d in datasets
-    }
-    for st in settings:
-        for d in datasets:
-            if st in PHYSICAL:
-                boards[(d, st, PAPER)] = leaderboard(session, d, st, track=track, protocol=PAPER)
-    grids = {}
-    for protocol in PROTOCOLS:
-        shown = {
-            f"{st}/{d}": boards[(d, st, protocol) if (d, st, protocol) in boards else (d, st)]
-            for st in settings
-            for d in datasets
-        }
-        grids[protocol] = build_grid(shown, datasets, settings, track) | {"protocol": protocol}
+    (dataset, setting, "paper"): board, (dataset, setting, "closed", "K"): board}, "grid": grid, "grid-paper":
+    grid, "grid-lookahead-K": grid}`` — closed loop, the physical settings under the paper protocol (a Math Pack
+    board is the same under both), and the closed loop of each lookahead K > 0 with entries (keys:
+    :func:`board_id`, :func:`grid_id`). The boards lose the resample arrays only the grids need (tens of MB at
+    10,000 entries)."""
+    lookaheads = track_lookaheads(session, track, datasets, settings)
+    boards: dict[tuple[str, ...], dict[str, Any]] = {}
+    grids: dict[str, dict[str, Any]] = {}
+    for lookahead in lookaheads:
+        for protocol in lookahead_protocols(lookahead):
+            for st in settings:
+                for d in datasets:
+                    key = board_id(d, st, protocol, lookahead)
+                    if key not in boards:
+                        boards[key] = leaderboard(
+                            session, d, st, track=track, protocol=protocol, lookahead=lookahead
+                        )
+            shown = {
+                f"{st}/{d}": boards[board_id(d, st, protocol, lookahead)] for st in settings for d in datasets
+            }
+            grid = build_grid(shown, datasets, settings, track)
+            grids[grid_id(protocol, lookahead)] = grid | {"protocol": protocol, "lookahead": lookahead}
     for b in boards.values():
-        for key in _GRID_ONLY:
-            b.pop(key, None)
-    return {"boards": boards, "grid": grids[CLOSED], "grid-paper": grids[PAPER]}
+        for name in _GRID_ONLY:
+            b.pop(name, None)
+    for out in (*boards.values(), *grids.values()):
+        out["lookaheads"] = lookaheads
+    return {"boards": boards, **grids}
 
 
 def finished_submissions(session: Session, track: str) -> dict[int, tuple[Any, ...]]:
@@ -132,6 +208,8 @@ class _Track:
     out: dict[BoardKey, dict[str, Any]] = field(default_factory=dict)
     #: The grids kept between updates, by grid key.
     grids: dict[str, GridMatrix] = field(default_factory=dict)
+    #: The lookaheads with boards (0 always), as every board and grid handed out says.
+    lookaheads: list[int] = field(default_factory=lambda: [0])
 
 
 class BoardEngine:
@@ -139,9 +217,11 @@ class BoardEngine:
 
     ``update(track)`` reads which finished submissions the track has; the boards of those that arrived,
     changed or left are updated — only the global part of the scoring: each run's own part was stored when
-    it finished — and returned with the grids, if any moved; nothing else is touched. The all-entries rank
-    intervals (boards and grids) are computed by ``refresh(track)``, the full computation the board worker
-    runs on a timer; the first ``update`` of a track is one. One engine per deployment; calls are serialised.
+    it finished — and returned with the grids of their lookahead, if any moved; nothing else is touched. The
+    boards of a lookahead K > 0 come with its first entry and go with its last (when the set of lookaheads
+    changes, every board and grid says so: all are returned). The all-entries rank intervals (boards and
+    grids) are computed by ``refresh(track)``, the full computation the board worker runs on a timer; the
+    first ``update`` of a track is one. One engine per deployment; calls are serialised.
     """
 
     def __init__(
@@ -160,13 +240,24 @@ class BoardEngine:
         entries = sum(len(m) for state in self._tracks.values() for m in state.boards.values())
         return entries >= FREEZE_ENTRIES
 
-    def keys(self) -> list[BoardKey]:
-        """Every board and grid key of a track, in display order."""
-        return [*self._board_keys(), *GRID_KEYS]
+    def keys(self, track: str | None = None) -> list[BoardKey]:
+        """Every board and grid key of a track (None: of lookahead 0, which every track has), in display
+        order."""
+        state = self._tracks.get(track) if track is not None else None
+        out: list[BoardKey] = []
+        for lookahead in state.lookaheads if state is not None else [0]:
+            out += self._board_keys(lookahead)
+            out += [grid_id(p, lookahead) for p in lookahead_protocols(lookahead)]
+        return out
 
-    def _board_keys(self) -> list[tuple[str, ...]]:
-        out: list[tuple[str, ...]] = [(d, st) for st in self.settings for d in self.datasets]
-        return out + [(d, st, PAPER) for st in self.settings if st in PHYSICAL for d in self.datasets]
+    def _board_keys(self, lookahead: int = 0) -> list[tuple[str, ...]]:
+        return [
+            board_id(d, st, protocol, lookahead)
+            for protocol in lookahead_protocols(lookahead)
+            for st in self.settings
+            if protocol == CLOSED or st in PHYSICAL
+            for d in self.datasets
+        ]
 
     def update(self, track: str) -> dict[BoardKey, dict[str, Any]]:
         """The track's boards and grids that changed since the last call, now current."""
@@ -191,6 +282,10 @@ class BoardEngine:
         by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for run in runs:
             by_board.setdefault(self._key_of(run), []).append(run)
+        before = state.lookaheads
+        # a lookahead's first entry brings its boards (all of them computed now: its grid needs them)
+        self._add_lookaheads(track, state, {board_of(key)[3] for key in by_board})
+        touched.update(key for key in state.boards if key not in state.out)
         for key, matrix in state.boards.items():
             upsert = by_board.get(key, [])
             present = {int(r["submission_id"]) for r in upsert}
@@ -201,12 +296,18 @@ class BoardEngine:
                 )
                 touched.add(key)
         state.seen = seen
+        self._drop_empty(state)  # and its last takes them away
+        touched &= state.boards.keys()
         changed_out: dict[BoardKey, dict[str, Any]] = {}
         for key in touched:
             state.out[key] = state.boards[key].board()
             changed_out[key] = state.out[key]
         if touched:
-            changed_out.update(self._grids(track, state, full=False))
+            changed_out.update(self._grids(track, state, {board_of(k)[3] for k in touched}, full=False))
+        if state.lookaheads != before:  # every board and grid names the lookaheads: all handed out again
+            changed_out = dict(state.out)
+        for board in changed_out.values():
+            board["lookaheads"] = state.lookaheads
         return {k: _served(v) for k, v in changed_out.items()}
 
     def refresh(self, track: str) -> dict[BoardKey, dict[str, Any]]:
@@ -220,18 +321,40 @@ class BoardEngine:
             state = self._tracks.get(track)
             return {} if state is None else {k: _served(v) for k, v in state.out.items()}
 
+    def _add_lookaheads(self, track: str, state: _Track, lookaheads: set[int]) -> None:
+        """Empty boards for the lookaheads that have none yet."""
+        for lookahead in sorted(lookaheads - set(state.lookaheads)):
+            for key in self._board_keys(lookahead):
+                state.boards[key] = self._matrix(track, key)
+            # a new list (never changed in place): the boards handed out hold the one they were given
+            state.lookaheads = sorted({*state.lookaheads, lookahead})
+
+    def _matrix(self, track: str, key: tuple[str, ...]) -> BoardMatrix:
+        dataset, setting, protocol, lookahead = board_of(key)
+        return BoardMatrix(dataset, setting, track, protocol, self._loader(track, key), lookahead)
+
+    def _drop_empty(self, state: _Track) -> None:
+        """Forget the boards and grids of each lookahead K > 0 no entry is on any longer."""
+        for lookahead in state.lookaheads[1:]:
+            keys = self._board_keys(lookahead)
+            if any(len(state.boards[k]) for k in keys):
+                continue
+            for key in keys:
+                del state.boards[key]
+                state.out.pop(key, None)
+            for protocol in lookahead_protocols(lookahead):
+                state.grids.pop(grid_id(protocol, lookahead), None)
+                state.out.pop(grid_id(protocol, lookahead), None)
+            state.lookaheads = [k for k in state.lookaheads if k != lookahead]
+
     def _full(self, track: str) -> dict[BoardKey, dict[str, Any]]:
         with self.session_factory() as session:
             seen = finished_submissions(session, track)
+            lookaheads = track_lookaheads(session, track, self.datasets, self.settings)
         state = self._tracks.get(track)
         if state is None:
-            boards = {
-                key: BoardMatrix(
-                    key[0], key[1], track, key[2] if len(key) > 2 else CLOSED, self._loader(track, key)
-                )
-                for key in self._board_keys()
-            }
-            state = _Track(seen, boards)
+            state = _Track(seen, {key: self._matrix(track, key) for key in self._board_keys()})
+        self._add_lookaheads(track, state, set(lookaheads))
         started = time.monotonic()
         for done, (key, matrix) in enumerate(state.boards.items(), start=1):
             # One board's runs at a time, read after ``seen`` (so never older than it), computed and dropped
@@ -259,30 +382,37 @@ class BoardEngine:
                     elapsed,
                 )
         state.seen = seen
-        grids = self._grids(track, state, full=True)
+        self._drop_empty(state)
+        self._grids(track, state, set(state.lookaheads), full=True)
         self._tracks[track] = state
-        return {k: _served(v) for k, v in {**state.out, **grids}.items()}
+        for board in state.out.values():
+            board["lookaheads"] = state.lookaheads
+        return {k: _served(v) for k, v in state.out.items()}
 
-    def _grids(self, track: str, state: _Track, *, full: bool) -> dict[BoardKey, dict[str, Any]]:
+    def _grids(
+        self, track: str, state: _Track, lookaheads: set[int], *, full: bool
+    ) -> dict[BoardKey, dict[str, Any]]:
+        """The grids of ``lookaheads`` from their boards (those of other lookaheads cannot have moved)."""
         out: dict[BoardKey, dict[str, Any]] = {}
-        for protocol, grid_key in zip(PROTOCOLS, GRID_KEYS, strict=True):
-            shown = {
-                f"{st}/{d}": state.out[(d, st, protocol) if (d, st, protocol) in state.out else (d, st)]
-                for st in self.settings
-                for d in self.datasets
-            }
-            matrix = state.grids.get(grid_key)
-            if matrix is None:
-                matrix = state.grids[grid_key] = GridMatrix(self.datasets, self.settings, track)
-            grid = matrix.grid(shown, rank_intervals=full)
-            grid["protocol"] = protocol
-            state.out[grid_key] = out[grid_key] = grid
+        for lookahead in sorted(lookaheads):
+            for protocol in lookahead_protocols(lookahead):
+                shown = {
+                    f"{st}/{d}": state.out[board_id(d, st, protocol, lookahead)]
+                    for st in self.settings
+                    for d in self.datasets
+                }
+                grid_key = grid_id(protocol, lookahead)
+                matrix = state.grids.get(grid_key)
+                if matrix is None:
+                    matrix = state.grids[grid_key] = GridMatrix(self.datasets, self.settings, track)
+                grid = matrix.grid(shown, rank_intervals=full)
+                grid["protocol"], grid["lookahead"] = protocol, lookahead
+                state.out[grid_key] = out[grid_key] = grid
         return out
 
     def _key_of(self, run: Mapping[str, Any]) -> tuple[str, ...]:
-        if run["setting"] in PHYSICAL and run["protocol"] == PAPER:
-            return (run["dataset"], run["setting"], PAPER)
-        return (run["dataset"], run["setting"])
+        protocol = PAPER if run["setting"] in PHYSICAL and run["protocol"] == PAPER else CLOSED
+        return board_id(run["dataset"], run["setting"], protocol, int(run.get("lookahead") or 0))
 
     def _runs(
         self,
@@ -291,13 +421,29 @@ class BoardEngine:
         submission_ids: list[int] | None,
         keys: Sequence[tuple[str, ...]] | None = None,
     ) -> list[dict[str, Any]]:
-        """The track's runs on this engine's boards (``keys``: on those), each with its ``part`` (and the
-        group ``ids``)."""
-        boards = [
-            (k[0], k[1], k[2] if len(k) > 2 else CLOSED)
-            for k in (self._board_keys() if keys is None else keys)
-        ]
-        runs = queries.board_runs(session, track, boards=boards, submission_ids=submission_ids)
+        """The track's runs on this engine's boards (``keys``: on those; else of every lookahead), each with
+        its ``part`` (and the group ``ids``)."""
+        if keys is None:
+            # the boards' (dataset, setting, protocol) of every lookahead; a lookahead K > 0 has no
+            # paper-protocol boards: its replays are shown on none
+            runs = queries.board_runs(
+                session,
+                track,
+                boards=board_triples(self.datasets, self.settings),
+                submission_ids=submission_ids,
+            )
+            runs = [r for r in runs if not (r["lookahead"] and r["protocol"] != CLOSED)]
+        else:
+            runs = []
+            for key in keys:
+                d, st, protocol, lookahead = board_of(key)
+                runs += queries.board_runs(
+                    session,
+                    track,
+                    boards=[(d, st, protocol)],
+                    submission_ids=submission_ids,
+                    lookahead=lookahead,
+                )
         missing: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for run in runs:
             entry = run.pop("entry")
@@ -305,9 +451,9 @@ class BoardEngine:
             if run["part"] is None:
                 missing.setdefault(self._key_of(run), []).append(run)
         for key, lacking in missing.items():  # stored before 0010 or by an older version: computed here
-            protocol = key[2] if len(key) > 2 else CLOSED
+            d, st, protocol, _ = board_of(key)
             figures = queries.run_figures_of(
-                session, track, key[0], key[1], protocol, [r["submission_id"] for r in lacking]
+                session, track, d, st, protocol, [r["submission_id"] for r in lacking]
             )
             for run in lacking:
                 f = figures.get(run["submission_id"])
@@ -317,8 +463,7 @@ class BoardEngine:
         return runs
 
     def _loader(self, track: str, key: tuple[str, ...]) -> PartLoader:
-        dataset, setting = key[0], key[1]
-        protocol = key[2] if len(key) > 2 else CLOSED
+        dataset, setting, protocol, _ = board_of(key)
 
         def load(submission_ids: Sequence[int]) -> dict[int, EntryPart | None]:
             with self.session_factory() as session:
@@ -396,7 +541,7 @@ def _interned(ids: bytes) -> bytes:
 
 
 def _row(run: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in run.items() if k not in ("part", "dataset", "setting", "protocol")}
+    return {k: v for k, v in run.items() if k not in ("part", "dataset", "setting", "protocol", "lookahead")}
 
 
 def _served(board: dict[str, Any]) -> dict[str, Any]:

@@ -67,7 +67,9 @@ TRACKS = ("private", "public")
 class Engine(Protocol):
     """What the publisher needs of a board engine (services/board_engine.py)."""
 
-    def keys(self) -> list[tuple[str, ...] | str]: ...
+    def keys(self, track: str) -> list[tuple[str, ...] | str]:
+        """Every board and grid the track has now (a lookahead's come and go with its entries)."""
+        ...
 
     def update(self, track: str) -> Mapping[tuple[str, ...] | str, Mapping[str, Any]]: ...
 
@@ -140,7 +142,7 @@ class BoardPublisher:
                 stored = {
                     key: functools.partial(self._stored, track, key, value) for key, value in boards.items()
                 }
-            known = set(map(published_key, self.engine.keys()))
+            known = set(map(published_key, self.engine.keys(track)))
             computed_s = time.perf_counter() - started
             published = self._write(track, source, stored, known, computed_s)
             self.last_cpu_seconds = time.process_time() - cpu

@@ -27,7 +27,7 @@ import logging
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Any, cast
@@ -41,8 +41,9 @@ from robobpp import __version__
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import queries
 from robobpp.db.models import BoardPart, BoardPublication, Submission
-from robobpp.replay import CLOSED, PAPER
+from robobpp.replay import CLOSED
 from robobpp.scoring.boards import RankedView, _served, participant_key
+from robobpp.server.services.board_engine import board_of, grid_of
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
 
@@ -56,8 +57,9 @@ CHUNK = 100
 #: 3: an all-entries row without ``entries_submitted`` (the head's ``submitted`` gives it by participant).
 #: 4: no ``index`` nor ``rows`` part (``order`` holds each row's version and hash); a chunk is written only
 #: when its content changed (the head names the version holding each). 5: the head carries each view's column
-#: tops (what its pages highlight).
-LAYOUT = 5
+#: tops (what its pages highlight). 6: boards per lookahead (a lookahead-0 board holds no other lookahead's
+#: entries; every head names its ``lookahead`` and the track's ``lookaheads``).
+LAYOUT = 6
 
 
 def board_version(session: Session, track: str) -> tuple[Any, ...]:
@@ -102,21 +104,41 @@ def board_source(session: Session, track: str, datasets: Sequence[str], settings
     return json.loads(to_json([*board_version(session, track), stamp]))
 
 
-def board_key(dataset: str, setting: str, protocol: str = CLOSED) -> str:
-    """A board's key in the publication (a Math Pack board is one board under both protocols)."""
-    return f"{dataset}/{setting}/{queries.board_protocol(setting, protocol)}"
+def board_key(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> str:
+    """A board's key in the publication (a Math Pack board is one board under both protocols):
+    ``repetitive/math/closed``; of a lookahead K > 0, ``repetitive/math/closed/lookahead-K``."""
+    return f"{dataset}/{setting}/{queries.board_protocol(setting, protocol)}" + _lookahead_part(lookahead)
 
 
-def grid_key(protocol: str = CLOSED) -> str:
-    return f"grid/{protocol}"
+def grid_key(protocol: str = CLOSED, lookahead: int = 0) -> str:
+    """A grid's key in the publication: ``grid/closed``, ``grid/paper``, ``grid/closed/lookahead-K``."""
+    return f"grid/{protocol}" + _lookahead_part(lookahead)
+
+
+_LOOKAHEAD_PART = "/lookahead-"
+
+
+def _lookahead_part(lookahead: int) -> str:
+    return f"{_LOOKAHEAD_PART}{lookahead}" if lookahead else ""
 
 
 def published_key(key: tuple[str, ...] | str) -> str:
-    """A board engine's key (``(dataset, setting)``, ``(dataset, setting, "paper")``, ``"grid"``,
-    ``"grid-paper"``: services/board_engine.py) as published."""
+    """A board engine's key (services/board_engine.py: :func:`board_id`, :func:`grid_id`) as published."""
     if isinstance(key, str):
-        return grid_key(PAPER if key.endswith(PAPER) else CLOSED)
-    return board_key(*key)
+        return grid_key(*grid_of(key))
+    return board_key(*board_of(key))
+
+
+def published_lookaheads(keys: Iterable[str]) -> list[int]:
+    """The lookaheads a publication has boards of (its keys): 0 and each K > 0 with a grid."""
+    return sorted(
+        {0}
+        | {
+            int(k.rsplit(_LOOKAHEAD_PART, 1)[1])
+            for k in keys
+            if k.startswith("grid/") and _LOOKAHEAD_PART in k
+        }
+    )
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -703,9 +725,11 @@ class BoardCache:
         limit: int = 50,
         offset: int = 0,
         submission_id: int | None = None,
+        lookahead: int = 0,
     ) -> dict[str, Any]:
-        """One page of a board, as ``robobpp.scoring.boards.board_view`` pages the full board."""
-        key = board_key(dataset, setting, protocol)
+        """One page of a board, as ``robobpp.scoring.boards.board_view`` pages the full board
+        (``lookahead``: the board of the submissions that saw that many next boxes)."""
+        key = board_key(dataset, setting, protocol, lookahead)
         stored = self._head(track, key)
         counts = stored["counts"]
         if submission_id is None:
@@ -744,9 +768,10 @@ class BoardCache:
         view: str = "best",
         limit: int = 50,
         offset: int = 0,
+        lookahead: int = 0,
     ) -> dict[str, Any]:
         """One page of the overall grid, as ``robobpp.scoring.boards.grid_view`` pages the full grid."""
-        key = grid_key(protocol)
+        key = grid_key(protocol, lookahead)
         stored = self._head(track, key)
         counts = stored["counts"]
         apart = f"apart-{view}"
@@ -767,14 +792,19 @@ class BoardCache:
         }
 
     def ranked_entry(
-        self, dataset: str, setting: str, track: str, protocol: str, submission_id: int
+        self, dataset: str, setting: str, track: str, protocol: str, submission_id: int, lookahead: int = 0
     ) -> tuple[dict[str, Any] | None, int]:
-        """A submission's ranked entry on a board (as served) or None, and how many entries are ranked."""
+        """A submission's ranked entry on a board (as served) or None, and how many entries are ranked
+        (``lookahead``: the submission's; a lookahead K > 0 has no paper-protocol boards: None, 0)."""
+        if lookahead and queries.board_protocol(setting, protocol) != CLOSED:
+            return None, 0
         for attempt in (0, 1):
             try:
-                page = self.board_page(dataset, setting, track, protocol, "all", 1, 0, submission_id)
+                page = self.board_page(
+                    dataset, setting, track, protocol, "all", 1, 0, submission_id, lookahead
+                )
                 return (page["entries"][0] if page["entries"] else None), self._counts(
-                    track, dataset, setting, protocol
+                    track, board_key(dataset, setting, protocol, lookahead)
                 )
             except _Gone:
                 if attempt:
@@ -782,5 +812,12 @@ class BoardCache:
                 self.publication(track, force=True)
         raise AssertionError("unreachable")
 
-    def _counts(self, track: str, dataset: str, setting: str, protocol: str) -> int:
-        return int(self._head(track, board_key(dataset, setting, protocol))["counts"]["all"])
+    def _counts(self, track: str, key: str) -> int:
+        return int(self._head(track, key)["counts"]["all"])
+
+    def lookaheads(self, track: str) -> list[int]:
+        """The lookaheads the track's publication has boards of (0 and each K > 0 with entries)."""
+        pub = self.publication(track)
+        if pub is None:
+            raise BoardsUnavailable(track)
+        return published_lookaheads(pub.boards)

@@ -44,6 +44,7 @@ from sqlalchemy import insert, text
 from robobpp.db import work
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.work import run_figures
+from robobpp.provenance import recorded_rules
 from robobpp.scoring import stats
 from robobpp.scoring.entries import EntryPart, counts, metric_keys, part_of_run, samples_of, stable_samples
 from robobpp.scoring.metrics import POOLED, metrics_for
@@ -431,6 +432,7 @@ def _figures(
             "boxes_placed_mean": float(PLACED),
             "episodes_collapsed": 0,
             "terminations": {term: GROUPS},
+            "provenance": recorded_rules(),  # as a worker records it: the boards show only current rules
         }
         if setting == "execution":
             dt, traj = r.metrics["decision_time"], r.metrics["trajectory_length"]
@@ -470,6 +472,7 @@ def _check(r: _Run, kind: str) -> None:
         rows.append((m, c, term, PLACED))
         episodes.append({**m, **c, "group": g})
     metrics, extras = run_figures(rows, r.setting)
+    extras["provenance"] = recorded_rules()  # what finalize_run adds from the episodes' provenance
     figures = group_figures(episodes, r.setting)
     entry = part_of_run(figures, r.setting)
     for label, mine, theirs in (

@@ -159,6 +159,13 @@ def current_versions() -> dict[str, str]:
     }
 
 
+def recorded_rules() -> dict[str, str]:
+    """The Math rules and sampler versions as a worker records them with a run of this code: what a board
+    requires of a run (``robobpp.db.queries.current_rules``); a run without them ran version 1 of both."""
+    versions = current_versions()
+    return {"math_rules": versions["math_rules"], "sampler": versions["sampler"]}
+
+
 def one_line(provenance: Mapping[str, Any]) -> str:
     """A provenance as one ``key value · ...`` line (tables' captions, Markdown and LaTeX footers)."""
     parts = []

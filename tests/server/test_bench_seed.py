@@ -11,6 +11,7 @@ from sqlalchemy import select
 from bench import _seed
 from robobpp.db.models import EpisodeRow, RunRow, Submission
 from robobpp.db.work import paper_settings, run_figures
+from robobpp.provenance import recorded_rules
 from robobpp.scoring.entries import part_of_run
 from robobpp.scoring.stats import group_figures
 from robobpp.server.bootstrap import bootstrap
@@ -76,7 +77,7 @@ def test_seeded_runs_are_what_a_worker_stores(db_url: str, tmp_path: Path) -> No
                     ({**(e.metrics or {}), **(e.counters or {}), "group": e.group} for e in rows), run.setting
                 )
                 assert run.metrics == metrics
-                assert run.extras == extras
+                assert run.extras == {**extras, "provenance": recorded_rules()}
                 assert run.figures == figures
                 assert run.entry == part_of_run(figures, run.setting)
                 checked += 1

@@ -22,6 +22,7 @@ from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, RunRow, Submission, utcnow
 from robobpp.db.session import make_engine, make_session_factory, transaction
 from robobpp.db.work import run_figures
+from robobpp.provenance import recorded_rules
 from robobpp.scoring.entries import EntryPart, entry_part, part_of_run
 from robobpp.scoring.stats import group_figures
 from robobpp.server.services import board_engine
@@ -119,6 +120,7 @@ def add_submission(
                 metrics, extras = run_figures(
                     [({k: v for k, v in e.items() if k != "group"}, {}, "completed", 20) for e in eps], st
                 )
+                extras["provenance"] = recorded_rules()  # as finalize_run records it: current rules
                 s.add(
                     RunRow(
                         submission_id=sub.id,

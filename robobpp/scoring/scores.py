@@ -67,7 +67,7 @@ DECISION_MIN_SPAN_S = 10.0
 RESOLVED: dict[str, tuple[float, float]] = {"decision_time": (DECISION_FLOOR_S, DECISION_MIN_SPAN_S)}
 
 #: Version of the stable score's anchors; a change of any bound is a new version, never an edit.
-#: anchors-v2: Decision Time scores 1 at the floor (10 ms), not at 1 ms (anchors-v1), which turned a few
+#: anchors-v2: Decision Time scores 1 at the floor (20 ms), not at 1 ms (anchors-v1), which turned a few
 #: milliseconds of timing noise into 0.01 of stable score.
 ANCHORS_VERSION = "anchors-v2"
 #: Per metric: the raw value that scores 0 and the one that scores 1 (clipped outside), and the scale.

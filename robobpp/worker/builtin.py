@@ -26,8 +26,10 @@ from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.core import Action, EpisodeInfo, Observation
 from robobpp.policies import load_policy
 
-#: Episodes whose policy instance a server keeps (a worker process runs one at a time; a few for threads).
-KEEP_EPISODES = 8
+#: Episodes whose policy instance a server keeps, the least recently reset dropped first: more than a Celery
+#: threads pool runs at once in one process (``/close`` names no episode, so none is dropped at its end); a
+#: built-in's instance is small (PCT's weights are cached once per process).
+KEEP_EPISODES = 256
 
 
 class FreshPerEpisode:

@@ -3,7 +3,7 @@
 * The **relative** score is the paper's: each metric min–max normalised over the valid complete entries of
   the board, weighted per setting. It ranks the board, and it moves when entries arrive or leave. Decision
   Time is normalised under what its measurement resolves (:data:`RESOLVED`, :func:`min_max`): a time below the
-  resolution counts as the resolution, and its min–max spans at least a robot cycle, as the paper's does.
+  floor counts as the floor, and its min–max spans at least a robot cycle, as the paper's does.
 * The **stable** score normalises each metric against fixed, versioned anchors (:data:`ANCHORS`), so an
   entry's stable score never changes when others arrive; it is shown beside the relative one.
 

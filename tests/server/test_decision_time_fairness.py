@@ -3,8 +3,8 @@ built-in DBL and the same DBL served by a participant place alike and are not ra
 whatever milliseconds of protocol and machine noise separate their Decision Times; the same placements
 thinking 0.2 s a box rank below both, in every resample.
 
-Why 0.2 s proves the point while the issue asks for 10 times the robot's cycle (a cycle is about 10 s, 3600 / picks per
-hour): 0.2 s is 10 times the floor (scores.DECISION_FLOOR_S, 20 ms) and its measurement's resolution, ±50 ms
+Why 0.2 s proves the point while the issue asks for 10 times the robot's cycle (a cycle is about 10 s,
+3600 / picks per hour): 0.2 s is 10 times the floor (scores.DECISION_FLOOR_S, 20 ms) and its measurement's resolution, ±50 ms
 there, keeps it 0.13 s or more above every DBL figure measured, so no rule that only removes what the
 measurement cannot resolve may hide it; above the floor the loss grows linearly with the time (a cycle-long
 decision loses Decision Time's whole weight), so any longer thinker ranks below as this one does, and the test
@@ -51,7 +51,10 @@ def own_process() -> Iterator[Callable[[str], str]]:
 
     def start(policy: str) -> str:
         module, cls = policy.split(":")
-        code = f"from robobpp.client.serve import serve; from {module} import {cls}; serve({cls}(), port=0, secret={SECRET!r})"
+        code = (
+            f"from robobpp.client.serve import serve; from {module} import {cls}; "
+            f"serve({cls}(), port=0, secret={SECRET!r})"
+        )
         proc = subprocess.Popen(
             with_parent_death([sys.executable, "-c", code]), stdout=subprocess.PIPE, text=True, cwd=ROOT
         )

@@ -63,6 +63,10 @@ DECISION_FLOOR_S = 2 * DECISION_RESOLUTION_S
 #: hour: 9–11 s for the paper's fast methods), and the paper's own span (its methods, 1 ms to 8–14 s). On a
 #: board of millisecond policies the plain min–max would spend Decision Time's whole weight on noise.
 DECISION_MIN_SPAN_S = 10.0
+#: Decimals to which the relative min–max reads every figure: a run's mean summed in another order (its episodes
+#: finishing in another order) differs in the last bit, 0.15685691666666668 against 0.15685691666666665 for the
+#: same placements, and the min–max stretched that over the metric's whole weight (0.86 of a Math score).
+EQUAL_DECIMALS = 12
 #: Per metric normalised under a measurement resolution: (floor, least span) of its relative min–max.
 RESOLVED: dict[str, tuple[float, float]] = {"decision_time": (DECISION_FLOOR_S, DECISION_MIN_SPAN_S)}
 
@@ -133,7 +137,9 @@ def min_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray, key: str) -> np.
     The one rule every path uses (points, resamples, the board engine's incremental updates). A metric in
     :data:`RESOLVED` (Decision Time) is normalised as the paper's min–max over methods from 1 ms to 14 s
     is: a value below the floor counts as the floor, and the span is at least the least span — so only
-    slow methods lose, and a difference below what the measurement resolves is no difference."""
+    slow methods lose, and a difference below what the measurement resolves is no difference. Every figure is
+    read to :data:`EQUAL_DECIMALS` decimals, so float summation noise is no difference either."""
+    values, lo, hi = (np.round(a, EQUAL_DECIMALS) for a in (values, lo, hi))
     with np.errstate(invalid="ignore", divide="ignore"):
         if key in RESOLVED:
             floor, least = RESOLVED[key]

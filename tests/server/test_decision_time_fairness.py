@@ -121,10 +121,11 @@ def test_served_and_builtin_dbl_are_not_apart_and_a_slow_one_ranks_below(
         baseline = next(e for e in entries if e["baseline"])
         mine = next(e for e in entries if e["submission_id"] == served)
         thinker = next(e for e in entries if e["submission_id"] == slow)
-        # the same placements: what is compared is Decision Time alone
+        # the same placements: what is compared is Decision Time alone (a mean summed in the order the episodes
+        # finished may differ in the last bit: scores.EQUAL_DECIMALS)
         for e in (mine, thinker):
-            assert e["metrics"]["space_utilization"] == baseline["metrics"]["space_utilization"], table
-            assert e["metrics"]["occupancy"] == baseline["metrics"]["occupancy"], table
+            for key in ("space_utilization", "occupancy"):
+                assert e["metrics"][key] == pytest.approx(baseline["metrics"][key], rel=1e-12, abs=0), table
         assert mine["rank_low"] <= baseline["rank_high"] and baseline["rank_low"] <= mine["rank_high"], table
         assert thinker["rank"] > max(mine["rank"], baseline["rank"]), table
         assert thinker["rank_low"] > max(mine["rank_high"], baseline["rank_high"]), table

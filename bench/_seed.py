@@ -46,7 +46,16 @@ from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcno
 from robobpp.db.work import run_figures
 from robobpp.provenance import recorded_rules
 from robobpp.scoring import stats
-from robobpp.scoring.entries import EntryPart, counts, metric_keys, part_of_run, samples_of, stable_samples
+from robobpp.scoring.entries import (
+    EntryPart,
+    counts,
+    metric_keys,
+    part_of_run,
+    part_seed,
+    samples_of,
+    stable_samples,
+    with_timing_noise,
+)
 from robobpp.scoring.metrics import POOLED, metrics_for
 from robobpp.scoring.stats import group_figures
 from robobpp.sim.physics.config import PHYSICS_VERSION
@@ -401,7 +410,8 @@ def _figures(
     m = len(keys)
     lo, hi = stats.interval(samples.transpose(1, 0, 2).reshape(samples.shape[1], n * m))
     metric_ci = np.stack([lo.reshape(n, m), hi.reshape(n, m)], axis=2)
-    slo, shi = stats.interval(stable_samples(samples, setting).T)
+    seeds = [part_seed(top[x], bottom[x], setting) for x in range(n)]
+    slo, shi = stats.interval(stable_samples(with_timing_noise(samples, seeds, setting), setting).T)
     # means as the worker takes them: a sequential sum (Python's ``sum``) over the count
     means = {k: np.cumsum(v, axis=1)[:, -1] / GROUPS for k, v in values.items()}
     pooled_sum = (
@@ -451,6 +461,7 @@ def _figures(
             bottom[x],
             metric_ci[x],
             (float(slo[x]), float(shi[x])),
+            seeds[x],
         ).encode()
 
 

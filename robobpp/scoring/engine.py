@@ -40,9 +40,15 @@ from robobpp.scoring.boards import (
     participant_key,
     public_fields,
 )
-from robobpp.scoring.entries import EntryPart, counts, metric_keys, samples_of, stable_samples
-from robobpp.scoring.metrics import METRIC_BY_KEY
-from robobpp.scoring.scores import WEIGHTS, competition_ranks, stable_scores
+from robobpp.scoring.entries import (
+    EntryPart,
+    counts,
+    metric_keys,
+    samples_of,
+    stable_samples,
+    with_timing_noise,
+)
+from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max, stable_scores
 
 #: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
@@ -110,7 +116,9 @@ class BoardMatrix:
         self.lookahead = lookahead
         self.load = load
         self.keys = metric_keys(setting)
-        self._up = np.array([METRIC_BY_KEY[k].better == "up" for k in self.keys])
+        #: Per metric, the floor of its min–max (``scores.RESOLVED``): the bounds kept are floored, so an entry
+        #: whose time moves only below the floor moves no bound (nobody is renormalised for it)
+        self._floors = np.array([RESOLVED[k][0] if k in RESOLVED else -np.inf for k in self.keys])
         self._weights = np.array([WEIGHTS[setting][k] for k in self.keys])
         self._entries: dict[int, _Entry] = {}
         self._parts: dict[int, EntryPart | None] = {}  # of new entries and the best ones
@@ -196,7 +204,7 @@ class BoardMatrix:
         rel_all = None
         if not full and fresh:
             new = self._samples([ranked[i] for i in fresh], usable[fresh], plan)
-            lo, hi = _fmin(self._lo, new), _fmax(self._hi, new)
+            lo, hi = self._floored(_fmin(self._lo, new)), self._floored(_fmax(self._hi, new))
             moved = np.flatnonzero(~_same_rows(lo, self._lo) | ~_same_rows(hi, self._hi))
             if moved.size:
                 old = [i for i, e in enumerate(ranked) if e.scored is not None]
@@ -230,36 +238,42 @@ class BoardMatrix:
 
     # -- the parts of the computation
 
-    def _samples(self, entries: Sequence[_Entry], usable: np.ndarray, plan: np.ndarray) -> np.ndarray:
-        """Entries' metric samples: (entries, resamples, metrics); an entry without usable figures keeps
-        its point metrics in every resample (as ``score_board`` does)."""
+    def _samples(
+        self, entries: Sequence[_Entry], usable: np.ndarray, plan: np.ndarray, rows: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Entries' metric samples: (entries, resamples, metrics), with their timing noise; an entry without
+        usable figures keeps its point metrics in every resample (as ``score_board`` does). ``plan`` is the
+        rows ``rows`` of the board's plan (default: all of it)."""
         sids = [int(e.row["submission_id"]) for e in entries]
         missing = [s for s, ok in zip(sids, usable, strict=True) if ok and s not in self._parts]
         if missing:
             self._parts.update(self.load(missing))
         out = np.empty((len(entries), plan.shape[0], len(self.keys)))
-        rows = [k for k, ok in enumerate(usable) if ok]
-        if rows:
-            parts = [self._parts.get(sids[k]) for k in rows]
+        measured = [k for k, ok in enumerate(usable) if ok]
+        seeds: list[int | None] = [None] * len(entries)
+        if measured:
+            parts = [self._parts.get(sids[k]) for k in measured]
             if any(p is None for p in parts):
                 raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
             top = np.stack([p.top for p in parts if p is not None])
             bottom = np.stack([p.bottom for p in parts if p is not None])
-            out[rows] = samples_of(top, bottom, plan)
+            out[measured] = samples_of(top, bottom, plan)
+            for k, p in zip(measured, parts, strict=True):
+                seeds[k] = None if p is None else p.seed
         for k, ok in enumerate(usable):
             if not ok:
                 out[k] = entries[k].points
-        return out
+        return with_timing_noise(out, seeds, self.setting, rows)
+
+    def _floored(self, bounds: np.ndarray) -> np.ndarray:
+        """Per resample and metric, a min or max as the normalisation uses it (``scores.min_max``: NaN stays)."""
+        return np.maximum(bounds, self._floors) if bounds.size else bounds
 
     def _relative(self, samples: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Relative score samples (entries, resamples) under a min–max (``scores._min_max_rows``)."""
         total = np.zeros(samples.shape[:2])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            for j, weight in enumerate(self._weights):
-                span = hi[:, j] - lo[:, j]
-                s = samples[:, :, j]
-                out = (s - lo[:, j]) / span if self._up[j] else (hi[:, j] - s) / span
-                total += weight * np.where(np.isfinite(out) & (span > 0), out, 0.0)
+        for j, weight in enumerate(self._weights):
+            total += weight * min_max(samples[:, :, j], lo[:, j], hi[:, j], self.keys[j])
         return np.round(total, 12)
 
     def _score(self, samples: np.ndarray, entries: Sequence[_Entry], usable: np.ndarray) -> np.ndarray:
@@ -309,7 +323,7 @@ class BoardMatrix:
         interval uses keeps that interval (those statistics cannot move); the others are recomputed."""
         pad = (-moved.size) % 8  # the matrix product gives the same bits as the full one in blocks of 8 rows
         rows = np.concatenate([moved, np.zeros(pad, dtype=moved.dtype)])
-        samples = self._samples(entries, usable, plan[rows])[:, : moved.size]
+        samples = self._samples(entries, usable, plan[rows], rows)[:, : moved.size]
         before = self._relative(samples, self._lo[moved], self._hi[moved])
         after = self._relative(samples, lo[moved], hi[moved])
         order = np.stack([e.scored.order for e in entries if e.scored is not None])
@@ -349,7 +363,7 @@ class BoardMatrix:
         for a in range(0, len(ranked), CHUNK):
             chunk = self._samples(ranked[a : a + CHUNK], usable[a : a + CHUNK], plan)
             lo, hi = _fmin(lo, chunk), _fmax(hi, chunk)
-        self._lo, self._hi = lo, hi
+        self._lo, self._hi = self._floored(lo), self._floored(hi)
         rel_all = np.empty((plan.shape[0], len(ranked))) if keep else None
         for a in range(0, len(ranked), CHUNK):
             chunk_entries = ranked[a : a + CHUNK]
@@ -369,17 +383,14 @@ class BoardMatrix:
         total = np.zeros(n)
         norm = np.zeros_like(points)
         bounds = []
-        with np.errstate(invalid="ignore", divide="ignore"):
-            for j, weight in enumerate(self._weights):
-                col = points[:, j]
-                present = np.isfinite(col)
-                if present.any():
-                    lo, hi = col[present].min(), col[present].max()
-                    span = hi - lo
-                    value = (col - lo) / span if self._up[j] else (hi - col) / span
-                    norm[:, j] = np.where(present & (span > 0), value, 0.0)
-                    bounds += [lo, hi]
-                total += weight * norm[:, j]
+        for j, weight in enumerate(self._weights):
+            col = points[:, j]
+            present = np.isfinite(col)
+            if present.any():
+                lo, hi = col[present].min(), col[present].max()
+                norm[:, j] = min_max(col, lo, hi, self.keys[j])
+                bounds += [lo, hi]
+            total += weight * norm[:, j]
         scores = [round(x, 12) for x in total.tolist()]  # as score_entries: ties must tie
         key = np.array(bounds).tobytes()
         normalized = []

@@ -8,7 +8,8 @@ resample, ranks: :mod:`robobpp.scoring.engine`).
 Stored form (``runs.entry``, :meth:`EntryPart.encode`): a small header, then little-endian arrays — the group
 ids, the per-group figures as two groups × metrics float64 matrices (what a resample sums: the value, 0 when
 unmeasured, or a pooled ratio's numerator; and its weight: 1 measured / 0 not, or the denominator), each
-metric's interval and the stable score's. float64, not float32: the figures are the recorded numbers bit
+metric's interval and the stable score's, and the seed of its timing noise
+(:func:`robobpp.scoring.stats.timing_seed`). float64, not float32: the figures are the recorded numbers bit
 for bit, so a board built from them equals one built from the recorded JSON figures. Decoding is a view of
 the bytes (no copy, no parsing): a board reloads 10,000 parts in milliseconds.
 """
@@ -16,7 +17,7 @@ the bytes (no copy, no parsing): a board reloads 10,000 parts in milliseconds.
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
 from typing import Any
@@ -25,10 +26,11 @@ import numpy as np
 
 from robobpp.scoring import stats
 from robobpp.scoring.metrics import POOLED
-from robobpp.scoring.scores import WEIGHTS, anchored
+from robobpp.scoring.scores import RESOLVED, WEIGHTS, anchored, timed
 
 #: Bumped when the stored layout or what it holds changes; a part of another format is recomputed.
-FORMAT = 2
+#: 3: the timing noise's seed; the stable interval with Decision Time under anchors-v2 and timing noise.
+FORMAT = 3
 _HEADER = struct.Struct("<4sHHHH")  # magic, format, groups, metrics, resamples / 1 (0 = the default)
 _MAGIC = b"RBPE"
 
@@ -57,6 +59,7 @@ class EntryPart:
     bottom: np.ndarray  # (groups, metrics): per-group weights (1 measured / 0 not, or pooled denominator)
     metric_ci: np.ndarray  # (metrics, 2), NaN = no interval
     stable_ci: tuple[float, float]
+    seed: int = 0  # of its timing noise: stats.timing_seed of its per-group Decision Times
 
     @property
     def groups(self) -> int:
@@ -79,6 +82,7 @@ class EntryPart:
                 self.bottom.astype("<f8").tobytes(),
                 self.metric_ci.astype("<f8").tobytes(),
                 np.array(self.stable_ci, dtype="<f8").tobytes(),
+                np.array([self.seed], dtype="<u8").tobytes(),
             )
         )
 
@@ -101,7 +105,8 @@ class EntryPart:
         metric_ci = np.frombuffer(data, "<f8", 2 * m, at).reshape(m, 2)
         at += 16 * m
         stable_ci = np.frombuffer(data, "<f8", 2, at)
-        return cls(setting, ids, top, bottom, metric_ci, (float(stable_ci[0]), float(stable_ci[1])))
+        seed = int(np.frombuffer(data, "<u8", 1, at + 16)[0])
+        return cls(setting, ids, top, bottom, metric_ci, (float(stable_ci[0]), float(stable_ci[1])), seed)
 
 
 def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndarray:
@@ -134,13 +139,33 @@ def entry_part(figures: Mapping[str, Any], setting: str) -> EntryPart:
             top[:, j], bottom[:, j] = np.where(ok, values, 0.0), ok
     metric_ci = np.full((len(keys), 2), np.nan)
     stable_ci = (0.0, 0.0)
+    seed = part_seed(top, bottom, setting)
     if g:
-        s = samples_of(top[None], bottom[None], counts(g))[0]
-        lo, hi = stats.interval(s)
+        s = samples_of(top[None], bottom[None], counts(g))
+        lo, hi = stats.interval(s[0])
         metric_ci[:, 0], metric_ci[:, 1] = lo, hi
-        slo, shi = stats.interval(stable_samples(s, setting)[:, None])
+        slo, shi = stats.interval(stable_samples(with_timing_noise(s, [seed], setting)[0], setting)[:, None])
         stable_ci = (float(slo[0]), float(shi[0]))
-    return EntryPart(setting, ids, top, bottom, metric_ci, stable_ci)
+    return EntryPart(setting, ids, top, bottom, metric_ci, stable_ci, seed)
+
+
+def part_seed(top: np.ndarray, bottom: np.ndarray, setting: str) -> int:
+    """The seed of a run's timing noise from its (groups, metrics) figures: its per-group Decision Times, as
+    :func:`robobpp.scoring.scores.score_board` seeds it from the recorded figures."""
+    (key,) = RESOLVED
+    j = metric_keys(setting).index(key)
+    return stats.timing_seed(np.where(bottom[:, j] > 0, top[:, j], np.nan))
+
+
+def with_timing_noise(
+    samples: np.ndarray, seeds: Sequence[int | None], setting: str, rows: np.ndarray | None = None
+) -> np.ndarray:
+    """Entries' (entries, resamples, metrics) samples, in place, with each one's Decision Time moved by its
+    timing noise (:func:`robobpp.scoring.scores.timed`; None: no noise); ``rows``: which resamples of the plan."""
+    for key in RESOLVED:
+        j = metric_keys(setting).index(key)
+        samples[:, :, j] = timed(samples[:, :, j].T, seeds, rows).T
+    return samples
 
 
 def stable_samples(samples: np.ndarray, setting: str) -> np.ndarray:

@@ -1,12 +1,15 @@
 """Leaderboard scoring (docs/benchmark.md, "Scoring and uncertainty"): two scores, each with a bootstrap interval, and rank intervals.
 
 * The **relative** score is the paper's: each metric min–max normalised over the valid complete entries of
-  the board, weighted per setting. It ranks the board, and it moves when entries arrive or leave.
+  the board, weighted per setting. It ranks the board, and it moves when entries arrive or leave. Decision
+  Time is normalised under what its measurement resolves (:data:`RESOLVED`, :func:`min_max`): a time below the
+  floor counts as the floor, and its min–max spans at least a robot cycle, as the paper's does.
 * The **stable** score normalises each metric against fixed, versioned anchors (:data:`ANCHORS`), so an
   entry's stable score never changes when others arrive; it is shown beside the relative one.
 
 Intervals come from :mod:`robobpp.scoring.stats`: one seeded, paired bootstrap over groups per board; each
-resample re-aggregates every entry's run figures, re-normalises and re-ranks the board.
+resample re-aggregates every entry's run figures, moves its Decision Time by a seeded draw within the
+resolution (:func:`timed`), re-normalises and re-ranks the board.
 """
 
 from __future__ import annotations
@@ -45,14 +48,38 @@ WEIGHTS: dict[str, dict[str, float]] = {
 }
 
 
+#: What a Decision Time measurement resolves: ± (``DECISION_RESOLUTION_S`` + ``DECISION_RESOLUTION_SHARE`` × the
+#: time). On a real server of the project's 2-core test machine under load, DBL placing alike measured 0.8–6.3 ms
+#: built in and 3.2–17.8 ms served by a participant, and a policy sleeping 0.2 s a box 164–240 ms
+#: (BENCHMARKS.md, "Decision Time: built-ins served, and what a measurement resolves"). The bootstrap moves each
+#: entry's time by a seeded uniform draw within it (docs/benchmark.md, "Scoring and uncertainty").
+DECISION_RESOLUTION_S = 0.010
+DECISION_RESOLUTION_SHARE = 0.2
+#: A Decision Time below this counts as this (s), in the relative score and the stable one: twice the
+#: resolution, so times the measurement cannot tell from none are equal in every resample, and times below it
+#: equal at the point. 20 ms is 0.2 % of a robot cycle: no throughput a packer would notice.
+DECISION_FLOOR_S = 2 * DECISION_RESOLUTION_S
+#: The least span (s) of the relative score's Decision Time min–max: about one robot cycle (3600 / picks per
+#: hour: 9–11 s for the paper's fast methods), and the paper's own span (its methods, 1 ms to 8–14 s). On a
+#: board of millisecond policies the plain min–max would spend Decision Time's whole weight on noise.
+DECISION_MIN_SPAN_S = 10.0
+#: Decimals to which the relative min–max reads every figure: a run's mean summed in another order (its episodes
+#: finishing in another order) differs in the last bit, 0.15685691666666668 against 0.15685691666666665 for the
+#: same placements, and the min–max stretched that over the metric's whole weight (0.86 of a Math score).
+EQUAL_DECIMALS = 12
+#: Per metric normalised under a measurement resolution: (floor, least span) of its relative min–max.
+RESOLVED: dict[str, tuple[float, float]] = {"decision_time": (DECISION_FLOOR_S, DECISION_MIN_SPAN_S)}
+
 #: Version of the stable score's anchors; a change of any bound is a new version, never an edit.
-ANCHORS_VERSION = "anchors-v1"
+#: anchors-v2: Decision Time scores 1 at the floor (20 ms), not at 1 ms (anchors-v1), which turned a few
+#: milliseconds of timing noise into 0.01 of stable score.
+ANCHORS_VERSION = "anchors-v2"
 #: Per metric: the raw value that scores 0 and the one that scores 1 (clipped outside), and the scale.
-#: Decision Time is anchored on a log scale (10 s → 0, 1 ms → 1): policies differ by orders of magnitude.
+#: Decision Time is anchored on a log scale (10 s → 0, the floor → 1): policies differ by orders of magnitude.
 ANCHORS: dict[str, tuple[float, float, str]] = {
     "space_utilization": (0.0, 1.0, "linear"),
     "occupancy": (0.0, 1.0, "linear"),
-    "decision_time": (10.0, 0.001, "log"),
+    "decision_time": (10.0, DECISION_FLOOR_S, "log"),
     "local_stability": (0.05, 0.0, "linear"),
     "static_stability": (0.0, 1.0, "linear"),
     "trajectory_length": (10.0, 0.0, "linear"),
@@ -103,21 +130,50 @@ def _finite(value: object) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def normalize(values: Sequence[float | None], better: str) -> list[float]:
-    """Min–max to [0, 1], higher = better; all-equal → 0; a missing value scores 0 (the worst)."""
-    present = [v for v in values if v is not None]
-    if not present:
-        return [0.0] * len(values)
-    lo, hi = min(present), max(present)
-    span = hi - lo
-    out = []
-    for v in values:
-        if v is None or span <= 0:
-            out.append(0.0)
-        elif better == "up":
-            out.append((v - lo) / span)
+def min_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray, key: str) -> np.ndarray:
+    """The relative normalisation of metric ``key``'s ``values`` under the board's min ``lo`` and max ``hi``
+    (arrays that broadcast): 0..1, higher = better; 0 where a value is missing (NaN) or the span is 0.
+
+    The one rule every path uses (points, resamples, the board engine's incremental updates). A metric in
+    :data:`RESOLVED` (Decision Time) is normalised as the paper's min–max over methods from 1 ms to 14 s
+    is: a value below the floor counts as the floor, and the span is at least the least span — so only
+    slow methods lose, and a difference below what the measurement resolves is no difference. Every figure is
+    read to :data:`EQUAL_DECIMALS` decimals, so float summation noise is no difference either."""
+    values, lo, hi = (np.round(a, EQUAL_DECIMALS) for a in (values, lo, hi))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if key in RESOLVED:
+            floor, least = RESOLVED[key]
+            values, lo, hi = np.maximum(values, floor), np.maximum(lo, floor), np.maximum(hi, floor)
+            span = np.maximum(hi - lo, least)  # NaN stays NaN
         else:
-            out.append((hi - v) / span)
+            span = hi - lo
+        out = (values - lo) / span if METRIC_BY_KEY[key].better == "up" else (hi - values) / span
+    return np.where(np.isfinite(out) & (span > 0), out, 0.0)
+
+
+def normalize(values: Sequence[float | None], key: str) -> list[float]:
+    """Metric ``key``'s values normalised over themselves (:func:`min_max`); None scores 0 (the worst)."""
+    column = np.array([np.nan if v is None else v for v in values], dtype=np.float64).reshape(len(values))
+    if not np.isfinite(column).any():
+        return [0.0] * len(values)
+    finite = column[np.isfinite(column)]
+    return min_max(column, finite.min(), finite.max(), key).tolist()
+
+
+def timed(samples: np.ndarray, seeds: Sequence[int | None], rows: np.ndarray | None = None) -> np.ndarray:
+    """Decision Time samples (resamples, entries) with each entry's timing noise: a uniform draw within ± the
+    resolution of each sample's time (:func:`stats.timing_noise`; ``seeds``: each entry's
+    :func:`stats.timing_seed`, None = no noise: an entry without per-group figures); ``rows``: which resamples
+    of the plan these are (default: all, in order). Element-wise, so an entry's samples are the same computed
+    alone or among others, by ``score_board`` or by the board engine."""
+    rows = np.arange(samples.shape[0]) if rows is None else rows
+    noisy = [i for i, seed in enumerate(seeds) if seed is not None]
+    if not noisy:
+        return samples
+    unit = stats.timing_noise(np.array([seeds[i] for i in noisy], dtype=np.uint64), rows).T
+    out = samples.copy()
+    times = out[:, noisy]
+    out[:, noisy] = times + unit * (DECISION_RESOLUTION_S + DECISION_RESOLUTION_SHARE * times)
     return out
 
 
@@ -145,7 +201,7 @@ def score_entries(entries: Sequence[Mapping[str, object]], setting: str) -> list
     normalized: list[dict[str, float]] = [{} for _ in range(n)]
     scores = [0.0] * n
     for key, weight in weights.items():
-        column = normalize([_finite(e.get(key)) for e in entries], METRIC_BY_KEY[key].better)
+        column = normalize([_finite(e.get(key)) for e in entries], key)
         for i, value in enumerate(column):
             normalized[i][key] = value
             scores[i] += weight * value
@@ -169,15 +225,13 @@ class BoardScores:
     stable_samples: np.ndarray = field(repr=False)
 
 
-def _min_max_rows(samples: np.ndarray, better: str) -> np.ndarray:
+def _min_max_rows(samples: np.ndarray, key: str) -> np.ndarray:
     """Min–max of each resample (row) over the entries, as :func:`normalize` does for one list."""
-    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN row: nobody measured it
         lo = np.nanmin(samples, axis=1, keepdims=True)
         hi = np.nanmax(samples, axis=1, keepdims=True)
-        span = hi - lo
-        out = (samples - lo) / span if better == "up" else (hi - samples) / span
-    return np.where(np.isfinite(out) & (span > 0), out, 0.0)
+    return min_max(samples, lo, hi, key)
 
 
 def score_board(
@@ -214,7 +268,13 @@ def score_board(
         lo, hi = stats.interval(samples)
         for i in range(n):
             metric_ci[i][key] = (float(lo[i]), float(hi[i])) if usable[i] and np.isfinite(lo[i]) else None
-        relative += weight * _min_max_rows(samples, METRIC_BY_KEY[key].better)
+        if key in RESOLVED and ids:  # the metric's own interval is the groups'; the scores' adds timing noise
+            figures = [((e.get("figures") or {}).get("values") or {}).get(key) for e in entries]
+            seeds = [
+                stats.timing_seed(f) if ok and f else None for f, ok in zip(figures, usable, strict=True)
+            ]
+            samples = timed(samples, seeds)
+        relative += weight * _min_max_rows(samples, key)
         stable += weight * anchored(samples, key)
     relative = np.round(relative, 12)
     score_lo, score_hi = stats.interval(relative)

@@ -5,12 +5,19 @@ entries all ran the same groups, so one resample draws the same groups for every
 bootstrap) and a run's figure is recomputed from the drawn groups exactly as it was aggregated
 (means over episodes; the pooled ratios as ratios of sums, docs/benchmark.md, "Metrics").
 
+Timing noise: a group bootstrap knows nothing of how finely a time was measured, so the scores' resamples
+also move each entry's Decision Time by a uniform draw within the measurement's resolution
+(:func:`timing_noise`, scaled by ``scores.timed``), independently per entry. The draw is seeded by the
+entry's own per-group times (:func:`timing_seed`), so it is the same wherever and whenever the entry is
+scored, and alone or among others.
+
 Determinism: the resampling plan depends only on the number of groups, the number of resamples and a
 fixed seed, so the same data gives the same interval on every machine and every read.
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -76,6 +83,35 @@ def resample_counts(groups: int, resamples: int = RESAMPLES, seed: int = SEED) -
     """How often each group is drawn in each resample: an int array (resamples, groups)."""
     rng = np.random.default_rng([seed, groups])
     return rng.multinomial(groups, np.full(groups, 1.0 / groups), size=resamples).astype(np.float64)
+
+
+def timing_seed(values: Sequence[float | None] | np.ndarray) -> int:
+    """The seed of an entry's timing noise: its per-group figures of the metric (None or NaN = unmeasured),
+    as little-endian float64 bytes, hashed with :data:`SEED` (BLAKE2b, 64 bits)."""
+    column = np.asarray(values, dtype=np.float64).reshape(-1)
+    canonical = np.where(np.isfinite(column), column, np.nan).astype("<f8")  # one NaN, whatever its origin
+    key = SEED.to_bytes(8, "little")
+    return int.from_bytes(hashlib.blake2b(canonical.tobytes(), digest_size=8, key=key).digest(), "little")
+
+
+_GOLDEN, _MIX1, _MIX2 = (np.uint64(c) for c in (0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB))
+
+
+def timing_noise(seeds: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Uniform draws in [-1, 1): (entries, rows), entry ``i``'s for resamples ``rows`` of the plan.
+
+    Counter based (SplitMix64 of the seed and the resample's index), so a subset of resamples costs only
+    itself and equals those resamples of the whole: the board engine renormalises a few resamples at a time."""
+    with np.errstate(over="ignore"):  # unsigned arithmetic modulo 2**64 is the point
+        z = (
+            np.asarray(seeds, dtype=np.uint64)[:, None]
+            + (np.asarray(rows, dtype=np.uint64)[None, :] + 1) * _GOLDEN
+        )
+        z = (z ^ (z >> np.uint64(30))) * _MIX1
+        z = (z ^ (z >> np.uint64(27))) * _MIX2
+        z ^= z >> np.uint64(31)
+    unit = (z >> np.uint64(11)).astype(np.float64) * 2.0**-53  # [0, 1)
+    return 2.0 * unit - 1.0
 
 
 def metric_samples(figures: Sequence[Mapping[str, Any]], key: str, counts: np.ndarray) -> np.ndarray:

@@ -23,7 +23,6 @@ from robobpp.core import EpisodeSpec
 from robobpp.db import work
 from robobpp.db.work import Claim
 from robobpp.episode import EpisodeResult, StepRecord, run_episode
-from robobpp.policies import load_policy
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.outage import OutageLog
 from robobpp.worker.specs import episode_spec
@@ -41,11 +40,18 @@ def worker_id(kind: str = "local") -> str:
 
 
 def make_policy(claim: Claim, settings: WorkerOptions) -> Any:
-    """A built-in policy in-process (``builtin:NAME``), the participant's server over robobpp/1 (push), or
-    the participant's client through the server's relay (pull). Remote ones probe the network, so that
-    the decision time ranked is the policy's, not the distance's."""
+    """A built-in policy served on loopback (``builtin:NAME``, :class:`~robobpp.worker.builtin.ServedBuiltin`),
+    the participant's server over robobpp/1 (push), or the participant's client through the server's relay
+    (pull). Every one is driven over robobpp/1 with the network probes on, so that the decision time ranked
+    is the policy's, not the distance's, and a built-in pays the protocol as a participant does."""
     if claim.policy_url.startswith("builtin:"):
-        return load_policy(claim.policy_url.removeprefix("builtin:"))
+        from robobpp.worker.builtin import ServedBuiltin
+
+        return ServedBuiltin(
+            claim.policy_url.removeprefix("builtin:"),
+            step_timeout_s=settings.step_timeout_s,
+            episode_timeout_s=settings.episode_timeout_s,
+        )
     from robobpp.client.remote import RemotePolicy
 
     transport = None

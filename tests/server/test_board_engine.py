@@ -48,7 +48,9 @@ def episode(rng: random.Random, quality: float, setting: str, group: int) -> dic
         "group": group,
         "space_utilization": u,
         "occupancy": min(1.0, u + 0.2 * rng.random()),
-        "decision_time": 0.001 + 0.01 * rng.random(),
+        # below the floor less the resolution (scores.DECISION_FLOOR_S, DECISION_RESOLUTION_S): with its timing
+        # noise a time never leaves the floor, so an entry between two others stays between them in every resample
+        "decision_time": 0.001 + 0.004 * rng.random(),
     }
     if setting != "math":
         e |= {"local_stability": 0.01 * rng.random(), "static_stability": 0.8 + 0.2 * rng.random()}

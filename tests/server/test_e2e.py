@@ -57,7 +57,7 @@ def test_submit_remote_policy_and_read_the_leaderboard(db_url, make_server, poli
     assert mine["metrics"]["decision_time"] > 0
     assert set(mine["normalized"]) == {"space_utilization", "occupancy", "decision_time"}
 
-    # The built-in DBL baseline ran through the same loop in-process: same geometry as the remote DBL.
+    # The built-in DBL baseline, served over robobpp/1 by the worker itself: same geometry as the remote DBL.
     baseline = wait_for(
         lambda: next(
             (e for e in alice.get("/leaderboards/diverse/math").json()["entries"] if e["baseline"]), None

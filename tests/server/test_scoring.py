@@ -28,21 +28,21 @@ def test_weights_cover_the_settings_metrics_and_sum_to_one(setting: str) -> None
 
 
 def test_lower_is_better_metrics_are_flipped() -> None:
-    assert normalize([1.0, 2.0, 3.0], "down") == [1.0, 0.5, 0.0]
-    assert normalize([1.0, 2.0, 3.0], "up") == [0.0, 0.5, 1.0]
+    assert normalize([1.0, 2.0, 3.0], "local_stability") == [1.0, 0.5, 0.0]
+    assert normalize([1.0, 2.0, 3.0], "space_utilization") == [0.0, 0.5, 1.0]
 
 
 def test_a_metric_equal_for_all_entries_scores_zero() -> None:
-    assert normalize([0.7, 0.7], "up") == [0.0, 0.0]
+    assert normalize([0.7, 0.7], "space_utilization") == [0.0, 0.0]
     scored = score_entries([{"space_utilization": 0.5, "occupancy": 0.8, "decision_time": 0.1}] * 3, "math")
     assert [s.score for s in scored] == [0.0, 0.0, 0.0] and [s.rank for s in scored] == [1, 1, 1]
 
 
 def test_math_score_is_the_weighted_sum() -> None:
     entries = [
-        {"space_utilization": 0.7, "occupancy": 0.6, "decision_time": 0.010},
-        {"space_utilization": 0.5, "occupancy": 0.8, "decision_time": 0.001},
-        {"space_utilization": 0.6, "occupancy": 0.7, "decision_time": 0.0055},
+        {"space_utilization": 0.7, "occupancy": 0.6, "decision_time": 12.0},
+        {"space_utilization": 0.5, "occupancy": 0.8, "decision_time": 0.001},  # below the floor: 0.02
+        {"space_utilization": 0.6, "occupancy": 0.7, "decision_time": 6.01},
     ]
     a, b, c = score_entries(entries, "math")
     assert a.score == pytest.approx(0.60)
@@ -55,7 +55,7 @@ def test_math_score_is_the_weighted_sum() -> None:
 def test_missing_or_non_finite_values_score_as_the_worst() -> None:
     entries = [
         {"space_utilization": 0.7, "occupancy": 0.6, "decision_time": None},
-        {"space_utilization": float("nan"), "occupancy": 0.5, "decision_time": 0.2},
+        {"space_utilization": float("nan"), "occupancy": 0.5, "decision_time": 12.0},
         {"space_utilization": 0.5, "occupancy": 0.4, "decision_time": 0.1},
     ]
     a, b, c = score_entries(entries, "math")
@@ -89,7 +89,7 @@ def test_execution_uses_all_eight_metrics() -> None:
     bad = {
         "space_utilization": 0.3,
         "occupancy": 0.5,
-        "decision_time": 1.0,
+        "decision_time": 12.0,
         "local_stability": 0.1,
         "static_stability": 0.5,
         "trajectory_length": 5.0,
@@ -156,7 +156,9 @@ def test_stable_score_ignores_other_entries_and_relative_score_does_not() -> Non
 def test_anchors_map_bounds_to_zero_and_one() -> None:
     for key, (zero, one, _scale) in ANCHORS.items():
         assert anchored(np.array([zero, one, np.nan]), key).tolist() == [0.0, 1.0, 0.0]
-    assert anchored(np.array([0.1]), "decision_time")[0] == pytest.approx(0.5)  # log scale: 10 s … 1 ms
+    # log scale: 10 s … the floor (20 ms); faster counts as the floor
+    assert anchored(np.array([math.sqrt(10 * 0.02)]), "decision_time")[0] == pytest.approx(0.5)
+    assert anchored(np.array([0.001, 0.003]), "decision_time").tolist() == [1.0, 1.0]
 
 
 def test_paired_difference_of_a_policy_with_itself_is_zero_centred() -> None:

@@ -43,6 +43,7 @@ from robobpp.db import queries
 from robobpp.db.models import BoardPart, BoardPublication, Submission
 from robobpp.replay import CLOSED
 from robobpp.scoring.boards import RankedView, _served, participant_key
+from robobpp.scoring.scores import ANCHORS_VERSION, RESOLVED
 from robobpp.server.services.board_engine import board_of, grid_of
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
@@ -88,7 +89,7 @@ def to_json(data: Any) -> bytes:
 
 def board_source(session: Session, track: str, datasets: Sequence[str], settings: Sequence[str]) -> list[Any]:
     """What published boards were computed from: the data's version and the code's (the rules, the sampler,
-    the set of boards). A publication whose source differs is stale; after an upgrade the boards are
+    the scoring, the set of boards). A publication whose source differs is stale; after an upgrade the boards are
     recomputed once, and the old ones served meanwhile."""
     code = (
         LAYOUT,
@@ -96,6 +97,8 @@ def board_source(session: Session, track: str, datasets: Sequence[str], settings
         PHYSICS_VERSION,
         MATH_RULES_VERSION,
         SAMPLER_VERSION,
+        ANCHORS_VERSION,  # the scores' rules: the stable anchors, Decision Time's resolution and least span
+        sorted(RESOLVED.items()),
         *datasets,
         "|",
         *settings,

@@ -1,0 +1,132 @@
+"""On a real server (``robobpp serve``, real worker processes, policies served over HTTP by the SDK): the
+built-in DBL and the same DBL served by a participant place alike and are not ranked apart on any board,
+whatever milliseconds of protocol and machine noise separate their Decision Times; the same placements
+thinking 0.2 s a box rank below both, in every resample.
+
+Why 0.2 s proves the point while the issue asks for 10 times the robot's cycle (a cycle is about 10 s,
+3600 / picks per hour): 0.2 s is 10 times the floor (scores.DECISION_FLOOR_S, 20 ms) and its measurement's resolution, ±50 ms
+there, keeps it 0.13 s or more above every DBL figure measured, so no rule that only removes what the
+measurement cannot resolve may hide it; above the floor the loss grows linearly with the time (a cycle-long
+decision loses Decision Time's whole weight), so any longer thinker ranks below as this one does, and the test
+stays under a minute (4 groups of 12 boxes per dataset)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from robobpp.core import Action, Observation
+from robobpp.policies.dbl import DBL
+from tests._orphans import with_parent_death
+from tests.server.conftest import new_participant, wait_for
+
+ROOT = Path(__file__).resolve().parents[2]
+SECRET = "policy-secret-123"
+
+DATASETS = ("repetitive", "diverse", "longboard")
+GROUPS = 4
+THINK_S = 0.2
+
+
+class ThinkingDBL(DBL):
+    """DBL's placements, decided after ``THINK_S``."""
+
+    def act(self, obs: Observation) -> Action | None:
+        time.sleep(THINK_S)
+        return super().act(obs)
+
+
+@pytest.fixture
+def own_process() -> Iterator[Callable[[str], str]]:
+    """Serve a policy (``module:Class``) in a process of its own, as a participant does: two participants'
+    servers in the test's process would wait for each other's interpreter lock, which no deployment does."""
+    started: list[subprocess.Popen[str]] = []
+
+    def start(policy: str) -> str:
+        module, cls = policy.split(":")
+        code = (
+            f"from robobpp.client.serve import serve; from {module} import {cls}; "
+            f"serve({cls}(), port=0, secret={SECRET!r})"
+        )
+        proc = subprocess.Popen(
+            with_parent_death([sys.executable, "-c", code]), stdout=subprocess.PIPE, text=True, cwd=ROOT
+        )
+        started.append(proc)
+        assert proc.stdout is not None
+        return proc.stdout.readline().split(" on ")[1].split(" ")[0]  # the line says where it listens
+
+    yield start
+    for proc in started:
+        proc.terminate()
+        proc.wait(10)
+
+
+def _submit(client: httpx.Client, name: str, url: str) -> int:
+    r = client.post(
+        "/submissions",
+        json={
+            "name": name,
+            "policy_url": url,
+            "secret": SECRET,
+            "datasets": list(DATASETS),
+            "settings": ["math"],
+        },
+    )
+    assert r.status_code == 201, r.text
+    return int(r.json()["id"])
+
+
+def _row(e: dict[str, Any]) -> str:
+    m = e["metrics"]
+    return (
+        f"{e['name']}: rank {e['rank']} [{e['rank_low']}–{e['rank_high']}] score {e['score']:.4f} "
+        f"stable {e['stable']:.4f} utilisation {m['space_utilization']:.4f} "
+        f"decision {1000 * m['decision_time']:.2f} ms"
+    )
+
+
+def test_served_and_builtin_dbl_are_not_apart_and_a_slow_one_ranks_below(
+    db_url: str, make_server: Any, own_process: Callable[[str], str]
+) -> None:
+    server = make_server(db_url, ROBOBPP_GROUPS=str(GROUPS), ROBOBPP_PUBLIC_BASELINES="0")
+    admin = server.client()
+    alice = server.client(new_participant(admin, "alice"))
+    bob = server.client(new_participant(admin, "bob"))
+    served = _submit(alice, "served dbl", own_process("robobpp.policies.dbl:DBL"))
+    slow = _submit(bob, "thinking dbl", own_process(f"{__name__}:ThinkingDBL"))
+    for client, sid in ((alice, served), (bob, slow)):
+        wait_for(lambda c=client, s=sid: c.get(f"/submissions/{s}").json()["status"] == "completed", 240)
+
+    def boards() -> dict[str, list[dict[str, Any]]] | None:
+        out = {}
+        for d in DATASETS:
+            entries = alice.get(f"/leaderboards/{d}/math").json()["entries"]
+            if len(entries) < 3 or any(e["rank_low"] is None for e in entries):
+                return None  # the baseline still running, or the board not yet updated
+            out[d] = entries
+        return out
+
+    found = wait_for(boards, 240)
+    tables = {d: f"{d}/math:\n" + "\n".join(_row(e) for e in entries) for d, entries in found.items()}
+    print("\n".join(tables.values()))
+    for d, entries in found.items():
+        table = tables[d]
+        baseline = next(e for e in entries if e["baseline"])
+        mine = next(e for e in entries if e["submission_id"] == served)
+        thinker = next(e for e in entries if e["submission_id"] == slow)
+        # the same placements: what is compared is Decision Time alone (a mean summed in the order the episodes
+        # finished may differ in the last bit: scores.EQUAL_DECIMALS)
+        for e in (mine, thinker):
+            for key in ("space_utilization", "occupancy"):
+                assert e["metrics"][key] == pytest.approx(baseline["metrics"][key], rel=1e-12, abs=0), table
+        assert mine["rank_low"] <= baseline["rank_high"] and baseline["rank_low"] <= mine["rank_high"], table
+        assert thinker["rank"] > max(mine["rank"], baseline["rank"]), table
+        assert thinker["rank_low"] > max(mine["rank_high"], baseline["rank_high"]), table
+        assert thinker["stable"] < min(mine["stable"], baseline["stable"]), table

@@ -669,6 +669,9 @@ def finalize_run(session: Session, run_id: int) -> None:
                 EpisodeRow.physics_version,
             ).where(EpisodeRow.run_id == run_id)
         ).all()
+        # group order, not the order the episodes finished in: a float mean depends on its order, and two
+        # runs of the same figures must give the same last bit (their min-max otherwise tells them apart)
+        rows = sorted(rows, key=lambda r: r[4])
         run.metrics, run.extras = run_figures([r[:4] for r in rows], run.setting)
         run.extras["provenance"] = {
             **merge(p or {} for *_x, p, _v in rows),

@@ -263,3 +263,26 @@ def test_pending_episodes_are_sent_once_and_lost_messages_again(factory) -> None
         stale = work.take_unsent(s, stale_after_s=3600, now=utcnow() + timedelta(hours=2))
         ids = set(s.execute(select(EpisodeRow.id).where(EpisodeRow.submission_id == sub)).scalars())
     assert set(first) == ids and again == [] and set(stale) == ids
+
+
+def test_a_runs_figures_do_not_depend_on_the_order_its_episodes_finished(factory) -> None:  # type: ignore[no-untyped-def]
+    """Two runs of the same per-group figures give the same metrics to the last bit, whichever episode finished
+    first: a float mean depends on its order, and the relative score's min-max would tell them apart."""
+    utilisation = [0.1, 0.2, 0.3, 0.15, 0.25, 0.35, 0.05, 0.4]  # sums whose last bit depends on the order
+    first, second = _submission(factory, groups=8), _submission(factory, groups=8)
+    claims = [_claim(factory) for _ in range(16)]
+    by_submission = {
+        sid: sorted((c for c in claims if c.submission_id == sid), key=lambda c: c.group)
+        for sid in (first, second)
+    }
+    for order in (by_submission[first], by_submission[second][::-1]):
+        for claim in order:
+            result = {
+                **RESULT,
+                "metrics": {**RESULT["metrics"], "space_utilization": utilisation[claim.group]},
+            }
+            with transaction(factory) as s:
+                assert work.complete_episode(s, claim.episode_id, claim.token, result, keep_trace=False)
+    with factory() as s:
+        runs = {r.submission_id: r.metrics for r in s.execute(select(RunRow)).scalars()}
+    assert runs[first] == runs[second]

@@ -151,7 +151,7 @@ def test_a_finished_submission_appears_on_every_board_route_after_the_worker_run
             body = client.get(path).text
             assert "first-entry" in body and "second-entry" in body, path
         page = operator_browser(app).get(f"/submissions/{second}").text  # its rank on each board it ran
-        assert page.count('<span class="muted small">of 2</span>') == len(DATASETS)
+        assert page.count('<div class="muted small">of 2</div>') == len(DATASETS)
         assert client.get(f"/api/v1/leaderboards/diverse/math?submission={sid}").json()["total"] == 1
     assert worker.run_once() == []  # nothing changed: nothing computed
 

@@ -25,6 +25,7 @@ from robobpp.db.models import EpisodeRow, Participant, Submission, utcnow
 from robobpp.db.queries import SHOWN_TEXT_LIMIT
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
+from robobpp.provenance import recorded_rules
 from robobpp.server import pages
 from robobpp.server.app import create_app
 from robobpp.server.site.account import PULL_OFFERED
@@ -100,7 +101,10 @@ def _seed(client: TestClient, tokens: dict[str, str]) -> tuple[int, int, int, in
                 for run in sub.runs:
                     run.status, run.completed_at = "completed", utcnow()
                     run.metrics = {"space_utilization": 0.0, "occupancy": 0.0, "decision_time": 0.01}
-                    run.extras = {"terminations": {"policy_error": run.episodes_total}}
+                    run.extras = {
+                        "terminations": {"policy_error": run.episodes_total},
+                        "provenance": recorded_rules(),  # as finalize_run records it: current rules
+                    }
                 sub.status, sub.finished_at = "failed", utcnow()
             s.flush()
             ids += [sub.id, ep.id]

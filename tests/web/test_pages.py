@@ -497,7 +497,27 @@ def test_execution_results_and_radar_fit_at_1280_px(server: Server, browser: Any
             owner=True,
             can_cancel=False,
             episodes=episodes,
-            ranks={(r["dataset"], r["setting"]): {"rank": 12, "score": 0.5, "of": 20} for r in runs},
+            # the board's figures with their intervals, as the page shows them (the widest cells)
+            ranks={
+                (r["dataset"], r["setting"], "closed"): tables.standing(
+                    {
+                        "rank": 12,
+                        "rank_low": 9,
+                        "rank_high": 15,
+                        "score": 0.5,
+                        "score_low": 0.45,
+                        "score_high": 0.55,
+                        "stable": 0.6,
+                        "stable_low": 0.55,
+                        "stable_high": 0.65,
+                        "intervals": {m.key: [0.1, 0.2] for m in METRICS},
+                    },
+                    20,
+                )
+                for r in runs
+            },
+            apart={},
+            bootstrap={"confidence": 0.95, "groups": "30", "resamples": 1000},
             charts={
                 "radar": [
                     {

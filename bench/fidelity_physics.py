@@ -6,7 +6,7 @@ these episodes (tests/sim/physics/test_fidelity_real.py).
     python bench/fidelity_physics.py --summarize fidelity.jsonl
 
 Per episode three runs: ``fast`` (the default), ``full`` (every box dynamic, the whole 200-step window at
-every placement) and ``full+0.1mm`` (full with the release gap 0.1 mm larger: the reference's own chaos).
+every placement) and ``full+0.1mm`` (full with each landing started 0.1 mm higher: the reference's own chaos).
 Two runs *agree* on an episode when they end for the same reason, place the same number of boxes (±1) and
 their Local Stability is within 5 mm. The pass mark: fast agrees with full as often as full+0.1mm does,
 tested with the exact one-sided McNemar test on the paired outcomes (are there significantly more episodes
@@ -36,7 +36,7 @@ from robobpp.sim.physics.fidelity import Outcome, compare, mcnemar_one_sided
 RUNS: dict[str, dict[str, Any]] = {
     "fast": {"mode": "fast"},
     "full": {"mode": "full"},
-    "full+0.1mm": {"mode": "full", "release_gap_cm": PhysicsConfig().release_gap_cm + 0.01},
+    "full+0.1mm": {"mode": "full", "lower_from_cm": PhysicsConfig().lower_from_cm + 0.01},
 }
 
 

@@ -275,7 +275,7 @@ class Episode:
             utilization = M.placed_volume(final) / container.volume
         metrics: dict[str, float | None] = {
             "space_utilization": utilization,
-            "occupancy": M.occupancy(final, container),
+            "occupancy": M.occupancy(self.setting.plan()[: len(final)], container),
             "decision_time": sum(decision) / len(decision) if decision else None,
         }
         if self._round_trip:  # a remote policy: the raw figures beside the decision time they gave

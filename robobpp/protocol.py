@@ -318,22 +318,17 @@ def observation_from_act(
 
 
 def _physical_heightmap(shape: tuple[int, int], placements: list[Placement]) -> np.ndarray:
-    """The heightmap of a Physics or Execution Pack observation, rebuilt as the setting builds it
-    (``PhysicsPack.state``): each box's actual, possibly tilted bounds (corner + quaternion), shrunk and
-    rounded as the setting's defaults say. Taking each box as axis-aligned at its corner, as Math Pack's
-    rebuild does, showed a served policy a pile up to tens of cm off the one an in-process policy sees (a
-    tilted Long Board panel stands cm higher; the shrink moves every box edge by a cell), so the same policy
-    packed differently, and ended on too_high, when served."""
+    """The heightmap of a Physics or Execution Pack observation, rebuilt by the function the setting builds it
+    with (``robobpp.sim.physics.geometry.observed_heightmap``, the setting's defaults): each box's actual,
+    possibly tilted bounds. Taking each box as axis-aligned at its corner, as Math Pack's rebuild does, showed
+    a served policy a pile up to tens of cm off the one an in-process policy sees (a tilted Long Board panel
+    stands cm higher; the shrink moves every box edge by a cell), so the same policy packed differently, and
+    ended on too_high, when served."""
     from robobpp.sim.physics.config import PhysicsConfig  # numpy only: no pybullet
-    from robobpp.sim.physics.geometry import heightmap_from_boxes
+    from robobpp.sim.physics.geometry import observed_heightmap
 
     config = PhysicsConfig()
-    halves = np.array([(p.length, p.width, p.height) for p in placements], dtype=np.float64) / 2
-    centers = np.array([(p.x, p.y, p.z) for p in placements], dtype=np.float64) + halves
-    quaternions = np.array([p.quaternion or (0.0, 0.0, 0.0, 1.0) for p in placements], dtype=np.float64)
-    heightmap = heightmap_from_boxes(shape, centers, quaternions, halves, config.heightmap_shrink_cm)
-    res = config.heightmap_resolution_cm
-    return np.round(heightmap / res) * res if res > 0 else heightmap
+    return observed_heightmap(shape, placements, config.heightmap_shrink_cm, config.heightmap_resolution_cm)
 
 
 def action_from_response(resp: ActResponse) -> Action | None:

@@ -19,7 +19,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from robobpp.core import Action, Box, ContainerState, EpisodeInfo, EpisodeSpec, FinalBox, Observation
+from robobpp.core import (
+    Action,
+    Box,
+    ContainerState,
+    EpisodeInfo,
+    EpisodeSpec,
+    FinalBox,
+    Observation,
+    Placement,
+)
 from robobpp.episode import CLOSED, COMPLETED, PAPER, PROTOCOLS, EpisodeResult, run_episode
 from robobpp.policies.base import Policy, PolicyError
 from robobpp.sim import Setting, make_setting
@@ -98,6 +107,10 @@ class OpenLoop(Setting):
 
     def final_boxes(self) -> list[FinalBox]:
         return self.inner.final_boxes()
+
+    def plan(self) -> list[Placement]:
+        """The idealised pile the actions were checked on, as the reference's Occupancy reads it."""
+        return list(self.ideal.state().placements)
 
     def close(self) -> None:
         try:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -55,31 +54,31 @@ def placed_volume(final: Iterable[FinalBox]) -> float:
     return sum(f.planned.volume for f in final)
 
 
-def on_pallet(p: Placement, container: ContainerSpec) -> bool:
-    """Whether a box's actual centre is over the container footprint and not below its floor."""
-    cx, cy, _ = p.center
-    return 0.0 <= cx <= container.length and 0.0 <= cy <= container.width and p.z > -1.0
-
-
-def occupancy(final: Sequence[FinalBox], container: ContainerSpec) -> float:
-    """Placed volume over the volume under the final heightmap (built from actual poses, 1 cm cells).
-
-    Boxes that fell off the pallet count in neither term: they are not in the container any more.
-    """
-    kept = [f for f in final if on_pallet(f.actual, container)]
-    state = ContainerState.from_placements(container, (f.actual for f in kept))
-    under = state.volume_under_heightmap()
-    return sum(f.planned.volume for f in kept) / under if under > 0 else 0.0
+def occupancy(plan: Sequence[Placement], container: ContainerSpec) -> float | None:
+    """The mean, over the placements, of the volume of the boxes placed so far over the volume under the
+    heightmap their planned poses make (1 cm cells, the Math Pack's heightmap): how densely the pile is
+    built at each step, as the reference computes it (on its idealised heightmap). None without a box."""
+    if not plan:
+        return None
+    state = ContainerState(container)
+    volume = total = 0.0
+    for placement in plan:
+        state.add(placement)
+        volume += placement.volume
+        under = state.volume_under_heightmap()
+        total += volume / under if under > 0 else 0.0
+    return total / len(plan)
 
 
 def local_stability_m(final: Sequence[FinalBox]) -> float | None:
-    """Mean distance between planned and actual box positions, metres."""
+    """Mean over the boxes of |dx| + |dy| between each box's planned and actual centre, metres: the
+    reference's position offset (height and attitude left out, as its collapse rule leaves them out)."""
     if not final:
         return None
     total = 0.0
     for f in final:
-        (px, py, pz), (ax, ay, az) = f.planned.center, f.actual.center
-        total += math.dist((px, py, pz), (ax, ay, az)) / 100.0
+        (px, py, _), (ax, ay, _) = f.planned.center, f.actual.center
+        total += (abs(ax - px) + abs(ay - py)) / 100.0
     return total / len(final)
 
 

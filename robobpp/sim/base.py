@@ -50,6 +50,12 @@ class Setting(ABC):
     def final_boxes(self) -> list[FinalBox]:
         """Planned vs actual pose of every placed box, read at the end of the episode."""
 
+    def plan(self) -> list[Placement]:
+        """Where each placed box was meant to go, in placement order: the pile its policy planned on, which
+        Occupancy reads (the reference computes it on its idealised heightmap). By default the planned pose
+        of each of ``final_boxes()``."""
+        return [f.planned for f in self.final_boxes()]
+
     @property
     def physics_version(self) -> str | None:
         """The version of the physics behind this setting's outcomes (recorded with every result; boards

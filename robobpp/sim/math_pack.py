@@ -16,7 +16,9 @@ from robobpp.sim.base import Setting, StepOutcome
 #: orientations, finite numbers), where a box comes to rest (the drop onto the heightmap) and when it is too
 #: high. Every setting applies them, every result records the version (``EpisodeResult.rules_version``) and
 #: a board never mixes versions: a change that can alter any figure is a new version, as for physics.
-MATH_RULES_VERSION = "1"
+#: 2: Occupancy is the reference's: the mean over placements of the placed volume over the volume under the
+#: heightmap at that placement (version 1: once, on the final heightmap), docs/benchmark.md, "Metrics".
+MATH_RULES_VERSION = "2"
 
 
 class MathPack(Setting):

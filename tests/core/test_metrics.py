@@ -17,34 +17,30 @@ def test_space_utilization_counts_only_boxes_still_in_place():
     assert M.space_utilization([final(a), final(b, in_place=False)], C) == pytest.approx(100 / 1000)
 
 
-def test_occupancy_against_hand_computed_heightmap():
-    # A 2 cm slab over half the floor, then a 1×1×1 cube on top at its corner and a tall post elsewhere.
-    slab = Placement(0, 0, 0, 5, 10, 2, 0, 0)  # 100 cm³, raises 50 cells to 2
-    cube = Placement(0, 0, 2, 1, 1, 1, 0, 1)  # 1 cm³, raises 1 cell to 3
-    post = Placement(9, 9, 0, 1, 1, 6, 0, 2)  # 6 cm³, raises 1 cell to 6
-    under = 49 * 2 + 3 + 6
-    assert M.occupancy([final(slab), final(cube), final(post)], C) == pytest.approx(107 / under)
+def test_occupancy_is_the_mean_over_placements_against_hand_computed_heightmaps():
+    slab = Placement(0, 0, 0, 5, 10, 2, 0, 0)  # 100 cm³ over 50 cells, 2 cm high: no gap under it
+    high = Placement(5, 0, 4, 2, 2, 2, 0, 1)  # 8 cm³ planned 4 cm up: 4 cells raised to 6
+    post = Placement(9, 9, 0, 1, 1, 6, 0, 2)  # 6 cm³, one cell to 6
+    after = [100 / 100, 108 / (100 + 4 * 6), 114 / (100 + 4 * 6 + 6)]
+    assert M.occupancy([slab, high, post], C) == pytest.approx(sum(after) / 3)
+    # Not the final heightmap's figure alone (version 1's reading), and the order matters.
+    assert M.occupancy([slab, high, post], C) != pytest.approx(after[-1])
+    assert M.occupancy([high, slab, post], C) == pytest.approx((8 / 24 + 108 / 124 + 114 / 130) / 3)
+    assert M.occupancy([], C) is None
 
 
-def test_occupancy_uses_actual_positions():
-    planned = Placement(0, 0, 4, 2, 2, 2, 0, 0)  # a box meant to sit high (unsupported)
-    fallen = Placement(0, 0, 0, 2, 2, 2, 0, 0)
-    assert M.occupancy([final(planned, fallen)], C) == pytest.approx(1.0)
+def test_occupancy_counts_a_box_planned_over_a_gap_as_the_gap_under_it():
+    high = Placement(0, 0, 4, 2, 2, 2, 0, 0)  # planned 4 cm up (an unsupported plan)
+    assert M.occupancy([high], C) == pytest.approx(8 / (4 * 6))
 
 
-def test_occupancy_ignores_boxes_that_fell_off_the_pallet():
-    box = Placement(0, 0, 0, 2, 2, 2, 0, 0)
-    fell = Placement(12, 3, -15, 2, 2, 2, 0, 1)  # planned inside, now on the ground beside the pallet
-    assert M.occupancy(
-        [final(box), final(Placement(4, 4, 0, 2, 2, 2, 0, 1), fell, False)], C
-    ) == pytest.approx(1.0)
-
-
-def test_local_stability_is_mean_displacement_in_metres():
+def test_local_stability_is_the_mean_horizontal_offset_dx_plus_dy_in_metres():
     p1 = Placement(0, 0, 0, 2, 2, 2, 0, 0)
-    a1 = Placement(3, 4, 0, 2, 2, 2, 0, 0)  # moved 5 cm
+    a1 = Placement(3, 4, 0, 2, 2, 2, 0, 0)  # moved 3 cm along x and 4 along y: 7 cm, not the 5 cm diagonal
     p2 = Placement(5, 5, 0, 2, 2, 2, 0, 1)
-    assert M.local_stability_m([final(p1, a1), final(p2)]) == pytest.approx((0.05 + 0.0) / 2)
+    a2 = Placement(5, 5, -15, 2, 2, 2, 0, 1)  # sank (fell through a gap): height is left out
+    assert M.local_stability_m([final(p1, a1), final(p2, a2)]) == pytest.approx((0.07 + 0.0) / 2)
+    assert M.local_stability_m([]) is None
 
 
 @pytest.mark.parametrize(

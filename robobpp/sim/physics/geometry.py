@@ -9,6 +9,7 @@ by the contact margin) would not.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -140,6 +141,26 @@ def heightmap_from_boxes(
             region = hm[i0:i1, j0:j1]
             np.maximum(region, bz, out=region)
     return hm
+
+
+def observed_heightmap(
+    shape: tuple[int, int],
+    placements: Sequence[Placement],
+    shrink_cm: float,
+    resolution_cm: float,
+) -> np.ndarray:
+    """The heightmap a Physics or Execution Pack policy observes, from the placements it observes (each box's
+    min corner as rounded for the observation, its dims and its quaternion): the bounds of each box as it
+    stands, shrunk by ``shrink_cm``, rounded to ``resolution_cm``. The setting and the wire protocol's
+    rebuild both call this, so a served policy sees to the bit what an in-process one sees (built from the
+    unrounded poses, a box edge within the rounding of a cell boundary claimed the cell on one side only)."""
+    if not placements:
+        return np.zeros(shape, dtype=np.float64)
+    halves = np.array([(p.length, p.width, p.height) for p in placements], dtype=np.float64) / 2
+    centers = np.array([(p.x, p.y, p.z) for p in placements], dtype=np.float64) + halves
+    quaternions = np.array([p.quaternion or (0.0, 0.0, 0.0, 1.0) for p in placements], dtype=np.float64)
+    heightmap = heightmap_from_boxes(shape, centers, quaternions, halves, shrink_cm)
+    return np.round(heightmap / resolution_cm) * resolution_cm if resolution_cm > 0 else heightmap
 
 
 def _overlaps(lo: np.ndarray, hi: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 from robobpp.core import Action, Box, ContainerState, EpisodeSpec, FinalBox, Infeasible, Placement, box_label
 from robobpp.sim.base import Setting, StepOutcome
 from robobpp.sim.physics.config import PhysicsConfig
-from robobpp.sim.physics.geometry import aabbs, clear_shift, heightmap_from_boxes, surface_height
+from robobpp.sim.physics.geometry import aabbs, clear_shift, observed_heightmap, surface_height
 from robobpp.sim.physics.recording import PoseRecorder
 from robobpp.sim.physics.settle import Displacement, Settler, SettleReport, detect_collapse
 from robobpp.sim.physics.world import PhysicsWorld, WorldBox
@@ -125,7 +125,8 @@ class PhysicsPack(Setting):
     def release_and_settle(
         self, planned: Placement, mass: float, disturbed: Sequence[WorldBox] = ()
     ) -> SettleReport:
-        """Let go of the box at rest ``release_gap_cm`` above ``planned`` and settle the world.
+        """Land the box on ``planned`` (``PhysicsConfig.release``: lowered until it touches, or let go at rest
+        ``release_gap_cm`` above) and settle the world.
 
         ``disturbed``: boxes something else already set moving (the robot's arm); they are simulated
         from the start like the new box.
@@ -138,7 +139,10 @@ class PhysicsPack(Setting):
             cx, cy = cx + dx, cy + dy
         extents = (planned.length, planned.width, planned.height)
         body_mass = mass if cfg.box_mass_kg is None else cfg.box_mass_kg
-        new = world.add_box((cx, cy, cz + cfg.release_gap_cm), extents, body_mass)
+        above = cfg.lower_from_cm if cfg.release == "lower" else cfg.release_gap_cm
+        new = world.add_box((cx, cy, cz + above), extents, body_mass)
+        if cfg.release == "lower":  # the reference's landing; Static Stability's window starts at the touch
+            world.lower_until_contact(new, above, cfg.lower_step_cm)
         self._boxes.append(new)
         self._planned.append(planned)
         self._state = None
@@ -254,19 +258,20 @@ class PhysicsPack(Setting):
         )
 
     def state(self) -> ContainerState:
-        """Actual poses (centre-based min corner + quaternion) and the heightmap of their actual bounds."""
-        world = self._world()
+        """Actual poses (centre-based min corner + quaternion, rounded as ``pose_resolution_cm`` says) and the
+        heightmap of their bounds (``observed_heightmap``)."""
+        self._world()
         if self._state is None:
             assert self.spec is not None
             state = ContainerState(self.spec.container)
             step = self.config.pose_resolution_cm
             state.placements = [self._actual(i, step) for i in range(len(self._boxes))]
-            centers, quats, halves = world.poses_cm(self._boxes)
-            hm = heightmap_from_boxes(
-                state.heightmap.shape, centers, quats, halves, self.config.heightmap_shrink_cm
+            state.heightmap = observed_heightmap(
+                state.heightmap.shape,
+                state.placements,
+                self.config.heightmap_shrink_cm,
+                self.config.heightmap_resolution_cm,
             )
-            res = self.config.heightmap_resolution_cm
-            state.heightmap = np.round(hm / res) * res if res > 0 else hm
             self._state = state
         return self._state
 

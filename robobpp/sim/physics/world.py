@@ -14,7 +14,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import shutil
+import tempfile
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
 
 import numpy as np
@@ -29,6 +32,16 @@ CM = 0.01
 PALLET_THICKNESS_M = 0.05
 PALLET_HEIGHT_M = 0.15
 WALL_THICKNESS_M = 0.02
+#: Bullet's collision margin of a mesh loaded from a URDF, m: the surface Bullet collides lies this far outside
+#: the mesh. Each box mesh is made this much smaller on every side, so a box collides at its real size.
+MESH_MARGIN_M = 0.001
+
+#: A unit cube centred on its origin, as a Wavefront mesh: the shape every box collides as when
+#: ``PhysicsConfig.collision_shape`` is ``mesh``, scaled to the box by the URDF that loads it.
+UNIT_CUBE_OBJ = (
+    "".join(f"v {x} {y} {z}\n" for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5))
+    + "f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n"
+)
 
 
 @dataclass(slots=True)
@@ -62,6 +75,7 @@ class PhysicsWorld:
         self.static_bodies: list[int] = []
         self.container: ContainerSpec | None = None
         self._shapes: dict[tuple[float, float, float], int] = {}
+        self._mesh_dir: Path | None = None
         self._body_friction = math.sqrt(self.config.lateral_friction)
         self._body_restitution = math.sqrt(self.config.restitution)
 
@@ -71,6 +85,9 @@ class PhysicsWorld:
             with contextlib.suppress(p.error):  # already gone
                 p.disconnect(physicsClientId=self.client)
             self.client = -1
+        if self._mesh_dir is not None:
+            shutil.rmtree(self._mesh_dir, ignore_errors=True)
+            self._mesh_dir = None
 
     def __enter__(self) -> PhysicsWorld:
         return self
@@ -93,9 +110,54 @@ class PhysicsWorld:
             physicsClientId=self.client,
         )
 
+    def _mesh_urdf(self, size_m: tuple[float, float, float]) -> str:
+        """A URDF file of one box collision mesh of ``size_m`` (less the margin). Loaded through a URDF as the reference loads
+        its boxes: Bullet then reports a touch 1-2 mm before the surfaces meet, where the same convex mesh
+        made by ``createCollisionShape`` reports it 3-7 mm before (measured; docs/physics.md, "Static
+        Stability against the reference"), and that distance is the landing's fall."""
+        if self._mesh_dir is None:
+            self._mesh_dir = Path(tempfile.mkdtemp(prefix="robobpp-boxes-"))
+            (self._mesh_dir / "cube.obj").write_text(UNIT_CUBE_OBJ)
+        path = self._mesh_dir / "box-{:.6f}-{:.6f}-{:.6f}.urdf".format(*size_m)
+        if not path.exists():
+            sx, sy, sz = size_m
+            path.write_text(
+                '<robot name="box"><link name="box"><inertial><mass value="1"/>'
+                '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial><collision><geometry>'
+                f'<mesh filename="{self._mesh_dir / "cube.obj"}" scale="{sx!r} {sy!r} {sz!r}"/>'
+                "</geometry></collision></link></robot>"
+            )
+        return str(path)
+
+    def _body(
+        self,
+        half_m: tuple[float, float, float],
+        center_m: tuple[float, float, float],
+        mass: float,
+        quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0),
+    ) -> int:
+        """A box body of half extents ``half_m``: static when ``mass`` is 0, shaped per ``collision_shape``."""
+        cid = self.client
+        if self.config.collision_shape == "mesh":
+            size = (
+                2 * (half_m[0] - MESH_MARGIN_M),
+                2 * (half_m[1] - MESH_MARGIN_M),
+                2 * (half_m[2] - MESH_MARGIN_M),
+            )
+            body = p.loadURDF(
+                self._mesh_urdf(size), center_m, quaternion, useFixedBase=mass == 0, physicsClientId=cid
+            )
+            if mass > 0:  # the inertia follows the mass (Bullet recomputes it from the shape)
+                p.changeDynamics(body, -1, mass=mass, physicsClientId=cid)
+            return int(body)
+        shape = self._shapes.get(half_m)
+        if shape is None:
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half_m, physicsClientId=cid)
+            self._shapes[half_m] = shape
+        return int(p.createMultiBody(mass, shape, -1, center_m, quaternion, physicsClientId=cid))
+
     def _static_box(self, half_m: tuple[float, float, float], center_m: tuple[float, float, float]) -> int:
-        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half_m, physicsClientId=self.client)
-        body = p.createMultiBody(0, shape, -1, center_m, physicsClientId=self.client)
+        body = self._body(half_m, center_m, 0.0)
         self._surface(body)
         self.static_bodies.append(body)
         return body
@@ -127,15 +189,9 @@ class PhysicsWorld:
         mass: float,
         quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0),
     ) -> WorldBox:
-        """A dynamic box primitive of ``extents_cm`` (along its own x, y, z), centred at ``center_cm``."""
-        half = tuple(e * CM / 2 for e in extents_cm)
-        shape = self._shapes.get(half)  # type: ignore[arg-type]
-        if shape is None:
-            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
-            self._shapes[half] = shape  # type: ignore[index]
-        body = p.createMultiBody(
-            mass, shape, -1, tuple(c * CM for c in center_cm), quaternion, physicsClientId=self.client
-        )
+        """A dynamic box of ``extents_cm`` (along its own x, y, z), centred at ``center_cm``."""
+        half = (extents_cm[0] * CM / 2, extents_cm[1] * CM / 2, extents_cm[2] * CM / 2)
+        body = self._body(half, (center_cm[0] * CM, center_cm[1] * CM, center_cm[2] * CM), mass, quaternion)
         self._surface(body)
         p.changeDynamics(
             body,
@@ -147,6 +203,27 @@ class PhysicsWorld:
         box = WorldBox(body, (extents_cm[0] / 2, extents_cm[1] / 2, extents_cm[2] / 2), mass)
         self.boxes.append(box)
         return box
+
+    def lower_until_contact(self, box: WorldBox, drop_cm: float, step_cm: float) -> int:
+        """The reference's landing: from where it stands, move ``box`` down ``step_cm`` per simulation step
+        (its pose set, the world stepped) until something touches it from below, at most ``drop_cm`` plus
+        5 cm; the box keeps the speed of its last step. Returns the steps taken.
+
+        Only a touch from below ends it: the reference's grid is 2 % wider than its boxes, so its first touch
+        is always what carries the box; ours has no gap, and a neighbour's side, reported 1-2 mm away,
+        would end the lowering 1.7 cm up and drop the box from there."""
+        cid = self.client
+        (x, y, z), orn = p.getBasePositionAndOrientation(box.body, physicsClientId=cid)
+        limit = math.ceil((drop_cm + 5.0) / step_cm)
+        for n in range(1, limit + 1):
+            p.resetBasePositionAndOrientation(
+                box.body, (x, y, z - n * step_cm * CM), orn, physicsClientId=cid
+            )
+            p.stepSimulation(physicsClientId=cid)
+            # contactNormalOnB points from the other body to this box: up for a touch from below.
+            if any(c[7][2] > 0.5 for c in p.getContactPoints(bodyA=box.body, physicsClientId=cid)):
+                return n
+        return limit
 
     def remove_box(self, box: WorldBox) -> None:
         """Take a box out of the world."""

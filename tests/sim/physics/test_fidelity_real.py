@@ -31,14 +31,16 @@ ALLOWED_DISAGREEMENTS = 4
 @pytest.mark.slow
 def test_default_physics_agrees_with_the_full_simulation(real_data: Path) -> None:
     lines, only_default, only_noise, disagree = [], 0, 0, 0
-    noise_gap = PhysicsConfig().release_gap_cm + 0.01
+    noise_start = PhysicsConfig().lower_from_cm + 0.01
     for dataset in ("diverse", "longboard"):
         for spec in episode_specs(dataset, split="train", groups=GROUPS):
             for policy in ("dbl", "hm"):
                 default = Outcome.of(run_episode(spec, load_policy(policy), PhysicsPack()))
                 full = Outcome.of(run_episode(spec, load_policy(policy), PhysicsPack(mode="full")))
                 noisy = Outcome.of(
-                    run_episode(spec, load_policy(policy), PhysicsPack(mode="full", release_gap_cm=noise_gap))
+                    run_episode(
+                        spec, load_policy(policy), PhysicsPack(mode="full", lower_from_cm=noise_start)
+                    )
                 )
                 verdict, noise = compare(default, full), compare(noisy, full)
                 disagree += not verdict.agree

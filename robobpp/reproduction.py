@@ -401,7 +401,8 @@ def weighted_min_max(columns: Mapping[str, Sequence[float]], weights: Mapping[st
 
     The normalisation is the leaderboard's (:func:`robobpp.scoring.scores.normalize`): a constant column
     (every method equal) normalises to 0 for every method, so it contributes 0 and moves no method against
-    another; the weights are not renormalised around it, so two settings' scores stay on the same scale."""
+    another; the weights are not renormalised around it (every method loses that weight alike, so no order
+    moves)."""
     n = len(next(iter(columns.values()), []))
     total = np.zeros(n)
     for metric, weight in weights.items():

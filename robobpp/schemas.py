@@ -388,6 +388,9 @@ class ReproductionCell(BaseModel):
     paper: float | None = Field(description="The paper's published figure (null: not tabulated)")
     diff: float | None = Field(description="ours − paper")
     table: str | None = Field(description="The paper table the figure is from (its LaTeX label)")
+    paper_only: bool = Field(
+        description="A method robobpp does not run: the paper's figure alone (ours null), compared with nothing"
+    )
 
 
 class ReproductionAgreement(BaseModel):
@@ -396,9 +399,34 @@ class ReproductionAgreement(BaseModel):
     metric: str
     policies: list[str]
     spearman: float | None = Field(
-        description="Spearman's rank correlation, ours vs the paper (null: under 3)"
+        description="Spearman's rank correlation, ours vs the paper (null: under 3, or not ranked)"
     )
     mean_abs_diff: float | None
+    ranked: bool = Field(
+        description="False: the metric's ranking is not compared (Decision Time, PPH): no Spearman"
+    )
+
+
+class ReproductionExpectation(BaseModel):
+    why: str = Field(description="Why our figures of the metric are expected to differ from the paper's")
+    doc: str = Field(description="The experiment in the docs: a link relative to the repository root")
+    ranked: bool
+
+
+class ReproductionScore(BaseModel):
+    """The paper's weighted min–max score over the compared methods of one (setting, dataset), twice."""
+
+    setting: str
+    dataset: str
+    weights: dict[str, float] = Field(
+        description="The setting's score weights without Decision Time (and PPH), renormalised to sum to 1"
+    )
+    policies: list[str]
+    ours: list[float] = Field(description="The score from our figures, per policy")
+    paper: list[float] = Field(
+        description="The score from the paper's figures of the same methods, per policy"
+    )
+    spearman: float | None
 
 
 class Reproduction(BaseModel):
@@ -411,3 +439,7 @@ class Reproduction(BaseModel):
     runs: list[ReproductionRun]
     cells: list[ReproductionCell]
     agreement: list[ReproductionAgreement]
+    expected: dict[str, ReproductionExpectation] = Field(
+        description="Per metric: why a difference is expected"
+    )
+    scores: list[ReproductionScore]

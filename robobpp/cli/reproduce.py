@@ -54,10 +54,13 @@ def reproduce(
     markdown_out: Annotated[bool, typer.Option("--markdown", help="Print Markdown tables.")] = False,
 ) -> None:
     """Run the paper's baselines locally and print ours beside the paper's figures, with Spearman and mean
-    |diff| per setting, dataset and metric. The paper's figures are its test split (30 private groups)."""
+    |diff| per setting, dataset and metric, why each metric's figures are expected to differ, and the paper's
+    score over the methods run (Decision Time left out) from ours and from the paper's figures. The paper's
+    methods robobpp does not run are listed with the paper's figures only (paper-reported). The paper's figures
+    are its test split (30 private groups)."""
     from robobpp.datasets import DATASETS, SPLITS, DatasetError
     from robobpp.episode import EpisodeResult
-    from robobpp.paper import PAPER_BASELINES
+    from robobpp.paper import PAPER_BASELINES, paper_tables
     from robobpp.policies import BUILTIN, TITLES
     from robobpp.replay import PAPER, PROTOCOLS
     from robobpp.reproduction import compare, compared_metrics, figures_from_results, markdown
@@ -86,6 +89,7 @@ def reproduce(
             fail(str(exc))
         meta = {"protocol": protocol, "split": split, "seed": seed}
     comparison = compare(figures_from_results(results), metrics=shown)
+    titles = {**paper_tables().methods, **TITLES}  # the paper's spelling of the methods robobpp does not run
     counts = _group_counts(results)
     heading = (
         f"protocol {meta['protocol']}"
@@ -98,10 +102,13 @@ def reproduce(
     out = table_console()
     if markdown_out:
         out.print(heading + "\n", markup=False, highlight=False, soft_wrap=True)
-        out.print(markdown(comparison, TITLES), markup=False, highlight=False, soft_wrap=True)
+        out.print(markdown(comparison, titles), markup=False, highlight=False, soft_wrap=True)
     else:
+        out.print(heading, markup=False, highlight=False, soft_wrap=True)
         for s in comparison.settings:
-            out.print(_table(comparison, s, heading, TITLES))
+            for table in _tables(comparison, s, titles):
+                out.print(table)
+                out.print()
     if json_out is not None:
         payload = {
             **meta,
@@ -189,21 +196,28 @@ def _group_counts(results: list[Any]) -> dict[str, int]:
     return {d: len(g) for d, g in groups.items()}
 
 
-def _table(comparison: Any, setting: str, heading: str, titles: dict[str, str]) -> Table:
-    from robobpp.reproduction import label
+def _tables(comparison: Any, setting: str, titles: dict[str, str]) -> list[Table]:
+    """``setting``'s terminal tables: one per metric, with why its figures are expected to differ under it, then
+    the score comparison."""
+    from robobpp.reproduction import EXPECTED, label, policy_title, spearman_text
 
     datasets = comparison.datasets(setting)
-    table = Table(title=f"{setting.capitalize()} Pack · ours vs the paper", caption=heading)
-    table.add_column("metric")
-    table.add_column("policy")
-    for d in datasets:
-        table.add_column(f"{d} paper", justify="right")
-        table.add_column(f"{d} ours", justify="right")
-        table.add_column("diff", justify="right")
+    out = []
     for metric in comparison.metrics(setting):
+        expected = EXPECTED.get(metric)
+        table = Table(
+            title=f"{setting.capitalize()} Pack · ours vs the paper · {label(metric)}",
+            caption=f"{expected.why} ({expected.doc})" if expected else None,
+            caption_justify="left",
+        )
+        table.add_column("policy")
+        for d in datasets:
+            table.add_column(f"{d} paper", justify="right")
+            table.add_column(f"{d} ours", justify="right")
+            table.add_column("diff", justify="right")
         digits = 0 if metric == "pph" else 3
-        for i, policy in enumerate(comparison.policies(setting)):
-            row = [label(metric) if i == 0 else "", titles.get(policy, policy)]
+        for policy in comparison.policies(setting):
+            row = [policy_title(comparison, policy, titles)]
             for d in datasets:
                 c = comparison.cell(setting, d, policy, metric)
                 row += [
@@ -212,13 +226,45 @@ def _table(comparison: Any, setting: str, heading: str, titles: dict[str, str]) 
                     _num(c and c.diff, digits, True),
                 ]
             table.add_row(*row)
-        for name, attr in (("Spearman", "spearman"), ("mean |diff|", "mean_abs_diff")):
-            row = ["", f"[bold]{name}[/]"]
-            for d in datasets:
-                a = comparison.agreement_of(setting, d, metric)
-                value = getattr(a, attr) if a else None
-                row += ["", _num(value, 2 if attr == "spearman" else digits), ""]
-            table.add_row(*row, end_section=name != "Spearman")
+        agreements = [comparison.agreement_of(setting, d, metric) for d in datasets]
+        spearmans = [spearman_text(a) for a in agreements]
+        diffs = [_num(a and a.mean_abs_diff, digits) for a in agreements]
+        table.add_row(
+            "[bold]Spearman[/]", *[cell for t in spearmans for cell in ("", t, "")], end_section=False
+        )
+        table.add_row("[bold]mean |diff|[/]", *[cell for t in diffs for cell in ("", t, "")])
+        out.append(table)
+    score = _score_table(comparison, setting, titles)
+    return out + ([score] if score else [])
+
+
+def _score_table(comparison: Any, setting: str, titles: dict[str, str]) -> Table | None:
+    """``setting``'s score comparison: per dataset our score and the one from the paper's figures, per method."""
+    from robobpp.paper import PAPER_BASELINES
+    from robobpp.reproduction import SCORE_TITLE
+
+    scored = [c for c in comparison.scores if c.setting == setting]
+    if not scored:
+        return None
+    table = Table(
+        title=f"{setting.capitalize()} Pack · {SCORE_TITLE}",
+        caption="The paper's weighted min–max over the methods compared here, from our figures and from the "
+        "paper's figures of the same methods; the other weights renormalised.",
+        caption_justify="left",
+    )
+    table.add_column("policy")
+    for c in scored:
+        table.add_column(f"{c.dataset} ours", justify="right")
+        table.add_column(f"{c.dataset} paper metrics", justify="right")
+    policies = [p for p in PAPER_BASELINES if any(p in c.policies for c in scored)]
+    policies += sorted({p for c in scored for p in c.policies} - set(policies))
+    for policy in policies:
+        row = [titles.get(policy, policy)]
+        for c in scored:
+            both = c.of(policy)
+            row += [_num(both[0], 3), _num(both[1], 3)] if both else ["—", "—"]
+        table.add_row(*row)
+    table.add_row("[bold]Spearman[/]", *[cell for c in scored for cell in ("", _num(c.spearman, 2))])
     return table
 
 

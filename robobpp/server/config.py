@@ -47,6 +47,10 @@ class Settings(BaseSettings):
     #: Built-in participants' policies (``builtin:<name>``) may be submitted by the admin only.
     demo: bool = False
 
+    #: Base URL of the project's documentation files (a repository's tree, ending in ``/``): the Reproduction
+    #: page links its docs references (``docs/physics.md#…``) under it; empty: it shows them as paths.
+    docs_url: str = ""
+
     # evaluation
     workers: int = Field(default=2, ge=0, le=64)
     #: Evaluation groups per dataset (30 on the real leaderboard, fewer for the demo).

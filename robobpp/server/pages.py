@@ -526,7 +526,7 @@ def replay_page(
 
 
 @router.get("/reproduction", response_class=HTMLResponse)
-async def reproduction_page(request: Request, track: Track = "private"):
+async def reproduction_page(request: Request, settings: SettingsDep, track: Track = "private"):
     from robobpp.paper import paper_tables
     from robobpp.policies import TITLES
     from robobpp.server.services.reproduction import reproduction
@@ -543,6 +543,8 @@ async def reproduction_page(request: Request, track: Track = "private"):
             track=track,
             data=data,
             tables=tables.reproduction_tables(data, titles),
+            scores=tables.reproduction_scores(data, titles),
+            docs_url=settings.docs_url,
             titles=titles,
             table_captions=paper_tables().tables,
         )

@@ -317,11 +317,13 @@ def _count_text(counts: Sequence[int]) -> str:
 
 def reproduction_tables(data: Mapping[str, Any], titles: Mapping[str, str]) -> list[dict[str, Any]]:
     """The Reproduction page from ``server.services.reproduction.reproduction``: one table per setting and
-    metric (in the comparison's order: utilisation first), the paper's baselines down, per dataset the paper's
-    figure, ours and the difference across, then Spearman and mean |diff| per dataset. ``titles``: policy names
-    as shown."""
+    metric (in the comparison's order: utilisation first), the paper's baselines down and then the paper-reported
+    methods (the paper's figures only), per dataset the paper's figure, ours and the difference across, then
+    Spearman ("not compared" for a metric whose ranking is not: ``ranked``) and mean |diff| per dataset, and
+    why the metric's figures are expected to differ with its docs link. ``titles``: policy names as shown."""
     cells = list(data.get("cells") or [])
     agreement = {(a["setting"], a["dataset"], a["metric"]): a for a in data.get("agreement") or []}
+    expected = data.get("expected") or {}
     groups = {(r["setting"], r["dataset"], r["policy"]): r["groups"] for r in data.get("runs") or []}
     out: list[dict[str, Any]] = []
     by_table: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
@@ -345,10 +347,12 @@ def reproduction_tables(data: Mapping[str, Any], titles: Mapping[str, str]) -> l
                         "table": c and c["table"],
                     }
                 )
-            rows.append({"policy": p, "title": titles.get(p, p), "cells": row})
+            paper_only = any(c["policy"] == p and c.get("paper_only") for c in group)
+            rows.append({"policy": p, "title": titles.get(p, p), "cells": row, "paper_only": paper_only})
         tables = [agreement.get((setting, d, metric)) or {} for d in datasets]
         metric_def = METRIC_BY_KEY.get(metric)
         counts = sorted({c["groups"] for r in rows for c in r["cells"] if c["groups"]})
+        why = expected.get(metric) or {}
         out.append(
             {
                 "setting": setting,
@@ -359,10 +363,50 @@ def reproduction_tables(data: Mapping[str, Any], titles: Mapping[str, str]) -> l
                 "rows": rows,
                 "spearman": [a.get("spearman") for a in tables],
                 "mean_abs_diff": [a.get("mean_abs_diff") for a in tables],
+                "ranked": bool(why.get("ranked", True)),
+                "why": why.get("why", ""),
+                "doc": why.get("doc", ""),
                 "groups": _count_text(counts),
                 "paper_groups": PAPER_GROUPS,
                 # a figure over a few groups is far noisier than the paper's: say so beside the table, not on hover
                 "few_groups": bool(counts) and counts[-1] * 3 <= PAPER_GROUPS,
+            }
+        )
+    return out
+
+
+def reproduction_scores(data: Mapping[str, Any], titles: Mapping[str, str]) -> list[dict[str, Any]]:
+    """The Reproduction page's score comparisons (``data["scores"]``), one table per setting: the compared
+    methods down, per dataset our score and the one from the paper's figures across, then the Spearman of the
+    two per dataset. A method not compared on a dataset (a figure missing there) shows no score there."""
+    by_setting: dict[str, list[Mapping[str, Any]]] = {}
+    for score in data.get("scores") or []:
+        by_setting.setdefault(score["setting"], []).append(score)
+    out = []
+    for setting, scores in by_setting.items():
+        policies = list(dict.fromkeys(p for s in scores for p in s["policies"]))
+        rows = []
+        for p in policies:
+            cells = []
+            for s in scores:
+                i = s["policies"].index(p) if p in s["policies"] else None
+                cells.append(
+                    {
+                        "ours": s["ours"][i] if i is not None else None,
+                        "paper": s["paper"][i] if i is not None else None,
+                    }
+                )
+            rows.append({"policy": p, "title": titles.get(p, p), "cells": cells})
+        out.append(
+            {
+                "setting": setting,
+                "datasets": [s["dataset"] for s in scores],
+                # the same per dataset: the setting's weights without Decision Time, renormalised
+                "weights": " · ".join(
+                    f"{METRIC_BY_KEY[k].label} {w:.2f}" for k, w in scores[0]["weights"].items()
+                ),
+                "rows": rows,
+                "spearman": [s["spearman"] for s in scores],
             }
         )
     return out

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
 
 from robobpp.datasets import episode_specs
+from robobpp.episode import EpisodeResult
 from robobpp.policies import load_policy
 from robobpp.replay import run_paper_protocol
+from robobpp.reproduction import EXPECTED
 from tests.cli.test_evaluate import robobpp
 
 
@@ -116,6 +119,71 @@ def test_evaluate_protocol_reaches_the_json(real_data: Path, tmp_path: Path) -> 
         ("closed", 1),
         ("paper", 1),
     ]
+
+
+def _episode(policy: str, group: int, utilization: float, occupancy: float, seconds: float) -> dict:
+    """A Math Pack episode of the repetitive dataset as `robobpp reproduce --json` writes one (no trace)."""
+    result = EpisodeResult(
+        episode_id=f"repetitive-train-{group}",
+        dataset="repetitive",
+        split="train",
+        group=group,
+        setting="math",
+        policy=policy,
+        seed=0,
+        boxes_total=20,
+        boxes_placed=18,
+        termination="no_feasible",
+        termination_detail="",
+        metrics={"space_utilization": utilization, "occupancy": occupancy, "decision_time": seconds},
+        counters={},
+        container={"length": 1.2, "width": 1.0, "height": 1.5},
+    )
+    return result.to_dict(trace=False)
+
+
+def test_merge_to_markdown_says_what_is_expected(tmp_path: Path) -> None:
+    """From a hand-made --json file: why each metric differs, Decision Time not compared, the score comparison
+    and the paper's other methods as paper-reported rows."""
+    figures = {"dbl": (0.6, 0.9, 0.01), "hm": (0.5, 1.0, 0.02), "lsah": (0.7, 0.8, 0.03)}
+    episodes = [_episode(p, g, *f) for p, f in figures.items() for g in (0, 1)]
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps({"protocol": "paper", "split": "train", "seed": 0, "episodes": episodes}))
+    proc = robobpp("reproduce", "--merge", str(path), "--markdown")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert "groups repetitive 2" in out and "**Math Pack · Space Utilization**" in out
+    utilization = out.split("**Math Pack · Space Utilization**")[1].split("**Math Pack · Occupancy**")[0]
+    assert EXPECTED["space_utilization"].why in utilization
+    assert f"({EXPECTED['space_utilization'].doc})" in utilization
+    # 0.6, 0.5, 0.7 against the paper's 0.617, 0.579, 0.619: the same order
+    assert "| **Spearman** |  | 1.00 |  |" in utilization
+    for method in ("AR2L", "TAP-Net++", "CDRL", "PackE"):  # the paper's figure, nothing of ours
+        assert re.search(
+            rf"^\| {re.escape(method)} \(paper-reported\) \| \d\.\d{{3}} \| – \| – \|$", utilization, re.M
+        )
+    timing = out.split("**Math Pack · Decision Time**")[1].split("**Math Pack · Score")[0]
+    assert "| **Spearman** |  | not compared |  |" in timing and EXPECTED["decision_time"].why in timing
+    # ours: 0.5, 0.26/0.86, 0.6/0.86 (as in tests/reproduction); the paper's figures: Space Utilization 0.617,
+    # 0.579, 0.619 and Occupancy 0.911, 0.960, 0.908 min–max normalised
+    score = out.split("**Math Pack · Score (Decision Time left out)**")[1]
+    su = [(0.617 - 0.579) / 0.040, 0.0, 1.0]
+    occ = [(0.911 - 0.908) / 0.052, 1.0, 0.0]
+    paper = [(0.60 * u + 0.26 * o) / 0.86 for u, o in zip(su, occ, strict=True)]
+    assert f"| DBL | 0.500 | {paper[0]:.3f} |" in score and f"| HM | 0.302 | {paper[1]:.3f} |" in score
+    assert f"| LSAH | 0.698 | {paper[2]:.3f} |" in score and "| **Spearman** |  | 1.00 |" in score
+    assert "AR2L" not in score
+    # the terminal tables say the same
+    terminal = robobpp("reproduce", "--merge", str(path))
+    assert terminal.returncode == 0, terminal.stderr
+    assert (
+        "not compared" in terminal.stdout and "Math Pack · Score (Decision Time left out)" in terminal.stdout
+    )
+    assert "AR2L (paper-reported)" in terminal.stdout and "docs/benchmark.md#metrics" in terminal.stdout
+    data = path.with_name("again.json")
+    assert robobpp("reproduce", "--merge", str(path), "--json", str(data)).returncode == 0
+    (scores,) = json.loads(data.read_text())["comparison"]["scores"]
+    assert scores["policies"] == ["dbl", "hm", "lsah"] and scores["paper"] == pytest.approx(paper)
 
 
 @pytest.mark.parametrize(

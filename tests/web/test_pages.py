@@ -9,6 +9,7 @@ import pytest
 
 from robobpp.core import Action, Observation
 from robobpp.policies.dbl import DBL
+from robobpp.reproduction import EXPECTED
 from tests.web.conftest import (
     ADMIN_TOKEN,
     HOSTILE_PARTICIPANT,
@@ -320,7 +321,13 @@ def test_reproduction_page(server: Server, probe: PageProbe) -> None:
     policies = table.locator("tbody tr[data-policy]").evaluate_all(
         "(rows) => rows.map((r) => r.dataset.policy)"
     )
-    assert policies == ["dbl", "hm", "lsah", "onlinebph"]  # the paper's baselines the server ran, its order
+    # the paper's baselines the server ran, its order; then its methods robobpp does not run, its figures only
+    assert policies == ["dbl", "hm", "lsah", "onlinebph", "ar2l", "tap-net++", "cdrl", "packe"]
+    reported = table.locator("tbody tr[data-paper-reported]")
+    assert reported.count() == 4 and reported.locator(".badge", has_text="paper-reported").count() == 4
+    assert reported.first.locator(".badge").is_visible()
+    ar2l = reported.first.locator("td").all_inner_texts()
+    assert ar2l[0].startswith("AR2L") and float(ar2l[1]) > 0 and ar2l[2:4] == ["—", "—"]
     first = table.locator("tbody tr[data-policy=dbl] td").all_inner_texts()
     assert len(first) == 1 + 3 * 3 and first[0] == "DBL"
     paper, ours, diff = (float(first[1]), float(first[2]), float(first[3]))
@@ -332,6 +339,25 @@ def test_reproduction_page(server: Server, probe: PageProbe) -> None:
     assert "Far fewer groups" in groups.inner_text()
     spearman = table.locator("tr.summary").first.locator("td").all_inner_texts()
     assert spearman[0] == "Spearman" and all(-1 <= float(v) <= 1 for v in spearman[1:])
+    # under the table: why its figures differ, with its docs reference
+    why = table.locator("xpath=../following-sibling::p[@data-role='expected'][1]")
+    assert why.is_visible() and EXPECTED["space_utilization"].why in why.inner_text()
+    assert EXPECTED["space_utilization"].doc in why.inner_text()
+    # Decision Time measures the paper's hardware: its ranking is not compared
+    timing = probe.page.locator("table[data-setting=physics][data-metric=decision_time]")
+    assert timing.locator("tr.summary").first.locator("td").all_inner_texts()[1:] == ["not compared"] * 3
+    # the score comparison, Decision Time left out: the baselines run, ours beside the paper's figures'
+    score = probe.page.locator("table[data-role=score][data-setting=physics]")
+    assert score.is_visible()
+    assert score.locator("tbody tr[data-policy]").evaluate_all(
+        "(rows) => rows.map((r) => r.dataset.policy)"
+    ) == [
+        "dbl",
+        "hm",
+        "lsah",
+        "onlinebph",
+    ]
+    assert all(0 <= float(v) <= 1 for v in score.locator("tr[data-policy=dbl] td").all_inner_texts()[1:])
     # Math Pack is compared too; every table's column order: paper | ours | diff per dataset
     assert probe.page.locator("table[data-setting=math][data-metric=space_utilization]").count() == 1
     probe.shot("reproduction")

@@ -466,6 +466,8 @@ def test_reproduction_tables_say_how_many_groups_are_behind_ours() -> None:
             nav="",
             track="private",
             tables=[table],
+            scores=[],
+            docs_url="",
             table_captions={},
             data={"paper": "the paper"},
             PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
@@ -479,3 +481,82 @@ def test_reproduction_tables_say_how_many_groups_are_behind_ours() -> None:
         not reproduction_tables(many, {})[0]["few_groups"]
         and reproduction_tables(many, {})[0]["groups"] == "30"
     )
+
+
+def _reproduction_page(data: dict, docs_url: str) -> str:
+    from robobpp.paper import paper_tables
+    from robobpp.web.tables import reproduction_scores, reproduction_tables
+
+    titles = paper_tables().methods
+    return (
+        environment()
+        .get_template("reproduction.html")
+        .render(
+            root="",
+            static="/static",
+            title="t",
+            nav="",
+            track="private",
+            tables=reproduction_tables(data, titles),
+            scores=reproduction_scores(data, titles),
+            docs_url=docs_url,
+            table_captions={},
+            data=data,
+            PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
+            SETTING_TITLES={"physics": "Physics Pack"},
+        )
+    )
+
+
+def _text(html: str) -> str:
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
+
+
+def test_reproduction_page_says_what_is_expected() -> None:
+    """Each metric's table says why its figures differ and links the docs; Decision Time has no Spearman; the
+    score comparison and the paper's other methods (paper-reported, compared with nothing) are shown."""
+    from robobpp.reproduction import EXPECTED, compare
+
+    figures = {
+        ("physics", "diverse", p, m): v
+        for p, (su, occ, dt, local, static) in {
+            "dbl": (0.5, 0.8, 0.01, 0.002, 0.9),
+            "hm": (0.4, 0.9, 0.02, 0.001, 1.0),
+            "lsah": (0.6, 0.7, 0.03, 0.003, 0.8),
+        }.items()
+        for m, v in zip(
+            ("space_utilization", "occupancy", "decision_time", "local_stability", "static_stability"),
+            (su, occ, dt, local, static),
+            strict=True,
+        )
+    }
+    data = {**compare(figures).to_dict(), "runs": []}
+    html = _reproduction_page(data, "https://docs.example/robobpp/")
+    blocks = html.split("<h3>")[1:]
+    timing = next(b for b in blocks if b.startswith("Decision Time"))
+    assert 'data-role="not-compared"' in timing and "not compared" in _text(timing)
+    utilization = next(b for b in blocks if b.startswith("Space Utilization"))
+    assert "not compared" not in _text(utilization)
+    for block, metric in ((utilization, "space_utilization"), (timing, "decision_time")):
+        expected = EXPECTED[metric]
+        assert expected.why.replace("'", "&#39;") in block
+        assert f'<a href="https://docs.example/robobpp/{expected.doc}">{expected.doc}</a>' in block
+    # the paper's other methods: its figures only, marked, and outside the Spearman (3 baselines, not 7)
+    reported = re.findall(
+        r'<tr data-policy="([^"]+)" class="paper-reported" data-paper-reported>', utilization
+    )
+    assert reported == ["ar2l", "tap-net++", "cdrl", "packe"]
+    row = _text(utilization.split('data-policy="ar2l"')[1].split(">", 1)[1].split("</tr>")[0])
+    assert "AR2L paper-reported" in row and row.count("—") == 2
+    # the score comparison: Physics's weights without Decision Time, ours beside the paper's figures'
+    score = html.split('data-role="score"')[1].split("</table>")[0]
+    weights = _text(html.split('id="physics-score"')[1].split("</p>")[0])
+    assert "Space Utilization 0.48 · Occupancy 0.21 · Local Stability 0.10 · Static Stability 0.21" in weights
+    (scored,) = data["scores"]
+    assert re.findall(r'<tr data-policy="([^"]+)">', score) == ["dbl", "hm", "lsah"]
+    dbl = _text(score.split('data-policy="dbl">')[1].split("</tr>")[0]).split()
+    assert dbl == ["DBL", f"{scored['ours'][0]:.3f}", f"{scored['paper'][0]:.3f}"]
+    assert "ar2l" not in score
+    # without a docs URL the references are paths, never a link to a page the server does not have
+    plain = _reproduction_page(data, "")
+    assert f"<code>{EXPECTED['decision_time'].doc}</code>" in plain and "docs.example" not in plain

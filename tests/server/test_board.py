@@ -17,6 +17,7 @@ from robobpp.db.models import Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
+from robobpp.sim.physics.config import PHYSICS_VERSION
 from robobpp.worker.options import worker_options
 from robobpp.worker.run import claim_and_run
 from tests.server.conftest import submit_direct
@@ -235,7 +236,11 @@ def test_stale_baselines_are_queued_again(tmp_path: Path) -> None:
             # every one "finished": its episodes done under the current physics
             s.execute(update(Submission).values(status="completed"))
             s.execute(update(EpisodeRow).values(status="done"))
-            s.execute(update(EpisodeRow).where(EpisodeRow.setting == "physics").values(physics_version="4"))
+            s.execute(
+                update(EpisodeRow)
+                .where(EpisodeRow.setting == "physics")
+                .values(physics_version=PHYSICS_VERSION)
+            )
             old_physics = ids["builtin:dbl"]
             s.execute(
                 update(EpisodeRow)
@@ -257,7 +262,11 @@ def test_stale_baselines_are_queued_again(tmp_path: Path) -> None:
         with app.state.runtime.session() as s:
             s.execute(update(Submission).values(status="completed"))
             s.execute(update(EpisodeRow).values(status="done"))
-            s.execute(update(EpisodeRow).where(EpisodeRow.setting == "physics").values(physics_version="4"))
+            s.execute(
+                update(EpisodeRow)
+                .where(EpisodeRow.setting == "physics")
+                .values(physics_version=PHYSICS_VERSION)
+            )
             assert ensure_baselines(s, wider) == 4
     finally:
         app.state.runtime.dispose()

@@ -111,7 +111,7 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
     assert (prov["robobpp"], prov["commit"]) == (robobpp.__version__, provenance.git_commit())
     assert "datasets_manifest_sha256" in prov and prov["physics"] is None
     assert (prov["math_rules"], prov["sampler"], prov["anchors"]) == (
-        "1",
+        MATH_RULES_VERSION,
         None,
         ANCHORS_VERSION,
     )  # offline boxes
@@ -156,7 +156,9 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
         assert int(row["entries_submitted"]) == entry["entries_submitted"]
     md = export("md")
     assert md.startswith("**math/diverse · private track**") and "| rank | entry |" in md
-    assert "math_rules 1" in md and "split test" in md and "anchors " + ANCHORS_VERSION in md
+    assert (
+        f"math_rules {MATH_RULES_VERSION}" in md and "split test" in md and "anchors " + ANCHORS_VERSION in md
+    )
     assert "\\begin{tabular}" in export("latex")
     grid = runner.invoke(app, ["leaderboard", "--format", "md"], env=env)
     assert grid.exit_code == 0, grid.output

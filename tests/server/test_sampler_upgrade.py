@@ -17,6 +17,7 @@ from robobpp.db.models import EpisodeRow, RunRow, Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap, ensure_baselines, ensure_private_split
 from robobpp.server.config import Settings
+from robobpp.sim.math_pack import MATH_RULES_VERSION
 
 ADMIN = "sampler-admin-token-0123456789abcdef"
 
@@ -80,7 +81,7 @@ def test_baselines_whose_runs_another_sampler_drew_are_queued_again(tmp_path: Pa
                 s.execute(
                     update(RunRow)
                     .where(RunRow.submission_id == ids[url])
-                    .values(extras={"provenance": {"math_rules": "1", "sampler": sampler}})
+                    .values(extras={"provenance": {"math_rules": MATH_RULES_VERSION, "sampler": sampler}})
                 )
         with app.state.runtime.session() as s:
             assert ensure_baselines(s, settings) == 1

@@ -456,24 +456,7 @@ def test_reproduction_tables_say_how_many_groups_are_behind_ours() -> None:
     }
     (table,) = reproduction_tables(data, {"dbl": "DBL"})
     assert table["groups"] == "2" and table["paper_groups"] == 30 and table["few_groups"]
-    html = (
-        environment()
-        .get_template("reproduction.html")
-        .render(
-            root="",
-            static="/static",
-            title="t",
-            nav="",
-            track="private",
-            tables=[table],
-            scores=[],
-            docs_url="",
-            table_captions={},
-            data={"paper": "the paper"},
-            PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
-            SETTING_TITLES={"physics": "Physics Pack"},
-        )
-    )
+    html = _reproduction_page({**data, "paper": "the paper"}, docs_url="")
     text = re.sub(r"<[^>]+>", "", html.split('data-role="groups"')[1].split("</p>")[0])
     assert "Ours: 2 groups per figure; the paper’s: 30." in text and "Far fewer groups" in text
     many = {**data, "runs": [{**r, "groups": 30} for r in data["runs"]]}

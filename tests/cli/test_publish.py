@@ -4,6 +4,7 @@
 import csv
 import io
 import json
+import os
 import subprocess
 from pathlib import Path
 
@@ -89,6 +90,7 @@ def test_evaluate_records_its_provenance(evaluated, real_data):
     assert list(got) == list(provenance.FIELDS)
     assert got["robobpp"] == robobpp.__version__ and got["commit"] == provenance.git_commit()
     assert got["datasets_manifest_sha256"] == provenance.datasets_manifest_sha256(real_data)
+    assert got["machine"] == provenance.machine()  # Decision Time's machine
     assert got["physics"] is None  # Math Pack: no physics
     assert (got["math_rules"], got["sampler"], got["anchors"]) == (
         MATH_RULES_VERSION,
@@ -331,3 +333,15 @@ def test_grid_and_board_csvs_print_every_figure_at_one_precision():
     line = dict(zip(*csv.reader(io.StringIO(board_csv(board))), strict=True))
     assert line["score"] == "0.142857142857" and line["space_utilization"] == "0.580695045762"
     assert line["space_utilization_high"] == "0.666666666667"
+
+
+def test_provenance_names_the_machine_but_boards_do_not_split_on_it(tmp_path):
+    """Decision Time is wall-clock: every result names the CPU model and its logical cores (it named none)."""
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nmodel name\t: AMD EPYC  7763 64-Core Processor\nflags\t: fpu\n")
+    assert provenance.cpu_model(cpuinfo) == "AMD EPYC 7763 64-Core Processor"
+    assert provenance.cpu_model(tmp_path / "none")  # no /proc: what platform knows
+    here = provenance.environment()["machine"]
+    assert here == provenance.machine() and f"({os.cpu_count()} logical cores)" in here
+    assert "machine" in provenance.FIELDS and "machine" not in provenance.recorded_rules()
+    assert f"machine {here}" in provenance.one_line(provenance.environment())

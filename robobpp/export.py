@@ -63,6 +63,9 @@ class Sheet:
     headers: list[str]
     rows: list[list[Cell]] = field(default_factory=list)
     note: str = ""
+    #: What the figures' intervals are ("bootstrap 95 % interval over groups"): each format says where it
+    #: put them (Markdown in brackets, LaTeX in small type under the figure) before the note.
+    intervals: str = ""
 
 
 def _interval(low: Any, high: Any) -> tuple[float, float] | None:
@@ -249,9 +252,8 @@ def run_sheet(payload: Mapping[str, Any]) -> Sheet:
             ]
         )
     confidence = float(payload.get("confidence") or 0.95)
-    sheet.note = f"Brackets: bootstrap {100 * confidence:.0f} % interval over groups. " + one_line(
-        payload.get("provenance") or {}
-    )
+    sheet.intervals = f"bootstrap {100 * confidence:.0f} % interval over groups"
+    sheet.note = one_line(payload.get("provenance") or {})
     return sheet
 
 
@@ -380,8 +382,9 @@ def board_sheet(
             ]
         )
     confidence = float(board.get("confidence") or 0.95)
+    sheet.intervals = f"bootstrap {100 * confidence:.0f} % interval over groups"
     sheet.note = (
-        f"{source_line(server, exported or today())} Brackets: bootstrap {100 * confidence:.0f} % interval over groups; rank (interval) in "
+        f"{source_line(server, exported or today())} Rank (interval): the ranks in "
         f"{100 * confidence:.0f} % of resamples. Ranked by the {board.get('ranked_by', 'relative')} score, "
         "which depends on the other entries; the stable score does not. " + one_line(board_provenance(board))
     )
@@ -515,8 +518,9 @@ def markdown(sheet: Sheet) -> str:
         "|" + "|".join("---" if i < 2 else "---:" for i in range(len(sheet.headers))) + "|",
     ]
     lines += ["| " + " | ".join(esc(_markdown_cell(c)) for c in row) + " |" for row in sheet.rows]
-    if sheet.note:
-        lines += ["", esc(sheet.note)]
+    note = f"Brackets: {sheet.intervals}. {sheet.note}" if sheet.intervals else sheet.note
+    if note:
+        lines += ["", esc(note)]
     return "\n".join(lines) + "\n"
 
 
@@ -602,6 +606,12 @@ def _latex_header(header: str, align: str) -> str:
     )
 
 
+def _latex_note(sheet: Sheet) -> str:
+    return (
+        f"Small type under a figure: its {sheet.intervals}. {sheet.note}" if sheet.intervals else sheet.note
+    )
+
+
 def latex(sheet: Sheet, *, wide: bool = False) -> str:
     """A ``table`` with a ``tabular`` (booktabs rules: ``\\usepackage{booktabs}``) and the note as caption;
     ``wide``: a ``table*``, across both columns of a two-column paper."""
@@ -623,7 +633,7 @@ def latex(sheet: Sheet, *, wide: bool = False) -> str:
     lines += [
         r"\bottomrule",
         r"\end{tabular}",
-        rf"\caption{{{latex_escape(sheet.title)}. {latex_escape(sheet.note)}}}",
+        rf"\caption{{{latex_escape(sheet.title)}. {latex_escape(_latex_note(sheet))}}}",
         rf"\end{{{env}}}",
     ]
     return "\n".join(lines) + "\n"

@@ -431,6 +431,7 @@ def test_the_latex_layout_fits_a_column_and_wide_spans_two():
     assert "0.319\\\\\\scriptsize 0.239--0.391" in tex
     assert "0.00110\\\\\\scriptsize 0.00085--0.00140" in tex  # seconds: significant figures, not 0.001
     assert "makecell" not in tex and "\\begin{tabular}[b]{@{}r@{}}Space\\\\Utilization $\\uparrow$" in tex
+    assert "Brackets" not in tex and "Small type under a figure: its bootstrap 95 \\% interval" in tex
     wide = render_run(RUN, "latex", wide=True)
     assert wide.startswith("\\begin{table*}\n") and wide.rstrip().endswith("\\end{table*}")
     assert "[0.2393, 0.3911]" in render_run(RUN, "md")  # Markdown keeps the one-line form

@@ -6,9 +6,10 @@ provenance (robobpp/provenance.py): a table's note names the versions, machine, 
 groups it was made with; the CSVs carry them in columns. A board's table also names its server and the date it
 was exported, as docs/reporting.md asks of a relative score.
 
-Markdown writes a figure on one line, "0.3194 [0.2393, 0.3911]". LaTeX is laid out for a paper's column: three
+Markdown writes a figure on one line, "0.3194 [0.2393, 0.3911]". LaTeX is compact, about half as wide: three
 decimals, the interval in small type under its figure ("0.319" over "0.239--0.391"), long headers and the
-terminations on several lines; ``wide`` makes it a ``table*`` across both columns of a two-column paper. The
+terminations on several lines; ``wide`` makes it a ``table*`` across both columns of a two-column paper, whose
+single column even nine compact columns exceed (docs/reporting.md, "A table in a paper"). The
 interval stays an interval rather than a ``±`` half-width because bootstrap intervals are not symmetric (a
 utilisation near its ceiling has a short upper arm): a ``±`` would misstate one end.
 """

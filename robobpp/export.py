@@ -27,8 +27,8 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from robobpp.episode import TERMINATION_REASONS, TERMINATION_SHORT
+from robobpp.paper import DATASET_ORDER, SETTING_ORDER, place_in_order
 from robobpp.provenance import FIELDS, merge, one_line
-from robobpp.reproduction import DATASET_ORDER, SETTING_ORDER, place_in_order
 from robobpp.scoring.metrics import METRIC_BY_KEY, METRICS, metrics_for
 
 FORMATS = ("csv", "md", "latex")

@@ -21,7 +21,7 @@ import numpy as np
 
 from robobpp.core import EpisodeSpec
 from robobpp.episode import EpisodeResult, run_episode
-from robobpp.paper import PAPER_BASELINES, paper_tables
+from robobpp.paper import DATASET_ORDER, PAPER_BASELINES, SETTING_ORDER, paper_tables, place_in_order
 from robobpp.policies import Policy, load_policy
 from robobpp.replay import PAPER, PAPER_SETTINGS, check_protocol, run_paper_protocol
 from robobpp.scoring.metrics import METRIC_BY_KEY, aggregate, metrics_for
@@ -31,8 +31,6 @@ from robobpp.sim import Setting
 #: (setting, dataset, policy, metric)
 Key = tuple[str, str, str, str]
 
-SETTING_ORDER = ("math", "physics", "execution")
-DATASET_ORDER = ("repetitive", "diverse", "longboard")
 #: The paper's PPH: its real robot's mean speed and the fixed grasp + release time per operation.
 ROBOT_SPEED_M_S = 0.34
 IDLE_S = 2.0
@@ -280,11 +278,6 @@ class Comparison:
             "expected": {metric: asdict(e) for metric, e in EXPECTED.items()},
             "scores": [asdict(c) for c in self.scores],
         }
-
-
-def place_in_order(item: str, order: Sequence[str]) -> tuple[int, str]:
-    """Sort key: ``order``'s items first, in its order, then the rest by name."""
-    return (order.index(item) if item in order else len(order), item)
 
 
 def _ordered(items: Iterable[str], order: Sequence[str]) -> tuple[str, ...]:

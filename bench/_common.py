@@ -21,7 +21,9 @@ def median(values: list[float]) -> float:
 
 
 def machine() -> str:
-    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    from robobpp.provenance import cpu_model  # the CPU's name as results record it (platform often has none)
+
+    return f"{cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
 class CpuPerStep:

@@ -97,9 +97,9 @@ def mean(episodes: list[dict[str, Any]], protocol: str, key: str = "space_utiliz
 
 
 def endings(episodes: list[dict[str, Any]], protocol: str) -> str:
-    counts = Counter(e[protocol]["termination"] for e in episodes if protocol in e)
-    short = {"no_feasible_placement": "no place", "completed": "done", "collapse": "collapse"}
-    return ", ".join(f"{short.get(k, k)} {v}" for k, v in counts.most_common())
+    from robobpp.export import endings as ending_counts  # the exports' labels: "collapse 27, no place 2"
+
+    return ending_counts(Counter(e[protocol]["termination"] for e in episodes if protocol in e))
 
 
 def print_table(cells: dict[str, dict[str, dict[str, Any]]]) -> None:

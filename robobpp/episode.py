@@ -55,6 +55,23 @@ TERMINATION_REASONS: dict[str, str] = {
     "dangerous_operations": "the robot's third dangerous operation",
 }
 
+#: Each reason as a table cell names it ("collapse 18, no place 12": robobpp/export.py, docs/baselines.md).
+TERMINATION_SHORT: dict[str, str] = {
+    COMPLETED: "done",
+    NO_FEASIBLE_PLACEMENT: "no place",
+    "invalid_action": "invalid action",
+    "out_of_bounds": "out of bounds",
+    "too_high": "too high",
+    COLLAPSE: "collapse",
+    POLICY_ERROR: "policy error",
+    "policy_timeout": "policy timeout",
+    "protocol_violation": "protocol violation",
+    EPISODE_TIMEOUT: "episode timeout",
+    "failed_grasp": "failed grasp",
+    "place_plan_failed": "no place plan",
+    "dangerous_operations": "dangerous ops",
+}
+
 
 @dataclass(slots=True)
 class StepRecord:

@@ -10,9 +10,21 @@ and Execution figures are Math Pack plans replayed open loop (the ``paper`` prot
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from importlib import resources
+
+#: The order of the paper's tables: settings, and datasets within a setting (the reproduction's tables and
+#: every export's rows follow it).
+SETTING_ORDER = ("math", "physics", "execution")
+DATASET_ORDER = ("repetitive", "diverse", "longboard")
+
+
+def place_in_order(item: str, order: Sequence[str]) -> tuple[int, str]:
+    """Sort key: ``order``'s items first, in its order, then the rest by name."""
+    return (order.index(item) if item in order else len(order), item)
+
 
 #: The paper's seven heuristics, in its order, then its learned policy that robobpp ships (PCT).
 PAPER_HEURISTICS: tuple[str, ...] = ("dbl", "hm", "lsah", "onlinebph", "br", "macs", "sdfpack")

@@ -6,6 +6,9 @@ checkout), the datasets it drew from, the physics, the Math Pack rules, the grou
 anchors; and what was run: protocol, lookahead (the next boxes the policy saw), split, seed, groups. Boards
 never mix versions of the physics, the rules or the sampler (robobpp/db/queries.py), nor lookaheads (each has
 boards of its own).
+
+It also names the machine that ran the episodes (CPU model, logical cores): Decision Time is wall-clock and
+means something only beside it. The machine is not a rule: boards do not split on it (``recorded_rules``).
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
+import platform
 import subprocess
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -25,6 +30,7 @@ FIELDS = (
     "robobpp",
     "commit",
     "datasets_manifest_sha256",
+    "machine",
     "physics",
     "math_rules",
     "sampler",
@@ -90,12 +96,35 @@ def datasets_manifest_sha256(root: Path | None = None) -> str | None:
     return hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
+def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The CPU's marketing name ("AMD EPYC 7763 64-Core Processor"): Linux's ``model name``, else what
+    :mod:`platform` knows (often only the architecture, "arm64", on macOS and on ARM Linux)."""
+    try:
+        for line in cpuinfo.read_text(encoding="utf-8", errors="replace").splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                return " ".join(value.split())  # some kernels pad the name with runs of spaces
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
+
+
+@functools.cache
+def machine() -> str:
+    """The machine as a provenance shows it: "<CPU model> (<n> logical cores)", without commas so that a list
+    of several machines (:func:`merged`) still reads as one line."""
+    cores = os.cpu_count()
+    return f"{cpu_model().replace(',', ' ')} ({cores or '?'} logical cores)"
+
+
 def environment() -> dict[str, str | None]:
-    """The parts of a provenance that come from the running installation rather than from the episodes."""
+    """The parts of a provenance that come from the running installation rather than from the episodes:
+    what code and data ran, and on which machine (for Decision Time, docs/reporting.md)."""
     return {
         "robobpp": __version__,
         "commit": git_commit(),
         "datasets_manifest_sha256": datasets_manifest_sha256(),
+        "machine": machine(),
     }
 
 

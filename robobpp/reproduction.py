@@ -21,7 +21,7 @@ import numpy as np
 
 from robobpp.core import EpisodeSpec
 from robobpp.episode import EpisodeResult, run_episode
-from robobpp.paper import PAPER_BASELINES, paper_tables
+from robobpp.paper import DATASET_ORDER, PAPER_BASELINES, SETTING_ORDER, paper_tables, place_in_order
 from robobpp.policies import Policy, load_policy
 from robobpp.replay import PAPER, PAPER_SETTINGS, check_protocol, run_paper_protocol
 from robobpp.scoring.metrics import METRIC_BY_KEY, aggregate, metrics_for
@@ -31,8 +31,6 @@ from robobpp.sim import Setting
 #: (setting, dataset, policy, metric)
 Key = tuple[str, str, str, str]
 
-SETTING_ORDER = ("math", "physics", "execution")
-DATASET_ORDER = ("repetitive", "diverse", "longboard")
 #: The paper's PPH: its real robot's mean speed and the fixed grasp + release time per operation.
 ROBOT_SPEED_M_S = 0.34
 IDLE_S = 2.0
@@ -282,13 +280,8 @@ class Comparison:
         }
 
 
-def _place(item: str, order: Sequence[str]) -> tuple[int, str]:
-    """Sort key: ``order``'s items first, in its order, then the rest by name."""
-    return (order.index(item) if item in order else len(order), item)
-
-
 def _ordered(items: Iterable[str], order: Sequence[str]) -> tuple[str, ...]:
-    return tuple(sorted(items, key=lambda x: _place(x, order)))
+    return tuple(sorted(items, key=lambda x: place_in_order(x, order)))
 
 
 def ranks(values: Sequence[float]) -> np.ndarray:
@@ -351,11 +344,11 @@ def compare(ours: Mapping[Key, float | None], metrics: Sequence[str] | None = No
             )
     cells.sort(
         key=lambda c: (
-            _place(c.setting, SETTING_ORDER),
-            _place(c.dataset, DATASET_ORDER),
+            place_in_order(c.setting, SETTING_ORDER),
+            place_in_order(c.dataset, DATASET_ORDER),
             c.paper_only,
-            _place(c.policy, PAPER_ONLY if c.paper_only else PAPER_BASELINES),
-            _place(c.metric, compared_metrics(c.setting)),
+            place_in_order(c.policy, PAPER_ONLY if c.paper_only else PAPER_BASELINES),
+            place_in_order(c.metric, compared_metrics(c.setting)),
         )
     )
     return Comparison(tuple(cells), _agreement(cells), compare_scores(ours))
@@ -429,7 +422,7 @@ def compare_scores(
         theirs = {(v.setting, v.dataset, v.method, v.metric): v.value for v in paper_tables().values}
     boards = sorted(
         {(s, d) for s, d, _, _ in ours},
-        key=lambda sd: (_place(sd[0], SETTING_ORDER), _place(sd[1], DATASET_ORDER)),
+        key=lambda sd: (place_in_order(sd[0], SETTING_ORDER), place_in_order(sd[1], DATASET_ORDER)),
     )
     out = []
     for setting, dataset in boards:

@@ -14,6 +14,13 @@ from robobpp.cli.common import fail
 FormatOpt = Annotated[
     str, typer.Option("--format", help="csv (one row per group), md or latex (summary table).")
 ]
+WideOpt = Annotated[
+    bool,
+    typer.Option(
+        "--wide",
+        help="LaTeX: a table* across both columns of a two-column paper (default: a one-column table).",
+    ),
+]
 
 
 def register(root: typer.Typer) -> None:
@@ -24,6 +31,7 @@ def export(
     result: Annotated[Path, typer.Argument(help="A file written by `robobpp evaluate --json`.")],
     fmt: FormatOpt = "md",
     out: Annotated[Path | None, typer.Option(help="Write here instead of stdout.")] = None,
+    wide: WideOpt = False,
 ) -> None:
     """Export a local run: per-group CSV, or its summary (figures with 95 % intervals, provenance) in
     Markdown or LaTeX."""
@@ -33,7 +41,7 @@ def export(
         fail(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
     try:
         payload = json.loads(result.read_text(encoding="utf-8"))
-        text = render_run(payload, fmt)
+        text = render_run(payload, fmt, wide=wide)
     except OSError as exc:
         fail(f"{result}: cannot read ({exc.strerror})")
     except (ValueError, KeyError, TypeError) as exc:

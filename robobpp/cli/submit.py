@@ -18,6 +18,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from robobpp.cli.common import fail, table_console
+from robobpp.cli.export import WideOpt
 
 if TYPE_CHECKING:
     from robobpp.client.api import ServerClient, Standing
@@ -445,6 +446,7 @@ def leaderboard(
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option(help="With --format: write here instead of stdout.")] = None,
+    wide: WideOpt = False,
     protocol: Annotated[
         str,
         typer.Option(
@@ -502,7 +504,8 @@ def leaderboard(
         from robobpp.export import render_board, render_grid
 
         render = render_board if isinstance(data, Leaderboard) else render_grid
-        write(render(data.model_dump(mode="json"), fmt), out)
+        # the caption names the server and today's date: a relative score is only quotable with its board
+        write(render(data.model_dump(mode="json"), fmt, server=server, wide=wide), out)
         return
 
     table_console().print(_board_table(data) if isinstance(data, Leaderboard) else _grid_table(data))

@@ -4,6 +4,8 @@
 import csv
 import io
 import json
+import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -89,6 +91,7 @@ def test_evaluate_records_its_provenance(evaluated, real_data):
     assert list(got) == list(provenance.FIELDS)
     assert got["robobpp"] == robobpp.__version__ and got["commit"] == provenance.git_commit()
     assert got["datasets_manifest_sha256"] == provenance.datasets_manifest_sha256(real_data)
+    assert got["machine"] == provenance.machine()  # Decision Time's machine
     assert got["physics"] is None  # Math Pack: no physics
     assert (got["math_rules"], got["sampler"], got["anchors"]) == (
         MATH_RULES_VERSION,
@@ -154,11 +157,16 @@ def test_per_group_csv_and_summary_tables(evaluated, tmp_path):
     figure = f"{run['metrics']['space_utilization']:.4f} [{low:.4f}, {high:.4f}]"
     md = run_cli("export", str(source), "--format", "md")
     assert md.returncode == 0, md.stderr
-    assert "| diverse | math | 5 | " + figure in md.stdout and f"sampler {SAMPLER_VERSION}" in md.stdout
+    boxes = f"{run['boxes_placed']:.1f}"
+    assert (
+        f"| diverse | math | 5 | {boxes} | {figure}" in md.stdout
+        and f"sampler {SAMPLER_VERSION}" in md.stdout
+    )
     tex = tmp_path / "run.tex"
     assert run_cli("export", str(source), "--format", "latex", "--out", str(tex)).returncode == 0
     text = tex.read_text()
-    assert text.startswith("\\begin{table}") and "\\toprule" in text and figure in text
+    compact = f"{run['metrics']['space_utilization']:.3f}\\\\\\scriptsize {low:.3f}--{high:.3f}"
+    assert text.startswith("\\begin{table}") and "\\toprule" in text and compact in text
     assert "datasets\\_manifest\\_sha256" in text and "95 \\% interval" in text
     again = run_cli("export", str(source), "--format", "csv")
     assert again.stdout == table.read_text()
@@ -331,3 +339,142 @@ def test_grid_and_board_csvs_print_every_figure_at_one_precision():
     line = dict(zip(*csv.reader(io.StringIO(board_csv(board))), strict=True))
     assert line["score"] == "0.142857142857" and line["space_utilization"] == "0.580695045762"
     assert line["space_utilization_high"] == "0.666666666667"
+
+
+def test_provenance_names_the_machine_but_boards_do_not_split_on_it(tmp_path):
+    """Decision Time is wall-clock: every result names the CPU model and its logical cores (it named none)."""
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nmodel name\t: AMD EPYC  7763 64-Core Processor\nflags\t: fpu\n")
+    assert provenance.cpu_model(cpuinfo) == "AMD EPYC 7763 64-Core Processor"
+    assert provenance.cpu_model(tmp_path / "none")  # no /proc: what platform knows
+    here = provenance.environment()["machine"]
+    assert here == provenance.machine() and f"({os.cpu_count()} logical cores)" in here
+    assert "machine" in provenance.FIELDS and "machine" not in provenance.recorded_rules()
+    assert f"machine {here}" in provenance.one_line(provenance.environment())
+
+
+def _run(dataset: str, setting: str, terminations: dict[str, int], boxes: float) -> dict:
+    return {
+        "dataset": dataset,
+        "setting": setting,
+        "protocol": "closed",
+        "episodes": sum(terminations.values()),
+        "boxes_placed": boxes,
+        "metrics": {"space_utilization": 0.31944, "decision_time": 0.0011},
+        "intervals": {"space_utilization": [0.23931, 0.39114], "decision_time": [0.00085, 0.0014]},
+        "stable": 0.5,
+        "stable_interval": [0.4, 0.6],
+        "terminations": terminations,
+    }
+
+
+#: A run of two datasets, listed as a user may ask for them (longboard first), with the paper's order mixed up.
+RUN = {
+    "policy": "mine",
+    "confidence": 0.95,
+    "provenance": {"robobpp": "0.1.0", "machine": "AMD EPYC 7763 (2 logical cores)", "groups": 30},
+    "runs": [
+        _run("longboard", "math", {"no_feasible_placement": 12, "collapse": 18}, 27.13),
+        _run("repetitive", "math", {"completed": 30}, 80.0),
+    ],
+    "episodes": [
+        {"dataset": d, "setting": s, "split": "train", "group": 0, "episode_id": f"{d}-{s}"}
+        | {"termination": "completed", "boxes_placed": 1, "boxes_total": 1}
+        for d, s in (
+            ("diverse", "physics"),
+            ("longboard", "math"),
+            ("diverse", "math"),
+            ("repetitive", "math"),
+        )
+    ],
+}
+
+
+def test_a_runs_tables_report_boxes_placed_and_how_episodes_ended():
+    """docs/reporting.md asks for boxes placed and the terminations: the tables had neither."""
+    from robobpp.export import render_run
+
+    md = render_run(RUN, "md")
+    assert "| boxes placed |" in md and "| terminations |" in md
+    assert "| longboard | math | 30 | 27.1 | " in md and md.rstrip().count("collapse 18, no place 12 |") == 1
+    assert "| repetitive | math | 30 | 80.0 | " in md and "done 30 |" in md
+    assert "machine AMD EPYC 7763 (2 logical cores)" in md
+    tex = render_run(RUN, "latex")
+    assert "27.1" in tex and r"\scriptsize collapse 18" in tex and r"\scriptsize no place 12" in tex
+    assert "machine AMD EPYC 7763 (2 logical cores)" in tex
+
+
+def test_rows_follow_the_papers_tables_repetitive_diverse_longboard_then_math_physics_execution():
+    """The per-group CSV ordered rows diverse, longboard, repetitive (by name); the tables as asked."""
+    from robobpp.export import render_run
+
+    rows = list(csv.DictReader(io.StringIO(render_run(RUN, "csv"))))
+    assert [(r["dataset"], r["setting"]) for r in rows] == [
+        ("repetitive", "math"),
+        ("diverse", "math"),
+        ("diverse", "physics"),
+        ("longboard", "math"),
+    ]
+    assert {r["machine"] for r in rows} == {"AMD EPYC 7763 (2 logical cores)"}
+    md = render_run(RUN, "md")
+    assert md.index("| repetitive |") < md.index("| longboard |")
+
+
+def test_the_latex_layout_fits_a_column_and_wide_spans_two():
+    """Nine columns of "0.3194 [0.2393, 0.3911]" did not fit a column: three decimals, the interval in small
+    type under its figure, no bracketed interval; a unit figure keeps significant figures; --wide: table*."""
+    from robobpp.export import render_run
+
+    tex = render_run(RUN, "latex")
+    assert tex.startswith("\\begin{table}\n") and tex.rstrip().endswith("\\end{table}")
+    assert not re.search(r"\[\d+\.\d+, \d+\.\d+\]", tex) and "0.3194" not in tex
+    assert "0.319\\\\\\scriptsize 0.239--0.391" in tex
+    assert "0.00110\\\\\\scriptsize 0.00085--0.00140" in tex  # seconds: significant figures, not 0.001
+    assert "makecell" not in tex and "\\begin{tabular}[b]{@{}r@{}}Space\\\\Utilization $\\uparrow$" in tex
+    assert "Brackets" not in tex and "Small type under a figure: its bootstrap 95 \\% interval" in tex
+    wide = render_run(RUN, "latex", wide=True)
+    assert wide.startswith("\\begin{table*}\n") and wide.rstrip().endswith("\\end{table*}")
+    assert "[0.2393, 0.3911]" in render_run(RUN, "md")  # Markdown keeps the one-line form
+
+
+def test_a_boards_caption_names_its_server_and_date():
+    """A relative score is quotable only with its board: server and date (the caption had neither)."""
+    from datetime import date
+
+    from robobpp.export import render_board, render_grid
+
+    board = {
+        "dataset": "diverse",
+        "setting": "math",
+        "track": "private",
+        "metrics": ["space_utilization"],
+        "entries": [
+            {
+                "rank": 1,
+                "name": "a",
+                "participant": "p",
+                "baseline": False,
+                "score": 1.0,
+                "score_low": 0.9,
+                "score_high": 1.0,
+                "metrics": {"space_utilization": 0.5},
+                "intervals": {"space_utilization": [0.4, 0.6]},
+            }
+        ],
+    }
+    server = "https://alice:s3cret@bpp.example.org/?x=1"
+    tex = render_board(board, "latex", server=server, exported=date(2026, 3, 1))
+    caption = tex[tex.index("\\caption{") :]
+    assert "https://bpp.example.org" in caption and "2026-03-01 (UTC)" in caption and "s3cret" not in tex
+    grid = {"track": "private", "settings": ["math"], "datasets": ["diverse"], "rows": []}
+    assert "https://bpp.example.org" in render_grid(grid, "md", server=server)
+
+
+def test_the_ending_labels_cover_every_termination_reason():
+    from robobpp.episode import TERMINATION_REASONS, TERMINATION_SHORT
+    from robobpp.export import endings
+
+    assert set(TERMINATION_SHORT) == set(TERMINATION_REASONS)
+    assert endings({"completed": 1, "collapse": 18, "no_feasible_placement": 12, "worker_lost": 0}) == (
+        "collapse 18, no place 12, done 1"
+    )

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import io
+from datetime import UTC, datetime
 from typing import Any
 
 import pytest
@@ -159,7 +160,10 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
     assert (
         f"math_rules {MATH_RULES_VERSION}" in md and "split test" in md and "anchors " + ANCHORS_VERSION in md
     )
-    assert "\\begin{tabular}" in export("latex")
+    tex = export("latex")
+    caption = tex[tex.index("\\caption{") :]  # a relative score is quotable only with its server and date
+    assert server.url in caption and f"{datetime.now(UTC).date().isoformat()} (UTC)" in caption
+    assert tex.startswith("\\begin{table}\n") and export("latex", "--wide").startswith("\\begin{table*}\n")
     grid = runner.invoke(app, ["leaderboard", "--format", "md"], env=env)
     assert grid.exit_code == 0, grid.output
     assert "| rank | entry | math/diverse | mean ↑ | stable score ↑ |" in grid.stdout

@@ -324,3 +324,13 @@ def test_a_kept_submission_row_carries_each_viewers_own_nonce(app: Any) -> None:
         cancel = f"/submissions/{sid}/cancel"
         assert two.post(cancel, data={"csrf": forms[0][0]}, follow_redirects=False).status_code == 403
         assert two.post(cancel, data={"csrf": forms[1][0]}, follow_redirects=False).status_code == 303
+
+
+def test_the_take_part_page_says_decision_time_as_the_readme_does(app: Any) -> None:
+    """The page said Decision Time was "the round trip of /act"; the evaluator subtracts its network estimate."""
+    with TestClient(app) as client:
+        page = client.get("/protocol").text
+    assert "the round trip of <code>/act</code> minus its estimate of the network round trip" in page
+    assert "(the round trip of <code>/act</code>)" not in page
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    assert "minus its own estimate of the network round trip" in readme  # the wording the page follows

@@ -13,8 +13,8 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from robobpp.db import queries
-from robobpp.paper import PAPER_BASELINES
-from robobpp.reproduction import DATASET_ORDER, SETTING_ORDER, Key, compare, with_derived
+from robobpp.paper import DATASET_ORDER, PAPER_BASELINES, SETTING_ORDER
+from robobpp.reproduction import Key, compare, with_derived
 
 BUILTIN_PREFIX = "builtin:"
 

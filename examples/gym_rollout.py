@@ -51,7 +51,8 @@ def main() -> None:
         while not terminated:  # the env ends the episode itself when nothing fits the next box
             action = greedy_action(obs, pack.action_mask())
             assert action is not None, "the env ends an episode when nothing fits its next box"
-            obs, reward, terminated, truncated, info = env.step(action)
+            # the default action space is one Discrete index per (x, y, orientation) cell
+            obs, reward, terminated, truncated, info = env.step(np.ravel_multi_index(action, pack.grid_shape))
             total += float(reward)
             steps += 1
         print(f"{episode_id}: {steps} boxes, return {total:.3f}, ended by {info['termination']}")

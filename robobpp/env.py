@@ -8,30 +8,36 @@
 
 Observation: ``heightmap`` (cm, float32, the container's 1 cm grid), ``box`` (length, width, height, mass of the
 box to place) and, with ``lookahead=N > 0``, ``lookahead`` (the next N boxes, zero-padded; absent at the default
-``lookahead=0``: an empty (0, 4) array breaks stable-baselines3's observation handling). Action: ``(x, y, orientation)`` as a
-MultiDiscrete over the grid, or with ``actions="flat"`` one Discrete index ``(x * ny + y) * 2 + orientation``.
+``lookahead=0``: an empty (0, 4) array breaks stable-baselines3's observation handling). Action, by default
+(``actions="flat"``): one Discrete index ``(x * ny + y) * 2 + orientation`` over the container's grid; with
+``actions="grid"`` an ``(x, y, orientation)`` MultiDiscrete.
 
 Masks, for masked RL: ``action_mask()`` is the boolean (x, y, orientation) grid of feasible actions — what the
 environment accepts, in every setting, as the reference's: the box inside the container and its top below the
 container height; ``action_masks()`` is the same in the action space's layout (what sb3-contrib's MaskablePPO
-calls): the flattened grid for ``actions="flat"``, and for the MultiDiscrete space the per-dimension masks
-MaskablePPO takes there (x, then y, then orientation values that occur in some feasible action — a superset,
-since one mask per dimension cannot say which combinations are feasible; use ``actions="flat"`` to mask exactly).
-``info["action_mask"]`` carries ``action_masks()`` after every reset and step.
+calls), and ``info["action_masks"]`` carries it after every reset and step. With the default flat space that is
+the flattened grid: exact, every action it admits is feasible. With ``actions="grid"`` it can only be one mask per
+dimension (x, then y, then orientation values that occur in some feasible action): a superset, and an agent that
+draws each dimension from its mask, as MaskablePPO does, combines them into infeasible actions (measured with
+``bench/bench_env_masks.py``: 50 of 50 masked random episodes ended on one, after 7.3 steps on average, and 0 of
+50 with the flat default, after 31.1); the env warns when made so.
 
 ``support_mask()`` narrows the feasible actions to those the reference's support rule accepts on the observed
 state — extra information a policy may use (the reference's PCT restricts its candidates to it in Physics and
 Execution Pack), never enforced. On a Math Pack state it equals the action mask (no rule there, as in the
 reference). It tests every position, up to about a second per step late in a physical episode, so it is computed
 only when asked; ``support_info=True`` also puts it in ``info["support_mask"]`` (same layout as
-``info["action_mask"]``) after every reset and step.
+``info["action_masks"]``) after every reset and step.
 
 When no placement is feasible for the next box the episode ends there: ``terminated=True`` and
-``info["termination"] == "no_feasible_placement"``, recorded like a policy's "no feasible placement".
+``info["termination"] == "no_feasible_placement"``, recorded like a policy's "no feasible placement". The step
+that ends an episode also carries its figures as the evaluator computes them: ``info["metrics"]`` (every metric
+the setting reports), ``info["boxes_placed"]`` and ``info["termination_detail"]``.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -110,13 +116,23 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         reward: str = "volume",
         specs: Sequence[EpisodeSpec] | None = None,
         data_seed: int = 0,
-        actions: str = "grid",
+        actions: str = "flat",
         support_info: bool = False,
     ) -> None:
         if reward not in REWARDS:
             raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)}")
         if actions not in ("grid", "flat"):
-            raise ValueError(f"unknown actions {actions!r}; expected 'grid' (x, y, orientation) or 'flat'")
+            raise ValueError(
+                f"unknown actions {actions!r}; expected 'flat' (the default) or 'grid' (x, y, orientation)"
+            )
+        if actions == "grid":
+            warnings.warn(
+                'actions="grid": the action mask of a MultiDiscrete space is one mask per dimension, a superset '
+                "of the feasible actions; an agent drawing each dimension from it (MaskablePPO) picks infeasible "
+                'combinations. actions="flat" (the default) masks exactly.',
+                UserWarning,
+                stacklevel=2,
+            )
         if specs is None:
             from robobpp.datasets import episode_specs
 
@@ -179,7 +195,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         spec = self.specs[int(index)]
         self._episode = Episode(spec, self.setting_name, lookahead=self.lookahead)
         self._observe()
-        info = {"episode_id": spec.episode_id, "action_mask": self.action_masks()}
+        info = {"episode_id": spec.episode_id, "action_masks": self.action_masks()}
         if self.support_info:
             info["support_mask"] = self._layout(self.support_mask())
         return self._encode(self._obs), info
@@ -223,9 +239,12 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self._obs = None
         terminated = self._episode.done
         if terminated:
-            term = self._episode.termination
-            info["termination"] = term.reason if term else "completed"
-        info["action_mask"] = self.action_masks()
+            result = self._episode.result("gym")
+            info["termination"] = result.termination
+            info["termination_detail"] = result.termination_detail
+            info["boxes_placed"] = result.boxes_placed
+            info["metrics"] = dict(result.metrics)
+        info["action_masks"] = self.action_masks()
         if self.support_info:
             info["support_mask"] = self._layout(self.support_mask())
         return self._encode(self._obs), reward, terminated, False, info

@@ -31,7 +31,7 @@ def test_masked_actions_fill_the_container(specs):
         mask = env.unwrapped.action_mask()
         assert mask.any()  # an episode with nothing feasible has already ended
         x, y, o = np.argwhere(mask)[0]
-        obs, reward, terminated, truncated, info = env.step(np.array([x, y, o]))
+        obs, reward, terminated, truncated, info = env.step(np.ravel_multi_index((x, y, o), mask.shape))
         assert info["placed"] and reward > 0
         total += reward
         steps += 1
@@ -42,7 +42,7 @@ def test_masked_actions_fill_the_container(specs):
 def test_infeasible_action_terminates_with_reason(specs):
     env = gym.make("robobpp/Pack-v0", specs=specs)
     env.reset(seed=0)
-    _, reward, terminated, _, info = env.step(np.array([59, 49, 0]))
+    _, reward, terminated, _, info = env.step(np.ravel_multi_index((59, 49, 0), env.unwrapped.grid_shape))
     assert terminated and reward == 0.0 and info["termination"] == "out_of_bounds"
 
 
@@ -58,7 +58,7 @@ def test_stability_reward_in_physics_setting(specs):
     rewards = []
     for _ in range(3):
         x, y, o = np.argwhere(env.unwrapped.action_mask())[0]
-        _, reward, terminated, _, info = env.step(np.array([x, y, o]))
+        _, reward, terminated, _, info = env.step(np.ravel_multi_index((x, y, o), env.unwrapped.grid_shape))
         rewards.append(reward)
         if terminated:
             break
@@ -71,8 +71,13 @@ def test_stability_reward_in_physics_setting(specs):
 def test_malformed_action_says_what_an_action_is(specs):
     env = gym.make("robobpp/Pack-v0", specs=specs).unwrapped
     env.reset(seed=0)
+    with pytest.raises(ValueError, match="one index into the flat action space"):
+        env.step(np.array([1, 2, 0]))  # an (x, y, orientation) triple where the default space takes an index
+    with pytest.warns(UserWarning, match="superset"):
+        grid = gym.make("robobpp/Pack-v0", specs=specs, actions="grid").unwrapped
+    grid.reset(seed=0)
     with pytest.raises(ValueError, match=r"\(x, y, orientation\)"):
-        env.step(np.int64(17))  # a flat index into the mask
+        grid.step(np.int64(17))  # a flat index into the mask
 
 
 @pytest.mark.network
@@ -101,25 +106,29 @@ def test_no_feasible_placement_ends_the_episode():
     specs = [make_spec([(10, 10, 6), (10, 10, 6), (1, 1, 1)], (10, 10, 10))]
     env = gym.make("robobpp/Pack-v0", specs=specs)
     _, info = env.reset(seed=0)
-    assert info["action_mask"].any()
-    _, reward, terminated, truncated, info = env.step(np.array([0, 0, 0]))
+    assert info["action_masks"].any()
+    _, reward, terminated, truncated, info = env.step(0)  # (0, 0, orientation 0)
     # the second box (6 cm on 6 cm) exceeds the 10 cm height everywhere: the episode ends with the placement
     assert terminated and not truncated and reward == pytest.approx(0.6)
     assert info["placed"] and info["termination"] == "no_feasible_placement"
-    assert not info["action_mask"].any() and not env.unwrapped.action_masks().any()
+    assert not info["action_masks"].any() and not env.unwrapped.action_masks().any()
     result = env.unwrapped._episode.result("x")
     assert result.termination == "no_feasible_placement" and result.boxes_placed == 1
+    # the step that ends the episode carries its figures, as the evaluator computes them
+    assert info["boxes_placed"] == 1 and info["termination_detail"] == result.termination_detail
+    assert info["metrics"] == result.metrics and info["metrics"]["space_utilization"] == pytest.approx(0.6)
 
 
 def test_flat_actions_and_masks_follow_the_action_space(specs):
-    flat = gym.make("robobpp/Pack-v0", specs=specs, actions="flat")
-    grid = gym.make("robobpp/Pack-v0", specs=specs)
+    flat = gym.make("robobpp/Pack-v0", specs=specs)  # the default
+    with pytest.warns(UserWarning, match="superset"):
+        grid = gym.make("robobpp/Pack-v0", specs=specs, actions="grid")
     check_env(flat.unwrapped)
     _, info = flat.reset(seed=0, options={"group": 2})
     grid.reset(seed=0, options={"group": 2})
     joint = grid.unwrapped.action_mask()
     assert flat.action_space.n == joint.size
-    np.testing.assert_array_equal(info["action_mask"], joint.reshape(-1))
+    np.testing.assert_array_equal(info["action_masks"], joint.reshape(-1))
     np.testing.assert_array_equal(flat.unwrapped.action_masks(), joint.reshape(-1))
     per_dim = grid.unwrapped.action_masks()  # MultiDiscrete: one mask per dimension, concatenated
     assert per_dim.shape == (sum(grid.action_space.nvec),)
@@ -233,12 +242,12 @@ def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
         "robobpp/Pack-v0", specs=specs, setting=setting, actions="flat", support_info=True
     ).unwrapped
     _, info = env.reset(seed=0)
-    np.testing.assert_array_equal(info["support_mask"], info["action_mask"])  # nothing placed: all supported
+    np.testing.assert_array_equal(info["support_mask"], info["action_masks"])  # nothing placed: all supported
     _, _, terminated, _, info = env.step(np.ravel_multi_index((0, 0, 0), env.grid_shape))
     assert info["placed"] and not terminated
     mask, support = env.action_mask(), env.support_mask()
     assert mask[:11, 0, 0].all()  # x = 0..10 fit (10 = 20 − 10)
-    np.testing.assert_array_equal(info["action_mask"], env.action_masks())
+    np.testing.assert_array_equal(info["action_masks"], env.action_masks())
     np.testing.assert_array_equal(info["support_mask"], support.reshape(-1))
     assert not (support & ~mask).any()  # the support mask narrows the action mask
     if setting == "math":
@@ -254,3 +263,37 @@ def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
     _, info = plain.reset(seed=0)
     assert "support_mask" not in info and plain.support_mask().any()
     plain.close()
+
+
+def _masked_random_episode(env: gym.Env, rng: np.random.Generator) -> tuple[str, int]:
+    """Draw every action from the env's own mask as MaskablePPO does (per dimension for a MultiDiscrete space):
+    (how the episode ended, steps)."""
+    pack = env.unwrapped
+    env.reset(seed=int(rng.integers(1 << 30)))
+    steps, terminated, info = 0, False, {}
+    while not terminated:
+        masks = pack.action_masks()
+        if isinstance(env.action_space, gym.spaces.Discrete):
+            action = rng.choice(np.flatnonzero(masks))
+        else:
+            nvec, start, action = env.action_space.nvec, 0, []
+            for n in nvec:
+                action.append(rng.choice(np.flatnonzero(masks[start : start + n])))
+                start += n
+            action = np.array(action)
+        _, _, terminated, _, info = env.step(action)
+        steps += 1
+    return info["termination"], steps
+
+
+def test_an_agent_that_draws_from_the_default_mask_never_picks_an_infeasible_action(specs):
+    """The default (flat) mask is exact; the per-dimension mask of actions="grid" admits combinations that are
+    not feasible, and an agent drawing from it ends episodes on them."""
+    rng = np.random.default_rng(0)
+    flat = gym.make("robobpp/Pack-v0", specs=specs)
+    endings = [_masked_random_episode(flat, rng)[0] for _ in range(10)]
+    assert set(endings) <= {"completed", "no_feasible_placement"}, endings
+    with pytest.warns(UserWarning):
+        grid = gym.make("robobpp/Pack-v0", specs=specs, actions="grid")
+    endings = [_masked_random_episode(grid, rng)[0] for _ in range(10)]
+    assert any(e not in ("completed", "no_feasible_placement") for e in endings), endings

@@ -73,7 +73,8 @@ def test_the_sdk_works_without_any_extra() -> None:
         spec = EpisodeSpec("handmade", "train", 0, boxes, ContainerSpec(20, 20, 20), 7.0, 0)
         env = gym.make("robobpp/Pack-v0", specs=[spec])
         env.reset(seed=0)
-        _, _, terminated, _, _ = env.step(np.argwhere(env.unwrapped.action_mask())[0])
+        mask = env.unwrapped.action_mask()
+        _, _, terminated, _, _ = env.step(np.ravel_multi_index(tuple(np.argwhere(mask)[0]), mask.shape))
         with BackgroundServer(create_policy_app(load_policy("dbl"), "s3cret")) as server:
             assert not check_policy_server(server.url, "s3cret").violations
             remote = run_episode(spec, load_policy(server.url, secret="s3cret"), "math")

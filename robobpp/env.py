@@ -6,6 +6,9 @@
 
 (or ``gym.make("robobpp.env:robobpp/Pack-v0", ...)`` with no import at all).
 
+Episodes: each ``reset`` draws one group of the split, seeded by the reset's seed (``options={"group": g}`` picks
+one); without ``groups`` any of the split's groups, with ``groups=N`` the first N, drawn when a reset needs it.
+
 Observation: ``heightmap`` (cm, float32, the container's 1 cm grid), ``box`` (length, width, height, mass of the
 box to place) and, with ``lookahead=N > 0``, ``lookahead`` (the next N boxes, zero-padded; absent at the default
 ``lookahead=0``: an empty (0, 4) array breaks stable-baselines3's observation handling). Action, by default
@@ -52,6 +55,9 @@ from robobpp.policies.candidates import candidate_maps
 from robobpp.scoring import metrics as M
 
 ENV_ID = GYM_ENV_ID
+#: How many groups an env without ``groups`` draws from: every group index a 31-bit draw gives (a group is a
+#: seeded draw from the split's pool, so the index only seeds it).
+ALL_GROUPS = 2**31
 #: Largest box dimension or mass the observation space admits (cm / kg); datasets stay far below.
 _MAX_BOX = 1000.0
 
@@ -111,7 +117,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         dataset: str = "repetitive",
         setting: str = "math",
         split: str = "train",
-        groups: int = 100,
+        groups: int | None = None,
         lookahead: int = 0,
         reward: str = "volume",
         specs: Sequence[EpisodeSpec] | None = None,
@@ -133,19 +139,30 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 UserWarning,
                 stacklevel=2,
             )
+        # Without ``specs`` each reset draws its group on demand (``GroupDraw``): any of the split's groups by
+        # default, the first ``groups`` with it; nothing is drawn ahead (10,000 groups cost seconds to draw).
+        self._draw: Callable[[int], EpisodeSpec] | None = None
         if specs is None:
-            from robobpp.datasets import episode_specs
+            from robobpp.datasets.sampling import GroupDraw
 
-            specs = episode_specs(dataset, split=split, groups=groups, seed=data_seed)
-        if not specs:
-            raise ValueError("the env needs at least one episode spec")
-        self.specs = list(specs)
+            if groups is not None and (isinstance(groups, bool) or not isinstance(groups, int) or groups < 1):
+                raise ValueError(f"groups must be an integer >= 1 or None (every group), got {groups!r}")
+            draw = GroupDraw(dataset, split, data_seed)
+            self._draw = draw
+            self.groups = ALL_GROUPS if groups is None else groups
+            self.specs: list[EpisodeSpec] = []
+            container = draw.spec.container
+        else:
+            if not specs:
+                raise ValueError("the env needs at least one episode spec")
+            self.specs = list(specs)
+            self.groups = len(self.specs)
+            container = self.specs[0].container
+            if any(s.container != container for s in self.specs):
+                raise ValueError("all episode specs of one env must share a container")
         self.setting_name = setting
         self.lookahead = lookahead
         self.reward_fn = REWARDS[reward]
-        container = self.specs[0].container
-        if any(s.container != container for s in self.specs):
-            raise ValueError("all episode specs of one env must share a container")
         self.container = container
         nx, ny = container.grid_shape
         observed: dict[str, spaces.Space[Any]] = {
@@ -191,8 +208,8 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self._episode.setting.close()
         index = (options or {}).get("group")
         if index is None:
-            index = int(self.np_random.integers(len(self.specs)))
-        spec = self.specs[int(index)]
+            index = int(self.np_random.integers(self.groups))
+        spec = self._draw(int(index)) if self._draw is not None else self.specs[int(index)]
         self._episode = Episode(spec, self.setting_name, lookahead=self.lookahead)
         self._observe()
         info = {"episode_id": spec.episode_id, "action_masks": self.action_masks()}

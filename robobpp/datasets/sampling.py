@@ -114,25 +114,42 @@ def episode_specs(
 
     Fetches and converts the real data on first use (needs the package index once).
     """
-    spec = check_split(dataset, split)
     _check_int("groups", groups, 0)
-    _check_int("seed", seed, 0)
-    _check_int("group_size", group_size, 1)
-    pool = load_pool(dataset, split, density_kg_m3=density_kg_m3)
-    out = []
-    for group in range(groups):
-        gseed = group_seed(dataset, split, int(seed), group)
-        indices = sample_indices(pool, spec.sampling_of(split), np.random.default_rng(gseed), group_size)
-        out.append(
-            EpisodeSpec(
-                dataset,
-                split,
-                group,
-                pool.boxes(indices),
-                spec.container,
-                spec.collapse_threshold_cm,
-                gseed,
-                SAMPLER_VERSION,
-            )
+    draw = GroupDraw(dataset, split, seed, group_size, density_kg_m3=density_kg_m3)
+    return [draw(group) for group in range(groups)]
+
+
+class GroupDraw:
+    """Any group of a split, drawn on demand: group ``g`` is the same sequence :func:`episode_specs` gives as its
+    ``g``-th, without drawing the groups before it (a Gym env draws a fresh group per reset this way)."""
+
+    def __init__(
+        self,
+        dataset: str,
+        split: str = "train",
+        seed: int = 0,
+        group_size: int = GROUP_SIZE,
+        *,
+        density_kg_m3: float | None = None,
+    ) -> None:
+        self.spec = check_split(dataset, split)
+        _check_int("seed", seed, 0)
+        _check_int("group_size", group_size, 1)
+        self.dataset, self.split, self.seed, self.group_size = dataset, split, int(seed), group_size
+        self.pool = load_pool(dataset, split, density_kg_m3=density_kg_m3)
+
+    def __call__(self, group: int) -> EpisodeSpec:
+        _check_int("group", group, 0)
+        gseed = group_seed(self.dataset, self.split, self.seed, group)
+        rng = np.random.default_rng(gseed)
+        indices = sample_indices(self.pool, self.spec.sampling_of(self.split), rng, self.group_size)
+        return EpisodeSpec(
+            self.dataset,
+            self.split,
+            group,
+            self.pool.boxes(indices),
+            self.spec.container,
+            self.spec.collapse_threshold_cm,
+            gseed,
+            SAMPLER_VERSION,
         )
-    return out

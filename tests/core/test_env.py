@@ -297,3 +297,23 @@ def test_an_agent_that_draws_from_the_default_mask_never_picks_an_infeasible_act
         grid = gym.make("robobpp/Pack-v0", specs=specs, actions="grid")
     endings = [_masked_random_episode(grid, rng)[0] for _ in range(10)]
     assert any(e not in ("completed", "no_feasible_placement") for e in endings), endings
+
+
+@pytest.mark.network
+def test_each_reset_draws_a_group_of_the_whole_split_on_demand(real_data):
+    """Without ``groups`` any group of the split, drawn at reset (nothing drawn ahead); a group is the same
+    sequence ``episode_specs`` gives; ``groups=N`` keeps to the first N."""
+    from robobpp.datasets import episode_specs
+
+    env = gym.make("robobpp/Pack-v0", dataset="repetitive").unwrapped
+    assert env.specs == []  # nothing drawn when the env is made
+    groups = {int(env.reset(seed=s)[1]["episode_id"].rsplit("-", 1)[1]) for s in range(5)}
+    assert len(groups) == 5 and max(groups) > 1000  # from the whole split, not a fixed first hundred
+    env.reset(seed=0, options={"group": 7})
+    assert env._episode.spec.boxes == episode_specs("repetitive", "train", groups=8)[7].boxes
+    again = gym.make("robobpp/Pack-v0", dataset="repetitive").unwrapped
+    assert again.reset(seed=3)[1]["episode_id"] == env.reset(seed=3)[1]["episode_id"]  # seeded
+    few = gym.make("robobpp/Pack-v0", dataset="repetitive", groups=3).unwrapped
+    assert {few.reset(seed=s)[1]["episode_id"][-3:] for s in range(20)} <= {"000", "001", "002"}
+    with pytest.raises(ValueError, match="groups must be"):
+        robobpp.env.PackEnv(dataset="repetitive", groups=0)

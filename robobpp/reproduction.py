@@ -25,7 +25,7 @@ from robobpp.paper import DATASET_ORDER, PAPER_BASELINES, SETTING_ORDER, paper_t
 from robobpp.policies import Policy, load_policy
 from robobpp.replay import PAPER, PAPER_SETTINGS, check_protocol, run_paper_protocol
 from robobpp.scoring.metrics import METRIC_BY_KEY, aggregate, metrics_for
-from robobpp.scoring.scores import WEIGHTS, normalize
+from robobpp.scoring.scores import WEIGHTS, normalize, weighted_sum
 from robobpp.sim import Setting
 
 #: (setting, dataset, policy, metric)
@@ -398,11 +398,7 @@ def weighted_min_max(columns: Mapping[str, Sequence[float]], weights: Mapping[st
     (every method equal) normalises to 0 for every method, so it contributes 0 and moves no method against
     another; the weights are not renormalised around it (every method loses that weight alike, so no order
     moves)."""
-    n = len(next(iter(columns.values()), []))
-    total = np.zeros(n)
-    for metric, weight in weights.items():
-        total += weight * np.asarray(normalize(list(columns[metric]), metric))
-    return [round(float(v), 12) for v in total]
+    return weighted_sum({metric: normalize(list(columns[metric]), metric) for metric in weights}, weights)
 
 
 def compare_scores(

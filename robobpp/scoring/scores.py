@@ -197,17 +197,24 @@ def score_entries(entries: Sequence[Mapping[str, object]], setting: str) -> list
         weights = WEIGHTS[setting]
     except KeyError:
         raise ValueError(f"unknown setting {setting!r}; expected one of {', '.join(WEIGHTS)}") from None
-    n = len(entries)
-    normalized: list[dict[str, float]] = [{} for _ in range(n)]
-    scores = [0.0] * n
-    for key, weight in weights.items():
-        column = normalize([_finite(e.get(key)) for e in entries], key)
-        for i, value in enumerate(column):
-            normalized[i][key] = value
-            scores[i] += weight * value
-    scores = [round(s, 12) for s in scores]  # ties must tie despite float summation order
+    columns = {key: normalize([_finite(e.get(key)) for e in entries], key) for key in weights}
+    scores = weighted_sum(columns, weights)
     ranks = competition_ranks(scores)
-    return [Scored(normalized[i], scores[i], ranks[i]) for i in range(n)]
+    return [
+        Scored({key: column[i] for key, column in columns.items()}, scores[i], ranks[i])
+        for i in range(len(entries))
+    ]
+
+
+def weighted_sum(normalized: Mapping[str, Sequence[float]], weights: Mapping[str, float]) -> list[float]:
+    """Each entry's score from its normalised metrics (``normalized``: per metric, one value per entry), rounded
+    to 12 decimals: ties must tie despite float summation order."""
+    n = len(next(iter(normalized.values()), []))
+    totals = [0.0] * n
+    for key, weight in weights.items():
+        for i, value in enumerate(normalized[key]):
+            totals[i] += weight * value
+    return [round(t, 12) for t in totals]
 
 
 @dataclass(slots=True)

@@ -275,6 +275,11 @@ class PhysicsPack(Setting):
             self._state = state
         return self._state
 
+    def plan(self) -> list[Placement]:
+        """Where each released box was meant to rest (what ``final_boxes`` pairs with the actual poses, without
+        reading the world again)."""
+        return list(self._planned)
+
     def final_boxes(self) -> list[FinalBox]:
         """Planned vs actual pose; ``in_place`` = within the collapse threshold and still on the pallet."""
         moved = {d.index for d in self._displaced()}

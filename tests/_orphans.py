@@ -3,7 +3,8 @@
 A test that starts ``robobpp serve`` stops it in ``finally``, which a killed pytest (a CI timeout, kill -9)
 never reaches: such a server once kept running 90 minutes with its worker processes. ``with_parent_death``
 prefixes a command with a small launcher that asks Linux to send it SIGTERM when its parent dies
-(``PR_SET_PDEATHSIG``, kept across ``exec``), then becomes the command. Elsewhere it runs the command as is.
+(``PR_SET_PDEATHSIG``, kept across ``exec``: robobpp/worker/lifeline.py, which ``robobpp serve`` uses for the
+processes it starts), then becomes the command. Elsewhere it runs the command as is.
 """
 
 from __future__ import annotations
@@ -11,12 +12,10 @@ from __future__ import annotations
 import sys
 
 _LAUNCHER = """
-import ctypes, os, signal, sys
+import os, signal, sys
+from robobpp.worker.lifeline import set_parent_death_signal
 parent = int(sys.argv[1])
-try:
-    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-except (OSError, AttributeError):
-    pass
+set_parent_death_signal(signal.SIGTERM)
 if os.getppid() != parent:  # the parent died before the request: nobody would stop this server
     sys.exit(1)
 os.execv(sys.argv[2], sys.argv[2:])

@@ -12,7 +12,11 @@ supervisor that serves nothing itself:
    one socket (the kernel spreads the connections), each an app built with ``start_workers=False`` and
    ``first_start=False`` under the same connection limits as a single process;
 4. it restarts an API process that exits, and on SIGTERM or Ctrl-C stops them, then the workers;
-5. ``/metrics`` of any API process sums the request metrics of all of them (server/prometheus.py).
+5. ``/metrics`` of any API process sums the request metrics of all of them (server/prometheus.py);
+6. killed outright (SIGKILL, the OOM killer), it takes everything it started with it: each API process, worker
+   and board worker ends at once with the supervisor (worker/lifeline.py), so nothing keeps accepting
+   submissions that nobody dispatches or holds the port, and ``/healthz`` of an API process whose supervisor
+   is gone answers 503 until it has ended. The next start hands the episodes they held back to the queue.
 
 What is process-local stays correct with several processes: boards are published in SQL and read from there, login
 sessions and everything else a route reads are in SQL, the pull relay's sockets meet through the broker, Redis or
@@ -33,6 +37,8 @@ import time
 from collections.abc import Callable
 from multiprocessing.process import BaseProcess
 from typing import Any
+
+from robobpp.worker.lifeline import Lifeline
 
 log = logging.getLogger("robobpp.server")
 
@@ -58,17 +64,26 @@ def refusal(settings: Any, processes: int) -> str | None:
 
 class SupervisorsWorkers:
     """The workers as an API process sees them: their count, which the supervisor publishes every half second
-    (``/healthz`` reports it as from a single process's own pool)."""
+    (``/healthz`` reports it as from a single process's own pool), while the supervisor is there. Without it
+    nothing dispatches, whatever the last count said: none alive, and ``/healthz`` says the supervisor is gone."""
 
-    def __init__(self, alive: Any) -> None:
+    def __init__(self, alive: Any, lifeline: Lifeline) -> None:
         self._alive = alive
+        self._lifeline = lifeline
+
+    def supervisor_alive(self) -> bool:
+        return self._lifeline.intact()
 
     def alive(self) -> int:
-        return int(self._alive.value)
+        return int(self._alive.value) if self.supervisor_alive() else 0
 
 
-def api_process(overrides: dict[str, Any], sock: socket.socket, workers_alive: Any) -> None:
-    """One API process: the app without bootstrap or workers, served by uvicorn on the inherited socket."""
+def api_process(
+    overrides: dict[str, Any], sock: socket.socket, workers_alive: Any, lifeline: Lifeline
+) -> None:
+    """One API process: the app without bootstrap or workers, served by uvicorn on the inherited socket; it ends
+    with the supervisor however that ends (``lifeline``)."""
+    lifeline.hold("API process")
     import uvicorn
 
     from robobpp.server.app import create_app
@@ -78,7 +93,7 @@ def api_process(overrides: dict[str, Any], sock: socket.socket, workers_alive: A
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     settings = Settings(**overrides)
     app = create_app(settings, start_workers=False, first_start=False)
-    app.state.runtime.executor = SupervisorsWorkers(workers_alive)
+    app.state.runtime.executor = SupervisorsWorkers(workers_alive, lifeline)
     config = uvicorn.Config(app, log_level="info", access_log=False, **server_config(settings))
     uvicorn.Server(config).run(sockets=[sock])
 
@@ -105,9 +120,10 @@ class Supervisor:
         return self.executor.alive() if self.executor is not None else 0
 
     def _spawn(self) -> BaseProcess:
+        # from the main thread (start, watch), which lasts as long as this process: the kernel's guard applies
         proc = self._ctx.Process(
             target=api_process,
-            args=(self.overrides, self.sock, self.workers_alive),
+            args=(self.overrides, self.sock, self.workers_alive, Lifeline.to_here()),
             name="robobpp-api",
             daemon=True,
         )

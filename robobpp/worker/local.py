@@ -2,7 +2,9 @@
 
 Processes, not threads: episodes are CPU-bound (geometry, PyBullet) and a crashing simulator must not
 take the server down. A supervisor thread restarts dead workers and hands their episodes back at once
-(the lease would free them anyway, later). SQL stays the only channel between server and workers.
+(the lease would free them anyway, later). SQL stays the only channel between server and workers. A worker
+ends with the server however the server ends (worker/lifeline.py): the episode it held runs again after the
+next start.
 """
 
 from __future__ import annotations
@@ -19,19 +21,22 @@ from typing import Any
 
 from robobpp.db import work
 from robobpp.db.session import make_engine, make_session_factory
+from robobpp.worker.lifeline import Lifeline
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.outage import OutageLog
 
 log = logging.getLogger("robobpp.worker")
 
 
-def worker_main(options: WorkerOptions, stop: Any) -> None:
-    """Claim-run-record until ``stop.value`` is set (or SIGTERM). Runs in a child process.
+def worker_main(options: WorkerOptions, stop: Any, lifeline: Lifeline) -> None:
+    """Claim-run-record until ``stop.value`` is set (or SIGTERM). Runs in a child process, which ends at once
+    when its server process does (``lifeline``), even mid-episode.
 
     ``stop`` is a lock-free shared byte on purpose: a ``multiprocessing.Event`` deadlocks its ``set()`` when
     a process dies while waiting on it (e.g. SIGTERM sent to the whole process group by ``timeout`` or
     systemd), and the server would then never finish shutting down.
     """
+    lifeline.hold("local worker")
     from robobpp.worker.run import claim_and_run, worker_id
 
     leaving = threading.Event()
@@ -41,9 +46,8 @@ def worker_main(options: WorkerOptions, stop: Any) -> None:
     factory = make_session_factory(engine)
     me = worker_id("local")
     outages = OutageLog(log, f"worker {me}")
-    parent = os.getppid()
     try:
-        while not stop.value and not leaving.is_set() and os.getppid() == parent:  # orphans stop claiming
+        while not stop.value and not leaving.is_set() and lifeline.intact():  # orphans stop claiming
             try:
                 outcome = claim_and_run(factory, options, me)
                 outages.ok("database")
@@ -69,12 +73,13 @@ class LocalExecutor:
         self._procs: list[BaseProcess] = []
         self._lock = threading.Lock()
         self._stopping = threading.Event()
+        self._stopped = threading.Event()  # every worker is out: the supervisor thread may end
         self._supervisor = threading.Thread(target=self._supervise, name="robobpp-supervisor", daemon=True)
         self._outages = OutageLog(log, "local worker supervisor")
 
-    def _spawn(self) -> BaseProcess:
+    def _spawn(self, lifeline: Lifeline) -> BaseProcess:
         proc = self._ctx.Process(
-            target=worker_main, args=(self.options, self._stop), name="robobpp-worker", daemon=True
+            target=worker_main, args=(self.options, self._stop, lifeline), name="robobpp-worker", daemon=True
         )
         proc.start()
         return proc
@@ -93,19 +98,29 @@ class LocalExecutor:
     def start(self) -> None:
         self._release_dead()  # a previous server on this host died mid-evaluation
         with self._lock:
-            self._procs = [self._spawn() for _ in range(self.workers)]
+            self._procs = [self._spawn(Lifeline.to_here()) for _ in range(self.workers)]
         self._supervisor.start()
 
     def _supervise(self) -> None:
-        while not self._stopping.wait(1.0):
+        # The kernel ends a child when the thread that started it ends (worker/lifeline.py): this thread, which
+        # starts the replacements, lives until stop() has seen every worker out, and never dies of a failed start.
+        lifeline = Lifeline.to_here(long_lived_thread=True)
+        while not self._stopped.wait(1.0):
+            if self._stopping.is_set():
+                continue
             with self._lock:
                 dead = [p for p in self._procs if not p.is_alive()]
-                if not dead:
+                if not dead and len(self._procs) >= self.workers:
                     continue
                 self._procs = [p for p in self._procs if p.is_alive()]
                 for p in dead:
                     log.warning("worker process %s exited (code %s); restarting", p.pid, p.exitcode)
-                    self._procs.append(self._spawn())
+                while len(self._procs) < self.workers:
+                    try:
+                        self._procs.append(self._spawn(lifeline))
+                    except OSError as exc:  # out of processes or memory: try again in a second
+                        log.warning("could not start a worker process (%s); trying again", exc)
+                        break
             try:
                 self._release_dead()
                 self._outages.ok("database")
@@ -142,5 +157,6 @@ class LocalExecutor:
         for p in cut:
             p.terminate()
             p.join(2)
+        self._stopped.set()
         if self._supervisor.is_alive():
             self._supervisor.join(2)

@@ -1,6 +1,9 @@
 """The board worker process ends with its API process, even in the middle of a computation: an API process
 killed outright (SIGKILL, the OOM killer) left it computing to the end of its pass (minutes and gigabytes at
-100,000 submissions), renewing its claim on the track meanwhile."""
+100,000 submissions), renewing its claim on the track meanwhile.
+
+This checks the portable guard (a thread watching the parent's id, worker/lifeline.py) without the kernel's
+signal, which tests/server/test_supervisor_death.py sees at work."""
 
 from __future__ import annotations
 
@@ -13,6 +16,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from robobpp.server.services import board_worker
+from robobpp.worker.lifeline import Lifeline
 
 
 def _busy_pass(self: board_worker.BoardWorker) -> list[str]:
@@ -27,7 +31,8 @@ def _busy_pass(self: board_worker.BoardWorker) -> list[str]:
 def _worker_main(url: str, parent: int, flag: str) -> None:
     os.environ["BUSY_FLAG"] = flag
     board_worker.BoardWorker.run_once = _busy_pass  # type: ignore[method-assign]
-    board_worker._process_main(url, ("diverse",), ("math",), {}, SimpleNamespace(value=0), parent)
+    lifeline = Lifeline(parent, kernel=False)  # the portable guard alone
+    board_worker._process_main(url, ("diverse",), ("math",), {}, SimpleNamespace(value=0), lifeline)
 
 
 def _api_process(url: str, flag: str, pids: Any) -> None:

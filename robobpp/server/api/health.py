@@ -1,4 +1,5 @@
-"""Liveness and readiness: ``/healthz`` answers 200 only when the database answers."""
+"""Liveness and readiness: ``/healthz`` answers 200 only when the database answers, and, in an API process of
+``robobpp serve --server-workers N``, while its supervisor is there (server/processes.py)."""
 
 from __future__ import annotations
 
@@ -18,5 +19,8 @@ def healthz(request: Request) -> JSONResponse:
     except Exception as exc:  # noqa: BLE001 - any database failure means "not healthy"
         return JSONResponse({"status": "unavailable", "database": type(exc).__name__}, status_code=503)
     executor = runtime.executor
+    supervised = getattr(executor, "supervisor_alive", None)  # an API process of --server-workers N
+    if supervised is not None and not supervised():  # it is ending: nothing dispatches what it would accept
+        return JSONResponse({"status": "unavailable", "supervisor": "gone"}, status_code=503)
     workers = executor.alive() if executor is not None else 0
     return JSONResponse({"status": "ok", "database": "ok", "workers": workers})

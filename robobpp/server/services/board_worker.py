@@ -59,6 +59,7 @@ from robobpp.server.services.boards import (
     to_json,
     version_parts,
 )
+from robobpp.worker.lifeline import Lifeline
 
 log = logging.getLogger("robobpp.server")
 TRACKS = ("private", "public")
@@ -545,31 +546,19 @@ def _process_main(
     settings: tuple[str, ...],
     timing: dict[str, float],
     stop: Any,
-    parent: int,
+    lifeline: Lifeline,
 ) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    worker = worker_for_url(url, datasets, settings, **timing)
-    threading.Thread(target=_end_with, args=(parent,), daemon=True, name="board-worker-parent").start()
-    # ends when asked, or with the API process however it ends; a SIGTERM (to the whole process group, say)
-    # ends it at once: a publication cut short leaves the previous boards served and its lease to lapse
-    worker.run(alive=lambda: not stop.value and os.getppid() == parent)
-
-
-#: How often a board worker process checks that its API process is still there.
-PARENT_CHECK_S = 1.0
-
-
-def _end_with(parent: int) -> None:
-    """Ends this process within :data:`PARENT_CHECK_S` of its API process ending, even mid-computation.
-    Between passes the loop notices it too; but an API process killed outright (SIGKILL, the OOM killer)
-    left its worker computing to the end of its pass — at 100,000 submissions a full one is 18 minutes and
+    """The board worker process. It ends with the process that started it however that ends, even in the middle
+    of a computation (``lifeline``, worker/lifeline.py): an API process killed outright (SIGKILL, the OOM killer)
+    once left its worker computing to the end of its pass — at 100,000 submissions a full one is 18 minutes and
     14 GB — and renewing its claim on the track, so a restarted server's worker waited that long to claim it.
     Nothing is lost: an unfinished publication is never committed."""
-    while os.getppid() == parent:
-        time.sleep(PARENT_CHECK_S)
-    log.warning("the API process %d is gone: the board worker ends with it", parent)
-    logging.shutdown()
-    os._exit(0)
+    lifeline.hold("board worker")
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    worker = worker_for_url(url, datasets, settings, **timing)
+    # ends when asked, or with the API process however it ends; a SIGTERM (to the whole process group, say)
+    # ends it at once: a publication cut short leaves the previous boards served and its lease to lapse
+    worker.run(alive=lambda: not stop.value and lifeline.intact())
 
 
 #: How long a stopping server waits for its board worker process to finish a pass before ending it.
@@ -588,7 +577,7 @@ class WorkerProcess:
         self._stop = context.Value("b", 0, lock=False)
         self.process = context.Process(
             target=_process_main,
-            args=(url, tuple(datasets), tuple(settings), timing, self._stop, os.getpid()),
+            args=(url, tuple(datasets), tuple(settings), timing, self._stop, Lifeline.to_here()),
             daemon=True,
             name="robobpp-board-worker",
         )

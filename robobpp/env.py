@@ -15,6 +15,15 @@ box to place) and, with ``lookahead=N > 0``, ``lookahead`` (the next N boxes, ze
 (``actions="flat"``): one Discrete index ``(x * ny + y) * 2 + orientation`` over the container's grid; with
 ``actions="grid"`` an ``(x, y, orientation)`` MultiDiscrete.
 
+The candidate space (``actions="candidates"``, ``candidates=K``, 50 by default), as the paper's learned methods act:
+one Discrete index into a list of at most K candidate placements for the box (:mod:`robobpp.policies.candidate_space`:
+the reference PCT's leaf nodes, floor corners of the empty maximal spaces, seeded by the episode), whose features
+are the observation's ``candidates`` (K rows of ``candidate_space.FEATURES``, zero-padded); ``action_masks()``
+admits exactly the candidates. Every setting offers it. 33,500 grid actions become K: a learner's policy is small
+and each action is a sensible placement (a greedy rule over the candidates, lowest then nearest the corner, packs
+Repetitive as DBL does). The trade: a placement that is no leaf cannot be chosen, and an episode ends when no
+candidate is left, which on 20 Repetitive train groups never happened while the grid had a feasible cell.
+
 Masks, for masked RL: ``action_mask()`` is the boolean (x, y, orientation) grid of feasible actions — what the
 environment accepts, in every setting, as the reference's: the box inside the container and its top below the
 container height; ``action_masks()`` is the same in the action space's layout (what sb3-contrib's MaskablePPO
@@ -50,7 +59,8 @@ from gymnasium import spaces
 
 from robobpp import GYM_ENV_ID
 from robobpp.core import ORIENTATIONS, Action, EpisodeSpec, Observation
-from robobpp.episode import Episode
+from robobpp.episode import POLICY_ERROR, Episode
+from robobpp.policies.candidate_space import DEFAULT_CANDIDATES, FEATURES, Candidates, CandidateSpace
 from robobpp.policies.candidates import candidate_maps
 from robobpp.scoring import metrics as M
 
@@ -62,6 +72,8 @@ ALL_GROUPS = 2**31
 _MAX_BOX = 1000.0
 
 RewardFn = Callable[[Episode, Any], float]
+#: The action spaces an env offers (module docstring).
+ACTION_SPACES = ("flat", "candidates", "grid")
 
 
 def volume_reward(episode: Episode, record: Any) -> float:
@@ -83,8 +95,11 @@ def stability_shaped_reward(episode: Episode, record: Any) -> float:
 REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_shaped_reward}
 
 
-def encode_observation(obs: Observation, lookahead: int) -> dict[str, np.ndarray]:
-    """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays)."""
+def encode_observation(
+    obs: Observation, lookahead: int, candidates: Candidates | None = None
+) -> dict[str, np.ndarray]:
+    """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays); with
+    ``candidates`` (the candidate space's list for this box) their features as ``candidates``."""
     encoded = {
         "heightmap": np.clip(obs.heightmap, 0, obs.container.height).astype(np.float32),
         "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
@@ -94,6 +109,8 @@ def encode_observation(obs: Observation, lookahead: int) -> dict[str, np.ndarray
         for i, b in enumerate(obs.lookahead[:lookahead]):
             look[i] = (b.length, b.width, b.height, b.mass)
         encoded["lookahead"] = look
+    if candidates is not None:
+        encoded["candidates"] = candidates.features.copy()
     return encoded
 
 
@@ -124,12 +141,14 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         data_seed: int = 0,
         actions: str = "flat",
         support_info: bool = False,
+        candidates: int = DEFAULT_CANDIDATES,
     ) -> None:
         if reward not in REWARDS:
             raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)}")
-        if actions not in ("grid", "flat"):
+        if actions not in ACTION_SPACES:
             raise ValueError(
-                f"unknown actions {actions!r}; expected 'flat' (the default) or 'grid' (x, y, orientation)"
+                f"unknown actions {actions!r}; expected 'flat' (the default), 'candidates' (at most K candidate "
+                "placements) or 'grid' (x, y, orientation)"
             )
         if actions == "grid":
             warnings.warn(
@@ -171,24 +190,32 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         }
         if lookahead > 0:
             observed["lookahead"] = spaces.Box(0.0, _MAX_BOX, (lookahead, 4), np.float32)
+        # The candidate space: one Discrete index per candidate, its features in the observation.
+        self._space = CandidateSpace(candidates) if actions == "candidates" else None
+        self._candidates: Candidates | None = None
+        if self._space is not None:
+            observed["candidates"] = spaces.Box(0.0, 1.0, (candidates, len(FEATURES)), np.float32)
         # gymnasium types a Dict space as holding dicts of spaces; its samples are dicts of arrays
         self.observation_space = spaces.Dict(observed)  # type: ignore[assignment]
         self.grid_shape = (nx, ny, len(ORIENTATIONS))
+        self.actions = actions
         self.flat_actions = actions == "flat"
         self.action_space: spaces.Space[Any] = (
             spaces.Discrete(nx * ny * len(ORIENTATIONS))
             if self.flat_actions
+            else spaces.Discrete(candidates)
+            if self._space is not None
             else spaces.MultiDiscrete(list(self.grid_shape))
         )
         self._episode: Episode | None = None
         self._obs: Observation | None = None
-        self._mask = np.zeros(self.grid_shape, bool)
+        self._grid_mask: np.ndarray | None = np.zeros(self.grid_shape, bool)
         self._support_mask: np.ndarray | None = None  # computed when first asked, per observation
         self.support_info = support_info
 
     def _encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
         if obs is not None:
-            return encode_observation(obs, self.lookahead)
+            return encode_observation(obs, self.lookahead, self._candidates)
         assert self._episode is not None  # terminal: the final heightmap, no box
         terminal = {
             "heightmap": np.clip(self._episode.setting.state().heightmap, 0, self.container.height).astype(
@@ -198,6 +225,8 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         }
         if self.lookahead > 0:
             terminal["lookahead"] = np.zeros((self.lookahead, 4), np.float32)
+        if self._space is not None:
+            terminal["candidates"] = np.zeros((self._space.limit, len(FEATURES)), np.float32)
         return terminal
 
     def reset(
@@ -211,6 +240,8 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             index = int(self.np_random.integers(self.groups))
         spec = self._draw(int(index)) if self._draw is not None else self.specs[int(index)]
         self._episode = Episode(spec, self.setting_name, lookahead=self.lookahead)
+        if self._space is not None:
+            self._space.reset(spec.container, spec.episode_id)
         self._observe()
         info = {"episode_id": spec.episode_id, "action_masks": self.action_masks()}
         if self.support_info:
@@ -218,14 +249,42 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return self._encode(self._obs), info
 
     def _observe(self) -> None:
-        """The next box's observation and its feasible actions (computed once, read by every mask call)."""
+        """The next box's observation and its feasible actions (computed once, read by every mask call); in the
+        candidate space its candidates, and the grid mask only when asked."""
         assert self._episode is not None
         self._obs = None if self._episode.done else self._episode.observe()
-        self._mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
         self._support_mask = None
+        if self._space is not None:
+            self._candidates = None if self._obs is None else self._space(self._obs)
+            self._grid_mask = None
+            return
+        self._grid_mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
 
-    def _grid_action(self, action: Any) -> tuple[int, int, int]:
+    @property
+    def _mask(self) -> np.ndarray:
+        """The grid of feasible actions for the current box (computed once per box, when first needed)."""
+        if self._grid_mask is None:
+            self._grid_mask = (
+                np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
+            )
+        return self._grid_mask
+
+    def _can_act(self) -> bool:
+        """Whether the current box has an action the action space offers."""
+        if self._space is not None:
+            return self._candidates is not None and bool(self._candidates.mask.any())
+        return bool(self._mask.any())
+
+    def _grid_action(self, action: Any) -> tuple[int, int, int] | None:
+        """The action as (x, y, orientation); None for a candidate index that names no candidate."""
         values = np.asarray(action).reshape(-1)
+        if self._candidates is not None:
+            if values.size != 1 or not 0 <= int(values[0]) < len(self._candidates.mask):
+                raise ValueError(
+                    f"action must be one candidate index in [0, {len(self._candidates.mask)}); got {action!r}"
+                )
+            chosen = self._candidates.action(int(values[0]))
+            return None if chosen is None else (int(chosen.x), int(chosen.y), chosen.orientation)
         if self.flat_actions:
             if values.size != 1:
                 raise ValueError(
@@ -242,15 +301,21 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         assert self._episode is not None and self._obs is not None, "call reset() first"
-        x, y, orientation = self._grid_action(action)
+        chosen = self._grid_action(action)
         reward = 0.0
         info: dict[str, Any] = {"placed": False}
-        if self._mask.any():
+        if chosen is None:  # a masked-out candidate slot: nothing to place, as a policy's invalid answer
+            self._episode.end(
+                POLICY_ERROR, f"action {int(np.asarray(action).reshape(-1)[0])} names no candidate"
+            )
+            self._obs = None
+        elif self._can_act():
+            x, y, orientation = chosen
             record = self._episode.step(Action(float(x), float(y), orientation), decision_time=0.0)
             reward = float(self.reward_fn(self._episode, record))
             info["placed"] = record.placement is not None
             self._observe()
-        if not self._episode.done and not self._mask.any():
+        if not self._episode.done and not self._can_act():
             # Nothing fits the next box: end here as the evaluator does when a policy answers None.
             self._episode.step(None, decision_time=0.0)
             self._obs = None
@@ -272,6 +337,12 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def action_masks(self) -> np.ndarray:
         """The mask in the action space's layout, as sb3-contrib's MaskablePPO expects it (module docstring)."""
+        if self._space is not None:
+            return (
+                np.zeros(self._space.limit, bool)
+                if self._candidates is None
+                else self._candidates.mask.copy()
+            )
         return self._layout(self._mask)
 
     def support_mask(self) -> np.ndarray:
@@ -286,7 +357,12 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return self._support_mask.copy()
 
     def _layout(self, mask: np.ndarray) -> np.ndarray:
-        """A grid mask in the action space's layout: flattened, or one mask per MultiDiscrete dimension."""
+        """A grid mask in the action space's layout: flattened, or one mask per MultiDiscrete dimension; in the
+        candidate space, which candidates it admits."""
+        if self._candidates is not None:
+            return (
+                np.array([bool(mask[tuple(p)]) for p in self._candidates.placements]) & self._candidates.mask
+            )
         if self.flat_actions:
             return mask.reshape(-1).copy()
         return np.concatenate([mask.any(axis=(1, 2)), mask.any(axis=(0, 2)), mask.any(axis=(0, 1))])

@@ -107,6 +107,86 @@ def _maximal(spaces: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, slots=True)
+class Leaves:
+    """Feasible leaf placements for one box, in the reference's shuffled order: the box's corner ``(x, y)``
+    (cells), its orientation, the floor of the space it was found in, its footprint (whole cells) and height, and
+    the height it rests at when dropped there."""
+
+    xs: np.ndarray  # (n,) int
+    ys: np.ndarray  # (n,) int
+    orientations: np.ndarray  # (n,) int
+    z_space: np.ndarray  # (n,) float: the space's floor (what the reference's features show)
+    size: np.ndarray  # (n, 3): footprint cells (x, y) and the box's height
+    z_rest: np.ndarray  # (n,) float: the drop height on the heightmap
+
+    def __len__(self) -> int:
+        return len(self.xs)
+
+    def actions(self) -> list[tuple[int, int, int]]:
+        return [(int(x), int(y), int(o)) for x, y, o in zip(self.xs, self.ys, self.orientations, strict=True)]
+
+
+def feasible_leaves(
+    obs: Observation, spaces: np.ndarray, rng: np.random.Generator, limit: int = LEAF_HOLDER
+) -> Leaves:
+    """The first ``limit`` feasible leaves for the observation's box, given the current empty maximal spaces.
+
+    Every floor corner of every space the box fits, for both yaw orientations, shuffled by ``rng`` (as the
+    reference shuffles), each checked as a drop onto the heightmap (inside, below the container's top) and, in
+    the physical settings, against the support rule the reference's PCT applies."""
+    container = obs.container
+    corners = []  # (x0, y0, z_space, orientation) of the box in each floor corner of each space it fits
+    heights: dict[int, tuple[int, int, float, np.ndarray]] = {}
+    for orientation in obs.orientations:
+        length, width, height = obs.box.dims(orientation)
+        sx, sy = cells(length), cells(width)
+        if heights and sx == sy:
+            continue  # a square footprint: the turned box is the same placement
+        if sx > container.length + TOLERANCE_CM or sy > container.width + TOLERANCE_CM:
+            continue
+        heights[orientation] = (sx, sy, height, drop_height_map(obs.heightmap, length, width))
+        fit = spaces[np.all(spaces[:, 3:] - spaces[:, :3] >= (sx, sy, height - 1e-9), axis=1)]
+        for x, y in (
+            (fit[:, 0], fit[:, 1]),
+            (fit[:, 3] - sx, fit[:, 1]),
+            (fit[:, 0], fit[:, 4] - sy),
+            (fit[:, 3] - sx, fit[:, 4] - sy),
+        ):
+            corners.append(np.stack([x, y, fit[:, 2], np.full(len(fit), orientation)], axis=1))
+
+    # Check every candidate as a drop at once (in the reference's shuffled order), then keep the first ``limit``.
+    order = np.unique(np.concatenate(corners), axis=0) if corners else np.zeros((0, 4))
+    rng.shuffle(order)
+    xs, ys, orient = order[:, 0].astype(int), order[:, 1].astype(int), order[:, 3].astype(int)
+    size = np.array([heights[o][:3] for o in orient]).reshape(-1, 3)
+    z = np.full(len(order), np.inf)
+    for o, (_, _, _, z_map) in heights.items():
+        pick = (orient == o) & (xs >= 0) & (ys >= 0) & (xs < z_map.shape[0]) & (ys < z_map.shape[1])
+        z[pick] = z_map[xs[pick], ys[pick]]
+    fits = z + size[:, 2] <= container.height + TOLERANCE_CM
+    # The support rule as the reference's PCT applies it (none in Math Pack), tested in the shuffled order in batches
+    # (the model tests a batch of positions of one orientation together) until ``limit`` leaves are found.
+    support = support_model(obs)
+    candidates, accepted = np.flatnonzero(fits), 0
+    fits[:] = False
+    for start in range(0, len(candidates), _BATCH):
+        batch = candidates[start : start + _BATCH]
+        for o, (_, _, height, z_map) in heights.items():
+            pick = batch[orient[batch] == o]
+            if pick.size == 0:
+                continue
+            wanted = np.zeros(z_map.shape, bool)
+            wanted[xs[pick], ys[pick]] = True
+            length, width, _ = obs.box.dims(o)
+            fits[pick] = support.mask(z_map, length, width, height, wanted)[xs[pick], ys[pick]]
+        accepted += int(fits[batch].sum())
+        if accepted >= limit:
+            break
+    chosen = np.flatnonzero(fits)[:limit]
+    return Leaves(xs[chosen], ys[chosen], orient[chosen], order[chosen, 2], size[chosen], z[chosen])
+
+
+@dataclass(frozen=True, slots=True)
 class Nodes:
     """The network's inputs for one decision and what each leaf means as an action."""
 
@@ -129,69 +209,22 @@ def build_nodes(obs: Observation, spaces: np.ndarray, rng: np.random.Generator) 
     internal[: len(recent)] = recent
     internal_valid[: len(recent)] = True
 
-    corners = []  # (x0, y0, z_space, orientation) of the box in each floor corner of each space it fits
-    heights: dict[int, tuple[int, int, float, np.ndarray]] = {}
-    for orientation in obs.orientations:
-        length, width, height = obs.box.dims(orientation)
-        sx, sy = cells(length), cells(width)
-        if heights and sx == sy:
-            continue  # a square footprint: the turned box is the same placement
-        if sx > container.length + TOLERANCE_CM or sy > container.width + TOLERANCE_CM:
-            continue
-        heights[orientation] = (sx, sy, height, drop_height_map(obs.heightmap, length, width))
-        fit = spaces[np.all(spaces[:, 3:] - spaces[:, :3] >= (sx, sy, height - 1e-9), axis=1)]
-        for x, y in (
-            (fit[:, 0], fit[:, 1]),
-            (fit[:, 3] - sx, fit[:, 1]),
-            (fit[:, 0], fit[:, 4] - sy),
-            (fit[:, 3] - sx, fit[:, 4] - sy),
-        ):
-            corners.append(np.stack([x, y, fit[:, 2], np.full(len(fit), orientation)], axis=1))
-
-    # Check every candidate as a drop at once (in the reference's shuffled order), then keep the first 50.
-    order = np.unique(np.concatenate(corners), axis=0) if corners else np.zeros((0, 4))
-    rng.shuffle(order)
-    xs, ys, orient = order[:, 0].astype(int), order[:, 1].astype(int), order[:, 3].astype(int)
-    size = np.array([heights[o][:3] for o in orient]).reshape(-1, 3)
-    z = np.full(len(order), np.inf)
-    for o, (_, _, _, z_map) in heights.items():
-        pick = (orient == o) & (xs >= 0) & (ys >= 0) & (xs < z_map.shape[0]) & (ys < z_map.shape[1])
-        z[pick] = z_map[xs[pick], ys[pick]]
-    fits = z + size[:, 2] <= container.height + TOLERANCE_CM
-    # The support rule as the reference's PCT applies it (none in Math Pack), tested in the shuffled order in batches
-    # (the model tests a batch of positions of one orientation together) until 50 leaves are found.
-    support = support_model(obs)
-    candidates, accepted = np.flatnonzero(fits), 0
-    fits[:] = False
-    for start in range(0, len(candidates), _BATCH):
-        batch = candidates[start : start + _BATCH]
-        for o, (_, _, height, z_map) in heights.items():
-            pick = batch[orient[batch] == o]
-            if pick.size == 0:
-                continue
-            wanted = np.zeros(z_map.shape, bool)
-            wanted[xs[pick], ys[pick]] = True
-            length, width, _ = obs.box.dims(o)
-            fits[pick] = support.mask(z_map, length, width, height, wanted)[xs[pick], ys[pick]]
-        accepted += int(fits[batch].sum())
-        if accepted >= LEAF_HOLDER:
-            break
-    chosen = np.flatnonzero(fits)[:LEAF_HOLDER]
+    found = feasible_leaves(obs, spaces, rng, LEAF_HOLDER)
+    n = len(found)
     leaves = np.zeros((LEAF_HOLDER, 8))
-    leaves[: len(chosen)] = np.column_stack(
+    leaves[:n] = np.column_stack(
         [
-            xs[chosen],
-            ys[chosen],
-            order[chosen, 2],
-            xs[chosen] + size[chosen, 0],
-            ys[chosen] + size[chosen, 1],
-            np.full(len(chosen), container.height),
-            np.zeros((len(chosen), 2)),
+            found.xs,
+            found.ys,
+            found.z_space,
+            found.xs + found.size[:, 0],
+            found.ys + found.size[:, 1],
+            np.full(n, container.height),
+            np.zeros((n, 2)),
         ]
     )
-    actions = [(int(xs[i]), int(ys[i]), int(orient[i])) for i in chosen]
     leaf_valid = np.zeros(LEAF_HOLDER, bool)
-    leaf_valid[: len(actions)] = True
+    leaf_valid[:n] = True
     b = obs.box
     next_item = np.array([1.0, 0.0, 0.0, *sorted((cells(b.length), cells(b.width), b.height))])
-    return Nodes(internal, internal_valid, leaves, leaf_valid, next_item, actions)
+    return Nodes(internal, internal_valid, leaves, leaf_valid, next_item, found.actions())

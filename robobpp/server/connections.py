@@ -119,4 +119,11 @@ def server_config(settings: Any) -> dict[str, Any]:
         max_per_client=settings.max_connections_per_client,
         header_timeout_s=settings.header_timeout_s,
     )
-    return {"http": guarded_protocol(limits), "timeout_keep_alive": 5, "backlog": 2048}
+    return {
+        "http": guarded_protocol(limits),
+        "timeout_keep_alive": 5,
+        "backlog": 2048,
+        # X-Forwarded-For (the address wrong tokens count against) only from the configured proxies
+        "proxy_headers": True,
+        "forwarded_allow_ips": settings.forwarded_allow_ips,
+    }

@@ -91,3 +91,119 @@ def test_a_burst_of_one_participant_s_pull_sockets_leaves_another_s_working(
     assert others_alive == [True] * 4 and queued == 4  # the other participant's connections survive the burst
     assert refused == [4029] * 22 and burst_alive == [True] * 128  # the excess gets a clear refusal
     assert "Traceback" not in log and "Too many connections" not in log, log[-3000:]
+
+
+# Rate limits behind a proxy. Before: with uvicorn trusting every peer (``FORWARDED_ALLOW_IPS="*"``, which the
+# deployment guide recommended), a client rotating ``X-Forwarded-For`` got 60 wrong API tokens and 30 wrong
+# sign-ins answered 401, never 429.
+
+LIMIT = 5
+
+
+def _limited_server(tmp: Path, **settings: Any) -> Any:
+    from tests.server.test_limits import _server
+
+    return _server(tmp, auth_failures_per_minute=LIMIT, **settings).start()
+
+
+def _from(server: Any, peer: str) -> httpx.Client:
+    """A client whose connections come from ``peer`` (a loopback address other than 127.0.0.1 is no proxy)."""
+    return httpx.Client(base_url=server.url, transport=httpx.HTTPTransport(local_address=peer), timeout=10)
+
+
+def _me(client: httpx.Client, token: str, forwarded: str) -> int:
+    headers = {"Authorization": f"Bearer {token}", "X-Forwarded-For": forwarded}
+    return client.get("/api/v1/me", headers=headers).status_code
+
+
+def _sign_in(client: httpx.Client, token: str, forwarded: str) -> int:
+    import re
+
+    page = client.get("/sign-in", headers={"X-Forwarded-For": forwarded}).text
+    csrf = re.search(r'name="csrf" value="([^"]+)"', page)
+    assert csrf is not None
+    headers = {"X-Forwarded-For": forwarded, "Origin": str(client.base_url).rstrip("/")}
+    r = client.post("/sign-in", data={"token": token, "csrf": csrf.group(1)}, headers=headers)
+    return r.status_code
+
+
+def _participants(server: Any, *names: str) -> list[str]:
+    from tests.server.test_limits import ADMIN
+
+    with httpx.Client(base_url=server.url + "/api/v1", headers={"Authorization": f"Bearer {ADMIN}"}) as admin:
+        return [admin.post("/participants", json={"name": n}).json()["token"] for n in names]
+
+
+def test_rotating_forwarded_for_from_a_peer_that_is_no_proxy_is_limited(tmp_path: Path) -> None:
+    server = _limited_server(tmp_path)  # trusted proxies: 127.0.0.1 only (the default)
+    try:
+        with _from(server, "127.0.0.2") as api:
+            codes = [_me(api, f"rbp_{i:06d}wrong", f"198.51.100.{i}") for i in range(LIMIT + 3)]
+        assert codes == [401] * LIMIT + [429] * 3, codes
+        with _from(server, "127.0.0.3") as browser:
+            codes = [_sign_in(browser, f"rbp_{i:06d}nope", f"198.51.100.{i}") for i in range(LIMIT + 3)]
+        assert codes == [401] * LIMIT + [429] * 3, codes
+    finally:
+        server.stop()
+
+
+def test_behind_a_trusted_proxy_the_client_s_own_address_counts(tmp_path: Path) -> None:
+    """The proxy (127.0.0.1, trusted) appends the address it saw to whatever the client sent: the rightmost
+    address that is not a trusted proxy is the client's, however the client rotates the rest."""
+    server = _limited_server(tmp_path)
+    try:
+        (token,) = _participants(server, "bystander")
+        with _from(server, "127.0.0.1") as proxy:
+            codes = [_me(proxy, f"rbp_{i:06d}wrong", f"10.0.0.{i}, 203.0.113.9") for i in range(LIMIT + 2)]
+            assert codes == [401] * LIMIT + [429] * 2, codes
+            assert _me(proxy, token, "203.0.113.10") == 200  # another client behind the same proxy
+    finally:
+        server.stop()
+
+
+def test_wrong_tokens_are_limited_per_prefix_and_per_participant_whatever_the_address(tmp_path: Path) -> None:
+    from tests.server.test_limits import ADMIN
+
+    server = _limited_server(tmp_path)
+    try:
+        with httpx.Client(
+            base_url=server.url + "/api/v1", headers={"Authorization": f"Bearer {ADMIN}"}
+        ) as admin:
+            made = admin.post("/participants", json={"name": "alice"}).json()
+            first, pid = made["token"], made["participant"]["id"]
+            second = admin.post(f"/participants/{pid}/tokens").json()["token"]
+            bob = admin.post("/participants", json={"name": "bob"}).json()["token"]
+        with _from(server, "127.0.0.1") as proxy:  # the trusted proxy, passing on a new client each time
+            # One prefix, whatever the address: nobody's (rbp_zzzzzz), refused after the limit.
+            codes = [_me(proxy, f"rbp_zzzzzz{i:04d}", f"203.0.113.{i}") for i in range(LIMIT + 1)]
+            assert codes == [401] * LIMIT + [429], codes
+            # One participant, whatever the prefix: 3 guesses at alice's first token, 2 at her second...
+            guesses = [first[:10] + f"a{i}" for i in range(3)] + [second[:10] + f"b{i}" for i in range(2)]
+            codes = [_me(proxy, g, f"198.51.100.{i}") for i, g in enumerate(guesses)]
+            assert codes == [401] * LIMIT, codes
+            # ...and the next guess at either is refused, her own tokens wait too (else trying the right one
+            # would tell it apart), while bob is not held back.
+            assert _me(proxy, second[:10] + "b9", "192.0.2.1") == 429
+            assert _me(proxy, first, "192.0.2.2") == 429
+            assert _me(proxy, bob, "192.0.2.3") == 200
+    finally:
+        server.stop()
+
+
+def test_trusting_every_peer_is_refused_outside_dev(monkeypatch: Any) -> None:
+    import pytest
+
+    from robobpp.server.config import Settings
+    from robobpp.server.connections import server_config
+
+    secret = "a-strong-admin-token-0123456789"
+    monkeypatch.delenv("FORWARDED_ALLOW_IPS", raising=False)
+    assert server_config(Settings(env="prod", admin_token=secret))["forwarded_allow_ips"] == "127.0.0.1"
+    proxies = Settings(env="prod", admin_token=secret, trusted_proxies="10.0.0.2, 172.18.0.0/16")
+    assert server_config(proxies)["forwarded_allow_ips"] == "10.0.0.2, 172.18.0.0/16"
+    with pytest.raises(ValueError, match="ROBOBPP_TRUSTED_PROXIES"):
+        Settings(env="prod", admin_token=secret, trusted_proxies="*")
+    monkeypatch.setenv("FORWARDED_ALLOW_IPS", "*")  # uvicorn's own variable, read when ours is unset
+    with pytest.raises(ValueError, match="ROBOBPP_TRUSTED_PROXIES"):
+        Settings(env="prod", admin_token=secret)
+    assert server_config(Settings(env="dev"))["forwarded_allow_ips"] == "*"  # dev may

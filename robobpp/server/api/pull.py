@@ -158,7 +158,7 @@ async def hub_of(app: Any) -> PullHub:
 
 
 def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[int, int]:
-    wait = auth_refused_for(ws)
+    wait = auth_refused_for(ws, token)
     if wait:
         raise ProblemError(
             429, "too-many-failures", "Too many failed authentications", f"retry in {wait:.0f} s"

@@ -356,7 +356,7 @@ def board_verdict(verification: dict[str, Any] | None) -> str | None:
     status = (verification or {}).get("status")
     if status == "running":
         return "pending"
-    return status if status in ("verified", "disagrees", "failed") else None
+    return status if status in ("verified", "disagrees", "unverifiable", "failed") else None
 
 
 def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:

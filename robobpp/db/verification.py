@@ -15,9 +15,9 @@ A re-run that cannot be compared because of the participant's side is ``unverifi
 policy failed beyond the allowed share (:data:`robobpp.scoring.stats.POLICY_FAILURE_SHARE`: an unreachable
 URL answers ``policy_error`` on every episode), or episodes that failed because no client of a pull
 submission ever connected. Before, taking the policy offline during the re-run turned a coming ``disagrees``
-into ``failed``: read as the service's failure, and started again by the operator's the board's ``verify?top=N``, as often
-as the policy went offline. Like ``disagrees``, ``unverifiable`` stands (the board's ``verify?top=N`` does not start it
-again; the operator may re-run one submission) and is flagged on the board. ``failed`` is left for the service's own failures (episodes that failed for another reason), which the
+into ``failed``: read as the service's failure, and started again by the board's ``verify?top=N``, as often
+as the policy went offline. Like ``disagrees``, ``unverifiable`` stands (the board's ``verify?top=N`` does not
+start it again; the operator may re-run one submission) and is flagged on the board. ``failed`` is left for the service's own failures (episodes that failed for another reason), which the
 operator may re-run. A board that disagrees decides the verdict whatever the others did.
 
 The compared figure is the run's space utilisation (the geometric metric every setting has) with the

@@ -214,7 +214,8 @@ def test_a_policy_taken_offline_for_the_re_run_is_unverifiable_not_failed(
 ) -> None:
     """Before: the participant stopped its policy server while the hold-out re-run ran, every episode ended in
     ``policy_error``, and the verdict was ``failed`` (the service's failure, as far as anyone could tell), which
-    the board's ``verify?top=N`` started again: a way out of ``disagrees``. Now it is ``unverifiable``, and it stands."""
+    the board's ``verify?top=N`` started again: a way out of ``disagrees``. Now it is ``unverifiable``, and it
+    stands."""
     server = make_server(
         f"sqlite:///{tmp_path / 'offline.sqlite3'}",
         ROBOBPP_GROUPS="2",

@@ -17,8 +17,8 @@ URL answers ``policy_error`` on every episode), or episodes that failed because 
 submission ever connected. Before, taking the policy offline during the re-run turned a coming ``disagrees``
 into ``failed``: read as the service's failure, and started again by the board's ``verify?top=N``, as often
 as the policy went offline. Like ``disagrees``, ``unverifiable`` stands (the board's ``verify?top=N`` does not
-start it again; the operator may re-run one submission) and is flagged on the board. ``failed`` is left for the service's own failures (episodes that failed for another reason), which the
-operator may re-run. A board that disagrees decides the verdict whatever the others did.
+start it again; the operator may re-run one submission) and is flagged on the board. ``failed`` is left for
+the service's own failures (episodes that failed for another reason), which the operator may re-run. A board that disagrees decides the verdict whatever the others did.
 
 The compared figure is the run's space utilisation (the geometric metric every setting has) with the
 board's own 95 % interval: the seeded bootstrap over groups of :mod:`robobpp.scoring.stats`, applied to each run

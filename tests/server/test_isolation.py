@@ -207,3 +207,40 @@ def test_trusting_every_peer_is_refused_outside_dev(monkeypatch: Any) -> None:
     with pytest.raises(ValueError, match="ROBOBPP_TRUSTED_PROXIES"):
         Settings(env="prod", admin_token=secret)
     assert server_config(Settings(env="dev"))["forwarded_allow_ips"] == "*"  # dev may
+
+
+def test_healthz_answers_while_half_sent_connections_fill_the_server(tmp_path: Path) -> None:
+    """Before: 2,000 half-sent connections from 20 addresses filled the 1,000-connection cap and ``/healthz``
+    answered 503 for about 10 s. Here the cap is 40 (set like ``ROBOBPP_MAX_CONNECTIONS``), filled the same way
+    from 4 addresses; ``/healthz`` is served from its reserve, anything else is refused at once."""
+    import socket
+    import time
+
+    from tests.server.test_limits import _closed_within, _open, _server
+
+    server = _server(
+        tmp_path, max_connections=40, max_connections_per_client=0, header_timeout_s=30.0
+    ).start()
+    held: list[socket.socket] = []
+    try:
+        for i in range(60):  # 40 fill the server, 20 more are refused
+            sock = _open(server, f"127.0.0.{2 + i % 4}")
+            sock.sendall(b"GET /api/v1/leaderboards HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+            held.append(sock)
+        time.sleep(0.5)
+        started = time.monotonic()
+        for _ in range(5):
+            assert httpx.get(server.url + "/healthz", timeout=5).status_code == 200
+        assert time.monotonic() - started < 3.0
+        assert httpx.head(server.url + "/healthz", timeout=5).status_code in (200, 405)
+        other = _open(server)  # anything else over the cap: 503 as soon as its first bytes show it
+        other.sendall(b"GET /api/v1/leaderboards HTTP/1.1\r\nHost: x\r\n\r\n")
+        closed, data = _closed_within(other, 2.0)
+        assert closed and data.startswith(b"HTTP/1.1 503"), data
+        silent = _open(server)  # and a connection that says nothing is let go after the probation
+        closed, data = _closed_within(silent, 5.0)
+        assert closed and data.startswith(b"HTTP/1.1 503"), data
+    finally:
+        for sock in held:
+            sock.close()
+        server.stop()

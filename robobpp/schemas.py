@@ -179,7 +179,8 @@ class SubmissionPublic(BaseModel):
     progress: Progress
     runs: list[RunPublic]
     #: Re-evaluation on the hold-out draw (docs/server.md, threat model): ``status`` (running, verified,
-    #: disagrees, failed, cancelled), the verification's ``submission_id``, and per board both intervals.
+    #: disagrees, unverifiable, failed, cancelled), the verification's ``submission_id``, and per board both
+    #: intervals.
     verification: dict[str, Any] | None = None
     #: Only while queued, and only on the one-submission answers (``GET /submissions/{id}``, its page).
     queue: QueuePlace | None = None
@@ -243,7 +244,8 @@ class LeaderboardEntry(BaseModel):
     normalized: dict[str, float]
     extras: dict[str, Any]
     completed_at: datetime | None
-    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, failed, or null.
+    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, unverifiable, failed,
+    #: or null.
     verification: str | None = None
 
 
@@ -260,7 +262,8 @@ class UnrankedEntry(BaseModel):
     metrics: dict[str, float | None]
     extras: dict[str, Any]
     completed_at: datetime | None
-    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, failed, or null.
+    #: Verdict of the entry's re-evaluation on the hold-out draw: verified, disagrees, unverifiable, failed,
+    #: or null.
     verification: str | None = None
 
 

@@ -63,6 +63,15 @@ def active_token(session: Session, token: str) -> ApiToken | None:
     ).scalar_one_or_none()
 
 
+def live_prefix_owner(session: Session, prefix: str) -> int | None:
+    """The participant holding a live API token with this prefix (its first 10 characters), if any."""
+    return session.execute(
+        select(ApiToken.participant_id)
+        .where(ApiToken.prefix == prefix, ApiToken.revoked_at.is_(None))
+        .limit(1)
+    ).scalar_one_or_none()
+
+
 #: The episode statuses ``/metrics`` counts: the queue. Finished episodes are history (millions of rows);
 #: counting them per scrape cost 0.6 s at 2.7 M rows, while the queue is read from ix_episodes_claim.
 #: ``waiting``: paper-protocol replays whose Math Pack episode is still to come (docs/server.md).
@@ -347,7 +356,7 @@ def board_verdict(verification: dict[str, Any] | None) -> str | None:
     status = (verification or {}).get("status")
     if status == "running":
         return "pending"
-    return status if status in ("verified", "disagrees", "failed") else None
+    return status if status in ("verified", "disagrees", "unverifiable", "failed") else None
 
 
 def submission_progress(session: Session, submission_id: int) -> dict[str, Any]:

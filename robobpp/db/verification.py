@@ -11,6 +11,15 @@ writes the verdict on the original, where the API (and the pages) show it: ``ver
 result agrees within the two intervals, ``disagrees`` when one does not — the signature of a policy tuned to
 the played groups.
 
+A re-run that cannot be compared because of the participant's side is ``unverifiable``: a board where the
+policy failed beyond the allowed share (:data:`robobpp.scoring.stats.POLICY_FAILURE_SHARE`: an unreachable
+URL answers ``policy_error`` on every episode), or episodes that failed because no client of a pull
+submission ever connected. Before, taking the policy offline during the re-run turned a coming ``disagrees``
+into ``failed``: read as the service's failure, and started again by the board's ``verify?top=N``, as often
+as the policy went offline. Like ``disagrees``, ``unverifiable`` stands (the board's ``verify?top=N`` does not
+start it again; the operator may re-run one submission) and is flagged on the board. ``failed`` is left for
+the service's own failures (episodes that failed for another reason), which the operator may re-run. A board that disagrees decides the verdict whatever the others did.
+
 The compared figure is the run's space utilisation (the geometric metric every setting has) with the
 board's own 95 % interval: the seeded bootstrap over groups of :mod:`robobpp.scoring.stats`, applied to each run
 on its own (the two runs played different groups, so the resamples are not paired). Runs recorded before
@@ -30,6 +39,10 @@ from sqlalchemy.orm import Session
 
 from robobpp.db.models import EpisodeRow, RunRow, Submission
 from robobpp.scoring import stats
+
+#: How a pull episode that no client of the participant served ends (robobpp/worker/run.py releases it with
+#: ``pull mode: <NoClient>``; robobpp/worker/pull.py words NoClient "no client … connected within …").
+NO_CLIENT_ERROR = "pull mode: no client"
 
 #: Per-episode metric compared between the played groups and the hold-out draw.
 METRIC = "space_utilization"
@@ -97,8 +110,12 @@ def record_verdict(session: Session, verify: Submission) -> dict[str, Any] | Non
     if original is None:
         return None
     runs = []
+    policy_failed = set(_policy_failed_boards(session, verify.id))
     for dataset in verify.datasets:
         for setting in verify.settings:
+            if (dataset, setting) in policy_failed:  # the participant's policy failed the re-run here
+                runs.append({"dataset": dataset, "setting": setting, "agree": None, "policy_failed": True})
+                continue
             a = run_interval(session, original.id, dataset, setting)
             b = run_interval(session, verify.id, dataset, setting)
             if a is None or b is None:
@@ -114,15 +131,49 @@ def record_verdict(session: Session, verify: Submission) -> dict[str, Any] | Non
                     "agree": agree(a, b),
                 }
             )
-    if verify.status != "completed" or any(r["agree"] is None for r in runs):
-        status = "failed"
+    unserved = _unserved_episodes(session, verify.id)
+    if any(r["agree"] is False for r in runs):
+        status = "disagrees"
+    elif verify.status == "completed" and all(r["agree"] for r in runs):
+        status = "verified"
+    elif policy_failed or unserved:
+        status = "unverifiable"
     else:
-        status = "verified" if all(r["agree"] for r in runs) else "disagrees"
+        status = "failed"
     verdict = {
         "status": status,
         "submission_id": verify.id,
         "checked_at": datetime.now(UTC).isoformat(),
         "runs": runs,
     }
+    if unserved:
+        verdict["unserved_episodes"] = unserved
     original.verification = verdict
     return verdict
+
+
+def _policy_failed_boards(session: Session, submission_id: int) -> list[tuple[str, str]]:
+    """The boards (dataset, setting) where the run's policy failures exceed the allowed share."""
+    rows = session.execute(
+        select(RunRow.dataset, RunRow.setting, RunRow.extras).where(
+            RunRow.submission_id == submission_id, RunRow.protocol == "closed"
+        )
+    ).all()
+    return [
+        (dataset, setting)
+        for dataset, setting, extras in rows
+        if extras and stats.run_failed(extras.get("terminations"), int(extras.get("episodes") or 0))
+    ]
+
+
+def _unserved_episodes(session: Session, submission_id: int) -> int:
+    """Episodes of the re-run that failed because no client of the (pull) submission connected."""
+    return len(
+        session.execute(
+            select(EpisodeRow.id).where(
+                EpisodeRow.submission_id == submission_id,
+                EpisodeRow.status == "failed",
+                EpisodeRow.error.like(NO_CLIENT_ERROR + "%"),
+            )
+        ).all()
+    )

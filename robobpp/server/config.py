@@ -10,6 +10,7 @@ place that refuses unsafe defaults (a missing or weak admin token outside dev) c
 
 from __future__ import annotations
 
+import os
 import secrets
 from functools import cached_property
 from pathlib import Path
@@ -117,8 +118,14 @@ class Settings(BaseSettings):
     probe_per_participant: int = Field(default=1, ge=1, le=64)
     quota_submissions_per_day: int = Field(default=10, ge=0)
     quota_concurrent: int = Field(default=2, ge=0)
-    #: Wrong tokens (API, sign-in, pull) one client address may send per minute before it is refused (429).
+    #: Wrong tokens (API, sign-in, pull) per minute from one client address, with one token prefix, or for one
+    #: participant's prefixes, before further ones are refused (429; server/ratelimit.py).
     auth_failures_per_minute: int = Field(default=10, ge=1, le=100_000)
+    #: Peers whose ``X-Forwarded-For`` / ``X-Forwarded-Proto`` are believed (the reverse proxy's addresses,
+    #: comma-separated; networks such as ``172.18.0.0/16`` too): uvicorn's ``forwarded_allow_ips``. From any
+    #: other peer the headers are ignored, so a client cannot pick the address its wrong tokens count against.
+    #: Unset: uvicorn's own ``FORWARDED_ALLOW_IPS`` if set, else ``127.0.0.1``. ``*`` is refused outside dev.
+    trusted_proxies: str = ""
     #: ``/metrics`` without the admin token (e.g. a Prometheus on a private network that cannot send one).
     metrics_public: bool = False
     # connection limits (server/connections.py; docs/deploy.md, "Reverse proxy and limits")
@@ -145,7 +152,18 @@ class Settings(BaseSettings):
                 )
             if self.allow_private_policy_urls:
                 raise InsecureSettingsError("ROBOBPP_ALLOW_PRIVATE_POLICY_URLS is for dev only")
+            if "*" in self.forwarded_allow_ips.replace(" ", "").split(","):
+                raise InsecureSettingsError(
+                    "trusting X-Forwarded-For from every peer ('*') lets any client choose the address its "
+                    "wrong tokens count against: set ROBOBPP_TRUSTED_PROXIES to the reverse proxy's "
+                    "address(es) (docs/deploy.md, 'Reverse proxy and limits')"
+                )
         return self
+
+    @property
+    def forwarded_allow_ips(self) -> str:
+        """The peers uvicorn takes ``X-Forwarded-*`` from: ``trusted_proxies``, else uvicorn's own variable."""
+        return self.trusted_proxies or os.environ.get("FORWARDED_ALLOW_IPS", "") or "127.0.0.1"
 
     @cached_property
     def effective_admin_token(self) -> str:

@@ -12,7 +12,7 @@ from starlette.requests import HTTPConnection
 from robobpp.db import queries
 from robobpp.db.models import Participant
 from robobpp.server.config import Settings
-from robobpp.server.ratelimit import FailureLimit, client_address
+from robobpp.server.ratelimit import AuthLimits, client_address, token_prefix
 
 
 @dataclass(slots=True)
@@ -29,17 +29,18 @@ class Principal:
         return self.participant.id if self.participant else None
 
 
-def auth_limit(request: HTTPConnection) -> FailureLimit:
+def auth_limit(request: HTTPConnection) -> AuthLimits:
     limit = getattr(request.app.state, "auth_limit", None)
     if limit is None:
         settings: Settings = request.app.state.settings
-        limit = request.app.state.auth_limit = FailureLimit(settings.auth_failures_per_minute, 60.0)
+        limit = request.app.state.auth_limit = AuthLimits(settings.auth_failures_per_minute, 60.0)
     return limit
 
 
-def auth_refused_for(request: HTTPConnection) -> float:
-    """Seconds this client must wait before its next token is even looked at (too many wrong ones); 0: none."""
-    return auth_limit(request).retry_after(client_address(request))
+def auth_refused_for(request: HTTPConnection, token: str = "") -> float:
+    """Seconds before ``token`` from this client is even looked at (too many wrong tokens from its address,
+    with its prefix, or for its participant: :mod:`robobpp.server.ratelimit`); 0: none."""
+    return auth_limit(request).retry_after(client_address(request), token)
 
 
 def is_admin_token(request: HTTPConnection, token: str) -> bool:
@@ -52,7 +53,9 @@ def is_admin_token(request: HTTPConnection, token: str) -> bool:
 def principal_for_token(request: HTTPConnection, token: str) -> Principal | None:
     """Who holds ``token`` (the admin token or a live API token), or None. Shared by the API's bearer
     auth, the pages' sign-in and the pull relay, so all accept exactly the same tokens — and count every
-    wrong one against the client's address (:mod:`robobpp.server.ratelimit`)."""
+    wrong one against the client's address, the token's prefix and the participant holding a live token with
+    that prefix (:mod:`robobpp.server.ratelimit`)."""
+    owner = None
     if token and len(token) <= 256:
         if is_admin_token(request, token):
             return Principal(None, admin=True)
@@ -61,5 +64,8 @@ def principal_for_token(request: HTTPConnection, token: str) -> Principal | None
             row = queries.active_token(session, token)
             if row is not None:
                 return Principal(row.participant, token_id=row.id)
-    auth_limit(request).failed(client_address(request))
+            prefix = token_prefix(token)
+            if prefix is not None:
+                owner = queries.live_prefix_owner(session, prefix)
+    auth_limit(request).failed(client_address(request), token if len(token) <= 256 else "", owner)
     return None

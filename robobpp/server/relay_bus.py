@@ -44,6 +44,19 @@ KINDS = frozenset({PAIR, PAIRED, FRAME, TOO_LARGE, RELEASE, GONE})
 WATCH_S = 2.0
 #: An idle submission queue left behind (every process of a deployment gone) expires after a day.
 IDLE_QUEUE_TTL_S = 86_400
+#: Redis connections of one API process for the client connections' commands (offer, withdraw, the idle
+#: checks, liveness): a pool that makes a command wait for a free connection, never fail for want of one.
+#: Each participant's connections hold at most :data:`PARTICIPANT_BUS_CALLS` of it at once (PullHub in
+#: server/api/pull.py), so one participant's burst cannot take it from the others (docs/deploy.md,
+#: "Several API processes").
+POOL_CONNECTIONS = 100
+#: How long a command waits for a free pooled connection before it fails (the caller retries or refuses).
+POOL_WAIT_S = 10.0
+#: Bus calls one participant's client connections have in flight at once in one API process.
+PARTICIPANT_BUS_CALLS = 8
+#: Redis connections for the workers' sides' ``BLPOP`` (each holds one while it waits for a client): their
+#: number follows the episodes running, which the deployment's workers bound, not the participants.
+TAKE_CONNECTIONS = 1000
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,7 +186,15 @@ class RedisBus(LocalBus):
         self.node = uuid.uuid4().hex[:16]
         self.prefix = f"robobpp:pull:{deployment}"
         self._address = Address.parse(url)
-        self._redis: Any = redis.asyncio.from_url(url)  # idle queues and liveness: once per pairing
+        # Idle queues and liveness, once per pairing: a blocking pool (a burst waits, it does not fail).
+        self._redis: Any = redis.asyncio.Redis(
+            connection_pool=redis.asyncio.BlockingConnectionPool.from_url(
+                url, max_connections=POOL_CONNECTIONS, timeout=POOL_WAIT_S
+            )
+        )
+        # The workers' sides' BLPOPs hold a connection each while they wait: a pool of their own, so that
+        # waiting workers and the client connections' commands never wait for each other.
+        self._takes: Any = redis.asyncio.from_url(url, max_connections=TAKE_CONNECTIONS)
         self._publisher = Publisher(self._address)  # frames: every step (server/redis_wire.py)
         self._listener: asyncio.Task[None] | None = None
 
@@ -196,8 +217,9 @@ class RedisBus(LocalBus):
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await self._listener
         await self._publisher.close()
-        with contextlib.suppress(Exception):
-            await self._redis.aclose()
+        for client in (self._redis, self._takes):
+            with contextlib.suppress(Exception):
+                await client.aclose(close_connection_pool=True)
 
     async def _listen(self, subscriber: Any) -> None:
         try:
@@ -268,7 +290,7 @@ class RedisBus(LocalBus):
 
     async def take(self, submission_id: int, timeout_s: float) -> str | None:
         # BLPOP's timeout has a resolution of 1 ms; 0 would mean "forever"
-        popped = await self._redis.blpop([self._queue(submission_id)], timeout=max(timeout_s, 0.001))
+        popped = await self._takes.blpop([self._queue(submission_id)], timeout=max(timeout_s, 0.001))
         return None if popped is None else popped[1].decode("ascii")
 
 

@@ -61,11 +61,13 @@ def start_server(env: dict[str, str], tmp: Path) -> tuple[subprocess.Popen[bytes
 
     port = free_port()
     compose = _compose()
-    # robobpp's own settings of the server (FORWARDED_ALLOW_IPS is uvicorn's, for a proxy in front)
+    # robobpp's own settings of the server (TRUSTED_PROXIES is for a proxy in front: the default here)
     own = {
         k: str(v)
         for k, v in compose["services"]["server"]["environment"].items()
-        if k.startswith("ROBOBPP_") and k not in compose["x-robobpp-env"] and k != "ROBOBPP_ADMIN_TOKEN"
+        if k.startswith("ROBOBPP_")
+        and k not in compose["x-robobpp-env"]
+        and k not in ("ROBOBPP_ADMIN_TOKEN", "ROBOBPP_TRUSTED_PROXIES")
     }
     assert own == {"ROBOBPP_WORKERS": "0"}  # the server runs no episodes itself; the workers do
     server_env = {**env, **own, "ROBOBPP_ADMIN_TOKEN": ADMIN}

@@ -116,8 +116,8 @@ def test_wrong_tokens_are_rate_limited_per_client(app: Any) -> None:
         assert _sign_in(client, token).status_code == 429
     with TestClient(app, client=("203.0.113.5", 5000)) as elsewhere:  # another address is not held back
         assert elsewhere.get("/api/v1/me", headers={"Authorization": f"Bearer {token}"}).status_code == 200
-        for _ in range(5):
-            assert _sign_in(elsewhere, "rbp_wrong").status_code == 401  # the sign-in form counts too
+        for i in range(5):  # each its own prefix: a prefix is limited too (another test)
+            assert _sign_in(elsewhere, f"rbp_w{i}rong").status_code == 401  # the sign-in form counts too
         assert _sign_in(elsewhere, token).status_code == 429
 
 

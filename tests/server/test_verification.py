@@ -207,3 +207,63 @@ def _signed_in_page(base: str, token: str, path: str) -> str:
         assert csrf is not None
         browser.post("/sign-in", data={"token": token, "csrf": csrf.group(1)})
         return browser.get(path).text
+
+
+def test_a_policy_taken_offline_for_the_re_run_is_unverifiable_not_failed(
+    make_server, policy_server, tmp_path
+) -> None:
+    """Before: the participant stopped its policy server while the hold-out re-run ran, every episode ended in
+    ``policy_error``, and the verdict was ``failed`` (the service's failure, as far as anyone could tell), which
+    the board's ``verify?top=N`` started again: a way out of ``disagrees``. Now it is ``unverifiable``, and it
+    stands."""
+    server = make_server(
+        f"sqlite:///{tmp_path / 'offline.sqlite3'}",
+        ROBOBPP_GROUPS="2",
+        ROBOBPP_DATASETS=f'["{DATASET}"]',
+        ROBOBPP_EVALUATE_BASELINES="0",
+    )
+    policy = policy_server(DBL)
+    with server.client(ADMIN_TOKEN) as admin, server.client(new_participant(admin, "dodger")) as owner:
+        r = owner.post(
+            "/submissions", json={"name": "dodge", "policy_url": policy.url, "secret": "policy-secret-123"}
+        )
+        assert r.status_code == 201, r.text
+        original = r.json()["id"]
+        wait_for(lambda: owner.get(f"/submissions/{original}").json()["status"] == "completed", 180)
+        policy.stop()  # offline for the re-run
+        r = admin.post(f"/submissions/{original}/verify")
+        assert r.status_code == 201, r.text
+        check = r.json()["id"]
+        wait_for(lambda: admin.get(f"/submissions/{check}").json()["status"] in ("completed", "failed"), 180)
+        verdict = admin.get(f"/submissions/{original}").json()["verification"]
+        (entry,) = admin.get(f"/leaderboards/{DATASET}/math").json()["entries"]
+        again = admin.post(f"/leaderboards/{DATASET}/math/verify", params={"top": 1})
+    assert verdict["status"] == "unverifiable", verdict
+    assert verdict["runs"][0]["policy_failed"] is True and verdict["runs"][0]["agree"] is None
+    assert entry["submission_id"] == original and entry["verification"] == "unverifiable"
+    assert again.status_code == 201 and again.json() == []  # it stands: not started again
+
+
+def test_a_pull_client_that_never_joins_the_re_run_is_unverifiable(make_server, tmp_path) -> None:
+    """The pull-mode way out: no client joins the verification, its episodes fail for want of one."""
+    from robobpp.client.connect import connect
+
+    server = make_server(
+        f"sqlite:///{tmp_path / 'absent.sqlite3'}",
+        ROBOBPP_GROUPS="2",
+        ROBOBPP_DATASETS=f'["{DATASET}"]',
+        ROBOBPP_EVALUATE_BASELINES="0",
+        ROBOBPP_PULL_WAIT_S="4",
+        ROBOBPP_MAX_ATTEMPTS="2",
+    )
+    with server.client(ADMIN_TOKEN) as admin:
+        token = new_participant(admin, "absent")
+        played = connect(DBL(), server.url, token, secret="pull-secret-123", name="gone", poll_s=0.3)
+        assert played.status == "completed"
+        r = admin.post(f"/submissions/{played.id}/verify")
+        assert r.status_code == 201, r.text
+        check = r.json()["id"]
+        wait_for(lambda: admin.get(f"/submissions/{check}").json()["status"] in ("completed", "failed"), 180)
+        verdict = admin.get(f"/submissions/{played.id}").json()["verification"]
+    assert verdict["status"] == "unverifiable", verdict
+    assert verdict["unserved_episodes"] == 2

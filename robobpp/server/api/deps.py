@@ -46,7 +46,7 @@ def too_many_failures(wait_s: float) -> ProblemError:
         429,
         "too-many-failures",
         "Too many failed authentications",
-        f"too many wrong tokens from this address; retry in {wait_s:.0f} s",
+        f"too many wrong tokens from this address or for this token; retry in {wait_s:.0f} s",
         headers={"Retry-After": str(max(1, round(wait_s)))},
     )
 
@@ -59,10 +59,10 @@ async def get_principal(
     worker thread (every request re-reads it, so a revoked token stops working at once)."""
     if credentials is None or not credentials.credentials:
         raise _unauthorized("send an API token as 'Authorization: Bearer <token>'")
-    wait = auth_refused_for(request)
+    token = credentials.credentials
+    wait = auth_refused_for(request, token)
     if wait:
         raise too_many_failures(wait)
-    token = credentials.credentials
     if is_admin_token(request, token):  # on the event loop: no thread hand-off for the operator
         return Principal(None, admin=True)
     principal = await run_in_threadpool(principal_for_token, request, token)

@@ -45,6 +45,7 @@ from robobpp.server.relay_bus import (
     FRAME,
     PAIR,
     PAIRED,
+    PARTICIPANT_BUS_CALLS,
     RELEASE,
     WATCH_S,
     Endpoint,
@@ -64,6 +65,7 @@ NO_CLIENT = 4004  # no client of the submission connected within the worker's wa
 FINISHED = 4010  # the submission is over: the client may stop
 TOO_LARGE = 4009  # the client's answer passed the size cap
 TOO_MANY = 4029  # the submission or the participant has as many client connections open as allowed
+BUSY = 1013  # "try again later": the relay's broker did not take the new connection's offer
 #: Slack over the answer cap for the frame's envelope line.
 ENVELOPE_BYTES = 4096
 MAX_WAIT_S = 300.0
@@ -75,7 +77,10 @@ class PullHub:
     """This process's side of the relay: its bus and the caps' counts of its open client connections.
 
     The caps are per API process, like the connection limits (server/connections.py): they bound what one
-    process holds open (file handles, memory), which is what a flood of idle sockets costs.
+    process holds open (file handles, memory), which is what a flood of idle sockets costs. Below them, each
+    participant's connections share :data:`~robobpp.server.relay_bus.PARTICIPANT_BUS_CALLS` bus calls in
+    flight (:meth:`bus_slot`): however many connections one participant opens at once, it holds that many
+    of the broker's pooled connections at most, and the others' calls still find one.
     """
 
     def __init__(self, bus: LocalBus) -> None:
@@ -85,6 +90,14 @@ class PullHub:
         #: Open client connections (idle or busy) per submission and per participant: the caps' counts.
         self.open_per_submission: defaultdict[int, int] = defaultdict(int)
         self.open_per_participant: defaultdict[int, int] = defaultdict(int)
+        self._bus_slots: dict[int, asyncio.Semaphore] = {}
+
+    def bus_slot(self, participant_id: int) -> asyncio.Semaphore:
+        """What a participant's client connections hold around each call to the bus (see the class)."""
+        slot = self._bus_slots.get(participant_id)
+        if slot is None:
+            slot = self._bus_slots[participant_id] = asyncio.Semaphore(PARTICIPANT_BUS_CALLS)
+        return slot
 
     async def start(self) -> PullHub:
         async with self._starting:
@@ -115,6 +128,8 @@ class PullHub:
             table[key] -= 1
             if table[key] <= 0:
                 del table[key]
+        if participant_id not in self.open_per_participant:
+            self._bus_slots.pop(participant_id, None)
 
 
 def make_bus(broker_url: str, database_url: str) -> LocalBus:
@@ -143,7 +158,7 @@ async def hub_of(app: Any) -> PullHub:
 
 
 def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[int, int]:
-    wait = auth_refused_for(ws)
+    wait = auth_refused_for(ws, token)
     if wait:
         raise ProblemError(
             429, "too-many-failures", "Too many failed authentications", f"retry in {wait:.0f} s"
@@ -210,10 +225,20 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
             json.dumps({"type": "welcome", "submission": submission_id, "protocol": P.PROTOCOL})
         )
         side = _ClientSide(
-            ws, hub.bus.endpoint(), submission_id, settings.response_cap_bytes + ENVELOPE_BYTES
+            ws,
+            hub.bus.endpoint(),
+            submission_id,
+            settings.response_cap_bytes + ENVELOPE_BYTES,
+            hub.bus_slot(participant_id),
         )
         try:
-            await side.offer()
+            try:
+                await side.offer()
+            except Exception as exc:  # noqa: BLE001 - the broker is away or saturated: the client retries
+                log.warning("pull relay: could not offer a client connection: %s", _why(exc))
+                with contextlib.suppress(Exception):
+                    await ws.close(BUSY, "the relay is busy; connect again")
+                return
             await _first_done(side.from_client(), side.from_bus())
         finally:
             await side.leave()
@@ -221,18 +246,37 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
         hub.leave(submission_id, participant_id)
 
 
+def _why(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"[:200]
+
+
 class _ClientSide:
     """A client connection's handler: idle (queued for its submission) or paired with one worker's side."""
 
-    def __init__(self, ws: WebSocket, endpoint: Endpoint, submission_id: int, cap: int) -> None:
+    def __init__(
+        self, ws: WebSocket, endpoint: Endpoint, submission_id: int, cap: int, slot: asyncio.Semaphore
+    ) -> None:
         self.ws, self.endpoint, self.submission_id, self.cap = ws, endpoint, submission_id, cap
         self.bus = endpoint.bus
+        #: Held around every bus call: the participant's share of the broker's connections (PullHub).
+        self.slot = slot
         #: The paired worker side's address; ``None`` while idle.
         self.peer: str | None = None
 
     async def offer(self) -> None:
         self.peer = None
-        await self.bus.offer(self.submission_id, self.endpoint.address)
+        async with self.slot:
+            await self.bus.offer(self.submission_id, self.endpoint.address)
+
+    async def _check(self) -> None:
+        """What silence cannot tell: an idle connection is still queued, a paired one's worker still there."""
+        async with self.slot:
+            if self.peer is None:
+                await self.bus.still_offered(self.submission_id, self.endpoint.address)
+                return
+            alive = await self.bus.alive(self.peer)
+        if not alive:
+            await self.offer()  # the worker's process went away: free for the next episode
 
     async def from_client(self) -> None:
         """The client's frames go to the paired worker (an idle connection has no one to answer)."""
@@ -254,10 +298,10 @@ class _ClientSide:
         while True:
             message = await self.endpoint.receive(WATCH_S)
             if message is None:  # silence: check what silence cannot tell
-                if self.peer is None:
-                    await self.bus.still_offered(self.submission_id, self.endpoint.address)
-                elif not await self.bus.alive(self.peer):
-                    await self.offer()  # the worker's process went away: free for the next episode
+                try:
+                    await self._check()
+                except Exception as exc:  # noqa: BLE001 - the broker is away or saturated: check again later
+                    log.warning("pull relay: idle check of a client connection failed: %s", _why(exc))
                 continue
             if message.kind == PAIR:
                 if self.peer is None:
@@ -274,7 +318,10 @@ class _ClientSide:
                 except Exception:  # noqa: BLE001 - the client's socket broke under us: same as a disconnect
                     return
             elif message.kind in (RELEASE, GONE_MESSAGE):
-                await self.offer()
+                try:
+                    await self.offer()
+                except Exception as exc:  # noqa: BLE001 - idle now: the next idle check queues it again
+                    log.warning("pull relay: could not offer a client connection again: %s", _why(exc))
 
     async def leave(self) -> None:
         """The client is gone: its worker (if any) hears ``GONE``, its idle entry goes."""
@@ -282,9 +329,10 @@ class _ClientSide:
             if self.peer is not None:
                 await self.endpoint.send(self.peer, GONE_MESSAGE)
             else:
-                await self.bus.withdraw(self.submission_id, self.endpoint.address)
-        except Exception:  # noqa: BLE001 - the broker is away: the peer notices our silence (bus.alive)
-            log.warning("pull relay: could not tell the bus a client left", exc_info=True)
+                async with self.slot:
+                    await self.bus.withdraw(self.submission_id, self.endpoint.address)
+        except Exception as exc:  # noqa: BLE001 - the broker is away: the peer notices our silence (bus.alive)
+            log.warning("pull relay: could not tell the bus a client left: %s", _why(exc))
         finally:
             self.endpoint.close()
 

@@ -13,8 +13,9 @@ from robobpp.db import work
 from robobpp.db.models import Submission
 from robobpp.server.problems import ProblemError
 
-#: Verdicts that stand (or are being reached): the board's top entries with one are not started again.
-SETTLED = ("running", "verified", "disagrees")
+#: Verdicts that stand (or are being reached): the board's top entries with one are not started again
+#: (``unverifiable``: the participant's policy could not be reached during the re-run, db/verification.py).
+SETTLED = ("running", "verified", "disagrees", "unverifiable")
 
 
 def start_verification(session: Session, original: Submission, groups: int) -> Submission:

@@ -78,7 +78,7 @@ def sign_in_page(request: Request) -> Response:
 def sign_in(request: Request, token: Text = "", csrf: Text = "") -> Response:
     if not web_session.csrf_ok(request, csrf):
         return render(request, "sign_in.html", 403, title="Sign in", nav="account", form=True, error=BAD_CSRF)
-    wait = auth_refused_for(request)
+    wait = auth_refused_for(request, token.strip())
     if wait:
         page = render(
             request,
@@ -87,7 +87,7 @@ def sign_in(request: Request, token: Text = "", csrf: Text = "") -> Response:
             title="Sign in",
             nav="account",
             form=True,
-            error=f"Too many wrong tokens from your address; try again in {wait:.0f} s.",
+            error=f"Too many wrong tokens from your address or for this token; try again in {wait:.0f} s.",
         )
         page.headers["Retry-After"] = str(max(1, round(wait)))
         return page

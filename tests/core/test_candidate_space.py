@@ -32,7 +32,7 @@ def test_check_env_passes_and_the_space_is_k_indices(specs):
     assert obs["candidates"].shape == (20, len(FEATURES)) and info["action_masks"].shape == (20,)
 
 
-@pytest.mark.parametrize("setting", ["math", "physics"])
+@pytest.mark.parametrize("setting", ["math", "physics", "execution"])
 def test_every_candidate_is_a_feasible_placement_and_padding_is_zero(specs, setting):
     env = gym.make("robobpp/Pack-v0", specs=specs[:1], setting=setting, actions="candidates", candidates=30)
     obs, info = env.reset(seed=0)
@@ -53,6 +53,8 @@ def test_every_candidate_is_a_feasible_placement_and_padding_is_zero(specs, sett
         obs, reward, terminated, _, info = env.step(int(rng.choice(np.flatnonzero(mask))))
         if not terminated:
             assert info["placed"] and reward > 0
+        if setting == "execution" and env.unwrapped._episode.index >= 8:
+            return  # the robot's motion planning costs about 0.15 s a box: a few boxes show the rule holds
     assert seen > 30 and info["termination"] in ("completed", "no_feasible_placement")
 
 

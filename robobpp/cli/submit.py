@@ -412,7 +412,8 @@ def _episodes_table(submission_id: int, rows: list[EpisodePublic]) -> Table:
             col, justify="right" if col in ("id", "group", "boxes", "Space Utilization") else "left"
         )
     for e in rows:
-        boxes = f"{e.boxes_placed} / {e.boxes_total}" if e.boxes_total is not None else "—"
+        placed = "—" if e.boxes_placed is None else e.boxes_placed  # a running episode has its total only
+        boxes = f"{placed} / {e.boxes_total}" if e.boxes_total is not None else "—"
         su = (e.metrics or {}).get("space_utilization")
         detail = escape((e.termination_detail or "")[:80])
         table.add_row(

@@ -21,7 +21,7 @@ import heapq
 import itertools
 import statistics
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
@@ -100,9 +100,10 @@ def queue_place(
         ahead_of[pid] = min(pending[pid], max(0, level - load.running + (1 if first else 0)))
     ahead = sum(ahead_of.values())
     running = sum(load.running for load in loads.values())
-    times = EpisodeTimes(session, now)
     # the episodes ahead come from each participant's oldest active submission (which the claim takes first)
-    work = [(times.of_submission(loads[pid].first_submission), n) for pid, n in ahead_of.items() if n]
+    first_of = {pid: loads[pid].first_submission for pid, n in ahead_of.items() if n}
+    times = EpisodeTimes(session, now, first_of.values())
+    work = [(times.of_submission(first_of[pid]), ahead_of[pid]) for pid in first_of]
     remaining = [times.remaining(e) for e in times.running]
     estimate = None
     if all(t is not None for t in remaining) and all(t is not None for t, _ in work):
@@ -137,27 +138,21 @@ def start_after(free_in: Sequence[float], pool: int, work: Sequence[tuple[float,
 
 
 class EpisodeTimes:
-    """Expected episode times, read once per estimate: the running episodes, the recent finished ones' mean
-    per setting, and a submission's own finished episodes' mean on first use."""
+    """Expected episode times, read once per estimate in a few statements whatever the number of
+    submissions: the running episodes, the recent finished ones' mean per setting, and for ``submissions``
+    (and the running episodes' ones) their settings and their own finished episodes' mean."""
 
-    def __init__(self, session: Session, now: datetime) -> None:
-        self.session = session
+    def __init__(self, session: Session, now: datetime, submissions: Collection[int]) -> None:
         self.running = _running_episodes(session, now)
         self.typical = _typical_s(session)
-        self._own: dict[int, float | None] = {}
-
-    def own_s(self, submission_id: int) -> float | None:
-        """Mean time of the submission's newest finished episodes (``None``: none finished)."""
-        if submission_id not in self._own:
-            rows = self.session.execute(
-                select(EpisodeRow.started_at, EpisodeRow.finished_at)
-                .where(EpisodeRow.submission_id == submission_id, EpisodeRow.status == "done")
-                .order_by(EpisodeRow.id.desc())
-                .limit(OWN_EPISODES)
+        ids = sorted(set(submissions) | {e.submission_id for e in self.running})
+        self.own = _own_s(session, ids)
+        self.settings: dict[int, list[str]] = {
+            sid: [str(x) for x in settings or []]
+            for sid, settings in session.execute(
+                select(Submission.id, Submission.settings).where(Submission.id.in_(ids))
             )
-            spans = [(f - s).total_seconds() for s, f in rows if s is not None and f is not None]
-            self._own[submission_id] = statistics.fmean(spans) if spans else None
-        return self._own[submission_id]
+        }
 
     def typical_s(self, settings: Sequence[str]) -> float | None:
         """The recent mean episode time of these settings (their mean), or of any setting."""
@@ -166,7 +161,7 @@ class EpisodeTimes:
 
     def of_running(self, episode: Running) -> float | None:
         """A running episode's expected whole time."""
-        if (own := self.own_s(episode.submission_id)) is not None:
+        if (own := self.own.get(episode.submission_id)) is not None:
             return own
         if (paced := episode.paced_s) is not None:
             return paced
@@ -180,15 +175,40 @@ class EpisodeTimes:
     def of_submission(self, submission_id: int) -> float | None:
         """The expected time of a submission's episodes: its own finished ones', else its running ones' pace,
         else its settings' typical time."""
-        if (own := self.own_s(submission_id)) is not None:
+        if (own := self.own.get(submission_id)) is not None:
             return own
         paced = [t for e in self.running if e.submission_id == submission_id and (t := e.paced_s) is not None]
         if paced:
             return statistics.fmean(paced)
-        settings = self.session.execute(
-            select(Submission.settings).where(Submission.id == submission_id)
-        ).scalar_one_or_none()
-        return self.typical_s([str(s) for s in settings or []])
+        return self.typical_s(self.settings.get(submission_id, []))
+
+
+def _own_s(session: Session, ids: Sequence[int]) -> dict[int, float]:
+    """Mean time of each submission's newest :data:`OWN_EPISODES` finished episodes (those with any), in one
+    statement through the (submission, status) index."""
+    if not ids:
+        return {}
+    ranked = (
+        select(
+            EpisodeRow.submission_id,
+            EpisodeRow.started_at,
+            EpisodeRow.finished_at,
+            func.row_number()
+            .over(partition_by=EpisodeRow.submission_id, order_by=EpisodeRow.id.desc())
+            .label("newest"),
+        )
+        .where(EpisodeRow.submission_id.in_(ids), EpisodeRow.status == "done")
+        .subquery()
+    )
+    spans: defaultdict[int, list[float]] = defaultdict(list)
+    for sid, started, finished in session.execute(
+        select(ranked.c.submission_id, ranked.c.started_at, ranked.c.finished_at).where(
+            ranked.c.newest <= OWN_EPISODES
+        )
+    ):
+        if started is not None and finished is not None:
+            spans[sid].append((finished - started).total_seconds())
+    return {sid: statistics.fmean(values) for sid, values in spans.items()}
 
 
 def _running_episodes(session: Session, now: datetime) -> list[Running]:

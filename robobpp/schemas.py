@@ -8,6 +8,7 @@ every number and string.
 
 from __future__ import annotations
 
+import math
 import re
 from datetime import datetime
 from typing import Annotated, Any, Literal
@@ -144,7 +145,8 @@ class RunPublic(BaseModel):
 
 
 class QueuePlace(BaseModel):
-    """Where a queued submission stands in the fair-share order (docs/server.md, "Evaluation")."""
+    """Where a queued submission stands in the fair-share order (docs/server.md, "Where a queued submission
+    stands")."""
 
     position: int | None = Field(
         description="1: its first episode is the next one claimed (None: beyond the replay limit)"
@@ -154,9 +156,19 @@ class QueuePlace(BaseModel):
     )
     running: int = Field(description="episodes running now, across all participants")
     estimated_start_s: float | None = Field(
-        description="seconds until its first episode starts, from the recent mean episode time (None: no history)"
+        description="an estimate, not a promise: seconds until its first episode starts, from the running "
+        "episodes' progress and the expected time of the episodes ahead (None: no episode time known yet)"
     )
-    estimated_start: datetime | None
+    estimated_start: datetime | None = Field(description="the same estimate as a time")
+
+
+def start_estimate_text(seconds: float) -> str:
+    """An estimated start as the pages and ``submit --wait`` word it: rounded up, and said to be an estimate."""
+    if seconds < 60:
+        return f"estimated start in about {max(1, math.ceil(seconds))} s"
+    if seconds < 3600:
+        return f"estimated start in about {math.ceil(seconds / 60)} min"
+    return f"estimated start in about {seconds / 3600:.1f} h"
 
 
 class SubmissionPublic(BaseModel):

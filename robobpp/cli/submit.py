@@ -212,7 +212,7 @@ def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> Submi
                 task,
                 total=p.episodes_total or None,
                 completed=p.episodes_done,
-                description=f"#{s.id} {s.status}{phase}{failed}",
+                description=f"#{s.id} {s.status}{phase}{failed}{_queued(s)}",
             )
 
         try:
@@ -221,6 +221,17 @@ def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> Submi
             progress.stop()
             err.print(f"stopped waiting; the evaluation goes on (robobpp submissions show {sub.id})")
             raise typer.Exit(130) from None
+
+
+def _queued(sub: SubmissionPublic) -> str:
+    """A queued submission's place and estimated start, for the progress line ("" once it runs)."""
+    from robobpp.schemas import start_estimate_text
+
+    q = sub.queue
+    if q is None or q.position is None:
+        return ""
+    eta = "" if q.estimated_start_s is None else f" · {start_estimate_text(q.estimated_start_s)} (estimate)"
+    return f" · position {q.position}{eta}"
 
 
 def _finish(sub: SubmissionPublic) -> None:
@@ -412,7 +423,8 @@ def _episodes_table(submission_id: int, rows: list[EpisodePublic]) -> Table:
             col, justify="right" if col in ("id", "group", "boxes", "Space Utilization") else "left"
         )
     for e in rows:
-        boxes = f"{e.boxes_placed} / {e.boxes_total}" if e.boxes_total is not None else "—"
+        placed = "—" if e.boxes_placed is None else e.boxes_placed  # a running episode has its total only
+        boxes = f"{placed} / {e.boxes_total}" if e.boxes_total is not None else "—"
         su = (e.metrics or {}).get("space_utilization")
         detail = escape((e.termination_detail or "")[:80])
         table.add_row(

@@ -4,15 +4,25 @@ The claim order (:func:`robobpp.db.work.fair_key`) is dynamic — each claim rai
 count — so the place is not a rank in a sorted list: it is how many claims other participants make before
 this submission's first one, each rising to the level this participant's own claim reaches (fewest running
 first; at the same level, the one that started longest ago first). It assumes nothing finishes meanwhile
-(finishes free slots; they never move a waiting participant back), so the place is an upper bound. The
-estimate turns it into time with the pool's size — the episodes running now, since a submission waits only
-while every slot is busy — and the mean duration of the last finished episodes. Nothing here reads the
-pending backlog row by row: queued submissions count by their ``episodes_total``.
+(finishes free slots; they never move a waiting participant back), so the place is an upper bound.
+
+The estimate turns the place into time (docs/server.md, "Where a queued submission stands"): each running
+episode frees its slot after its expected remaining time, and the episodes ahead take the slots as they free,
+each holding one for its submission's expected episode time; this submission starts when the next slot frees
+after them. An episode's expected time is, the first known of: the mean of its submission's finished episodes;
+its policy's observed time per box times the episode's boxes; the recent mean of finished episodes of its
+setting (of any setting when that has none). Nothing here reads the pending backlog row by row: queued
+submissions count by their ``episodes_total``.
 """
 
 from __future__ import annotations
 
-import math
+import heapq
+import itertools
+import statistics
+from collections import defaultdict
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -22,16 +32,42 @@ from sqlalchemy.orm import Session
 from robobpp.db.models import EpisodeRow, Submission, utcnow
 from robobpp.db.work import fair_key, participant_loads
 
-#: Finished episodes whose mean duration makes the estimate (recent ones: the load of today, not last year).
+#: Finished episodes whose mean duration is a setting's typical episode time (recent ones: the load of today).
 RECENT_EPISODES = 100
 #: ...found among this many newest episode rows.
 RECENT_WINDOW = 20_000
+#: A submission's own finished episodes whose mean is its expected episode time (its newest ones).
+OWN_EPISODES = 20
+#: Episodes ahead placed one by one on the slots; any beyond are spread evenly over the pool.
+SIMULATED = 10_000
 
 
-def queue_place(session: Session, sub: Submission, now: datetime | None = None) -> dict[str, Any] | None:
+@dataclass(frozen=True, slots=True)
+class Running:
+    """A running episode as the estimate sees it."""
+
+    submission_id: int
+    setting: str
+    elapsed_s: float
+    #: Boxes handled so far (the heartbeat's figure) and in all (``None`` until its first heartbeat).
+    step: int
+    boxes_total: int | None
+
+    @property
+    def paced_s(self) -> float | None:
+        """Its whole time at the pace its policy has kept so far (``None`` before the first box)."""
+        if self.step <= 0 or not self.boxes_total:
+            return None
+        return self.elapsed_s / self.step * max(self.boxes_total, self.step)
+
+
+def queue_place(
+    session: Session, sub: Submission, now: datetime | None = None, *, slots: int = 0
+) -> dict[str, Any] | None:
     """``{"position", "ahead", "running", "estimated_start_s", "estimated_start"}`` of a queued submission
-    (``None`` otherwise): ``position`` 1 is the next claim; the estimate is ``None`` until some episode has
-    finished (nothing to measure)."""
+    (``None`` otherwise): ``position`` 1 is the next claim. ``slots`` is the evaluation pool's size when known
+    (the local workers; 0: the running episodes are taken for it). The estimate is ``None`` while some
+    episode's time cannot be told (no episode finished anywhere and no policy past its first box)."""
     if sub.status != "queued":
         return None
     now = now or utcnow()
@@ -53,22 +89,30 @@ def queue_place(session: Session, sub: Submission, now: datetime | None = None) 
         ).scalar_one()
     ) + running_pending.get(sub.participant_id, 0)
     level = mine.running + own_before  # this participant's running count when its claim for this one comes
-    ahead = own_before
+    ahead_of = {sub.participant_id: own_before}  # episodes each participant claims before this one's first
     for pid, load in loads.items():
         if pid == sub.participant_id or not pending.get(pid):
             continue
         if load.builtin != mine.builtin:
-            ahead += pending[pid] if mine.builtin else 0  # participants' work before the baselines'
+            ahead_of[pid] = pending[pid] if mine.builtin else 0  # participants' work before the baselines'
             continue
         first = fair_key(load)[2:] < fair_key(mine)[2:]  # at the same level, who claims first
-        ahead += min(pending[pid], max(0, level - load.running + (1 if first else 0)))
+        ahead_of[pid] = min(pending[pid], max(0, level - load.running + (1 if first else 0)))
+    ahead = sum(ahead_of.values())
     running = sum(load.running for load in loads.values())
-    pool = max(1, running)
-    free = max(0, pool - running)
-    mean_s = _mean_episode_s(session)
+    # the episodes ahead come from each participant's oldest active submission (which the claim takes first)
+    first_of = {pid: loads[pid].first_submission for pid, n in ahead_of.items() if n}
+    times = EpisodeTimes(session, now, first_of.values())
+    work = [(times.of_submission(first_of[pid]), ahead_of[pid]) for pid in first_of]
+    remaining = [times.remaining(e) for e in times.running]
     estimate = None
-    if mean_s is not None:
-        estimate = round(max(0, math.ceil((ahead + 1 - free) / pool)) * mean_s, 1)
+    if all(t is not None for t in remaining) and all(t is not None for t, _ in work):
+        start = start_after(
+            [t for t in remaining if t is not None],
+            max(slots, len(remaining), 1),
+            [(t, n) for t, n in work if t is not None],
+        )
+        estimate = round(start, 1)
     return {
         "position": ahead + 1,
         "ahead": ahead,
@@ -76,6 +120,112 @@ def queue_place(session: Session, sub: Submission, now: datetime | None = None) 
         "estimated_start_s": estimate,
         "estimated_start": None if estimate is None else now + timedelta(seconds=estimate),
     }
+
+
+def start_after(free_in: Sequence[float], pool: int, work: Sequence[tuple[float, int]]) -> float:
+    """Seconds until a slot is free for the claim after ``work``: the pool's ``pool`` slots free after
+    ``free_in`` (the running episodes' remaining seconds; the other slots are free now); ``work`` is, per
+    participant ahead, (episode seconds, episodes), claimed in turn (the fair order gives each a slot in
+    turn). Each episode takes the slot that frees first and holds it its time."""
+    slots = sorted(free_in) + [0.0] * max(0, pool - len(free_in))
+    heapq.heapify(slots)
+    turns = itertools.chain.from_iterable(itertools.zip_longest(*(itertools.repeat(t, n) for t, n in work)))
+    placed = 0.0
+    for t in itertools.islice((t for t in turns if t is not None), SIMULATED):
+        heapq.heappush(slots, heapq.heappop(slots) + t)
+        placed += t
+    return slots[0] + max(0.0, sum(t * n for t, n in work) - placed) / len(slots)
+
+
+class EpisodeTimes:
+    """Expected episode times, read once per estimate in a few statements whatever the number of
+    submissions: the running episodes, the recent finished ones' mean per setting, and for ``submissions``
+    (and the running episodes' ones) their settings and their own finished episodes' mean."""
+
+    def __init__(self, session: Session, now: datetime, submissions: Collection[int]) -> None:
+        self.running = _running_episodes(session, now)
+        self.typical = _typical_s(session)
+        ids = sorted(set(submissions) | {e.submission_id for e in self.running})
+        self.own = _own_s(session, ids)
+        self.settings: dict[int, list[str]] = {
+            sid: [str(x) for x in settings or []]
+            for sid, settings in session.execute(
+                select(Submission.id, Submission.settings).where(Submission.id.in_(ids))
+            )
+        }
+
+    def typical_s(self, settings: Sequence[str]) -> float | None:
+        """The recent mean episode time of these settings (their mean), or of any setting."""
+        known = [self.typical[s] for s in settings if s in self.typical]
+        return statistics.fmean(known) if known else self.typical.get("")
+
+    def of_running(self, episode: Running) -> float | None:
+        """A running episode's expected whole time."""
+        if (own := self.own.get(episode.submission_id)) is not None:
+            return own
+        if (paced := episode.paced_s) is not None:
+            return paced
+        return self.typical_s([episode.setting])
+
+    def remaining(self, episode: Running) -> float | None:
+        """A running episode's expected remaining time (0 once it has run past its expected time)."""
+        whole = self.of_running(episode)
+        return None if whole is None else max(0.0, whole - episode.elapsed_s)
+
+    def of_submission(self, submission_id: int) -> float | None:
+        """The expected time of a submission's episodes: its own finished ones', else its running ones' pace,
+        else its settings' typical time."""
+        if (own := self.own.get(submission_id)) is not None:
+            return own
+        paced = [t for e in self.running if e.submission_id == submission_id and (t := e.paced_s) is not None]
+        if paced:
+            return statistics.fmean(paced)
+        return self.typical_s(self.settings.get(submission_id, []))
+
+
+def _own_s(session: Session, ids: Sequence[int]) -> dict[int, float]:
+    """Mean time of each submission's newest :data:`OWN_EPISODES` finished episodes (those with any), in one
+    statement through the (submission, status) index."""
+    if not ids:
+        return {}
+    ranked = (
+        select(
+            EpisodeRow.submission_id,
+            EpisodeRow.started_at,
+            EpisodeRow.finished_at,
+            func.row_number()
+            .over(partition_by=EpisodeRow.submission_id, order_by=EpisodeRow.id.desc())
+            .label("newest"),
+        )
+        .where(EpisodeRow.submission_id.in_(ids), EpisodeRow.status == "done")
+        .subquery()
+    )
+    spans: defaultdict[int, list[float]] = defaultdict(list)
+    for sid, started, finished in session.execute(
+        select(ranked.c.submission_id, ranked.c.started_at, ranked.c.finished_at).where(
+            ranked.c.newest <= OWN_EPISODES
+        )
+    ):
+        if started is not None and finished is not None:
+            spans[sid].append((finished - started).total_seconds())
+    return {sid: statistics.fmean(values) for sid, values in spans.items()}
+
+
+def _running_episodes(session: Session, now: datetime) -> list[Running]:
+    """The running episodes (as many as the pool's slots: the claim index finds them)."""
+    rows = session.execute(
+        select(
+            EpisodeRow.submission_id,
+            EpisodeRow.setting,
+            EpisodeRow.started_at,
+            EpisodeRow.step,
+            EpisodeRow.boxes_total,
+        ).where(EpisodeRow.status == "running")
+    )
+    return [
+        Running(sid, setting, max(0.0, (now - started).total_seconds()) if started else 0.0, step or 0, boxes)
+        for sid, setting, started, step, boxes in rows
+    ]
 
 
 def _pending(session: Session, running_pending: dict[int, int]) -> dict[int, int]:
@@ -113,14 +263,15 @@ def _running_pending(session: Session) -> dict[int, int]:
     return out
 
 
-def _mean_episode_s(session: Session) -> float | None:
-    """Mean duration of the last finished episodes among the newest :data:`RECENT_WINDOW` rows (a primary-key
-    range: the cost is the same with 2.7 M finished episodes as with none finished)."""
+def _typical_s(session: Session) -> dict[str, float]:
+    """Mean duration of the last finished episodes per setting, and of all of them under ``""``, among the
+    newest :data:`RECENT_WINDOW` rows (a primary-key range: the cost is the same with 2.7 M finished episodes
+    as with none finished)."""
     newest = session.execute(select(func.max(EpisodeRow.id))).scalar_one()
     if newest is None:
-        return None
+        return {}
     recent = (
-        select(EpisodeRow.started_at, EpisodeRow.finished_at)
+        select(EpisodeRow.setting, EpisodeRow.started_at, EpisodeRow.finished_at)
         .where(
             EpisodeRow.id > newest - RECENT_WINDOW,
             EpisodeRow.status == "done",
@@ -130,6 +281,10 @@ def _mean_episode_s(session: Session) -> float | None:
         .order_by(EpisodeRow.id.desc())
         .limit(RECENT_EPISODES)
     )
+    spans: defaultdict[str, list[float]] = defaultdict(list)
     # the statement leaves out unset times; the check says so to the type checker
-    spans = [(f - s).total_seconds() for s, f in session.execute(recent) if s is not None and f is not None]
-    return sum(spans) / len(spans) if spans else None
+    for setting, s, f in session.execute(recent):
+        if s is not None and f is not None:
+            spans[setting].append((f - s).total_seconds())
+            spans[""].append((f - s).total_seconds())
+    return {setting: statistics.fmean(values) for setting, values in spans.items()}

@@ -527,14 +527,26 @@ def _rowcount(result: Result[Any]) -> int:
 
 
 def heartbeat(
-    session: Session, episode_id: int, token: str, *, lease_s: float, step: int, now: datetime | None = None
+    session: Session,
+    episode_id: int,
+    token: str,
+    *,
+    lease_s: float,
+    step: int,
+    boxes_total: int | None = None,
+    now: datetime | None = None,
 ) -> bool:
-    """Extend the lease and record progress. ``False``: the claim is gone (cancelled, taken over) — stop."""
+    """Extend the lease and record progress: boxes handled so far and, when given, the episode's boxes (the
+    queue's estimate reads both: robobpp.db.waiting). ``False``: the claim is gone (cancelled, taken over) —
+    stop."""
     now = now or utcnow()
+    progress: dict[str, Any] = (
+        {"step": step} if boxes_total is None else {"step": step, "boxes_total": boxes_total}
+    )
     result = session.execute(
         update(EpisodeRow)
         .where(EpisodeRow.id == episode_id, EpisodeRow.lease_token == token, EpisodeRow.status == "running")
-        .values(lease_expires_at=now + timedelta(seconds=lease_s), step=step)
+        .values(lease_expires_at=now + timedelta(seconds=lease_s), **progress)
         .execution_options(synchronize_session=False)
     )
     return _rowcount(result) == 1

@@ -186,6 +186,12 @@ class Settings(BaseSettings):
         return f"sqlite:///{(self.state_dir / 'robobpp.sqlite3').resolve()}"
 
     @property
+    def worker_slots(self) -> int:
+        """Episodes this server's own pool runs at once (its local workers); 0 with Celery, whose workers run
+        elsewhere in numbers the server does not know."""
+        return 0 if self.broker_url else self.workers
+
+    @property
     def pull_bus_url(self) -> str:
         """The broker of the pull relay's bus (Redis or RabbitMQ), or ``""`` for the in-process relay (one API
         process only): ``pull_broker_url``, else the Celery broker."""

@@ -253,7 +253,7 @@ def _page_view(request: Request, session: Session, sub: Submission, owner: bool)
     )
     if not owner:
         view.pop("policy_url", None)
-    view["queue"] = waiting.queue_place(session, sub)
+    view["queue"] = waiting.queue_place(session, sub, slots=request.app.state.settings.worker_slots)
     return view
 
 
@@ -453,7 +453,7 @@ def _submission_status(request: Request, session: Session, submission_id: int) -
         ("view",), sub, lambda: queries.submission_view(session, sub)
     )
     runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
-    queue = waiting.queue_place(session, sub)
+    queue = waiting.queue_place(session, sub, slots=request.app.state.settings.worker_slots)
     if queue is not None and queue["estimated_start"] is not None:
         queue = {**queue, "estimated_start": queue["estimated_start"].isoformat()}
     return JSONResponse(

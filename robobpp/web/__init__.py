@@ -13,6 +13,8 @@ from typing import Any
 
 import jinja2
 
+from robobpp.schemas import start_estimate_text
+
 WEB_DIR = Path(__file__).resolve().parent
 TEMPLATES_DIR = WEB_DIR / "templates"
 STATIC_DIR = WEB_DIR / "static"
@@ -87,6 +89,7 @@ def environment() -> jinja2.Environment:
     env.filters["pct"] = fmt_pct
     env.filters["signed"] = fmt_signed
     env.filters["metric"] = fmt_metric
+    env.filters["start_estimate"] = start_estimate_text
     env.globals["SETTING_TITLES"] = SETTING_TITLES
     env.globals["PROTOCOL_TITLES"] = PROTOCOL_TITLES
     env.globals["PROTOCOL_SHORT"] = PROTOCOL_SHORT

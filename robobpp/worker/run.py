@@ -102,6 +102,8 @@ class _Lease(threading.Thread):
         super().__init__(name=f"lease-{claim.episode_id}", daemon=True)
         self.factory, self.claim, self.lease_s = factory, claim, lease_s
         self.step = 0
+        #: The episode's boxes, once its spec is known (recorded with the progress).
+        self.boxes_total: int | None = None
         self.lost = threading.Event()
         self.done = threading.Event()
 
@@ -112,7 +114,12 @@ class _Lease(threading.Thread):
             try:
                 with self.factory() as s, s.begin():
                     ok = work.heartbeat(
-                        s, self.claim.episode_id, self.claim.token, lease_s=self.lease_s, step=self.step
+                        s,
+                        self.claim.episode_id,
+                        self.claim.token,
+                        lease_s=self.lease_s,
+                        step=self.step,
+                        boxes_total=self.boxes_total,
                     )
             except Exception as exc:  # noqa: BLE001 - a blip of the database: try again next interval
                 outages.failed(exc, "renewal")
@@ -166,6 +173,7 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
         log.error("episode %s could not start: %s", claim.episode_id, exc)
         return False
     lease = _Lease(factory, claim, settings.lease_s)
+    lease.boxes_total = len(spec.boxes)
     lease.start()
     try:
         _pair_pull_client(policy)  # under the lease: the wait may outlast it

@@ -31,6 +31,9 @@ ADMIN_TOKEN = "test-admin-token-0123456789abcdef"
 REDIS_URL = os.environ.get("ROBOBPP_TEST_REDIS", "redis://127.0.0.1:6379/0")
 AMQP_URL = os.environ.get("ROBOBPP_TEST_AMQP", "amqp://guest:guest@127.0.0.1:5672//")
 OFFLINE = "robobpp.worker.specs:offline_spec"
+#: The secret the policy servers of these fixtures check.
+POLICY_SECRET = "policy-secret-123"
+_ROOT = Path(__file__).resolve().parents[2]
 
 
 def _pg_available() -> bool:
@@ -207,6 +210,31 @@ def make_server(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
     yield factory
     for s in started:
         s.stop(signal.SIGKILL)
+
+
+@pytest.fixture
+def own_process() -> Iterator[Callable[[str], str]]:
+    """Serve a policy (``module:Class``) in a process of its own, as a participant does: two participants'
+    servers in the test's process would wait for each other's interpreter lock, which no deployment does."""
+    started: list[subprocess.Popen[str]] = []
+
+    def start(policy: str) -> str:
+        module, cls = policy.split(":")
+        code = (
+            f"from robobpp.client.serve import serve; from {module} import {cls}; "
+            f"serve({cls}(), port=0, secret={POLICY_SECRET!r})"
+        )
+        proc = subprocess.Popen(
+            with_parent_death([sys.executable, "-c", code]), stdout=subprocess.PIPE, text=True, cwd=_ROOT
+        )
+        started.append(proc)
+        assert proc.stdout is not None
+        return proc.stdout.readline().split(" on ")[1].split(" ")[0]  # the line says where it listens
+
+    yield start
+    for proc in started:
+        proc.terminate()
+        proc.wait(10)
 
 
 class SlowDBL(DBL):

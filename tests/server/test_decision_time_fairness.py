@@ -14,11 +14,8 @@ a minute (4 groups of 12 boxes per dataset)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import httpx
@@ -26,11 +23,8 @@ import pytest
 
 from robobpp.core import Action, Observation
 from robobpp.policies.dbl import DBL
-from tests._orphans import with_parent_death
+from tests.server.conftest import POLICY_SECRET as SECRET
 from tests.server.conftest import new_participant, wait_for
-
-ROOT = Path(__file__).resolve().parents[2]
-SECRET = "policy-secret-123"
 
 DATASETS = ("repetitive", "diverse", "longboard")
 GROUPS = 4
@@ -43,31 +37,6 @@ class ThinkingDBL(DBL):
     def act(self, obs: Observation) -> Action | None:
         time.sleep(THINK_S)
         return super().act(obs)
-
-
-@pytest.fixture
-def own_process() -> Iterator[Callable[[str], str]]:
-    """Serve a policy (``module:Class``) in a process of its own, as a participant does: two participants'
-    servers in the test's process would wait for each other's interpreter lock, which no deployment does."""
-    started: list[subprocess.Popen[str]] = []
-
-    def start(policy: str) -> str:
-        module, cls = policy.split(":")
-        code = (
-            f"from robobpp.client.serve import serve; from {module} import {cls}; "
-            f"serve({cls}(), port=0, secret={SECRET!r})"
-        )
-        proc = subprocess.Popen(
-            with_parent_death([sys.executable, "-c", code]), stdout=subprocess.PIPE, text=True, cwd=ROOT
-        )
-        started.append(proc)
-        assert proc.stdout is not None
-        return proc.stdout.readline().split(" on ")[1].split(" ")[0]  # the line says where it listens
-
-    yield start
-    for proc in started:
-        proc.terminate()
-        proc.wait(10)
 
 
 def _submit(client: httpx.Client, name: str, url: str) -> int:

@@ -66,8 +66,9 @@ def _view_json(view: dict[str, Any]) -> bytes:
     return SubmissionPublic.model_validate(view).model_dump_json().encode()
 
 
-def _json(session: Session, sub: Submission) -> bytes:
-    return _view_json({**queries.submission_view(session, sub), "queue": waiting.queue_place(session, sub)})
+def _json(session: Session, sub: Submission, slots: int) -> bytes:
+    queue = waiting.queue_place(session, sub, slots=slots)
+    return _view_json({**queries.submission_view(session, sub), "queue": queue})
 
 
 @router.get(
@@ -78,7 +79,9 @@ def _json(session: Session, sub: Submission) -> bytes:
 async def get_submission(request: Request, submission_id: Id, principal: PrincipalDep) -> Response:
     def one(session: Session) -> bytes:
         sub = access.visible(session, principal, submission_id)
-        return finished_views(request.app.state).get(("api",), sub, lambda: _json(session, sub))
+        return finished_views(request.app.state).get(
+            ("api",), sub, lambda: _json(session, sub, request.app.state.settings.worker_slots)
+        )
 
     return Response(await in_read_session(request, one), media_type="application/json")
 

@@ -66,7 +66,11 @@
         else if (queue && s.queue.position) {
           let q = `Queued: position ${s.queue.position} in the fair-share order (${s.queue.ahead} episode${s.queue.ahead === 1 ? "" : "s"} of others or earlier submissions first, ${s.queue.running} running now)`;
           const eta = s.queue.estimated_start_s;
-          if (eta !== null) q += eta < 60 ? "; estimated start within a minute" : `; estimated start in about ${Math.ceil(eta / 60)} min`;
+          // worded as robobpp.schemas.start_estimate_text words it on the server
+          if (eta !== null) {
+            const about = eta < 60 ? `${Math.max(1, Math.ceil(eta))} s` : eta < 3600 ? `${Math.ceil(eta / 60)} min` : `${(eta / 3600).toFixed(1)} h`;
+            q += `; estimated start in about ${about} (an estimate from the running episodes' progress)`;
+          }
           queue.textContent = q + ".";
         }
         if (s.status !== "queued" && s.status !== "running") {

@@ -580,6 +580,8 @@ def complete_episode(
             **environment(),
             "math_rules": result.get("rules_version"),
             "sampler": result.get("sampler_version"),
+            # recorded only when the episode played the first boxes of its group only (the demo's)
+            **({"max_boxes": result["max_boxes"]} if result.get("max_boxes") else {}),
         },
         "step": len(result.get("steps", ())) or result["boxes_placed"],
         "metrics": result["metrics"],

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
@@ -21,6 +22,9 @@ from robobpp.cli.submit import (
     _track,
     err,
 )
+
+if TYPE_CHECKING:
+    from robobpp.schemas import SubmissionPublic
 
 
 def connect_command(
@@ -50,7 +54,8 @@ def connect_command(
 ) -> None:
     """Evaluate a policy in pull mode: open outbound connections to the server and serve its episodes
     through them until the submission finishes (works behind NAT and firewalls; no port to open)."""
-    from robobpp.cli.submit import _finish, _print_results
+    from robobpp.cli.progress import LineProgress
+    from robobpp.cli.submit import _finish, _print_results, progress_task
     from robobpp.client.api import ServerClient, ServerError
     from robobpp.client.connect import connect
     from robobpp.policies import PolicyLoadError, load_policy
@@ -70,21 +75,31 @@ def connect_command(
     def factory() -> object:  # one instance per connection: --parallel episodes run side by side
         return load_policy(policy)
 
+    progress = LineProgress(err)  # plain lines off a terminal too, as submit --wait prints them
+    tasks: list[Callable[[SubmissionPublic], None]] = []
+
+    def show(sub: SubmissionPublic) -> None:
+        if not tasks:
+            tasks.append(progress_task(progress, sub))
+        tasks[0](sub)
+
     try:
-        final = connect(
-            factory,
-            server,
-            token or "",
-            submission=submission,
-            secret=secret,
-            name=name,
-            datasets=datasets,
-            settings=settings,
-            track=_track(track),
-            lookahead=lookahead,
-            parallel=parallel,
-            on_event=lambda m: err.print(escape(m), soft_wrap=True),
-        )
+        with progress:
+            final = connect(
+                factory,
+                server,
+                token or "",
+                submission=submission,
+                secret=secret,
+                name=name,
+                datasets=datasets,
+                settings=settings,
+                track=_track(track),
+                lookahead=lookahead,
+                parallel=parallel,
+                on_event=lambda m: progress.console.print(escape(m), soft_wrap=True),
+                on_progress=show,
+            )
         with ServerClient(server, token) as client:
             _print_results(client, final)
     except ServerError as exc:

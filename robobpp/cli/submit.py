@@ -8,7 +8,7 @@ Tables go to stdout, progress and notes to stderr, so ``--json`` output and tabl
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -21,6 +21,8 @@ from robobpp.cli.common import fail, table_console
 from robobpp.cli.export import WideOpt
 
 if TYPE_CHECKING:
+    from rich.progress import Progress
+
     from robobpp.client.api import ServerClient, Standing
     from robobpp.schemas import EpisodePublic, Leaderboard, OverallGrid, SubmissionPublic
 
@@ -197,24 +199,32 @@ def _print_provenance(sub: SubmissionPublic) -> None:
         err.print(f"[dim]provenance: {escape(one_line(sub.provenance))}[/]", soft_wrap=True)
 
 
+def progress_task(progress: Progress, sub: SubmissionPublic) -> Callable[[SubmissionPublic], None]:
+    """A task on ``progress`` for ``sub`` and the function that shows each polled state of it (episodes
+    finished / total, current phase): ``submit --wait`` and ``connect`` (whose ``LineProgress`` also prints
+    plain lines off a terminal)."""
+    task = progress.add_task(f"#{sub.id} {sub.status}", total=sub.progress.episodes_total or None)
+
+    def show(s: SubmissionPublic) -> None:
+        p = s.progress
+        phase = f" · {p.phase}" if p.phase and s.status == "running" else ""
+        failed = f" · {p.episodes_failed} failed" if p.episodes_failed else ""
+        progress.update(
+            task,
+            total=p.episodes_total or None,
+            completed=p.episodes_done,
+            description=f"#{s.id} {s.status}{phase}{failed}{_queued(s)}",
+        )
+
+    return show
+
+
 def _follow(client: ServerClient, sub: SubmissionPublic, poll_s: float) -> SubmissionPublic:
     """Poll with a progress bar (episodes finished / total, current phase) until the submission ends."""
     from robobpp.cli.progress import LineProgress
 
     with LineProgress(err) as progress:
-        task = progress.add_task(f"#{sub.id} queued", total=sub.progress.episodes_total or None)
-
-        def show(s: SubmissionPublic) -> None:
-            p = s.progress
-            phase = f" · {p.phase}" if p.phase and s.status == "running" else ""
-            failed = f" · {p.episodes_failed} failed" if p.episodes_failed else ""
-            progress.update(
-                task,
-                total=p.episodes_total or None,
-                completed=p.episodes_done,
-                description=f"#{s.id} {s.status}{phase}{failed}{_queued(s)}",
-            )
-
+        show = progress_task(progress, sub)
         try:
             return client.wait(sub.id, on_progress=show, poll_s=poll_s)
         except KeyboardInterrupt:

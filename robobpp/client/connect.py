@@ -211,13 +211,15 @@ def connect(
     on_event: Callable[[str], None] | None = None,
     stop: threading.Event | None = None,
     poll_s: float = 2.0,
+    on_progress: Callable[[SubmissionPublic], None] | None = None,
 ) -> SubmissionPublic:
     """Evaluate ``policy`` on ``server`` in pull mode and return the finished submission.
 
     Without ``submission`` a new pull submission is created (``name``, ``datasets``, ``settings``,
     ``track``, ``lookahead`` as for ``robobpp submit``); with it, the client (re)joins that one, e.g.
     after a restart. ``policy`` is an object with ``act`` (shared by every connection, under a lock), or
-    a class or other factory called once per connection.
+    a class or other factory called once per connection. ``on_progress`` gets the submission each time it
+    is polled (every ``poll_s`` seconds), as ``ServerClient.wait`` gives it.
     """
     from robobpp.client.serve import create_policy_app
 
@@ -282,6 +284,9 @@ def connect(
                     if exc.status is not None:
                         raise
                     say(f"the server is not answering ({exc}); still trying")
+                else:
+                    if on_progress is not None:
+                        on_progress(sub)
                 if sub.status in FINISHED:
                     break
                 if not any(t.is_alive() for t in threads):

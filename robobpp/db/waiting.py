@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import math
 import statistics
 from collections import defaultdict
 from collections.abc import Collection, Sequence
@@ -29,8 +30,8 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from robobpp.db.models import EpisodeRow, Submission, utcnow
-from robobpp.db.work import fair_key, participant_loads
+from robobpp.db.models import EpisodeRow, Participant, Submission, utcnow
+from robobpp.db.work import fair_key, is_baseline, participant_loads
 
 #: Finished episodes whose mean duration is a setting's typical episode time (recent ones: the load of today).
 RECENT_EPISODES = 100
@@ -77,17 +78,10 @@ def queue_place(
         return None
     running_pending = _running_pending(session)
     pending = _pending(session, running_pending)
-    # This participant's own episodes ahead of this submission's first: its running submissions' pending ones
-    # and its older queued submissions'.
-    own_before = int(
-        session.execute(
-            select(func.coalesce(func.sum(Submission.episodes_total), 0)).where(
-                Submission.participant_id == sub.participant_id,
-                Submission.status == "queued",
-                Submission.id < sub.id,
-            )
-        ).scalar_one()
-    ) + running_pending.get(sub.participant_id, 0)
+    # This participant's own episodes ahead of this submission's first: those of its active submissions that
+    # the claim takes first (older ones; on the built-in participant the operator's before the baselines'):
+    # the running ones' pending episodes and the queued ones' whole size.
+    own_before = _own_before(session, sub)
     level = mine.running + own_before  # this participant's running count when its claim for this one comes
     ahead_of = {sub.participant_id: own_before}  # episodes each participant claims before this one's first
     for pid, load in loads.items():
@@ -228,6 +222,33 @@ def _running_episodes(session: Session, now: datetime) -> list[Running]:
     ]
 
 
+def _own_before(session: Session, sub: Submission) -> int:
+    """Episodes of ``sub``'s participant that the claim takes before ``sub``'s first
+    (:func:`robobpp.db.work.submission_order`)."""
+    mine = (is_baseline(sub.policy_url), sub.id)
+    before: list[int] = []
+    queued = 0
+    for sid, url, status, total in session.execute(
+        select(Submission.id, Submission.policy_url, Submission.status, Submission.episodes_total).where(
+            Submission.participant_id == sub.participant_id,
+            Submission.status.in_(("queued", "running")),
+            Submission.id != sub.id,
+        )
+    ):
+        if (is_baseline(url), sid) > mine:
+            continue
+        if status == "queued":
+            queued += int(total or 0)
+        else:
+            before.append(sid)
+    if not before:
+        return queued
+    running = session.execute(
+        select(func.count()).where(EpisodeRow.submission_id.in_(before), EpisodeRow.status == "pending")
+    ).scalar_one()
+    return queued + int(running)
+
+
 def _pending(session: Session, running_pending: dict[int, int]) -> dict[int, int]:
     """Pending episodes per participant: queued submissions by their size, running ones by the index."""
     out: dict[int, int] = {}
@@ -288,3 +309,76 @@ def _typical_s(session: Session) -> dict[str, float]:
             spans[setting].append((f - s).total_seconds())
             spans[""].append((f - s).total_seconds())
     return {setting: statistics.fmean(values) for setting, values in spans.items()}
+
+
+@dataclass(frozen=True, slots=True)
+class Backlog:
+    """The work the service has not finished: what the log reports every minute and the home page shows."""
+
+    queued: int
+    running: int
+    #: Episodes still to run: the queued submissions' and the running ones' pending, waiting and running ones.
+    episodes_left: int
+    episodes_running: int
+    #: The built-in participant's (the baselines') submissions, each baseline's latest per track, by status.
+    baselines: dict[str, int]
+    #: Mean duration of the last finished episodes (None: none finished yet).
+    mean_episode_s: float | None
+    #: Seconds until the last episode ends at that mean on ``workers`` slots (None: nothing measured yet).
+    expected_s: float | None
+    expected_end: datetime | None
+
+
+def backlog(session: Session, workers: int, now: datetime | None = None) -> Backlog | None:
+    """The unfinished work (``None`` when every submission has finished), and when it should end with
+    ``workers`` episodes running at once. Reads the active submissions and their episodes by the (submission,
+    status) index, never the backlog row by row: queued submissions count by their ``episodes_total``."""
+    now = now or utcnow()
+    active = session.execute(
+        select(Submission.id, Submission.status, Submission.episodes_total).where(
+            Submission.status.in_(("queued", "running"))
+        )
+    ).all()
+    if not active:
+        return None
+    queued = [total for _, status, total in active if status == "queued"]
+    running_ids = [sid for sid, status, _ in active if status == "running"]
+    left = sum(queued)
+    episodes_running = 0
+    if running_ids:
+        for status, n in session.execute(
+            select(EpisodeRow.status, func.count())
+            .where(
+                EpisodeRow.submission_id.in_(running_ids),
+                EpisodeRow.status.in_(("pending", "waiting", "running")),
+            )
+            .group_by(EpisodeRow.status)
+        ):
+            left += int(n)
+            if status == "running":
+                episodes_running = int(n)
+    latest: dict[tuple[str, str], str] = {}
+    for url, track, status in session.execute(
+        select(Submission.policy_url, Submission.track, Submission.status)
+        .join(Participant, Participant.id == Submission.participant_id)
+        .where(Participant.is_builtin.is_(True), Submission.policy_url.startswith("builtin:"))
+        .order_by(Submission.id)
+    ):
+        latest[(url, track)] = status
+    baselines: dict[str, int] = {}
+    for status in latest.values():
+        baselines[status] = baselines.get(status, 0) + 1
+    mean_s = _typical_s(session).get("")
+    expected = None
+    if mean_s is not None:
+        expected = round(math.ceil(left / max(1, workers)) * mean_s, 1)
+    return Backlog(
+        queued=len(queued),
+        running=len(running_ids),
+        episodes_left=left,
+        episodes_running=episodes_running,
+        baselines=baselines,
+        mean_episode_s=mean_s,
+        expected_s=expected,
+        expected_end=None if expected is None else now + timedelta(seconds=expected),
+    )

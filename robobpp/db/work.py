@@ -382,6 +382,19 @@ def fair_key(load: Load) -> tuple[Any, ...]:
     return (load.builtin, load.running, started, load.last_start if started else 0, load.first_submission)
 
 
+def is_baseline(policy_url: str) -> bool:
+    """A built-in policy's submission (``builtin:NAME``): the baselines the server queues itself."""
+    return policy_url.startswith("builtin:")
+
+
+def submission_order() -> tuple[Any, ...]:
+    """The order of one participant's active submissions in the claim: oldest first, except that the built-in
+    participant's submissions of a policy URL (the operator's own, submitted with the admin token) go before
+    its baselines. The baselines a first start queues (thousands of episodes) then never bury the operator's
+    check of a deployment; participants' work goes before both (:func:`fair_key`)."""
+    return (Submission.policy_url.startswith("builtin:"), Submission.id)
+
+
 def claim_episode(
     session: Session,
     worker: str,
@@ -417,12 +430,13 @@ def claim_episode(
         )
     fair = eligible if episode_id is None else and_(eligible, EpisodeRow.enqueued_at.is_not(None))
     for load in participant_loads(session):
-        # Submission by submission (oldest first; a participant has a few active ones), each through the
-        # (submission, status) index: a backlog of others' pending episodes is never scanned.
+        # Submission by submission (oldest first; a participant has a few active ones, the built-in one its
+        # operator's before the baselines: :func:`submission_order`), each through the (submission, status)
+        # index: a backlog of others' pending episodes is never scanned.
         for submission_id in session.execute(
             select(Submission.id)
             .where(Submission.participant_id == load.participant_id, Submission.status.in_(ACTIVE_SUBMISSION))
-            .order_by(Submission.id)
+            .order_by(*submission_order())
         ).scalars():
             claim = _claim_one(
                 session,
@@ -578,6 +592,8 @@ def complete_episode(
             **environment(),
             "math_rules": result.get("rules_version"),
             "sampler": result.get("sampler_version"),
+            # recorded only when the episode played the first boxes of its group only (the demo's)
+            **({"max_boxes": result["max_boxes"]} if result.get("max_boxes") else {}),
         },
         "step": len(result.get("steps", ())) or result["boxes_placed"],
         "metrics": result["metrics"],

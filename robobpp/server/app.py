@@ -111,9 +111,16 @@ def create_app(
             executor is not None
         ):  # else runtime.executor stays as given (server/processes.py: the supervisor's)
             runtime.executor = executor
+        progress = None
+        if first_start and run_workers:  # the process that started the workers logs their progress
+            from robobpp.server.services.progress import ProgressLog
+
+            progress = ProgressLog(runtime.read_session, settings.workers).start()
         try:
             yield
         finally:
+            if progress is not None:
+                progress.stop()
             if executor is not None:
                 executor.stop()
             app.state.probe_gate.shutdown()

@@ -55,14 +55,22 @@ def ensure_private_split(settings: Any) -> bool:
     return True
 
 
-def ensure_baselines(session: Session, settings: Any) -> int:
+def ensure_baselines(
+    session: Session,
+    settings: Any,
+    stale: dict[str, list[str]] | None = None,
+    queued: list[int] | None = None,
+) -> int:
     """One current submission per built-in baseline on every offered (dataset, setting) of both tracks: the
     public track carries the baselines too, so a debug run there is compared with something.
 
     A baseline is queued again when its latest evaluation no longer fits the boards (:func:`stale_reason`): a
     deployment upgraded across a physics version, or one that now offers more datasets or settings, or the
     paper protocol, shows its baselines on every board again without the operator re-submitting them. The
-    older submission stays (its history); boards rank each baseline by its best current entry."""
+    older submission stays (its history); boards rank each baseline by its best current entry.
+
+    ``stale`` (if given) gets the baselines queued again by reason, ``queued`` the sizes (episodes) of the
+    submissions created."""
     participant = session.execute(
         select(Participant).where(Participant.name == BUILTIN_PARTICIPANT)
     ).scalar_one()
@@ -83,7 +91,9 @@ def ensure_baselines(session: Session, settings: Any) -> int:
                 if reason is None:
                     continue
                 log.warning("baseline %s (%s track) queued again: %s", name, track, reason)
-            work.create_submission(
+                if stale is not None:
+                    stale.setdefault(reason, []).append(f"{TITLES.get(name, name)} ({track})")
+            sub = work.create_submission(
                 session,
                 participant,
                 name=TITLES.get(name, name),
@@ -93,6 +103,8 @@ def ensure_baselines(session: Session, settings: Any) -> int:
                 groups=settings.groups,
                 track=track,
             )
+            if queued is not None:
+                queued.append(sub.episodes_total)
             created += 1
     return created
 
@@ -102,11 +114,28 @@ def stale_reason(session: Session, sub: Submission, settings: Any) -> str | None
     running, or when it failed: a failure is the operator's to look at, not to repeat at every start)."""
     if sub.status != "completed":
         return None
+    reasons = []
+    runs = session.execute(
+        select(RunRow.episodes_total, RunRow.extras).where(
+            RunRow.submission_id == sub.id, RunRow.protocol == "closed"
+        )
+    ).all()
+    played = min((int(n or 0) for n, _e in runs), default=settings.groups)
+    if played < settings.groups:  # every board would list it as partial
+        reasons.append(f"it ran {played} group(s) per board, the boards have {settings.groups}")
+    # the demo's episodes play the first boxes of each group only (a list: runs of several caps)
+    capped = {str(((extras or {}).get("provenance") or {}).get("max_boxes")) for _n, extras in runs}
+    if capped != {str(settings.max_boxes or None)}:
+        had = "every box" if capped == {"None"} else "the first " + " or ".join(sorted(capped - {"None"}))
+        wanted = f"the first {settings.max_boxes}" if settings.max_boxes else "every box"
+        reasons.append(f"its episodes played {had} of each group, the boards play {wanted}")
     missing = sorted(set(settings.datasets) - set(sub.datasets)) + sorted(
         set(settings.enabled_settings) - set(sub.settings)
     )
     if missing:
-        return f"it was not evaluated on {', '.join(missing)}"
+        reasons.append(f"it was not evaluated on {', '.join(missing)}")
+    if reasons:
+        return "; ".join(reasons)
     protocols = set(session.execute(select(RunRow.protocol).where(RunRow.submission_id == sub.id)).scalars())
     if work.paper_settings(list(sub.settings), sub.track) and "paper" not in protocols:
         return "it has no paper-protocol runs (evaluated before the server computed them)"
@@ -146,7 +175,23 @@ def bootstrap(runtime: Any) -> None:
     except Exception:  # noqa: BLE001 - the API must still come up (e.g. no network for the data)
         log.exception("could not build the private split; private evaluations will fail until it exists")
     if settings.evaluate_baselines:
+        stale: dict[str, list[str]] = {}
+        queued: list[int] = []
         with runtime.session() as session:
-            n = ensure_baselines(session, settings)
+            n = ensure_baselines(session, settings, stale, queued)
+        for reason, which in stale.items():
+            log.warning(
+                "%d baseline entr%s no longer fit this server's settings (%s): %s; queued again for the "
+                "current settings (until they finish, the boards list the old entries apart or leave them out)",
+                len(which),
+                "y" if len(which) == 1 else "ies",
+                reason,
+                ", ".join(which),
+            )
         if n:
-            log.warning("queued %d baseline submission(s)", n)
+            log.warning(
+                "queued %d baseline submission(s), %d episodes, behind any participant's or operator's own "
+                "submission; the log reports the backlog and its expected end every minute",
+                n,
+                sum(queued),
+            )

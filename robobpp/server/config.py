@@ -57,6 +57,9 @@ class Settings(BaseSettings):
     #: Evaluation groups per dataset (30 on the real leaderboard, fewer for the demo).
     groups: int = Field(default=30, ge=1, le=1000)
     datasets: tuple[str, ...] = ("repetitive", "diverse", "longboard")
+    #: Boxes of each episode played at most: the first ones of its group (0: every box, as the benchmark).
+    #: The demo plays a few so that its boards fill within minutes; never on a real leaderboard.
+    max_boxes: int = Field(default=0, ge=0)
     #: Settings a submission may ask for; physics/execution join when their modules import.
     settings: tuple[str, ...] = ()
     #: ``module:function(dataset, split, group, groups) -> EpisodeSpec`` override (tests, offline demo).

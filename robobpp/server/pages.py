@@ -29,7 +29,7 @@ from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body, known_lookaheads
 from robobpp.server.problems import ProblemError
-from robobpp.server.services import access
+from robobpp.server.services import access, progress
 from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
@@ -103,6 +103,7 @@ async def overall_page(
             has_physical=bool(set(setting_names) & set(PHYSICAL)),
             lookahead=lookahead,
             lookaheads=shown.get("lookaheads", [0]),
+            status=_status(request, settings),
         )
 
     return await _shared(
@@ -113,6 +114,12 @@ async def overall_page(
         build,
         lookahead,
     )
+
+
+def _status(request: Request, settings: Any) -> dict[str, Any]:
+    """The demo, the backlog and baselines queued again, as the boards' pages say them (services/progress.py)."""
+    with request.app.state.runtime.read_session() as session:
+        return progress.page_status(session, settings)
 
 
 async def _shared(
@@ -217,6 +224,7 @@ async def board_page(
                 for s in setting_names
                 for d in datasets
             ],
+            status=_status(request, settings),
         )
 
     return await _shared(

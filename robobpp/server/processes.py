@@ -38,6 +38,7 @@ from collections.abc import Callable
 from multiprocessing.process import BaseProcess
 from typing import Any
 
+from robobpp import logs
 from robobpp.worker.lifeline import Lifeline
 
 log = logging.getLogger("robobpp.server")
@@ -90,11 +91,17 @@ def api_process(
     from robobpp.server.config import Settings
     from robobpp.server.connections import server_config
 
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logs.configure()
     settings = Settings(**overrides)
     app = create_app(settings, start_workers=False, first_start=False)
     app.state.runtime.executor = SupervisorsWorkers(workers_alive, lifeline)
-    config = uvicorn.Config(app, log_level="info", access_log=False, **server_config(settings))
+    config = uvicorn.Config(
+        app,
+        log_level="info",
+        log_config=logs.uvicorn_log_config(),
+        access_log=False,
+        **server_config(settings),
+    )
     uvicorn.Server(config).run(sockets=[sock])
 
 
@@ -177,6 +184,7 @@ def serve_processes(
     from robobpp.server.bootstrap import bootstrap
     from robobpp.server.runtime import Runtime
     from robobpp.server.services.board_worker import await_first_publication
+    from robobpp.server.services.progress import ProgressLog
 
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -191,7 +199,7 @@ def serve_processes(
     # the API processes' request metrics, summed at each scrape (server/prometheus.py); fresh at each start
     metrics_dir = tempfile.TemporaryDirectory(prefix="robobpp-metrics-")
     os.environ["PROMETHEUS_MULTIPROC_DIR"] = metrics_dir.name  # inherited by the spawned API processes
-    executor = board_worker = None
+    executor = board_worker = progress = None
     previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
     stopping = threading.Event()
 
@@ -203,6 +211,7 @@ def serve_processes(
     supervisor: Supervisor | None = None
     try:
         executor = start_executor(settings)
+        progress = ProgressLog(runtime.read_session, settings.workers).start()
         board_worker = start_board_worker(runtime)
         if board_worker is not None:
             await_first_publication(runtime.read_session, FIRST_PUBLICATION_S)
@@ -236,6 +245,8 @@ def serve_processes(
             supervisor.stop()
         if executor is not None:
             executor.stop()
+        if progress is not None:
+            progress.stop()
         if board_worker is not None:
             board_worker.stop()
         sock.close()

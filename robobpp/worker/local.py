@@ -19,6 +19,7 @@ import time
 from multiprocessing.process import BaseProcess
 from typing import Any
 
+from robobpp import logs
 from robobpp.db import work
 from robobpp.db.session import make_engine, make_session_factory
 from robobpp.worker.lifeline import Lifeline
@@ -42,6 +43,7 @@ def worker_main(options: WorkerOptions, stop: Any, lifeline: Lifeline) -> None:
     leaving = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's; it stops us through ``stop``
     signal.signal(signal.SIGTERM, lambda *_: leaving.set())  # finish the current episode, then leave
+    logs.configure()  # its lines (an outage, a failed claim) look like the server's, time stamp included
     engine = make_engine(options.database_url)
     factory = make_session_factory(engine)
     me = worker_id("local")

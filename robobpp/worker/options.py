@@ -14,6 +14,8 @@ class WorkerOptions:
     groups: int = 30
     private_dir: Path = Path("datasets_private")
     spec_provider: str = ""
+    #: Boxes of each episode played at most (0: every box): the demo's short episodes.
+    max_boxes: int = 0
     #: Short, renewed every quarter lease by a heartbeat: a dead worker's episode is re-sent within ~25 s.
     lease_s: float = 20.0
     max_attempts: int = 3
@@ -35,6 +37,7 @@ def worker_options(settings: Any) -> WorkerOptions:
         groups=settings.groups,
         private_dir=settings.private_dir,
         spec_provider=settings.spec_provider,
+        max_boxes=settings.max_boxes,
         lease_s=settings.lease_s,
         max_attempts=settings.max_attempts,
         poll_interval_s=settings.poll_interval_s,

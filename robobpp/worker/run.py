@@ -153,6 +153,7 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
             groups=settings.groups,
             private_dir=settings.private_dir,
             provider=settings.spec_provider,
+            max_boxes=settings.max_boxes,
         )
         if not claim.policy_url.startswith("builtin:"):
             # The id a participant's policy sees names neither split nor group, and differs per episode and
@@ -210,6 +211,7 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
         lease.done.set()
         lease.join(timeout=5)
     data = result.to_dict()  # steps included: a Math episode's plan is kept on every track (complete_episode)
+    data["max_boxes"] = settings.max_boxes or None
     with factory() as s, s.begin():
         return work.complete_episode(s, claim.episode_id, claim.token, data, keep_trace=claim.keep_trace)
 
@@ -227,6 +229,7 @@ def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: Worke
             groups=settings.groups,
             private_dir=settings.private_dir,
             provider=settings.spec_provider,
+            max_boxes=settings.max_boxes,
         )
         with factory() as s:
             plan = work.episode_plan(s, claim.episode_id)
@@ -245,10 +248,9 @@ def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: Worke
     if lease.lost.is_set():
         log.info("episode %s: claim lost (cancelled or taken over); result dropped", claim.episode_id)
         return False
+    data = {**result.to_dict(), "max_boxes": settings.max_boxes or None}
     with factory() as s, s.begin():
-        return work.complete_episode(
-            s, claim.episode_id, claim.token, result.to_dict(), keep_trace=claim.keep_trace
-        )
+        return work.complete_episode(s, claim.episode_id, claim.token, data, keep_trace=claim.keep_trace)
 
 
 def math_result_of(plan: dict[str, Any], spec: EpisodeSpec) -> EpisodeResult:

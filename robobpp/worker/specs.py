@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from collections.abc import Callable
 from functools import lru_cache
@@ -53,7 +54,24 @@ def _public(dataset: str, groups: int) -> tuple[EpisodeSpec, ...]:
 
 
 def episode_spec(
-    dataset: str, split: str, group: int, *, groups: int, private_dir: Path, provider: str = ""
+    dataset: str,
+    split: str,
+    group: int,
+    *,
+    groups: int,
+    private_dir: Path,
+    provider: str = "",
+    max_boxes: int = 0,
+) -> EpisodeSpec:
+    """The group's episode; ``max_boxes`` > 0 keeps its first boxes only (the demo's short episodes)."""
+    spec = _spec(dataset, split, group, groups=groups, private_dir=private_dir, provider=provider)
+    if 0 < max_boxes < len(spec.boxes):
+        spec = dataclasses.replace(spec, boxes=spec.boxes[:max_boxes])
+    return spec
+
+
+def _spec(
+    dataset: str, split: str, group: int, *, groups: int, private_dir: Path, provider: str
 ) -> EpisodeSpec:
     if provider:
         return _provider(provider)(dataset, split, group, groups)

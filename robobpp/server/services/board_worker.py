@@ -24,6 +24,7 @@ import logging
 import math
 import multiprocessing
 import os
+import signal
 import socket
 import threading
 import time
@@ -39,6 +40,7 @@ from sqlalchemy import CursorResult, Table, Update, delete, or_, tuple_, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
+from robobpp import logs
 from robobpp.db.models import BoardPart, BoardPublication, utcnow
 from robobpp.server.services.board_engine import BoardEngine
 from robobpp.server.services.boards import (
@@ -553,8 +555,11 @@ def _process_main(
     once left its worker computing to the end of its pass — at 100,000 submissions a full one is 18 minutes and
     14 GB — and renewing its claim on the track, so a restarted server's worker waited that long to claim it.
     Nothing is lost: an unfinished publication is never committed."""
+    # Ctrl-C at a terminal reaches the whole process group: the server stops us through ``stop`` (a
+    # KeyboardInterrupt here printed its traceback under the server's clean shutdown)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     lifeline.hold("board worker")
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logs.configure()
     worker = worker_for_url(url, datasets, settings, **timing)
     # ends when asked, or with the API process however it ends; a SIGTERM (to the whole process group, say)
     # ends it at once: a publication cut short leaves the previous boards served and its lease to lapse

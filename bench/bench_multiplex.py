@@ -8,6 +8,9 @@ the SDK in this process (one server per participant, each thinking ``--think`` s
   submission that one completed.
 - ``throughput``: ``--submissions`` participants each submit ``--groups`` episodes thinking 1 s a box (offline
   12-box episodes); prints the episodes completed per hour over ``--window`` seconds, after the first claim.
+  A participant's server (the SDK's) answers one request at a time: its episodes in flight share its second a
+  box, so 20 participants decide at most 20 boxes a second however many episodes run; ``--max-running 1``
+  gives each one episode at a time (its own policy), the comparison of N policies with N workers.
 - ``memory``: the memory an episode in flight holds, per setting (``--settings``): ``--groups`` real episodes
   played to their end by DBL in this process and kept open (worlds, steps, observations), the growth of the
   resident set divided by their number (after one episode played and closed, for the imports and caches).
@@ -32,7 +35,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -126,8 +129,24 @@ class Server:
             os.killpg(self.proc.pid, 9)
 
 
+def group_cpu(pgid: int) -> dict[int, float]:
+    """CPU seconds of each process of a process group (the server and its workers), by process id."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid:  # fields after the name: state, ppid, pgrp, ..., utime (11), stime (12)
+            out[int(stat.parent.name)] = (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
 def when(value: Any) -> datetime:
-    return value if isinstance(value, datetime) else datetime.fromisoformat(str(value))
+    """A stored time (SQLite gives it back without its zone: UTC)."""
+    moment = value if isinstance(value, datetime) else datetime.fromisoformat(str(value))
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
 
 
 def submit(client: httpx.Client, url: str, datasets: list[str], track: str) -> int:
@@ -187,6 +206,7 @@ def throughput(args: argparse.Namespace, state: Path, code: Path, extra: dict[st
         ROBOBPP_GROUPS=str(args.groups),
         ROBOBPP_EVALUATE_BASELINES="0",
         ROBOBPP_SPEC_PROVIDER="robobpp.worker.specs:offline_spec",
+        ROBOBPP_PARTICIPANT_MAX_RUNNING=str(args.max_running),
         **extra,
     )
     try:
@@ -197,7 +217,13 @@ def throughput(args: argparse.Namespace, state: Path, code: Path, extra: dict[st
             sids.append(submit(server.participant(f"p{i}"), policy.url, ["diverse"], "private"))
         wait(lambda: server.rows("SELECT min(started_at) FROM episodes")[0][0] is not None, 120)
         first = when(server.rows("SELECT min(started_at) FROM episodes")[0][0])
-        time.sleep(args.window)
+        samples, cpu0, mine0 = [], group_cpu(server.proc.pid), time.process_time()
+        while time.time() < first.timestamp() + args.window:
+            time.sleep(10)
+            samples.append(server.rows("SELECT count(*) FROM episodes WHERE status = 'running'")[0][0])
+        cpu = group_cpu(server.proc.pid)
+        used = sorted((cpu[p] - cpu0.get(p, 0.0)) / args.window for p in cpu)
+        mine = (time.process_time() - mine0) / args.window
         cutoff = first.timestamp() + args.window
         done = [
             when(f)
@@ -208,7 +234,8 @@ def throughput(args: argparse.Namespace, state: Path, code: Path, extra: dict[st
         print(
             f"{args.submissions} submissions thinking {args.think:g} s a box: {len(done)} episodes done in "
             f"{args.window:.0f} s = {len(done) * 3600 / args.window:.0f} episodes/hour "
-            f"({peak} running at the end of the window)"
+            f"({peak} running at the end of the window; every 10 s: {samples}); CPU (cores) of the server's "
+            f"processes {', '.join(f'{u:.2f}' for u in used)}, of the policies' servers {mine:.2f}"
         )
     finally:
         server.stop()
@@ -287,6 +314,9 @@ def main() -> None:
     parser.add_argument("--submissions", type=int, default=20)
     parser.add_argument("--groups", type=int, default=10)
     parser.add_argument("--window", type=float, default=120.0)
+    parser.add_argument(
+        "--max-running", type=int, default=4, help="ROBOBPP_PARTICIPANT_MAX_RUNNING (throughput)"
+    )
     parser.add_argument("--baselines", default="dbl,lsah,hm")
     parser.add_argument("--settings", default="math,physics")
     args = parser.parse_args()

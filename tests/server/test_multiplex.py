@@ -84,3 +84,60 @@ def test_killed_multiplexed_worker_episodes_are_retried_and_recorded_once(
     _check_recorded_once(client, db_url, sid, ["diverse", "repetitive"])
     attempts = db_rows(db_url, "SELECT id, attempts FROM episodes WHERE submission_id = :s", s=sid)
     assert all(a == 2 for i, a in attempts if i in victims), attempts
+
+
+def _multiplexer(tmp_path, policy_url: str, runner, limit: int = 4):  # type: ignore[no-untyped-def]
+    """A worker's multiplexer on a fresh SQLite database with one submission of 4 Math episodes."""
+    from robobpp.db import work
+    from robobpp.db.migrate import upgrade
+    from robobpp.db.models import Participant
+    from robobpp.db.session import make_engine, make_session_factory, transaction
+    from robobpp.worker.multiplex import Multiplexer
+    from robobpp.worker.options import WorkerOptions
+
+    url = f"sqlite:///{tmp_path / 'rule.sqlite3'}"
+    engine = make_engine(url)
+    upgrade(url, engine=engine)
+    factory = make_session_factory(engine)
+    with transaction(factory) as s:
+        p = Participant(name="p")
+        s.add(p)
+        s.flush()
+        work.create_submission(
+            s, p, name="x", policy_url=policy_url, datasets=["diverse"], settings=["math"], groups=4
+        )
+    options = WorkerOptions(database_url=url, episodes_per_worker=limit, max_running_per_participant=10)
+    return Multiplexer(factory, options, "local:test:1", runner=runner)
+
+
+def test_a_further_episode_is_claimed_only_while_every_one_in_flight_waits(tmp_path) -> None:
+    """The rule without a server: an episode that computes (a built-in's, a replay) keeps the CPU and no other is
+    claimed beside it; one that waits on its policy lets another be claimed, up to the per-process bound."""
+    import threading
+
+    release = threading.Event()
+
+    def computes(factory, claim, options, gate) -> bool:  # type: ignore[no-untyped-def]
+        release.wait(10)
+        return True
+
+    mux = _multiplexer(tmp_path, "builtin:dbl", computes)
+    assert mux.claim_next(1.0) is True
+    assert mux.claim_next(0.3) is False and mux.in_flight() == 1  # the CPU stays busy: nothing claimed
+    release.set()
+    assert mux.drain(10)
+
+    release.clear()
+
+    def waits(factory, claim, options, gate) -> bool:  # type: ignore[no-untyped-def]
+        with gate.waiting():
+            release.wait(10)
+        return True
+
+    (tmp_path / "w").mkdir()
+    mux = _multiplexer(tmp_path / "w", "http://policy.example", waits, limit=3)
+    assert [mux.claim_next(1.0) for _ in range(3)] == [True, True, True]
+    assert mux.claim_next(0.3) is False and mux.in_flight() == 3  # the per-process bound
+    release.set()
+    assert mux.drain(10) and mux.claim_next(1.0) is True  # the fourth episode, once room is back
+    assert mux.drain(10)

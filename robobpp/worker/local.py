@@ -30,34 +30,38 @@ log = logging.getLogger("robobpp.worker")
 
 
 def worker_main(options: WorkerOptions, stop: Any, lifeline: Lifeline) -> None:
-    """Claim-run-record until ``stop.value`` is set (or SIGTERM). Runs in a child process, which ends at once
-    when its server process does (``lifeline``), even mid-episode.
+    """Claim-run-record until ``stop.value`` is set (or SIGTERM), with up to ``options.episodes_per_worker``
+    episodes in flight (robobpp/worker/multiplex.py); then finish those, and leave. Runs in a child process,
+    which ends at once when its server process does (``lifeline``), even mid-episode.
 
     ``stop`` is a lock-free shared byte on purpose: a ``multiprocessing.Event`` deadlocks its ``set()`` when
     a process dies while waiting on it (e.g. SIGTERM sent to the whole process group by ``timeout`` or
     systemd), and the server would then never finish shutting down.
     """
     lifeline.hold("local worker")
-    from robobpp.worker.run import claim_and_run, worker_id
+    from robobpp.worker.multiplex import Multiplexer
+    from robobpp.worker.run import worker_id
 
     leaving = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's; it stops us through ``stop``
-    signal.signal(signal.SIGTERM, lambda *_: leaving.set())  # finish the current episode, then leave
+    signal.signal(signal.SIGTERM, lambda *_: leaving.set())  # finish the episodes in flight, then leave
     logs.configure()  # its lines (an outage, a failed claim) look like the server's, time stamp included
     engine = make_engine(options.database_url)
     factory = make_session_factory(engine)
     me = worker_id("local")
     outages = OutageLog(log, f"worker {me}")
+    episodes = Multiplexer(factory, options, me)
     try:
         while not stop.value and not leaving.is_set() and lifeline.intact():  # orphans stop claiming
             try:
-                outcome = claim_and_run(factory, options, me)
+                outcome = episodes.claim_next(options.poll_interval_s)
                 outages.ok("database")
             except Exception as exc:  # noqa: BLE001 - the database blinked; wait and try again
                 outages.failed(exc, "claim")
                 outcome = None
             if outcome is None:
                 leaving.wait(options.poll_interval_s)
+        episodes.drain()
     finally:
         engine.dispose()
 
@@ -138,7 +142,7 @@ class LocalExecutor:
             return [p.pid for p in self._procs if p.pid is not None and p.is_alive()]
 
     def stop(self, timeout_s: float = 10.0) -> None:
-        """Ask workers to finish their current episode; terminate those that do not within the timeout."""
+        """Ask workers to finish their episodes in flight; terminate those that do not within the timeout."""
         self._stopping.set()
         self._stop.value = 1
         deadline = time.monotonic() + timeout_s

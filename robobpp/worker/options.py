@@ -28,6 +28,8 @@ class WorkerOptions:
     pull_reconnect_s: float = 30.0
     #: Episodes of one participant's remote policies running at once (outbound calls to one server).
     max_running_per_participant: int = 4
+    #: Episodes one worker process keeps in flight (robobpp/worker/multiplex.py); 1: one at a time.
+    episodes_per_worker: int = 16
 
 
 def worker_options(settings: Any) -> WorkerOptions:
@@ -48,4 +50,5 @@ def worker_options(settings: Any) -> WorkerOptions:
         pull_wait_s=settings.pull_wait_s,
         pull_reconnect_s=settings.pull_reconnect_s,
         max_running_per_participant=settings.participant_max_running,
+        episodes_per_worker=settings.episodes_per_worker,
     )

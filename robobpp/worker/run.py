@@ -3,7 +3,8 @@
 :func:`run_claimed` runs one already-claimed episode and records it; :func:`claim_and_run` claims the next
 one first. A background thread renews the lease while the episode runs, and the loop stops as soon as the
 claim is lost (cancelled, or taken over after this worker was presumed dead): its result is then dropped,
-never written twice.
+never written twice. A worker that keeps several episodes in flight (robobpp/worker/multiplex.py) hands in a
+``gate``: the episode holds it while it computes and lets go of it while it waits on the participant's policy.
 """
 
 from __future__ import annotations
@@ -15,7 +16,9 @@ import secrets
 import socket
 import threading
 import traceback
-from typing import Any
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
+from typing import Any, Protocol
 
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -87,12 +90,49 @@ def make_policy(claim: Claim, settings: WorkerOptions) -> Any:
     return policy
 
 
-def _pair_pull_client(policy: Any) -> None:
+class Gate(Protocol):
+    """The worker process's CPU, as one episode among several in flight sees it (robobpp/worker/multiplex.py):
+    held while the episode computes, let go of inside :meth:`waiting`."""
+
+    def waiting(self) -> AbstractContextManager[None]: ...
+
+
+class _NoGate:
+    """One episode at a time: nothing to let go of."""
+
+    @contextmanager
+    def waiting(self) -> Iterator[None]:
+        yield
+
+
+class _WaitingTransport:
+    """A participant's transport whose exchanges let go of the gate: while the worker waits for the policy's
+    answer (push or pull), another episode of the process may compute. Everything else passes through."""
+
+    def __init__(self, inner: Any, gate: Gate) -> None:
+        self._inner, self._gate = inner, gate
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+    def request(self, *args: Any, **kwargs: Any) -> Any:
+        with self._gate.waiting():
+            return self._inner.request(*args, **kwargs)
+
+
+def _wait_on_network(policy: Any, gate: Gate) -> None:
+    """Let ``policy``'s exchanges with the participant go of the gate. A built-in is not wrapped: it is served
+    in this very process, its think time is this machine's CPU, so it keeps the gate like the simulation."""
+    policy._connection = _WaitingTransport(policy._connection, gate)
+
+
+def _pair_pull_client(policy: Any, gate: Gate) -> None:
     """Pull mode: wait for the participant's client before the episode starts (raises ``NoClient``)."""
     transport = getattr(policy, "_connection", None)
     pair = getattr(transport, "pair", None)
     if transport is not None and pair is not None:
-        pair(transport.wait_s)
+        with gate.waiting():
+            pair(transport.wait_s)
 
 
 class _Lease(threading.Thread):
@@ -141,8 +181,13 @@ def _release_crashed(
     return False
 
 
-def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOptions) -> bool:
-    """Run a claimed episode and record it. Returns whether this call recorded the result."""
+def run_claimed(
+    factory: sessionmaker[Session], claim: Claim, settings: WorkerOptions, gate: Gate | None = None
+) -> bool:
+    """Run a claimed episode and record it. Returns whether this call recorded the result.
+
+    ``gate``: held by the caller; let go of while the episode waits on a participant's policy (never on a
+    built-in's, nor during a replay), held again before the episode computes on."""
     if claim.protocol == "paper":
         return replay_claimed(factory, claim, settings)
     try:
@@ -162,6 +207,8 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
             # stay the same on every run.
             spec = dataclasses.replace(spec, label=f"ep-{secrets.token_hex(8)}")
         policy = make_policy(claim, settings)
+        if gate is not None and not claim.policy_url.startswith("builtin:"):
+            _wait_on_network(policy, gate)
     except Exception as exc:  # noqa: BLE001 - an evaluation problem, not the policy's: retry, then fail
         with factory() as s, s.begin():
             work.release_episode(
@@ -177,7 +224,7 @@ def run_claimed(factory: sessionmaker[Session], claim: Claim, settings: WorkerOp
     lease.boxes_total = len(spec.boxes)
     lease.start()
     try:
-        _pair_pull_client(policy)  # under the lease: the wait may outlast it
+        _pair_pull_client(policy, gate or _NoGate())  # under the lease: the wait may outlast it
     except Exception as exc:  # noqa: BLE001 - no client (yet): hand the episode back, bounded retries
         lease.done.set()
         lease.join(timeout=5)

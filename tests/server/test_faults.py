@@ -89,12 +89,17 @@ def test_cancel_stops_workers_taking_its_episodes(make_server, policy_server, tm
     wait_for(lambda: _running(db_url, sid, 1))
     r = client.post(f"/submissions/{sid}/cancel")
     assert r.status_code == 200 and r.json()["status"] == "cancelled"
-    time.sleep(4)  # longer than a lease renewal: the running episode has noticed
+    taken = db_rows(db_url, "SELECT attempts FROM episodes WHERE submission_id = :s ORDER BY id", s=sid)
+    assert taken[0][0] == 1  # the worker keeps several in flight: how many it had taken does not matter
+    time.sleep(4)  # longer than a lease renewal: the running episodes have noticed
     rows = db_rows(
-        db_url, "SELECT status, attempts FROM episodes WHERE submission_id = :s ORDER BY id", s=sid
+        db_url,
+        "SELECT status, attempts, metrics FROM episodes WHERE submission_id = :s ORDER BY id",
+        s=sid,
     )
-    assert [s for s, _ in rows] == ["cancelled"] * 4
-    assert [a for _, a in rows] == [1, 0, 0, 0]  # nobody took another of its episodes
+    assert [s for s, _a, _m in rows] == ["cancelled"] * 4
+    assert [(a,) for _s, a, _m in rows] == taken  # nobody took another of its episodes
+    assert all(m is None for _s, _a, m in rows)  # the in-flight episodes' results were dropped
     assert client.post(f"/submissions/{sid}/cancel").status_code == 409
     # the worker is free again: a new submission is evaluated
     sid2 = _submit(client, policy_server(), ["diverse"])

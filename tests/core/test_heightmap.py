@@ -27,7 +27,9 @@ def _random_heightmaps(rng: np.random.Generator, shape: tuple[int, int], height:
     tops), physical ones rounded to 1 mm, and unrounded floats."""
     state = ContainerState(ContainerSpec(shape[0], shape[1], height))
     for i in range(40):
-        length, width = (float(v) for v in np.minimum(np.round(rng.uniform(0.05, 0.6, 2) * shape + 0.5, 1), shape))
+        length, width = (
+            float(v) for v in np.minimum(np.round(rng.uniform(0.05, 0.6, 2) * shape + 0.5, 1), shape)
+        )
         x, y = (float(v) for v in rng.integers(0, (shape[0] - length + 1, shape[1] - width + 1)))
         box = Box(length, width, float(np.round(rng.uniform(0.5, 9), 1)))
         placement = state.drop(box, x, y, 0, i)
@@ -53,7 +55,11 @@ def test_fits_map_is_exactly_the_resting_height_test():
                 length, width = (float(v) for v in np.round(rng.uniform(0.5, 32, 2), 1))
                 # free heights, and ones that put the top exactly on the limit above some cell
                 cell = float(hm.flat[rng.integers(hm.size)])
-                for height in (float(np.round(rng.uniform(0.1, 25), 1)), container_height - cell, limit - cell):
+                for height in (
+                    float(np.round(rng.uniform(0.1, 25), 1)),
+                    container_height - cell,
+                    limit - cell,
+                ):
                     expected = drop_height_map(hm, length, width) + height <= limit
                     got = fits_map(hm, length, width, height, limit)
                     assert got.dtype == bool and got.shape == expected.shape

@@ -89,7 +89,7 @@ def test_gym_rollout_example_runs(real_data):
 
     example = Path(__file__).resolve().parents[2] / "examples" / "gym_rollout.py"
     proc = subprocess.run(
-        [sys.executable, str(example), "--episodes", "2", "--groups", "3"],
+        [sys.executable, str(example), "--episodes", "2", "--groups", "2"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -100,6 +100,7 @@ def test_gym_rollout_example_runs(real_data):
     assert len(lines) == 2 and all(
         line.startswith("repetitive-train-") and " boxes, return " in line for line in lines
     )
+    assert len({line.split(":")[0] for line in lines}) == 2  # a different group each episode
 
 
 def test_no_feasible_placement_ends_the_episode():

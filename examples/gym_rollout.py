@@ -21,7 +21,7 @@ from robobpp.env import PackEnv
 def greedy_action(obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray | None:
     """The feasible (x, y, orientation) whose footprint rests lowest; ties back-left (vectorised); None when
     nothing is feasible (the env has then already ended the episode)."""
-    heightmap, (length, width, _, _) = obs["heightmap"], obs["box"]
+    heightmap, (length, width, _, _) = obs["heightmap"][0], obs["box"]  # (1, nx, ny): one image channel
     best, best_cost = None, np.inf
     for o, (lx, wy) in enumerate(((length, width), (width, length))):
         z = drop_height_map(heightmap, lx, wy)  # resting height at every (x, y)

@@ -29,10 +29,11 @@ def cells_spanned(size: float) -> int:
     return max(1, math.ceil(size - _EPS))
 
 
-def _sliding_max_rows(a: np.ndarray, window: int) -> np.ndarray:
-    """Max over every run of ``window`` consecutive rows (axis 0), in O(n log window).
+def _sliding_rows(a: np.ndarray, window: int, combine: np.ufunc) -> np.ndarray:
+    """``combine`` (``np.maximum``; ``np.logical_and`` on booleans) over every run of ``window`` consecutive rows
+    (axis 0), in O(n log window).
 
-    Doubling trick: after k rounds m[i] = max(a[i : i + 2**k]); two overlapping power-of-two windows
+    Doubling trick: after k rounds m[i] = combine(a[i : i + 2**k]); two overlapping power-of-two windows
     then cover any window size.
     """
     n = a.shape[0]
@@ -42,17 +43,18 @@ def _sliding_max_rows(a: np.ndarray, window: int) -> np.ndarray:
     m = a
     span = 1
     while span * 2 <= window:
-        m = np.maximum(m[:-span], m[span:])
+        m = combine(m[:-span], m[span:])
         span *= 2
-    return np.maximum(m[:out_len], m[window - span : window - span + out_len])
+    return combine(m[:out_len], m[window - span : window - span + out_len])
 
 
-def _window_max(a: np.ndarray, length: float, width: float) -> np.ndarray:
-    """Max of ``a`` over the ``length`` × ``width`` footprint at every integer position where it lies inside the
-    grid: shape (L - l + 1, W - w + 1), possibly empty. On a boolean array: whether any cell under it is True."""
+def _window(a: np.ndarray, length: float, width: float, combine: np.ufunc) -> np.ndarray:
+    """``combine`` of ``a`` over the ``length`` × ``width`` footprint at every integer position where it lies
+    inside the grid: shape (L - l + 1, W - w + 1), possibly empty."""
     lc, wc = cells_spanned(length), cells_spanned(width)
-    rows = _sliding_max_rows(a, lc)
-    return _sliding_max_rows(rows.T, wc).T
+    rows = _sliding_rows(a, lc, combine)
+    # the columns as contiguous rows: numpy runs the column pass 1.5-2 times faster than on a transposed view
+    return _sliding_rows(np.ascontiguousarray(rows.T), wc, combine).T
 
 
 def drop_height_map(heightmap: np.ndarray, length: float, width: float) -> np.ndarray:
@@ -62,15 +64,15 @@ def drop_height_map(heightmap: np.ndarray, length: float, width: float) -> np.nd
     where the footprint lies inside the grid are returned, so the shape is (L - l + 1, W - w + 1) (possibly
     empty when the box is larger than the container).
     """
-    return _window_max(heightmap, length, width)
+    return _window(heightmap, length, width, np.maximum)
 
 
 def fits_map(heightmap: np.ndarray, length: float, width: float, height: float, limit: float) -> np.ndarray:
     """Whether a box of ``height`` dropped at each position of :func:`drop_height_map` keeps its top at or below
     ``limit``: exactly ``drop_height_map(heightmap, length, width) + height <= limit``, without the heights.
 
-    The box fits iff no cell under its footprint has ``cell + height > limit`` (float addition is monotone, so
-    the resting height, the highest cell, passes iff every cell does): a sliding *any* over booleans, about
-    2.5 times faster than the sliding max over floats.
+    The box fits iff every cell under its footprint has ``cell + height <= limit`` (float addition is monotone,
+    so the resting height, the highest cell, passes iff every cell does): a sliding "all" over booleans, about
+    3 times faster than the sliding max over floats.
     """
-    return ~_window_max(heightmap + height > limit, length, width)
+    return _window(heightmap + height <= limit, length, width, np.logical_and)

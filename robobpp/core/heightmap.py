@@ -67,12 +67,13 @@ def drop_height_map(heightmap: np.ndarray, length: float, width: float) -> np.nd
     return _window(heightmap, length, width, np.maximum)
 
 
-def fits_map(heightmap: np.ndarray, length: float, width: float, height: float, limit: float) -> np.ndarray:
-    """Whether a box of ``height`` dropped at each position of :func:`drop_height_map` keeps its top at or below
-    ``limit``: exactly ``drop_height_map(heightmap, length, width) + height <= limit``, without the heights.
+def window_all(cells: np.ndarray, length: float, width: float) -> np.ndarray:
+    """Whether every cell under a ``length`` × ``width`` footprint is True, at each position of
+    :func:`drop_height_map`.
 
-    The box fits iff every cell under its footprint has ``cell + height <= limit`` (float addition is monotone,
-    so the resting height, the highest cell, passes iff every cell does): a sliding "all" over booleans, about
-    3 times faster than the sliding max over floats.
+    With ``cells = heightmap + height <= limit`` that is exactly ``drop_height_map(heightmap, length, width) +
+    height <= limit`` — whether a box of ``height`` dropped there keeps its top within ``limit`` — without the
+    resting heights: float addition is monotone, so the highest cell under the box passes iff every cell does.
+    A sliding "all" over booleans, about 3 times faster than the sliding max over floats.
     """
-    return _window(heightmap + height <= limit, length, width, np.logical_and)
+    return _window(cells, length, width, np.logical_and)

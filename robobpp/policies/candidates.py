@@ -27,7 +27,7 @@ from robobpp.core.feasibility import (
     TOLERANCE_CM,
     SupportModel,
 )
-from robobpp.core.heightmap import cells_spanned, fits_map
+from robobpp.core.heightmap import cells_spanned, window_all
 
 
 class _NoSupportRule(SupportModel):
@@ -107,11 +107,16 @@ def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
     """One :class:`CandidateMap` per allowed orientation (skipping ones where the box cannot fit at all)."""
     limit = obs.container.height + TOLERANCE_CM
     placed = tuple(obs.placed)
+    below: dict[
+        float, np.ndarray
+    ] = {}  # per box height: the cells a box resting on keeps its top within limit
     for orientation in obs.orientations:
         length, width, height = obs.box.dims(orientation)
         if length > obs.container.length + TOLERANCE_CM or width > obs.container.width + TOLERANCE_CM:
             continue
-        fits = fits_map(obs.heightmap, length, width, height, limit)
+        if height not in below:  # orientations turned about z share it
+            below[height] = obs.heightmap + height <= limit
+        fits = window_all(below[height], length, width)  # = drop_height_map(...) + height <= limit
         if fits.size == 0:
             continue
         yield CandidateMap(orientation, length, width, height, fits, placed, obs.heightmap)

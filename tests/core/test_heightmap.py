@@ -3,7 +3,7 @@ import pytest
 
 from robobpp.core import Box, ContainerSpec, ContainerState, Placement, drop_height_map, footprint_cells
 from robobpp.core.feasibility import TOLERANCE_CM
-from robobpp.core.heightmap import fits_map
+from robobpp.core.heightmap import window_all
 
 
 def brute_force_drop(hm: np.ndarray, lc: int, wc: int) -> np.ndarray:
@@ -41,9 +41,10 @@ def _random_heightmaps(rng: np.random.Generator, shape: tuple[int, int], height:
     yield np.zeros(shape)
 
 
-def test_fits_map_is_exactly_the_resting_height_test():
-    """``fits_map`` answers what ``drop_height_map(...) + height <= limit`` answers, position by position, on
-    integer, 1 mm and unrounded heightmaps, non-integer boxes, and boxes whose top meets the limit exactly."""
+def test_window_all_below_the_limit_is_exactly_the_resting_height_test():
+    """``window_all(heightmap + height <= limit, ...)``, how the feasibility mask is computed, answers what
+    ``drop_height_map(...) + height <= limit`` answers, position by position, on integer, 1 mm and unrounded
+    heightmaps, non-integer boxes, and boxes whose top meets the limit exactly."""
     rng = np.random.default_rng(40)
     checked, fitting = 0, 0
     for _ in range(30):
@@ -61,7 +62,7 @@ def test_fits_map_is_exactly_the_resting_height_test():
                     limit - cell,
                 ):
                     expected = drop_height_map(hm, length, width) + height <= limit
-                    got = fits_map(hm, length, width, height, limit)
+                    got = window_all(hm + height <= limit, length, width)
                     assert got.dtype == bool and got.shape == expected.shape
                     np.testing.assert_array_equal(got, expected)
                     checked, fitting = checked + expected.size, fitting + int(expected.sum())

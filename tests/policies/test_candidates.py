@@ -37,7 +37,7 @@ def test_fits_keeps_unsupported_positions_and_the_support_mask_drops_them() -> N
 
 
 def test_fits_is_the_resting_height_below_the_container_top() -> None:
-    """``fits`` is computed without the resting heights (``fits_map``); it says what they say, in every
+    """``fits`` is computed without the resting heights (``window_all``); it says what they say, in every
     orientation (tests/core/test_heightmap.py checks the function itself on many states)."""
     rng = np.random.default_rng(5)
     placed = [

@@ -2,7 +2,8 @@
 
 python examples/gym_rollout.py --dataset repetitive --setting math --episodes 3
 
-The agent scores the feasible actions of ``action_mask()`` by "lowest resting height, then back-left" from the
+Each episode plays a different train group, drawn with ``--seed`` (no group twice until all ``--groups`` were
+played). The agent scores the feasible actions of ``action_mask()`` by "lowest resting height, then back-left" from the
 observed heightmap: a DBL-like rule written against the env's own observation and action spaces.
 """
 
@@ -20,7 +21,7 @@ from robobpp.env import PackEnv
 def greedy_action(obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray | None:
     """The feasible (x, y, orientation) whose footprint rests lowest; ties back-left (vectorised); None when
     nothing is feasible (the env has then already ended the episode)."""
-    heightmap, (length, width, _, _) = obs["heightmap"], obs["box"]
+    heightmap, (length, width, _, _) = obs["heightmap"][0], obs["box"]  # (1, nx, ny): one image channel
     best, best_cost = None, np.inf
     for o, (lx, wy) in enumerate(((length, width), (width, length))):
         z = drop_height_map(heightmap, lx, wy)  # resting height at every (x, y)
@@ -41,11 +42,16 @@ def main() -> None:
     parser.add_argument("--setting", default="math")
     parser.add_argument("--episodes", type=int, default=3)
     parser.add_argument("--groups", type=int, default=10, help="train groups the env draws episodes from")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the order the groups are played in")
     args = parser.parse_args()
     env = gym.make("robobpp/Pack-v0", dataset=args.dataset, setting=args.setting, groups=args.groups)
     pack = cast(PackEnv, env.unwrapped)  # the env under gymnasium's wrappers: its action mask
+    # A reset without options draws a group at random, so two episodes may meet the same one: play them in a
+    # seeded order instead, each group once before any comes again.
+    order = np.random.default_rng(args.seed).permutation(args.groups)
     for episode in range(args.episodes):
-        obs, info = env.reset(seed=episode)
+        group = int(order[episode % args.groups])
+        obs, info = env.reset(seed=args.seed if episode == 0 else None, options={"group": group})
         episode_id = info["episode_id"]
         total, steps, terminated = 0.0, 0, False
         while not terminated:  # the env ends the episode itself when nothing fits the next box

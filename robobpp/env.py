@@ -9,9 +9,11 @@
 Episodes: each ``reset`` draws one group of the split, seeded by the reset's seed (``options={"group": g}`` picks
 one); without ``groups`` any of the split's groups, with ``groups=N`` the first N, drawn when a reset needs it.
 
-Observation: ``heightmap`` (cm, float32, the container's 1 cm grid), ``box`` (length, width, height, mass of the
-box to place) and, with ``lookahead=N > 0``, ``lookahead`` (the next N boxes, zero-padded; absent at the default
-``lookahead=0``: an empty (0, 4) array breaks stable-baselines3's observation handling). Action, by default
+Observation: ``heightmap`` (cm, float32, the container's 1 cm grid as one image channel: shape (1, nx, ny), which
+stable-baselines3 takes for an image), ``box`` (length, width, height, mass of the box to place) and, with
+``lookahead=N > 0``, ``lookahead`` (the next N boxes, zero-padded; absent at the default ``lookahead=0``: an empty
+(0, 4) array breaks stable-baselines3's observation handling). Every array returned, observations and masks, is a
+new one: later steps never change what an agent kept. Action, by default
 (``actions="flat"``): one Discrete index ``(x * ny + y) * 2 + orientation`` over the container's grid; with
 ``actions="grid"`` an ``(x, y, orientation)`` MultiDiscrete.
 
@@ -95,14 +97,24 @@ def stability_shaped_reward(episode: Episode, record: Any) -> float:
 REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_shaped_reward}
 
 
+def heightmap_channel(heightmap: np.ndarray, height: float) -> np.ndarray:
+    """A heightmap as the env observes it: a new (1, nx, ny) float32 array (one image channel), clipped to the
+    container's height."""
+    out = np.empty((1, *heightmap.shape), np.float32)
+    np.clip(heightmap, 0, height, out=out[0])
+    return out
+
+
 def encode_observation(
     obs: Observation, lookahead: int, candidates: Candidates | None = None
 ) -> dict[str, np.ndarray]:
-    """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays); with
-    ``candidates`` (the candidate space's list for this box) their features as ``candidates``."""
+    """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays); new
+    arrays, never views of the simulator's state; with ``candidates`` (the candidate space's list for this box)
+    their features as ``candidates``."""
+    b = obs.box
     encoded = {
-        "heightmap": np.clip(obs.heightmap, 0, obs.container.height).astype(np.float32),
-        "box": np.array([obs.box.length, obs.box.width, obs.box.height, obs.box.mass], np.float32),
+        "heightmap": heightmap_channel(obs.heightmap, obs.container.height),
+        "box": np.array([b.length, b.width, b.height, b.mass], np.float32),
     }
     if lookahead > 0:  # no key at all without lookahead (module docstring)
         look = np.zeros((lookahead, 4), np.float32)
@@ -185,7 +197,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self.container = container
         nx, ny = container.grid_shape
         observed: dict[str, spaces.Space[Any]] = {
-            "heightmap": spaces.Box(0.0, float(container.height), (nx, ny), np.float32),
+            "heightmap": spaces.Box(0.0, float(container.height), (1, nx, ny), np.float32),
             "box": spaces.Box(0.0, _MAX_BOX, (4,), np.float32),
         }
         if lookahead > 0:
@@ -210,6 +222,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._episode: Episode | None = None
         self._obs: Observation | None = None
         self._grid_mask: np.ndarray | None = np.zeros(self.grid_shape, bool)
+        self._feasible = False  # whether the action space admits any action for the current box
         self._support_mask: np.ndarray | None = None  # computed when first asked, per observation
         self.support_info = support_info
 
@@ -218,9 +231,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             return encode_observation(obs, self.lookahead, self._candidates)
         assert self._episode is not None  # terminal: the final heightmap, no box
         terminal = {
-            "heightmap": np.clip(self._episode.setting.state().heightmap, 0, self.container.height).astype(
-                np.float32
-            ),
+            "heightmap": heightmap_channel(self._episode.setting.state().heightmap, self.container.height),
             "box": np.zeros(4, np.float32),
         }
         if self.lookahead > 0:
@@ -257,8 +268,10 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if self._space is not None:
             self._candidates = None if self._obs is None else self._space(self._obs)
             self._grid_mask = None
+            self._feasible = self._candidates is not None and bool(self._candidates.mask.any())
             return
         self._grid_mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
+        self._feasible = bool(self._grid_mask.any())
 
     @property
     def _mask(self) -> np.ndarray:
@@ -269,14 +282,13 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             )
         return self._grid_mask
 
-    def _can_act(self) -> bool:
-        """Whether the current box has an action the action space offers."""
-        if self._space is not None:
-            return self._candidates is not None and bool(self._candidates.mask.any())
-        return bool(self._mask.any())
-
     def _grid_action(self, action: Any) -> tuple[int, int, int] | None:
         """The action as (x, y, orientation); None for a candidate index that names no candidate."""
+        nx, ny, no = self.grid_shape
+        if self.flat_actions and isinstance(action, int | np.integer) and 0 <= action < nx * ny * no:
+            cell, orientation = divmod(int(action), self.grid_shape[2])  # the usual case, without numpy
+            x, y = divmod(cell, self.grid_shape[1])
+            return x, y, orientation
         values = np.asarray(action).reshape(-1)
         if self._candidates is not None:
             if values.size != 1 or not 0 <= int(values[0]) < len(self._candidates.mask):
@@ -309,13 +321,13 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 POLICY_ERROR, f"action {int(np.asarray(action).reshape(-1)[0])} names no candidate"
             )
             self._obs = None
-        elif self._can_act():
+        elif self._feasible:
             x, y, orientation = chosen
             record = self._episode.step(Action(float(x), float(y), orientation), decision_time=0.0)
             reward = float(self.reward_fn(self._episode, record))
             info["placed"] = record.placement is not None
             self._observe()
-        if not self._episode.done and not self._can_act():
+        if not self._episode.done and not self._feasible:
             # Nothing fits the next box: end here as the evaluator does when a policy answers None.
             self._episode.step(None, decision_time=0.0)
             self._obs = None
@@ -351,7 +363,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             obs = self._obs
             self._support_mask = (
                 feasible_mask(obs, supported=True)
-                if obs is not None and self._mask.any()
+                if obs is not None and self._feasible
                 else self._mask.copy()
             )
         return self._support_mask.copy()

@@ -196,8 +196,10 @@ class Episode:
         return self.termination is not None or self.index >= len(self.spec.boxes)
 
     def observe(self) -> Observation:
+        """The current state as the policy sees it. Its heightmap is a read-only copy: it stays what it was
+        when observed while the episode goes on, and a policy that writes to it gets an error."""
         state = self.setting.state()
-        heightmap = state.heightmap.view()
+        heightmap = state.heightmap.copy()
         heightmap.flags.writeable = False
         boxes = self.spec.boxes
         return Observation(

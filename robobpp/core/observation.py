@@ -40,7 +40,8 @@ class Observation:
     """The state a policy acts on.
 
     ``placed`` is the *actual* state (after physics in Physics/Execution Pack); ``heightmap`` is the
-    container's 1 cm heightmap built from it (read-only, cm, shape ``container.grid_shape``).
+    container's 1 cm heightmap built from it (cm, shape ``container.grid_shape``): read-only, and the
+    observation's own, so it stays as it was when observed while the episode goes on.
     """
 
     episode_id: str

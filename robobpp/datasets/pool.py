@@ -84,9 +84,11 @@ class Pool:
         return len(self.dims)
 
     def boxes(self, indices: np.ndarray) -> tuple[Box, ...]:
+        # tolist: the same Python floats as float() of each element, without a numpy scalar per value
+        dims, masses = self.dims[indices].tolist(), self.masses[indices].tolist()
         return tuple(
-            Box(float(self.dims[i, 0]), float(self.dims[i, 1]), float(self.dims[i, 2]), float(self.masses[i]))
-            for i in indices
+            Box(length, width, height, mass)
+            for (length, width, height), mass in zip(dims, masses, strict=True)
         )
 
 

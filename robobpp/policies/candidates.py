@@ -27,7 +27,7 @@ from robobpp.core.feasibility import (
     TOLERANCE_CM,
     SupportModel,
 )
-from robobpp.core.heightmap import cells_spanned
+from robobpp.core.heightmap import cells_spanned, window_all
 
 
 class _NoSupportRule(SupportModel):
@@ -65,22 +65,28 @@ def support_model(obs: Observation) -> SupportModel:
 
 @dataclass(frozen=True)
 class CandidateMap:
-    """For one orientation: resting height and feasibility of every integer position (x, y).
+    """For one orientation: feasibility and resting height of every integer position (x, y).
 
-    ``z[x, y]`` is where the box's bottom would rest with its min corner at (x, y) cm; ``fits`` says the box
-    then stays inside the container (bounds are implied by the map's shape): what the environment accepts.
-    ``support_mask`` adds the support rule of the observed state.
+    ``fits`` says the box with its min corner at (x, y) cm stays inside the container (bounds are implied by
+    the map's shape): what the environment accepts. ``z[x, y]`` is where its bottom would rest, computed when
+    first read (the env's mask needs ``fits`` only). ``support_mask`` adds the support rule of the observed state.
     """
 
     orientation: int
     length: float
     width: float
     height: float
-    z: np.ndarray
     fits: np.ndarray
     #: The observed boxes; the support rule over them is built only when asked (:attr:`support`): the paper
     #: heuristics never ask, so their decisions don't pay for it.
     placed: tuple[Placement, ...]
+    #: The observed heightmap the resting heights are read from.
+    heightmap: np.ndarray
+
+    @cached_property
+    def z(self) -> np.ndarray:
+        """Resting height of the box's bottom at every position (same shape as ``fits``)."""
+        return drop_height_map(self.heightmap, self.length, self.width)
 
     @cached_property
     def support(self) -> SupportModel:
@@ -101,14 +107,19 @@ def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
     """One :class:`CandidateMap` per allowed orientation (skipping ones where the box cannot fit at all)."""
     limit = obs.container.height + TOLERANCE_CM
     placed = tuple(obs.placed)
+    below: dict[
+        float, np.ndarray
+    ] = {}  # per box height: the cells a box resting on keeps its top within limit
     for orientation in obs.orientations:
         length, width, height = obs.box.dims(orientation)
         if length > obs.container.length + TOLERANCE_CM or width > obs.container.width + TOLERANCE_CM:
             continue
-        z = drop_height_map(obs.heightmap, length, width)
-        if z.size == 0:
+        if height not in below:  # orientations turned about z share it
+            below[height] = obs.heightmap + height <= limit
+        fits = window_all(below[height], length, width)  # = drop_height_map(...) + height <= limit
+        if fits.size == 0:
             continue
-        yield CandidateMap(orientation, length, width, height, z, z + height <= limit, placed)
+        yield CandidateMap(orientation, length, width, height, fits, placed, obs.heightmap)
 
 
 def first_placement(

@@ -120,6 +120,22 @@ def test_wire_round_trip_keeps_odd_floats_and_tilted_boxes() -> None:
     assert back.heightmap.max() > 5.7 + 3.0  # the tilted box's top corner stands above its nominal top
 
 
+def test_a_served_observation_does_not_change_when_the_next_one_is_rebuilt_from_it(small_spec) -> None:
+    """The receiver rebuilds each heightmap from the previous observation's (Math Pack: incrementally); the
+    previous one, which the policy may keep, stays as it was, and neither can be written."""
+    episode = Episode(small_spec, "math")
+    first = P.observation_from_act(
+        P.ActRequest.model_validate_json(json.dumps(P.act_payload(episode.observe())))
+    )
+    before = first.heightmap.copy()
+    episode.step(Action(0, 0, 0), 0.0)
+    wire = P.ActRequest.model_validate_json(json.dumps(P.act_payload(episode.observe())))
+    second = P.observation_from_act(wire, previous=first)
+    assert second.heightmap.max() > 0 and not np.shares_memory(first.heightmap, second.heightmap)
+    np.testing.assert_array_equal(first.heightmap, before)
+    assert not first.heightmap.flags.writeable and not second.heightmap.flags.writeable
+
+
 # The headers are made when the test runs, not at collection: a suite that reaches this test more than the 300 s
 # window after collecting it would otherwise see every timestamp as stale.
 @pytest.mark.parametrize(

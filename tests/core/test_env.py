@@ -22,6 +22,52 @@ def test_check_env_passes(specs):
     check_env(env.unwrapped)
 
 
+def test_the_heightmap_is_one_image_channel(specs):
+    env = gym.make("robobpp/Pack-v0", specs=specs)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space["heightmap"].shape == (1, 60, 50)
+    assert obs["heightmap"].shape == (1, 60, 50) and obs["heightmap"].dtype == np.float32
+    np.testing.assert_array_equal(obs["heightmap"][0], env.unwrapped._episode.observe().heightmap)
+
+
+def test_stable_baselines3_check_env_takes_the_heightmap_as_an_image(specs):
+    """sb3's checker warned "unconventional shape (neither an image, nor a 1D vector)" for a (nx, ny) heightmap;
+    a (1, nx, ny) one is a one-channel image to it (it still says float images are not uint8 ones)."""
+    pytest.importorskip("stable_baselines3", reason="needs the learn extra: pip install -e '.[learn]'")
+    import warnings
+
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sb3_check_env(gym.make("robobpp/Pack-v0", specs=specs))
+    messages = [str(w.message) for w in caught]
+    assert not [m for m in messages if "unconventional shape" in m], messages
+
+
+def test_returned_arrays_do_not_change_after_they_are_returned(specs):
+    """Observations and masks an agent keeps (a rollout buffer) are its own: later steps do not rewrite them,
+    and writing to them does not reach the env."""
+    env = gym.make("robobpp/Pack-v0", specs=specs, lookahead=2, support_info=True)
+    pack = env.unwrapped
+    obs, info = env.reset(seed=0, options={"group": 0})
+    kept = [
+        ({k: v.copy() for k, v in obs.items()}, obs),
+        ({k: v.copy() for k, v in info.items() if k != "episode_id"}, info),
+    ]
+    mask = pack.action_mask()
+    kept.append(({"mask": mask.copy()}, {"mask": mask}))
+    for _ in range(3):
+        obs, _, terminated, _, info = env.step(int(np.flatnonzero(pack.action_masks())[0]))
+        assert not terminated
+        for array in (*obs.values(), info["action_masks"], info["support_mask"]):
+            array[...] = 0  # scribbling on what was returned
+    assert obs["heightmap"].max() == 0 and pack._mask.any()  # the env's own state is untouched
+    for copies, returned in kept:
+        for key, value in copies.items():
+            np.testing.assert_array_equal(returned[key], value)
+
+
 def test_masked_actions_fill_the_container(specs):
     env = gym.make("robobpp/Pack-v0", specs=specs, lookahead=2)
     obs, info = env.reset(seed=0, options={"group": 1})
@@ -89,7 +135,7 @@ def test_gym_rollout_example_runs(real_data):
 
     example = Path(__file__).resolve().parents[2] / "examples" / "gym_rollout.py"
     proc = subprocess.run(
-        [sys.executable, str(example), "--episodes", "2", "--groups", "3"],
+        [sys.executable, str(example), "--episodes", "2", "--groups", "2"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -100,6 +146,7 @@ def test_gym_rollout_example_runs(real_data):
     assert len(lines) == 2 and all(
         line.startswith("repetitive-train-") and " boxes, return " in line for line in lines
     )
+    assert len({line.split(":")[0] for line in lines}) == 2  # a different group each episode
 
 
 def test_no_feasible_placement_ends_the_episode():

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from robobpp.core import Action
@@ -102,6 +103,22 @@ def test_observation_is_the_state_and_read_only():
         obs.heightmap[0, 0] = 3
     episode.step(Action(0, 0, 0), 0.0)
     assert episode.observe().heightmap[0, 0] == 5 and len(episode.observe().placed) == 1
+
+
+def test_an_observation_does_not_change_after_it_is_returned():
+    """A policy may keep an observation (a history, a replay buffer): later steps must not rewrite it, and
+    re-enabling writes on it must not reach the simulator's state."""
+    episode = Episode(make_spec([(5, 5, 5)] * 4, (10, 10, 20)), "math")
+    kept = episode.observe()
+    before = kept.heightmap.copy()
+    for x in (0, 5, 0):
+        episode.step(Action(x, 0, 0), 0.0)
+    np.testing.assert_array_equal(kept.heightmap, before)
+    assert kept.placed == () and not kept.heightmap.flags.writeable
+    later = episode.observe()
+    later.heightmap.flags.writeable = True  # a policy that insists writes to its own copy only
+    later.heightmap[:] = 99
+    assert episode.observe().heightmap[0, 0] == 10 and episode.setting.state().heightmap.max() == 10
 
 
 def test_load_policy_errors_are_clear():

@@ -2,6 +2,8 @@ import numpy as np
 import pytest
 
 from robobpp.core import Box, ContainerSpec, ContainerState, Placement, drop_height_map, footprint_cells
+from robobpp.core.feasibility import TOLERANCE_CM
+from robobpp.core.heightmap import window_all
 
 
 def brute_force_drop(hm: np.ndarray, lc: int, wc: int) -> np.ndarray:
@@ -18,6 +20,53 @@ def test_drop_height_map_matches_brute_force(size):
     rng = np.random.default_rng(sum(size))
     hm = rng.integers(0, 30, size=(12, 9)).astype(float)
     np.testing.assert_array_equal(drop_height_map(hm, *size), brute_force_drop(hm, *size))
+
+
+def _random_heightmaps(rng: np.random.Generator, shape: tuple[int, int], height: float):
+    """Heightmaps of every kind a policy observes: Math Pack piles of 1 mm-resolution boxes (summed float
+    tops), physical ones rounded to 1 mm, and unrounded floats."""
+    state = ContainerState(ContainerSpec(shape[0], shape[1], height))
+    for i in range(40):
+        length, width = (
+            float(v) for v in np.minimum(np.round(rng.uniform(0.05, 0.6, 2) * shape + 0.5, 1), shape)
+        )
+        x, y = (float(v) for v in rng.integers(0, (shape[0] - length + 1, shape[1] - width + 1)))
+        box = Box(length, width, float(np.round(rng.uniform(0.5, 9), 1)))
+        placement = state.drop(box, x, y, 0, i)
+        if placement.top <= height + TOLERANCE_CM:
+            state.add(placement)
+    yield state.heightmap.copy()
+    yield np.round(rng.uniform(0, height, shape) / 0.1) * 0.1
+    yield rng.uniform(0, height, shape)
+    yield np.zeros(shape)
+
+
+def test_window_all_below_the_limit_is_exactly_the_resting_height_test():
+    """``window_all(heightmap + height <= limit, ...)``, how the feasibility mask is computed, answers what
+    ``drop_height_map(...) + height <= limit`` answers, position by position, on integer, 1 mm and unrounded
+    heightmaps, non-integer boxes, and boxes whose top meets the limit exactly."""
+    rng = np.random.default_rng(40)
+    checked, fitting = 0, 0
+    for _ in range(30):
+        shape = (int(rng.integers(1, 30)), int(rng.integers(1, 30)))
+        container_height = float(rng.choice([10.0, 20.0, 33.3]))
+        limit = container_height + TOLERANCE_CM
+        for hm in _random_heightmaps(rng, shape, container_height):
+            for _ in range(8):
+                length, width = (float(v) for v in np.round(rng.uniform(0.5, 32, 2), 1))
+                # free heights, and ones that put the top exactly on the limit above some cell
+                cell = float(hm.flat[rng.integers(hm.size)])
+                for height in (
+                    float(np.round(rng.uniform(0.1, 25), 1)),
+                    container_height - cell,
+                    limit - cell,
+                ):
+                    expected = drop_height_map(hm, length, width) + height <= limit
+                    got = window_all(hm + height <= limit, length, width)
+                    assert got.dtype == bool and got.shape == expected.shape
+                    np.testing.assert_array_equal(got, expected)
+                    checked, fitting = checked + expected.size, fitting + int(expected.sum())
+    assert checked > 10_000 and 0.2 < fitting / checked < 0.8  # both answers, often
 
 
 def test_box_larger_than_container_has_no_position():

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from robobpp.core import SupportModel
+from robobpp.core.feasibility import TOLERANCE_CM
 from robobpp.policies import load_policy
 from robobpp.policies.candidates import candidate_maps, support_model
 from tests.policies.scenes import scene
@@ -33,6 +34,22 @@ def test_fits_keeps_unsupported_positions_and_the_support_mask_drops_them() -> N
         c for c in candidate_maps(scene((20, 10, 10), [(0, 0, 4, 10, 5)], (10, 10, 1))) if c.orientation == 0
     )
     np.testing.assert_array_equal(math.support_mask, math.fits)
+
+
+def test_fits_is_the_resting_height_below_the_container_top() -> None:
+    """``fits`` is computed without the resting heights (``window_all``); it says what they say, in every
+    orientation (tests/core/test_heightmap.py checks the function itself on many states)."""
+    rng = np.random.default_rng(5)
+    placed = [
+        (int(rng.integers(0, 12)), int(rng.integers(0, 8)), 6, 4, float(rng.integers(1, 4))) for _ in range(8)
+    ]
+    obs = scene((18, 12, 9), placed, (5.5, 3.2, 4.1))
+    maps = list(candidate_maps(obs))
+    assert len(maps) == 2
+    for cand in maps:
+        expected = cand.z + cand.height <= obs.container.height + TOLERANCE_CM
+        assert expected.any() and not expected.all()
+        np.testing.assert_array_equal(cand.fits, expected)
 
 
 def test_support_mask_agrees_with_the_support_model_everywhere() -> None:

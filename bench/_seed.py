@@ -540,7 +540,7 @@ class _PostgresWriter:
                 continue
             try:
                 self._write(chunk)
-            except BaseException as e:  # reported by put/close
+            except BaseException as e:  # noqa: BLE001 - reported by put/close, whatever it was
                 self.error = e
                 self.raw.rollback()
 

@@ -290,7 +290,7 @@ def plot(points: list[tuple[int, float, float]], lines: dict[str, float], path: 
         ax.axhline(value, linestyle=style, color="k", label=f"{name} (evaluate): {value:.3f}")
     ax.set_xlabel("environment steps (boxes)")
     ax.set_ylabel("Space Utilization")
-    ax.set_title("MaskablePPO on candidates, Math Pack (train split; evaluated on unseen groups)")
+    ax.set_title("MaskablePPO on candidates, Math Pack (train split)", fontsize=10)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

@@ -278,7 +278,7 @@ def fetch(
                     manifest = read_manifest(directory)
                     assert manifest is not None
                     return manifest
-            except Exception:  # a corrupt cache is rebuilt below from a verified wheel
+            except Exception:  # noqa: BLE001 - a corrupt cache, however it fails, is rebuilt below from a verified wheel
                 pass
         if wheel is not None:
             source = Path(wheel)

@@ -58,7 +58,7 @@ class LazyRows(UserList[dict[str, Any]]):
     """A list built on first use: the board engine's ranked entries (or grid rows) as dicts with their ranks,
     which only the pages of a small deployment and the tests read (publishing uses the :class:`RankedView`)."""
 
-    def __init__(self, build: Callable[[], list[dict[str, Any]]] | Iterable[dict[str, Any]] = ()) -> None:  # noqa: D107
+    def __init__(self, build: Callable[[], list[dict[str, Any]]] | Iterable[dict[str, Any]] = ()) -> None:
         #: how to build UserList's ``data`` on first use (a slice or copy of a built one is built at once)
         self._build: Callable[[], list[dict[str, Any]]] | None = build if callable(build) else None
         self._data: list[dict[str, Any]] = [] if callable(build) else list(build)

@@ -172,7 +172,7 @@ def bootstrap(runtime: Any) -> None:
     _ = settings.effective_admin_token  # dev: generate and store it now, so the operator can read it
     try:
         ensure_private_split(settings)
-    except Exception:  # noqa: BLE001 - the API must still come up (e.g. no network for the data)
+    except Exception:
         log.exception("could not build the private split; private evaluations will fail until it exists")
     if settings.evaluate_baselines:
         stale: dict[str, list[str]] = {}

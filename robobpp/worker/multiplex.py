@@ -125,7 +125,7 @@ class Multiplexer:
         """One episode's thread: it starts holding the CPU and lets it go when it ends."""
         try:
             self.runner(self.factory, claim, self.options, self.cpu)
-        except Exception:  # noqa: BLE001 - the database failed while recording: the lease runs out, it is retried
+        except Exception:
             log.exception(
                 "episode %s could not be recorded; it runs again when its lease expires", claim.episode_id
             )

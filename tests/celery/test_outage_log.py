@@ -99,7 +99,7 @@ def test_a_bug_still_gets_its_traceback(caplog: pytest.LogCaptureFixture) -> Non
     outages = OutageLog(log, "loop")
     for _ in range(2):
         try:
-            {}["missing"]  # noqa: B018 - a programming error, not an outage
+            {}["missing"]
         except KeyError as exc:
             outages.failed(exc)
     assert [bool(r.exc_info) for r in caplog.records] == [True, True]

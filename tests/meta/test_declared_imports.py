@@ -58,7 +58,9 @@ def test_every_imported_module_is_declared() -> None:
     for folder in SCANNED:
         for path in sorted((ROOT / folder).rglob("*.py")):
             local = {p.stem for p in path.parent.glob("*.py")}
-            for module in imported_modules(path) - OWN - FOREIGN - BY_HAND - local - set(sys.stdlib_module_names):
+            for module in (
+                imported_modules(path) - OWN - FOREIGN - BY_HAND - local - set(sys.stdlib_module_names)
+            ):
                 dists = {canonicalize_name(d) for d in providers.get(module, [])}
                 if not dists & declared:
                     missing.setdefault(module, set()).add(str(path.relative_to(ROOT)))

@@ -323,7 +323,7 @@ def test_protocol_page_example_policy_really_packs() -> None:
     code = re.search(r"<pre><code>(from robobpp\.core.*?)</code></pre>", html, re.S).group(1)
     code = code.replace("&gt;", ">").replace("&lt;", "<").replace("&amp;", "&")
     namespace: dict = {}
-    exec(compile(code, "protocol-example", "exec"), namespace)  # noqa: S102 - our own docs' example
+    exec(compile(code, "protocol-example", "exec"), namespace)
     policy = namespace["LowestFirst"]()
     rng = np.random.default_rng(5)
     boxes = tuple(Box(*map(float, rng.integers(20, 50, 3)), 2.0) for _ in range(20))

@@ -422,7 +422,7 @@ async def worker_drives(ws: WebSocket, episode_id: int, wait: float = 30.0) -> N
             return
         await ws.send_text("paired")
         code = await _first_done(_to_client(ws, endpoint, peer), _to_worker(ws, endpoint, peer))
-    except Exception:  # noqa: BLE001 - the worker's socket broke: the client is free again
+    except Exception:
         log.debug("pull relay of episode %s ended", episode_id, exc_info=True)
     finally:
         if peer is not None and code != GONE:

@@ -207,7 +207,7 @@ class BoardPublisher:
                     .where(BoardPublication.track == track, BoardPublication.holder == self.holder)
                     .values(holder=None, lease_until=None)
                 )
-        except Exception:  # noqa: BLE001 - the lease lapses by itself
+        except Exception:
             log.warning("releasing the %s boards' lease failed", track, exc_info=True)
 
     @contextmanager
@@ -221,7 +221,7 @@ class BoardPublisher:
                     if not self._renew(track):
                         log.warning("lost the %s boards' lease while computing them", track)
                         return
-                except Exception:  # noqa: BLE001 - tried again at the next beat
+                except Exception:
                     log.warning("renewing the %s boards' lease failed", track, exc_info=True)
 
         beat = threading.Thread(target=renew, daemon=True, name="board-lease")
@@ -500,7 +500,7 @@ class BoardWorker:
                 if full and self.publisher.computed > computed:
                     self._last_full[track] = time.monotonic()
                     self._full_cost[track] = self._last_full[track] - started
-            except Exception:  # noqa: BLE001 - the previous boards stay published; the next pass retries
+            except Exception:
                 log.exception("computing the %s boards failed", track)
         return published
 

@@ -100,7 +100,7 @@ class ProgressLog:
                 with self._session() as session:
                     finished = list(self._finished(session))
                     b = backlog(session, self._workers)
-            except Exception:  # noqa: BLE001 - the database blinked: the next look tries again
+            except Exception:
                 log.debug("progress log: could not read the database", exc_info=True)
                 continue
             for line in finished:

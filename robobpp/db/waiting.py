@@ -53,6 +53,8 @@ class Running:
     #: Boxes handled so far (the heartbeat's figure) and in all (``None`` until its first heartbeat).
     step: int
     boxes_total: int | None
+    #: A built-in policy's episode: it computes on the worker all along, so it holds a whole worker.
+    builtin: bool = False
 
     @property
     def paced_s(self) -> float | None:
@@ -63,12 +65,15 @@ class Running:
 
 
 def queue_place(
-    session: Session, sub: Submission, now: datetime | None = None, *, slots: int = 0
+    session: Session, sub: Submission, now: datetime | None = None, *, slots: int = 0, per_worker: int = 1
 ) -> dict[str, Any] | None:
     """``{"position", "ahead", "running", "estimated_start_s", "estimated_start"}`` of a queued submission
     (``None`` otherwise): ``position`` 1 is the next claim. ``slots`` is the evaluation pool's size when known
-    (the local workers; 0: the running episodes are taken for it). The estimate is ``None`` while some
-    episode's time cannot be told (no episode finished anywhere and no policy past its first box)."""
+    (the local workers; 0: the running episodes are taken for it); ``per_worker`` the episodes a worker keeps
+    in flight while they wait on their policies (robobpp/worker/multiplex.py): a participant's episode takes
+    one of a worker's ``per_worker`` places, a built-in's the whole worker (it computes all along). The
+    estimate is ``None`` while some episode's time cannot be told (no episode finished anywhere and no policy
+    past its first box)."""
     if sub.status != "queued":
         return None
     now = now or utcnow()
@@ -97,13 +102,20 @@ def queue_place(
     # the episodes ahead come from each participant's oldest active submission (which the claim takes first)
     first_of = {pid: loads[pid].first_submission for pid, n in ahead_of.items() if n}
     times = EpisodeTimes(session, now, first_of.values())
-    work = [(times.of_submission(first_of[pid]), ahead_of[pid]) for pid in first_of]
-    remaining = [times.remaining(e) for e in times.running]
+
+    # In places: a built-in's episode holds ``per_worker`` of them (a worker), a participant's one.
+    def places(builtin: bool) -> int:
+        return per_worker if builtin else 1
+
+    work = [
+        (times.of_submission(first_of[pid]), ahead_of[pid] * places(loads[pid].builtin)) for pid in first_of
+    ]
+    remaining = [t for e in times.running for t in [times.remaining(e)] * places(e.builtin)]
     estimate = None
     if all(t is not None for t in remaining) and all(t is not None for t, _ in work):
         start = start_after(
             [t for t in remaining if t is not None],
-            max(slots, len(remaining), 1),
+            max(slots * per_worker, len(remaining), 1),
             [(t, n) for t, n in work if t is not None],
         )
         estimate = round(start, 1)
@@ -214,11 +226,21 @@ def _running_episodes(session: Session, now: datetime) -> list[Running]:
             EpisodeRow.started_at,
             EpisodeRow.step,
             EpisodeRow.boxes_total,
-        ).where(EpisodeRow.status == "running")
+            Submission.policy_url,
+        )
+        .join(Submission, Submission.id == EpisodeRow.submission_id)
+        .where(EpisodeRow.status == "running")
     )
     return [
-        Running(sid, setting, max(0.0, (now - started).total_seconds()) if started else 0.0, step or 0, boxes)
-        for sid, setting, started, step, boxes in rows
+        Running(
+            sid,
+            setting,
+            max(0.0, (now - started).total_seconds()) if started else 0.0,
+            step or 0,
+            boxes,
+            is_baseline(url),
+        )
+        for sid, setting, started, step, boxes, url in rows
     ]
 
 

@@ -261,7 +261,12 @@ def _page_view(request: Request, session: Session, sub: Submission, owner: bool)
     )
     if not owner:
         view.pop("policy_url", None)
-    view["queue"] = waiting.queue_place(session, sub, slots=request.app.state.settings.worker_slots)
+    view["queue"] = waiting.queue_place(
+        session,
+        sub,
+        slots=request.app.state.settings.worker_slots,
+        per_worker=request.app.state.settings.episodes_per_worker,
+    )
     return view
 
 
@@ -461,7 +466,12 @@ def _submission_status(request: Request, session: Session, submission_id: int) -
         ("view",), sub, lambda: queries.submission_view(session, sub)
     )
     runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
-    queue = waiting.queue_place(session, sub, slots=request.app.state.settings.worker_slots)
+    queue = waiting.queue_place(
+        session,
+        sub,
+        slots=request.app.state.settings.worker_slots,
+        per_worker=request.app.state.settings.episodes_per_worker,
+    )
     if queue is not None and queue["estimated_start"] is not None:
         queue = {**queue, "estimated_start": queue["estimated_start"].isoformat()}
     return JSONResponse(

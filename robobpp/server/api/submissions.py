@@ -66,8 +66,8 @@ def _view_json(view: dict[str, Any]) -> bytes:
     return SubmissionPublic.model_validate(view).model_dump_json().encode()
 
 
-def _json(session: Session, sub: Submission, slots: int) -> bytes:
-    queue = waiting.queue_place(session, sub, slots=slots)
+def _json(session: Session, sub: Submission, slots: int, per_worker: int) -> bytes:
+    queue = waiting.queue_place(session, sub, slots=slots, per_worker=per_worker)
     return _view_json({**queries.submission_view(session, sub), "queue": queue})
 
 
@@ -80,7 +80,14 @@ async def get_submission(request: Request, submission_id: Id, principal: Princip
     def one(session: Session) -> bytes:
         sub = access.visible(session, principal, submission_id)
         return finished_views(request.app.state).get(
-            ("api",), sub, lambda: _json(session, sub, request.app.state.settings.worker_slots)
+            ("api",),
+            sub,
+            lambda: _json(
+                session,
+                sub,
+                request.app.state.settings.worker_slots,
+                request.app.state.settings.episodes_per_worker,
+            ),
         )
 
     return Response(await in_read_session(request, one), media_type="application/json")

@@ -229,7 +229,11 @@ class PPOPolicy(BasePolicy):
     name = "ppo"
 
     def __init__(self, model: str | None = None) -> None:
-        path = model or os.environ.get("ROBOBPP_PPO_MODEL", "runs/ppo/model.zip")
+        path = Path(model or os.environ.get("ROBOBPP_PPO_MODEL", "runs/ppo/model.zip"))
+        if not path.is_file():
+            raise SystemExit(
+                f"no trained model at {path}: train one with examples/train_ppo.py, or set ROBOBPP_PPO_MODEL"
+            )
         self.model = MaskablePPO.load(path, device="cpu")
         space = self.model.observation_space
         assert isinstance(space, gym.spaces.Dict)

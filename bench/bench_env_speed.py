@@ -37,12 +37,12 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 
-def robobpp_run(steps: int, seed: int, dataset: str) -> tuple[float, float]:
+def robobpp_run(steps: int, seed: int, dataset: str, actions: str = "flat") -> tuple[float, float]:
     """One run of the masked random agent in the Math env: (steps/s counting only the time in ``env.step`` and
     ``env.reset``, steps/s of the whole loop with the agent's draw)."""
     import robobpp  # noqa: F401 - registers robobpp/Pack-v0
 
-    env = gym.make("robobpp/Pack-v0", dataset=dataset, setting="math")
+    env = gym.make("robobpp/Pack-v0", dataset=dataset, setting="math", actions=actions)
     rng = np.random.default_rng(seed)
     clock = time.perf_counter
     _, info = env.reset(seed=seed)
@@ -122,6 +122,10 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--dataset", default="repetitive")
+    parser.add_argument(
+        "--actions", default="flat", choices=("flat", "candidates"), help="the env's action space"
+    )
+    parser.add_argument("--no-jumanji", action="store_true", help="time robobpp only")
     parser.add_argument("--jumanji-batch", type=int, default=256, help="envs per vmapped Jumanji call")
     args = parser.parse_args()
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else "?"
@@ -133,9 +137,12 @@ def main() -> None:
     def row(name: str, figures: list[float]) -> None:
         print(f"| {name} | {median(figures):,.0f} | {', '.join(f'{f:,.0f}' for f in figures)} |", flush=True)
 
-    ours = [robobpp_run(args.steps, args.seed, args.dataset) for _ in range(args.runs)]
-    row(f"robobpp/Pack-v0, Math, {args.dataset}: env.step + env.reset", [env for env, _ in ours])
-    row(f"robobpp/Pack-v0, Math, {args.dataset}: the loop, agent's draw included", [loop for _, loop in ours])
+    ours = [robobpp_run(args.steps, args.seed, args.dataset, args.actions) for _ in range(args.runs)]
+    name = f"robobpp/Pack-v0, Math, {args.dataset}, {args.actions} actions"
+    row(f"{name}: env.step + env.reset", [env for env, _ in ours])
+    row(f"{name}: the loop, agent's draw included", [loop for _, loop in ours])
+    if args.no_jumanji:
+        return
     runs = jumanji_runs()
     if runs is None:
         print("\njumanji is not importable (pip install jax jaxlib jumanji): its BinPack was not timed.")

@@ -12,7 +12,7 @@ db_app = typer.Typer(no_args_is_help=True, help="Database schema (Alembic migrat
 #: Groups per dataset of the demo's boards (the real leaderboard has 30).
 DEMO_GROUPS = 2
 #: Boxes of each demo episode: the first ones of the group (the physical episodes of a full group take minutes).
-DEMO_BOXES = 20
+DEMO_BOXES = 40
 #: The demo's settings, those of them whose simulator imports: Execution Pack (a robot arm's motion planning)
 #: would take most of the demo's time (BENCHMARKS.md, "The demo's first minutes").
 DEMO_SETTINGS = ("math", "physics")
@@ -40,7 +40,7 @@ def serve(
         bool,
         typer.Option(
             "--demo",
-            help="A demo board: 2 groups, 20 boxes, Math and Physics: every baseline ranked in minutes",
+            help="A demo board: 2 groups, 40 boxes, Math and Physics: every baseline ranked in minutes",
         ),
     ] = False,
     host: Annotated[str, typer.Option(help="Interface to bind (0.0.0.0 for other machines)")] = "127.0.0.1",

@@ -33,7 +33,10 @@ def get_session(request: Request) -> Iterator[Session]:
         yield session
 
 
-SessionDep = Annotated[Session, Depends(get_session)]
+#: ``scope="function"``: the transaction commits before the response is sent. FastAPI's default ("request") ends
+#: a yield dependency after sending it, so a client could read a 201 for a participant whose token the next
+#: request did not find yet (seen once in CI, on PostgreSQL), and a failed commit came after a success answer.
+SessionDep = Annotated[Session, Depends(get_session, scope="function")]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 

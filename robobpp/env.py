@@ -270,8 +270,8 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self._grid_mask = None
             self._feasible = self._candidates is not None and bool(self._candidates.mask.any())
             return
-        self._grid_mask = np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
-        self._feasible = bool(self._grid_mask.any())
+        self._grid_mask = None
+        self._feasible = bool(self._mask.any())  # the grid space needs its mask at once
 
     @property
     def _mask(self) -> np.ndarray:
@@ -286,8 +286,8 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         """The action as (x, y, orientation); None for a candidate index that names no candidate."""
         nx, ny, no = self.grid_shape
         if self.flat_actions and isinstance(action, int | np.integer) and 0 <= action < nx * ny * no:
-            cell, orientation = divmod(int(action), self.grid_shape[2])  # the usual case, without numpy
-            x, y = divmod(cell, self.grid_shape[1])
+            cell, orientation = divmod(int(action), no)  # the usual case, without numpy
+            x, y = divmod(cell, ny)
             return x, y, orientation
         values = np.asarray(action).reshape(-1)
         if self._candidates is not None:

@@ -154,6 +154,7 @@ class Curve(BaseCallback):
         super().__init__()
         self.points: list[tuple[int, float, float]] = []
         self.cpu0 = cpu_seconds()
+        self.cpu, self.cpu_read_at = 0.0, time.monotonic()
         self.budget = (cpu_s, time.monotonic() + wall_s)
         self.total, self.progress_s = total, progress_s
         self.started, self.last_line = time.monotonic(), -float("inf")
@@ -163,7 +164,12 @@ class Curve(BaseCallback):
         self.file.flush()
 
     def _on_step(self) -> bool:
-        cpu = cpu_seconds() - self.cpu0
+        # Reading every process's CPU time scans /proc (milliseconds): once an episode ends, or a second has
+        # passed, not on every step.
+        ended = any("episode" in info for info in self.locals["infos"])
+        if ended or time.monotonic() - self.cpu_read_at >= 1.0:
+            self.cpu, self.cpu_read_at = cpu_seconds() - self.cpu0, time.monotonic()
+        cpu = self.cpu
         for info in self.locals["infos"]:
             if "episode" in info:  # added by sb3's Monitor at the end of an episode: r = the return
                 point = (self.num_timesteps, round(cpu, 1), float(info["episode"]["r"]))

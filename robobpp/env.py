@@ -60,7 +60,8 @@ import numpy as np
 from gymnasium import spaces
 
 from robobpp import GYM_ENV_ID
-from robobpp.core import ORIENTATIONS, Action, EpisodeSpec, Observation
+from robobpp.core import ORIENTATIONS, Action, Box, EpisodeSpec, Observation
+from robobpp.core.feasible_grid import FeasibleGrids, feasible_grid
 from robobpp.episode import POLICY_ERROR, Episode
 from robobpp.policies.candidate_space import DEFAULT_CANDIDATES, FEATURES, Candidates, CandidateSpace
 from robobpp.policies.candidates import candidate_maps
@@ -99,10 +100,9 @@ REWARDS: dict[str, RewardFn] = {"volume": volume_reward, "stability": stability_
 
 def heightmap_channel(heightmap: np.ndarray, height: float) -> np.ndarray:
     """A heightmap as the env observes it: a new (1, nx, ny) float32 array (one image channel), clipped to the
-    container's height."""
-    out = np.empty((1, *heightmap.shape), np.float32)
-    np.clip(heightmap, 0, height, out=out[0])
-    return out
+    container's height (a heightmap is never below 0: it starts at the floor and only takes maxima)."""
+    out = heightmap.astype(np.float32)[None]
+    return np.minimum(out, np.float32(height), out=out)
 
 
 def encode_observation(
@@ -111,14 +111,24 @@ def encode_observation(
     """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays); new
     arrays, never views of the simulator's state; with ``candidates`` (the candidate space's list for this box)
     their features as ``candidates``."""
-    b = obs.box
+    return _encoded(obs.heightmap, obs.container.height, obs.box, obs.lookahead, lookahead, candidates)
+
+
+def _encoded(
+    heightmap: np.ndarray,
+    height: float,
+    box: Box,
+    upcoming: Sequence[Box],
+    lookahead: int,
+    candidates: Candidates | None,
+) -> dict[str, np.ndarray]:
     encoded = {
-        "heightmap": heightmap_channel(obs.heightmap, obs.container.height),
-        "box": np.array([b.length, b.width, b.height, b.mass], np.float32),
+        "heightmap": heightmap_channel(heightmap, height),
+        "box": np.array([box.length, box.width, box.height, box.mass], np.float32),
     }
     if lookahead > 0:  # no key at all without lookahead (module docstring)
         look = np.zeros((lookahead, 4), np.float32)
-        for i, b in enumerate(obs.lookahead[:lookahead]):
+        for i, b in enumerate(upcoming[:lookahead]):
             look[i] = (b.length, b.width, b.height, b.mass)
         encoded["lookahead"] = look
     if candidates is not None:
@@ -129,10 +139,12 @@ def encode_observation(
 def feasible_mask(obs: Observation, supported: bool = False) -> np.ndarray:
     """Boolean (x, y, orientation) grid of the feasible actions for the observation's box: inside the container
     and below its top; ``supported`` also applies the support rule of the observed state."""
+    if not supported:
+        return feasible_grid(obs.heightmap, obs.box, obs.container)
     nx, ny = obs.container.grid_shape
     mask = np.zeros((nx, ny, len(ORIENTATIONS)), bool)
     for cand in candidate_maps(obs):
-        grid = cand.support_mask if supported else cand.fits
+        grid = cand.support_mask
         cx, cy = grid.shape
         mask[:cx, :cy, cand.orientation] = grid
     return mask
@@ -220,18 +232,34 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             else spaces.MultiDiscrete(list(self.grid_shape))
         )
         self._episode: Episode | None = None
-        self._obs: Observation | None = None
+        self._box: Box | None = None  # the box to place now (None: the episode is over)
+        self._observation: Observation | None = None  # its policy observation, built when first needed
+        self._grids = FeasibleGrids(container)  # the grid mask, kept up to date box after box
         self._grid_mask: np.ndarray | None = np.zeros(self.grid_shape, bool)
         self._feasible = False  # whether the action space admits any action for the current box
         self._support_mask: np.ndarray | None = None  # computed when first asked, per observation
         self.support_info = support_info
 
-    def _encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
-        if obs is not None:
-            return encode_observation(obs, self.lookahead, self._candidates)
-        assert self._episode is not None  # terminal: the final heightmap, no box
-        terminal = {
-            "heightmap": heightmap_channel(self._episode.setting.state().heightmap, self.container.height),
+    @property
+    def _obs(self) -> Observation | None:
+        """The policy observation of the box to place (None when the episode is over), built when first asked:
+        the flat and grid spaces read the state's heightmap directly."""
+        if self._observation is None and self._box is not None:
+            assert self._episode is not None
+            self._observation = self._episode.observe()
+        return self._observation
+
+    def _encode(self) -> dict[str, np.ndarray]:
+        assert self._episode is not None
+        heightmap = self._episode.setting.state().heightmap  # copied into the float32 channel
+        if self._box is not None:
+            next_index = self._episode.index + 1
+            upcoming = self._episode.spec.boxes[next_index : next_index + self.lookahead]
+            return _encoded(
+                heightmap, self.container.height, self._box, upcoming, self.lookahead, self._candidates
+            )
+        terminal = {  # the final heightmap, no box
+            "heightmap": heightmap_channel(heightmap, self.container.height),
             "box": np.zeros(4, np.float32),
         }
         if self.lookahead > 0:
@@ -257,16 +285,19 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         info = {"episode_id": spec.episode_id, "action_masks": self.action_masks()}
         if self.support_info:
             info["support_mask"] = self._layout(self.support_mask())
-        return self._encode(self._obs), info
+        return self._encode(), info
 
     def _observe(self) -> None:
         """The next box's observation and its feasible actions (computed once, read by every mask call); in the
         candidate space its candidates, and the grid mask only when asked."""
         assert self._episode is not None
-        self._obs = None if self._episode.done else self._episode.observe()
+        episode = self._episode
+        self._box = None if episode.done else episode.spec.boxes[episode.index]
+        self._observation = None
         self._support_mask = None
         if self._space is not None:
-            self._candidates = None if self._obs is None else self._space(self._obs)
+            obs = self._obs
+            self._candidates = None if obs is None else self._space(obs)
             self._grid_mask = None
             self._feasible = self._candidates is not None and bool(self._candidates.mask.any())
             return
@@ -278,7 +309,9 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         """The grid of feasible actions for the current box (computed once per box, when first needed)."""
         if self._grid_mask is None:
             self._grid_mask = (
-                np.zeros(self.grid_shape, bool) if self._obs is None else feasible_mask(self._obs)
+                np.zeros(self.grid_shape, bool)
+                if self._box is None or self._episode is None
+                else self._grids(self._episode.setting.state(), self._box)
             )
         return self._grid_mask
 
@@ -312,7 +345,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return x, y, orientation
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        assert self._episode is not None and self._obs is not None, "call reset() first"
+        assert self._episode is not None and self._box is not None, "call reset() first"
         chosen = self._grid_action(action)
         reward = 0.0
         info: dict[str, Any] = {"placed": False}
@@ -320,7 +353,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self._episode.end(
                 POLICY_ERROR, f"action {int(np.asarray(action).reshape(-1)[0])} names no candidate"
             )
-            self._obs = None
+            self._box, self._candidates = None, None
         elif self._feasible:
             x, y, orientation = chosen
             record = self._episode.step(Action(float(x), float(y), orientation), decision_time=0.0)
@@ -330,7 +363,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if not self._episode.done and not self._feasible:
             # Nothing fits the next box: end here as the evaluator does when a policy answers None.
             self._episode.step(None, decision_time=0.0)
-            self._obs = None
+            self._box, self._candidates = None, None
         terminated = self._episode.done
         if terminated:
             result = self._episode.result("gym")
@@ -341,7 +374,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         info["action_masks"] = self.action_masks()
         if self.support_info:
             info["support_mask"] = self._layout(self.support_mask())
-        return self._encode(self._obs), reward, terminated, False, info
+        return self._encode(), reward, terminated, False, info
 
     def action_mask(self) -> np.ndarray:
         """Boolean (x, y, orientation) mask of feasible actions for the current box (all False when done)."""

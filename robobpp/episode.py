@@ -283,6 +283,7 @@ class Episode:
     def result(self, policy_name: str) -> EpisodeResult:
         final = world = self.setting.final_boxes()
         container = self.spec.container
+        under = self.setting.under_volumes()
         decision, static = self._decision, self._static
         utilization = M.space_utilization(final, container)
         if self.protocol == PAPER and self.termination is not None and self.termination.reason == COLLAPSE:
@@ -294,7 +295,9 @@ class Episode:
             utilization = M.placed_volume(final) / container.volume
         metrics: dict[str, float | None] = {
             "space_utilization": utilization,
-            "occupancy": M.occupancy(self.setting.plan()[: len(final)], container),
+            "occupancy": M.occupancy(
+                self.setting.plan()[: len(final)], container, None if under is None else under[: len(final)]
+            ),
             "decision_time": sum(decision) / len(decision) if decision else None,
         }
         if self._round_trip:  # a remote policy: the raw figures beside the decision time they gave

@@ -27,6 +27,18 @@ class Box:
     mass: float = 1.0
 
     def __post_init__(self) -> None:
+        length, width, height, mass = self.length, self.width, self.height, self.mass
+        if (  # the usual case, checked without a loop: a sampled group builds 80 boxes at every env reset
+            type(length) is float
+            and type(width) is float
+            and type(height) is float
+            and type(mass) is float
+            and 0 < length < math.inf
+            and 0 < width < math.inf
+            and 0 < height < math.inf
+            and 0 < mass < math.inf
+        ):
+            return
         for name in ("length", "width", "height", "mass"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:

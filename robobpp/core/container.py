@@ -20,6 +20,10 @@ class ContainerState:
         self.spec = spec
         self.heightmap = np.zeros(spec.grid_shape, dtype=np.float64)
         self.placements: list[Placement] = []
+        #: Each :meth:`add`'s block of cells and the top it raised them to, ``(x0, x1, y0, y1, top)``, in order:
+        #: what changed in the heightmap, so that work on it can be brought up to date instead of redone
+        #: (:class:`robobpp.core.feasible_grid.FeasibleGrids`).
+        self.raises: list[tuple[int, int, int, int, float]] = []
 
     @classmethod
     def from_placements(cls, spec: ContainerSpec, placements: Iterable[Placement]) -> ContainerState:
@@ -49,6 +53,7 @@ class ContainerState:
         region = self.heightmap[cells]
         np.maximum(region, placement.top, out=region)
         self.placements.append(placement)
+        self.raises.append((cells[0].start, cells[0].stop, cells[1].start, cells[1].stop, placement.top))
 
     @property
     def placed_volume(self) -> float:

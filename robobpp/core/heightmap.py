@@ -7,6 +7,7 @@ with non-integer size or position is treated conservatively (it rests on the hig
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -29,32 +30,58 @@ def cells_spanned(size: float) -> int:
     return max(1, math.ceil(size - _EPS))
 
 
-def _sliding_rows(a: np.ndarray, window: int, combine: np.ufunc) -> np.ndarray:
-    """``combine`` (``np.maximum``; ``np.logical_and`` on booleans) over every run of ``window`` consecutive rows
-    (axis 0), in O(n log window).
-
-    Doubling trick: after k rounds m[i] = combine(a[i : i + 2**k]); two overlapping power-of-two windows
-    then cover any window size.
-    """
-    n = a.shape[0]
-    if window > n:
-        return np.empty((0, *a.shape[1:]), dtype=a.dtype)
-    out_len = n - window + 1
-    m = a
+def _doubling(flat: np.ndarray, window: int, stride: int, combine: np.ufunc) -> list[np.ndarray]:
+    """The doubling chain of ``combine`` along one axis of a flattened C-ordered grid whose step along that axis is
+    ``stride`` elements: entry k holds, at flat index i, ``combine`` of ``flat[i + j * stride]`` for j < 2**k; up
+    to the largest power of two not above ``window``."""
+    chain = [flat]
     span = 1
     while span * 2 <= window:
-        m = combine(m[:-span], m[span:])
+        m = chain[-1]
+        shift = span * stride
+        chain.append(combine(m[:-shift], m[shift:]))
         span *= 2
-    return combine(m[:out_len], m[window - span : window - span + out_len])
+    return chain
 
 
-def _window(a: np.ndarray, length: float, width: float, combine: np.ufunc) -> np.ndarray:
-    """``combine`` of ``a`` over the ``length`` × ``width`` footprint at every integer position where it lies
-    inside the grid: shape (L - l + 1, W - w + 1), possibly empty."""
-    lc, wc = cells_spanned(length), cells_spanned(width)
-    rows = _sliding_rows(a, lc, combine)
-    # the columns as contiguous rows: numpy runs the column pass 1.5-2 times faster than on a transposed view
-    return _sliding_rows(np.ascontiguousarray(rows.T), wc, combine).T
+def _from_chain(
+    chain: list[np.ndarray], window: int, stride: int, size: int, combine: np.ufunc
+) -> np.ndarray:
+    """``combine`` over ``window`` consecutive steps at the first ``size`` flat indices: two overlapping
+    power-of-two runs of the chain cover any window (O(n log window) in all)."""
+    k = window.bit_length() - 1
+    m = chain[k]
+    shift = (window - (1 << k)) * stride
+    return combine(m[:size], m[shift : shift + size])
+
+
+def _windows(a: np.ndarray, footprints: Sequence[tuple[float, float]], combine: np.ufunc) -> list[np.ndarray]:
+    """``combine`` of ``a`` over each ``length`` × ``width`` footprint at every integer position where it lies
+    inside the grid: per footprint shape (L - l + 1, W - w + 1), possibly empty.
+
+    Both passes run on the flattened grid, so every numpy call is one contiguous loop (on a 2-D slice numpy loops
+    once per row): a shift by ``stride = W`` elements is a shift by one row, a shift by one element one column;
+    a window along y that runs past the row's end wraps into the next row, but only at positions past
+    ``W - w``, which are cut off. The row pass's doubling chain is shared by every footprint (the two
+    orientations of a box): only its last combination differs.
+    """
+    nx, ny = a.shape
+    flat = np.ascontiguousarray(a).reshape(-1)
+    spans = [(cells_spanned(length), cells_spanned(width)) for length, width in footprints]
+    fitting = [lc for lc, wc in spans if lc <= nx and wc <= ny]
+    rows_chain = _doubling(flat, max(fitting, default=1), ny, combine)
+    out = []
+    for lc, wc in spans:
+        if lc > nx or wc > ny:
+            out.append(np.empty((max(0, nx - lc + 1), max(0, ny - wc + 1)), dtype=a.dtype))
+            continue
+        ox, oy = nx - lc + 1, ny - wc + 1
+        rows = _from_chain(rows_chain, lc, ny, ox * ny, combine)  # positions (x, any y), flat
+        cols = _from_chain(_doubling(rows, wc, 1, combine), wc, 1, ox * ny - wc + 1, combine)
+        # (x, y) for y < oy sits at flat index x * ny + y < len(cols): a strided view, no copy
+        item = cols.itemsize
+        out.append(np.lib.stride_tricks.as_strided(cols, (ox, oy), (ny * item, item), writeable=False))
+    return out
 
 
 def drop_height_map(heightmap: np.ndarray, length: float, width: float) -> np.ndarray:
@@ -62,9 +89,9 @@ def drop_height_map(heightmap: np.ndarray, length: float, width: float) -> np.nd
 
     Entry [x, y] is the max of the heightmap over the footprint whose min corner is (x, y); only positions
     where the footprint lies inside the grid are returned, so the shape is (L - l + 1, W - w + 1) (possibly
-    empty when the box is larger than the container).
+    empty when the box is larger than the container). Read-only.
     """
-    return _window(heightmap, length, width, np.maximum)
+    return _windows(heightmap, [(length, width)], np.maximum)[0]
 
 
 def window_all(cells: np.ndarray, length: float, width: float) -> np.ndarray:
@@ -76,4 +103,22 @@ def window_all(cells: np.ndarray, length: float, width: float) -> np.ndarray:
     resting heights: float addition is monotone, so the highest cell under the box passes iff every cell does.
     A sliding "all" over booleans, about 3 times faster than the sliding max over floats.
     """
-    return _window(cells, length, width, np.logical_and)
+    return windows_all(cells, [(length, width)])[0]
+
+
+def windows_all(cells: np.ndarray, footprints: Sequence[tuple[float, float]]) -> list[np.ndarray]:
+    """:func:`window_all` for several footprints over the same cells (a box's orientations), sharing work."""
+    return _windows(cells, footprints, np.logical_and)
+
+
+def highest_base(height: float, limit: float) -> float:
+    """The highest resting height at which a box of ``height`` keeps its top within ``limit``: ``base + height <=
+    limit`` exactly when ``base <= highest_base(height, limit)``, in floating point too (rounded addition is
+    monotone, so the passing bases are those up to the largest one), so a heightmap is thresholded with one
+    comparison instead of an addition and a comparison."""
+    base = limit - height
+    while base + height > limit:
+        base = math.nextafter(base, -math.inf)
+    while math.nextafter(base, math.inf) + height <= limit:
+        base = math.nextafter(base, math.inf)
+    return base

@@ -79,17 +79,24 @@ class Pool:
     #: Source records in the split.
     records: int
     notes: dict[str, int] = field(default_factory=dict)
+    #: Each entry's Box, made when first drawn: a Box is immutable, and a group repeats few entries (a Gym env
+    #: draws a group at every reset).
+    _boxes: dict[int, Box] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.dims)
 
     def boxes(self, indices: np.ndarray) -> tuple[Box, ...]:
-        # tolist: the same Python floats as float() of each element, without a numpy scalar per value
-        dims, masses = self.dims[indices].tolist(), self.masses[indices].tolist()
-        return tuple(
-            Box(length, width, height, mass)
-            for (length, width, height), mass in zip(dims, masses, strict=True)
-        )
+        made = self._boxes
+        out = []
+        for i in np.asarray(indices).tolist():
+            box = made.get(i)
+            if box is None:
+                # tolist: the same Python floats as float() of each element, without a numpy scalar per value
+                length, width, height = self.dims[i].tolist()
+                box = made[i] = Box(length, width, height, self.masses[i].item())
+            out.append(box)
+        return tuple(out)
 
 
 def load_pool(

@@ -22,12 +22,9 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from robobpp.core import Action, Observation, Placement, drop_height_map
-from robobpp.core.feasibility import (
-    OBSERVED_CONTACT_TOLERANCE_CM,
-    TOLERANCE_CM,
-    SupportModel,
-)
-from robobpp.core.heightmap import cells_spanned, window_all
+from robobpp.core.feasibility import OBSERVED_CONTACT_TOLERANCE_CM, SupportModel
+from robobpp.core.feasible_grid import orientation_fits
+from robobpp.core.heightmap import cells_spanned
 
 
 class _NoSupportRule(SupportModel):
@@ -105,20 +102,10 @@ class CandidateMap:
 
 def candidate_maps(obs: Observation) -> Iterator[CandidateMap]:
     """One :class:`CandidateMap` per allowed orientation (skipping ones where the box cannot fit at all)."""
-    limit = obs.container.height + TOLERANCE_CM
     placed = tuple(obs.placed)
-    below: dict[
-        float, np.ndarray
-    ] = {}  # per box height: the cells a box resting on keeps its top within limit
-    for orientation in obs.orientations:
-        length, width, height = obs.box.dims(orientation)
-        if length > obs.container.length + TOLERANCE_CM or width > obs.container.width + TOLERANCE_CM:
-            continue
-        if height not in below:  # orientations turned about z share it
-            below[height] = obs.heightmap + height <= limit
-        fits = window_all(below[height], length, width)  # = drop_height_map(...) + height <= limit
-        if fits.size == 0:
-            continue
+    for orientation, (length, width, height), fits in orientation_fits(
+        obs.heightmap, obs.box, obs.container, obs.orientations
+    ):
         yield CandidateMap(orientation, length, width, height, fits, placed, obs.heightmap)
 
 

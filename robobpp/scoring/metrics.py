@@ -54,19 +54,28 @@ def placed_volume(final: Iterable[FinalBox]) -> float:
     return sum(f.planned.volume for f in final)
 
 
-def occupancy(plan: Sequence[Placement], container: ContainerSpec) -> float | None:
+def occupancy(
+    plan: Sequence[Placement], container: ContainerSpec, under: Sequence[float] | None = None
+) -> float | None:
     """The mean, over the placements, of the volume of the boxes placed so far over the volume under the
     heightmap their planned poses make (1 cm cells, the Math Pack's heightmap): how densely the pile is
-    built at each step, as the reference computes it (on its idealised heightmap). None without a box."""
+    built at each step, as the reference computes it (on its idealised heightmap). None without a box.
+
+    ``under``: those volumes under the heightmap after each placement, when the caller kept them
+    (``Setting.under_volumes``); otherwise the plan is replayed onto an empty container here."""
     if not plan:
         return None
-    state = ContainerState(container)
+    if under is None:
+        state = ContainerState(container)
+        replayed = []
+        for placement in plan:
+            state.add(placement)
+            replayed.append(state.volume_under_heightmap())
+        under = replayed
     volume = total = 0.0
-    for placement in plan:
-        state.add(placement)
+    for placement, below in zip(plan, under, strict=True):
         volume += placement.volume
-        under = state.volume_under_heightmap()
-        total += volume / under if under > 0 else 0.0
+        total += volume / below if below > 0 else 0.0
     return total / len(plan)
 
 

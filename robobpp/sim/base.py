@@ -56,6 +56,11 @@ class Setting(ABC):
         of each of ``final_boxes()``."""
         return [f.planned for f in self.final_boxes()]
 
+    def under_volumes(self) -> list[float] | None:
+        """The volume under the heightmap of :meth:`plan` after each of its placements, when the setting keeps
+        them as it goes (Occupancy then needs no replay); None by default."""
+        return None
+
     @property
     def physics_version(self) -> str | None:
         """The version of the physics behind this setting's outcomes (recorded with every result; boards

@@ -26,9 +26,11 @@ class MathPack(Setting):
 
     def __init__(self) -> None:
         self._state: ContainerState | None = None
+        self._under: list[float] = []
 
     def reset(self, spec: EpisodeSpec) -> None:
         self._state = ContainerState(spec.container)
+        self._under = []
 
     def state(self) -> ContainerState:
         assert self._state is not None, "reset() first"
@@ -46,7 +48,13 @@ class MathPack(Setting):
                 ),
             )
         state.add(placement)
+        # Occupancy's heightmaps are this state's: the plan is what was placed, in order (the same array, so the
+        # same sum, as a replay would give)
+        self._under.append(state.volume_under_heightmap())
         return StepOutcome(placement)
+
+    def under_volumes(self) -> list[float]:
+        return list(self._under)
 
     def final_boxes(self) -> list[FinalBox]:
         return [FinalBox(p, p, True) for p in self.state().placements]

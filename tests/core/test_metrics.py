@@ -81,3 +81,27 @@ def test_aggregate_means_and_pooled_ratios():
     assert out["collapsed_placement"] == pytest.approx(1 / 40)  # pooled, not mean of 0.1 and 0
     assert out["dangerous_operation"] == pytest.approx(3 / 40)
     assert "trajectory_length" in out and "local_stability" not in M.aggregate(episodes, "math")
+
+
+def test_math_pack_keeps_the_volumes_occupancy_would_replay_to_the_bit():
+    """Math Pack hands Occupancy the volume under its heightmap after each placement instead of a replay of the
+    plan; on real episodes the figure is the replay's, bit for bit (the same heightmaps summed)."""
+    import numpy as np
+
+    from robobpp.datasets.sampling import GroupDraw
+    from robobpp.episode import Episode
+    from robobpp.policies.random_policy import RandomPolicy
+
+    draw = GroupDraw("repetitive", "train", 0)
+    for group in range(4):
+        episode = Episode(draw(group), "math")
+        policy = RandomPolicy(seed=group)
+        policy.reset(episode.info)
+        while not episode.done:
+            episode.step(policy.act(episode.observe()), decision_time=0.0)
+        plan = episode.setting.plan()
+        kept = episode.setting.under_volumes()
+        assert kept is not None and len(kept) == len(plan) > 5
+        assert M.occupancy(plan, episode.spec.container, kept) == M.occupancy(plan, episode.spec.container)
+        assert episode.result("random").metrics["occupancy"] == M.occupancy(plan, episode.spec.container)
+        assert np.all(np.diff(kept) > 0)  # every placement raised the pile

@@ -112,8 +112,10 @@ def _sources() -> list[Path]:
     listed = subprocess.run(["git", "ls-files", *SOURCES], cwd=ROOT, capture_output=True, text=True)
     if listed.returncode == 0:
         names = listed.stdout.split()
-        return [ROOT / n for n in names if n.endswith((".py", ".html", ".toml")) and (ROOT / n).is_file()]
-    return [p for s in SOURCES for p in (ROOT / s).rglob("*.py")]
+        found = [ROOT / n for n in names if n.endswith((".py", ".html", ".toml")) and (ROOT / n).is_file()]
+    else:
+        found = [p for s in SOURCES for p in (ROOT / s).rglob("*.py")]
+    return [p for p in found if p != Path(__file__).resolve()]  # this file's examples are not citations
 
 
 def cited_sections(path: Path) -> list[str]:

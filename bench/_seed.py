@@ -7,7 +7,7 @@ physical settings again under the paper protocol (15 runs of 30 groups, 450 epis
 episode a policy error), 2 % partial (Math Pack only). The figures are drawn around each submission's
 quality (0..1).
 
-Fast by construction (figures in ``BENCHMARKS.md``, "At 10k, 25k, 50k submissions"):
+Fast by construction (figures in ``BENCHMARKS.md``, "Seeding a large database"):
 
 * figures drawn with numpy for a chunk of submissions at once, per setting;
 * each run's aggregate metrics, per-group figures and stored part computed in bulk from those arrays. They

@@ -1,5 +1,5 @@
 """Fidelity of the default physics (fast mode) against the full dynamic simulation on REAL train groups, and
-the full simulation against itself (docs/physics.md, "Fidelity"). Too slow for CI; CI runs a handful of
+the full simulation against itself (docs/validation/physics.md, "Fidelity"). Too slow for CI; CI runs a handful of
 these episodes (tests/sim/physics/test_fidelity_real.py).
 
     python bench/fidelity_physics.py --groups 10 --policies dbl,hm,lsah --out fidelity.jsonl

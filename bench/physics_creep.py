@@ -1,4 +1,4 @@
-"""Is the full simulation's creep physics or a solver artefact? (docs/physics.md, "Creep").
+"""Is the full simulation's creep physics or a solver artefact? (docs/validation/physics.md, "Creep").
 
 One real episode's actions are recorded once (the default physics, a grid policy), then replayed box by box
 in the *full* simulation (every box dynamic, ≥ 200 steps per placement, then until at rest) under numerical

@@ -1,4 +1,4 @@
-"""Where do the default (fast) and the full simulation part? (docs/physics.md, "Fidelity").
+"""Where do the default (fast) and the full simulation part? (docs/validation/physics.md, "Fidelity").
 
 Runs one real episode in both modes side by side, each with its own copy of the policy, and stops at the
 first step where the two policies choose differently: prints the step, both actions, how many heightmap

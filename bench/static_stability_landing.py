@@ -1,4 +1,4 @@
-"""How a box lands decides Static Stability (docs/physics.md, "Static Stability against the reference").
+"""How a box lands decides Static Stability (docs/validation/physics.md, "Static Stability against the reference").
 
 One box lands on the bare deck, or on a box that has settled there, under three landings: version 4's (a box
 primitive released at rest 2 mm above its resting height), a primitive lowered 1 mm per step until it touches,

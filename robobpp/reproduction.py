@@ -42,7 +42,7 @@ class Expectation:
 
     #: One line: the cause of the difference, not a verdict on it.
     why: str
-    #: The experiment in the docs, a link relative to the repository root (``docs/physics.md#anchor``).
+    #: The experiment in the docs, a link relative to the repository root (``docs/<page>.md#<anchor>``).
     doc: str
     #: False: the metric measures the paper's hardware rather than the method, so its ranking is not compared
     #: (no Spearman; "not compared" where it would be). Its mean |diff| is still shown.
@@ -75,13 +75,13 @@ EXPECTED: dict[str, Expectation] = {
         "The reference's position offset (|dx|+|dy| of each box from its target). A few groups carry the mean: "
         "a toppling tower throws boxes a metre or more (MACS on Diverse: 6 of 30 groups, the rest 0.001 m); "
         "and our grid has no 2 % gap between neighbours, so a box released clear of one starts up to 5 mm off.",
-        "docs/physics.md#static-stability-against-the-reference",
+        "docs/validation/physics.md#static-stability-against-the-reference",
     ),
     "static_stability": Expectation(
         "Measured on the reference's landing (a mesh box lowered 1 mm per step until it touches); the eight "
         "methods lie within a few hundredths, so their order is mostly near-ties; the default fast simulation "
         "ends the 200-step window once everything is at rest.",
-        "docs/physics.md#static-stability-against-the-reference",
+        "docs/validation/physics.md#static-stability-against-the-reference",
     ),
     "trajectory_length": _PLANNER,
     "collapsed_placement": _PLANNER,

@@ -17,7 +17,7 @@ depends_on = None
 
 def upgrade() -> None:
     # Replaces the submission_id index (its prefix serves every lookup that one did): counting a listed
-    # page's episodes by status no longer visits the 270 rows of each submission (BENCHMARKS.md, issue 17).
+    # page's episodes by status no longer visits the 270 rows of each submission (BENCHMARKS.md, "Evaluation server").
     op.create_index("ix_episodes_submission_status", "episodes", ["submission_id", "status"])
     op.drop_index("ix_episodes_submission_id", table_name="episodes")
 

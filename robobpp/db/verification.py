@@ -1,4 +1,4 @@
-"""Verification on the hold-out draw (docs/server.md, "Threat model of the private split").
+"""Verification on the hold-out draw (docs/server.md, "Hostile participants and the threat model of the private split").
 
 Every private-track submission plays the same groups of the private split, and a remote policy sees each
 box it is shown, so a participant can record the groups and tune to them. A top entry can therefore be

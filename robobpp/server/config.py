@@ -55,7 +55,7 @@ class Settings(BaseSettings):
     # evaluation
     workers: int = Field(default=2, ge=0, le=64)
     #: Episodes one worker process keeps in flight: a further one is claimed only while every episode in flight
-    #: waits on its participant's policy (docs/server.md, "Workers"); 1: one episode at a time.
+    #: waits on its participant's policy (docs/server.md, "Evaluation"); 1: one episode at a time.
     episodes_per_worker: int = Field(default=16, ge=1, le=256)
     #: Evaluation groups per dataset (30 on the real leaderboard, fewer for the demo).
     groups: int = Field(default=30, ge=1, le=1000)

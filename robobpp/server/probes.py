@@ -1,4 +1,4 @@
-"""The submit-time policy check, kept off the request path and bounded (docs/server.md, "Hostile policies").
+"""The submit-time policy check, kept off the request path and bounded (docs/server.md, "Hostile participants and the threat model of the private split").
 
 A submission's URL is resolved and its ``GET /info`` probed before anything is written, and that outbound
 call is the one place where a stranger's server can make the API wait. So it never runs on the request

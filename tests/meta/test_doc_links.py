@@ -1,4 +1,4 @@
-"""Links between the docs resolve: every relative link in README.md, CONTRIBUTING.md, BENCHMARKS.md and docs/*.md
+"""Links between the docs resolve: every relative link in README.md, CONTRIBUTING.md, BENCHMARKS.md and docs/**/*.md
 names a file of the repository and, with ``#anchor``, a heading of that page (GitHub's anchors: lower case,
 punctuation dropped, spaces as hyphens, a repeated heading numbered)."""
 
@@ -12,7 +12,7 @@ PAGES = [
     ROOT / "README.md",
     ROOT / "CONTRIBUTING.md",
     ROOT / "BENCHMARKS.md",
-    *sorted((ROOT / "docs").glob("*.md")),
+    *sorted((ROOT / "docs").rglob("*.md")),
 ]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 FENCE = re.compile(r"^```.*?^```", re.S | re.M)

@@ -105,7 +105,7 @@ def test_unknown_setting_is_refused() -> None:
         score_entries([], "juggling")
 
 
-# ---- intervals (robobpp.scoring.stats; docs/benchmark.md "Uncertainty") ----------------------------------------
+# ---- intervals (robobpp.scoring.stats; docs/benchmark.md "Scoring and uncertainty") ----------------------------------------
 
 
 def _entry(rng: np.random.Generator, mean: float, groups: int) -> dict:

@@ -1,4 +1,4 @@
-"""Verification on the hold-out draw, started by the operator (docs/server.md, "Threat model of the private
+"""Verification on the hold-out draw, started by the operator (docs/server.md, "Hostile participants and the threat model of the private
 split"): which submissions may be re-evaluated, and the verification submission itself. Its verdict is
 written when it finishes (:mod:`robobpp.db.verification`, called as the run completes in db/work.py)."""
 

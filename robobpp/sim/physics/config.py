@@ -37,17 +37,17 @@ Release = Literal["lower", "gap"]
 #: 3: friction anchors on every contact (positional static friction), which removes the solver's creep of
 #: piles at rest, and an observation that 0.1 mm of settling cannot flip: the heightmap claims a cell a box
 #: covers by more than 2.5 mm (was 5 mm, exactly half a cell) and the observed placements are rounded to
-#: 1 mm like the heightmap (docs/physics.md, "Creep" and "Fidelity").
+#: 1 mm like the heightmap (docs/validation/physics.md, "Creep" and "Fidelity").
 #: 4: the simulation is version 3's; the baselines' figures in it change: the paper's heuristics no longer apply
 #: the support rule to their candidates (the reference's do not), so a board's version-3 baseline runs go
 #: (docs/baselines.md, "Feasibility"). The Execution Pack ends where the reference ends: a place move that cannot
 #: start (no IK solution, or the arm with its box in collision at the pre-place pose, now the reference's: the
 #: box's top 0.35 m above its target's centre) and the third dangerous operation, its box not counted
-#: (docs/execution.md, "Against the reference implementation").
+#: (docs/validation/execution.md, "Against the reference implementation").
 #: 5: Static Stability measured on the reference's landing: each box a convex mesh (``collision_shape``), put
 #: 1.7 cm above its resting height and lowered 1 mm per step until it touches (``release``), as the reference
 #: does; the window of 200 steps starts at that touch. Version 4's primitive box released at rest 2 mm above
-#: its resting height read ≈ 0.6 where the paper's tables read ≈ 0.4 (docs/physics.md, "Static Stability
+#: its resting height read ≈ 0.6 where the paper's tables read ≈ 0.4 (docs/validation/physics.md, "Static Stability
 #: against the reference").
 PHYSICS_VERSION = "5"
 
@@ -69,7 +69,7 @@ class PhysicsConfig:
     #: Friction anchors on every body (pybullet's ``frictionAnchor``): a sticking contact keeps its point
     #: and the solver corrects positional slip, so a pile at rest stays where it is. Off, a resting pile
     #: creeps by micrometres per step, a time-discretisation artefact that shrinks with the time step
-    #: (``bench/physics_creep.py``, docs/physics.md "Creep"). Sliding past μ is unchanged.
+    #: (``bench/physics_creep.py``, docs/validation/physics.md "Creep"). Sliding past μ is unchanged.
     friction_anchor: bool = True
     #: Every box is simulated with this mass, kg (the reference implementation's 0.5 kg for every box);
     #: None: the dataset's mass. Only the physics uses it: the Execution Pack's suction check keeps the

@@ -1,4 +1,4 @@
-"""The fidelity criterion (docs/physics.md, "Fidelity"): when two simulations of one episode agree, and the
+"""The fidelity criterion (docs/validation/physics.md, "Fidelity"): when two simulations of one episode agree, and the
 paired test that says whether a mode agrees with the full simulation as often as the full simulation agrees
 with itself. Pure Python, shared by ``bench/fidelity_physics.py`` and the CI test.
 """

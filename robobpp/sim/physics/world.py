@@ -113,7 +113,7 @@ class PhysicsWorld:
     def _mesh_urdf(self, size_m: tuple[float, float, float]) -> str:
         """A URDF file of one box collision mesh of ``size_m``. Loaded through a URDF as the reference loads its
         boxes: Bullet then reports a touch 1-2 mm before the surfaces meet, where the same convex mesh
-        made by ``createCollisionShape`` reports it 3-7 mm before (measured; docs/physics.md, "Static
+        made by ``createCollisionShape`` reports it 3-7 mm before (measured; docs/validation/physics.md, "Static
         Stability against the reference"), and that distance is the landing's fall."""
         if self._mesh_dir is None:
             self._mesh_dir = Path(tempfile.mkdtemp(prefix="robobpp-boxes-"))

@@ -1,7 +1,7 @@
 """Fast mode (frozen far boxes, early stop at rest) against the full dynamic simulation (docs/benchmark.md, "Settings").
 
 A fixed set of DBL episodes with runs of identical boxes in a small pallet, so that a couple of dozen boxes
-already make three or four layers. The criterion is the fidelity bench's (docs/physics.md, "Fidelity";
+already make three or four layers. The criterion is the fidelity bench's (docs/validation/physics.md, "Fidelity";
 ``robobpp.sim.physics.fidelity.compare``): the same termination, boxes placed ±1 and Local Stability within
 5 mm, and its pass mark: fast mode parts from the full simulation no more often than the full simulation parts from
 itself under a 0.1 mm higher release (exact one-sided McNemar, p >= 0.05). Physics version 3 met the criterion on

@@ -1,4 +1,4 @@
-"""The default physics against the full simulation on real train episodes (docs/physics.md, "Fidelity";
+"""The default physics against the full simulation on real train episodes (docs/validation/physics.md, "Fidelity";
 ``bench/fidelity_physics.py`` runs the criterion on 90 episodes).
 
 The short episodes of the Diverse and Long Board datasets (DBL and HM end them after 6–34 boxes), so the full

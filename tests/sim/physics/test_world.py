@@ -183,7 +183,7 @@ def _resting_drift_um(config: PhysicsConfig) -> float:
 def test_a_resting_stack_does_not_creep() -> None:
     """Friction anchors (physics version 3): a well-supported stack with friction 1 at rest stays put. Without
     them the velocity-level friction lets it creep steadily (about 0.1 mm/s here), an artefact of the time
-    step (docs/physics.md, "Creep")."""
+    step (docs/validation/physics.md, "Creep")."""
     assert _resting_drift_um(PhysicsConfig()) < 10
     assert _resting_drift_um(PhysicsConfig(friction_anchor=False)) > 100
 
@@ -222,7 +222,7 @@ def _cantilever_drift_cm(config: PhysicsConfig) -> float:
 def test_a_long_board_cantilever_stands_and_creeps_only_without_anchors() -> None:
     """The pile stands (friction 1, its centre of mass over its support): with friction anchors nothing moves.
     Without them, as in the reference implementation, it creeps about 1 cm per placement's worth of steps; the
-    reference's Long Board piles end by its 7 cm collapse rule that way (docs/execution.md, "Why the reference's
+    reference's Long Board piles end by its 7 cm collapse rule that way (docs/validation/execution.md, "Why the reference's
     Long Board piles collapse")."""
     assert _cantilever_drift_cm(PhysicsConfig()) < 0.01
     assert _cantilever_drift_cm(PhysicsConfig(friction_anchor=False)) > 0.5

@@ -60,7 +60,7 @@ import numpy as np
 from gymnasium import spaces
 
 from robobpp import GYM_ENV_ID
-from robobpp.core import ORIENTATIONS, Action, Box, EpisodeSpec, Observation
+from robobpp.core import ORIENTATIONS, Action, Box, ContainerState, EpisodeSpec, Observation
 from robobpp.core.feasible_grid import FeasibleGrids, feasible_grid
 from robobpp.episode import POLICY_ERROR, Episode
 from robobpp.policies.candidate_space import DEFAULT_CANDIDATES, FEATURES, Candidates, CandidateSpace
@@ -105,25 +105,52 @@ def heightmap_channel(heightmap: np.ndarray, height: float) -> np.ndarray:
     return np.minimum(out, np.float32(height), out=out)
 
 
+class _Channel:
+    """The observation's heightmap channel for one state after another, each a new array: kept in float32 and
+    brought up to date from the blocks the state raised since (``ContainerState.raises``, as the feasible grid
+    is), so a step copies it instead of converting the whole heightmap; rebuilt for a new state or heightmap.
+    Exact: rounding to float32 and clipping commute with the max a raise takes."""
+
+    def __init__(self, height: float) -> None:
+        self.height = height
+        self._kept: tuple[ContainerState, np.ndarray, np.ndarray] | None = (
+            None  # state, its heightmap, channel
+        )
+        self._seen = 0
+
+    def __call__(self, state: ContainerState) -> np.ndarray:
+        kept = self._kept
+        if kept is not None and kept[0] is state and kept[1] is state.heightmap:
+            channel = kept[2]
+            for x0, x1, y0, y1, top in state.raises[self._seen :]:
+                region = channel[0, x0:x1, y0:y1]
+                np.maximum(region, np.float32(min(top, self.height)), out=region)
+        else:
+            channel = heightmap_channel(state.heightmap, self.height)
+            self._kept = (state, state.heightmap, channel)
+        self._seen = len(state.raises)
+        return channel.copy()
+
+
 def encode_observation(
     obs: Observation, lookahead: int, candidates: Candidates | None = None
 ) -> dict[str, np.ndarray]:
     """The env's observation of a policy :class:`Observation` (a trained agent acts on the same arrays); new
     arrays, never views of the simulator's state; with ``candidates`` (the candidate space's list for this box)
     their features as ``candidates``."""
-    return _encoded(obs.heightmap, obs.container.height, obs.box, obs.lookahead, lookahead, candidates)
+    channel = heightmap_channel(obs.heightmap, obs.container.height)
+    return _encoded(channel, obs.box, obs.lookahead, lookahead, candidates)
 
 
 def _encoded(
-    heightmap: np.ndarray,
-    height: float,
+    channel: np.ndarray,
     box: Box,
     upcoming: Sequence[Box],
     lookahead: int,
     candidates: Candidates | None,
 ) -> dict[str, np.ndarray]:
     encoded = {
-        "heightmap": heightmap_channel(heightmap, height),
+        "heightmap": channel,
         "box": np.array([box.length, box.width, box.height, box.mass], np.float32),
     }
     if lookahead > 0:  # no key at all without lookahead (module docstring)
@@ -235,6 +262,7 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._box: Box | None = None  # the box to place now (None: the episode is over)
         self._observation: Observation | None = None  # its policy observation, built when first needed
         self._grids = FeasibleGrids(container)  # the grid mask, kept up to date box after box
+        self._channel = _Channel(container.height)  # the heightmap channel, likewise
         self._grid_mask: np.ndarray | None = np.zeros(self.grid_shape, bool)
         self._feasible = False  # whether the action space admits any action for the current box
         self._support_mask: np.ndarray | None = None  # computed when first asked, per observation
@@ -251,15 +279,13 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def _encode(self) -> dict[str, np.ndarray]:
         assert self._episode is not None
-        heightmap = self._episode.setting.state().heightmap  # copied into the float32 channel
+        channel = self._channel(self._episode.setting.state())
         if self._box is not None:
             next_index = self._episode.index + 1
             upcoming = self._episode.spec.boxes[next_index : next_index + self.lookahead]
-            return _encoded(
-                heightmap, self.container.height, self._box, upcoming, self.lookahead, self._candidates
-            )
+            return _encoded(channel, self._box, upcoming, self.lookahead, self._candidates)
         terminal = {  # the final heightmap, no box
-            "heightmap": heightmap_channel(heightmap, self.container.height),
+            "heightmap": channel,
             "box": np.zeros(4, np.float32),
         }
         if self.lookahead > 0:

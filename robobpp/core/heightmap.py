@@ -108,6 +108,10 @@ def window_all(cells: np.ndarray, length: float, width: float) -> np.ndarray:
 
 def windows_all(cells: np.ndarray, footprints: Sequence[tuple[float, float]]) -> list[np.ndarray]:
     """:func:`window_all` for several footprints over the same cells (a box's orientations), sharing work."""
+    if cells.all():  # nothing in the way (an empty container, a low pile): every position that fits the grid
+        nx, ny = cells.shape
+        spans = ((cells_spanned(length), cells_spanned(width)) for length, width in footprints)
+        return [np.ones((max(0, nx - lc + 1), max(0, ny - wc + 1)), bool) for lc, wc in spans]
     return _windows(cells, footprints, np.logical_and)
 
 

@@ -30,6 +30,29 @@ def test_the_heightmap_is_one_image_channel(specs):
     np.testing.assert_array_equal(obs["heightmap"][0], env.unwrapped._episode.observe().heightmap)
 
 
+@pytest.mark.parametrize("setting", ["math", "physics"])
+def test_every_observation_and_mask_is_the_state_s_at_that_step(specs, setting):
+    """The heightmap channel and the action mask the env keeps up to date box after box are, at every step, what
+    the state computed afresh gives (Math Pack: caught up from the placed blocks; Physics Pack: a new state each
+    step, rebuilt)."""
+    env = gym.make("robobpp/Pack-v0", specs=specs, setting=setting)
+    pack = env.unwrapped
+    rng = np.random.default_rng(1)
+    steps, episode, enough = 0, 0, 60 if setting == "math" else 12
+    while steps < enough:
+        obs, info = env.reset(seed=episode)
+        episode, done = episode + 1, False
+        while not done:
+            state = pack._episode.setting.state()
+            expected = robobpp.env.heightmap_channel(state.heightmap, pack.container.height)
+            np.testing.assert_array_equal(obs["heightmap"], expected)
+            if pack._box is not None:
+                fresh = robobpp.env.feasible_mask(pack._episode.observe())
+                np.testing.assert_array_equal(info["action_masks"], fresh.reshape(-1))
+            obs, _, done, _, info = env.step(int(rng.choice(np.flatnonzero(info["action_masks"]))))
+            steps += 1
+
+
 def test_stable_baselines3_check_env_takes_the_heightmap_as_an_image(specs):
     """sb3's checker warned "unconventional shape (neither an image, nor a 1D vector)" for a (nx, ny) heightmap;
     a (1, nx, ny) one is a one-channel image to it (it still says float images are not uint8 ones)."""

@@ -19,28 +19,34 @@ the SDK in this process (one server per participant, each thinking ``--think`` s
 
 ``--episodes-per-worker`` sets ROBOBPP_EPISODES_PER_WORKER (1: one episode at a time); ``--code DIR`` runs the
 server from another checkout (the code before the change: ``git archive <commit> | tar -x -C DIR``).
+``--celery BROKER_URL`` runs the same scenario on the scaled deployment: ``robobpp serve`` dispatching to the
+broker and ``robobpp worker --concurrency 2`` (2 worker processes, as the local pool's 2) running the episodes,
+on a fresh PostgreSQL database made through ``--postgres`` and dropped after.
 
     python bench/bench_multiplex.py latency [--episodes-per-worker 16] [--code DIR]
     python bench/bench_multiplex.py throughput --submissions 20 [--episodes-per-worker 16] [--window 120]
     python bench/bench_multiplex.py builtin [--episodes-per-worker 16]
     python bench/bench_multiplex.py memory [--groups 8] [--settings math,physics]
+    python bench/bench_multiplex.py latency --celery redis://127.0.0.1:6379/0 [--code DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import socket
 import subprocess
 import sys
 import tempfile
 import time
+import uuid
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import httpx
-from sqlalchemy import create_engine, text
+from sqlalchemy import create_engine, make_url, text
 
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.core import Action, Observation
@@ -66,11 +72,29 @@ def free_port() -> int:
 
 
 class Server:
-    def __init__(self, state: Path, code: Path, **env: str) -> None:
+    """``robobpp serve`` with its 2 local workers; with ``broker`` (``--celery``), ``robobpp serve`` dispatching to
+    that broker and ``robobpp worker --concurrency 2`` running the episodes, on a fresh PostgreSQL database."""
+
+    def __init__(
+        self, state: Path, code: Path, broker: str | None = None, postgres: str = "", **env: str
+    ) -> None:
         self.db = f"sqlite:///{state / 'bench.sqlite3'}"
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
+        self.broker, self.postgres, self.worker = broker, postgres, None
+        self.tag = f"robobpp_bench_{uuid.uuid4().hex[:10]}"  # the database and the queue of this run
         environ = {k: v for k, v in os.environ.items() if not k.startswith("ROBOBPP_")}
+        if broker:
+            import psycopg
+
+            with psycopg.connect(postgres, autocommit=True) as conn:
+                conn.execute(f'CREATE DATABASE "{self.tag}"')
+            self.db = (
+                make_url(postgres)
+                .set(drivername="postgresql+psycopg", database=self.tag)
+                .render_as_string(hide_password=False)
+            )
+            environ.update(ROBOBPP_BROKER_URL=broker, ROBOBPP_CELERY_QUEUE=self.tag)
         environ.update(
             PYTHONPATH=str(code),
             ROBOBPP_STATE_DIR=str(state),
@@ -83,25 +107,41 @@ class Server:
             ROBOBPP_QUOTA_SUBMISSIONS_PER_DAY="1000",
             **env,
         )
+        command = [sys.executable, "-c", "from robobpp.cli import main; main()"]
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", "from robobpp.cli import main; main()", "serve", "--port", str(self.port)],
+            [*command, "serve", "--port", str(self.port)],
             env=environ,
             cwd=state,
             stdout=(state / "server.log").open("ab"),
             stderr=subprocess.STDOUT,
             start_new_session=True,
         )
-        deadline = time.monotonic() + 600  # baselines are evaluated before /healthz answers? no: after start
+        deadline = time.monotonic() + 600
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError((state / "server.log").read_text()[-3000:])
             try:
                 if httpx.get(self.url + "/healthz", timeout=2).status_code == 200:
-                    return
+                    break
             except httpx.HTTPError:
                 pass
             time.sleep(0.3)
-        raise RuntimeError("the server did not start")
+        else:
+            raise RuntimeError("the server did not start")
+        if broker:  # after the server: it has migrated the database
+            self.worker = subprocess.Popen(
+                [*command, "worker", "--concurrency", "2"],
+                env=environ,
+                cwd=state,
+                stdout=(state / "worker.log").open("ab"),
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+            wait(lambda: "ready" in (state / "worker.log").read_text(errors="replace"), 120)
+
+    def groups(self) -> list[int]:
+        """The process groups that run episodes: the server's, and the Celery workers' when there are some."""
+        return [p.pid for p in (self.proc, self.worker) if p is not None]
 
     def client(self, token: str = ADMIN) -> httpx.Client:
         return httpx.Client(
@@ -122,15 +162,27 @@ class Server:
             engine.dispose()
 
     def stop(self) -> None:
-        self.proc.terminate()
-        try:
-            self.proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(self.proc.pid, 9)
+        for proc in (self.worker, self.proc):
+            if proc is None:
+                continue
+            os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+        if self.broker:
+            import psycopg
+            from kombu import Connection
+
+            with psycopg.connect(self.postgres, autocommit=True) as conn:
+                conn.execute(f'DROP DATABASE IF EXISTS "{self.tag}" WITH (FORCE)')
+            with Connection(self.broker) as conn:
+                conn.default_channel.queue_delete(self.tag)
+                conn.default_channel.exchange_delete(self.tag)
 
 
-def group_cpu(pgid: int) -> dict[int, float]:
-    """CPU seconds of each process of a process group (the server and its workers), by process id."""
+def group_cpu(pgids: list[int]) -> dict[int, float]:
+    """CPU seconds of each process of some process groups (the server, its workers), by process id."""
     tick = os.sysconf("SC_CLK_TCK")
     out = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
@@ -138,7 +190,7 @@ def group_cpu(pgid: int) -> dict[int, float]:
             fields = stat.read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if int(fields[2]) == pgid:  # fields after the name: state, ppid, pgrp, ..., utime (11), stime (12)
+        if int(fields[2]) in pgids:  # fields after the name: state, ppid, pgrp, ..., utime (11), stime (12)
             out[int(stat.parent.name)] = (int(fields[11]) + int(fields[12])) / tick
     return out
 
@@ -168,7 +220,14 @@ def wait(predicate: Any, timeout_s: float, every_s: float = 0.2) -> Any:
 def latency(args: argparse.Namespace, state: Path, code: Path, extra: dict[str, str]) -> None:
     data = os.environ.get("ROBOBPP_DATA_DIR") or str(Path.home() / ".cache" / "robobpp")
     server = Server(
-        state, code, ROBOBPP_GROUPS="6", ROBOBPP_EVALUATE_BASELINES="0", ROBOBPP_DATA_DIR=data, **extra
+        state,
+        code,
+        args.celery,
+        args.postgres,
+        ROBOBPP_GROUPS="6",
+        ROBOBPP_EVALUATE_BASELINES="0",
+        ROBOBPP_DATA_DIR=data,
+        **extra,
     )
     try:
         Thinking.think_s = args.think
@@ -203,6 +262,8 @@ def throughput(args: argparse.Namespace, state: Path, code: Path, extra: dict[st
     server = Server(
         state,
         code,
+        args.celery,
+        args.postgres,
         ROBOBPP_GROUPS=str(args.groups),
         ROBOBPP_EVALUATE_BASELINES="0",
         ROBOBPP_SPEC_PROVIDER="robobpp.worker.specs:offline_spec",
@@ -217,11 +278,11 @@ def throughput(args: argparse.Namespace, state: Path, code: Path, extra: dict[st
             sids.append(submit(server.participant(f"p{i}"), policy.url, ["diverse"], "private"))
         wait(lambda: server.rows("SELECT min(started_at) FROM episodes")[0][0] is not None, 120)
         first = when(server.rows("SELECT min(started_at) FROM episodes")[0][0])
-        samples, cpu0, mine0 = [], group_cpu(server.proc.pid), time.process_time()
+        samples, cpu0, mine0 = [], group_cpu(server.groups()), time.process_time()
         while time.time() < first.timestamp() + args.window:
             time.sleep(10)
             samples.append(server.rows("SELECT count(*) FROM episodes WHERE status = 'running'")[0][0])
-        cpu = group_cpu(server.proc.pid)
+        cpu = group_cpu(server.groups())
         used = sorted((cpu[p] - cpu0.get(p, 0.0)) / args.window for p in cpu)
         mine = (time.process_time() - mine0) / args.window
         cutoff = first.timestamp() + args.window
@@ -246,6 +307,8 @@ def builtin(args: argparse.Namespace, state: Path, code: Path, extra: dict[str, 
     server = Server(
         state,
         code,
+        args.celery,
+        args.postgres,
         ROBOBPP_GROUPS=str(args.groups),
         ROBOBPP_BASELINES=f"[{', '.join(repr(b).replace(chr(39), chr(34)) for b in args.baselines.split(','))}]",
         ROBOBPP_PUBLIC_BASELINES="0",
@@ -318,6 +381,18 @@ def main() -> None:
         "--max-running", type=int, default=4, help="ROBOBPP_PARTICIPANT_MAX_RUNNING (throughput)"
     )
     parser.add_argument("--baselines", default="dbl,lsah,hm")
+    parser.add_argument(
+        "--celery",
+        metavar="BROKER_URL",
+        default=None,
+        help="run the episodes on `robobpp worker --concurrency 2` through this broker (redis://… or amqp://…), "
+        "the server dispatching; on a fresh database of --postgres",
+    )
+    parser.add_argument(
+        "--postgres",
+        default="postgresql://postgres@127.0.0.1:5432/postgres",
+        help="a PostgreSQL URL allowed to create and drop a database (--celery)",
+    )
     parser.add_argument("--settings", default="math,physics")
     args = parser.parse_args()
     extra = {}

@@ -25,6 +25,7 @@ TAG="${ROBOBPP_IMAGE_TAG:-debian}"
 BUILD="${ROBOBPP_BUILD_DIR:-deploy/.build}"
 BASE=robobpp-debian:bookworm
 SUITE=bookworm
+LABEL=org.robobpp.build=deploy/build-images.sh
 PACKAGES=python3,python3-venv,libgomp1,curl,ca-certificates,postgresql-15,redis-server,redis-tools
 
 say() { printf "== [%4d s] %s\n" "$(( $(date +%s) - started ))" "$*"; }
@@ -70,12 +71,16 @@ packsim="$(sed -n 's/^PACKSIM_REQUIREMENT = "\(.*\)"$/\1/p' robobpp/datasets/sou
 "$PYTHON" -m pip download -q --no-deps -d "$BUILD/data" "$packsim"
 
 say "robobpp:$TAG"
-docker build -q --force-rm --network none -f deploy/Dockerfile.debian --build-arg BASE="$BASE" \
+docker build -q --force-rm --network none -f deploy/Dockerfile.debian --build-arg BASE="$BASE" --label "$LABEL" \
   --label "org.robobpp.source=$("$PYTHON" deploy/source_hash.py)" \
   --build-arg WHEELS="$BUILD/wheels" --build-arg DATA="$BUILD/data" -t "robobpp:$TAG" . >/dev/null
 say "robobpp-postgres:$TAG, robobpp-redis:$TAG"
-docker build -q --force-rm --network none -f deploy/postgres/Dockerfile --build-arg BASE="$BASE" -t "robobpp-postgres:$TAG" deploy/postgres >/dev/null
-docker build -q --force-rm --network none -f deploy/redis/Dockerfile --build-arg BASE="$BASE" -t "robobpp-redis:$TAG" deploy/redis >/dev/null
+docker build -q --force-rm --network none -f deploy/postgres/Dockerfile --build-arg BASE="$BASE" --label "$LABEL" -t "robobpp-postgres:$TAG" deploy/postgres >/dev/null
+docker build -q --force-rm --network none -f deploy/redis/Dockerfile --build-arg BASE="$BASE" --label "$LABEL" -t "robobpp-redis:$TAG" deploy/redis >/dev/null
 
+# A rebuild moves each tag to the new image and leaves the old one dangling (<none>, 1 GB for robobpp:debian):
+# remove the dangling images this script built, no other image (a container still using one keeps it).
+say "docker image prune (dangling images labelled $LABEL)"
+docker image prune -f --filter "label=$LABEL" >/dev/null
 docker image ls --format '{{.Repository}}:{{.Tag}}  {{.Size}}' | grep -E "^(robobpp[^:]*:$TAG|$BASE) " || true
 say "done"

@@ -2,8 +2,9 @@
 and the database.
 
 It reads the same ``ROBOBPP_*`` settings as the server (database, broker, queue, lease, timeouts), runs
-``--concurrency`` episodes at a time, and sweeps expired leases so that episodes of a dead worker are
-sent again even while the server is down.
+``--concurrency`` worker processes, each keeping up to ``ROBOBPP_EPISODES_PER_WORKER`` episodes in flight as a
+local worker does (robobpp/worker/multiplex.py, robobpp/worker/nodes.py), and sweeps expired leases so that
+episodes of a dead worker are sent again even while the server is down.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import typer
 
 from robobpp.cli.common import fail, settings_problem
 
-POOLS = ("prefork", "solo", "threads")
+POOLS = ("multiplex", "prefork", "solo", "threads")
 
 
 def register(root: typer.Typer) -> None:
@@ -41,14 +42,32 @@ def worker_settings() -> Any:
 
 def worker(
     concurrency: Annotated[
-        int, typer.Option("--concurrency", "-c", min=1, max=256, help="Episodes run at once (processes).")
+        int,
+        typer.Option(
+            "--concurrency",
+            "-c",
+            min=1,
+            max=256,
+            help="Worker processes (multiplex, prefork) or threads (threads). With multiplex each process keeps "
+            "up to ROBOBPP_EPISODES_PER_WORKER episodes in flight.",
+        ),
     ] = 2,
     pool: Annotated[
-        str, typer.Option(help="prefork (default: one process per episode), solo (in-process) or threads.")
-    ] = "prefork",
+        str,
+        typer.Option(
+            help="multiplex (default: a Celery node per process, episodes in flight while they wait on their "
+            "policies), prefork (one episode per process), solo (in-process) or threads."
+        ),
+    ] = "multiplex",
     loglevel: Annotated[str, typer.Option(help="debug, info, warning or error.")] = "info",
     hostname: Annotated[
-        str | None, typer.Option(help="Celery node name; default robobpp-PID@HOST (unique per process).")
+        str | None,
+        typer.Option(
+            help="Celery node name; default robobpp-PID@HOST (unique per process); NAME-i@HOST per process."
+        ),
+    ] = None,
+    parent_pid: Annotated[
+        int | None, typer.Option(hidden=True, help="A node of `robobpp worker -c N`: end with that process.")
     ] = None,
 ) -> None:
     """Run episodes from the broker queue (needs ROBOBPP_BROKER_URL and ROBOBPP_DATABASE_URL)."""
@@ -81,6 +100,21 @@ def worker(
         fail(str(exc))
     if pool == "solo" and concurrency != 1:
         fail("--pool solo runs one episode at a time; use --concurrency 1 or the prefork pool")
+    if parent_pid is not None:  # first thing after the checks: a node never outlives its supervisor
+        from robobpp.worker.lifeline import Lifeline
+
+        Lifeline(parent_pid, kernel=True).hold("worker node")
+    if pool == "multiplex" and concurrency > 1:
+        from robobpp.worker.nodes import NodeSupervisor, node_command, node_hostname
+
+        me = os.getpid()
+        supervisor = NodeSupervisor(
+            concurrency,
+            lambda i: node_command(loglevel=loglevel, hostname=node_hostname(hostname, i), parent_pid=me),
+        )
+        raise typer.Exit(supervisor.run())
+    if pool == "multiplex":  # one process: a node whose threads are its episodes in flight
+        pool, concurrency = "threads", settings.episodes_per_worker
     _run(
         app,
         concurrency=concurrency,

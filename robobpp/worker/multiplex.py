@@ -15,6 +15,11 @@ policy that takes a second a box held the whole pool, however idle its CPUs. So 
   A built-in's episode (served on loopback in this very process: its think time is this machine's CPU) and a
   paper-protocol replay keep the lock from start to end: they run alone, as before, and open no slot.
 
+The Celery worker follows the same rule with the same :class:`Cpu` (robobpp/worker/tasks.py): its node runs the
+episode task on a pool of ``episodes_per_worker`` threads, and each task takes its process's CPU
+(:func:`process_cpu`) before it claims, hands it to the episode, and lets go of it when the episode ends. There
+the threads are Celery's and the claim loop is the broker's delivery; the rule and the bounds are these.
+
 Bounded per process (``episodes_per_worker``; 1 is one episode at a time, exactly as before) and per participant
 (``max_running_per_participant``, checked by the claim over all workers). Each episode keeps its own policy
 connection, simulator world and lease thread (:func:`robobpp.worker.run.run_claimed`, as before): claims,
@@ -26,6 +31,7 @@ process's worker id, so the supervisor hands all of them back at once (robobpp/w
 from __future__ import annotations
 
 import logging
+import os
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -64,6 +70,22 @@ class Cpu:
             yield
         finally:
             self._lock.acquire()
+
+
+_process_cpu: tuple[int, Cpu] | None = None
+_process_cpu_lock = threading.Lock()
+
+
+def process_cpu() -> Cpu:
+    """This process's CPU, shared by every episode task of a Celery worker node (robobpp/worker/tasks.py).
+
+    Keyed by process id: a child forked by Celery's prefork pool gets its own, never a copy of its parent's
+    (which the parent never takes, but a copied lock's state is whatever it was at the fork)."""
+    global _process_cpu
+    with _process_cpu_lock:
+        if _process_cpu is None or _process_cpu[0] != os.getpid():
+            _process_cpu = (os.getpid(), Cpu())
+        return _process_cpu[1]
 
 
 class Multiplexer:

@@ -20,15 +20,21 @@ from sqlalchemy import Engine, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from robobpp.db import work
-from robobpp.db.models import EpisodeRow
+from robobpp.db.models import EpisodeRow, utcnow
 from robobpp.db.session import make_engine, make_session_factory
 from robobpp.worker.celery_names import TASK_NAME, options_of, queue_of, task_id
+from robobpp.worker.multiplex import Cpu, process_cpu
+from robobpp.worker.options import WorkerOptions
 from robobpp.worker.run import run_claimed, worker_id
 
 log = logging.getLogger("robobpp.worker.celery")
 
 #: Seconds before an episode that the unit handed back for a retry (infrastructure error) is sent again.
 RETRY_DELAY_S = 5
+#: Seconds a task waits for its process's CPU before it sends its message back to the queue: long enough that a
+#: node's threads do not churn messages while a built-in's episode computes, short enough that a ticket held
+#: here reaches an idle worker process soon.
+CPU_WAIT_S = 5.0
 
 # One engine per (process, database): prefork children must never share the parent's sockets.
 _engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session]]] = {}
@@ -74,10 +80,42 @@ def enqueue(app: Celery, episode_ids: list[int], *, countdown: float | None = No
 
 
 def execute(app: Celery, episode_id: int, worker: str | None = None) -> str:
-    """Claim and run one episode. Returns what happened: ``recorded``, ``dropped`` or ``skipped``."""
+    """Claim and run one episode. Returns what happened: ``recorded``, ``dropped``, ``skipped`` or
+    ``deferred`` (the process's CPU stayed busy: the ticket went back to the queue).
+
+    Several of these run at once in one worker process (a node's pool of ``episodes_per_worker`` threads), under
+    the rule of the local pool (robobpp/worker/multiplex.py): the task takes its process's CPU before it claims,
+    so it claims only while every episode in flight there waits on its participant's policy, and the episode
+    holds the CPU except while it waits on that policy."""
     options = options_of(app)
     factory = session_factory(options.database_url)
     me = worker or worker_id("celery")
+    cpu = process_cpu()
+    if not cpu.acquire(CPU_WAIT_S):
+        # An episode of this process computes (a built-in's, a replay, a busy stretch of fast policies): the
+        # message is a ticket any worker may use, so it goes back to the queue rather than wait here while
+        # another worker process may idle. It is this message sent again, whatever its episode's state, so
+        # the tickets out stay as many as before; a pending episode's mark is renewed with it (not "lost").
+        with factory() as s, s.begin():
+            s.execute(
+                update(EpisodeRow)
+                .where(EpisodeRow.id == episode_id, EpisodeRow.status == "pending")
+                .values(enqueued_at=utcnow())
+            )
+            enqueue(app, [episode_id])
+        log.debug(
+            "episode %s: this process's CPU stayed busy %.0f s; message sent again", episode_id, CPU_WAIT_S
+        )
+        return "deferred"
+    try:
+        return _claim_and_run(app, options, factory, me, episode_id, cpu)
+    finally:
+        cpu.release()
+
+
+def _claim_and_run(
+    app: Celery, options: WorkerOptions, factory: sessionmaker[Session], me: str, episode_id: int, cpu: Cpu
+) -> str:
     with factory() as s, s.begin():
         claim = work.claim_episode(
             s,
@@ -114,7 +152,7 @@ def execute(app: Celery, episode_id: int, worker: str | None = None) -> str:
         me,
         episode_id,
     )
-    if run_claimed(factory, claim, options):
+    if run_claimed(factory, claim, options, cpu):
         return "recorded"
     with factory() as s, s.begin():  # handed back for another attempt: it needs a new message, sent once
         enqueue(app, work.take_unsent(s, stale_after_s=0, ids=[claim.episode_id]), countdown=RETRY_DELAY_S)

@@ -392,11 +392,11 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self._box, self._candidates = None, None
         terminated = self._episode.done
         if terminated:
-            result = self._episode.result("gym")
-            info["termination"] = result.termination
-            info["termination_detail"] = result.termination_detail
-            info["boxes_placed"] = result.boxes_placed
-            info["metrics"] = dict(result.metrics)
+            figures = self._episode.figures()
+            info["termination"] = figures.termination.reason
+            info["termination_detail"] = figures.termination.detail
+            info["boxes_placed"] = figures.boxes_placed
+            info["metrics"] = dict(figures.metrics)
         info["action_masks"] = self.action_masks()
         if self.support_info:
             info["support_mask"] = self._layout(self.support_mask())

@@ -16,6 +16,7 @@ from robobpp.core import (
     Action,
     EpisodeInfo,
     EpisodeSpec,
+    FinalBox,
     Infeasible,
     Observation,
     Placement,
@@ -137,6 +138,15 @@ class EpisodeResult:
         data["steps"] = [StepRecord(**s) for s in data.get("steps", [])]
         data.setdefault("final", [])
         return cls(**data)
+
+
+@dataclass(frozen=True, slots=True)
+class EpisodeFigures:
+    """What an episode's result counts: boxes placed (as its protocol counts them), how it ended, its metrics."""
+
+    boxes_placed: int
+    termination: Infeasible
+    metrics: dict[str, float | None]
 
 
 def placement_dict(p: Placement) -> dict[str, Any]:
@@ -280,8 +290,12 @@ class Episode:
         self.index += 1
         return record
 
-    def result(self, policy_name: str) -> EpisodeResult:
-        final = world = self.setting.final_boxes()
+    def figures(self) -> EpisodeFigures:
+        """The episode's figures as its result records them, without the trace (the Gym env's terminal info)."""
+        return self._figures(self.setting.final_boxes())
+
+    def _figures(self, world: list[FinalBox]) -> EpisodeFigures:
+        final = world
         container = self.spec.container
         under = self.setting.under_volumes()
         decision, static = self._decision, self._static
@@ -290,7 +304,7 @@ class Episode:
             # Counted as the reference counts (its Feasible Num and utilisation): the box whose placement
             # collapsed is not placed (nor its decision time, nor its static stability), and every box
             # packed before it is, displaced or not — the paper's tables mean that. The trace keeps it
-            # (``final`` below is every box in the world).
+            # (``final`` in the result is every box in the world).
             final, decision, static = final[:-1], decision[:-1], static[:-1]
             utilization = M.placed_volume(final) / container.volume
         metrics: dict[str, float | None] = {
@@ -319,6 +333,12 @@ class Episode:
                 c["operations_dangerous"] / c["operations"] if c["operations"] else None
             )
         termination = self.termination or Infeasible(COMPLETED, TERMINATION_REASONS[COMPLETED])
+        return EpisodeFigures(len(final), termination, metrics)
+
+    def result(self, policy_name: str) -> EpisodeResult:
+        world = self.setting.final_boxes()
+        figures = self._figures(world)
+        container = self.spec.container
         return EpisodeResult(
             episode_id=self.spec.episode_id,
             dataset=self.spec.dataset,
@@ -328,10 +348,10 @@ class Episode:
             policy=policy_name,
             seed=self.spec.seed,
             boxes_total=len(self.spec.boxes),
-            boxes_placed=len(final),
-            termination=termination.reason,
-            termination_detail=termination.detail,
-            metrics=metrics,
+            boxes_placed=figures.boxes_placed,
+            termination=figures.termination.reason,
+            termination_detail=figures.termination.detail,
+            metrics=figures.metrics,
             counters=dict(self.counters),
             container={"length": container.length, "width": container.width, "height": container.height},
             physics_version=self.setting.physics_version,

@@ -35,21 +35,32 @@ class ContainerState:
 
     def drop_height(self, x: float, y: float, length: float, width: float) -> float:
         """Height at which a footprint released from above comes to rest (max of the heightmap under it)."""
+        return self._rest(x, y, length, width)[0]
+
+    def _rest(self, x: float, y: float, length: float, width: float) -> tuple[float, tuple[slice, slice]]:
         cells = footprint_cells(x, y, length, width, self.heightmap.shape)
         region = self.heightmap[cells]
-        return float(region.max()) if region.size else 0.0
+        return (float(region.max()) if region.size else 0.0), cells
 
     def drop(self, box: Box, x: float, y: float, orientation: int, index: int) -> Placement:
         """The placement the box takes when dropped at (x, y): Math Pack's rule (rests on the max height)."""
-        length, width, height = box.dims(orientation)
-        z = self.drop_height(x, y, length, width)
-        return Placement(x, y, z, length, width, height, orientation, index)
+        return self.drop_on_cells(box, x, y, orientation, index)[0]
 
-    def add(self, placement: Placement) -> None:
-        """Record a placement and raise the heightmap under its footprint to its top."""
-        cells = footprint_cells(
-            placement.x, placement.y, placement.length, placement.width, self.heightmap.shape
-        )
+    def drop_on_cells(
+        self, box: Box, x: float, y: float, orientation: int, index: int
+    ) -> tuple[Placement, tuple[slice, slice]]:
+        """:meth:`drop`, and the cells under the footprint (for :meth:`add`)."""
+        length, width, height = box.dims(orientation)
+        z, cells = self._rest(x, y, length, width)
+        return Placement(x, y, z, length, width, height, orientation, index), cells
+
+    def add(self, placement: Placement, cells: tuple[slice, slice] | None = None) -> None:
+        """Record a placement and raise the heightmap under its footprint to its top (``cells``: its
+        :func:`footprint_cells`, when the caller has them)."""
+        if cells is None:
+            cells = footprint_cells(
+                placement.x, placement.y, placement.length, placement.width, self.heightmap.shape
+            )
         region = self.heightmap[cells]
         np.maximum(region, placement.top, out=region)
         self.placements.append(placement)

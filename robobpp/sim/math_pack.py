@@ -38,7 +38,7 @@ class MathPack(Setting):
 
     def apply(self, box: Box, action: Action, index: int) -> StepOutcome:
         state = self.state()
-        placement = state.drop(box, action.x, action.y, action.orientation, index)
+        placement, cells = state.drop_on_cells(box, action.x, action.y, action.orientation, index)
         if placement.top > state.spec.height + 1e-6:
             return StepOutcome(
                 None,
@@ -47,7 +47,7 @@ class MathPack(Setting):
                     f"box top at {placement.top:g} cm would exceed the container height {state.spec.height:g} cm",
                 ),
             )
-        state.add(placement)
+        state.add(placement, cells)
         # Occupancy's heightmaps are this state's: the plan is what was placed, in order (the same array, so the
         # same sum, as a replay would give)
         self._under.append(state.volume_under_heightmap())

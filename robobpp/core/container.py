@@ -18,12 +18,24 @@ class ContainerState:
 
     def __init__(self, spec: ContainerSpec) -> None:
         self.spec = spec
-        self.heightmap = np.zeros(spec.grid_shape, dtype=np.float64)
+        self._heightmap = np.zeros(spec.grid_shape, dtype=np.float64)
         self.placements: list[Placement] = []
         #: Each :meth:`add`'s block of cells and the top it raised them to, ``(x0, x1, y0, y1, top)``, in order:
         #: what changed in the heightmap, so that work on it can be brought up to date instead of redone
         #: (:class:`robobpp.core.feasible_grid.FeasibleGrids`).
         self.raises: list[tuple[int, int, int, int, float]] = []
+        #: Whether the heightmap is the empty container's raised by ``raises``, all of them: False once the
+        #: heightmap is replaced (a physical state's, say).
+        self.from_empty = True
+
+    @property
+    def heightmap(self) -> np.ndarray:
+        return self._heightmap
+
+    @heightmap.setter
+    def heightmap(self, heightmap: np.ndarray) -> None:
+        self._heightmap = heightmap
+        self.from_empty = False
 
     @classmethod
     def from_placements(cls, spec: ContainerSpec, placements: Iterable[Placement]) -> ContainerState:

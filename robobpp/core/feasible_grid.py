@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -81,14 +81,18 @@ class FeasibleGrids:
     that still leaves room changes nothing (a cell's status can only change by rising above the box's highest
     base). A few slices per placement instead of a sliding window over the whole grid; exact, which
     ``tests/core/test_feasible_grid.py`` checks box after box against :func:`feasible_grid`. Runs of equal boxes
-    are common (most consecutive boxes of a Repetitive group; about 14 sizes per group of 80). A new state (a
-    physical setting observes a new one after every step), a replaced heightmap, or a long catch-up recomputes.
+    are common (most consecutive boxes of a Repetitive group; about 14 sizes per group of 80). A size not kept
+    on a state with few raises (``ContainerState.from_empty``: its heightmap is the empty container's raised by
+    them) starts from its grid on the empty container (kept per size too) and catches up. A state with a
+    replaced heightmap (a physical setting observes a new one after every step) or a long catch-up recomputes.
 
     The returned grid is the instance's own and changes on later calls: copy what you keep.
     """
 
     #: More raises to replay than this, and recomputing is cheaper.
     MAX_CATCH_UP = 16
+    #: How many sizes' grids on the empty container are kept (any state still close to empty starts from one).
+    EMPTY_SIZES = 64
 
     def __init__(
         self, container: ContainerSpec, orientations: Sequence[int] = ORIENTATIONS, sizes: int = 8
@@ -98,6 +102,7 @@ class FeasibleGrids:
         self.sizes = sizes
         self._limit = container.height + TOLERANCE_CM
         self._kept: OrderedDict[tuple[float, float, float], _Kept] = OrderedDict()
+        self._empty: OrderedDict[tuple[float, float, float], _Kept] = OrderedDict()
 
     def __call__(self, state: ContainerState, box: Box) -> np.ndarray:
         """The feasible (x, y, orientation) grid of ``box`` on ``state``."""
@@ -109,7 +114,12 @@ class FeasibleGrids:
             or kept.heightmap is not state.heightmap
             or len(state.raises) - kept.seen > self.MAX_CATCH_UP
         ):
-            kept = self._compute(state, box)
+            if state.from_empty and len(state.raises) <= self.MAX_CATCH_UP:
+                # few boxes placed: start from this size's grid on the empty container and catch up
+                kept = replace(self._on_empty(size, box), state=state, heightmap=state.heightmap)
+                self._catch_up(kept)
+            else:
+                kept = self._compute(state, box)
             self._kept[size] = kept
             if len(self._kept) > self.sizes:
                 self._kept.popitem(last=False)
@@ -117,6 +127,16 @@ class FeasibleGrids:
             self._catch_up(kept)
         self._kept.move_to_end(size)
         return kept.grid
+
+    def _on_empty(self, size: tuple[float, float, float], box: Box) -> _Kept:
+        """This size's grid on the empty container, a copy to catch up from (``seen`` 0)."""
+        empty = self._empty.get(size)
+        if empty is None:
+            empty = self._empty[size] = self._compute(ContainerState(self.container), box)
+            if len(self._empty) > self.EMPTY_SIZES:
+                self._empty.popitem(last=False)
+        self._empty.move_to_end(size)
+        return replace(empty, grid=empty.grid.copy())
 
     def _compute(self, state: ContainerState, box: Box) -> _Kept:
         grid = np.zeros((*self.container.grid_shape, len(self.orientations)), bool)

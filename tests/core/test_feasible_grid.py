@@ -59,7 +59,7 @@ def test_kept_grid_equals_a_fresh_one_at_every_step(seed):
         boxes = [sizes[int(i)] for i in np.repeat(rng.integers(0, len(sizes), 12), rng.integers(1, 6, 12))]
         compared += _play(ContainerState(container), boxes, rng, grids)
     assert compared > 60
-    assert 10 < grids.computed < compared / 2  # both ways taken, catching up mostly
+    assert 3 <= grids.computed < compared / 4  # both ways taken, catching up mostly
 
 
 def test_a_long_run_since_the_last_box_of_a_size_is_recomputed_and_still_exact():

@@ -45,7 +45,8 @@ def _sliding_rows(a: np.ndarray, window: int, combine: np.ufunc) -> np.ndarray:
     while span * 2 <= window:
         m = combine(m[:-span], m[span:])
         span *= 2
-    return combine(m[:out_len], m[window - span : window - span + out_len])
+    out: np.ndarray = combine(m[:out_len], m[window - span : window - span + out_len])
+    return out
 
 
 def _window(a: np.ndarray, length: float, width: float, combine: np.ufunc) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +26,7 @@ PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.
 
 
 def make_spec(
-    boxes: list[tuple[float, float, float]] | list[Box],
+    boxes: Sequence[tuple[float, float, float]] | Sequence[Box],
     container: tuple[float, float, float] = (10, 10, 10),
     threshold: float = 7.0,
     dataset: str = "handmade",

@@ -36,7 +36,8 @@ from typing import Any
 
 import httpx
 from _common import machine
-from bench_server import SETTINGS, bench_settings, children, seed_rows, start_server
+from _seed import SETTINGS
+from bench_server import bench_settings, children, seed_rows, start_server
 from bench_server import rss_mb as process_rss_mb
 from sqlalchemy import text
 

@@ -25,7 +25,8 @@ FEASIBLE_ENDINGS = ("completed", "no_feasible_placement")
 def masked_action(env: gym.Env, rng: np.random.Generator) -> np.ndarray | np.integer:
     masks = env.unwrapped.action_masks()  # type: ignore[attr-defined]
     if isinstance(env.action_space, gym.spaces.Discrete):
-        return rng.choice(np.flatnonzero(masks))
+        action: np.integer = rng.choice(np.flatnonzero(masks))
+        return action
     values, start = [], 0
     for n in env.action_space.nvec:  # type: ignore[attr-defined]
         values.append(rng.choice(np.flatnonzero(masks[start : start + n])))

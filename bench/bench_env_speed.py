@@ -25,6 +25,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -78,7 +79,7 @@ def jumanji_runs() -> tuple[Callable[[int, int], float], Callable[[int, int, int
         env = AutoResetWrapper(jumanji.make("BinPack-v2"))
 
         @jax.jit
-        def act(state, timestep, key):
+        def act(state: Any, timestep: Any, key: Any) -> tuple[Any, Any, Any]:
             key, sub = jax.random.split(key)
             state, timestep = env.step(state, masked_random(sub, timestep.observation.action_mask))
             return state, timestep, key
@@ -96,7 +97,7 @@ def jumanji_runs() -> tuple[Callable[[int, int], float], Callable[[int, int, int
         env = VmapAutoResetWrapper(jumanji.make("BinPack-v2"))
 
         @jax.jit
-        def act(state, timestep, key):
+        def act(state: Any, timestep: Any, key: Any) -> tuple[Any, Any, Any]:
             key, sub = jax.random.split(key)
             keys = jax.random.split(sub, batch)
             actions = jax.vmap(masked_random)(keys, timestep.observation.action_mask)

@@ -54,7 +54,7 @@ def main() -> None:
         t1 = run(1, args.groups, one)
         tn = run(args.jobs, args.groups, many)
 
-        def figures(path: Path) -> list:
+        def figures(path: Path) -> list[tuple[str, int, float]]:
             return [
                 (e["episode_id"], e["boxes_placed"], e["metrics"]["space_utilization"])
                 for e in json.loads(path.read_text())["episodes"]

@@ -172,11 +172,11 @@ class Server:
                 os.killpg(proc.pid, signal.SIGKILL)
         if self.broker:
             import psycopg
-            from kombu import Connection
+            from kombu.connection import Connection
 
             with psycopg.connect(self.postgres, autocommit=True) as conn:
                 conn.execute(f'DROP DATABASE IF EXISTS "{self.tag}" WITH (FORCE)')
-            with Connection(self.broker) as conn:
+            with Connection(self.broker) as conn:  # type: ignore[no-untyped-call]  # kombu: untyped __init__
                 conn.default_channel.queue_delete(self.tag)
                 conn.default_channel.exchange_delete(self.tag)
 

@@ -71,7 +71,7 @@ def run(dataset: str, mode: str, groups: int, synthetic: bool) -> dict[str, Any]
     queue = ctx.Queue()
     proc = ctx.Process(target=_worker, args=(dataset, mode, groups, synthetic, queue))
     proc.start()
-    data = queue.get()
+    data: dict[str, Any] = queue.get()
     proc.join()
     return data
 

@@ -17,8 +17,9 @@ import time
 
 from _common import machine, median, percentile
 
+from robobpp.core.episode_spec import EpisodeSpec
 from robobpp.datasets import DATASETS, episode_specs
-from robobpp.episode import Episode, run_episode
+from robobpp.episode import Episode, EpisodeResult, run_episode
 from robobpp.policies import BASELINES, load_policy
 
 #: Targets of docs/benchmark.md, "Speed targets" (ms per decision).
@@ -28,7 +29,7 @@ DEFAULT_TARGET_MS = 5.0
 PAPER_S = {"dbl": "0.4–0.7", "hm": "0.3–1.0", "macs": "1–12", "sdfpack": "4–14"}
 
 
-def run(policy_name: str, specs: list, progress: str) -> list:
+def run(policy_name: str, specs: list[EpisodeSpec], progress: str) -> list[EpisodeResult]:
     results = []
     for k, spec in enumerate(specs, 1):
         results.append(run_episode(spec, load_policy(policy_name), "math"))
@@ -37,7 +38,9 @@ def run(policy_name: str, specs: list, progress: str) -> list:
     return results
 
 
-def decision_times(policy_name: str, specs: list, progress: str) -> tuple[list[float], list[float]]:
+def decision_times(
+    policy_name: str, specs: list[EpisodeSpec], progress: str
+) -> tuple[list[float], list[float]]:
     """Wall and thread-CPU seconds of every ``act`` call over the episodes (Math Pack, step-wise loop).
 
     CPU time is reported beside wall time because the benchmark machine is shared: wall time there
@@ -91,7 +94,7 @@ def table_mode(groups: int, policies: list[str]) -> None:
         specs = episode_specs(dataset, split="train", groups=groups)
         for name in policies:
             results = run(name, specs, f"{dataset} {name}")
-            util = statistics.mean(r.metrics["space_utilization"] for r in results)
+            util = statistics.mean(r.metrics["space_utilization"] or 0.0 for r in results)
             occ = statistics.mean(r.metrics["occupancy"] or 0.0 for r in results)
             dec = statistics.mean(r.metrics["decision_time"] or 0.0 for r in results)
             placed = statistics.mean(r.boxes_placed for r in results)

@@ -47,7 +47,8 @@ def specs(episodes: int, boxes: int) -> list[EpisodeSpec]:
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
+        port: int = sock.getsockname()[1]
+        return port
 
 
 def start_server(port: int, secret: str | None) -> subprocess.Popen[bytes]:

@@ -57,7 +57,10 @@ def overhead(dataset: str, group: int) -> None:
     """CPU per box with and without recording, and that the outcome is the same."""
     (off, cpu_off), (on, cpu_on) = run(dataset, group, False), run(dataset, group, True)
     # Decision time is wall-clock (the only figure allowed to differ between runs).
-    figures = lambda r: ({k: v for k, v in r["metrics"].items() if k != "decision_time"}, r["final"])  # noqa: E731
+
+    def figures(r: dict[str, Any]) -> tuple[dict[str, Any], Any]:
+        return {k: v for k, v in r["metrics"].items() if k != "decision_time"}, r["final"]
+
     same = figures(off) == figures(on)
     n = max(1, on["boxes_placed"])
     print(
@@ -68,7 +71,10 @@ def overhead(dataset: str, group: int) -> None:
 
 def sizes(data: dict[str, Any]) -> dict[str, int]:
     steps = data["episodes"][0]["steps"]
-    part = lambda key: sum(len(json.dumps(s["extra"][key])) for s in steps if key in s.get("extra", {}))  # noqa: E731
+
+    def part(key: str) -> int:
+        return sum(len(json.dumps(s["extra"][key])) for s in steps if key in s.get("extra", {}))
+
     text = json.dumps(data)
     return {
         "json": len(text),

@@ -137,9 +137,9 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
         log.close()
         with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-        from kombu import Connection
+        from kombu.connection import Connection
 
-        with Connection(broker) as conn:
+        with Connection(broker) as conn:  # type: ignore[no-untyped-call]  # kombu: untyped __init__
             conn.default_channel.queue_delete(queue)
             conn.default_channel.exchange_delete(queue)
             if broker.startswith("redis"):

@@ -55,7 +55,8 @@ def cut_utilization(episode: dict[str, Any], volumes: list[float], capacity: flo
         motion += any(r != "failed_grasp" for r in reasons)
         if (rule in ("place", "both") and failed) or (rule in ("dangerous", "both") and motion >= 3):
             return sum(volumes[:step]) / capacity
-    return episode["space_utilization"]
+    utilisation: float = episode["space_utilization"]
+    return utilisation
 
 
 def main() -> None:

@@ -19,7 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_server import SETTINGS, bench_settings, seed_rows
+from _seed import SETTINGS
+from bench_server import bench_settings, seed_rows
 from sqlalchemy import text
 
 from robobpp.scoring import engine as scoring_engine
@@ -27,6 +28,7 @@ from robobpp.scoring import grid as scoring_grid
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.runtime import Runtime
 from robobpp.server.services import board_worker
+from robobpp.server.services import boards as boards_service
 
 DATASETS = ("repetitive", "diverse", "longboard")
 STAGES: collections.defaultdict[str, float] = collections.defaultdict(float)
@@ -59,7 +61,7 @@ def main() -> None:
     timed(scoring_grid.GridMatrix, "grid", "grids")
     timed(board_worker.BoardPublisher, "_rows_hashed", "hash")
     timed(board_worker.BoardPublisher, "_write", "write")
-    parts_of = board_worker.parts_of
+    parts_of = boards_service.parts_of
 
     def counted_parts(key: str, value: Any) -> Any:
         cpu = time.process_time()
@@ -68,7 +70,7 @@ def main() -> None:
         STAGES["chunks_mb"] += sum(len(b) for b in stored.chunks.values()) / 1e6
         return stored
 
-    board_worker.parts_of = counted_parts
+    vars(board_worker)["parts_of"] = counted_parts  # the name board_worker imported, not one it exports
 
     runtime = Runtime(
         bench_settings(args.database_url, Path(tempfile.mkdtemp(prefix="robobpp-bench-publish-")))

@@ -105,7 +105,8 @@ class CandidateScores(nn.Module):
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
         mean, each = latent[:, :EMBED], latent[:, EMBED:].reshape(-1, self.k, EMBED)
         both = torch.cat([each, mean[:, None, :].expand(-1, self.k, -1)], dim=-1)
-        return self.head(both).squeeze(-1)
+        logits: torch.Tensor = self.head(both).squeeze(-1)
+        return logits
 
 
 class MeanValue(nn.Module):
@@ -116,7 +117,8 @@ class MeanValue(nn.Module):
         self.head = nn.Sequential(nn.Linear(EMBED, EMBED), nn.ReLU(), nn.Linear(EMBED, 1))
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
-        return self.head(latent[:, :EMBED])
+        logits: torch.Tensor = self.head(latent[:, :EMBED])
+        return logits
 
 
 class CandidatePolicy(MaskableActorCriticPolicy):

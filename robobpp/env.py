@@ -84,7 +84,8 @@ def volume_reward(episode: Episode, record: Any) -> float:
     if record.placement is None:
         return 0.0
     box = record.box
-    return box["length"] * box["width"] * box["height"] / episode.spec.container.volume
+    reward: float = box["length"] * box["width"] * box["height"] / episode.spec.container.volume
+    return reward
 
 
 def stability_shaped_reward(episode: Episode, record: Any) -> float:
@@ -431,9 +432,10 @@ class PackEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         """A grid mask in the action space's layout: flattened, or one mask per MultiDiscrete dimension; in the
         candidate space, which candidates it admits."""
         if self._candidates is not None:
-            return (
+            layout: np.ndarray = (
                 np.array([bool(mask[tuple(p)]) for p in self._candidates.placements]) & self._candidates.mask
             )
+            return layout
         if self.flat_actions:
             return mask.reshape(-1).copy()
         return np.concatenate([mask.any(axis=(1, 2)), mask.any(axis=(0, 2)), mask.any(axis=(0, 1))])

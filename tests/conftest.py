@@ -1,4 +1,5 @@
-"""Shared fixtures: hand-built episode specs (no data needed) and the real-data cache (network on first use).
+"""Shared fixtures: hand-built episode specs (no data needed), the real-data cache (network on first use) and
+fresh databases (``db_url``: a SQLite file, or a new PostgreSQL database per test).
 
 Set ``ROBOBPP_TEST_DATA_DIR`` to reuse one verified cache across runs; otherwise the wheel is downloaded and
 converted once per test session into a temporary cache.
@@ -7,6 +8,8 @@ converted once per test session into a temporary cache.
 from __future__ import annotations
 
 import os
+import uuid
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +22,11 @@ from robobpp.datasets.importer import fetch
 # app would cost each test a second's start-up; tests/server/test_board_publishing.py runs the process mode.
 os.environ.setdefault("ROBOBPP_BOARD_WORKER", "thread")
 
+PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
+
 
 def make_spec(
-    boxes: list[tuple[float, float, float]] | list[Box],
+    boxes: Sequence[tuple[float, float, float]] | Sequence[Box],
     container: tuple[float, float, float] = (10, 10, 10),
     threshold: float = 7.0,
     dataset: str = "handmade",
@@ -54,3 +59,36 @@ def real_data(real_data_root: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """Point the library at the session cache for one test."""
     monkeypatch.setenv("ROBOBPP_DATA_DIR", str(real_data_root))
     return real_data_root
+
+
+def _pg_available() -> bool:
+    try:
+        import psycopg
+
+        with psycopg.connect(PG_ADMIN_URL, connect_timeout=3):
+            return True
+    except Exception:  # noqa: BLE001
+        return False
+
+
+@pytest.fixture
+def pg_url() -> Iterator[str]:
+    """A brand-new PostgreSQL database, dropped afterwards (tests never see each other's rows)."""
+    import psycopg
+
+    if not _pg_available():
+        pytest.skip("PostgreSQL is not reachable at 127.0.0.1:5432")
+    name = f"robobpp_t_{uuid.uuid4().hex[:12]}"
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    base = PG_ADMIN_URL.rsplit("/", 1)[0].replace("postgresql://", "postgresql+psycopg://")
+    yield f"{base}/{name}"
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(params=["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
+def db_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'robobpp.sqlite3'}"
+    return request.getfixturevalue("pg_url")

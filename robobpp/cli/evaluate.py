@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -19,6 +19,9 @@ from robobpp.scoring import stats
 from robobpp.scoring.metrics import aggregate, metrics_for
 from robobpp.scoring.scores import score_board
 from robobpp.scoring.stats import POLICY_FAILURES
+
+if TYPE_CHECKING:
+    from robobpp.episode import EpisodeResult
 
 console = Console(stderr=True)
 
@@ -64,7 +67,7 @@ def evaluate(
     """Evaluate a policy locally and print a results table. Exit code 3: every episode ended in a policy failure."""
     from robobpp.client.loading import PolicyLoadError, load_policy
     from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
-    from robobpp.episode import EpisodeResult, run_episode
+    from robobpp.episode import run_episode
     from robobpp.replay import PAPER, PAPER_SETTINGS, PROTOCOLS, run_paper_protocol
     from robobpp.sim import SETTINGS, require_setting
 
@@ -190,9 +193,9 @@ def _name_served(agent: Any) -> None:
             agent.fetch_info()
 
 
-def failure_notes(runs: dict[tuple[str, str], list]) -> list[str]:
+def failure_notes(runs: dict[tuple[str, str], list[EpisodeResult]]) -> list[str]:
     """One line per policy failure reason with its first episode's detail (e.g. a wrong secret)."""
-    first: dict[str, tuple[int, Any]] = {}
+    first: dict[str, tuple[int, EpisodeResult]] = {}
     for results in runs.values():
         for r in results:
             if r.termination in POLICY_FAILURES:
@@ -204,10 +207,10 @@ def failure_notes(runs: dict[tuple[str, str], list]) -> list[str]:
     ]
 
 
-def _summarise(runs: dict[tuple[str, str], list]) -> list[dict]:
+def _summarise(runs: dict[tuple[str, str], list[EpisodeResult]]) -> list[dict[str, Any]]:
     """Each (dataset, setting): its figures with the board's 95 % bootstrap intervals over groups
     (:func:`robobpp.scoring.scores.score_board` on this run alone) and its stable score with interval."""
-    out = []
+    out: list[dict[str, Any]] = []
     for (dataset, setting), results in runs.items():
         terminations: dict[str, int] = {}
         for r in results:
@@ -242,7 +245,10 @@ def _with_interval(value: float | None, interval: list[float] | None, digits: in
 
 
 def _table(
-    policy: str, summary: list[dict], protocol: str = "closed", provenance: dict | None = None
+    policy: str,
+    summary: list[dict[str, Any]],
+    protocol: str = "closed",
+    provenance: dict[str, Any] | None = None,
 ) -> Table:
     from robobpp.replay import PROTOCOL_DESCRIPTIONS
 
@@ -278,7 +284,7 @@ def _table(
     return table
 
 
-def _write_json(path: Path, payload: dict) -> None:
+def _write_json(path: Path, payload: dict[str, Any]) -> None:
     _write_text(path, json.dumps(payload, indent=1, allow_nan=False))
 
 

@@ -6,7 +6,7 @@ import socket
 import threading
 import webbrowser
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -55,7 +55,7 @@ def view(
     _serve(episodes, trace.name, host, port, open_browser)
 
 
-def _serve(episodes: list[dict], source: str, host: str, port: int, open_browser: bool) -> None:
+def _serve(episodes: list[dict[str, Any]], source: str, host: str, port: int, open_browser: bool) -> None:
     import uvicorn
 
     from robobpp.web.viewer import view_app

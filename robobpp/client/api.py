@@ -228,14 +228,15 @@ class ServerClient:
             detail = f"{method} {API_PREFIX}{path} did not answer JSON; is {self.base_url} a robobpp server?"
             raise ServerError(response.status_code, "Unexpected answer", detail) from None
 
-    def _get(self, path: str, model: type[M] | Any, **kwargs: Any) -> M:
+    def _get(self, path: str, model: type[M], **kwargs: Any) -> M:
         return self._parse(self._request("GET", path, **kwargs), model, path)
 
     @staticmethod
-    def _parse(data: Any, model: Any, path: str) -> Any:
+    def _parse(data: Any, model: type[M], path: str) -> M:
         try:
             if isinstance(model, type) and issubclass(model, BaseModel):
-                return model.model_validate(data)
+                parsed: M = model.model_validate(data)
+                return parsed
             return TypeAdapter(model).validate_python(data)
         except ValidationError as exc:
             errors = exc.errors()

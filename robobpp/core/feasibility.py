@@ -152,7 +152,8 @@ def _strictly_inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     edges = np.roll(polygon, -1, axis=0) - polygon  # (V, 2)
     rel = points[:, None, :] - polygon[None, :, :]  # (R, V, 2)
     cross = edges[None, :, 0] * rel[:, :, 1] - edges[None, :, 1] * rel[:, :, 0]
-    return np.all(cross > _INSIDE_EPS, axis=1)
+    inside: np.ndarray = np.all(cross > _INSIDE_EPS, axis=1)
+    return inside
 
 
 def _lstsq_shares(centre: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -182,14 +183,16 @@ class _Contacts:
 
     @cached_property
     def centres(self) -> np.ndarray:
-        return (self.rects[:, :2] + self.rects[:, 2:]) / 2
+        centres: np.ndarray = (self.rects[:, :2] + self.rects[:, 2:]) / 2
+        return centres
 
     @cached_property
     def polygon(self) -> np.ndarray:
         """The support polygon (rule 2): the contact hull shrunk towards its vertex mean."""
         r = self.rects
         hull = _hull(np.concatenate([r[:, [0, 1]], r[:, [0, 3]], r[:, [2, 1]], r[:, [2, 3]]]))
-        return hull - SUPPORT_SHRINK * (hull - hull.mean(axis=0))
+        polygon: np.ndarray = hull - SUPPORT_SHRINK * (hull - hull.mean(axis=0))
+        return polygon
 
     def holds(self, points: np.ndarray) -> np.ndarray:
         """Which load centres ``points`` (R, 2) lie strictly inside the support polygon."""

@@ -52,7 +52,8 @@ def _from_chain(
     k = window.bit_length() - 1
     m = chain[k]
     shift = (window - (1 << k)) * stride
-    return combine(m[:size], m[shift : shift + size])
+    out: np.ndarray = combine(m[:size], m[shift : shift + size])
+    return out
 
 
 def _windows(a: np.ndarray, footprints: Sequence[tuple[float, float]], combine: np.ufunc) -> list[np.ndarray]:

@@ -25,4 +25,5 @@ def static_stability(max_linear_speed: float, max_angular_speed: float) -> float
     R = 0.5·clip(1 − v^0.4, 0, 1) + 0.5·clip(1 − ω^0.3, 0, 1) (v in m/s, ω in rad/s)."""
     v = max(0.0, max_linear_speed)
     w = max(0.0, max_angular_speed)
-    return 0.5 * min(1.0, max(0.0, 1.0 - v**0.4)) + 0.5 * min(1.0, max(0.0, 1.0 - w**0.3))
+    stability: float = 0.5 * min(1.0, max(0.0, 1.0 - v**0.4)) + 0.5 * min(1.0, max(0.0, 1.0 - w**0.3))
+    return stability

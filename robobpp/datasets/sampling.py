@@ -49,7 +49,8 @@ def _window_start(pool: Pool, rng: np.random.Generator, group_size: int) -> int:
 def _inverse_cdf(weights: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
     """Draws from ``weights`` by inverse CDF of uniforms: independent of how numpy implements choice()."""
     cdf = np.cumsum(weights)
-    return np.minimum(np.searchsorted(cdf, uniforms * cdf[-1], side="right"), len(weights) - 1)
+    drawn: np.ndarray = np.minimum(np.searchsorted(cdf, uniforms * cdf[-1], side="right"), len(weights) - 1)
+    return drawn
 
 
 def _palette(pool: Pool, rng: np.random.Generator, group_size: int) -> np.ndarray:

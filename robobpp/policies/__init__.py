@@ -8,6 +8,8 @@ and imports nothing from it.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
+from typing import Any
 
 from robobpp.policies.base import BasePolicy, Policy, PolicyError
 
@@ -49,7 +51,7 @@ class PolicyLoadError(ValueError):
     """The policy name could not be turned into a policy (unknown name, bad import path)."""
 
 
-def _import(path: str) -> type:
+def _import(path: str) -> Callable[..., Any]:
     module_name, _, attr = path.partition(":")
     if not module_name or not attr:
         raise PolicyLoadError(f"policy path {path!r} must look like 'package.module:ClassName'")
@@ -58,9 +60,10 @@ def _import(path: str) -> type:
     except ImportError as exc:
         raise PolicyLoadError(f"cannot import module {module_name!r}: {exc}") from exc
     try:
-        return getattr(module, attr)
+        factory: Callable[..., Any] = getattr(module, attr)
     except AttributeError as exc:
         raise PolicyLoadError(f"module {module_name!r} has no attribute {attr!r}") from exc
+    return factory
 
 
 def load_policy(name: str, **kwargs: object) -> Policy:
@@ -77,7 +80,7 @@ def load_policy(name: str, **kwargs: object) -> Policy:
         )
     factory = _import(path or name)
     try:
-        policy = factory(**kwargs)
+        policy: Policy = factory(**kwargs)
     except TypeError as exc:
         raise PolicyLoadError(f"cannot construct policy {name!r}: {exc}") from exc
     if not callable(getattr(policy, "act", None)):

@@ -156,6 +156,7 @@ def unrotated_range(obs: Observation) -> Callable[[CandidateMap, np.ndarray, np.
     lc, wc = cells_spanned(obs.box.length), cells_spanned(obs.box.width)
 
     def allowed(cand: CandidateMap, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
-        return (xs <= nx - lc) & (ys <= ny - wc)
+        fits: np.ndarray = (xs <= nx - lc) & (ys <= ny - wc)
+        return fits
 
     return allowed

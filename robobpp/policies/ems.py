@@ -46,11 +46,13 @@ class EmsSet:
 
     @property
     def dx(self) -> np.ndarray:
-        return self.rects[:, 2] - self.rects[:, 0]
+        dx: np.ndarray = self.rects[:, 2] - self.rects[:, 0]
+        return dx
 
     @property
     def dy(self) -> np.ndarray:
-        return self.rects[:, 3] - self.rects[:, 1]
+        dy: np.ndarray = self.rects[:, 3] - self.rects[:, 1]
+        return dy
 
     @property
     def dz(self) -> np.ndarray:
@@ -247,7 +249,8 @@ class Candidates:
 
 def _resting_heights(heightmap: np.ndarray, xs: np.ndarray, ys: np.ndarray, lc: int, wc: int) -> np.ndarray:
     """Resting height of an ``lc × wc`` footprint at each (xs, ys): one vectorised drop map, then a lookup."""
-    return drop_height_map(heightmap, lc, wc)[xs, ys]
+    heights: np.ndarray = drop_height_map(heightmap, lc, wc)[xs, ys]
+    return heights
 
 
 def ems_candidates(obs: Observation, ems: EmsSet, corners: int = 1, dedupe: bool = True) -> Candidates:

@@ -35,6 +35,7 @@ class HM(BasePolicy):
         def score(cand: CandidateMap, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
             lc, wc = cells_spanned(cand.length), cells_spanned(cand.width)
             added = lc * wc * (cand.z + cand.height) - window_sums(obs.heightmap, lc, wc)
-            return 100.0 * added + xs + ys
+            cost: np.ndarray = 100.0 * added + xs + ys
+            return cost
 
         return argmin_placement(obs, score, unrotated_range(obs))

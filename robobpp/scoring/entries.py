@@ -70,7 +70,10 @@ class EntryPart:
 
         The same computation for an entry wherever it is done (``numpy.matmul`` of one entry gives the same
         bits alone or stacked with others), so a board updated entry by entry equals one built at once."""
-        return samples_of(self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan)[0]
+        samples: np.ndarray = samples_of(
+            self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan
+        )[0]
+        return samples
 
     def encode(self) -> bytes:
         m = len(metric_keys(self.setting))
@@ -117,7 +120,8 @@ def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndar
     with np.errstate(invalid="ignore", divide="ignore"):
         num /= den
     num[den <= 0] = np.nan
-    return num
+    means: np.ndarray = num
+    return means
 
 
 def entry_part(figures: Mapping[str, Any], setting: str) -> EntryPart:

@@ -93,6 +93,7 @@ RANKED_BY = "relative"
 def anchored(values: np.ndarray, key: str) -> np.ndarray:
     """The stable normalisation of raw values (0..1, higher = better; NaN → 0, the worst)."""
     zero, one, scale = ANCHORS[key]
+    out: np.ndarray
     with np.errstate(invalid="ignore", divide="ignore"):
         if scale == "log":
             out = (np.log(np.maximum(values, 1e-12)) - math.log(zero)) / (math.log(one) - math.log(zero))
@@ -157,7 +158,8 @@ def normalize(values: Sequence[float | None], key: str) -> list[float]:
     if not np.isfinite(column).any():
         return [0.0] * len(values)
     finite = column[np.isfinite(column)]
-    return min_max(column, finite.min(), finite.max(), key).tolist()
+    normalised: list[float] = min_max(column, finite.min(), finite.max(), key).tolist()
+    return normalised
 
 
 def timed(samples: np.ndarray, seeds: Sequence[int | None], rows: np.ndarray | None = None) -> np.ndarray:
@@ -182,7 +184,8 @@ def competition_ranks(scores: Sequence[float]) -> list[int]:
     values = np.asarray(scores, dtype=np.float64)
     if len(values) > 64 and not np.isnan(values).any():  # numpy: 10,000 scores on every board update
         descending = np.sort(-values)
-        return (np.searchsorted(descending, -values, side="left") + 1).tolist()
+        ranks: list[int] = (np.searchsorted(descending, -values, side="left") + 1).tolist()
+        return ranks
     order = sorted(range(len(scores)), key=lambda i: -scores[i])
     ranks = [0] * len(scores)
     for position, i in enumerate(order):

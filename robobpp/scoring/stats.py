@@ -111,7 +111,8 @@ def timing_noise(seeds: np.ndarray, rows: np.ndarray) -> np.ndarray:
         z = (z ^ (z >> np.uint64(27))) * _MIX2
         z ^= z >> np.uint64(31)
     unit = (z >> np.uint64(11)).astype(np.float64) * 2.0**-53  # [0, 1)
-    return 2.0 * unit - 1.0
+    signed: np.ndarray = 2.0 * unit - 1.0
+    return signed
 
 
 def metric_samples(figures: Sequence[Mapping[str, Any]], key: str, counts: np.ndarray) -> np.ndarray:

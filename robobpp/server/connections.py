@@ -85,7 +85,9 @@ def guarded_protocol(limits: ConnectionLimits) -> type[asyncio.Protocol]:
     table = _Table()
     base: Any = AutoHTTPProtocol
 
-    class Guarded(base):
+    # uvicorn declares AutoHTTPProtocol as type[asyncio.Protocol], though both classes it may be (h11's,
+    # httptools') have the on_response_complete hook used below: hence ``base: Any``.
+    class Guarded(base):  # type: ignore[misc]
         _refused = False
         _header_timer: asyncio.TimerHandle | None = None
         #: Over the cap: the first bytes seen so far, until they show a health check (then ``None``).

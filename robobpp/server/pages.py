@@ -79,7 +79,7 @@ async def overall_page(
     page: Page = 1,
     protocol: Protocol = "closed",
     lookahead: Lookahead = 0,
-):
+) -> HTMLResponse:
     datasets, setting_names = _board_names(settings)
     if lookahead and protocol != "closed":
         return not_found(request, PAPER_LOOKAHEAD)
@@ -177,7 +177,7 @@ async def board_page(
     page: Page = 1,
     protocol: Protocol = "closed",
     lookahead: Lookahead = 0,
-):
+) -> HTMLResponse:
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
@@ -272,7 +272,9 @@ def _page_view(request: Request, session: Session, sub: Submission, owner: bool)
 
 @router.get("/submissions/{submission_id}", response_class=HTMLResponse)
 @resolved_in_handler
-async def submission_page(request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)]):
+async def submission_page(
+    request: Request, submission_id: Annotated[int, Path(ge=1, le=2**62)]
+) -> HTMLResponse:
     return await in_read_session(request, lambda session: _submission_page(request, session, submission_id))
 
 
@@ -347,7 +349,7 @@ def _render_submission(
     reasons = {**TERMINATION_REASONS, **EXTRA_REASONS}
     views = finished_views(request.app.state)
 
-    def episode_table() -> tuple[Markup, dict[str, list]]:
+    def episode_table() -> tuple[Markup, dict[str, list[str] | list[int]]]:
         """The episode table and the utilisation histogram: a finished submission's are built once."""
         episodes = queries.episode_rows(session, sub.id)
         utilisation = [
@@ -486,7 +488,7 @@ def replay_page(
     submission_id: Annotated[int, Path(ge=1, le=2**62)],
     episode_id: Annotated[int, Path(ge=1, le=2**62)],
     session: SessionDep,
-):
+) -> HTMLResponse:
     sub = _submission(session, submission_id)
     ep = queries.get_episode(session, submission_id, episode_id) if sub is not None else None
     if sub is None or ep is None or sub.track != "public" or ep.trace is None:
@@ -544,7 +546,9 @@ def replay_page(
 
 
 @router.get("/reproduction", response_class=HTMLResponse)
-async def reproduction_page(request: Request, settings: SettingsDep, track: Track = "private"):
+async def reproduction_page(
+    request: Request, settings: SettingsDep, track: Track = "private"
+) -> HTMLResponse:
     from robobpp.paper import paper_tables
     from robobpp.policies import TITLES
     from robobpp.server.services.reproduction import reproduction
@@ -572,7 +576,7 @@ async def reproduction_page(request: Request, settings: SettingsDep, track: Trac
 
 
 @router.get("/datasets", response_class=HTMLResponse)
-async def datasets_page(request: Request):
+async def datasets_page(request: Request) -> HTMLResponse:
     return await _static(request, ("datasets",), lambda: _datasets_page(request))
 
 
@@ -601,7 +605,7 @@ def _datasets_page(request: Request) -> HTMLResponse:
 
 
 @router.get("/protocol", response_class=HTMLResponse)
-async def protocol_page(request: Request, settings: SettingsDep):
+async def protocol_page(request: Request, settings: SettingsDep) -> HTMLResponse:
     return await _static(
         request,
         ("protocol",),

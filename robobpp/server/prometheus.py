@@ -185,13 +185,13 @@ def _every_process(requests_registry: CollectorRegistry) -> CollectorRegistry:
     from prometheus_client import multiprocess
 
     merged = CollectorRegistry()
-    multiprocess.MultiProcessCollector(merged)
+    multiprocess.MultiProcessCollector(merged)  # type: ignore[no-untyped-call]  # prometheus_client: untyped __init__
     return merged
 
 
 def install_metrics(app: FastAPI) -> None:
     # ``*_created`` timestamps: a line per label set that no dashboard here reads
-    prometheus_client.disable_created_metrics()
+    prometheus_client.disable_created_metrics()  # type: ignore[no-untyped-call]  # prometheus_client: no annotation
     requests_registry, registry = CollectorRegistry(), CollectorRegistry()
     requests = Counter(
         "robobpp_http_requests", "HTTP requests", ["method", "route", "status"], registry=requests_registry

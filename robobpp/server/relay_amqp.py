@@ -266,7 +266,7 @@ class AmqpBus(LocalBus):
         while True:
             future = self._submit(get)
             try:
-                address = await asyncio.shield(asyncio.wrap_future(future))
+                address: str | None = await asyncio.shield(asyncio.wrap_future(future))
             except asyncio.CancelledError:  # taken from the queue for nobody: put it back once it arrives
                 future.add_done_callback(lambda done: self._put_back(done, submission_id))
                 raise

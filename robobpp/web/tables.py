@@ -295,7 +295,9 @@ def radar_groups(
     return list(groups.values())
 
 
-def histogram(values: Sequence[float], bins: int = 10, lo: float = 0.0, hi: float = 1.0) -> dict[str, list]:
+def histogram(
+    values: Sequence[float], bins: int = 10, lo: float = 0.0, hi: float = 1.0
+) -> dict[str, list[str] | list[int]]:
     """Counts of values in equal bins over [lo, hi] (the last bin closed), with readable bin labels."""
     width = (hi - lo) / bins
     counts = [0] * bins

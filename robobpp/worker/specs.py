@@ -26,7 +26,8 @@ class SpecUnavailableError(RuntimeError):
 @lru_cache(maxsize=8)
 def _provider(path: str) -> Provider:
     module, _, attr = path.partition(":")
-    return getattr(importlib.import_module(module), attr)
+    provider: Provider = getattr(importlib.import_module(module), attr)
+    return provider
 
 
 @lru_cache(maxsize=16)

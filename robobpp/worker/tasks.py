@@ -166,7 +166,7 @@ def _on_process_init(**_kw: Any) -> None:
 def register(app: Celery) -> None:
     # shared=False: a shared task (Celery's default) is added to every app made later in the process, and the
     # first app's closure wins — a second app's episodes ran with the first app's options (its database).
-    @app.task(name=TASK_NAME, ignore_result=True, shared=False)
+    @app.task(name=TASK_NAME, ignore_result=True, shared=False)  # type: ignore[untyped-decorator]  # celery: no types
     def run_episode_task(episode_id: Any) -> str:
         return execute(app, parse_episode_id(episode_id))
 

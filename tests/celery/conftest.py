@@ -88,7 +88,7 @@ def broker(request: pytest.FixtureRequest) -> Iterator[tuple[str, str]]:
 
 
 def _drop_queue(url: str, queue: str) -> None:
-    from kombu import Connection
+    from kombu.connection import Connection
 
     with Connection(url) as conn:
         with contextlib.suppress(Exception):  # already gone

@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 import pytest
-from kombu import Connection
+from kombu.connection import Connection
 
 from robobpp.worker.celery_app import make_celery
 from robobpp.worker.celery_executor import CeleryExecutor

@@ -97,7 +97,7 @@ def test_worker_command_refuses_a_non_broker_url(monkeypatch: pytest.MonkeyPatch
 @pytest.mark.parametrize("broker", ["redis"], indirect=True)
 def test_an_expired_lease_is_resent_exactly_once(pg_url: str, broker: tuple[str, str], factory: Any) -> None:
     """Two sweeps racing over one dead worker's episode: one message, one state change."""
-    from kombu import Connection
+    from kombu.connection import Connection
 
     url, queue = broker
     app = make_celery(url, WorkerOptions(database_url=pg_url, max_attempts=3), queue=queue)

@@ -95,7 +95,7 @@ def start_server(env: dict[str, str], tmp: Path) -> tuple[subprocess.Popen[bytes
 
 
 def queued(fleet: Fleet) -> int:
-    from kombu import Connection
+    from kombu.connection import Connection
 
     with Connection(fleet.env["ROBOBPP_BROKER_URL"]) as conn:  # kombu's Redis client: the queue is a list
         return int(conn.default_channel.client.llen(fleet.env["ROBOBPP_CELERY_QUEUE"]))

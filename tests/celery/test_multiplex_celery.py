@@ -83,7 +83,7 @@ def test_a_slow_policy_does_not_hold_back_a_fast_submission_on_one_worker_proces
         fast = _remote_submission(factory, fast_policy.url, "fast", ["repetitive", "diverse"], 2)
         wait_for(lambda: submission_status(factory, fast) == "completed", 120, "the fast submission", logs)
         done = {e.id: e for e in episodes(factory, slow)}
-        fast_end = max(e.finished_at for e in episodes(factory, fast))
+        fast_end = max(e.finished_at for e in episodes(factory, fast) if e.finished_at is not None)
         # Before, the worker process ran one episode at a time: the fast submission's first episode waited for
         # a slow one to end. Now all of it ran while the slow episodes in flight waited on their policy.
         for e in held:

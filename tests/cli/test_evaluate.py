@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+from typing import Any
 
 import pytest
 
@@ -93,7 +94,7 @@ def test_policy_failures_are_explained_under_the_table():
 
     from robobpp.cli.evaluate import failure_notes
 
-    def result(eid: str, reason: str, detail: str) -> SimpleNamespace:
+    def result(eid: str, reason: str, detail: str) -> Any:  # stands in for an EpisodeResult
         return SimpleNamespace(episode_id=eid, termination=reason, termination_detail=detail)
 
     runs = {

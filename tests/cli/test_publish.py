@@ -237,7 +237,7 @@ class _Named:
 
         self._dbl = DBL()
 
-    def act(self, obs):  # type: ignore[no-untyped-def]
+    def act(self, obs):
         return self._dbl.act(obs)
 
 

@@ -94,7 +94,7 @@ def _decision_times(url: str) -> tuple[list[float], list[float], list[float]]:
         [s.decision_time for s in steps],
         [s.round_trip for s in steps],
         [s.network_estimate for s in steps],
-    )  # type: ignore[misc]
+    )
 
 
 def test_decision_time_is_unchanged_by_100_ms_of_network() -> None:

@@ -134,7 +134,7 @@ def test_math_pack_accepts_an_unsupported_placement_like_the_reference() -> None
         def __init__(self, answers: list[Action]) -> None:
             self.answers = answers
 
-        def act(self, obs):  # type: ignore[no-untyped-def]
+        def act(self, obs):
             return self.answers.pop(0)
 
     spec = make_spec([(4, 10, 5), (10, 10, 2), (4, 10, 5)], container=(10, 10, 20))
@@ -156,7 +156,7 @@ def test_physics_pack_lets_physics_decide_an_unsupported_placement() -> None:
         def __init__(self, answers: list[Action]) -> None:
             self.answers = answers
 
-        def act(self, obs):  # type: ignore[no-untyped-def]
+        def act(self, obs):
             return self.answers.pop(0)
 
     spec = make_spec([(4, 10, 5), (10, 10, 2)], container=(20, 10, 20))

@@ -77,7 +77,7 @@ def test_a_heightmap_replaced_on_the_same_state_is_not_caught_up_from_stale_rais
     state = ContainerState(container)
     grids = FeasibleGrids(container)
     box = Box(2, 2, 5)
-    assert grids(state, box).all(axis=2)[:9, :9].all()
+    assert np.all(grids(state, box)[:9, :9, :])
     state.heightmap = np.full(
         container.grid_shape, 6.0
     )  # as a physical setting rebuilds it: no raise recorded
@@ -112,7 +112,7 @@ def test_windows_all_shares_work_and_answers_as_one_window_at_a_time():
     for i in range(30):
         # mostly True, and every third one all True (nothing in the way: answered without sliding)
         cells = rng.random((int(rng.integers(1, 40)), int(rng.integers(1, 40)))) < (0.9 if i % 3 else 1.0)
-        footprints = [tuple(float(v) for v in np.round(rng.uniform(0.5, 45, 2), 1)) for _ in range(3)]
+        footprints = [(float(a), float(b)) for a, b in np.round(rng.uniform(0.5, 45, (3, 2)), 1)]
         for got, (length, width) in zip(windows_all(cells, footprints), footprints, strict=True):
             alone = window_all(cells, length, width)
             assert got.shape == alone.shape

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from robobpp.core import Box, ContainerSpec, ContainerState, Observation, Placement
 
 
 def scene(
     container: tuple[float, float, float],
-    placed: list[tuple[float, float, float, float, float]],
+    placed: Sequence[tuple[float, float, float, float, float]],
     box: tuple[float, float, float],
     physical: bool = False,
 ) -> Observation:

@@ -1,5 +1,5 @@
-"""Server test fixtures: fresh databases (SQLite file, or a new PostgreSQL database per test), a real
-``robobpp serve`` subprocess, and policy servers built with the SDK."""
+"""Server test fixtures: a real ``robobpp serve`` subprocess and policy servers built with the SDK (the fresh
+databases, ``db_url`` and ``pg_url``, are tests/conftest.py's)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import socket
 import subprocess
 import sys
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,6 @@ from robobpp.db.session import transaction
 from robobpp.policies.dbl import DBL
 from tests._orphans import with_parent_death
 
-PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
 ADMIN_TOKEN = "test-admin-token-0123456789abcdef"
 REDIS_URL = os.environ.get("ROBOBPP_TEST_REDIS", "redis://127.0.0.1:6379/0")
 AMQP_URL = os.environ.get("ROBOBPP_TEST_AMQP", "amqp://guest:guest@127.0.0.1:5672//")
@@ -34,39 +32,6 @@ OFFLINE = "robobpp.worker.specs:offline_spec"
 #: The secret the policy servers of these fixtures check.
 POLICY_SECRET = "policy-secret-123"
 _ROOT = Path(__file__).resolve().parents[2]
-
-
-def _pg_available() -> bool:
-    try:
-        import psycopg
-
-        with psycopg.connect(PG_ADMIN_URL, connect_timeout=3):
-            return True
-    except Exception:  # noqa: BLE001
-        return False
-
-
-@pytest.fixture
-def pg_url() -> Iterator[str]:
-    """A brand-new PostgreSQL database, dropped afterwards (tests never see each other's rows)."""
-    import psycopg
-
-    if not _pg_available():
-        pytest.skip("PostgreSQL is not reachable at 127.0.0.1:5432")
-    name = f"robobpp_t_{uuid.uuid4().hex[:12]}"
-    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    base = PG_ADMIN_URL.rsplit("/", 1)[0].replace("postgresql://", "postgresql+psycopg://")
-    yield f"{base}/{name}"
-    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
-        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-
-
-@pytest.fixture(params=["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
-def db_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    if request.param == "sqlite":
-        return f"sqlite:///{tmp_path / 'robobpp.sqlite3'}"
-    return request.getfixturevalue("pg_url")
 
 
 def redis_or_skip() -> None:

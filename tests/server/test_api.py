@@ -16,7 +16,7 @@ from tests.server.conftest import ADMIN_TOKEN, OFFLINE, free_port
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 
-def make_settings(db_url: str, tmp_path, **kw) -> Settings:  # type: ignore[no-untyped-def]
+def make_settings(db_url: str, tmp_path, **kw) -> Settings:
     base = {
         "database_url": db_url,
         "state_dir": tmp_path,
@@ -35,7 +35,7 @@ def make_settings(db_url: str, tmp_path, **kw) -> Settings:  # type: ignore[no-u
 
 
 @pytest.fixture
-def api(db_url: str, tmp_path) -> Iterator[TestClient]:  # type: ignore[no-untyped-def]
+def api(db_url: str, tmp_path) -> Iterator[TestClient]:
     app = create_app(make_settings(db_url, tmp_path))
     with TestClient(app) as client:
         yield client
@@ -52,10 +52,10 @@ def row_counts(api: TestClient) -> tuple[int, int, int]:
         return tuple(
             s.execute(select(func.count()).select_from(t)).scalar_one()
             for t in (Submission, RunRow, EpisodeRow)
-        )  # type: ignore[return-value]
+        )
 
 
-def assert_problem(r, status: int, kind: str | None = None) -> dict:  # type: ignore[no-untyped-def,type-arg]
+def assert_problem(r, status: int, kind: str | None = None) -> dict:
     assert r.status_code == status, r.text
     assert r.headers["content-type"].startswith("application/problem+json")
     body = r.json()
@@ -182,7 +182,7 @@ def test_health_metrics_docs_and_boards(api: TestClient) -> None:
     assert_problem(api.delete("/api/v1/leaderboards"), 405)
 
 
-def test_settings_refuse_default_secrets_outside_dev(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_settings_refuse_default_secrets_outside_dev(tmp_path) -> None:
     for token in (None, "changeme", "short"):
         with pytest.raises(ValueError, match="ROBOBPP_ADMIN_TOKEN"):
             Settings(env="prod", admin_token=token, state_dir=tmp_path)

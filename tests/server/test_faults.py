@@ -13,7 +13,7 @@ from tests.server.conftest import SlowDBL, db_rows, new_participant, wait_for
 from tests.server.test_e2e import GROUPS, local_figures
 
 
-def _submit(client, policy, datasets):  # type: ignore[no-untyped-def]
+def _submit(client, policy, datasets):
     r = client.post(
         "/submissions",
         json={
@@ -28,7 +28,7 @@ def _submit(client, policy, datasets):  # type: ignore[no-untyped-def]
     return r.json()["id"]
 
 
-def _running(db_url: str, sid: int, min_step: int = 1) -> list:  # type: ignore[type-arg]
+def _running(db_url: str, sid: int, min_step: int = 1) -> list:
     return db_rows(
         db_url,
         "SELECT id, worker, step FROM episodes WHERE submission_id = :s AND status = 'running' "
@@ -38,7 +38,7 @@ def _running(db_url: str, sid: int, min_step: int = 1) -> list:  # type: ignore[
     )
 
 
-def _check_recorded_once(client, db_url: str, sid: int, datasets: list[str]) -> None:  # type: ignore[no-untyped-def]
+def _check_recorded_once(client, db_url: str, sid: int, datasets: list[str]) -> None:
     sub = wait_for(
         lambda: (s := client.get(f"/submissions/{sid}").json())["status"] == "completed" and s, timeout_s=180
     )

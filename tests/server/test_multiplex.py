@@ -86,7 +86,7 @@ def test_killed_multiplexed_worker_episodes_are_retried_and_recorded_once(
     assert all(a == 2 for i, a in attempts if i in victims), attempts
 
 
-def _multiplexer(tmp_path, policy_url: str, runner, limit: int = 4):  # type: ignore[no-untyped-def]
+def _multiplexer(tmp_path, policy_url: str, runner, limit: int = 4):
     """A worker's multiplexer on a fresh SQLite database with one submission of 4 Math episodes."""
     from robobpp.db import work
     from robobpp.db.migrate import upgrade
@@ -117,7 +117,7 @@ def test_a_further_episode_is_claimed_only_while_every_one_in_flight_waits(tmp_p
 
     release = threading.Event()
 
-    def computes(factory, claim, options, gate) -> bool:  # type: ignore[no-untyped-def]
+    def computes(factory, claim, options, gate) -> bool:
         release.wait(10)
         return True
 
@@ -129,7 +129,7 @@ def test_a_further_episode_is_claimed_only_while_every_one_in_flight_waits(tmp_p
 
     release.clear()
 
-    def waits(factory, claim, options, gate) -> bool:  # type: ignore[no-untyped-def]
+    def waits(factory, claim, options, gate) -> bool:
         with gate.waiting():
             release.wait(10)
         return True

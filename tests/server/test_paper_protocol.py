@@ -22,7 +22,7 @@ from tests.server.conftest import OFFLINE
 
 
 @pytest.fixture
-def factory(db_url: str):  # type: ignore[no-untyped-def]
+def factory(db_url: str):
     engine = make_engine(db_url)
     upgrade(db_url, engine=engine)
     yield make_session_factory(engine)
@@ -31,7 +31,7 @@ def factory(db_url: str):  # type: ignore[no-untyped-def]
 
 def _submit(
     factory, settings=("math", "physics"), groups: int = 2, track: str = "public", datasets=("diverse",)
-) -> int:  # type: ignore[no-untyped-def]
+) -> int:
     with transaction(factory) as s:
         p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
         if p is None:
@@ -50,13 +50,13 @@ def _submit(
         ).id
 
 
-def _episodes(factory, sid: int) -> list[EpisodeRow]:  # type: ignore[no-untyped-def]
+def _episodes(factory, sid: int) -> list[EpisodeRow]:
     with factory() as s:
         rows = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sid).order_by(EpisodeRow.id))
         return list(rows.scalars())
 
 
-def _drain(factory, db_url: str) -> int:  # type: ignore[no-untyped-def]
+def _drain(factory, db_url: str) -> int:
     options = WorkerOptions(database_url=db_url, spec_provider=OFFLINE, groups=2, lease_s=30)
     n = 0
     while claim_and_run(factory, options, "local:test:1") is not None:
@@ -226,7 +226,7 @@ def test_migration_round_trip_keeps_rows_closed(db_url: str) -> None:
 
 
 @pytest.fixture
-def protocol_app(db_url: str, tmp_path):  # type: ignore[no-untyped-def]
+def protocol_app(db_url: str, tmp_path):
     from fastapi.testclient import TestClient
 
     from robobpp.server.app import create_app
@@ -525,7 +525,7 @@ def test_a_replay_whose_worker_died_is_taken_over_and_recorded_once(factory, db_
 REAL_BOXES = 20
 
 
-def real_spec(dataset: str, split: str, group: int, groups: int):  # type: ignore[no-untyped-def]
+def real_spec(dataset: str, split: str, group: int, groups: int):
     """The real public train group (seed 0), its first :data:`REAL_BOXES` boxes (a spec provider)."""
     import dataclasses
 

@@ -13,7 +13,7 @@ from tests.server.conftest import ADMIN_TOKEN, new_participant, wait_for
 
 def test_nothing_a_participant_reads_holds_a_private_group_seed(
     make_server, policy_server, tmp_path: Path
-) -> None:  # type: ignore[no-untyped-def]
+) -> None:
     server = make_server(f"sqlite:///{tmp_path / 'side.sqlite3'}", ROBOBPP_DATASETS='["diverse"]')
     policy = policy_server()
     # The server's groups here come from the offline provider; their seeds stand for the private files' ones.

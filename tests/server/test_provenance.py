@@ -28,7 +28,7 @@ from tests.server.conftest import ADMIN_TOKEN, complete_next_episode, new_partic
 
 
 @pytest.fixture
-def factory(tmp_path):  # type: ignore[no-untyped-def]
+def factory(tmp_path):
     url = f"sqlite:///{tmp_path / 'provenance.db'}"
     engine = make_engine(url)
     upgrade(url, engine=engine)
@@ -36,7 +36,7 @@ def factory(tmp_path):  # type: ignore[no-untyped-def]
     engine.dispose()
 
 
-def _finished(factory, name: str, rules: str | None, sampler: str | None) -> int:  # type: ignore[no-untyped-def]
+def _finished(factory, name: str, rules: str | None, sampler: str | None) -> int:
     with transaction(factory) as s:
         p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
         if p is None:
@@ -53,7 +53,7 @@ def _finished(factory, name: str, rules: str | None, sampler: str | None) -> int
     return sub_id
 
 
-def test_a_board_shows_only_the_current_math_rules_and_sampler(factory) -> None:  # type: ignore[no-untyped-def]
+def test_a_board_shows_only_the_current_math_rules_and_sampler(factory) -> None:
     now = _finished(factory, "now", MATH_RULES_VERSION, SAMPLER_VERSION)
     _finished(factory, "old rules", "0", SAMPLER_VERSION)
     # Sampler 1 drew Repetitive's private groups as windows of the public test pool: never beside version 2.

@@ -47,7 +47,7 @@ def make_app(url: str, tmp_path: Path, **extra: Any) -> Any:
 
 
 @pytest.fixture
-def scale_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
+def scale_app(db_url: str, tmp_path: Path):
     app = make_app(db_url, tmp_path)
     with TestClient(app, headers={"Authorization": f"Bearer {ADMIN}"}) as client:
         yield app, client
@@ -157,7 +157,7 @@ def _statements(app: Any, client: TestClient) -> list[str]:
 
 
 @pytest.fixture
-def quiet_scale_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
+def quiet_scale_app(db_url: str, tmp_path: Path):
     """As ``scale_app`` but without a board worker polling the database beside the statements counted."""
     app = make_app(db_url, tmp_path, board_worker="off", board_wait_s=0)
     with TestClient(app, headers={"Authorization": f"Bearer {ADMIN}"}) as client:

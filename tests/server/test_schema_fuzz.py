@@ -23,7 +23,7 @@ from tests.server.conftest import ADMIN_TOKEN
 from tests.server.test_api import make_settings
 
 
-def _fuzz_app():  # type: ignore[no-untyped-def]
+def _fuzz_app():
     tmp = Path(tempfile.mkdtemp(prefix="robobpp-fuzz-"))
     atexit.register(shutil.rmtree, tmp, ignore_errors=True)
     app = create_app(
@@ -54,7 +54,7 @@ def test_every_api_route_is_fuzzed() -> None:
 
 @schema.parametrize()
 @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
-def test_no_server_errors(case) -> None:  # type: ignore[no-untyped-def]
+def test_no_server_errors(case) -> None:
     for headers in ({"Authorization": f"Bearer {ADMIN_TOKEN}"}, {}):
         response = case.call(headers=headers)
         assert response.status_code < 500, (

@@ -65,7 +65,7 @@ def problems(validator: Draft202012Validator, body: bytes) -> list[str]:
 
 
 @pytest.fixture
-def served(tmp_path: Path, policy_server):  # type: ignore[no-untyped-def]
+def served(tmp_path: Path, policy_server):
     """An app with boards to serve: two complete entries, a partial one, a failed one (a policy answering
     NaN), the baselines on the public track, and a submission still queued."""
     settings = Settings(
@@ -104,7 +104,7 @@ def served(tmp_path: Path, policy_server):  # type: ignore[no-untyped-def]
     runtime.dispose()
 
 
-def test_every_json_route_serves_its_declared_schema(served) -> None:  # type: ignore[no-untyped-def]
+def test_every_json_route_serves_its_declared_schema(served) -> None:
     client, ids = served
     validators = response_validators(client.get("/openapi.json").json())
     board_queries: list[dict[str, Any]] = [
@@ -151,7 +151,7 @@ def test_every_json_route_serves_its_declared_schema(served) -> None:  # type: i
     assert len(board["entries"]) >= 2 and board["unranked"]
 
 
-def test_the_check_sees_an_undeclared_field_and_a_wrong_type(served) -> None:  # type: ignore[no-untyped-def]
+def test_the_check_sees_an_undeclared_field_and_a_wrong_type(served) -> None:
     client, _ids = served
     validators = response_validators(client.get("/openapi.json").json())
     validator = validators["/api/v1/leaderboards/{dataset}/{setting}"]

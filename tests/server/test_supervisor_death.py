@@ -79,7 +79,7 @@ def _alive(pid: int) -> bool:
 @pytest.mark.parametrize("api_processes", [1, pytest.param(2, marks=pytest.mark.redis)])
 def test_sigkill_of_the_supervisor_ends_every_process_it_started_and_a_restart_finishes_the_work(
     tmp_path: Path, policy_server, api_processes: int
-) -> None:  # type: ignore[no-untyped-def]
+) -> None:
     extra = {"ROBOBPP_EVALUATE_BASELINES": "0"}
     if api_processes > 1:
         redis_or_skip()

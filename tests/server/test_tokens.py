@@ -13,7 +13,7 @@ from tests.server.test_api import ADMIN, assert_problem, make_settings
 
 
 @pytest.fixture
-def api(db_url: str, tmp_path) -> Iterator[TestClient]:  # type: ignore[no-untyped-def]
+def api(db_url: str, tmp_path) -> Iterator[TestClient]:
     """The API in-process, on SQLite and on PostgreSQL (revocation takes a row lock)."""
     with TestClient(create_app(make_settings(db_url, tmp_path))) as client:
         yield client

@@ -425,7 +425,7 @@ def test_every_form_post_needs_the_csrf_token(world: World) -> None:
     assert page.count("Revoke") == before and "csrf-victim" not in operator.get("/operator").text
 
 
-def test_submit_form_goes_through_the_api_handler(world: World, policy_server) -> None:  # type: ignore[no-untyped-def]
+def test_submit_form_goes_through_the_api_handler(world: World, policy_server) -> None:
     """The form answers with the API's own checks (secret length, URL probe) and writes what the API writes."""
     policy = policy_server(secret="form-secret-123")
     admin = world.bearer["operator"]

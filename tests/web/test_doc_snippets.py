@@ -29,7 +29,7 @@ import pytest
 import typer
 
 # Recent Typer ships its own copy of click: the CLI's errors are that copy's.
-from typer._click.exceptions import ClickException  # type: ignore[import-not-found]
+from typer._click.exceptions import ClickException
 
 from robobpp.schemas import SubmissionCreate
 from tests.web.conftest import Server

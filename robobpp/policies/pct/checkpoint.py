@@ -43,7 +43,9 @@ class CheckpointError(ValueError):
     """The weights file is missing, altered, or not a plain tensor state dict."""
 
 
-def _rebuild_tensor(storage: np.ndarray, offset: int, size: tuple, stride: tuple, *_rest: Any) -> np.ndarray:
+def _rebuild_tensor(
+    storage: np.ndarray, offset: int, size: tuple[int, ...], stride: tuple[int, ...], *_rest: Any
+) -> np.ndarray:
     """numpy twin of ``torch._utils._rebuild_tensor_v2``: a strided view, copied so it owns its memory."""
     item = storage.itemsize
     if not size:
@@ -59,7 +61,7 @@ def _rebuild_tensor(storage: np.ndarray, offset: int, size: tuple, stride: tuple
     return np.array(view)
 
 
-class _StateDict(dict):
+class _StateDict(dict[str, Any]):
     """Stands in for ``collections.OrderedDict``; a dict subclass so the pickle may set ``_metadata`` on it."""
 
 

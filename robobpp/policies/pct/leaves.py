@@ -103,7 +103,8 @@ def _maximal(spaces: np.ndarray) -> np.ndarray:
     lo, hi = spaces[:, :3], spaces[:, 3:]
     inside = np.all(lo[:, None] >= lo[None], axis=2) & np.all(hi[:, None] <= hi[None], axis=2)
     np.fill_diagonal(inside, False)
-    return spaces[~inside.any(axis=1)]
+    maximal: np.ndarray = spaces[~inside.any(axis=1)]
+    return maximal
 
 
 @dataclass(frozen=True, slots=True)

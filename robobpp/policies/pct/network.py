@@ -31,7 +31,8 @@ class Linear:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         y = x @ self.weight.T
-        return y if self.bias is None else y + self.bias
+        out: np.ndarray = y if self.bias is None else y + self.bias
+        return out
 
 
 def _leaky_relu(x: np.ndarray) -> np.ndarray:

@@ -19,7 +19,8 @@ _bearer = HTTPBearer(auto_error=False, description="An API token, or the admin t
 
 
 async def get_settings(request: Request) -> Settings:  # async: no worker thread for an attribute read
-    return request.app.state.settings
+    settings: Settings = request.app.state.settings
+    return settings
 
 
 #: Methods whose handlers only read: their transaction never waits for the writers (db/session.py).

@@ -81,7 +81,7 @@ def viewer(request: Request, session: Session | None = None) -> Viewer:
     """The request's viewer, looked up once per request (the session row and the token row decide, not the
     cookie alone). ``session``: the handler's own read transaction, when the viewer was left to it
     (:func:`resolved_in_handler`); otherwise a transaction of its own."""
-    cached = getattr(request.state, "viewer", None)
+    cached: Viewer | None = getattr(request.state, "viewer", None)
     if cached is not None:
         return cached
     data = _load(request)

@@ -66,7 +66,8 @@ class Layout:
 
     def to_world(self, points: np.ndarray) -> np.ndarray:
         """Robot-frame points ``(..., 3)`` in the world frame."""
-        return np.asarray(points) @ self.base_rotation.T + self.base_position
+        world: np.ndarray = np.asarray(points) @ self.base_rotation.T + self.base_position
+        return world
 
     # -- the pick station -------------------------------------------------------------------------
     @property

@@ -48,7 +48,10 @@ REPLAY_LINE_STEP_M = 0.10
 def cell(layout: Layout) -> dict[str, Any]:
     """The robot cell for the replay (metres, radians; world = container frame in metres)."""
     frames = ("base_link", *LINK_NAMES[:7])  # base, link_1..link_6, tool (tcp has no shape)
-    r = lambda v: round(float(v), 6)  # noqa: E731 - a rounding shorthand for the JSON below
+
+    def r(v: float) -> float:  # a rounding shorthand for the JSON below
+        return round(float(v), 6)
+
     centre, half = layout.conveyor_box()
     pick = layout.to_world(np.array([layout.pick_xy[0], layout.pick_xy[1], 0.0]))
     return {

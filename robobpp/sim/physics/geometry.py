@@ -165,7 +165,8 @@ def observed_heightmap(
 
 def _overlaps(lo: np.ndarray, hi: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
     """Mask of the bounds (lo, hi) that overlap the box [box_lo, box_hi] with positive volume."""
-    return ((np.minimum(hi, box_hi) - np.maximum(lo, box_lo)) > 1e-9).all(axis=1)
+    overlapping: np.ndarray = ((np.minimum(hi, box_hi) - np.maximum(lo, box_lo)) > 1e-9).all(axis=1)
+    return overlapping
 
 
 def clear_shift(

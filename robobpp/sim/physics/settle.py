@@ -80,7 +80,8 @@ class Settler:
         if lo.shape[0] == 0 or olo.shape[0] == 0:
             return np.zeros(olo.shape[0], dtype=bool)
         sep = np.maximum(olo[None, :, :] - hi[:, None, :], lo[:, None, :] - ohi[None, :, :])
-        return (sep.max(axis=2) <= margin).any(axis=0)
+        near: np.ndarray = (sep.max(axis=2) <= margin).any(axis=0)
+        return near
 
     def _column(self, seeds: Sequence[WorldBox], others: Sequence[WorldBox]) -> np.ndarray:
         """Mask over ``others`` lying under (or beside, within the margin) the seeds' footprints."""
@@ -91,7 +92,8 @@ class Settler:
         m = self.config.wake_margin_cm
         sep = np.maximum(olo[None, :, :2] - hi[:, None, :2], lo[:, None, :2] - ohi[None, :, :2]).max(axis=2)
         below = olo[None, :, 2] <= hi[:, None, 2] + m
-        return ((sep <= m) & below).any(axis=0)
+        near: np.ndarray = ((sep <= m) & below).any(axis=0)
+        return near
 
     def run(self, seeds: Sequence[WorldBox], recorder: PoseRecorder | None = None) -> SettleReport:
         """Simulate after the ``seeds`` were released; returns speeds and whether rest was reached.

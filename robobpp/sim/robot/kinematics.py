@@ -72,4 +72,5 @@ def top_down_rotation(yaw: float) -> np.ndarray:
 
     The tool's y axis is the box's length direction at yaw 0.
     """
-    return rot("z", yaw) @ rot("y", np.pi / 2)
+    rotation: np.ndarray = rot("z", yaw) @ rot("y", np.pi / 2)
+    return rotation

@@ -92,7 +92,8 @@ def solve(
 
 def motion_time(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
     """Synchronous joint move time (s) under the joint speed limits; broadcasts over rows."""
-    return np.max(np.abs(np.asarray(q_to) - np.asarray(q_from)) / MAX_SPEED, axis=-1)
+    seconds: np.ndarray = np.max(np.abs(np.asarray(q_to) - np.asarray(q_from)) / MAX_SPEED, axis=-1)
+    return seconds
 
 
 def nearest(
@@ -107,4 +108,5 @@ def nearest(
     if len(candidates) == 0:
         return None
     cost = motion_time(q_current, candidates) + 1e-6 * np.linalg.norm(candidates - q_current, axis=1)
-    return candidates[int(np.argmin(cost))]
+    best: np.ndarray = candidates[int(np.argmin(cost))]
+    return best

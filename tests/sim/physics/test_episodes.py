@@ -14,7 +14,7 @@ from robobpp.replay import run_paper_protocol
 SMALL = ContainerSpec(80, 60, 100)
 
 
-def _figures(result):  # type: ignore[no-untyped-def]
+def _figures(result):
     return (
         result.termination,
         result.termination_detail,
@@ -34,7 +34,7 @@ def test_same_episode_twice_gives_identical_figures(mode: str) -> None:
     assert _figures(a) == _figures(b)
 
 
-def _full():  # type: ignore[no-untyped-def]
+def _full():
     from robobpp.sim.physics import PhysicsPack
 
     return PhysicsPack(mode="full")

@@ -15,7 +15,7 @@ from robobpp.sim.physics import PhysicsPack, PhysicsWorld, detect_collapse, stab
 
 def _pack(boxes: list[Box], **kw: object) -> PhysicsPack:
     pack = PhysicsPack()
-    pack.reset(spec_of(boxes, **kw))  # type: ignore[arg-type]
+    pack.reset(spec_of(boxes, **kw))
     return pack
 
 

@@ -48,7 +48,7 @@ def test_an_experiment_robot_is_a_version_of_its_own() -> None:
 
 
 @pytest.fixture
-def factory(tmp_path):  # type: ignore[no-untyped-def]
+def factory(tmp_path):
     url = f"sqlite:///{tmp_path / 'board.db'}"
     engine = make_engine(url)
     upgrade(url, engine=engine)
@@ -56,7 +56,7 @@ def factory(tmp_path):  # type: ignore[no-untyped-def]
     engine.dispose()
 
 
-def _finished_submission(factory, name: str, version: str | None) -> None:  # type: ignore[no-untyped-def]
+def _finished_submission(factory, name: str, version: str | None) -> None:
     with transaction(factory) as s:
         p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
         if p is None:
@@ -85,7 +85,7 @@ def _finished_submission(factory, name: str, version: str | None) -> None:  # ty
             assert row.physics_version == recorded
 
 
-def test_a_physics_board_shows_only_the_current_version(factory) -> None:  # type: ignore[no-untyped-def]
+def test_a_physics_board_shows_only_the_current_version(factory) -> None:
     _finished_submission(factory, "now", PHYSICS_VERSION)
     _finished_submission(factory, "old", "1")
     _finished_submission(factory, "unversioned", None)

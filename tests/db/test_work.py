@@ -15,14 +15,14 @@ from robobpp.db.session import make_engine, make_session_factory, transaction
 
 
 @pytest.fixture
-def factory(db_url: str):  # type: ignore[no-untyped-def]
+def factory(db_url: str):
     engine = make_engine(db_url)
     upgrade(db_url, engine=engine)
     yield make_session_factory(engine)
     engine.dispose()
 
 
-def _submission(factory, groups: int = 2, datasets=("diverse",)) -> int:  # type: ignore[no-untyped-def]
+def _submission(factory, groups: int = 2, datasets=("diverse",)) -> int:
     with transaction(factory) as s:
         p = s.execute(select(Participant).where(Participant.name == "p")).scalar_one_or_none()
         if p is None:
@@ -40,7 +40,7 @@ def _submission(factory, groups: int = 2, datasets=("diverse",)) -> int:  # type
         ).id
 
 
-def _claim(factory, worker="w", now=None, max_attempts=3):  # type: ignore[no-untyped-def]
+def _claim(factory, worker="w", now=None, max_attempts=3):
     with transaction(factory) as s:
         return work.claim_episode(s, worker, lease_s=10, max_attempts=max_attempts, now=now)
 
@@ -56,7 +56,7 @@ RESULT = {
 }
 
 
-def _complete(factory, claim) -> bool:  # type: ignore[no-untyped-def]
+def _complete(factory, claim) -> bool:
     with transaction(factory) as s:
         return work.complete_episode(s, claim.episode_id, claim.token, RESULT, keep_trace=False)
 
@@ -150,7 +150,7 @@ def test_concurrent_claimers_never_share_an_episode(factory) -> None:
 # ---- outbound bounds: a participant's remote policy gets at most N episodes at once; sends are marked once
 
 
-def _remote(factory, name: str, url: str, groups: int = 4) -> int:  # type: ignore[no-untyped-def]
+def _remote(factory, name: str, url: str, groups: int = 4) -> int:
     with transaction(factory) as s:
         p = Participant(name=name)
         s.add(p)
@@ -160,7 +160,7 @@ def _remote(factory, name: str, url: str, groups: int = 4) -> int:  # type: igno
         ).id
 
 
-def _claim_limited(factory, limit: int):  # type: ignore[no-untyped-def]
+def _claim_limited(factory, limit: int):
     with transaction(factory) as s:
         return work.claim_episode(s, "w", lease_s=30, max_attempts=3, max_running_per_participant=limit)
 
@@ -188,7 +188,7 @@ def test_a_participant_gets_at_most_its_share_of_running_episodes(factory) -> No
     assert nxt is not None and nxt.submission_id == greedy
 
 
-def _builtin(factory, name: str, groups: int) -> int:  # type: ignore[no-untyped-def]
+def _builtin(factory, name: str, groups: int) -> int:
     with transaction(factory) as s:
         p = Participant(name=name, is_builtin=True)
         s.add(p)
@@ -239,7 +239,7 @@ def test_a_message_claims_the_fairest_episode_that_has_one_out(factory) -> None:
         }
         work.take_unsent(s, stale_after_s=3600, ids=ids[greedy] + ids[late])
 
-    def by_message(episode_id: int):  # type: ignore[no-untyped-def]
+    def by_message(episode_id: int):
         with transaction(factory) as s:
             return work.claim_episode(s, "w", lease_s=30, max_attempts=3, episode_id=episode_id)
 
@@ -265,7 +265,7 @@ def test_pending_episodes_are_sent_once_and_lost_messages_again(factory) -> None
     assert set(first) == ids and again == [] and set(stale) == ids
 
 
-def test_a_runs_figures_do_not_depend_on_the_order_its_episodes_finished(factory) -> None:  # type: ignore[no-untyped-def]
+def test_a_runs_figures_do_not_depend_on_the_order_its_episodes_finished(factory) -> None:
     """Two runs of the same per-group figures give the same metrics to the last bit, whichever episode finished
     first: a float mean depends on its order, and the relative score's min-max would tell them apart."""
     utilisation = [0.1, 0.2, 0.3, 0.15, 0.25, 0.35, 0.05, 0.4]  # sums whose last bit depends on the order

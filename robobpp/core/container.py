@@ -52,7 +52,8 @@ class ContainerState:
     def _rest(self, x: float, y: float, length: float, width: float) -> tuple[float, tuple[slice, slice]]:
         cells = footprint_cells(x, y, length, width, self.heightmap.shape)
         region = self.heightmap[cells]
-        return (float(region.max()) if region.size else 0.0), cells
+        # the ufunc's reduce, as ndarray.max calls it, without the method's Python layer (every Math step)
+        return (float(np.maximum.reduce(region, axis=None)) if region.size else 0.0), cells
 
     def drop(self, box: Box, x: float, y: float, orientation: int, index: int) -> Placement:
         """The placement the box takes when dropped at (x, y): Math Pack's rule (rests on the max height)."""
@@ -84,4 +85,5 @@ class ContainerState:
 
     def volume_under_heightmap(self) -> float:
         """cm³ under the heightmap over the container footprint (1 cm² cells)."""
-        return float(self.heightmap.sum())
+        # the ufunc's reduce, as ndarray.sum calls it (the same sum), without the method's Python layer
+        return float(np.add.reduce(self.heightmap, axis=None))

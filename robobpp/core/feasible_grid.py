@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,6 +22,18 @@ from robobpp.core.heightmap import cells_spanned, highest_base, windows_all
 OrientationFits = tuple[int, tuple[float, float, float], np.ndarray]
 
 
+def fitting_orientations(
+    box: Box, container: ContainerSpec, orientations: Sequence[int] = ORIENTATIONS
+) -> list[tuple[int, tuple[float, float, float]]]:
+    """The orientations whose footprint fits the container's at all, with the oriented dimensions."""
+    oriented = [(o, box.dims(o)) for o in orientations]
+    return [
+        (o, dims)
+        for o, dims in oriented
+        if dims[0] <= container.length + TOLERANCE_CM and dims[1] <= container.width + TOLERANCE_CM
+    ]
+
+
 def orientation_fits(
     heightmap: np.ndarray, box: Box, container: ContainerSpec, orientations: Sequence[int] = ORIENTATIONS
 ) -> list[OrientationFits]:
@@ -31,12 +43,7 @@ def orientation_fits(
     implies the bounds. The height test is exactly ``drop_height_map(...) + height <= limit``: a box keeps its
     top within the limit iff every cell under it is at most :func:`highest_base` (read-only maps).
     """
-    oriented = [(o, box.dims(o)) for o in orientations]
-    shown = [
-        (o, dims)
-        for o, dims in oriented
-        if dims[0] <= container.length + TOLERANCE_CM and dims[1] <= container.width + TOLERANCE_CM
-    ]
+    shown = fitting_orientations(box, container, orientations)
     out: list[OrientationFits] = []
     for height in dict.fromkeys(dims[2] for _, dims in shown):  # orientations turned about z share it
         same = [(o, dims) for o, dims in shown if dims[2] == height]
@@ -91,8 +98,6 @@ class FeasibleGrids:
 
     #: More raises to replay than this, and recomputing is cheaper.
     MAX_CATCH_UP = 16
-    #: How many sizes' grids on the empty container are kept (any state still close to empty starts from one).
-    EMPTY_SIZES = 64
 
     def __init__(
         self, container: ContainerSpec, orientations: Sequence[int] = ORIENTATIONS, sizes: int = 8
@@ -102,7 +107,6 @@ class FeasibleGrids:
         self.sizes = sizes
         self._limit = container.height + TOLERANCE_CM
         self._kept: OrderedDict[tuple[float, float, float], _Kept] = OrderedDict()
-        self._empty: OrderedDict[tuple[float, float, float], _Kept] = OrderedDict()
 
     def __call__(self, state: ContainerState, box: Box) -> np.ndarray:
         """The feasible (x, y, orientation) grid of ``box`` on ``state``."""
@@ -115,8 +119,8 @@ class FeasibleGrids:
             or len(state.raises) - kept.seen > self.MAX_CATCH_UP
         ):
             if state.from_empty and len(state.raises) <= self.MAX_CATCH_UP:
-                # few boxes placed: start from this size's grid on the empty container and catch up
-                kept = replace(self._on_empty(size, box), state=state, heightmap=state.heightmap)
+                # few boxes placed: start from the grid on the empty container and catch up
+                kept = self._on_empty(state, box)
                 self._catch_up(kept)
             else:
                 kept = self._compute(state, box)
@@ -128,26 +132,37 @@ class FeasibleGrids:
         self._kept.move_to_end(size)
         return kept.grid
 
-    def _on_empty(self, size: tuple[float, float, float], box: Box) -> _Kept:
-        """This size's grid on the empty container, a copy to catch up from (``seen`` 0)."""
-        empty = self._empty.get(size)
-        if empty is None:
-            empty = self._empty[size] = self._compute(ContainerState(self.container), box)
-            if len(self._empty) > self.EMPTY_SIZES:
-                self._empty.popitem(last=False)
-        self._empty.move_to_end(size)
-        return replace(empty, grid=empty.grid.copy())
+    def _on_empty(self, state: ContainerState, box: Box) -> _Kept:
+        """The box's grid on the empty container, to catch up with all of ``state``'s raises: every position where
+        the footprint fits the container, if the box fits under its top at all (what :func:`orientation_fits`
+        gives on a heightmap of zeros, without sliding over it)."""
+        kept = self._empty_kept(state, box)
+        if kept.base >= 0.0:  # the floor leaves room for the box
+            nx, ny = self.container.grid_shape
+            for orientation, (length, width, _) in fitting_orientations(
+                box, self.container, self.orientations
+            ):
+                lc, wc = cells_spanned(length), cells_spanned(width)
+                kept.grid[
+                    : max(0, nx - lc + 1), : max(0, ny - wc + 1), self.orientations.index(orientation)
+                ] = True
+        return kept
 
-    def _compute(self, state: ContainerState, box: Box) -> _Kept:
+    def _empty_kept(self, state: ContainerState, box: Box) -> _Kept:
+        """An all-False grid for ``box``, at ``state``'s start (nothing seen yet)."""
         grid = np.zeros((*self.container.grid_shape, len(self.orientations)), bool)
-        for orientation, _, fits in orientation_fits(state.heightmap, box, self.container, self.orientations):
-            grid[: fits.shape[0], : fits.shape[1], self.orientations.index(orientation)] = fits
         spans = [
             (cells_spanned(length), cells_spanned(width))
             for length, width, _ in (box.dims(o) for o in self.orientations)
         ]
-        base = highest_base(box.height, self._limit)
-        return _Kept(grid, base, spans, state, state.heightmap, len(state.raises))
+        return _Kept(grid, highest_base(box.height, self._limit), spans, state, state.heightmap, 0)
+
+    def _compute(self, state: ContainerState, box: Box) -> _Kept:
+        kept = self._empty_kept(state, box)
+        for orientation, _, fits in orientation_fits(state.heightmap, box, self.container, self.orientations):
+            kept.grid[: fits.shape[0], : fits.shape[1], self.orientations.index(orientation)] = fits
+        kept.seen = len(state.raises)
+        return kept
 
     def _catch_up(self, kept: _Kept) -> None:
         raises = kept.state.raises

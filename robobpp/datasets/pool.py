@@ -79,9 +79,11 @@ class Pool:
     #: Source records in the split.
     records: int
     notes: dict[str, int] = field(default_factory=dict)
-    #: Each entry's Box, made when first drawn: a Box is immutable, and a group repeats few entries (a Gym env
-    #: draws a group at every reset).
-    _boxes: dict[int, Box] = field(default_factory=dict, init=False, repr=False, compare=False)
+    #: One Box per distinct (length, width, height, mass), made when first drawn: a Box is immutable, and a group
+    #: repeats few sizes (a Gym env draws a group at every reset).
+    _boxes: dict[tuple[float, float, float, float], Box] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def __len__(self) -> int:
         return len(self.dims)
@@ -89,12 +91,14 @@ class Pool:
     def boxes(self, indices: np.ndarray) -> tuple[Box, ...]:
         made = self._boxes
         out = []
-        for i in np.asarray(indices).tolist():
-            box = made.get(i)
+        # tolist: the same Python floats as float() of each element, without a numpy scalar per value
+        for (length, width, height), mass in zip(
+            self.dims[indices].tolist(), self.masses[indices].tolist(), strict=True
+        ):
+            key = (length, width, height, mass)
+            box = made.get(key)
             if box is None:
-                # tolist: the same Python floats as float() of each element, without a numpy scalar per value
-                length, width, height = self.dims[i].tolist()
-                box = made[i] = Box(length, width, height, self.masses[i].item())
+                box = made[key] = Box(length, width, height, mass)
             out.append(box)
         return tuple(out)
 

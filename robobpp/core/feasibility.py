@@ -33,6 +33,10 @@ def check_action(
     Returns ``None`` when the action is feasible. Inputs may come from an untrusted policy, so types are
     checked here rather than assumed.
     """
+    if type(x) is float and type(y) is float and type(orientation) is int and orientation in ORIENTATIONS:
+        # the usual case (an env's or a parsed answer's floats), checked without the loop below
+        if math.isfinite(x) and math.isfinite(y):
+            return _check_extent(x, y, *box.dims(orientation), container, z)
     for name, value in (("x", x), ("y", y)):
         if isinstance(value, bool) or not isinstance(value, int | float):
             return Infeasible("invalid_action", f"{name} must be a number, got {type(value).__name__}")
@@ -42,8 +46,14 @@ def check_action(
         return Infeasible(
             "invalid_action", f"unknown orientation {orientation!r}; expected one of {ORIENTATIONS}"
         )
-    length, width, height = box.dims(orientation)
     assert isinstance(x, int | float) and isinstance(y, int | float)
+    return _check_extent(x, y, *box.dims(orientation), container, z)
+
+
+def _check_extent(
+    x: float, y: float, length: float, width: float, height: float, container: ContainerSpec, z: float | None
+) -> Infeasible | None:
+    """The bounds (and, with ``z``, height) part of :func:`check_action`, on checked numbers."""
     if x < -TOLERANCE_CM or y < -TOLERANCE_CM:
         return Infeasible("out_of_bounds", f"footprint starts outside the container at ({x:g}, {y:g}) cm")
     if x + length > container.length + TOLERANCE_CM or y + width > container.width + TOLERANCE_CM:

@@ -110,25 +110,34 @@ class _Channel:
     """The observation's heightmap channel for one state after another, each a new array: kept in float32 and
     brought up to date from the blocks the state raised since (``ContainerState.raises``, as the feasible grid
     is), so a step copies it instead of converting the whole heightmap; rebuilt for a new state or heightmap.
-    Exact: rounding to float32 and clipping commute with the max a raise takes."""
+    A raised block is copied from the state's heightmap as it is now (so several raises in any order end right),
+    clipped only once some cell has gone above the container's height: the channel is exactly the whole
+    heightmap converted (rounding to float32 and clipping commute)."""
 
     def __init__(self, height: float) -> None:
         self.height = height
+        self._top = np.float32(height)
         self._kept: tuple[ContainerState, np.ndarray, np.ndarray] | None = (
             None  # state, its heightmap, channel
         )
         self._seen = 0
+        self._clip = False  # whether a cell of the kept state went above the container's height
 
     def __call__(self, state: ContainerState) -> np.ndarray:
         kept = self._kept
         if kept is not None and kept[0] is state and kept[1] is state.heightmap:
             channel = kept[2]
+            heightmap = state.heightmap
             for x0, x1, y0, y1, top in state.raises[self._seen :]:
-                region = channel[0, x0:x1, y0:y1]
-                np.maximum(region, np.float32(min(top, self.height)), out=region)
+                block = channel[0, x0:x1, y0:y1]
+                block[...] = heightmap[x0:x1, y0:y1]
+                self._clip = self._clip or top > self.height
+                if self._clip:
+                    np.minimum(block, self._top, out=block)
         else:
             channel = heightmap_channel(state.heightmap, self.height)
             self._kept = (state, state.heightmap, channel)
+            self._clip = bool(state.heightmap.max(initial=0.0) > self.height)
         self._seen = len(state.raises)
         return channel.copy()
 

@@ -33,10 +33,16 @@ def check_action(
     Returns ``None`` when the action is feasible. Inputs may come from an untrusted policy, so types are
     checked here rather than assumed.
     """
-    if type(x) is float and type(y) is float and type(orientation) is int and orientation in ORIENTATIONS:
-        # the usual case (an env's or a parsed answer's floats), checked without the loop below
-        if math.isfinite(x) and math.isfinite(y):
-            return _check_extent(x, y, *box.dims(orientation), container, z)
+    # the usual case (an env's or a parsed answer's finite floats), checked without the loop below
+    if (
+        type(x) is float
+        and type(y) is float
+        and type(orientation) is int
+        and orientation in ORIENTATIONS
+        and math.isfinite(x)
+        and math.isfinite(y)
+    ):
+        return _check_extent(x, y, *box.dims(orientation), container, z)
     for name, value in (("x", x), ("y", y)):
         if isinstance(value, bool) or not isinstance(value, int | float):
             return Infeasible("invalid_action", f"{name} must be a number, got {type(value).__name__}")

@@ -387,3 +387,29 @@ def test_each_reset_draws_a_group_of_the_whole_split_on_demand(real_data):
     assert {few.reset(seed=s)[1]["episode_id"][-3:] for s in range(20)} <= {"000", "001", "002"}
     with pytest.raises(ValueError, match="groups must be"):
         robobpp.env.PackEnv(dataset="repetitive", groups=0)
+
+
+def test_the_kept_heightmap_channel_is_the_whole_heightmap_converted_after_any_raises():
+    """Raises in any order, overlapping, below and above the container's top (clipped), several between two
+    observations, and a replaced heightmap: the channel is what converting the whole heightmap gives."""
+    from robobpp.core import ContainerSpec, ContainerState, Placement
+
+    rng = np.random.default_rng(5)
+    container = ContainerSpec(20, 16, 10)
+    channel = robobpp.env._Channel(container.height)
+    state = ContainerState(container)
+    clipped = False
+    for index in range(60):
+        x, y = (float(v) for v in rng.integers(0, (18, 14)))
+        length, width = (float(v) for v in rng.integers(1, 6, 2))
+        z = float(rng.uniform(0, 9))
+        placement = Placement(x, y, z, length, width, float(rng.uniform(0.1, 3)), 0, index)
+        clipped = clipped or placement.top > container.height
+        state.add(placement)
+        if index % 3:  # sometimes two or three raises between observations
+            continue
+        expected = robobpp.env.heightmap_channel(state.heightmap, container.height)
+        np.testing.assert_array_equal(channel(state), expected)
+    assert clipped
+    state.heightmap = np.full(container.grid_shape, 3.25)
+    np.testing.assert_array_equal(channel(state)[0], np.full(container.grid_shape, 3.25, np.float32))

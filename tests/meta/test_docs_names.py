@@ -23,17 +23,10 @@ from typing import Any
 
 import pytest
 
-from tests.meta.test_doc_links import anchors
+from tests.meta.test_doc_links import PAGES, ROOT, anchors
 
-ROOT = Path(__file__).resolve().parents[2]
-PAGES = [
-    ROOT / "README.md",
-    ROOT / "CONTRIBUTING.md",
-    ROOT / "BENCHMARKS.md",
-    *sorted((ROOT / "docs").rglob("*.md")),
-]
-# A name, not a pattern of names such as `robobpp.pull.<hash>`.
-DOTTED = re.compile(r"`[^`\n]*?\b(robobpp(?:\.[A-Za-z_]\w*+)++)(?!\.<)[^`\n]*`")
+# A name, not a pattern of names such as `robobpp.pull.<hash>`, nor a part of another (a label `org.robobpp.build`).
+DOTTED = re.compile(r"`[^`\n]*?(?<![.\w])(robobpp(?:\.[A-Za-z_]\w*+)++)(?!\.<)[^`\n]*`")
 # A file (with its extension) or a folder (with its slash): not `robobpp/1` (the protocol) nor `robobpp/Pack-v0`.
 PATH = re.compile(r"(?<![\w./-])((?:robobpp|bench|tests|examples|migrations)/[\w./-]*(?:\.[a-z]{2,4}\b|/))")
 # A page, then a section name in quotes: `docs/x.md, "Name"`, `BENCHMARKS.md ("Name")`, `[x.md](x.md), "Name"`.

@@ -70,8 +70,12 @@ class Settings(BaseSettings):
     #: Worker lease; renewed every quarter lease (heartbeat), swept every quarter lease: a dead worker's
     #: episode is back in the queue within 1.25 leases (25 s with the default).
     lease_s: float = Field(default=20.0, gt=0)
-    #: Episodes of one participant's remote policies running at once, whatever the number of workers.
-    participant_max_running: int = Field(default=4, ge=1, le=1000)
+    #: Episodes of one participant's remote policies running at once, whatever the number of workers. One by
+    #: default: a policy server is then never asked two decisions at once, so its Decision Time is its own (a
+    #: server that answers one request at a time, as the SDK's, would count the wait for another episode's
+    #: decision as thinking, and its network probes would queue behind it; docs/protocol.md, "Decision time and
+    #: the network").
+    participant_max_running: int = Field(default=1, ge=1, le=1000)
     #: Celery executor (scaled deployment): ``redis://…`` or ``amqp://…``; empty = local process pool.
     broker_url: str = ""
     #: Broker queue the episode tasks go to (one per deployment; tests use a fresh one per run).

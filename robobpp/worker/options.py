@@ -27,7 +27,7 @@ class WorkerOptions:
     pull_wait_s: float = 30.0
     pull_reconnect_s: float = 30.0
     #: Episodes of one participant's remote policies running at once (outbound calls to one server).
-    max_running_per_participant: int = 4
+    max_running_per_participant: int = 1
     #: Episodes one worker process keeps in flight (robobpp/worker/multiplex.py); 1: one at a time.
     episodes_per_worker: int = 16
 

@@ -106,3 +106,49 @@ def test_served_and_builtin_dbl_are_not_apart_and_a_slow_one_ranks_below(
         assert thinker["rank"] > max(mine["rank"], baseline["rank"]), table
         assert thinker["rank_low"] > max(mine["rank_high"], baseline["rank_high"]), table
         assert thinker["stable"] < min(mine["stable"], baseline["stable"]), table
+
+
+class ThinkingFifth(DBL):
+    """DBL's placements, decided after 0.2 s."""
+
+    def act(self, obs: Observation) -> Action | None:
+        time.sleep(0.2)
+        return super().act(obs)
+
+
+def test_a_policy_server_answering_one_request_at_a_time_is_timed_for_its_own_decisions(
+    make_server, policy_server, tmp_path
+) -> None:
+    """The SDK's server answers one request at a time. With the server's defaults a participant has one
+    episode in flight, so each episode's Decision Time is the policy's 0.2 s a box; with several in flight on
+    that server (``PARTICIPANT_MAX_RUNNING`` above 1) an /act waits for the other episodes' decisions and the
+    echo probes queue behind them, and the figure was off by far more than the bounds below."""
+    import json
+
+    from tests.server.conftest import db_rows
+
+    db_url = f"sqlite:///{tmp_path / 'one.sqlite3'}"
+    server = make_server(db_url, ROBOBPP_EVALUATE_BASELINES="0", ROBOBPP_GROUPS="4")
+    client = server.client(new_participant(server.client()))
+    r = client.post(
+        "/submissions",
+        json={
+            "name": "fifth",
+            "policy_url": policy_server(ThinkingFifth).url,
+            "secret": SECRET,
+            "datasets": ["diverse"],
+            "settings": ["math"],
+        },
+    )
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    wait_for(
+        lambda: client.get(f"/submissions/{sid}").json()["status"] == "completed", timeout_s=180, every_s=0.5
+    )
+    rows = db_rows(db_url, "SELECT metrics FROM episodes WHERE submission_id = :s", s=sid)
+    metrics = [json.loads(m) if isinstance(m, str) else m for (m,) in rows]
+    assert len(metrics) == 4
+    figures = [(m["decision_time"], m["round_trip"], m["network_estimate"]) for m in metrics]
+    for decision, _, network in figures:
+        assert 0.18 <= decision <= 0.3, figures  # 0.2 s of sleep, DBL's milliseconds, the machine's noise
+        assert network < 0.05, figures  # the probes did not wait behind a decision

@@ -33,9 +33,13 @@ def _when(value: object) -> datetime:
 def test_second_participant_starts_within_one_episode_time(make_server, policy_server, tmp_path) -> None:
     db_url = f"sqlite:///{tmp_path / 'fair.sqlite3'}"
     # One episode per worker: the claim order is under test here (with several in flight per worker, the second
-    # participant's episodes start at once: tests/server/test_multiplex.py).
+    # participant's episodes start at once: tests/server/test_multiplex.py); the first participant may hold both.
     server = make_server(
-        db_url, ROBOBPP_EVALUATE_BASELINES="0", ROBOBPP_GROUPS="6", ROBOBPP_EPISODES_PER_WORKER="1"
+        db_url,
+        ROBOBPP_EVALUATE_BASELINES="0",
+        ROBOBPP_GROUPS="6",
+        ROBOBPP_EPISODES_PER_WORKER="1",
+        ROBOBPP_PARTICIPANT_MAX_RUNNING="2",
     )
     policy = policy_server(QuickSlowDBL)
     admin = server.client()

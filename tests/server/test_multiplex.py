@@ -36,7 +36,10 @@ def test_fast_submission_completes_while_a_slow_policy_occupies_the_workers(
     make_server, policy_server, tmp_path
 ) -> None:
     db_url = f"sqlite:///{tmp_path / 'mux.sqlite3'}"
-    server = make_server(db_url, ROBOBPP_EVALUATE_BASELINES="0", ROBOBPP_GROUPS="6")
+    # 4 episodes of a participant at once (the default is 1): they fill one-episode-per-worker's 2 workers
+    server = make_server(
+        db_url, ROBOBPP_EVALUATE_BASELINES="0", ROBOBPP_GROUPS="6", ROBOBPP_PARTICIPANT_MAX_RUNNING="4"
+    )
     admin = server.client()
     slow = server.client(new_participant(admin, "slow"))
     fast = server.client(new_participant(admin, "fast"))
@@ -63,7 +66,9 @@ def test_killed_multiplexed_worker_episodes_are_retried_and_recorded_once(
     make_server, policy_server, tmp_path
 ) -> None:
     db_url = f"sqlite:///{tmp_path / 'kill.sqlite3'}"
-    server = make_server(db_url, ROBOBPP_EVALUATE_BASELINES="0", ROBOBPP_WORKERS="1")
+    server = make_server(
+        db_url, ROBOBPP_EVALUATE_BASELINES="0", ROBOBPP_WORKERS="1", ROBOBPP_PARTICIPANT_MAX_RUNNING="4"
+    )
     client = server.client(new_participant(server.client()))
     sid = _submit(client, policy_server(SlowDBL), ["diverse", "repetitive"])  # 4 episodes, all in one worker
     worker, held = wait_for(

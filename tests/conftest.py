@@ -25,6 +25,11 @@ os.environ.setdefault("ROBOBPP_BOARD_WORKER", "thread")
 PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
 
 
+def _floats(dims: tuple[float, float, float]) -> tuple[float, float, float]:
+    length, width, height = dims
+    return float(length), float(width), float(height)
+
+
 def make_spec(
     boxes: Sequence[tuple[float, float, float]] | Sequence[Box],
     container: tuple[float, float, float] = (10, 10, 10),
@@ -33,7 +38,7 @@ def make_spec(
     group: int = 0,
 ) -> EpisodeSpec:
     """An episode over the given boxes (tuples are (l, w, h) with 1 kg mass)."""
-    items = tuple(b if isinstance(b, Box) else Box(*map(float, b), 1.0) for b in boxes)
+    items = tuple(b if isinstance(b, Box) else Box(*_floats(b), 1.0) for b in boxes)
     return EpisodeSpec(dataset, "train", group, items, ContainerSpec(*container), threshold, 0)
 
 
@@ -42,7 +47,9 @@ def random_spec() -> EpisodeSpec:
     """80 random boxes in the Repetitive container (deterministic)."""
     rng = np.random.default_rng(7)
     dims = rng.integers(15, 55, size=(80, 3))
-    return make_spec([tuple(map(float, d)) for d in dims], container=(134, 125, 100), dataset="synthetic")
+    return make_spec(
+        [(float(a), float(b), float(c)) for a, b, c in dims], container=(134, 125, 100), dataset="synthetic"
+    )
 
 
 @pytest.fixture(scope="session")

@@ -3,6 +3,7 @@ processes (``robobpp worker``): draining, surviving ``kill -9``, and agreeing wi
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +59,10 @@ def _expected(dataset: str, group: int, policy: str) -> dict[str, Any]:
     return run_episode(spec(dataset, "train", group, 4), load_policy(policy), "math").to_dict(trace=False)
 
 
+def _completed(factory: Any, submission_id: int) -> Callable[[], bool]:
+    return lambda: submission_status(factory, submission_id) == "completed"
+
+
 def test_two_workers_drain_a_submission(fleet: Fleet, factory: Any) -> None:
     sub = new_submission(
         factory,
@@ -80,6 +85,7 @@ def test_two_workers_drain_a_submission(fleet: Fleet, factory: Any) -> None:
         want = _expected(r.dataset, r.group, "tests.celery.helpers:PacedDBL")
         assert r.termination == want["termination"]
         assert r.boxes_placed == want["boxes_placed"]
+        assert r.metrics is not None
         for key in GEOMETRY:
             assert r.metrics[key] == pytest.approx(want["metrics"][key], abs=1e-12)
 
@@ -119,6 +125,7 @@ def test_kill_9_mid_episode_completes_once_on_the_other_worker(fleet: Fleet, fac
         assert done.worker != row.worker
         want = _expected("repetitive", 0, "tests.celery.helpers:SlowDBL")
         assert done.termination == want["termination"]
+        assert done.trace is not None and done.metrics is not None
         assert done.boxes_placed == want["boxes_placed"] == len(done.trace["steps"])
         for key in GEOMETRY:
             assert done.metrics[key] == pytest.approx(want["metrics"][key], abs=1e-12)
@@ -156,9 +163,7 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
     _app_, executor = _start(fleet, 2)
     try:
         for sub in celery_subs:
-            wait_for(
-                lambda s=sub: submission_status(factory, s) == "completed", 120, "celery run", fleet.logs
-            )
+            wait_for(_completed(factory, sub), 120, "celery run", fleet.logs)
     finally:
         executor.stop()
 
@@ -182,7 +187,7 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
     pool.start()
     try:
         for sub in local_subs:
-            wait_for(lambda s=sub: submission_status(local, s) == "completed", 120, "local run", lambda: "")
+            wait_for(_completed(local, sub), 120, "local run", lambda: "")
     finally:
         pool.stop()
 
@@ -307,6 +312,7 @@ def test_celery_workers_replay_math_episodes_under_the_paper_protocol(fleet: Fle
         with factory() as s:
             assert work.episode_plan(s, replay.id) is None  # spent
         math = next(r for r in rows if (r.setting, r.group) == ("math", replay.group))
+        assert replay.trace is not None and math.trace is not None
         played = [(st["action"], st["decision_time"]) for st in replay.trace["steps"]]
         assert (
             played

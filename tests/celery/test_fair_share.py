@@ -3,6 +3,8 @@ many messages of a slow participant wait ahead of its own in the (first come, fi
 
 from __future__ import annotations
 
+from datetime import datetime
+
 import pytest
 
 from robobpp.worker.celery_executor import CeleryExecutor
@@ -10,6 +12,12 @@ from tests.celery.conftest import Fleet, episode_states, episodes, new_submissio
 from tests.celery.test_delivery import _app
 
 pytestmark = [pytest.mark.postgres, pytest.mark.redis, pytest.mark.rabbitmq]
+
+
+def _seconds(start: datetime | None, end: datetime | None) -> float:
+    """How long an episode ran (it started and finished)."""
+    assert start is not None and end is not None
+    return (end - start).total_seconds()
 
 
 def test_a_second_participant_starts_within_one_episode_time(own_fleet: Fleet, own_pg_url: str) -> None:
@@ -48,12 +56,13 @@ def test_a_second_participant_starts_within_one_episode_time(own_fleet: Fleet, o
         with factory() as s:
             from robobpp.db.models import Submission
 
-            submitted = s.get(Submission, second).created_at  # type: ignore[union-attr]
+            submission = s.get(Submission, second)
+            assert submission is not None
+            submitted = submission.created_at
+        assert mine.started_at is not None
         waited = (mine.started_at - submitted).total_seconds()
         wait_for(lambda: any(e.status == "done" for e in episodes(factory, slow)), 60, "a slow episode", logs)
-        took = [
-            (e.finished_at - e.started_at).total_seconds() for e in episodes(factory, slow) if e.finished_at
-        ]
+        took = [_seconds(e.started_at, e.finished_at) for e in episodes(factory, slow) if e.finished_at]
         # One episode-time (the longest of the slow participant's, measured here) plus a dispatcher round.
         assert waited <= max(took) + 2.0, (waited, took, logs())
         states = [e.status for e in episodes(factory, slow)]

@@ -99,7 +99,8 @@ def test_a_bug_still_gets_its_traceback(caplog: pytest.LogCaptureFixture) -> Non
     outages = OutageLog(log, "loop")
     for _ in range(2):
         try:
-            {}["missing"]
+            empty: dict[str, int] = {}
+            empty["missing"]
         except KeyError as exc:
             outages.failed(exc)
     assert [bool(r.exc_info) for r in caplog.records] == [True, True]

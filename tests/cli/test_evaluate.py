@@ -48,7 +48,9 @@ def test_evaluate_writes_results_matching_the_loop(real_data, tmp_path):
     for got, want in zip(payload["episodes"], local, strict=True):
         assert got["metrics"]["space_utilization"] == pytest.approx(want.metrics["space_utilization"])
         assert got["boxes_placed"] == want.boxes_placed and got["termination"] == want.termination
-    mean = sum(r.metrics["occupancy"] for r in local) / 2
+    occupancy = [r.metrics["occupancy"] for r in local]
+    assert None not in occupancy
+    mean = sum(o for o in occupancy if o is not None) / 2
     assert payload["runs"][0]["metrics"]["occupancy"] == pytest.approx(mean)
     steps = json.loads(trace.read_text())["episodes"][0]["steps"]
     assert len(steps) == len(local[0].steps) and steps[0]["placement"]["z"] == 0

@@ -199,6 +199,7 @@ class HostileServer(socketserver.ThreadingTCPServer):
     @property
     def url(self) -> str:
         host, port = self.server_address[:2]
+        assert isinstance(host, str)  # bound to "127.0.0.1" above (the stub's address also admits bytes)
         return f"http://{host}:{port}"
 
     def opened(self) -> None:

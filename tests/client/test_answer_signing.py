@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import json
+from collections.abc import Iterator
 
 import httpx
 import pytest
@@ -21,7 +22,7 @@ SECRET = "answer-secret-42"
 
 
 @pytest.fixture(scope="module")
-def signing_hostile() -> HostileServer:
+def signing_hostile() -> Iterator[HostileServer]:
     with HostileServer(slow_s=1.0, secret=SECRET) as server:
         yield server
 
@@ -45,10 +46,12 @@ def test_sdk_answers_carry_the_documented_hmac() -> None:
     expected = hmac.new(SECRET.encode(), b"robobpp/1 answer\n" + head + b"\n" + r.content, hashlib.sha256)
     assert r.headers[P.SIGNATURE_HEADER] == expected.hexdigest()
     # Bound to the request: the same answer does not verify for another step or another request.
-    common = {"episode_id": "demo-1", "request_signature": request_headers[P.SIGNATURE_HEADER]}
-    P.verify_answer(SECRET, r.headers, r.content, step=None, **common)
+    signature = request_headers[P.SIGNATURE_HEADER]
+    P.verify_answer(SECRET, r.headers, r.content, step=None, episode_id="demo-1", request_signature=signature)
     with pytest.raises(P.SignatureError, match="replayed"):
-        P.verify_answer(SECRET, r.headers, r.content, step=3, **common)
+        P.verify_answer(
+            SECRET, r.headers, r.content, step=3, episode_id="demo-1", request_signature=signature
+        )
     with pytest.raises(P.SignatureError, match="replayed"):
         P.verify_answer(
             SECRET,

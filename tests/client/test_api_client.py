@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner, Result
@@ -322,10 +323,12 @@ def test_a_rank_without_its_interval_yet_says_when_it_comes() -> None:
     (docs/server.md): the line says so rather than pass the rank alone off as certain."""
     from robobpp.cli.submit import _standing_line
 
-    common = dict(
+    common: dict[str, Any] = dict(
         dataset="diverse", setting="math", status="completed", metrics={}, metric_keys=[], entries=14
     )
-    figures = dict(score=0.5, score_low=0.4, score_high=0.6, stable=0.7, stable_low=0.65, stable_high=0.75)
+    figures: dict[str, Any] = dict(
+        score=0.5, score_low=0.4, score_high=0.6, stable=0.7, stable_low=0.65, stable_high=0.75
+    )
     waiting = _standing_line(Standing(**common, **figures, rank=3, board_status="ranked"))
     assert "rank 3 of 14 [dim](its rank interval comes with the board's next full computation)[/]" in waiting
     known = _standing_line(Standing(**common, **figures, rank=3, rank_low=2, rank_high=5))
@@ -357,7 +360,7 @@ def test_leaderboard_command_shows_boards_and_the_grid(
 def test_errors_are_one_line_with_the_status(
     server: ServerProcess, fast: BackgroundServer, token: str, cli: CliRunner
 ) -> None:
-    cases = [
+    cases: list[tuple[tuple[str | None, *tuple[str, ...]], int, str]] = [
         ((None, "submissions", "list"), 2, "error: no API token: pass --token or set ROBOBPP_TOKEN"),
         (("nope", "submissions", "list"), 1, "error: 401: Unauthorized: the API token is not valid"),
         ((token, "submissions", "show", "999999"), 1, "error: 404: Not found: no submission 999999"),
@@ -418,7 +421,8 @@ def test_operator_creates_a_participant_whose_token_submits_and_can_be_revoked(
     assert created.exit_code == 0, created.output
     new = created.stdout.strip().splitlines()[-1]  # the token alone on its line, for `$(...)`
     with ServerClient(server.url, new) as api:
-        assert api.me().participant.name == "carol"
+        me = api.me()
+        assert me.participant is not None and me.participant.name == "carol"
         api.submit(fast.url, SECRET, name="carol dbl", datasets=["diverse"], settings=["math"])
     listed = run_cli(cli, server, new, "tokens", "list")
     assert listed.exit_code == 0 and new[:10] in listed.stdout

@@ -28,7 +28,12 @@ ROOT = Path(__file__).resolve().parents[2]
 def _line_with(stream: IO[str], pattern: str, proc: subprocess.Popen[str], timeout: float) -> re.Match[str]:
     """The first stdout line matching ``pattern``, read in a thread so a silent process fails in ``timeout``."""
     lines: queue.Queue[str] = queue.Queue()
-    threading.Thread(target=lambda: [lines.put(x) for x in iter(stream.readline, "")], daemon=True).start()
+
+    def pump() -> None:
+        for line in iter(stream.readline, ""):
+            lines.put(line)
+
+    threading.Thread(target=pump, daemon=True).start()
     seen: list[str] = []
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

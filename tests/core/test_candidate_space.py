@@ -7,9 +7,10 @@ from gymnasium.utils.env_checker import check_env
 
 import robobpp  # noqa: F401 - registers robobpp/Pack-v0
 from robobpp.core import Action, EpisodeInfo, Observation
+from robobpp.env import PackEnv
 from robobpp.episode import run_episode
 from robobpp.policies.base import BasePolicy
-from robobpp.policies.candidate_space import FEATURES, CandidateSpace
+from robobpp.policies.candidate_space import FEATURES, Candidates, CandidateSpace
 from tests.conftest import make_spec
 
 COLUMN = {name: i for i, name in enumerate(FEATURES)}
@@ -19,9 +20,27 @@ COLUMN = {name: i for i, name in enumerate(FEATURES)}
 def specs():
     rng = np.random.default_rng(5)
     return [
-        make_spec([tuple(map(float, d)) for d in rng.integers(5, 25, (30, 3))], (60, 50, 40), group=g)
+        make_spec(
+            [(float(a), float(b), float(c)) for a, b, c in rng.integers(5, 25, (30, 3))],
+            (60, 50, 40),
+            group=g,
+        )
         for g in range(3)
     ]
+
+
+def _pack(env: gym.Env) -> PackEnv:
+    """The PackEnv under the wrappers of ``gym.make``."""
+    pack = env.unwrapped
+    assert isinstance(pack, PackEnv)
+    return pack
+
+
+def _candidates(env: gym.Env) -> Candidates:
+    """The candidate list of the box to place now."""
+    candidates = _pack(env)._candidates
+    assert candidates is not None
+    return candidates
 
 
 def test_check_env_passes_and_the_space_is_k_indices(specs):
@@ -41,8 +60,8 @@ def test_every_candidate_is_a_feasible_placement_and_padding_is_zero(specs, sett
     while not terminated:
         mask = info["action_masks"]
         assert mask.any()  # an episode with no candidate has ended
-        cands = env.unwrapped._candidates
-        grid = env.unwrapped.action_mask()  # the env's own feasibility: what a grid action may do
+        cands = _candidates(env)
+        grid = _pack(env).action_mask()  # the env's own feasibility: what a grid action may do
         for k in np.flatnonzero(mask):
             assert grid[tuple(cands.placements[k])], (k, cands.placements[k])
         features = obs["candidates"]
@@ -52,8 +71,10 @@ def test_every_candidate_is_a_feasible_placement_and_padding_is_zero(specs, sett
         seen += int(mask.sum())
         obs, reward, terminated, _, info = env.step(int(rng.choice(np.flatnonzero(mask))))
         if not terminated:
-            assert info["placed"] and reward > 0
-        if setting == "execution" and env.unwrapped._episode.index >= 8:
+            assert info["placed"] and float(reward) > 0
+        episode = _pack(env)._episode
+        assert episode is not None
+        if setting == "execution" and episode.index >= 8:
             return  # the robot's motion planning costs about 0.15 s a box: a few boxes show the rule holds
     assert seen > 30 and info["termination"] in ("completed", "no_feasible_placement")
 
@@ -67,9 +88,9 @@ def test_features_describe_the_placement():
     )
     obs, info = env.reset(seed=0)
     first = np.flatnonzero(info["action_masks"])
-    at_origin = [k for k in first if tuple(env.unwrapped._candidates.placements[k]) == (0, 0, 0)]
+    at_origin = [k for k in first if tuple(_candidates(env).placements[k]) == (0, 0, 0)]
     obs, _, _, _, info = env.step(at_origin[0])
-    cands = env.unwrapped._candidates
+    cands = _candidates(env)
     rows = {tuple(cands.placements[k]): obs["candidates"][k] for k in np.flatnonzero(info["action_masks"])}
     on_block, on_floor = rows.get((0, 0, 0)), rows.get((4, 0, 0))
     assert on_block is not None and on_floor is not None, sorted(rows)
@@ -102,7 +123,7 @@ def test_the_env_and_a_policy_see_the_same_list_for_the_same_episode(specs):
     env.reset(seed=0, options={"group": 2})
     placed, terminated = [], False
     while not terminated:
-        placed.append(tuple(env.unwrapped._candidates.placements[0]))
+        placed.append(tuple(_candidates(env).placements[0]))
         _, _, terminated, _, info = env.step(0)
     records: list = []
     result = run_episode(specs[2], FirstCandidate(), "math", on_step=records.append)

@@ -1,3 +1,5 @@
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -5,6 +7,7 @@ from gymnasium.utils.env_checker import check_env
 
 import robobpp
 import robobpp.env
+from robobpp.episode import Episode
 from tests.conftest import make_spec
 
 
@@ -12,9 +15,26 @@ from tests.conftest import make_spec
 def specs():
     rng = np.random.default_rng(3)
     return [
-        make_spec([tuple(map(float, d)) for d in rng.integers(5, 25, (20, 3))], (60, 50, 40), group=g)
+        make_spec(
+            [(float(a), float(b), float(c)) for a, b, c in rng.integers(5, 25, (20, 3))],
+            (60, 50, 40),
+            group=g,
+        )
         for g in range(4)
     ]
+
+
+def _pack(env: gym.Env) -> robobpp.env.PackEnv:
+    """The PackEnv under the wrappers of ``gym.make``."""
+    pack = env.unwrapped
+    assert isinstance(pack, robobpp.env.PackEnv)
+    return pack
+
+
+def _episode(pack: robobpp.env.PackEnv) -> Episode:
+    """The episode under way (after a reset)."""
+    assert pack._episode is not None
+    return pack._episode
 
 
 def test_check_env_passes(specs):
@@ -25,9 +45,11 @@ def test_check_env_passes(specs):
 def test_the_heightmap_is_one_image_channel(specs):
     env = gym.make("robobpp/Pack-v0", specs=specs)
     obs, _ = env.reset(seed=0)
-    assert env.observation_space["heightmap"].shape == (1, 60, 50)
+    space = env.observation_space
+    assert isinstance(space, gym.spaces.Dict)
+    assert space["heightmap"].shape == (1, 60, 50)
     assert obs["heightmap"].shape == (1, 60, 50) and obs["heightmap"].dtype == np.float32
-    np.testing.assert_array_equal(obs["heightmap"][0], env.unwrapped._episode.observe().heightmap)
+    np.testing.assert_array_equal(obs["heightmap"][0], _episode(_pack(env)).observe().heightmap)
 
 
 @pytest.mark.parametrize("setting", ["math", "physics"])
@@ -36,18 +58,18 @@ def test_every_observation_and_mask_is_the_state_s_at_that_step(specs, setting):
     the state computed afresh gives (Math Pack: caught up from the placed blocks; Physics Pack: a new state each
     step, rebuilt)."""
     env = gym.make("robobpp/Pack-v0", specs=specs, setting=setting)
-    pack = env.unwrapped
+    pack = _pack(env)
     rng = np.random.default_rng(1)
     steps, episode, enough = 0, 0, 60 if setting == "math" else 12
     while steps < enough:
         obs, info = env.reset(seed=episode)
         episode, done = episode + 1, False
         while not done:
-            state = pack._episode.setting.state()
+            state = _episode(pack).setting.state()
             expected = robobpp.env.heightmap_channel(state.heightmap, pack.container.height)
             np.testing.assert_array_equal(obs["heightmap"], expected)
             if pack._box is not None:
-                fresh = robobpp.env.feasible_mask(pack._episode.observe())
+                fresh = robobpp.env.feasible_mask(_episode(pack).observe())
                 np.testing.assert_array_equal(info["action_masks"], fresh.reshape(-1))
             obs, _, done, _, info = env.step(int(rng.choice(np.flatnonzero(info["action_masks"]))))
             steps += 1
@@ -72,7 +94,7 @@ def test_returned_arrays_do_not_change_after_they_are_returned(specs):
     """Observations and masks an agent keeps (a rollout buffer) are its own: later steps do not rewrite them,
     and writing to them does not reach the env."""
     env = gym.make("robobpp/Pack-v0", specs=specs, lookahead=2, support_info=True)
-    pack = env.unwrapped
+    pack = _pack(env)
     obs, info = env.reset(seed=0, options={"group": 0})
     kept = [
         ({k: v.copy() for k, v in obs.items()}, obs),
@@ -97,21 +119,23 @@ def test_masked_actions_fill_the_container(specs):
     assert obs["lookahead"].shape == (2, 4) and info["episode_id"].endswith("001")
     total, steps, terminated = 0.0, 0, False
     while not terminated:
-        mask = env.unwrapped.action_mask()
+        mask = _pack(env).action_mask()
         assert mask.any()  # an episode with nothing feasible has already ended
         x, y, o = np.argwhere(mask)[0]
         obs, reward, terminated, truncated, info = env.step(np.ravel_multi_index((x, y, o), mask.shape))
-        assert info["placed"] and reward > 0
-        total += reward
+        assert info["placed"] and float(reward) > 0
+        total += float(reward)
         steps += 1
     assert steps > 5 and info["termination"] in ("completed", "no_feasible_placement")
-    assert total == pytest.approx(float(env.unwrapped._episode.result("x").metrics["space_utilization"]))
+    utilisation = _episode(_pack(env)).result("x").metrics["space_utilization"]
+    assert utilisation is not None
+    assert total == pytest.approx(float(utilisation))
 
 
 def test_infeasible_action_terminates_with_reason(specs):
     env = gym.make("robobpp/Pack-v0", specs=specs)
     env.reset(seed=0)
-    _, reward, terminated, _, info = env.step(np.ravel_multi_index((59, 49, 0), env.unwrapped.grid_shape))
+    _, reward, terminated, _, info = env.step(np.ravel_multi_index((59, 49, 0), _pack(env).grid_shape))
     assert terminated and reward == 0.0 and info["termination"] == "out_of_bounds"
 
 
@@ -126,8 +150,8 @@ def test_stability_reward_in_physics_setting(specs):
     env.reset(seed=0)
     rewards = []
     for _ in range(3):
-        x, y, o = np.argwhere(env.unwrapped.action_mask())[0]
-        _, reward, terminated, _, info = env.step(np.ravel_multi_index((x, y, o), env.unwrapped.grid_shape))
+        x, y, o = np.argwhere(_pack(env).action_mask())[0]
+        _, reward, terminated, _, info = env.step(np.ravel_multi_index((x, y, o), _pack(env).grid_shape))
         rewards.append(reward)
         if terminated:
             break
@@ -181,8 +205,8 @@ def test_no_feasible_placement_ends_the_episode():
     # the second box (6 cm on 6 cm) exceeds the 10 cm height everywhere: the episode ends with the placement
     assert terminated and not truncated and reward == pytest.approx(0.6)
     assert info["placed"] and info["termination"] == "no_feasible_placement"
-    assert not info["action_masks"].any() and not env.unwrapped.action_masks().any()
-    result = env.unwrapped._episode.result("x")
+    assert not info["action_masks"].any() and not _pack(env).action_masks().any()
+    result = _episode(_pack(env)).result("x")
     assert result.termination == "no_feasible_placement" and result.boxes_placed == 1
     # the step that ends the episode carries its figures, as the evaluator computes them
     assert info["boxes_placed"] == 1 and info["termination_detail"] == result.termination_detail
@@ -196,19 +220,21 @@ def test_flat_actions_and_masks_follow_the_action_space(specs):
     check_env(flat.unwrapped)
     _, info = flat.reset(seed=0, options={"group": 2})
     grid.reset(seed=0, options={"group": 2})
-    joint = grid.unwrapped.action_mask()
+    joint = _pack(grid).action_mask()
+    assert isinstance(flat.action_space, gym.spaces.Discrete)
     assert flat.action_space.n == joint.size
     np.testing.assert_array_equal(info["action_masks"], joint.reshape(-1))
-    np.testing.assert_array_equal(flat.unwrapped.action_masks(), joint.reshape(-1))
-    per_dim = grid.unwrapped.action_masks()  # MultiDiscrete: one mask per dimension, concatenated
+    np.testing.assert_array_equal(_pack(flat).action_masks(), joint.reshape(-1))
+    per_dim = _pack(grid).action_masks()  # MultiDiscrete: one mask per dimension, concatenated
+    assert isinstance(grid.action_space, gym.spaces.MultiDiscrete)
     assert per_dim.shape == (sum(grid.action_space.nvec),)
     np.testing.assert_array_equal(per_dim[:60], joint.any(axis=(1, 2)))
     x, y, o = np.argwhere(joint)[-1]
     index = int(np.ravel_multi_index((x, y, o), joint.shape))
     _, r_flat, *_ = flat.step(index)
     _, r_grid, *_ = grid.step(np.array([x, y, o]))
-    assert r_flat == r_grid > 0
-    np.testing.assert_array_equal(flat.unwrapped.action_mask(), grid.unwrapped.action_mask())
+    assert float(r_flat) == float(r_grid) > 0
+    np.testing.assert_array_equal(_pack(flat).action_mask(), _pack(grid).action_mask())
     with pytest.raises(ValueError, match="one index"):
         flat.step(np.array([1, 2, 0]))
 
@@ -291,11 +317,12 @@ def test_maskable_ppo_predicts_on_the_default_dict_observation(specs):
     from sb3_contrib import MaskablePPO
 
     env = gym.make("robobpp/Pack-v0", specs=specs[:1], actions="flat")
+    assert isinstance(env.observation_space, gym.spaces.Dict)
     assert "lookahead" not in env.observation_space.spaces  # nothing to show: no empty array either
     model = MaskablePPO("MultiInputPolicy", env, n_steps=16, batch_size=16, device="cpu", seed=0)
     obs, _ = env.reset(seed=0)
-    action, _ = model.predict(obs, action_masks=env.unwrapped.action_masks(), deterministic=True)
-    assert env.unwrapped.action_masks()[int(action)]
+    action, _ = model.predict(obs, action_masks=_pack(env).action_masks(), deterministic=True)
+    assert _pack(env).action_masks()[int(action)]
     model.learn(16)  # a rollout and an update on the same observation space
     look = gym.make("robobpp/Pack-v0", specs=specs[:1], actions="flat", lookahead=2)
     assert look.reset(seed=0)[0]["lookahead"].shape == (2, 4)
@@ -308,9 +335,7 @@ def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
     # on the floor. The environment accepts both (bounds and height, as the reference's); the rule is offered
     # apart, in info["support_mask"], and only on a state observed after physics.
     specs = [make_spec([(4, 10, 5), (10, 10, 1)], (20, 10, 20))]
-    env = gym.make(
-        "robobpp/Pack-v0", specs=specs, setting=setting, actions="flat", support_info=True
-    ).unwrapped
+    env = _pack(gym.make("robobpp/Pack-v0", specs=specs, setting=setting, actions="flat", support_info=True))
     _, info = env.reset(seed=0)
     np.testing.assert_array_equal(info["support_mask"], info["action_masks"])  # nothing placed: all supported
     _, _, terminated, _, info = env.step(np.ravel_multi_index((0, 0, 0), env.grid_shape))
@@ -326,10 +351,10 @@ def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
         assert not support[:4, :, 0].any() and support[4:11, 0, 0].all()
     # an action the rule refuses is still accepted and placed; gravity decides what happens to it
     _, reward, _, _, info = env.step(np.ravel_multi_index((0, 0, 0), env.grid_shape))
-    assert info["placed"] and reward > 0 and info.get("termination") != "unsupported"
+    assert info["placed"] and float(reward) > 0 and info.get("termination") != "unsupported"
     env.close()
     # by default the support mask is computed only when asked (it tests every position): not in info
-    plain = gym.make("robobpp/Pack-v0", specs=specs, setting=setting).unwrapped
+    plain = _pack(gym.make("robobpp/Pack-v0", specs=specs, setting=setting))
     _, info = plain.reset(seed=0)
     assert "support_mask" not in info and plain.support_mask().any()
     plain.close()
@@ -338,14 +363,16 @@ def test_the_action_mask_is_bounds_and_height_and_support_comes_apart(setting):
 def _masked_random_episode(env: gym.Env, rng: np.random.Generator) -> tuple[str, int]:
     """Draw every action from the env's own mask as MaskablePPO does (per dimension for a MultiDiscrete space):
     (how the episode ended, steps)."""
-    pack = env.unwrapped
+    pack = _pack(env)
     env.reset(seed=int(rng.integers(1 << 30)))
-    steps, terminated, info = 0, False, {}
+    steps, terminated = 0, False
+    info: dict[str, Any] = {}
     while not terminated:
         masks = pack.action_masks()
         if isinstance(env.action_space, gym.spaces.Discrete):
             action = rng.choice(np.flatnonzero(masks))
         else:
+            assert isinstance(env.action_space, gym.spaces.MultiDiscrete)
             nvec, start, action = env.action_space.nvec, 0, []
             for n in nvec:
                 action.append(rng.choice(np.flatnonzero(masks[start : start + n])))
@@ -375,15 +402,15 @@ def test_each_reset_draws_a_group_of_the_whole_split_on_demand(real_data):
     sequence ``episode_specs`` gives; ``groups=N`` keeps to the first N."""
     from robobpp.datasets import episode_specs
 
-    env = gym.make("robobpp/Pack-v0", dataset="repetitive").unwrapped
+    env = _pack(gym.make("robobpp/Pack-v0", dataset="repetitive"))
     assert env.specs == []  # nothing drawn when the env is made
     groups = {int(env.reset(seed=s)[1]["episode_id"].rsplit("-", 1)[1]) for s in range(5)}
     assert len(groups) == 5 and max(groups) > 1000  # from the whole split, not a fixed first hundred
     env.reset(seed=0, options={"group": 7})
-    assert env._episode.spec.boxes == episode_specs("repetitive", "train", groups=8)[7].boxes
-    again = gym.make("robobpp/Pack-v0", dataset="repetitive").unwrapped
+    assert _episode(env).spec.boxes == episode_specs("repetitive", "train", groups=8)[7].boxes
+    again = _pack(gym.make("robobpp/Pack-v0", dataset="repetitive"))
     assert again.reset(seed=3)[1]["episode_id"] == env.reset(seed=3)[1]["episode_id"]  # seeded
-    few = gym.make("robobpp/Pack-v0", dataset="repetitive", groups=3).unwrapped
+    few = _pack(gym.make("robobpp/Pack-v0", dataset="repetitive", groups=3))
     assert {few.reset(seed=s)[1]["episode_id"][-3:] for s in range(20)} <= {"000", "001", "002"}
     with pytest.raises(ValueError, match="groups must be"):
         robobpp.env.PackEnv(dataset="repetitive", groups=0)

@@ -1,14 +1,21 @@
 """The episode loop: termination reasons, trace, metrics, and hostile policies."""
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
 
 from robobpp.core import Action
-from robobpp.episode import Episode, EpisodeResult, run_episode
+from robobpp.episode import Episode, EpisodeResult, StepRecord, run_episode
 from robobpp.policies import BasePolicy, PolicyError, PolicyLoadError, load_policy
 from tests.conftest import make_spec
+
+
+def _placement(step: StepRecord) -> dict[str, Any]:
+    """Where the step placed its box (it placed one)."""
+    assert step.placement is not None, step
+    return step.placement
 
 
 class Scripted(BasePolicy):
@@ -35,10 +42,11 @@ def test_math_episode_stacks_and_measures():
     policy = Scripted([Action(0, 0, 0), Action(0, 0, 0), Action(5, 0, 0)])
     result = run_episode(spec, policy, "math")
     assert result.termination == "completed" and result.boxes_placed == 3
-    assert [s.placement["z"] for s in result.steps] == [0, 2, 2]
+    assert [_placement(s)["z"] for s in result.steps] == [0, 2, 2]
     assert result.metrics["space_utilization"] == pytest.approx(500 / 1000)
     assert result.metrics["occupancy"] == pytest.approx(1.0)
-    assert result.metrics["decision_time"] >= 0
+    decision_time = result.metrics["decision_time"]
+    assert decision_time is not None and decision_time >= 0
     assert policy.closed_with == "completed"
 
 
@@ -76,7 +84,7 @@ def test_box_above_container_top_is_refused():
 def test_dbl_fills_hand_built_scene_bottom_left_first():
     spec = make_spec([(5, 5, 5)] * 8)
     result = run_episode(spec, load_policy("dbl"), "math")
-    corners = [(s.placement["x"], s.placement["y"], s.placement["z"]) for s in result.steps]
+    corners = [(_placement(s)["x"], _placement(s)["y"], _placement(s)["z"]) for s in result.steps]
     assert corners[:4] == [(0, 0, 0), (0, 5, 0), (5, 0, 0), (5, 5, 0)]
     assert all(z == 5 for _, _, z in corners[4:])
     assert result.metrics["space_utilization"] == pytest.approx(1.0)
@@ -137,4 +145,4 @@ def test_user_policy_from_module_path_without_hooks(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     policy = load_policy("mypolicy:Corner")
     result = run_episode(make_spec([(5, 5, 5), (5, 5, 5)]), policy, "math")
-    assert result.boxes_placed == 2 and result.steps[1].placement["z"] == 5
+    assert result.boxes_placed == 2 and _placement(result.steps[1])["z"] == 5

@@ -30,7 +30,7 @@ def _random_heightmaps(rng: np.random.Generator, shape: tuple[int, int], height:
         length, width = (
             float(v) for v in np.minimum(np.round(rng.uniform(0.05, 0.6, 2) * shape + 0.5, 1), shape)
         )
-        x, y = (float(v) for v in rng.integers(0, (shape[0] - length + 1, shape[1] - width + 1)))
+        x, y = (float(v) for v in rng.integers(0, (int(shape[0] - length + 1), int(shape[1] - width + 1))))
         box = Box(length, width, float(np.round(rng.uniform(0.5, 9), 1)))
         placement = state.drop(box, x, y, 0, i)
         if placement.top <= height + TOLERANCE_CM:

@@ -57,7 +57,7 @@ def test_static_stability_formula(v, w, expected):
 
 
 def test_aggregate_means_and_pooled_ratios():
-    episodes = [
+    episodes: list[dict[str, float | None]] = [
         {
             "space_utilization": 0.5,
             "decision_time": 0.1,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 from datetime import timedelta
+from typing import Any
 
 import pytest
 from sqlalchemy import select
@@ -45,7 +46,7 @@ def _claim(factory, worker="w", now=None, max_attempts=3):
         return work.claim_episode(s, worker, lease_s=10, max_attempts=max_attempts, now=now)
 
 
-RESULT = {
+RESULT: dict[str, Any] = {
     "termination": "completed",
     "termination_detail": "",
     "boxes_total": 3,
@@ -73,8 +74,10 @@ def test_expired_lease_is_taken_over_and_the_old_claim_cannot_complete(factory) 
     assert not _complete(factory, second)  # idempotent: a repeat changes nothing
     with transaction(factory) as s:
         ep = s.get(EpisodeRow, second.episode_id)
+        assert ep is not None
         run = s.get(RunRow, ep.run_id)
         sub = s.get(Submission, ep.submission_id)
+        assert run is not None and run.metrics is not None and run.extras is not None and sub is not None
         assert (ep.status, ep.attempts, ep.worker) == ("done", 2, "b")
         assert run.status == "completed" and run.metrics["space_utilization"] == 0.5
         assert run.extras["episodes"] == 1 and sub.status == "completed"
@@ -90,7 +93,8 @@ def test_attempts_are_bounded_then_the_episode_is_recorded_failed(factory) -> No
     with transaction(factory) as s:
         ep = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == sid)).scalar_one()
         assert (ep.status, ep.termination) == ("failed", work.WORKER_LOST)
-        assert s.get(Submission, sid).status == "failed"
+        submission = s.get(Submission, sid)
+        assert submission is not None and submission.status == "failed"
 
 
 def test_release_retries_infrastructure_errors_then_fails(factory) -> None:
@@ -102,14 +106,17 @@ def test_release_retries_infrastructure_errors_then_fails(factory) -> None:
     assert again.attempt == 2
     with transaction(factory) as s:
         assert work.release_episode(s, again.episode_id, again.token, "boom", max_attempts=2)
-        assert s.get(EpisodeRow, again.episode_id).status == "failed"
+        episode = s.get(EpisodeRow, again.episode_id)
+        assert episode is not None and episode.status == "failed"
 
 
 def test_cancel_stops_claims_and_voids_running_claims(factory) -> None:
     sid = _submission(factory, groups=3)
     running = _claim(factory)
     with transaction(factory) as s:
-        assert work.cancel_submission(s, s.get(Submission, sid))
+        submission = s.get(Submission, sid)
+        assert submission is not None
+        assert work.cancel_submission(s, submission)
     assert _claim(factory) is None
     with transaction(factory) as s:
         assert not work.heartbeat(s, running.episode_id, running.token, lease_s=10, step=1)
@@ -117,7 +124,9 @@ def test_cancel_stops_claims_and_voids_running_claims(factory) -> None:
     with transaction(factory) as s:
         statuses = s.execute(select(EpisodeRow.status).where(EpisodeRow.submission_id == sid)).scalars().all()
         assert statuses == ["cancelled"] * 3
-        assert not work.cancel_submission(s, s.get(Submission, sid))
+        submission = s.get(Submission, sid)
+        assert submission is not None
+        assert not work.cancel_submission(s, submission)
 
 
 def test_concurrent_claimers_never_share_an_episode(factory) -> None:
@@ -144,7 +153,9 @@ def test_concurrent_claimers_never_share_an_episode(factory) -> None:
     assert sorted(claimed) == sorted(set(claimed)) and len(claimed) == 20
     with transaction(factory) as s:
         runs = s.execute(select(RunRow)).scalars().all()
-        assert all(r.status == "completed" and r.extras["episodes"] == 10 for r in runs)
+        assert all(
+            r.status == "completed" and r.extras is not None and r.extras["episodes"] == 10 for r in runs
+        )
 
 
 # ---- outbound bounds: a participant's remote policy gets at most N episodes at once; sends are marked once

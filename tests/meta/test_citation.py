@@ -37,7 +37,9 @@ def test_the_paper_is_referenced_with_its_authors() -> None:
     assert all(a.get("given-names") for a in paper["authors"])
     # The BibTeX in docs/reporting.md names the same authors in the same order, and the same version.
     reporting = (ROOT / "docs" / "reporting.md").read_text()
-    bib = re.search(r"@article\{wang2025robobpp,.*?author\s*=\s*\{(.*?)\},\n", reporting, re.S).group(1)
+    match = re.search(r"@article\{wang2025robobpp,.*?author\s*=\s*\{(.*?)\},\n", reporting, re.S)
+    assert match is not None, "no BibTeX entry wang2025robobpp in docs/reporting.md"
+    bib = match.group(1)
     names = [n.strip() for n in bib.replace("\n", " ").split(" and ")]
     assert names == [f"{a['family-names']}, {a['given-names']}" for a in paper["authors"]]
     assert f"version = {{{robobpp.__version__}}}" in reporting.replace("  ", " ")

@@ -32,7 +32,7 @@ def declared_distributions() -> set[str]:
     requirements = list(project["dependencies"])
     for extra in project.get("optional-dependencies", {}).values():
         requirements += extra
-    names = set()
+    names: set[str] = set()
     for line in requirements:
         req = Requirement(line)
         if canonicalize_name(req.name) != "robobpp":  # an extra that pulls in other extras

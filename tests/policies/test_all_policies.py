@@ -110,7 +110,9 @@ def test_acts_on_a_state_physics_moved(name: str) -> None:
 def test_ems_policies_rebuild_when_the_heightmap_drops() -> None:
     policy = load_policy("onlinebph")
     obs = scene((10, 10, 10), [(0, 0, 10, 10, 8)], (10, 10, 2))
-    assert (policy.act(obs).x, policy.act(obs).y) == (0.0, 0.0)
+    first, second = policy.act(obs), policy.act(obs)
+    assert first is not None and second is not None
+    assert (first.x, second.y) == (0.0, 0.0)
     lower = scene((10, 10, 10), [(0, 0, 10, 10, 5)], (10, 10, 4))  # same policy; the load settled to 5 cm
     assert policy.act(lower) is not None  # 5 + 4 ≤ 10; a stale EMS set (floor 8) would say no
     assert policy._tracker.rebuilds == 2  # type: ignore[attr-defined]
@@ -122,7 +124,8 @@ def test_random_sizes_never_raise() -> None:
         policy = load_policy(name)
         for _ in range(20):
             placed = [(0, 0, float(rng.integers(1, 9)), float(rng.integers(1, 9)), float(rng.integers(1, 9)))]
-            box = tuple(float(v) for v in rng.uniform(0.5, 12, size=3))
+            length, width, height = (float(v) for v in rng.uniform(0.5, 12, size=3))
+            box = (length, width, height)
             action = policy.act(scene((9, 8, 10), placed, box))
             if action is not None:
                 assert (

@@ -86,9 +86,9 @@ def test_reader_rebuilds_tensors_from_storages():
     import types
 
     fake = types.ModuleType("torch._utils")
-    fake._rebuild_tensor_v2 = _rebuild
+    vars(fake).update(_rebuild_tensor_v2=_rebuild)
     torch_mod = types.ModuleType("torch")
-    torch_mod.FloatStorage = Storage
+    vars(torch_mod).update(FloatStorage=Storage)
     saved = {k: sys.modules.get(k) for k in ("torch", "torch._utils")}
     sys.modules.update({"torch": torch_mod, "torch._utils": fake})
     try:

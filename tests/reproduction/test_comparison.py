@@ -58,7 +58,9 @@ def test_a_small_table_against_the_paper() -> None:
 
 def test_pph_as_the_paper_computes_it() -> None:
     # The paper's PCT on Repetitive: 0.131 s, 2.380 m -> 394 picks per hour.
-    assert round(pph(0.131, 2.380)) == paper_tables().get("execution", "repetitive", "pct", "pph").value  # type: ignore[union-attr]
+    computed, cell = pph(0.131, 2.380), paper_tables().get("execution", "repetitive", "pct", "pph")
+    assert computed is not None and cell is not None
+    assert round(computed) == cell.value
     assert pph(None, 2.0) is None
 
 

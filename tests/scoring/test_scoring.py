@@ -53,7 +53,7 @@ def test_math_score_is_the_weighted_sum() -> None:
 
 
 def test_missing_or_non_finite_values_score_as_the_worst() -> None:
-    entries = [
+    entries: list[dict[str, float | None]] = [
         {"space_utilization": 0.7, "occupancy": 0.6, "decision_time": None},
         {"space_utilization": float("nan"), "occupancy": 0.5, "decision_time": 12.0},
         {"space_utilization": 0.5, "occupancy": 0.4, "decision_time": 0.1},
@@ -124,7 +124,9 @@ def test_intervals_shrink_as_groups_grow() -> None:
         rng = np.random.default_rng(3)
         entries = [_entry(rng, 0.6, groups), _entry(rng, 0.55, groups), _entry(rng, 0.5, groups)]
         board = score_board(entries, "math")
-        low, high = board.metric_ci[0]["space_utilization"]
+        interval = board.metric_ci[0]["space_utilization"]
+        assert interval is not None
+        low, high = interval
         assert low <= entries[0]["metrics"]["space_utilization"] <= high
         widths.append(high - low)
     assert widths[0] > widths[1] > widths[2]
@@ -136,10 +138,12 @@ def test_intervals_are_seeded_and_rank_intervals_cover_the_rank() -> None:
     entries = [_entry(rng, m, 30) for m in (0.70, 0.69, 0.50, 0.30)]
     a, b = score_board(entries, "math"), score_board(entries, "math")
     assert a.score_ci == b.score_ci and a.rank_ci == b.rank_ci  # same data, same interval, every read
-    for s, (lo, hi) in zip(a.scored, a.rank_ci, strict=True):
+    rank_ci = [ci for ci in a.rank_ci if ci is not None]
+    assert len(rank_ci) == len(a.rank_ci)  # every entry has its rank interval
+    for s, (lo, hi) in zip(a.scored, rank_ci, strict=True):
         assert lo <= s.rank <= hi
-    assert a.rank_ci[0][1] >= 2 and a.rank_ci[1][0] == 1  # 0.70 vs 0.69 over 30 groups: not clearly apart
-    assert a.rank_ci[3][0] >= 3 and a.rank_ci[0][1] <= 2  # far behind the top two, never among them
+    assert rank_ci[0][1] >= 2 and rank_ci[1][0] == 1  # 0.70 vs 0.69 over 30 groups: not clearly apart
+    assert rank_ci[3][0] >= 3 and rank_ci[0][1] <= 2  # far behind the top two, never among them
     other = score_board(entries, "math", seed=1)
     assert other.score_ci != a.score_ci  # the seed is what fixes them
 

@@ -17,6 +17,7 @@ from typing import Any
 import httpx
 import pytest
 from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
 
 from robobpp.core import Action, Observation
 from robobpp.db import work
@@ -286,7 +287,9 @@ def new_participant(client: httpx.Client, name: str = "alice") -> str:
     return r.json()["token"]
 
 
-def complete_next_episode(factory: Callable[[], Any], metrics: dict[str, float], **result: Any) -> work.Claim:
+def complete_next_episode(
+    factory: sessionmaker[Session], metrics: dict[str, float], **result: Any
+) -> work.Claim:
     """Claim the next episode as worker "w" and record it completed, 3 boxes of 3, with ``metrics`` (and any other
     ``result`` fields), as a worker would: for tests that need finished runs without running a policy."""
     with transaction(factory) as s:

@@ -38,6 +38,11 @@ def runtime_for(url: str, tmp_path: Path) -> Runtime:
     return runtime
 
 
+def _utilisation(run: RunRow) -> float:
+    assert run.metrics is not None
+    return run.metrics["space_utilization"]
+
+
 def test_seeded_runs_are_what_a_worker_stores(db_url: str, tmp_path: Path) -> None:
     runtime = runtime_for(db_url, tmp_path)
     try:
@@ -88,7 +93,7 @@ def test_seeded_runs_are_what_a_worker_stores(db_url: str, tmp_path: Path) -> No
             # fixed quality 1 (bench_boards' new best) is near the top of the drawn ones
             best = runs[-1]
             assert best.submission_id == 61
-            others = sorted(r.metrics["space_utilization"] for r in runs[:-1] if r.setting == best.setting)
-            assert best.metrics["space_utilization"] > others[int(0.9 * len(others))]
+            others = sorted(_utilisation(r) for r in runs[:-1] if r.setting == best.setting)
+            assert _utilisation(best) > others[int(0.9 * len(others))]
     finally:
         runtime.dispose()

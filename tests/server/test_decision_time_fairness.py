@@ -64,6 +64,10 @@ def _row(e: dict[str, Any]) -> str:
     )
 
 
+def _completed(client: httpx.Client, sid: int) -> Callable[[], bool]:
+    return lambda: client.get(f"/submissions/{sid}").json()["status"] == "completed"
+
+
 def _ms(value: object) -> str:
     return f"{1000 * value:.2f} ms" if isinstance(value, float) else "-"
 
@@ -78,7 +82,7 @@ def test_served_and_builtin_dbl_are_not_apart_and_a_slow_one_ranks_below(
     served = _submit(alice, "served dbl", own_process("robobpp.policies.dbl:DBL"))
     slow = _submit(bob, "thinking dbl", own_process(f"{__name__}:ThinkingDBL"))
     for client, sid in ((alice, served), (bob, slow)):
-        wait_for(lambda c=client, s=sid: c.get(f"/submissions/{s}").json()["status"] == "completed", 240)
+        wait_for(_completed(client, sid), 240)
 
     def boards() -> dict[str, list[dict[str, Any]]] | None:
         out = {}

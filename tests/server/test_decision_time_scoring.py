@@ -48,7 +48,8 @@ def _times(seed: int, mean_s: float) -> np.ndarray:
     return mean_s * (1 + 0.2 * np.random.default_rng(seed).uniform(-1, 1, GROUPS))
 
 
-def _overlap(a: tuple[int, int], b: tuple[int, int]) -> bool:
+def _overlap(a: tuple[int, int] | None, b: tuple[int, int] | None) -> bool:
+    assert a is not None and b is not None  # every scored entry has its rank interval
     return a[0] <= b[1] and b[0] <= a[1]
 
 

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -29,7 +30,7 @@ PER_PARTICIPANT = 4  # 120 submissions
 
 
 @pytest.fixture
-def drip_server() -> str:
+def drip_server() -> Iterator[str]:
     port = free_port()
     proc = subprocess.Popen([sys.executable, str(DRIP), str(port), "--interval", "0.5"])
     url = f"http://127.0.0.1:{port}"

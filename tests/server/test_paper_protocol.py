@@ -121,6 +121,7 @@ def test_replays_play_exactly_the_math_actions(factory, db_url: str, track: str)
         played = [(s["action"], s["decision_time"]) for s in replay.trace["steps"]]
         planned = [(s["action"], s["decision_time"]) for s in math.trace["steps"]][: len(played)]
         assert played == planned and played  # the Math answers, in order, with their decision times
+        assert replay.boxes_placed is not None and math.boxes_placed is not None and closed.trace is not None
         assert replay.boxes_placed <= math.boxes_placed
         assert replay.trace["steps"] != closed.trace["steps"] or replay.metrics == closed.metrics
 
@@ -297,13 +298,13 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
     paper = {e["submission_id"]: e["metrics"] for e in boards["paper"]["entries"]}
     with factory() as s:  # each board shows its own protocol's runs
         for sid in ids:
-            for protocol, shown in (("closed", closed), ("paper", paper)):
+            for protocol, on_board in (("closed", closed), ("paper", paper)):
                 run = s.execute(
                     select(RunRow).where(
                         RunRow.submission_id == sid, RunRow.setting == "physics", RunRow.protocol == protocol
                     )
                 ).scalar_one()
-                assert run.metrics == shown[sid]
+                assert run.metrics == on_board[sid]
     math = client.get("/api/v1/leaderboards/diverse/math", params={"protocol": "paper"}).json()
     assert math["protocol"] == "closed" and len(math["entries"]) == 3  # Math Pack: one board for both
     assert client.get("/api/v1/leaderboards/diverse/physics", params={"protocol": "open"}).status_code == 422
@@ -381,7 +382,7 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
     _register()
     cli = CliRunner()
     with BackgroundServer(app) as served:
-        shown = cli.invoke(
+        printed = cli.invoke(
             cli_app,
             [
                 "leaderboard",
@@ -397,8 +398,8 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
                 served.url,
             ],
         )
-        assert shown.exit_code == 0, shown.output
-        assert "physics/diverse · paper protocol" in shown.stdout
+        assert printed.exit_code == 0, printed.output
+        assert "physics/diverse · paper protocol" in printed.stdout
         as_json = cli.invoke(
             cli_app,
             [
@@ -559,6 +560,7 @@ def test_the_server_replay_equals_the_local_paper_protocol(tmp_path, real_data) 
         local.boxes_placed,
         local.physics_version,
     )
+    assert replay.metrics is not None
     for key in ("space_utilization", "occupancy", "local_stability", "static_stability"):
         assert replay.metrics[key] == local.metrics[key], key
     engine.dispose()

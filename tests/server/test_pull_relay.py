@@ -102,7 +102,9 @@ class ScriptedClient:
     def _run(self) -> None:
         try:
             while True:
-                request = frames.decode(self.ws.recv())
+                message = self.ws.recv()
+                assert isinstance(message, bytes)  # a relay request is a binary frame
+                request = frames.decode(message)
                 if self.answer is not None:
                     self.ws.send(self.answer(request))
         except Exception:  # noqa: BLE001 - closed by the test

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from sqlalchemy import select, update
@@ -22,7 +23,7 @@ from robobpp.sim.math_pack import MATH_RULES_VERSION
 ADMIN = "sampler-admin-token-0123456789abcdef"
 
 
-def _settings(tmp_path: Path, **extra: object) -> Settings:
+def _settings(tmp_path: Path, **extra: Any) -> Settings:
     return Settings(
         database_url=f"sqlite:///{tmp_path / 'sampler.sqlite3'}",
         state_dir=tmp_path,

@@ -232,9 +232,12 @@ def test_a_waiting_submission_is_listed_from_its_form_until_an_episode_moves(
     sid = submit(app, "alice", "builtin:random", name="waiting")
     built: list[int] = []
     view = queries.submission_view
-    monkeypatch.setattr(
-        queries, "submission_view", lambda s, sub, *a: built.append(sub.id) or view(s, sub, *a)
-    )
+
+    def counted_view(s: Any, sub: Any, *a: Any) -> Any:
+        built.append(sub.id)
+        return view(s, sub, *a)
+
+    monkeypatch.setattr(queries, "submission_view", counted_view)
 
     def listed() -> dict[str, Any]:
         return next(s for s in client.get("/api/v1/submissions").json() if s["id"] == sid)

@@ -22,7 +22,7 @@ from robobpp.db.models import EpisodeRow, Participant, Submission, utcnow
 from robobpp.policies.dbl import DBL
 from robobpp.server import pages
 from robobpp.server.app import create_app
-from robobpp.server.site.render import CSRF_SLOT
+from robobpp.server.site.render import CSRF_SLOT, render
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.run import claim_and_run
 from tests.server.conftest import ADMIN_TOKEN, OFFLINE
@@ -88,6 +88,7 @@ def test_sign_out_ends_the_session_for_every_copy_of_the_cookie(app: Any) -> Non
     with TestClient(app) as browser, TestClient(app) as thief:
         assert _sign_in(browser, token).status_code == 303
         cookie = browser.cookies.get("robobpp_session")
+        assert cookie is not None
         thief.cookies.set("robobpp_session", cookie)
         assert thief.get("/account", follow_redirects=False).status_code == 200  # a copied cookie works...
         r = browser.post(
@@ -98,7 +99,9 @@ def test_sign_out_ends_the_session_for_every_copy_of_the_cookie(app: Any) -> Non
         assert gone.status_code == 303 and gone.headers["location"].endswith("/sign-in")
         # The operator's session too.
         assert _sign_in(browser, ADMIN_TOKEN).status_code == 303
-        thief.cookies.set("robobpp_session", browser.cookies.get("robobpp_session"))
+        cookie = browser.cookies.get("robobpp_session")
+        assert cookie is not None
+        thief.cookies.set("robobpp_session", cookie)
         assert thief.get("/operator", follow_redirects=False).status_code == 200
         browser.post("/sign-out", data={"csrf": _csrf(browser.get("/operator").text)})
         assert thief.get("/operator", follow_redirects=False).status_code != 200
@@ -255,7 +258,7 @@ def test_a_finished_submissions_page_is_rendered_once_and_carries_each_viewers_o
     sid = _submission(app, "erin", track="private")
     _finish(app, sid)
     rendered: list[str] = []
-    original = pages.render
+    original = render  # what pages.render names
 
     def counting(request: Any, template: str, *args: Any, **kwargs: Any) -> Any:
         rendered.append(template)

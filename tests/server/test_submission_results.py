@@ -43,7 +43,7 @@ def _record(factory: Any, names: dict[int, str]) -> None:
                 return
             name = names[claim.submission_id]
             failed = name == "failed"
-            result = {
+            result: dict[str, Any] = {
                 "termination": "policy_error" if failed else "completed",
                 "termination_detail": "",
                 "boxes_total": 3,

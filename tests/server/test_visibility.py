@@ -55,7 +55,9 @@ class World:
 
 
 def _csrf(html: str) -> str:
-    return re.search(r'name="csrf" value="([^"]+)"', html).group(1)
+    found = re.search(r'name="csrf" value="([^"]+)"', html)
+    assert found is not None
+    return found.group(1)
 
 
 def sign_in(client: TestClient, token: str) -> None:

@@ -213,6 +213,7 @@ def _free_port() -> int:
 def test_protocol_curl_session_replays_as_recorded() -> None:
     snippet = _only("against robobpp policy serve dbl")
     recorded = re.search(r"policy serve (dbl --port (\d+) --secret (\S+))\)", snippet.note)
+    assert recorded is not None, snippet.note
     port = _free_port()
     server = subprocess.Popen(
         [
@@ -273,7 +274,9 @@ def test_server_client_snippet_runs_against_a_server(server: Server) -> None:
     assert r.status_code == 201, r.text
     token = r.json()["token"]
     LowestFirst = runpy.run_path(str(ROOT / "examples" / "policy_server.py"))["LowestFirst"]
-    secret = re.search(r'secret="([^"]+)"', snippet.code).group(1)
+    found = re.search(r'secret="([^"]+)"', snippet.code)
+    assert found is not None, snippet.code
+    secret = found.group(1)
     with BackgroundServer(create_policy_app(LowestFirst(), secret)) as policy:
         code = snippet.code.replace("http://127.0.0.1:8000", server.url).replace(
             "http://my-host:9000", policy.url

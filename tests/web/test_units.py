@@ -6,6 +6,7 @@ import json
 import math
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,9 +28,15 @@ from robobpp.web.trace import TraceError, episodes_from, read_trace, viewer_payl
 from robobpp.web.viewer import render_standalone
 
 
+def _box(rng: np.random.Generator, low: int, high: int) -> Box:
+    """A 2 kg box of whole-centimetre sides drawn in [low, high)."""
+    length, width, height = (float(v) for v in rng.integers(low, high, 3))
+    return Box(length, width, height, 2.0)
+
+
 def _episode(n: int = 15, seed: int = 1) -> dict:
     rng = np.random.default_rng(seed)
-    boxes = tuple(Box(*map(float, rng.integers(20, 60, 3)), 2.0) for _ in range(n))
+    boxes = tuple(_box(rng, 20, 60) for _ in range(n))
     spec = EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0)
     return run_episode(spec, load_policy("dbl"), "math").to_dict()
 
@@ -320,17 +327,20 @@ def test_every_template_autoescapes() -> None:
 
 def test_protocol_page_example_policy_really_packs() -> None:
     html = (TEMPLATES_DIR / "protocol.html").read_text()
-    code = re.search(r"<pre><code>(from robobpp\.core.*?)</code></pre>", html, re.S).group(1)
+    found = re.search(r"<pre><code>(from robobpp\.core.*?)</code></pre>", html, re.S)
+    assert found is not None
+    code = found.group(1)
     code = code.replace("&gt;", ">").replace("&lt;", "<").replace("&amp;", "&")
     namespace: dict = {}
     exec(compile(code, "protocol-example", "exec"), namespace)
     policy = namespace["LowestFirst"]()
     rng = np.random.default_rng(5)
-    boxes = tuple(Box(*map(float, rng.integers(20, 50, 3)), 2.0) for _ in range(20))
+    boxes = tuple(_box(rng, 20, 50) for _ in range(20))
     result = run_episode(
         EpisodeSpec("repetitive", "train", 0, boxes, ContainerSpec(134, 125, 100), 7.0, 0), policy, "math"
     )
-    assert result.boxes_placed >= 5 and result.metrics["space_utilization"] > 0.1
+    utilisation = result.metrics["space_utilization"]
+    assert result.boxes_placed >= 5 and utilisation is not None and utilisation > 0.1
     # One API: the page shows exactly the policy of examples/policy_server.py.
     example = (Path(__file__).resolve().parents[2] / "examples" / "policy_server.py").read_text()
     assert code.strip() == example.split("# --- policy ---\n")[1].split("# --- end policy ---")[0].strip()
@@ -447,7 +457,7 @@ def test_reproduction_tables_say_how_many_groups_are_behind_ours() -> None:
         "diff": -0.02,
         "table": "T1",
     }
-    data = {
+    data: dict[str, Any] = {
         "cells": [{**cell, "dataset": "diverse"}, {**cell, "dataset": "longboard"}],
         "runs": [
             {"setting": "physics", "dataset": d, "policy": "dbl", "groups": 2}

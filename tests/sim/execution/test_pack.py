@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -228,7 +230,7 @@ def test_box_over_suction_capacity_is_a_failed_grasp() -> None:
 def test_same_seed_same_trajectory() -> None:
     boxes = [Box(40, 30, 20, 5.0), Box(30, 30, 30, 4.0), Box(50, 20, 25, 6.0)]
     actions = [Action(0, 0, 0), Action(40, 0, 0), Action(0, 30, 1)]
-    runs = []
+    runs: list[list[object]] = []
     for _ in range(2):
         pack = ExecutionPack()
         try:
@@ -239,8 +241,9 @@ def test_same_seed_same_trajectory() -> None:
                     for o in outcomes
                 ]
             )
-            trajectory = pack.last_operation.trajectory  # type: ignore[union-attr]
-            runs[-1].append(trajectory.waypoints.tobytes())  # type: ignore[union-attr]
+            operation = pack.last_operation
+            assert operation is not None and operation.trajectory is not None
+            runs[-1].append(operation.trajectory.waypoints.tobytes())
         finally:
             pack.close()
     assert runs[0] == runs[1]
@@ -283,7 +286,7 @@ DBL_ROWS = [
 ]
 
 
-def _dbl_rows(**options: object) -> tuple[list, list[float]]:
+def _dbl_rows(**options: Any) -> tuple[list, list[float]]:
     """Outcomes, and how far (cm) each box stands from its target at the end."""
     pack = ExecutionPack(**options)
     try:

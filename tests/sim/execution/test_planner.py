@@ -112,8 +112,9 @@ def _lowering(overlap_m: float) -> tuple[PlanningWorld, list[np.ndarray]]:
     y = 0.587 - overlap_m + half[1]
     states, q = [], LAYOUT.home
     for bottom in np.arange(0.30, 0.0, -0.005):
-        q = LAYOUT.ik(np.array([0.6, y, bottom + 2 * half[2]]), rotation, q)
-        assert q is not None
+        solved = LAYOUT.ik(np.array([0.6, y, bottom + 2 * half[2]]), rotation, q)
+        assert solved is not None
+        q = solved
         states.append(q)
     return world, states
 

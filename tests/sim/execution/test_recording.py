@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -19,14 +20,16 @@ ACTIONS = [Action(50, 40, 1), Action(0, 0, 0)]
 
 
 @pytest.fixture(scope="module")
-def run() -> tuple[ExecutionPack, list, list]:
+def run() -> Iterator[tuple[ExecutionPack, list, list]]:
     pack = ExecutionPack()
     spec = EpisodeSpec("handmade", "train", 0, tuple(BOXES), ContainerSpec(134, 125, 100), 7.0, 0)
     pack.reset(spec)
     outcomes, trajectories = [], []
     for i, (box, action) in enumerate(zip(BOXES, ACTIONS, strict=True)):
         outcomes.append(pack.apply(box, action, i))
-        trajectories.append(pack.last_operation.trajectory)  # type: ignore[union-attr]
+        operation = pack.last_operation
+        assert operation is not None
+        trajectories.append(operation.trajectory)
     yield pack, outcomes, trajectories
     pack.close()
 
@@ -141,8 +144,9 @@ def test_a_box_the_arm_shoves_is_tracked_during_the_transfer() -> None:
     finally:
         pack.close()
     assert outcome.dangerous
-    grip_on, grip_off = outcome.extra["motion"]["grip"]
-    track = outcome.extra["track"]
+    motion, track = outcome.extra["motion"], outcome.extra["track"]
+    assert isinstance(motion, dict) and isinstance(track, dict)
+    grip_on, grip_off = motion["grip"]
     (wall,) = [row for row in track["boxes"] if row[0] == 0]
     first, samples = wall[1], np.array(wall[2:]).reshape(-1, 7)
     assert grip_on < track["t"][first] < grip_off  # moving while the arm carries the box

@@ -50,4 +50,5 @@ def test_lsah_places_the_panel_no_position_supports_on_a_real_long_board_group(r
     result = episode.result("lsah")
     assert result.boxes_placed >= 3, (result.termination, result.termination_detail)
     assert result.steps[1].placement is not None
-    assert np.isfinite(result.metrics["space_utilization"])
+    utilisation = result.metrics["space_utilization"]
+    assert utilisation is not None and np.isfinite(utilisation)

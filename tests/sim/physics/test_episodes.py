@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import pytest
-from _physics_specs import repetitive_like
 
 from robobpp.core import ContainerSpec
 from robobpp.datasets.synthetic import synthetic_episode_specs
 from robobpp.episode import TERMINATION_REASONS, run_episode
 from robobpp.policies import load_policy
 from robobpp.replay import run_paper_protocol
+from tests.sim.physics._physics_specs import repetitive_like
 
 SMALL = ContainerSpec(80, 60, 100)
 
@@ -58,8 +58,12 @@ def test_dbl_runs_an_80_box_group(source: str) -> None:
         # replayed blind (the paper protocol), which ends there too.
         blind = run_paper_protocol(spec, load_policy("dbl"), ["physics"])["physics"]
         assert result.termination == blind.termination == "collapse" and result.boxes_placed >= 30
-        utilisation = result.metrics["space_utilization"]
-        assert utilisation is not None and utilisation >= blind.metrics["space_utilization"] - 0.03
+        utilisation, blind_utilisation = (
+            result.metrics["space_utilization"],
+            blind.metrics["space_utilization"],
+        )
+        assert utilisation is not None and blind_utilisation is not None
+        assert utilisation >= blind_utilisation - 0.03
     assert result.boxes_placed >= 5
     m = result.metrics
     assert set(m) == {
@@ -69,7 +73,9 @@ def test_dbl_runs_an_80_box_group(source: str) -> None:
         "local_stability",
         "static_stability",
     }
-    assert 0 < m["space_utilization"] <= 1 and m["occupancy"] > 0
+    utilisation, occupancy = m["space_utilization"], m["occupancy"]
+    assert utilisation is not None and occupancy is not None
+    assert 0 < utilisation <= 1 and occupancy > 0
     assert m["local_stability"] is not None and m["local_stability"] >= 0
     assert m["static_stability"] is not None and 0 < m["static_stability"] <= 1
     assert all(s.extra["sim_steps"] >= 1 for s in result.steps if s.placement)

@@ -16,13 +16,13 @@ mesh lowered until it touches), whose contacts are livelier: the full simulation
 from __future__ import annotations
 
 import pytest
-from _physics_specs import repetitive_like
 
 from robobpp.core import ContainerSpec
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
 from robobpp.sim.physics import PhysicsConfig, PhysicsPack
 from robobpp.sim.physics.fidelity import Outcome, compare, mcnemar_one_sided
+from tests.sim.physics._physics_specs import repetitive_like
 
 EPISODES = 20
 BOXES = 20

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import re
+from typing import Any
 
+import numpy as np
 import pybullet as p
 import pytest
-from _physics_specs import spec_of
 
 from robobpp.core import Action, Box
 from robobpp.sim import make_setting
 from robobpp.sim.physics import PhysicsPack, PhysicsWorld, detect_collapse, stability_reward
+from tests.sim.physics._physics_specs import spec_of
 
 
-def _pack(boxes: list[Box], **kw: object) -> PhysicsPack:
+def _pack(boxes: list[Box], **kw: Any) -> PhysicsPack:
     pack = PhysicsPack()
     pack.reset(spec_of(boxes, **kw))
     return pack
@@ -136,7 +138,9 @@ def test_fall_off_the_pallet_is_collapse() -> None:
             world.add_box((105, 50, 5), (30, 10, 10), 1.0),
         )
         world.step(480)
-        moved = detect_collapse(world, [on, off], [(50, 50, 5), (105, 50, 5)], [0, 1], threshold_cm=1000)
+        moved = detect_collapse(
+            world, [on, off], np.array([(50, 50, 5), (105, 50, 5)]), [0, 1], threshold_cm=1000
+        )
         assert [(d.index, d.fell) for d in moved] == [(1, True)]
         assert moved[0].describe(1000) == "box #1 (the 2nd) fell off the pallet"
         assert world.pose_cm(off)[0][2] < 0  # it really lies on the ground below the deck
@@ -170,7 +174,7 @@ def test_collapse_is_dx_or_dy_over_the_threshold(threshold: float, collapsed: bo
     with PhysicsWorld() as world:
         world.add_pallet(ContainerSpec(100, 100, 100))
         box = world.add_box((50, 50, 5), (10, 10, 10), 1.0)
-        moved = detect_collapse(world, [box], [(45, 45, 5)], [0], threshold_cm=threshold)
+        moved = detect_collapse(world, [box], np.array([(45, 45, 5)]), [0], threshold_cm=threshold)
         assert bool(moved) is collapsed
         if moved:
             assert moved[0].horizontal_cm == pytest.approx(5.0, abs=0.01)

@@ -3,6 +3,8 @@ reference ends (collapse, infeasible action, the recorded episode's own ending).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import pytest
 
 from robobpp.core import Action, EpisodeInfo, Observation
@@ -25,7 +27,7 @@ class Scripted:
 
     name = "scripted"
 
-    def __init__(self, actions: list[Action | None]) -> None:
+    def __init__(self, actions: Sequence[Action | None]) -> None:
         self.actions = actions
 
     def reset(self, info: EpisodeInfo) -> None:
@@ -174,4 +176,5 @@ def test_the_replay_drives_the_execution_pack_too() -> None:
     math, execution = runs["math"], runs["execution"]
     assert execution.protocol == PAPER and execution.setting == "execution"
     assert execution.termination == "completed" and _answers(execution) == _answers(math)
-    assert execution.counters["operations"] == 4 and execution.metrics["trajectory_length"] > 0
+    trajectory_length = execution.metrics["trajectory_length"]
+    assert execution.counters["operations"] == 4 and trajectory_length is not None and trajectory_length > 0

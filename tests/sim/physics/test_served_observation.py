@@ -47,6 +47,9 @@ class _Rebuilt:
         self.cells += off.size
         return self.inner.act(obs)
 
+    def close(self, reason: str) -> None:
+        self.inner.close(reason)
+
 
 @pytest.mark.network
 @pytest.mark.parametrize(("dataset", "group"), [("repetitive", 1), ("longboard", 0)])

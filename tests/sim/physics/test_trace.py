@@ -6,12 +6,12 @@ import json
 import math
 
 import pytest
-from _physics_specs import spec_of
 
 from robobpp.core import Action, Box
 from robobpp.episode import Episode, EpisodeResult
 from robobpp.sim.physics import PhysicsPack
 from robobpp.web.trace import TraceError, viewer_payload
+from tests.sim.physics._physics_specs import spec_of
 
 
 def _toppled_post() -> EpisodeResult:

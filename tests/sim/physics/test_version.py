@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pytest
-from _physics_specs import spec_of
 from sqlalchemy import select
 
 from robobpp.core import Box
@@ -17,6 +16,7 @@ from robobpp.server.services.board_engine import leaderboard
 from robobpp.sim import make_setting
 from robobpp.sim.physics import PHYSICS_VERSION, PhysicsConfig
 from tests.server.conftest import complete_next_episode
+from tests.sim.physics._physics_specs import spec_of
 
 
 def test_results_record_the_physics_version() -> None:

@@ -17,7 +17,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 from fastapi import FastAPI, Request
 from fastapi.openapi.utils import get_openapi
@@ -59,8 +59,14 @@ def _responses(model: type[BaseModel]) -> dict[int | str, dict[str, Any]]:
     }
 
 
+class Acting(Protocol):
+    """What the server needs of a policy: ``act``; ``reset`` and ``close`` are called when present."""
+
+    def act(self, obs: Observation) -> Action | None: ...
+
+
 def create_policy_app(
-    policy: Policy | type,
+    policy: Policy | Acting | type,
     secret: str | None = None,
     *,
     name: str | None = None,
@@ -72,7 +78,7 @@ def create_policy_app(
     ``/info`` names it ``name`` (default: the policy's ``name`` attribute, else its class) at ``version``
     (default: the policy's ``version`` attribute, else "0"): what ``robobpp evaluate`` and ``compare`` label
     its results with."""
-    served: Policy = policy() if isinstance(policy, type) else policy
+    served: Policy | Acting = policy() if isinstance(policy, type) else policy
     if not callable(getattr(served, "act", None)):
         raise TypeError(f"{type(served).__name__} has no act(observation) method")
     shown_name = str(name or getattr(served, "name", None) or type(served).__name__)[: P.MAX_TEXT]
@@ -222,7 +228,7 @@ def run_server(app: Any, host: str, port: int, on_ready: Callable[[str], None], 
 
 
 def serve(
-    policy: Policy | type,
+    policy: Policy | Acting | type,
     host: str = "127.0.0.1",
     port: int = 9000,
     secret: str | None = None,

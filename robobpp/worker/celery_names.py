@@ -18,7 +18,7 @@ TASK_NAME = "robobpp.run_episode"
 TASK_ID_PREFIX = "episode-"
 
 
-def task_id(episode_id: int) -> str:
+def task_id(episode_id: int | str) -> str:
     return f"{TASK_ID_PREFIX}{int(episode_id)}"
 
 

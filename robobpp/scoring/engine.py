@@ -7,7 +7,7 @@ was computed when its run finished. What an arriving entry can change on a board
   (resamples × metrics). When a new entry lies inside them in every resample — the common case — no other
   entry's relative score samples move: only the new entry's samples, score interval and the point ranks
   are computed. When it moves one (a new best or worst), or an entry leaves, or the board's groups change,
-  every entry's samples are renormalised (:meth:`BoardMatrix.board` reloads the parts).
+  every entry's samples are renormalised (from the figures the board keeps: :class:`~robobpp.scoring.entries.PartTable`).
 * ranks and rank intervals. Point ranks and the best entries' rank intervals (the default view, one
   entry per participant) are recomputed on every update. The all-entries rank intervals need every entry's
   rank in every resample (a sort of each resample: seconds at 10,000 entries, BENCHMARKS.md): they are
@@ -42,6 +42,7 @@ from robobpp.scoring.boards import (
 )
 from robobpp.scoring.entries import (
     EntryPart,
+    PartTable,
     counts,
     metric_keys,
     samples_of,
@@ -52,10 +53,6 @@ from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max
 
 #: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
-#: A board of up to this many entries keeps every entry's stored part in memory (a few kB each: ≈ 2 kB
-#: for a Math board, BENCHMARKS.md), so an entry that moves a resample's min or max renormalises the others
-#: without reading their parts from SQL again; a larger board keeps only its best entries' parts.
-KEEP_PARTS = 25_000
 #: Entries renormalised at a time (bounds the transient samples array: chunk × resamples × metrics).
 CHUNK = 512
 
@@ -104,7 +101,8 @@ class BoardMatrix:
     """One board (dataset × setting × protocol × lookahead of a track) kept between updates.
 
     ``rows`` are what :func:`robobpp.db.queries.board_runs` returns without ``entry``, with ``ids``: the
-    run's group ids as bytes (None without figures). ``load`` reads stored parts by submission id.
+    run's group ids as bytes (None without figures). ``load`` reads stored parts by submission id (only for
+    rows upserted without theirs).
     """
 
     def __init__(
@@ -121,7 +119,9 @@ class BoardMatrix:
         self._floors = np.array([RESOLVED[k][0] if k in RESOLVED else -np.inf for k in self.keys])
         self._weights = np.array([WEIGHTS[setting][k] for k in self.keys])
         self._entries: dict[int, _Entry] = {}
-        self._parts: dict[int, EntryPart | None] = {}  # of new entries and the best ones
+        #: Every entry's part with figures, as matrices (an entry that moves a resample's min or max
+        #: renormalises the others from them, never from SQL)
+        self._parts = PartTable(setting)
         self._basis: tuple[Any, ...] | None = None
         self._lo = self._hi = np.zeros((0, 0))
         #: The grid samples of the last assembled board, an entry per row (its ``_Scored.col``): kept as two
@@ -152,7 +152,15 @@ class BoardMatrix:
         for sid in remove:
             if self._entries.pop(sid, None) is not None:
                 self._basis = None  # it may have held a min or max: renormalise everyone
-            self._parts.pop(sid, None)
+            self._parts.drop(sid)
+        upsert = list(upsert)
+        given = dict(parts or {})
+        lacking = [int(r["submission_id"]) for r in upsert if int(r["submission_id"]) not in given]
+        if lacking:  # its part may have changed: read it again
+            given.update(self.load(lacking))
+        for sid in given:  # a part of None: the run has no figures any more
+            self._parts.drop(sid)
+        self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
         for row in upsert:
             sid = int(row["submission_id"])
             old = self._entries.get(sid)
@@ -163,10 +171,6 @@ class BoardMatrix:
                 else:
                     self._basis = None
             self._entries[sid] = entry
-            if parts is None or sid not in parts:  # its part may have changed: read again when needed
-                self._parts.pop(sid, None)
-        for sid, part in (parts or {}).items():
-            self._parts[sid] = part
 
     def _entry(self, row: Mapping[str, Any]) -> _Entry:
         extras = row.get("extras") or {}
@@ -230,11 +234,7 @@ class BoardMatrix:
             samples = self._samples([ranked[i] for i in chosen], usable[chosen], plan)
             return self._relative(samples, self._lo, self._hi).T.astype(np.float32)
 
-        board = self._assemble(everyone, ranked, groups, submitted, best_samples)
-        if len(self._entries) > KEEP_PARTS:  # past it, a shift reloads the parts from SQL
-            keep = {e["submission_id"] for e in board["_best"]}
-            self._parts = {s: p for s, p in self._parts.items() if s in keep}
-        return board
+        return self._assemble(everyone, ranked, groups, submitted, best_samples)
 
     # -- the parts of the computation
 
@@ -244,22 +244,17 @@ class BoardMatrix:
         """Entries' metric samples: (entries, resamples, metrics), with their timing noise; an entry without
         usable figures keeps its point metrics in every resample (as ``score_board`` does). ``plan`` is the
         rows ``rows`` of the board's plan (default: all of it)."""
-        sids = [int(e.row["submission_id"]) for e in entries]
-        missing = [s for s, ok in zip(sids, usable, strict=True) if ok and s not in self._parts]
-        if missing:
-            self._parts.update(self.load(missing))
+        sids = [e.sid for e in entries]
         out = np.empty((len(entries), plan.shape[0], len(self.keys)))
         measured = [k for k, ok in enumerate(usable) if ok]
         seeds: list[int | None] = [None] * len(entries)
         if measured:
-            parts = [self._parts.get(sids[k]) for k in measured]
-            if any(p is None for p in parts):
+            if any(sids[k] not in self._parts for k in measured):
                 raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
-            top = np.stack([p.top for p in parts if p is not None])
-            bottom = np.stack([p.bottom for p in parts if p is not None])
+            top, bottom = self._parts.stacked([sids[k] for k in measured])
             out[measured] = samples_of(top, bottom, plan)
-            for k, p in zip(measured, parts, strict=True):
-                seeds[k] = None if p is None else p.seed
+            for k in measured:
+                seeds[k] = self._parts.seed(sids[k])
         for k, ok in enumerate(usable):
             if not ok:
                 out[k] = entries[k].points
@@ -285,13 +280,12 @@ class BoardMatrix:
         stab = stable_samples(samples, self.setting)
         order, (lo, hi) = _order_and_interval(rel)
         for k, entry in enumerate(entries):
-            part = self._parts.get(int(entry.row["submission_id"])) if usable[k] else None
-            if part is not None:
+            if usable[k] and entry.sid in self._parts:
+                metric_ci, stable_ci = self._parts.intervals(entry.sid)
                 intervals = {
                     key: [float(a), float(b)] if np.isfinite(a) else None
-                    for key, (a, b) in zip(self.keys, part.metric_ci, strict=True)
+                    for key, (a, b) in zip(self.keys, metric_ci.tolist(), strict=True)
                 }
-                stable_ci = part.stable_ci
             else:
                 intervals = dict.fromkeys(self.keys)
                 slo, shi = stats.interval(stab[k][:, None])
@@ -353,10 +347,6 @@ class BoardMatrix:
     ) -> np.ndarray | None:
         """Every entry's samples again: the min–max first, then each entry scored under it. Returns every
         entry's relative samples (resamples, entries) when ``keep``."""
-        sids = [int(e.row["submission_id"]) for e in ranked]
-        missing = [s for s, ok in zip(sids, usable, strict=True) if ok and s not in self._parts]
-        if missing:  # the parts kept are current (``apply`` drops a replaced row's without a new one)
-            self._parts.update(self.load(missing))
         m = len(self.keys)
         lo = np.full((plan.shape[0], m), np.nan)
         hi = np.full((plan.shape[0], m), np.nan)

@@ -1,18 +1,26 @@
-"""A board kept between updates: only the global part of the scoring is redone when entries arrive.
+"""A board kept between updates, as columns: only the global part of the scoring is redone when entries arrive.
 
 Each entry's own part (its figures as a matrix, metric and stable intervals: :mod:`robobpp.scoring.entries`)
-was computed when its run finished. What an arriving entry can change on a board is global:
+was computed when its run finished; the board keeps every entry's as matrices (:class:`PartTable`) and the
+rest of what it knows of an entry in arrays, one element per entry: no Python object per entry but its
+public fields, kept as one compact JSON string. What an arriving entry can change on a board is global:
 
 * the min–max of each metric in each resample (the relative score's normalisation). The board keeps them
   (resamples × metrics). When a new entry lies inside them in every resample — the common case — no other
   entry's relative score samples move: only the new entry's samples, score interval and the point ranks
-  are computed. When it moves one (a new best or worst), or an entry leaves, or the board's groups change,
-  every entry's samples are renormalised (from the figures the board keeps: :class:`~robobpp.scoring.entries.PartTable`).
+  are computed. When it moves some (a new best or worst), only those resamples of the others are computed
+  again; when an entry leaves, or the board's groups change, every entry's samples are (from the figures
+  kept, in chunks).
 * ranks and rank intervals. Point ranks and the best entries' rank intervals (the default view, one
   entry per participant) are recomputed on every update. The all-entries rank intervals need every entry's
   rank in every resample (a sort of each resample: seconds at 10,000 entries, BENCHMARKS.md): they are
   computed by a full computation (``rank_intervals=True``, the board worker's refresh timer); between two,
   an entry keeps the interval last computed and a new entry has none (served as null).
+
+Samples are never kept: an entry's are computed again from its figures when needed (the grid's means:
+:meth:`BoardMatrix.grid_samples`). Each update hands out a :class:`~robobpp.scoring.boards.RankedView` whose
+rows are built on demand from a snapshot of the columns, with a serial per row that changes whenever what
+the row shows does (the publisher serialises a row again only then).
 
 The board produced equals :func:`robobpp.scoring.boards.build_board` of the same rows (to the last bit of
 each entry's own samples: an entry's samples are always computed alone), except for those rank intervals.
@@ -20,13 +28,14 @@ each entry's own samples: an entry's samples are always computed alone), except 
 
 from __future__ import annotations
 
-import itertools
+import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import orjson
 
 from robobpp.scoring import stats
 from robobpp.scoring.boards import (
@@ -36,9 +45,9 @@ from robobpp.scoring.boards import (
     best_of_participants,
     board_dict,
     board_tops,
-    classify_row,
     participant_key,
-    public_fields,
+    ranked_of,
+    status_reason,
 )
 from robobpp.scoring.entries import (
     EntryPart,
@@ -53,48 +62,89 @@ from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max
 
 #: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
-#: Entries renormalised at a time (bounds the transient samples array: chunk × resamples × metrics).
+#: Entries whose samples are computed at a time (bounds the transient array: chunk × resamples × metrics).
 CHUNK = 512
+#: The grid's resamples computed as a block of whole 8-row blocks of the plan (the matrix product gives the
+#: same bits for a row in any set of rows whose count is a multiple of 8).
+_GRID_ROWS = np.arange(-(-GRID_RESAMPLES // 8) * 8)
 
 
-@dataclass(slots=True)
-class _Scored:
-    """What a board keeps of one ranked entry between updates (valid under the board's current min–max)."""
+class _Columns:
+    """Arrays of one element (or row) per entry slot, grown together."""
 
-    order: np.ndarray  # (4,): the order statistics its score interval interpolates between
-    score_ci: tuple[float, float]
-    stable_ci: tuple[float, float]
-    intervals: dict[str, list[float] | None]
-    #: float32 (GRID_RESAMPLES,): its relative and stable score samples for the grid, while they are its own
-    #: (computed or changed since the board was last assembled); None: row ``col`` of the board's matrices
-    rel: np.ndarray | None
-    stable: np.ndarray | None
-    rank_ci: tuple[int, int] | None = None
-    col: int = -1
+    def __init__(self, metrics: int) -> None:
+        self.size = 0
+        self.sid = np.zeros(0, np.int64)
+        self.episodes = np.zeros(0, np.int64)
+        self.failures = np.zeros(0, np.int64)
+        self.policy_failed = np.zeros(0, bool)
+        self.submission_failed = np.zeros(0, bool)
+        self.who = np.zeros(0, np.int64)  # participant key, coded
+        self.ids = np.zeros(0, np.int64)  # group ids, coded; -1: no figures
+        self.points = np.zeros((0, metrics))  # point metrics, NaN = missing
+        self.stable = np.zeros(0)  # point stable score
+        self.version = np.zeros(0, np.int64)  # changes whenever the entry's own figures do
+        # scored under the board's current min–max
+        self.scored = np.zeros(0, bool)
+        self.own = np.zeros(0, bool)  # scored with its figures (else its point metrics in every resample)
+        self.score_ci = np.zeros((0, 2))
+        self.stable_ci = np.zeros((0, 2))
+        self.order = np.zeros((0, 4))  # the order statistics its score interval interpolates between
+        self.rank_ci = np.zeros((0, 2), np.int64)  # -1: not computed since it arrived
+        # what its row showed when last handed out, and the row's serial
+        self.shown = np.zeros((0, 9 + metrics))
+        self.serial = np.zeros(0, np.int64)
+
+    def grow(self, needed: int) -> None:
+        if needed <= len(self.sid):
+            return
+        capacity = max(needed, len(self.sid) * 11 // 10 + 16)
+        for name, a in vars(self).items():
+            if isinstance(a, np.ndarray):
+                out = np.zeros((capacity, *a.shape[1:]), dtype=a.dtype)
+                out[: len(a)] = a
+                setattr(self, name, out)
 
 
-@dataclass(slots=True)
-class _Entry:
-    """One candidate row of the board, with what its scoring needs decoded once."""
+@dataclass(frozen=True, slots=True)
+class _Snapshot:
+    """The ranked entries' figures as an update left them (column order: ascending ids): what the rows
+    handed out with that update are built from, on demand — later updates change the columns, never this."""
 
-    row: dict[str, Any]
-    episodes: int
-    policy_failed: bool
-    submission_failed: bool
-    who: str
-    sid: int
-    points: np.ndarray  # (metrics,) point figures, NaN = missing
-    stable: float  # the point stable score (its own metrics alone)
-    ids: bytes | None
-    public: dict[str, Any]
-    scored: _Scored | None = None
-    normalized: tuple[bytes, dict[str, float]] | None = None
-    #: The entry as served in the all-entries view without its rank, and what it was built from: the same
-    #: object while its content stays, so the publisher serialises it once (services/boards.py).
-    base: dict[str, Any] | None = None
-    base_of: tuple[Any, ...] = ()
-    #: Changes whenever ``base`` is replaced (the grid compares its cells' serials as arrays)
-    serial: int = 0
+    keys: tuple[str, ...]
+    public: list[Any]
+    completed: list[Any]
+    scores: np.ndarray
+    score_ci: np.ndarray
+    stable: np.ndarray
+    stable_ci: np.ndarray
+    rank_ci: np.ndarray
+    normalized: np.ndarray
+    intervals: np.ndarray  # (entries, metrics, 2), NaN = none
+    best: np.ndarray
+
+    def row(self, i: int) -> dict[str, Any]:
+        """Column ``i``'s row of the all-entries view without its rank (nor its participant's entry count,
+        which moves with every entry they add: the reader puts it in)."""
+        low, high = (int(x) for x in self.rank_ci[i])
+        intervals = self.intervals[i].tolist()
+        return _public(self.public[i], self.completed[i]) | {
+            "rank": None,
+            "rank_low": None if low < 0 else low,
+            "rank_high": None if high < 0 else high,
+            "score": float(self.scores[i]),
+            "score_low": float(self.score_ci[i, 0]),
+            "score_high": float(self.score_ci[i, 1]),
+            "stable": float(self.stable[i]),
+            "stable_low": float(self.stable_ci[i, 0]),
+            "stable_high": float(self.stable_ci[i, 1]),
+            "normalized": dict(zip(self.keys, self.normalized[i].tolist(), strict=True)),
+            "intervals": {
+                k: [a, b] if math.isfinite(a) else None
+                for k, (a, b) in zip(self.keys, intervals, strict=True)
+            },
+            "best": bool(self.best[i]),
+        }
 
 
 class BoardMatrix:
@@ -118,15 +168,27 @@ class BoardMatrix:
         #: whose time moves only below the floor moves no bound (nobody is renormalised for it)
         self._floors = np.array([RESOLVED[k][0] if k in RESOLVED else -np.inf for k in self.keys])
         self._weights = np.array([WEIGHTS[setting][k] for k in self.keys])
-        self._entries: dict[int, _Entry] = {}
-        #: Every entry's part with figures, as matrices (an entry that moves a resample's min or max
-        #: renormalises the others from them, never from SQL)
+        self._c = _Columns(len(self.keys))
+        self._slot: dict[int, int] = {}
+        self._free: list[int] = []
+        #: Each entry's public fields (JSON, or the dict where JSON would not give it back) and finish time.
+        self._public: list[Any] = []
+        self._completed: list[Any] = []
+        #: What of each entry's row its scoring depends on (a verdict or name changing moves no score).
+        self._scoring: list[bytes] = []
         self._parts = PartTable(setting)
+        self._codes: dict[Any, int] = {}
+        self._coded: list[Any] = []
         self._basis: tuple[Any, ...] | None = None
         self._lo = self._hi = np.zeros((0, 0))
-        #: The grid samples of the last assembled board, an entry per row (its ``_Scored.col``): kept as two
-        #: matrices, not an array per entry (10,000 arrays stacked again on every update cost 0.1 s a board)
-        self._grid_rel = self._grid_stable = np.zeros((0, GRID_RESAMPLES), np.float32)
+        self._plan = np.ones((stats.RESAMPLES, 1))
+        #: The ranked entries' slots as last handed out (column order) and which used their figures.
+        self._ranked = np.zeros(0, np.intp)
+        self._usable = np.zeros(0, bool)
+        #: Per resample of the grid's, the update that last changed it for entries already on the board
+        #: (a grid recomputes those of its means); ``stamp``: the board's update count.
+        self.stamp = 0
+        self.resample_stamps = np.zeros(GRID_RESAMPLES, np.int64)
         #: Bumped whenever entries already on the board were renormalised (a resample's min–max moved).
         self.epoch = 0
         #: Counters of what updates did (BENCHMARKS.md): renormalised rows, entries recomputed in full.
@@ -134,13 +196,27 @@ class BoardMatrix:
         self.recomputed = 0
 
     def __len__(self) -> int:
-        return len(self._entries)
+        return len(self._slot)
 
     def __contains__(self, submission_id: object) -> bool:
-        return submission_id in self._entries
+        return submission_id in self._slot
 
     def submission_ids(self) -> list[int]:
-        return list(self._entries)
+        return list(self._slot)
+
+    def nbytes(self) -> int:
+        """The bytes of the board's arrays and figures (its public fields aside)."""
+        arrays = [a for a in vars(self._c).values() if isinstance(a, np.ndarray)]
+        return sum(a.nbytes for a in arrays) + self._parts.nbytes()
+
+    def _code(self, value: Any) -> int:
+        code = self._codes.get(value)
+        if code is None:
+            code = self._codes[value] = len(self._coded)
+            self._coded.append(value)
+        return code
+
+    # -- entries arriving and leaving
 
     def apply(
         self,
@@ -150,8 +226,11 @@ class BoardMatrix:
     ) -> None:
         """Add or replace rows (``parts``: their parts when already at hand), drop submissions."""
         for sid in remove:
-            if self._entries.pop(sid, None) is not None:
+            slot = self._slot.pop(sid, None)
+            if slot is not None:
                 self._basis = None  # it may have held a min or max: renormalise everyone
+                self._free.append(slot)
+                self._public[slot] = self._completed[slot] = None
             self._parts.drop(sid)
         upsert = list(upsert)
         given = dict(parts or {})
@@ -161,103 +240,127 @@ class BoardMatrix:
         for sid in given:  # a part of None: the run has no figures any more
             self._parts.drop(sid)
         self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
+        c = self._c
         for row in upsert:
             sid = int(row["submission_id"])
-            old = self._entries.get(sid)
-            entry = self._entry(row)
-            if old is not None:
-                if _scoring_fields(old.row) == _scoring_fields(row):
-                    entry.scored, entry.normalized = old.scored, old.normalized
+            scoring = _scoring_fields(row)
+            slot = self._slot.get(sid)
+            if slot is None:
+                if self._free:
+                    slot = self._free.pop()
                 else:
-                    self._basis = None
-            self._entries[sid] = entry
+                    slot = len(self._public)
+                    c.grow(slot + 1)
+                    self._public.append(None)
+                    self._completed.append(None)
+                    self._scoring.append(b"")
+                self._slot[sid] = slot
+                c.scored[slot] = False
+                c.rank_ci[slot] = -1
+            elif self._scoring[slot] != scoring:
+                self._basis = None
+                c.scored[slot] = False
+                c.rank_ci[slot] = -1
+            self._scoring[slot] = scoring
+            self._set(slot, row)
 
-    def _entry(self, row: Mapping[str, Any]) -> _Entry:
+    def _set(self, slot: int, row: Mapping[str, Any]) -> None:
+        c = self._c
         extras = row.get("extras") or {}
-        episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
         metrics = row.get("metrics") or {}
-        return _Entry(
-            row={k: row.get(k) for k in _KEPT},
-            episodes=episodes,
-            policy_failed=stats.run_failed(extras.get("terminations"), episodes),
-            submission_failed=row.get("submission_status") == "failed",
-            who=participant_key(row),
-            sid=int(row["submission_id"]),
-            points=np.array([_point(metrics.get(k)) for k in self.keys], dtype=np.float64),
-            stable=stable_scores([metrics], self.setting)[0],
-            ids=row.get("ids"),
-            public=public_fields(row),
-        )
+        episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
+        c.sid[slot] = int(row["submission_id"])
+        c.episodes[slot] = episodes
+        c.failures[slot] = stats.policy_failure_count(extras.get("terminations"))
+        c.policy_failed[slot] = stats.run_failed(extras.get("terminations"), episodes)
+        c.submission_failed[slot] = row.get("submission_status") == "failed"
+        c.who[slot] = self._code(participant_key(row))
+        ids = row.get("ids")
+        c.ids[slot] = -1 if ids is None else self._code(ids)
+        c.points[slot] = [_point(metrics.get(k)) for k in self.keys]
+        c.stable[slot] = stable_scores([metrics], self.setting)[0]
+        c.version[slot] = new_serials(1)[0]
+        c.shown[slot] = np.nan  # its row is new
+        public = {k: row.get(k) for k in _PUBLIC}
+        public["metrics"], public["extras"] = metrics, extras
+        self._public[slot] = _packed(public)
+        self._completed[slot] = row.get("completed_at")
+
+    # -- the board
 
     def board(self, *, rank_intervals: bool = False) -> dict[str, Any]:
         """The board now (``rank_intervals``: compute every entry's, a full computation)."""
-        everyone = [self._entries[s] for s in sorted(self._entries)]
-        groups = max((e.episodes for e in everyone if not e.policy_failed), default=0)
-        ranked = [e for e in everyone if not (e.policy_failed or e.submission_failed or e.episodes < groups)]
-        submitted = Counter(e.who for e in everyone)
-        ids = next((e.ids for e in ranked if e.ids is not None), None)
+        c = self._c
+        self.stamp += 1
+        everyone = np.array([self._slot[s] for s in sorted(self._slot)], dtype=np.intp)
+        groups, ranked_mask = ranked_of(
+            c.episodes[everyone], c.policy_failed[everyone], c.submission_failed[everyone]
+        )
+        ranked = everyone[ranked_mask]
+        with_ids = ranked[c.ids[ranked] >= 0]
+        code = int(c.ids[with_ids[0]]) if len(with_ids) else -1
+        ids = self._coded[code] if code >= 0 else None
         plan = counts(len(ids) // 8) if ids else np.ones((stats.RESAMPLES, 1))
-        usable = np.array([e.ids is not None and e.ids == ids for e in ranked], dtype=bool)
+        usable = c.ids[ranked] == code if code >= 0 else np.zeros(len(ranked), bool)
         basis = (groups, ids, plan.shape)
-        fresh = [i for i, e in enumerate(ranked) if e.scored is None]
+        fresh = np.flatnonzero(~c.scored[ranked])
         full = (
             rank_intervals
             or self._basis != basis
-            or len(ranked) - len(fresh) != sum(e.scored is not None for e in everyone)
+            or len(ranked) - len(fresh) != int(c.scored[everyone].sum())
         )
+        self._plan = plan
         rel_all = None
-        if not full and fresh:
-            new = self._samples([ranked[i] for i in fresh], usable[fresh], plan)
+        if not full and len(fresh):
+            new = self._samples(ranked[fresh], usable[fresh], plan)
             lo, hi = self._floored(_fmin(self._lo, new)), self._floored(_fmax(self._hi, new))
             moved = np.flatnonzero(~_same_rows(lo, self._lo) | ~_same_rows(hi, self._hi))
             if moved.size:
-                old = [i for i, e in enumerate(ranked) if e.scored is not None]
-                self._shift(moved, lo, hi, [ranked[i] for i in old], usable[old], plan)
-            self._score(new, [ranked[i] for i in fresh], usable[fresh])
+                old = np.flatnonzero(c.scored[ranked])
+                self._shift(moved, lo, hi, ranked[old], usable[old], plan)
+            self._score(new, ranked[fresh], usable[fresh])
         elif full:
-            chosen = {id(e) for e in ranked}
-            for e in everyone:
-                if id(e) not in chosen:
-                    e.scored = None
+            c.scored[everyone[~ranked_mask]] = False
+            c.rank_ci[everyone[~ranked_mask]] = -1
             rel_all = self._renormalise(ranked, usable, plan, keep=rank_intervals)
             self._basis = basis
             self.epoch += 1
-        if rel_all is not None and rank_intervals and ranked:
+            self.resample_stamps[:] = self.stamp
+        if rel_all is not None and rank_intervals and len(ranked):
             low, high = stats.rank_interval(stats.rank_samples(rel_all))
-            for k, e in enumerate(ranked):
-                assert e.scored is not None
-                e.scored.rank_ci = (int(low[k]), int(high[k]))
+            c.rank_ci[ranked, 0], c.rank_ci[ranked, 1] = low, high
+        self._ranked, self._usable = ranked, usable
 
         def best_samples(chosen: list[int]) -> np.ndarray:
             if rel_all is not None:
                 return rel_all[:, chosen].astype(np.float32)
-            samples = self._samples([ranked[i] for i in chosen], usable[chosen], plan)
+            samples = self._samples(ranked[chosen], usable[chosen], plan)
             return self._relative(samples, self._lo, self._hi).T.astype(np.float32)
 
-        return self._assemble(everyone, ranked, groups, submitted, best_samples)
+        return self._assemble(everyone, ranked, ranked_mask, groups, best_samples)
 
     # -- the parts of the computation
 
     def _samples(
-        self, entries: Sequence[_Entry], usable: np.ndarray, plan: np.ndarray, rows: np.ndarray | None = None
+        self, slots: np.ndarray, usable: np.ndarray, plan: np.ndarray, rows: np.ndarray | None = None
     ) -> np.ndarray:
         """Entries' metric samples: (entries, resamples, metrics), with their timing noise; an entry without
         usable figures keeps its point metrics in every resample (as ``score_board`` does). ``plan`` is the
         rows ``rows`` of the board's plan (default: all of it)."""
-        sids = [e.sid for e in entries]
-        out = np.empty((len(entries), plan.shape[0], len(self.keys)))
-        measured = [k for k, ok in enumerate(usable) if ok]
-        seeds: list[int | None] = [None] * len(entries)
-        if measured:
-            if any(sids[k] not in self._parts for k in measured):
+        c = self._c
+        sids = c.sid[slots].tolist()
+        out = np.empty((len(slots), plan.shape[0], len(self.keys)))
+        measured = np.flatnonzero(usable)
+        seeds: list[int | None] = [None] * len(slots)
+        if len(measured):
+            if any(sids[k] not in self._parts for k in measured.tolist()):
                 raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
-            top, bottom = self._parts.stacked([sids[k] for k in measured])
+            top, bottom = self._parts.stacked([sids[k] for k in measured.tolist()])
             out[measured] = samples_of(top, bottom, plan)
-            for k in measured:
+            for k in measured.tolist():
                 seeds[k] = self._parts.seed(sids[k])
-        for k, ok in enumerate(usable):
-            if not ok:
-                out[k] = entries[k].points
+        unmeasured = np.flatnonzero(~usable)
+        out[unmeasured] = c.points[slots[unmeasured]][:, None, :]
         return with_timing_noise(out, seeds, self.setting, rows)
 
     def _floored(self, bounds: np.ndarray) -> np.ndarray:
@@ -271,36 +374,26 @@ class BoardMatrix:
             total += weight * min_max(samples[:, :, j], lo[:, j], hi[:, j], self.keys[j])
         return np.round(total, 12)
 
-    def _score(self, samples: np.ndarray, entries: Sequence[_Entry], usable: np.ndarray) -> np.ndarray:
-        """Store the entries' scored part under the current min–max; returns their relative samples.
+    def _score(self, samples: np.ndarray, slots: np.ndarray, usable: np.ndarray) -> np.ndarray:
+        """Score the entries under the current min–max; returns their relative samples.
 
         An entry's metric and stable intervals are its stored part's (computed when its run finished);
         one without usable figures has point metrics in every resample, so no metric interval."""
+        c = self._c
         rel = self._relative(samples, self._lo, self._hi)
-        stab = stable_samples(samples, self.setting)
         order, (lo, hi) = _order_and_interval(rel)
-        for k, entry in enumerate(entries):
-            if usable[k] and entry.sid in self._parts:
-                metric_ci, stable_ci = self._parts.intervals(entry.sid)
-                intervals = {
-                    key: [float(a), float(b)] if np.isfinite(a) else None
-                    for key, (a, b) in zip(self.keys, metric_ci.tolist(), strict=True)
-                }
-            else:
-                intervals = dict.fromkeys(self.keys)
-                slo, shi = stats.interval(stab[k][:, None])
-                stable_ci = (float(slo[0]), float(shi[0]))
-            rank_ci = None if entry.scored is None else entry.scored.rank_ci
-            entry.scored = _Scored(
-                order=order[k],
-                score_ci=(float(lo[k]), float(hi[k])),
-                stable_ci=stable_ci,
-                intervals=intervals,
-                rel=rel[k, :GRID_RESAMPLES].astype(np.float32),
-                stable=stab[k, :GRID_RESAMPLES].astype(np.float32),
-                rank_ci=rank_ci,
-            )
-        self.recomputed += len(entries)
+        c.order[slots] = order
+        c.score_ci[slots, 0], c.score_ci[slots, 1] = lo, hi
+        own = usable & np.array([s in self._parts for s in c.sid[slots].tolist()], dtype=bool)
+        c.own[slots] = own
+        if not own.all():
+            stab = stable_samples(samples[~own], self.setting)
+            slo, shi = stats.interval(stab.T)
+            c.stable_ci[slots[~own], 0], c.stable_ci[slots[~own], 1] = slo, shi
+        for slot, sid in zip(slots[own].tolist(), c.sid[slots[own]].tolist(), strict=True):
+            c.stable_ci[slot] = self._parts.intervals(sid)[1]
+        c.scored[slots] = True
+        self.recomputed += len(slots)
         return rel
 
     def _shift(
@@ -308,7 +401,7 @@ class BoardMatrix:
         moved: np.ndarray,
         lo: np.ndarray,
         hi: np.ndarray,
-        entries: Sequence[_Entry],
+        slots: np.ndarray,
         usable: np.ndarray,
         plan: np.ndarray,
     ) -> None:
@@ -317,33 +410,27 @@ class BoardMatrix:
         interval uses keeps that interval (those statistics cannot move); the others are recomputed."""
         pad = (-moved.size) % 8  # the matrix product gives the same bits as the full one in blocks of 8 rows
         rows = np.concatenate([moved, np.zeros(pad, dtype=moved.dtype)])
-        samples = self._samples(entries, usable, plan[rows], rows)[:, : moved.size]
-        before = self._relative(samples, self._lo[moved], self._hi[moved])
-        after = self._relative(samples, lo[moved], hi[moved])
-        order = np.stack([e.scored.order for e in entries if e.scored is not None])
-        side_before, side_after = _side(before, order), _side(after, order)
-        kept = np.all((side_before == side_after) & (side_before >= 0), axis=1)
-        grid_rows = moved < GRID_RESAMPLES
+        redo = []
+        for a in range(0, len(slots), CHUNK):
+            chunk = slots[a : a + CHUNK]
+            samples = self._samples(chunk, usable[a : a + CHUNK], plan[rows], rows)[:, : moved.size]
+            before = self._relative(samples, self._lo[moved], self._hi[moved])
+            after = self._relative(samples, lo[moved], hi[moved])
+            order = self._c.order[chunk]
+            side_before, side_after = _side(before, order), _side(after, order)
+            kept = np.all((side_before == side_after) & (side_before >= 0), axis=1)
+            redo.append(np.flatnonzero(~kept) + a)
         self._lo, self._hi = lo, hi
-        redo = [k for k in range(len(entries)) if not kept[k]]
-        if grid_rows.any():  # only the grid's resamples are kept per entry
-            changed = after[:, grid_rows].astype(np.float32)
-            for k in np.flatnonzero(kept).tolist():
-                scored = entries[k].scored
-                assert scored is not None
-                if scored.rel is None:  # its row of the published board stays as it was: changed in a copy
-                    scored.rel = self._grid_rel[scored.col].copy()
-                    scored.stable = self._grid_stable[scored.col].copy()
-                scored.rel[moved[grid_rows]] = changed[k]
-        for a in range(0, len(redo), CHUNK):
-            chunk = [entries[k] for k in redo[a : a + CHUNK]]
-            ok = usable[redo[a : a + CHUNK]]
-            self._score(self._samples(chunk, ok, plan), chunk, ok)
+        self.resample_stamps[moved[moved < GRID_RESAMPLES]] = self.stamp
+        again = np.concatenate(redo) if redo else np.zeros(0, np.intp)
+        for a in range(0, len(again), CHUNK):
+            at = again[a : a + CHUNK]
+            self._score(self._samples(slots[at], usable[at], plan), slots[at], usable[at])
         self.shifted_rows += int(moved.size)
         self.epoch += 1
 
     def _renormalise(
-        self, ranked: list[_Entry], usable: np.ndarray, plan: np.ndarray, *, keep: bool
+        self, ranked: np.ndarray, usable: np.ndarray, plan: np.ndarray, *, keep: bool
     ) -> np.ndarray | None:
         """Every entry's samples again: the min–max first, then each entry scored under it. Returns every
         entry's relative samples (resamples, entries) when ``keep``."""
@@ -356,102 +443,112 @@ class BoardMatrix:
         self._lo, self._hi = self._floored(lo), self._floored(hi)
         rel_all = np.empty((plan.shape[0], len(ranked))) if keep else None
         for a in range(0, len(ranked), CHUNK):
-            chunk_entries = ranked[a : a + CHUNK]
-            chunk = self._samples(chunk_entries, usable[a : a + CHUNK], plan)
-            rel = self._score(chunk, chunk_entries, usable[a : a + CHUNK])
+            at = slice(a, a + CHUNK)
+            rel = self._score(self._samples(ranked[at], usable[at], plan), ranked[at], usable[at])
             if rel_all is not None:
-                rel_all[:, a : a + len(chunk_entries)] = rel.T
+                rel_all[:, at] = rel.T
         return rel_all
 
-    def _points(
-        self, ranked: Sequence[_Entry]
-    ) -> tuple[list[float], list[int], list[dict[str, float]], np.ndarray]:
+    def _points(self, ranked: np.ndarray) -> tuple[np.ndarray, list[int], np.ndarray, np.ndarray]:
         """Point scores, competition ranks and normalised metrics (``scores.score_entries``, vectorised:
         the same operations in the same order, so the same numbers)."""
-        n = len(ranked)
-        points = np.array([e.points for e in ranked]).reshape(n, len(self.keys))
-        total = np.zeros(n)
+        points = self._c.points[ranked]
+        total = np.zeros(len(ranked))
         norm = np.zeros_like(points)
-        bounds = []
         for j, weight in enumerate(self._weights):
             col = points[:, j]
             present = np.isfinite(col)
             if present.any():
-                lo, hi = col[present].min(), col[present].max()
-                norm[:, j] = min_max(col, lo, hi, self.keys[j])
-                bounds += [lo, hi]
+                norm[:, j] = min_max(col, col[present].min(), col[present].max(), self.keys[j])
             total += weight * norm[:, j]
-        scores = [round(x, 12) for x in total.tolist()]  # as score_entries: ties must tie
-        key = np.array(bounds).tobytes()
-        normalized = []
-        rows = None
-        for k, e in enumerate(ranked):
-            known = e.normalized
-            if known is None or known[0] != key:
-                if rows is None:
-                    rows = norm.tolist()
-                known = e.normalized = (key, dict(zip(self.keys, rows[k], strict=True)))
-            normalized.append(known[1])
-        return scores, competition_ranks(scores), normalized, points
+        scores = np.array([round(x, 12) for x in total.tolist()])  # as score_entries: ties must tie
+        return scores, competition_ranks(scores.tolist()), norm, points
 
     def _assemble(
         self,
-        everyone: list[_Entry],
-        ranked: list[_Entry],
+        everyone: np.ndarray,
+        ranked: np.ndarray,
+        ranked_mask: np.ndarray,
         groups: int,
-        submitted: Counter[str],
         best_samples: Callable[[list[int]], np.ndarray],
     ) -> dict[str, Any]:
-        """The board dict, as ``boards.assemble_board`` makes it."""
-        ranked_ids = {id(e) for e in ranked}
+        """The board dict, as ``boards.assemble_board`` makes it (its rows built on demand)."""
+        c = self._c
+        submitted = Counter(c.who[everyone].tolist())
         unranked = []
-        for e in everyone:
-            if id(e) not in ranked_ids:
-                status, reason = classify_row(e.row, groups)
-                unranked.append(
-                    {**e.public, "status": status, "reason": reason, "entries_submitted": submitted[e.who]}
-                )
+        for slot in everyone[~ranked_mask].tolist():
+            status, reason = status_reason(
+                int(c.episodes[slot]),
+                int(c.failures[slot]),
+                bool(c.policy_failed[slot]),
+                bool(c.submission_failed[slot]),
+                groups,
+            )
+            unranked.append(
+                _public(self._public[slot], self._completed[slot])
+                | {"status": status, "reason": reason, "entries_submitted": submitted[int(c.who[slot])]}
+            )
         unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
         scores, ranks, normalized, points = self._points(ranked)
         n = len(ranked)
-        sids = np.fromiter((e.sid for e in ranked), dtype=np.int64, count=n)
+        sids = c.sid[ranked]
         rank_of = np.asarray(ranks, dtype=np.int64).reshape(n)
-        best_of = best_of_participants((e.who for e in ranked), sids, rank_of, scores, best_samples)
+        who = [self._coded[w] for w in c.who[ranked].tolist()]
+        best_of = best_of_participants(who, sids, rank_of, scores.tolist(), best_samples)
         chosen = sorted(best_of)
-        bases: list[dict[str, Any]] = []
-        serials = np.empty(n, dtype=np.int64)
-        for i, e in enumerate(ranked):  # 150,000 entries an update: the unchanged row found inline
-            s, of, is_best = e.scored, e.base_of, i in best_of
-            if not (
-                of
-                and of[0] is s
-                and of[2] is normalized[i]
-                and of[1] == scores[i]
-                and of[3] == is_best
-                and of[4] == s.rank_ci
-            ):
-                before = e.base
-                if _base(e, scores[i], normalized[i], is_best) is not before:
-                    e.serial = next(_SERIALS)
-            bases.append(e.base)  # type: ignore[arg-type]
-            serials[i] = e.serial
+        best = np.zeros(n, bool)
+        best[chosen] = True
+        # a row's serial changes whenever what it shows does (its rank aside)
+        shown = np.column_stack(
+            [
+                scores,
+                c.score_ci[ranked],
+                c.stable_ci[ranked],
+                c.rank_ci[ranked],
+                best,
+                c.own[ranked],
+                normalized,
+            ]
+        )
+        same = (c.shown[ranked] == shown) | (np.isnan(c.shown[ranked]) & np.isnan(shown))
+        moved = ranked[~np.all(same, axis=1)]
+        c.shown[moved] = shown[~np.all(same, axis=1)]
+        c.serial[moved] = new_serials(len(moved))
+        intervals = np.full((n, len(self.keys), 2), np.nan)
+        for k in np.flatnonzero(c.own[ranked]).tolist():
+            intervals[k] = self._parts.intervals(int(sids[k]))[0]
+        snap = _Snapshot(
+            self.keys,
+            [self._public[s] for s in ranked.tolist()],
+            [self._completed[s] for s in ranked.tolist()],
+            scores,
+            c.score_ci[ranked],
+            c.stable[ranked],
+            c.stable_ci[ranked],
+            c.rank_ci[ranked],
+            normalized,
+            intervals,
+            best,
+        )
         order = np.lexsort((sids, rank_of))  # rank order, ties by id
-        view = RankedView(sids[order], rank_of[order], sids, rank_of, bases, serials)
+        view = RankedView(sids[order], rank_of[order], sids, rank_of, c.serial[ranked], snap.row)
+        counts_of = [submitted[w] for w in c.who[ranked].tolist()]
 
         def listed(i: int) -> dict[str, Any]:
             """Column ``i`` as the all-entries view lists it (``boards.finish_board``'s entry)."""
-            d = bases[i] | {"rank": ranks[i], "entries_submitted": submitted[ranked[i].who], "_column": i}
+            d = snap.row(i) | {"rank": ranks[i], "entries_submitted": counts_of[i], "_column": i}
             b = best_of.get(i)
             if b is not None:
                 d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
             return d
 
         at = order.tolist()
-        entries = LazyRows(lambda: [listed(i) | {"_base": bases[i]} for i in at])
-        best = [listed(i) | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]} for i, b in best_of.items()]
-        best.sort(key=lambda e: (e["rank"], e["submission_id"]))
-        samples, stable = self._grid_matrices(ranked)
-        by_column = np.array([scores, [e.stable for e in ranked]], dtype=np.float64).reshape(2, n)
+        entries = LazyRows(lambda: [listed(i) | {"_base": snap.row(i)} for i in at])
+        best_rows = [
+            listed(i) | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]} for i, b in best_of.items()
+        ]
+        best_rows.sort(key=lambda e: (e["rank"], e["submission_id"]))
+        by_column = np.array([scores, c.stable[ranked]], dtype=np.float64).reshape(2, n)
         board = board_dict(
             self.dataset,
             self.setting,
@@ -459,90 +556,103 @@ class BoardMatrix:
             groups,
             entries,
             unranked,
-            best,
-            samples,
-            stable,
+            best_rows,
+            None,
+            None,
             by_column,
             index=dict(zip(view.ids.tolist(), range(n), strict=True)),
             tops={
-                "best": board_tops(np.asarray(scores)[chosen], points[chosen], self.keys),
-                "all": board_tops(np.asarray(scores), points, self.keys),
+                "best": board_tops(scores[chosen], points[chosen], self.keys),
+                "all": board_tops(scores, points, self.keys),
             },
         )
         board["protocol"] = self.protocol
         board["lookahead"] = self.lookahead
         board["_ranked"] = view
-        # the board's matrices are the kept ones (``board_dict`` turns the transposed views back into the
-        # row-per-entry matrices built here, no copy); read-only: a shift changes an entry's samples in a copy
-        self._grid_rel, self._grid_stable = board["_samples"], board["_stable_samples"]
-        self._grid_rel.flags.writeable = self._grid_stable.flags.writeable = False
         return board
 
-    def _grid_matrices(self, ranked: Sequence[_Entry]) -> tuple[np.ndarray, np.ndarray]:
-        """The ranked entries' grid samples as two (GRID_RESAMPLES, entries) matrices (``board_dict`` keeps
-        them transposed): the rows of the last ones gathered at once, an entry's own samples put in; each
-        entry then refers to its new row."""
-        n = len(ranked)
-        scored = [e.scored for e in ranked if e.scored is not None]
-        if len(scored) != n:
-            raise AssertionError("an entry on the board is not scored")
-        own = [k for k, s in enumerate(scored) if s.rel is not None]
-        # as many resamples as the entries' own samples (a plan may have fewer than GRID_RESAMPLES), else as before
-        size = len(scored[own[0]].rel) if own else self._grid_rel.shape[1]  # type: ignore[arg-type]
-        rel = np.empty((n, size), np.float32)
-        stable = np.empty((n, size), np.float32)
-        if len(own) < n:
-            at = np.ones(n, dtype=bool)
-            at[own] = False
-            rows = np.fromiter((s.col for s in scored if s.rel is None), dtype=np.intp, count=n - len(own))
-            rel[at] = self._grid_rel[rows]
-            stable[at] = self._grid_stable[rows]
-        for k in own:
-            rel[k], stable[k] = scored[k].rel, scored[k].stable
-        for k, s in enumerate(scored):
-            s.rel = s.stable = None
-            s.col = k
-        return rel.T, stable.T
+    # -- what the grid needs
+
+    def versions(self) -> np.ndarray:
+        """Per column of the last board handed out: a number that changes whenever the entry's own samples
+        may have (its figures, or whether they are used)."""
+        c = self._c
+        return c.version[self._ranked] * 2 + self._usable
+
+    def participants(self, columns: np.ndarray) -> list[str]:
+        """Whose entries the last board's columns ``columns`` are (``boards.participant_key``)."""
+        return [self._coded[w] for w in self._c.who[self._ranked[columns]].tolist()]
+
+    def grid_samples(
+        self, columns: np.ndarray, resamples: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The relative and stable score samples (float32, entries × resamples) of the last board's columns
+        ``columns`` under the grid's resamples (``resamples``: those of them), as ``score_board`` gives them."""
+        rows = _GRID_ROWS if resamples is None else resamples
+        pad = (-len(rows)) % 8
+        padded = np.concatenate([rows, np.zeros(pad, dtype=rows.dtype)])
+        take = len(rows) if resamples is not None else GRID_RESAMPLES
+        plan = self._plan[padded]
+        rel = np.empty((len(columns), take), np.float32)
+        stable = np.empty((len(columns), take), np.float32)
+        for a in range(0, len(columns), CHUNK):
+            at = columns[a : a + CHUNK]
+            samples = self._samples(self._ranked[at], self._usable[at], plan, padded)[:, :take]
+            rel[a : a + CHUNK] = self._relative(samples, self._lo[padded[:take]], self._hi[padded[:take]])
+            stable[a : a + CHUNK] = stable_samples(samples, self.setting)
+        return rel, stable
 
 
-def _base(entry: _Entry, score: float, normalized: dict[str, float], best: bool) -> dict[str, Any]:
-    """The entry's all-entries row without its rank (nor its participant's entry count, which moves with
-    every entry they add: the reader puts it in): the object kept from the last update when nothing it shows
-    moved (an arriving entry moves the ranks below it and nothing else of theirs). An entry scored again
-    (a shift renormalised it) keeps its row when its figures came out the same."""
-    s = entry.scored
-    assert s is not None
-    old = entry.base_of
-    if (
-        entry.base is None
-        or old[2] is not normalized
-        or old[1] != score
-        or old[3] != best
-        or s.rank_ci != old[4]
-        or (old[0] is not s and not _same_figures(old[0], s))
-    ):
-        entry.base = {
-            **entry.public,
-            "rank": None,
-            "rank_low": None if s.rank_ci is None else s.rank_ci[0],
-            "rank_high": None if s.rank_ci is None else s.rank_ci[1],
-            "score": score,
-            "score_low": s.score_ci[0],
-            "score_high": s.score_ci[1],
-            "stable": entry.stable,
-            "stable_low": s.stable_ci[0],
-            "stable_high": s.stable_ci[1],
-            "normalized": normalized,
-            "intervals": s.intervals,
-            "best": best,
-        }
-    entry.base_of = (s, score, normalized, best, s.rank_ci)
-    return entry.base
+def _public(packed: Any, completed: Any) -> dict[str, Any]:
+    """An entry's public fields (``boards.public_fields``) from what the board keeps of them."""
+    fields = orjson.loads(packed) if isinstance(packed, bytes) else dict(packed)
+    return {
+        "submission_id": fields["submission_id"],
+        "name": fields["name"],
+        "participant": fields["participant"],
+        "baseline": fields["baseline"],
+        "metrics": fields["metrics"],
+        "extras": fields["extras"],
+        "completed_at": completed,
+        "verification": fields["verification"],
+    }
 
 
-def _same_figures(a: _Scored, b: _Scored) -> bool:
-    """Whether two scorings of an entry show the same figures (its row would not change)."""
-    return a.score_ci == b.score_ci and a.stable_ci == b.stable_ci and a.intervals == b.intervals
+def _packed(public: dict[str, Any]) -> Any:
+    """Public fields as compact JSON (≈ 0.4 kB where their dicts took ≈ 1.7 kB), or as they are when JSON
+    would not give them back equal (a non-finite float, a key that is not a string)."""
+    try:
+        body = orjson.dumps(public)
+    except TypeError:
+        return public
+    return body if orjson.loads(body) == public else public
+
+
+#: The last serial number handed out (rows and entry versions: unique in the process).
+_LAST_SERIAL = [0]
+
+
+def new_serials(n: int) -> np.ndarray:
+    """``n`` new serial numbers (of rows: the grid's too)."""
+    first = _LAST_SERIAL[0] + 1
+    _LAST_SERIAL[0] += n
+    return np.arange(first, first + n, dtype=np.int64)
+
+
+#: What a row shows of its submission beside its run's metrics and extras (``boards.public_fields``).
+_PUBLIC = ("submission_id", "name", "participant", "baseline", "verification")
+
+
+def _scoring_fields(row: Mapping[str, Any]) -> bytes:
+    """What of a row its scoring depends on (a verdict or name changing moves no score), as bytes."""
+    fields = (row.get("metrics"), row.get("extras"), row.get("ids"), row.get("submission_status"))
+    return repr(fields).encode()
+
+
+def _point(value: object) -> float:
+    if isinstance(value, int | float) and not isinstance(value, bool) and np.isfinite(value):
+        return float(value)
+    return np.nan
 
 
 def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
@@ -571,25 +681,6 @@ def _side(values: np.ndarray, order: np.ndarray) -> np.ndarray:
     out[(values > order[:, 1:2]) & (values < order[:, 2:3])] = 1
     out[values > order[:, 3:4]] = 2
     return out
-
-
-#: Serial numbers of the entries' rows (:attr:`_Entry.serial`), unique in the process.
-_SERIALS = itertools.count(1)
-
-#: What an entry keeps of its row (its scoring fields, ``classify_row``'s and its id; what it shows is in
-#: ``public``): the whole row again for each of 150,000 entries was ≈ 45 MB at 10,000 submissions.
-_KEPT = ("submission_id", "metrics", "extras", "ids", "submission_status", "episodes_total")
-
-
-def _scoring_fields(row: Mapping[str, Any]) -> tuple[Any, ...]:
-    """What of a row its scoring depends on (a verdict or name changing moves no score)."""
-    return (row.get("metrics"), row.get("extras"), row.get("ids"), row.get("submission_status"))
-
-
-def _point(value: object) -> float:
-    if isinstance(value, int | float) and not isinstance(value, bool) and np.isfinite(value):
-        return float(value)
-    return np.nan
 
 
 def _fmin(lo: np.ndarray, samples: np.ndarray) -> np.ndarray:

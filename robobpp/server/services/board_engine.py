@@ -405,7 +405,12 @@ class BoardEngine:
                 matrix = state.grids.get(grid_key)
                 if matrix is None:
                     matrix = state.grids[grid_key] = GridMatrix(self.datasets, self.settings, track)
-                grid = matrix.grid(shown, rank_intervals=full)
+                matrices = {
+                    f"{st}/{d}": state.boards[board_id(d, st, protocol, lookahead)]
+                    for st in self.settings
+                    for d in self.datasets
+                }
+                grid = matrix.grid(shown, matrices, rank_intervals=full)
                 grid["protocol"], grid["lookahead"] = protocol, lookahead
                 state.out[grid_key] = out[grid_key] = grid
         return out

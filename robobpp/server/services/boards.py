@@ -42,7 +42,7 @@ from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import queries
 from robobpp.db.models import BoardPart, BoardPublication, Submission
 from robobpp.replay import CLOSED
-from robobpp.scoring.boards import RankedView, _served, participant_key
+from robobpp.scoring.boards import RankedView, participant_key, served_fields
 from robobpp.scoring.scores import ANCHORS_VERSION, RESOLVED
 from robobpp.server.services.board_engine import board_of, grid_of
 from robobpp.sim.math_pack import MATH_RULES_VERSION
@@ -171,6 +171,20 @@ def chunk_hash(body: bytes) -> str:
     return hashlib.blake2b(body, digest_size=8).hexdigest()
 
 
+@dataclass(frozen=True)
+class StoredRows:
+    """The all-entries view's rows without ranks: ``ids`` ascending, ``build(i)`` the row of ``ids[i]``, and
+    ``serials`` (the board engine's) a number per row that changes whenever the row does — the worker
+    serialises a row again only then; None: every row is serialised."""
+
+    ids: np.ndarray
+    build: Callable[[int], Mapping[str, Any]]
+    serials: np.ndarray | None = None
+
+    def row(self, submission_id: int) -> Mapping[str, Any]:
+        return self.build(int(np.searchsorted(self.ids, submission_id)))
+
+
 @dataclass
 class StoredBoard:
     """A board (or grid) version as the worker writes it (its parts are assembled in board_worker.py).
@@ -179,18 +193,16 @@ class StoredBoard:
     counts and its unranked entries' ids). ``chunks``: the best view, the unranked entries (the grid's rows
     apart) in chunks of :data:`CHUNK` as served; a chunk whose content did not change stays where an earlier
     version wrote it. ``ids``, ``ranks``, ``cells``: the all-entries view in rank order (and the grid's cell
-    ranks). ``rows``: that view's entries by submission id, each *without* its ranks (``"rank": null``, its
-    cells' too): an arriving entry moves the rank of everyone below it and nothing else of theirs, so only
-    the rows whose content changed are written (``e:<id>`` parts). A row's value is the served dict, or a
-    dict handed out by the board engine that stays the same object while its content does (``_base``): the
-    worker serialises each such object once."""
+    ranks). ``rows``: that view's entries, each *without* its ranks (``"rank": null``, its cells' too): an
+    arriving entry moves the rank of everyone below it and nothing else of theirs, so only the rows whose
+    content changed are written (``e:<id>`` parts)."""
 
     head: dict[str, Any]
     chunks: dict[str, bytes]
     ids: np.ndarray
     ranks: np.ndarray
     cells: np.ndarray | None
-    rows: dict[int, Mapping[str, Any]]
+    rows: StoredRows
 
     def digest(self, hashes: np.ndarray, ids: np.ndarray) -> str:
         """What the version holds (its parts and its rows' content): an unchanged one is not written."""
@@ -249,7 +261,7 @@ def _rankless(entry: Mapping[str, Any]) -> Mapping[str, Any]:
     base = entry.get("_base")
     if base is not None:
         return base
-    row = {**_served(entry), "rank": None}
+    row = {**served_fields(entry), "rank": None}
     row.pop("entries_submitted", None)
     return row
 
@@ -259,7 +271,10 @@ def board_parts(board: Mapping[str, Any]) -> StoredBoard:
     ``best:<i>`` and ``unranked:<i>``; a page of one submission finds it by the order's ids or the head's
     unranked ids."""
     entries = board["entries"]
-    lists = {"best": [_served(e) for e in board["_best"]], "unranked": [dict(e) for e in board["unranked"]]}
+    lists = {
+        "best": [served_fields(e) for e in board["_best"]],
+        "unranked": [dict(e) for e in board["unranked"]],
+    }
     head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
     ids, ranks, rows = _all_entries(board, entries, _rankless)
     counts = {"best": len(lists["best"]), "all": len(ids), "unranked": len(lists["unranked"])}
@@ -278,15 +293,17 @@ def _all_entries(
     board: Mapping[str, Any],
     entries: Sequence[Mapping[str, Any]],
     rankless: Callable[[Mapping[str, Any]], Mapping[str, Any]],
-) -> tuple[np.ndarray, np.ndarray, dict[int, Mapping[str, Any]]]:
+) -> tuple[np.ndarray, np.ndarray, StoredRows]:
     """The all-entries view's ids and ranks (rank order) and rows without ranks: from the board engine's
-    arrays when it gave them (no ranked dict per entry), else from the entries."""
+    arrays when it gave them (no ranked dict per entry, a row built only when it must be serialised), else
+    from the entries."""
     view: RankedView | None = board.get("_ranked")
     if view is not None:
-        return view.ids, view.ranks, dict(zip(view.ids_by_column.tolist(), view.bases, strict=True))
+        return view.ids, view.ranks, StoredRows(view.ids_by_column, view.row, view.serials)
     ids = np.fromiter((e["submission_id"] for e in entries), dtype=np.int64, count=len(entries))
     ranks = np.fromiter((e["rank"] for e in entries), dtype=np.int64, count=len(entries))
-    return ids, ranks, {e["submission_id"]: rankless(e) for e in entries}
+    by_id = np.argsort(ids, kind="stable")
+    return ids, ranks, StoredRows(ids[by_id], lambda i: rankless(entries[int(by_id[i])]))
 
 
 def grid_cell_keys(head: Mapping[str, Any]) -> list[str]:
@@ -298,7 +315,7 @@ def _rankless_row(row: Mapping[str, Any]) -> Mapping[str, Any]:
     base = row.get("_base")
     if base is not None:
         return base
-    served = _served(row)
+    served = served_fields(row)
     cells = {k: {**c, "rank": None} for k, c in served["cells"].items()}
     return {**served, "rank": None, "cells": cells}
 
@@ -308,9 +325,9 @@ def grid_parts(grid: Mapping[str, Any]) -> StoredBoard:
     submissions not ranked on every board), and its ranked rows with their cell ranks (:class:`StoredBoard`)."""
     rows = grid["rows"]
     lists = {
-        "best": [_served(r) for r in grid["_best"]],
-        "apart-best": [_served(r) for r in grid["_best_apart"]],
-        "apart-all": [_served(r) for r in grid["apart"]],
+        "best": [served_fields(r) for r in grid["_best"]],
+        "apart-best": [served_fields(r) for r in grid["_best_apart"]],
+        "apart-all": [served_fields(r) for r in grid["apart"]],
     }
     head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
     ids, ranks, stored = _all_entries(grid, rows, _rankless_row)

@@ -22,11 +22,11 @@ from typing import Any
 from bench_server import SETTINGS, bench_settings, seed_rows
 from sqlalchemy import text
 
-from robobpp.scoring import engine as scoring_engine
-from robobpp.scoring import grid as scoring_grid
+from robobpp.boards import grid as scoring_grid
+from robobpp.boards import matrix as scoring_engine
+from robobpp.boards import worker as board_worker
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.runtime import Runtime
-from robobpp.server.services import board_worker
 
 DATASETS = ("repetitive", "diverse", "longboard")
 STAGES: collections.defaultdict[str, float] = collections.defaultdict(float)

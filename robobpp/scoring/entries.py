@@ -3,7 +3,7 @@
 Everything here depends on the run alone — its per-group figures, the resample plan (a function of the
 group count only, :func:`robobpp.scoring.stats.resample_counts`) and the fixed stable anchors — so no other
 entry arriving or leaving can change it. A board update then only does the global part (min–max per
-resample, ranks: :mod:`robobpp.scoring.engine`).
+resample, ranks: :mod:`robobpp.boards.matrix`).
 
 Stored form (``runs.entry``, :meth:`EntryPart.encode`): a small header, then little-endian arrays — the group
 ids, the per-group figures as two groups × metrics float64 matrices (what a resample sums: the value, 0 when

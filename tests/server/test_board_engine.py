@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 from sqlalchemy import select, text
 
+from robobpp.boards import engine as board_engine
+from robobpp.boards.engine import BoardEngine, compute_snapshot
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, RunRow, Submission, utcnow
@@ -25,8 +27,6 @@ from robobpp.db.work import run_figures
 from robobpp.provenance import recorded_rules
 from robobpp.scoring.entries import EntryPart, entry_part, part_of_run
 from robobpp.scoring.stats import group_figures
-from robobpp.server.services import board_engine
-from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
 from tests.server.conftest import complete_next_episode
 
 DATASETS = ("diverse", "longboard")

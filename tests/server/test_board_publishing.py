@@ -21,14 +21,16 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
+from robobpp.boards import engine as board_engine
+from robobpp.boards import reader as boards_module
+from robobpp.boards import store as store_module
+from robobpp.boards import worker as board_worker_module
+from robobpp.boards.engine import BoardEngine, compute_snapshot
+from robobpp.boards.ranking import board_view, grid_view
+from robobpp.boards.reader import BoardCache
+from robobpp.boards.store import board_key, to_json
+from robobpp.boards.worker import BoardPublisher, BoardWorker, request_recompute
 from robobpp.db.models import BoardPart, BoardPublication
-from robobpp.scoring.boards import board_view, grid_view
-from robobpp.server.services import board_engine
-from robobpp.server.services import board_worker as board_worker_module
-from robobpp.server.services import boards as boards_module
-from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
-from robobpp.server.services.board_worker import BoardPublisher, BoardWorker, request_recompute
-from robobpp.server.services.boards import BoardCache, board_key, to_json
 from tests.server.conftest import submit_direct
 from tests.server.test_scale import DATASETS, GROUPS, drain, make_app, operator_browser, submit
 
@@ -96,7 +98,7 @@ def quiet_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
 def test_pages_read_by_index_equal_the_computed_board(quiet_app, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every page a reader assembles from the stored chunks is the page ``board_view``/``grid_view`` cut from
     the whole board: views, offsets across chunk borders, one submission (ranked, unranked or absent)."""
-    monkeypatch.setattr(boards_module, "CHUNK", 2)  # several chunks with a handful of entries
+    monkeypatch.setattr(store_module, "CHUNK", 2)  # several chunks with a handful of entries
     app = quiet_app
     ids = [
         submit(app, who, url)
@@ -394,7 +396,7 @@ def test_a_reader_of_the_previous_version_never_sees_rows_of_the_next(quiet_app)
     assert worker.publish("private")
     fresh = reader(app).board_page("diverse", "math", view="all")
     slow._parts.clear()  # its rows of the first version are gone from SQL too
-    with pytest.raises(boards_module._Gone):  # served bodies retry after reading the publication again
+    with pytest.raises(boards_module.VersionGone):  # served bodies retry after reading the publication again
         slow.board_page("diverse", "math", view="all")
     slow.publication("private", force=True)
     assert slow.board_page("diverse", "math", view="all") == fresh
@@ -556,7 +558,7 @@ def _as_layout_3(app: Any, key: str) -> None:
     chunk at the version itself, a head without the chunks' versions."""
     import numpy as np
 
-    from robobpp.server.services.boards import Order
+    from robobpp.boards.store import Order
 
     with app.state.runtime.session() as s:
         publication = s.get(BoardPublication, "private")

@@ -41,34 +41,42 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from robobpp import logs
-from robobpp.db.models import BoardPart, BoardPublication, utcnow
-from robobpp.server.services.board_engine import BoardEngine
-from robobpp.server.services.boards import (
+from robobpp.boards.engine import BoardEngine, board_of, grid_of
+from robobpp.boards.store import (
     LAYOUT,
     ROW_PREFIX,
     VERSION_PARTS,
     SessionFactory,
     StoredBoard,
+    board_key,
     board_source,
     chunk_hash,
     decode_version,
+    grid_key,
     order_part,
     parts_of,
-    published_key,
     read_publication,
     row_hash,
     row_part,
     to_json,
     version_parts,
 )
+from robobpp.db.models import BoardPart, BoardPublication, utcnow
 from robobpp.worker.lifeline import Lifeline
 
 log = logging.getLogger("robobpp.server")
 TRACKS = ("private", "public")
 
 
+def published_key(key: tuple[str, ...] | str) -> str:
+    """A board engine's key (:func:`robobpp.boards.engine.board_id`, :func:`~robobpp.boards.engine.grid_id`) as published."""
+    if isinstance(key, str):
+        return grid_key(*grid_of(key))
+    return board_key(*board_of(key))
+
+
 class Engine(Protocol):
-    """What the publisher needs of a board engine (services/board_engine.py)."""
+    """What the publisher needs of a board engine (boards/engine.py)."""
 
     def keys(self, track: str) -> list[tuple[str, ...] | str]:
         """Every board and grid the track has now (a lookahead's come and go with its entries)."""

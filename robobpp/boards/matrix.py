@@ -18,11 +18,11 @@ public fields, kept as one compact JSON string. What an arriving entry can chang
   an entry keeps the interval last computed and a new entry has none (served as null).
 
 Samples are never kept: an entry's are computed again from its figures when needed (the grid's means:
-:meth:`BoardMatrix.grid_samples`). Each update hands out a :class:`~robobpp.scoring.boards.RankedView` whose
+:meth:`BoardMatrix.grid_samples`). Each update hands out a :class:`~robobpp.boards.ranking.RankedView` whose
 rows are built on demand from a snapshot of the columns, with a serial per row that changes whenever what
 the row shows does (the publisher serialises a row again only then).
 
-The board produced equals :func:`robobpp.scoring.boards.build_board` of the same rows (to the last bit of
+The board produced equals :func:`robobpp.boards.ranking.build_board` of the same rows (to the last bit of
 each entry's own samples: an entry's samples are always computed alone), except for those rank intervals.
 """
 
@@ -38,8 +38,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from robobpp.scoring import stats
-from robobpp.scoring.boards import (
+from robobpp.boards.ranking import (
     GRID_RESAMPLES,
     LazyRows,
     RankedView,
@@ -50,6 +49,7 @@ from robobpp.scoring.boards import (
     ranked_of,
     status_reason,
 )
+from robobpp.scoring import stats
 from robobpp.scoring.entries import (
     EntryPart,
     PartTable,

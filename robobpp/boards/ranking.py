@@ -475,7 +475,7 @@ def build_grid(
 ) -> dict[str, Any]:
     """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
     interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board.
-    (The board engine keeps a grid between updates: :class:`robobpp.scoring.grid.GridMatrix`, the same grid.)"""
+    (The board engine keeps a grid between updates: :class:`robobpp.boards.grid.GridMatrix`, the same grid.)"""
     keys = [f"{s}/{d}" for s in settings for d in datasets]
     rows: dict[int, dict[str, Any]] = {}
 

@@ -1,12 +1,12 @@
 """The overall grid kept between updates, from the board engine's boards.
 
-:func:`robobpp.scoring.boards.build_grid` builds the grid from boards' ranked entries, a dict per cell: at
+:func:`robobpp.boards.ranking.build_grid` builds the grid from boards' ranked entries, a dict per cell: at
 10,000 submissions 90,000 cells per grid, rebuilt on every update, most of them only because an arriving
 entry moved their rank. :class:`GridMatrix` builds the same grid from each board's
-:class:`~robobpp.scoring.boards.RankedView`: which submissions are ranked on every board, their columns and
-cell ranks are array operations, and the Mean is :func:`~robobpp.scoring.boards.grid_figures` (the same
+:class:`~robobpp.boards.ranking.RankedView`: which submissions are ranked on every board, their columns and
+cell ranks are array operations, and the Mean is :func:`~robobpp.boards.ranking.grid_figures` (the same
 arithmetic) of sums of the boards' samples the grid keeps, one float64 matrix (rows × resamples). A row's
-sums are computed again (from the boards' figures, :meth:`~robobpp.scoring.engine.BoardMatrix.grid_samples`)
+sums are computed again (from the boards' figures, :meth:`~robobpp.boards.matrix.BoardMatrix.grid_samples`)
 only when one of its entries changed, and only the resamples a board renormalised otherwise. Rows are
 built on demand; a row's serial changes whenever one of its cells' board rows or its own figures moved.
 """
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from robobpp.scoring import stats
-from robobpp.scoring.boards import (
+from robobpp.boards.matrix import BoardMatrix, new_serials
+from robobpp.boards.ranking import (
     GRID_RESAMPLES,
     GRID_ROW_FIGURES,
     LazyRows,
@@ -31,7 +31,7 @@ from robobpp.scoring.boards import (
     participant_key,
     top_values,
 )
-from robobpp.scoring.engine import BoardMatrix, new_serials
+from robobpp.scoring import stats
 from robobpp.scoring.scores import RANKED_BY
 
 #: A cell's figures as its board entry shows them (``build_grid``'s cell, in its order; ``pph`` last).

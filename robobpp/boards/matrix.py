@@ -242,6 +242,7 @@ class BoardMatrix:
             self._parts.drop(sid)
         self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
         c = self._c
+        placed: list[tuple[int, Mapping[str, Any]]] = []
         for row in upsert:
             sid = int(row["submission_id"])
             scoring = _scoring_fields(row)
@@ -264,6 +265,10 @@ class BoardMatrix:
                 c.rank_ci[slot] = -1
             self._scoring[slot] = scoring
             self._set(slot, row)
+            placed.append((slot, row.get("metrics") or {}))
+        if placed:  # each entry's stable score from its own metrics: element-wise, so all at once
+            stable = stable_scores([m for _, m in placed], self.setting)
+            c.stable[[slot for slot, _ in placed]] = stable
 
     def _set(self, slot: int, row: Mapping[str, Any]) -> None:
         c = self._c
@@ -279,7 +284,6 @@ class BoardMatrix:
         ids = row.get("ids")
         c.ids[slot] = -1 if ids is None else self._code(ids)
         c.points[slot] = [_point(metrics.get(k)) for k in self.keys]
-        c.stable[slot] = stable_scores([metrics], self.setting)[0]
         c.version[slot] = new_serials(1)[0]
         c.shown[slot] = np.nan  # its row is new
         public = {k: row.get(k) for k in _PUBLIC}

@@ -230,9 +230,10 @@ class PartTable:
             block = self._blocks.get(ids)
             if block is None:
                 block = self._blocks[ids] = _Block(items[0][1].groups, len(self.keys), self._pooled)
-            block.reserve(len(items))
-            for sid, part in items:
-                self._where[sid] = (ids, block.add(part))
+            for sid, row in zip(
+                (sid for sid, _ in items), block.add_many([p for _, p in items]), strict=True
+            ):
+                self._where[sid] = (ids, row)
 
     def drop(self, submission_id: int) -> None:
         where = self._where.pop(submission_id, None)
@@ -303,27 +304,34 @@ class _Block:
         )
 
     def add(self, part: EntryPart) -> int:
-        top, bottom = part.top, part.bottom
+        return self.add_many([part])[0]
+
+    def add_many(self, parts: Sequence[EntryPart]) -> list[int]:
+        """Keep the parts (of this block's group ids); returns their rows."""
+        top = np.stack([p.top for p in parts]).reshape(len(parts), self.groups, self.metrics)
+        bottom = np.stack([p.bottom for p in parts]).reshape(top.shape)
         plain = ~self.pooled
         # a column kept without weights must have weight 1 where measured, and sum term 0 where not
         if not (
-            np.all((bottom[:, plain] == 1.0) | ((bottom[:, plain] == 0.0) & (top[:, plain] == 0.0)))
-            and np.all(np.isfinite(top[:, plain][bottom[:, plain] == 1.0]))
+            np.all((bottom[..., plain] == 1.0) | ((bottom[..., plain] == 0.0) & (top[..., plain] == 0.0)))
+            and np.all(np.isfinite(top[..., plain][bottom[..., plain] == 1.0]))
         ):
             self._keep_every_weight()
             plain = ~self.pooled
-        self.reserve(1)
-        if self._free:
-            row = self._free.pop()
-        else:
-            row, self._used = self._used, self._used + 1
-        self.figures[row] = np.where(plain & (bottom == 0.0), np.nan, top)
-        self.weights[row] = bottom[:, self.pooled]
-        self.metric_ci[row] = part.metric_ci
-        self.stable_ci[row] = part.stable_ci
-        self.seeds[row] = part.seed
-        self.size += 1
-        return row
+        self.reserve(len(parts))
+        reused = self._free[-len(parts) :][::-1]
+        del self._free[len(self._free) - len(reused) :]
+        rows = np.array(
+            reused + list(range(self._used, self._used + len(parts) - len(reused))), dtype=np.intp
+        )
+        self._used += len(parts) - len(reused)
+        self.figures[rows] = np.where(plain & (bottom == 0.0), np.nan, top)
+        self.weights[rows] = bottom[..., self.pooled]
+        self.metric_ci[rows] = np.stack([p.metric_ci for p in parts]).reshape(len(parts), self.metrics, 2)
+        self.stable_ci[rows] = [p.stable_ci for p in parts]
+        self.seeds[rows] = [p.seed for p in parts]
+        self.size += len(parts)
+        return rows.tolist()
 
     def _keep_every_weight(self) -> None:
         """A part whose weights the NaN cannot say (never written by :func:`entry_part`): keep every

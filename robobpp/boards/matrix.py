@@ -694,16 +694,16 @@ def _fmin(lo: np.ndarray, samples: np.ndarray) -> np.ndarray:
     if samples.shape[0] == 0:
         return lo
     low = np.fmin.reduce(samples, axis=0)
-    return low if lo.size == 0 else np.fmin(lo, low)
+    return np.asarray(low if lo.size == 0 else np.fmin(lo, low))
 
 
 def _fmax(hi: np.ndarray, samples: np.ndarray) -> np.ndarray:
     if samples.shape[0] == 0:
         return hi
     high = np.fmax.reduce(samples, axis=0)
-    return high if hi.size == 0 else np.fmax(hi, high)
+    return np.asarray(high if hi.size == 0 else np.fmax(hi, high))
 
 
 def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Per resample, whether two min (or max) arrays agree on every metric (NaN = NaN)."""
-    return np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
+    return np.asarray(np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1))

@@ -90,7 +90,8 @@ def board_source(session: Session, track: str, datasets: Sequence[str], settings
         *settings,
     )
     stamp = hashlib.sha256(repr(code).encode()).hexdigest()[:16]
-    return json.loads(to_json([*board_version(session, track), stamp]))
+    source: list[Any] = json.loads(to_json([*board_version(session, track), stamp]))
+    return source
 
 
 def board_key(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> str:
@@ -237,7 +238,7 @@ def _rankless(entry: Mapping[str, Any]) -> Mapping[str, Any]:
     """A served entry of the all-entries view as stored: without its rank and its participant's entry count
     (the engine's ``_base`` when it gave one). Each arriving entry moves the count of its participant's other
     entries, so it is stored once per board (the head's ``submitted``), not in each of their rows."""
-    base = entry.get("_base")
+    base: Mapping[str, Any] | None = entry.get("_base")
     if base is not None:
         return base
     row = {**served_fields(entry), "rank": None}
@@ -291,7 +292,7 @@ def grid_cell_keys(head: Mapping[str, Any]) -> list[str]:
 
 
 def _rankless_row(row: Mapping[str, Any]) -> Mapping[str, Any]:
-    base = row.get("_base")
+    base: Mapping[str, Any] | None = row.get("_base")
     if base is not None:
         return base
     served = served_fields(row)

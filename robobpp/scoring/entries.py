@@ -70,7 +70,8 @@ class EntryPart:
 
         The same computation for an entry wherever it is done (``numpy.matmul`` of one entry gives the same
         bits alone or stacked with others), so a board updated entry by entry equals one built at once."""
-        return samples_of(self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan)[0]
+        stacked = samples_of(self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan)
+        return np.asarray(stacked[0])
 
     def encode(self) -> bytes:
         m = len(metric_keys(self.setting))
@@ -117,7 +118,7 @@ def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndar
     with np.errstate(invalid="ignore", divide="ignore"):
         num /= den
     num[den <= 0] = np.nan
-    return num
+    return np.asarray(num)
 
 
 def entry_part(figures: Mapping[str, Any], setting: str) -> EntryPart:
@@ -331,7 +332,7 @@ class _Block:
         self.stable_ci[rows] = [p.stable_ci for p in parts]
         self.seeds[rows] = [p.seed for p in parts]
         self.size += len(parts)
-        return rows.tolist()
+        return [int(r) for r in rows]
 
     def _keep_every_weight(self) -> None:
         """A part whose weights the NaN cannot say (never written by :func:`entry_part`): keep every

@@ -416,3 +416,34 @@ def test_the_engine_computes_without_the_collector_and_frees_cycles_it_froze(
         assert late_ref() is None
     finally:
         gc.unfreeze()
+
+
+def test_the_engine_equals_the_from_scratch_boards_on_a_seeded_set(db_url: str, tmp_path: Any) -> None:
+    """Submissions seeded as the benchmarks seed them (bench/_seed.py: three settings, the paper protocol's
+    boards, pooled metrics, failed and partial entries): the engine's boards and grids equal a from-scratch
+    computation after its start, after a middling and a best submission, and after a refresh."""
+    from bench import _seed
+    from tests.server.test_bench_seed import runtime_for
+
+    runtime = runtime_for(db_url, tmp_path)
+    try:
+        _seed.seed(runtime, 25, episodes_every=25, newest=1, progress=False)  # one failed, one partial
+
+        def from_scratch() -> dict[Any, Any]:
+            with runtime.read_session() as s:
+                snap = compute_snapshot(s, _seed.DATASETS, _seed.SETTINGS, "private")
+            return {**snap.pop("boards"), **snap}
+
+        engine = BoardEngine(runtime.read_session, _seed.DATASETS, _seed.SETTINGS)
+        first = engine.update("private")
+        assert len(first) == 17
+        same(first, from_scratch(), tol=1e-12)
+        for n, quality in ((25, 0.5), (26, 1.0)):
+            _seed.seed(runtime, 1, first=n, fixed_quality=quality, progress=False)
+            changed = engine.update("private")
+            assert changed
+            scratch_now = from_scratch()
+            same(changed, {k: v for k, v in scratch_now.items() if k in changed}, ranks=False, tol=1e-12)
+        same(engine.refresh("private"), from_scratch(), tol=1e-12)
+    finally:
+        runtime.dispose()

@@ -98,8 +98,8 @@ def create_app(
             await _run_sync(bootstrap, runtime)
         from robobpp.server.api.leaderboards import make_board_cache
 
-        # the boards are computed by one board worker per deployment and published in SQL; this process
-        # reads them (boards/store.py, boards/worker.py)
+        # the boards are computed by one board worker per deployment and published in SQL (boards/worker.py);
+        # this process reads them (boards/reader.py)
         board_worker = app.state.board_worker = start_board_worker(runtime)
         if board_worker is not None:
             from robobpp.boards.worker import await_first_publication

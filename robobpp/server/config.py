@@ -96,7 +96,7 @@ class Settings(BaseSettings):
     baselines: tuple[str, ...] | None = None
     #: Also evaluate the baselines on the public track, so a debug run there is compared with something.
     public_baselines: bool = True
-    #: How often (seconds) an API process checks in SQL whether a board was published (boards/store.py).
+    #: How often (seconds) an API process checks in SQL whether a board was published (boards/reader.py).
     board_refresh_s: float = Field(default=1.0, ge=0, le=60)
     #: How long a reader waits for the board worker when the boards are behind the data and their last
     #: publication took no longer than this; a slower board is served as it was until its successor lands.

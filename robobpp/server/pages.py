@@ -132,7 +132,7 @@ async def _shared(
     lookahead: int = 0,
 ) -> HTMLResponse:
     """An anonymous visitor's board page, rendered once per version of ``board`` and shared by every such
-    reader (boards/store.py; answered on the event loop while current); a page naming its viewer or
+    reader (boards/reader.py; answered on the event loop while current); a page naming its viewer or
     carrying a CSRF nonce is rendered for that viewer, in a worker thread. A lookahead no entry saw: 404."""
     who = viewer(request)
     try:
@@ -426,7 +426,7 @@ def _standing(
             return entry, of, board
         except BoardsUnavailable:
             raise
-        except LookupError:  # the version just read was replaced meanwhile (boards/store.py): read again
+        except LookupError:  # the version just read was replaced meanwhile (boards/reader.py): read again
             if attempt:
                 raise
             cache.publication(sub.track, force=True)

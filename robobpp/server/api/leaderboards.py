@@ -33,7 +33,7 @@ Track = Literal["private", "public"]
 
 
 def board_cache(request: Request) -> BoardCache:
-    """The app's reader of the published boards (boards/store.py)."""
+    """The app's reader of the published boards (boards/reader.py)."""
     cache = getattr(request.app.state, "board_cache", None)
     if cache is None:
         cache = request.app.state.board_cache = make_board_cache(request.app.state.runtime)
@@ -61,7 +61,7 @@ async def cached_body(
     lookahead: int = 0,
 ) -> bytes:
     """A served body of ``board`` (None: of the track's whole publication) shared by every reader of ``key``
-    (boards.store): answered on the event loop when it is current (no thread, no query), else built or
+    (boards.reader): answered on the event loop when it is current (no thread, no query), else built or
     version-checked in a worker thread. A board not published yet answers 503 with Retry-After (a fresh
     server's first computation); a board of a lookahead K > 0 that no entry saw, 404."""
     cache = board_cache(request)

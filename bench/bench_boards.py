@@ -41,10 +41,10 @@ from bench_server import bench_settings, children, seed_rows, start_server
 from bench_server import rss_mb as process_rss_mb
 from sqlalchemy import text
 
+from robobpp.boards.engine import BoardEngine, compute_snapshot
 from robobpp.scoring.metrics import PHYSICAL
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.runtime import Runtime
-from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
 
 DATASETS = ("repetitive", "diverse", "longboard")
 
@@ -208,7 +208,7 @@ def wait_visible(client: httpx.Client, submission_id: int, deadline_s: float) ->
 
 
 def published_version(runtime: Runtime) -> int:
-    """The private track's publication version (services/boards.py): moves when the worker writes it."""
+    """The private track's publication version (boards/store.py): moves when the worker writes it."""
     with runtime.read_session() as s:
         return int(
             s.execute(text("SELECT version FROM board_publications WHERE track = 'private'")).scalar_one()

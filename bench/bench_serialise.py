@@ -1,4 +1,4 @@
-"""Serialising published board rows: ``robobpp.server.services.boards.to_json`` (orjson) against the json
+"""Serialising published board rows: ``robobpp.boards.store.to_json`` (orjson) against the json
 module with the options it replaced, on rows shaped as the all-entries view stores them.
 
     python bench/bench_serialise.py [--rows 10000] [--repeats 5]
@@ -18,8 +18,8 @@ from typing import Any
 
 from _common import machine
 
+from robobpp.boards.store import to_json
 from robobpp.scoring.metrics import metrics_for
-from robobpp.server.services.boards import to_json
 
 
 def _default(value: object) -> str:  # what the json module was given before orjson

@@ -43,13 +43,13 @@ from _seed import DATASETS, GROUPS, SETTINGS, seed
 from pydantic import SecretStr
 from sqlalchemy import text
 
+from robobpp.boards.engine import leaderboard
+from robobpp.boards.ranking import build_grid
 from robobpp.client.serve import BackgroundServer, create_policy_app
 from robobpp.policies.dbl import DBL
-from robobpp.scoring.boards import build_grid
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
-from robobpp.server.services.board_engine import leaderboard
 
 ADMIN = "bench-admin-token-0123456789abcdef"
 

@@ -89,9 +89,9 @@ def main() -> None:
                 ids.append(r.json()["id"])
             from sqlalchemy.orm import Session
 
+            from robobpp.boards.engine import leaderboard
             from robobpp.db import queries
             from robobpp.db.session import make_engine, make_session_factory
-            from robobpp.server.services.board_engine import leaderboard
 
             engine = make_engine(
                 f"sqlite:///{Path(tmp) / 'robobpp.sqlite3'}", read_only=args.begin == "deferred"

@@ -18,7 +18,7 @@ import pytest
 from robobpp.core import Box, ContainerSpec, EpisodeSpec
 from robobpp.datasets.importer import fetch
 
-# The board worker runs as a thread of the server under test (services/board_worker.py): a spawned process per
+# The board worker runs as a thread of the server under test (boards/worker.py): a spawned process per
 # app would cost each test a second's start-up; tests/server/test_board_publishing.py runs the process mode.
 os.environ.setdefault("ROBOBPP_BOARD_WORKER", "thread")
 

@@ -162,10 +162,10 @@ def db_refresh_boards(
     stay served until it has)."""
     from pydantic import ValidationError
 
+    from robobpp.boards.worker import request_recompute
     from robobpp.cli.common import fail, settings_problem
     from robobpp.db.session import make_engine, make_session_factory, transaction
     from robobpp.server.config import Settings
-    from robobpp.server.services.board_worker import request_recompute
 
     try:
         settings = Settings()

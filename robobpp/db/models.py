@@ -138,7 +138,7 @@ class Submission(Base):
     #: On the verified submission: the verdict of its latest verification (docs/server.md, threat model).
     verification: Mapped[dict[str, Any] | None] = mapped_column(default=None)
 
-    #: The board version check (``services.boards.board_version``) aggregates finished submissions per track.
+    #: The board version check (``boards.store.board_version``) aggregates finished submissions per track.
     __table_args__ = (Index("ix_submissions_track_finished", "track", "finished_at"),)
 
     participant: Mapped[Participant] = relationship()
@@ -232,7 +232,7 @@ class EpisodeRow(Base):
 
 
 class BoardPublication(Base):
-    """A track's published boards (services/boards.py): which version of each board readers serve, and the
+    """A track's published boards (boards/store.py): which version of each board readers serve, and the
     lease of the one board worker that computes the next (docs/server.md, "How boards are published")."""
 
     __tablename__ = "board_publications"
@@ -240,7 +240,7 @@ class BoardPublication(Base):
     track: Mapped[str] = mapped_column(String(16), primary_key=True)
     #: Bumped on every publication; readers key what they cache by it.
     version: Mapped[int] = mapped_column(default=0)
-    #: ``services.boards.board_source`` when they were computed (the data's version and the code's); None asks
+    #: ``boards.store.board_source`` when they were computed (the data's version and the code's); None asks
     #: the board worker to recompute (``robobpp db refresh-boards``).
     source: Mapped[list[Any] | None] = mapped_column(default=None)
     #: Board key (``repetitive/math/closed``, ``grid/closed``; a lookahead K > 0's end in ``/lookahead-K``) ->

@@ -3,7 +3,7 @@
 For page authors, the entry points are:
 
 * :func:`board_rows` — the stored runs a board (dataset × setting × protocol) is composed from (the
-  composition, scores and intervals, is ``robobpp.server.services.board_engine``'s);
+  composition, scores and intervals, is ``robobpp.boards.engine``'s);
 * :func:`submission_view` / :func:`submission_progress` — one submission with its runs and progress;
 * :func:`episode_rows` / :func:`get_episode` — per-episode results (traces only on the public track);
 * :func:`list_submission_keys` / :func:`submissions_by_id` — a page of submissions, newest first.

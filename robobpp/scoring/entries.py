@@ -3,7 +3,7 @@
 Everything here depends on the run alone — its per-group figures, the resample plan (a function of the
 group count only, :func:`robobpp.scoring.stats.resample_counts`) and the fixed stable anchors — so no other
 entry arriving or leaving can change it. A board update then only does the global part (min–max per
-resample, ranks: :mod:`robobpp.scoring.engine`).
+resample, ranks: :mod:`robobpp.boards.matrix`).
 
 Stored form (``runs.entry``, :meth:`EntryPart.encode`): a small header, then little-endian arrays — the group
 ids, the per-group figures as two groups × metrics float64 matrices (what a resample sums: the value, 0 when
@@ -186,3 +186,176 @@ def part_of_run(figures: Mapping[str, Any] | None, setting: str) -> bytes | None
     if not figures or not figures.get("ids") or setting not in WEIGHTS:
         return None
     return entry_part(figures, setting).encode()
+
+
+class PartTable:
+    """Many entries' parts as matrices, one block per distinct group-id list: what a board keeps of each
+    entry between updates, so that any entry's samples can be computed again without SQL.
+
+    A block holds one float64 matrix (entries × groups × metrics): the sum term where the group was measured
+    and NaN where it was not (a metric that is not pooled has weight 1 or 0, and sum term 0 where it is 0,
+    so the NaN says both); a pooled metric's weights (its denominators) in a second matrix. The sum terms
+    and weights :meth:`stacked` gives back are the parts' own, bit for bit. Beside them, per entry: the
+    metric and stable intervals and the timing seed (what :meth:`EntryPart.decode` reads). About 1.2 kB an
+    entry of a 30-group Physics board, where an :class:`EntryPart` kept its stored bytes and five arrays
+    (≈ 3.5 kB with their Python objects)."""
+
+    def __init__(self, setting: str) -> None:
+        self.setting = setting
+        self.keys = metric_keys(setting)
+        #: the columns whose weights are kept (the pooled ones; every column once a part breaks the rule)
+        self._pooled = np.array([k in POOLED for k in self.keys], dtype=bool)
+        self._blocks: dict[bytes, _Block] = {}
+        #: submission id -> (its block's group ids, its row there)
+        self._where: dict[int, tuple[bytes, int]] = {}
+
+    def __contains__(self, submission_id: object) -> bool:
+        return submission_id in self._where
+
+    def __len__(self) -> int:
+        return len(self._where)
+
+    def put(self, submission_id: int, part: EntryPart) -> None:
+        """Keep ``part`` as the entry's (replacing the one it had)."""
+        self.drop(submission_id)
+        ids = part.ids.tobytes()
+        block = self._blocks.get(ids)
+        if block is None:
+            block = self._blocks[ids] = _Block(part.groups, len(self.keys), self._pooled)
+        self._where[submission_id] = (ids, block.add(part))
+
+    def put_many(self, parts: Mapping[int, EntryPart]) -> None:
+        """:meth:`put` of many at once (a board's start: one allocation per block, not one per entry)."""
+        by_ids: dict[bytes, list[tuple[int, EntryPart]]] = {}
+        for sid, part in parts.items():
+            self.drop(sid)
+            by_ids.setdefault(part.ids.tobytes(), []).append((sid, part))
+        for ids, items in by_ids.items():
+            block = self._blocks.get(ids)
+            if block is None:
+                block = self._blocks[ids] = _Block(items[0][1].groups, len(self.keys), self._pooled)
+            for sid, row in zip(
+                (sid for sid, _ in items), block.add_many([p for _, p in items]), strict=True
+            ):
+                self._where[sid] = (ids, row)
+
+    def drop(self, submission_id: int) -> None:
+        where = self._where.pop(submission_id, None)
+        if where is not None:
+            block = self._blocks[where[0]]
+            block.remove(where[1])
+            if block.size == 0:
+                del self._blocks[where[0]]
+
+    def stacked(self, submission_ids: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """The entries' sum terms and weights, each (entries, groups, metrics): their parts' ``top`` and
+        ``bottom`` stacked (every entry of the same group ids)."""
+        blocks = {self._where[s][0] for s in submission_ids}
+        if len(blocks) != 1:
+            raise ValueError("stacked parts must share their group ids")
+        block = self._blocks[blocks.pop()]
+        return block.top_bottom(np.fromiter((self._where[s][1] for s in submission_ids), dtype=np.intp))
+
+    def seed(self, submission_id: int) -> int:
+        ids, row = self._where[submission_id]
+        return int(self._blocks[ids].seeds[row])
+
+    def intervals(self, submission_id: int) -> tuple[np.ndarray, tuple[float, float]]:
+        """The entry's metric intervals (metrics × 2, NaN = none) and stable interval."""
+        ids, row = self._where[submission_id]
+        block = self._blocks[ids]
+        return block.metric_ci[row], (float(block.stable_ci[row, 0]), float(block.stable_ci[row, 1]))
+
+    def nbytes(self) -> int:
+        return sum(b.nbytes() for b in self._blocks.values())
+
+
+class _Block:
+    """The parts of one group-id list (:class:`PartTable`), rows reused once freed."""
+
+    def __init__(self, groups: int, metrics: int, pooled: np.ndarray) -> None:
+        self.groups, self.metrics, self.pooled = groups, metrics, pooled.copy()
+        self.figures = np.zeros((0, groups, metrics))
+        self.weights = np.zeros((0, groups, int(pooled.sum())))
+        self.metric_ci = np.zeros((0, metrics, 2))
+        self.stable_ci = np.zeros((0, 2))
+        self.seeds = np.zeros(0, dtype=np.uint64)
+        self.size = 0
+        self._free: list[int] = []
+        self._used = 0  # rows ever handed out (the free ones among them in ``_free``)
+
+    def nbytes(self) -> int:
+        arrays = (self.figures, self.weights, self.metric_ci, self.stable_ci, self.seeds)
+        return sum(a.nbytes for a in arrays)
+
+    def reserve(self, more: int) -> None:
+        """Room for ``more`` rows (grown by a tenth beyond them: an update adds a row or two at a time)."""
+        needed = self._used + max(0, more - len(self._free))
+        if needed <= self.figures.shape[0]:
+            return
+        capacity = needed if self.figures.shape[0] == 0 else max(needed, self.figures.shape[0] * 11 // 10 + 8)
+
+        def grown(a: np.ndarray) -> np.ndarray:
+            out = np.zeros((capacity, *a.shape[1:]), dtype=a.dtype)
+            out[: a.shape[0]] = a
+            return out
+
+        self.figures, self.weights = grown(self.figures), grown(self.weights)
+        self.metric_ci, self.stable_ci, self.seeds = (
+            grown(self.metric_ci),
+            grown(self.stable_ci),
+            grown(self.seeds),
+        )
+
+    def add(self, part: EntryPart) -> int:
+        return self.add_many([part])[0]
+
+    def add_many(self, parts: Sequence[EntryPart]) -> list[int]:
+        """Keep the parts (of this block's group ids); returns their rows."""
+        top = np.stack([p.top for p in parts]).reshape(len(parts), self.groups, self.metrics)
+        bottom = np.stack([p.bottom for p in parts]).reshape(top.shape)
+        plain = ~self.pooled
+        # a column kept without weights must have weight 1 where measured, and sum term 0 where not
+        if not (
+            np.all((bottom[..., plain] == 1.0) | ((bottom[..., plain] == 0.0) & (top[..., plain] == 0.0)))
+            and np.all(np.isfinite(top[..., plain][bottom[..., plain] == 1.0]))
+        ):
+            self._keep_every_weight()
+            plain = ~self.pooled
+        self.reserve(len(parts))
+        reused = self._free[-len(parts) :][::-1]
+        del self._free[len(self._free) - len(reused) :]
+        rows = np.array(
+            reused + list(range(self._used, self._used + len(parts) - len(reused))), dtype=np.intp
+        )
+        self._used += len(parts) - len(reused)
+        self.figures[rows] = np.where(plain & (bottom == 0.0), np.nan, top)
+        self.weights[rows] = bottom[..., self.pooled]
+        self.metric_ci[rows] = np.stack([p.metric_ci for p in parts]).reshape(len(parts), self.metrics, 2)
+        self.stable_ci[rows] = [p.stable_ci for p in parts]
+        self.seeds[rows] = [p.seed for p in parts]
+        self.size += len(parts)
+        return [int(r) for r in rows]
+
+    def _keep_every_weight(self) -> None:
+        """A part whose weights the NaN cannot say (never written by :func:`entry_part`): keep every
+        column's weights from now on, as they were."""
+        if self.pooled.all():
+            return
+        top, bottom = self.top_bottom(np.arange(self.figures.shape[0]))
+        self.pooled = np.ones(self.metrics, dtype=bool)
+        self.figures, self.weights = top, bottom
+
+    def remove(self, row: int) -> None:
+        self._free.append(row)
+        self.size -= 1
+
+    def top_bottom(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        top = self.figures[rows]
+        bottom = np.empty_like(top)
+        plain = ~self.pooled
+        measured = ~np.isnan(top[:, :, plain])
+        bottom[:, :, plain] = measured
+        top[:, :, plain] = np.where(measured, top[:, :, plain], 0.0)
+        bottom[:, :, self.pooled] = self.weights[rows]
+        return top, bottom

@@ -25,8 +25,8 @@ from robobpp.server.limits import BodySizeLimit
 from robobpp.server.prometheus import install_metrics
 
 if TYPE_CHECKING:  # both executors are imported only when the server starts one (Celery is slow to import)
+    from robobpp.boards.worker import BoardWorker, WorkerProcess
     from robobpp.server.runtime import Runtime
-    from robobpp.server.services.board_worker import BoardWorker, WorkerProcess
     from robobpp.worker.celery_executor import CeleryExecutor
     from robobpp.worker.local import LocalExecutor
 
@@ -98,11 +98,11 @@ def create_app(
             await _run_sync(bootstrap, runtime)
         from robobpp.server.api.leaderboards import make_board_cache
 
-        # the boards are computed by one board worker per deployment and published in SQL; this process
-        # reads them (services/boards.py, services/board_worker.py)
+        # the boards are computed by one board worker per deployment and published in SQL (boards/worker.py);
+        # this process reads them (boards/reader.py)
         board_worker = app.state.board_worker = start_board_worker(runtime)
         if board_worker is not None:
-            from robobpp.server.services.board_worker import await_first_publication
+            from robobpp.boards.worker import await_first_publication
 
             await _run_sync(await_first_publication, runtime.read_session, FIRST_PUBLICATION_S)
         app.state.board_cache = make_board_cache(runtime, board_worker.wake if board_worker else None)
@@ -200,8 +200,8 @@ async def _run_sync(fn: Callable[..., T], *args: Any) -> T:
 
 def start_board_worker(runtime: Runtime) -> BoardWorker | WorkerProcess | None:
     """This process's candidate board worker (``ROBOBPP_BOARD_WORKER``), started: of all candidates of a
-    deployment, the one that claims a track's publication computes it (services/board_worker.py)."""
-    from robobpp.server.services.board_worker import BoardPublisher, BoardWorker, WorkerProcess
+    deployment, the one that claims a track's publication computes it (boards/worker.py)."""
+    from robobpp.boards.worker import BoardPublisher, BoardWorker, WorkerProcess
 
     settings = runtime.settings
     boards = (tuple(settings.datasets), tuple(settings.enabled_settings))

@@ -100,18 +100,18 @@ class Settings(BaseSettings):
     baselines: tuple[str, ...] | None = None
     #: Also evaluate the baselines on the public track, so a debug run there is compared with something.
     public_baselines: bool = True
-    #: How often (seconds) an API process checks in SQL whether a board was published (services/boards.py).
+    #: How often (seconds) an API process checks in SQL whether a board was published (boards/reader.py).
     board_refresh_s: float = Field(default=1.0, ge=0, le=60)
     #: How long a reader waits for the board worker when the boards are behind the data and their last
     #: publication took no longer than this; a slower board is served as it was until its successor lands.
     board_wait_s: float = Field(default=2.0, ge=0, le=60)
-    #: Where the board worker runs (services/board_worker.py): ``process`` (spawned beside the API process),
+    #: Where the board worker runs (boards/worker.py): ``process`` (spawned beside the API process),
     #: ``thread`` (inside it) or ``off`` (another process or host of the deployment runs it).
     board_worker: Literal["process", "thread", "off"] = "process"
     #: How often (seconds) the board worker checks whether a track's data changed.
     board_poll_s: float = Field(default=0.5, gt=0, le=60)
     #: How often (seconds) the board worker recomputes each track in full: an update after a submission
-    #: finishes recomputes the all-entries rank intervals only then (services/board_engine.py).
+    #: finishes recomputes the all-entries rank intervals only then (boards/engine.py).
     board_full_s: float = Field(default=300.0, gt=0)
     #: The API process's GIL switch interval (``sys.setswitchinterval``): how long a worker thread back from
     #: SQL may wait for the event loop to hand over the interpreter.

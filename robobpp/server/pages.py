@@ -19,6 +19,8 @@ from markupsafe import Markup
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from robobpp.boards.reader import BoardCache
+from robobpp.boards.store import BoardsUnavailable, board_key, grid_key
 from robobpp.datasets import DATASETS
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
@@ -30,7 +32,6 @@ from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body, known_lookaheads
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, progress
-from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key
 from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root, with_csrf
@@ -131,7 +132,7 @@ async def _shared(
     lookahead: int = 0,
 ) -> HTMLResponse:
     """An anonymous visitor's board page, rendered once per version of ``board`` and shared by every such
-    reader (services/boards.py; answered on the event loop while current); a page naming its viewer or
+    reader (boards/reader.py; answered on the event loop while current); a page naming its viewer or
     carrying a CSRF nonce is rendered for that viewer, in a worker thread. A lookahead no entry saw: 404."""
     who = viewer(request)
     try:
@@ -427,7 +428,7 @@ def _standing(
             return entry, of, board
         except BoardsUnavailable:
             raise
-        except LookupError:  # the version just read was replaced meanwhile (services/boards.py): read again
+        except LookupError:  # the version just read was replaced meanwhile (boards/reader.py): read again
             if attempt:
                 raise
             cache.publication(sub.track, force=True)

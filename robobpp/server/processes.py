@@ -180,10 +180,10 @@ def serve_processes(
     import httpx
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # the readiness polls below are not news
+    from robobpp.boards.worker import await_first_publication
     from robobpp.server.app import FIRST_PUBLICATION_S, start_board_worker, start_executor
     from robobpp.server.bootstrap import bootstrap
     from robobpp.server.runtime import Runtime
-    from robobpp.server.services.board_worker import await_first_publication
     from robobpp.server.services.progress import ProgressLog
 
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)

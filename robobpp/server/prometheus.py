@@ -85,11 +85,11 @@ class _QueueCollector(Collector):
 
     @staticmethod
     def _boards(session: Any) -> list[tuple[str, int, float]]:
-        """Each track's published boards (services/board_worker.py), whichever process computed them."""
+        """Each track's published boards (boards/worker.py), whichever process computed them."""
         from sqlalchemy import select
 
+        from robobpp.boards.worker import TRACKS
         from robobpp.db.models import BoardPublication
-        from robobpp.server.services.board_worker import TRACKS
 
         return [
             (track, published, took)

@@ -1,6 +1,6 @@
 """Table models for the leaderboard pages, shaped from the server's query results (no second scoring).
 
-The server's ``robobpp.scoring.boards`` ranks and scores; this module only decides what each cell shows:
+The server's ``robobpp.boards.ranking`` ranks and scores; this module only decides what each cell shows:
 column headers with their better-direction arrows, intervals as text, which cells are a column's top
 four, sort keys for the sortable tables, pagination. Pure functions of plain dicts, so they are tested without a server.
 """

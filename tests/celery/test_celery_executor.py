@@ -10,10 +10,10 @@ from typing import Any
 import pytest
 from sqlalchemy import select
 
+from robobpp.boards.engine import leaderboard
 from robobpp.db.models import EpisodeRow, RunRow
 from robobpp.episode import run_episode
 from robobpp.policies import load_policy
-from robobpp.server.services.board_engine import leaderboard
 from robobpp.worker.celery_app import make_celery
 from robobpp.worker.celery_executor import CeleryExecutor
 from robobpp.worker.options import WorkerOptions

@@ -39,7 +39,7 @@ class NaNPolicy:
 
 
 @pytest.fixture
-def board_app(tmp_path: Path):  # type: ignore[no-untyped-def]
+def board_app(tmp_path: Path):
     settings = Settings(
         database_url=f"sqlite:///{tmp_path / 'board.sqlite3'}",
         state_dir=tmp_path,

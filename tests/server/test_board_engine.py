@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 from sqlalchemy import select, text
 
+from robobpp.boards import engine as board_engine
+from robobpp.boards.engine import BoardEngine, compute_snapshot
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, RunRow, Submission, utcnow
@@ -25,8 +27,6 @@ from robobpp.db.work import run_figures
 from robobpp.provenance import recorded_rules
 from robobpp.scoring.entries import EntryPart, entry_part, part_of_run
 from robobpp.scoring.stats import group_figures
-from robobpp.server.services import board_engine
-from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
 from tests.server.conftest import complete_next_episode
 
 DATASETS = ("diverse", "longboard")
@@ -191,7 +191,7 @@ def ranked_view(board: Mapping[str, Any]) -> None:
     assert view.ranks.tolist() == [e["rank"] for e in entries]
     by_id = {e["submission_id"]: e for e in entries}
     for column, sid in enumerate(view.ids_by_column.tolist()):
-        assert view.bases[column] is by_id[sid]["_base"]
+        assert view.row(column) == by_id[sid]["_base"]
         assert view.rank_by_column[column] == by_id[sid]["rank"]
     if view.cells is not None:
         keys = [f"{s}/{d}" for s in board["settings"] for d in board["datasets"]]
@@ -226,14 +226,18 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     # a middling entry: inside every resample's min–max, so nobody else is renormalised
     epoch = matrix.epoch
     middle = between(episodes_of(0.2, 0), episodes_of(0.2 + 0.6 * 9 / 10, 9))
-    grid_rows = {r["submission_id"]: r["_base"] for r in engine._tracks["private"].out["grid"]["rows"]}
+
+    def serials(view: Any) -> dict[int, int]:
+        return dict(zip(view.ids_by_column.tolist(), view.serials.tolist(), strict=True))
+
+    grid_rows = serials(engine._tracks["private"].out["grid"]["_ranked"])
     middling = add_submission(factory, "team-5", 0.5, seed=100, episodes=middle)
     changed = engine.update("private")
     assert matrix.epoch == epoch, "a middling entry renormalised the board"
-    # the grid rows it moved only in rank keep their row without ranks (not serialised nor written again)
-    now = {r["submission_id"]: r["_base"] for r in changed["grid"]["rows"]}
+    # the grid rows it moved only in rank keep their serial (not serialised nor written again)
+    now = serials(changed["grid"]["_ranked"])
     assert set(now) - set(grid_rows) == {middling}
-    assert all(now[sid] is base for sid, base in grid_rows.items())
+    assert all(now[sid] == serial for sid, serial in grid_rows.items())
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
     new_entry = changed[("diverse", "math")]["entries"]
     assert any(e["submission_id"] == middling and e["rank_low"] is None for e in new_entry)
@@ -245,26 +249,24 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     for d in DATASETS:
         lifted[(d, "math")][0]["space_utilization"] = 1.0
     rows_before, recomputed = matrix.shifted_rows, matrix.recomputed
-    bases = {sid: e.base for sid, e in matrix._entries.items()}
-    kept = engine._tracks["private"].out[("diverse", "math")]["_samples"]
-    kept_values = kept.copy()
+    before_view = engine._tracks["private"].out[("diverse", "math")]["_ranked"]
+    rows = {sid: before_view.row(c) for c, sid in enumerate(before_view.ids_by_column.tolist())}
+    before_serials = serials(before_view)
     add_submission(factory, "team-8", 0.5, seed=103, episodes=lifted)
     changed = engine.update("private")
     shifted = matrix.shifted_rows - rows_before
     assert 0 < shifted < 500 and matrix.recomputed - recomputed < len(matrix.submission_ids())
-    # an entry scored again keeps its row object (not serialised nor written again) unless what it shows moved
-    for sid, base in bases.items():
-        now = matrix._entries[sid].base
-        assert now is base or now != base, f"entry {sid}: a new row object with the same content"
+    # an entry scored again keeps its serial (not serialised nor written again) unless what it shows moved
+    view = changed[("diverse", "math")]["_ranked"]
+    for c, sid in enumerate(view.ids_by_column.tolist()):
+        if sid in rows:
+            moved = view.row(c) != rows[sid]
+            assert moved == (view.serials[c] != before_serials[sid]), f"entry {sid}"
+    # a board hands out rows built from its figures as they were: the earlier board's rows did not move
+    assert all(before_view.row(c) == rows[sid] for c, sid in enumerate(before_view.ids_by_column.tolist()))
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
-    # one copy of the grid samples per board: the entries' are its columns, and the shift wrote none of the
-    # previous version's
-    assert np.array_equal(kept, kept_values)
-    samples = engine._tracks["private"].out[("diverse", "math")]["_samples"]
-    scored = [e.scored for e in matrix._entries.values() if e.scored is not None]
-    assert scored and all(s.rel is None and s.stable is None for s in scored)
-    assert sorted(s.col for s in scored) == list(range(samples.shape[0]))
-    assert matrix._grid_rel is samples
+    # no samples are kept per entry: the board keeps figures and a few numbers per entry
+    assert "_samples" not in engine._tracks["private"].out[("diverse", "math")]
 
     # a new best: it moves the maximum, every entry is renormalised
     best = add_submission(factory, "team-6", 3.0, seed=101)
@@ -289,8 +291,16 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     # the refresh computes every rank interval: then everything equals a full computation, bit for bit; the
     # parts it read with the runs are the boards' (none read a second time)
     loads: list[int] = []
+
+    def counting(load: Any) -> Any:
+        def counted(sids: Any) -> Any:
+            loads.append(len(sids))
+            return load(sids)
+
+        return counted
+
     for m in engine._tracks["private"].boards.values():
-        m.load = lambda sids, load=m.load: loads.append(len(sids)) or load(sids)  # type: ignore[method-assign]
+        m.load = counting(m.load)
     same(engine.refresh("private"), full(factory))
     assert loads == []
 
@@ -414,3 +424,33 @@ def test_the_engine_computes_without_the_collector_and_frees_cycles_it_froze(
         assert late_ref() is None
     finally:
         gc.unfreeze()
+
+
+def test_the_engine_equals_the_from_scratch_boards_on_a_seeded_set(db_url: str, tmp_path: Any) -> None:
+    """Submissions seeded as the benchmarks seed them (bench/_seed.py: three settings, the paper protocol's
+    boards, pooled metrics, failed and partial entries): the engine's boards and grids equal a from-scratch
+    computation after its start, after a middling and a best submission, and after a refresh."""
+    from tests.server.test_bench_seed import _seed, runtime_for  # bench._seed, imported by name (see there)
+
+    runtime = runtime_for(db_url, tmp_path)
+    try:
+        _seed.seed(runtime, 25, episodes_every=25, newest=1, progress=False)  # one failed, one partial
+
+        def from_scratch() -> dict[Any, Any]:
+            with runtime.read_session() as s:
+                snap = compute_snapshot(s, _seed.DATASETS, _seed.SETTINGS, "private")
+            return {**snap.pop("boards"), **snap}
+
+        engine = BoardEngine(runtime.read_session, _seed.DATASETS, _seed.SETTINGS)
+        first = engine.update("private")
+        assert len(first) == 17
+        same(first, from_scratch(), tol=1e-12)
+        for n, quality in ((25, 0.5), (26, 1.0)):
+            _seed.seed(runtime, 1, first=n, fixed_quality=quality, progress=False)
+            changed = engine.update("private")
+            assert changed
+            scratch_now = from_scratch()
+            same(changed, {k: v for k, v in scratch_now.items() if k in changed}, ranks=False, tol=1e-12)
+        same(engine.refresh("private"), from_scratch(), tol=1e-12)
+    finally:
+        runtime.dispose()

@@ -16,11 +16,11 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 from typer.testing import CliRunner
 
+from robobpp.boards.engine import BoardEngine, board_id, grid_id, lookahead_of
+from robobpp.boards.ranking import build_board
 from robobpp.db import queries
 from robobpp.db.models import BoardPart, Submission
 from robobpp.db.session import transaction
-from robobpp.scoring.boards import build_board
-from robobpp.server.services.board_engine import BoardEngine, board_id, grid_id, lookahead_of
 from tests.server.conftest import submit_direct
 from tests.server.test_board_engine import DATASETS, SETTINGS, add_submission, factory, same, scratch
 from tests.server.test_board_publishing import publisher

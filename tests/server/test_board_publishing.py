@@ -21,14 +21,17 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
+from robobpp.boards import engine as board_engine
+from robobpp.boards import reader as boards_module
+from robobpp.boards import store as board_store
+from robobpp.boards import store as store_module
+from robobpp.boards import worker as board_worker_module
+from robobpp.boards.engine import BoardEngine, compute_snapshot
+from robobpp.boards.ranking import board_view, grid_view
+from robobpp.boards.reader import BoardCache
+from robobpp.boards.store import board_key, to_json
+from robobpp.boards.worker import BoardPublisher, BoardWorker, request_recompute
 from robobpp.db.models import BoardPart, BoardPublication
-from robobpp.scoring.boards import board_view, grid_view
-from robobpp.server.services import board_engine
-from robobpp.server.services import board_worker as board_worker_module
-from robobpp.server.services import boards as boards_module
-from robobpp.server.services.board_engine import BoardEngine, compute_snapshot
-from robobpp.server.services.board_worker import BoardPublisher, BoardWorker, request_recompute
-from robobpp.server.services.boards import BoardCache, board_key, to_json
 from tests.server.conftest import submit_direct
 from tests.server.test_scale import DATASETS, GROUPS, drain, make_app, operator_browser, submit
 
@@ -86,7 +89,7 @@ class Gate:
 
 
 @pytest.fixture
-def quiet_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
+def quiet_app(db_url: str, tmp_path: Path):
     """An app whose boards no worker publishes unless a test runs one, and whose readers never wait."""
     app = make_app(db_url, tmp_path, board_worker="off", board_wait_s=0)
     yield app
@@ -96,7 +99,7 @@ def quiet_app(db_url: str, tmp_path: Path):  # type: ignore[no-untyped-def]
 def test_pages_read_by_index_equal_the_computed_board(quiet_app, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every page a reader assembles from the stored chunks is the page ``board_view``/``grid_view`` cut from
     the whole board: views, offsets across chunk borders, one submission (ranked, unranked or absent)."""
-    monkeypatch.setattr(boards_module, "CHUNK", 2)  # several chunks with a handful of entries
+    monkeypatch.setattr(store_module, "CHUNK", 2)  # several chunks with a handful of entries
     app = quiet_app
     ids = [
         submit(app, who, url)
@@ -394,7 +397,7 @@ def test_a_reader_of_the_previous_version_never_sees_rows_of_the_next(quiet_app)
     assert worker.publish("private")
     fresh = reader(app).board_page("diverse", "math", view="all")
     slow._parts.clear()  # its rows of the first version are gone from SQL too
-    with pytest.raises(boards_module._Gone):  # served bodies retry after reading the publication again
+    with pytest.raises(boards_module.VersionGone):  # served bodies retry after reading the publication again
         slow.board_page("diverse", "math", view="all")
     slow.publication("private", force=True)
     assert slow.board_page("diverse", "math", view="all") == fresh
@@ -446,7 +449,7 @@ def test_an_entry_ranked_above_others_writes_its_row_alone(quiet_app) -> None:
     and the pages read back carry the new ranks."""
     app = quiet_app
     scripted = Scripted()
-    worker = publisher(app, scripted)  # type: ignore[arg-type]
+    worker = publisher(app, scripted)
     scripted.board = _board([(1, 0.9), (2, 0.5), (3, 0.1)])
     assert worker.publish("private", force=True) and worker.rows_written == 3
     scripted.board = _board([(1, 0.9), (2, 0.5), (3, 0.1), (4, 0.7)])
@@ -516,7 +519,7 @@ def test_an_unchanged_chunk_is_written_once_and_old_parts_go(quiet_app) -> None:
     version shows is removed."""
     app = quiet_app
     scripted = Scripted()
-    worker = publisher(app, scripted)  # type: ignore[arg-type]
+    worker = publisher(app, scripted)
     entries = [(i, 1.0 - i / 500) for i in range(1, 251)]  # three chunks of the best view
     scripted.board = _board(entries) | {"unranked": _unranked(900, 901)}
     assert worker.publish("private", force=True)
@@ -556,7 +559,7 @@ def _as_layout_3(app: Any, key: str) -> None:
     chunk at the version itself, a head without the chunks' versions."""
     import numpy as np
 
-    from robobpp.server.services.boards import Order
+    from robobpp.boards.store import Order
 
     with app.state.runtime.session() as s:
         publication = s.get(BoardPublication, "private")
@@ -706,7 +709,7 @@ def test_readers_of_a_new_version_decode_it_and_build_its_page_once(
     drain(app)
     assert publisher(app).publish("private")
     decoded, built = Counter[str](), Counter[str]()
-    real_decode = boards_module.decode_version
+    real_decode = board_store.decode_version  # the reader's name for it is patched below
 
     def slow_decode(version: int, parts: Mapping[str, bytes]) -> Any:
         decoded["order"] += 1
@@ -742,7 +745,7 @@ def test_one_reader_reads_the_publication_while_the_others_serve_the_one_they_kn
     body = cache.response("private", "grid/closed", key, lambda: to_json(cache.grid_page("private")))
     asked = Counter[str]()
     inside, release = threading.Event(), threading.Event()
-    real_source = boards_module.board_source
+    real_source = board_store.board_source
 
     def slow_source(*args: Any) -> Any:
         asked["source"] += 1

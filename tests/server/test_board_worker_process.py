@@ -15,7 +15,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from robobpp.server.services import board_worker
+from robobpp.boards import worker as board_worker
 from robobpp.worker.lifeline import Lifeline
 
 

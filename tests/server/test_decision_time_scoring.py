@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from robobpp.boards.engine import BoardEngine
 from robobpp.db.migrate import upgrade
 from robobpp.db.session import make_engine, make_session_factory
 from robobpp.scoring import stats
@@ -26,7 +27,6 @@ from robobpp.scoring.scores import (
     score_board,
     score_entries,
 )
-from robobpp.server.services.board_engine import BoardEngine
 from tests.server.test_board_engine import DATASETS, SETTINGS, add_submission, episodes_of, same, scratch
 
 GROUPS = 30

@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 import robobpp
 from robobpp import provenance
+from robobpp.boards.engine import leaderboard
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
@@ -22,7 +23,6 @@ from robobpp.db.models import Participant, RunRow
 from robobpp.db.session import make_engine, make_session_factory, transaction
 from robobpp.export import SUMMARY_DECIMALS
 from robobpp.scoring.scores import ANCHORS_VERSION
-from robobpp.server.services.board_engine import leaderboard
 from robobpp.sim import MATH_RULES_VERSION
 from tests.server.conftest import ADMIN_TOKEN, complete_next_episode, new_participant, wait_for
 

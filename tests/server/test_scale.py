@@ -13,11 +13,11 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import event, select
 
+from robobpp.boards.worker import BoardPublisher, BoardWorker
 from robobpp.db.models import Participant, Submission
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
-from robobpp.server.services.board_worker import BoardPublisher, BoardWorker
 from robobpp.worker.options import worker_options
 from robobpp.worker.run import claim_and_run
 from tests.server.conftest import submit_direct

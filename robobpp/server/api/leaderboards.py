@@ -9,6 +9,8 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 
+from robobpp.boards.reader import BoardCache
+from robobpp.boards.store import BoardsUnavailable, board_key, grid_key, to_json
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.schemas import (
     MAX_SUBMISSION_LOOKAHEAD,
@@ -25,14 +27,13 @@ from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SettingsDep
 from robobpp.server.problems import ProblemError
 from robobpp.server.runtime import Runtime
-from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key, to_json
 
 router = APIRouter(tags=["leaderboards"])
 Track = Literal["private", "public"]
 
 
 def board_cache(request: Request) -> BoardCache:
-    """The app's reader of the published boards (services/boards.py)."""
+    """The app's reader of the published boards (boards/reader.py)."""
     cache = getattr(request.app.state, "board_cache", None)
     if cache is None:
         cache = request.app.state.board_cache = make_board_cache(request.app.state.runtime)
@@ -60,7 +61,7 @@ async def cached_body(
     lookahead: int = 0,
 ) -> bytes:
     """A served body of ``board`` (None: of the track's whole publication) shared by every reader of ``key``
-    (services.boards): answered on the event loop when it is current (no thread, no query), else built or
+    (boards.reader): answered on the event loop when it is current (no thread, no query), else built or
     version-checked in a worker thread. A board not published yet answers 503 with Retry-After (a fresh
     server's first computation); a board of a lookahead K > 0 that no entry saw, 404."""
     cache = board_cache(request)

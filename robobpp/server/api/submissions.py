@@ -9,6 +9,7 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from pydantic import TypeAdapter
 from sqlalchemy.orm import Session
 
+from robobpp.boards.engine import leaderboard
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.schemas import (
@@ -23,7 +24,6 @@ from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, Settings
 from robobpp.server.config import Settings
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, admission, verification
-from robobpp.server.services.board_engine import leaderboard
 from robobpp.server.services.submissions import finished_views, listed_forms
 
 router = APIRouter(tags=["submissions"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import select
 
+from robobpp.boards.engine import leaderboard
 from robobpp.core import Box
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
@@ -12,7 +13,6 @@ from robobpp.db.models import EpisodeRow, Participant
 from robobpp.db.session import make_engine, make_session_factory, transaction
 from robobpp.episode import EpisodeResult, run_episode
 from robobpp.policies import load_policy
-from robobpp.server.services.board_engine import leaderboard
 from robobpp.sim import make_setting
 from robobpp.sim.physics import PHYSICS_VERSION, PhysicsConfig
 from tests.server.conftest import complete_next_episode

@@ -41,34 +41,42 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from robobpp import logs
-from robobpp.db.models import BoardPart, BoardPublication, utcnow
-from robobpp.server.services.board_engine import BoardEngine
-from robobpp.server.services.boards import (
+from robobpp.boards.engine import BoardEngine, board_of, grid_of
+from robobpp.boards.store import (
     LAYOUT,
     ROW_PREFIX,
     VERSION_PARTS,
     SessionFactory,
     StoredBoard,
+    board_key,
     board_source,
     chunk_hash,
     decode_version,
+    grid_key,
     order_part,
     parts_of,
-    published_key,
     read_publication,
     row_hash,
     row_part,
     to_json,
     version_parts,
 )
+from robobpp.db.models import BoardPart, BoardPublication, utcnow
 from robobpp.worker.lifeline import Lifeline
 
 log = logging.getLogger("robobpp.server")
 TRACKS = ("private", "public")
 
 
+def published_key(key: tuple[str, ...] | str) -> str:
+    """A board engine's key (:func:`robobpp.boards.engine.board_id`, :func:`~robobpp.boards.engine.grid_id`) as published."""
+    if isinstance(key, str):
+        return grid_key(*grid_of(key))
+    return board_key(*board_of(key))
+
+
 class Engine(Protocol):
-    """What the publisher needs of a board engine (services/board_engine.py)."""
+    """What the publisher needs of a board engine (boards/engine.py)."""
 
     def keys(self, track: str) -> list[tuple[str, ...] | str]:
         """Every board and grid the track has now (a lookahead's come and go with its entries)."""
@@ -106,10 +114,10 @@ class BoardPublisher:
         self.last_seconds = 0.0
         #: CPU seconds of this process for the last computation and publication (its lease thread included).
         self.last_cpu_seconds = 0.0
-        #: Per published board: its rows' hashes by the object they were serialised from (an engine hands
-        #: out the same object while an entry's content stays: serialised once), and what its published
-        #: version holds (:class:`_Held`) to compare the next one against.
-        self._hashes: dict[tuple[str, str], dict[int, tuple[Mapping[str, Any], int, bytes | None]]] = {}
+        #: Per published board: its rows' ids (ascending), serials and hashes (an engine's row keeps its serial
+        #: while its content stays: serialised once), and what its published version holds
+        #: (:class:`_Held`) to compare the next one against.
+        self._hashes: dict[tuple[str, str], tuple[np.ndarray, np.ndarray | None, np.ndarray]] = {}
         self._held: dict[tuple[str, str], _Held] = {}
         #: Rows written by the last publication (its boards together), for the benchmark and the tests.
         self.rows_written = 0
@@ -236,25 +244,24 @@ class BoardPublisher:
         return self._rows_hashed(track, key, parts_of(key, board))
 
     def _rows_hashed(self, track: str, key: str, stored: StoredBoard) -> _Hashed:
-        """The board's rows with their content hashes; a row object seen at the last publication keeps its
-        hash (it is serialised again only if it must be written)."""
-        known = self._hashes.get((track, key), {})
-        seen: dict[int, tuple[Mapping[str, Any], int, bytes | None]] = {}
-        for sid, row in stored.rows.items():
-            hit = known.get(sid)
-            if hit is not None and hit[0] is row:
-                seen[sid] = hit
-            else:
-                body = to_json(row)
-                seen[sid] = (row, row_hash(body), body)
-        # kept without the bodies (only the rows written now need them); an unchanged row keeps its tuple
-        self._hashes[(track, key)] = {
-            sid: v if v[2] is None else (v[0], v[1], None) for sid, v in seen.items()
-        }
-        ids = np.fromiter(seen, dtype=np.int64, count=len(seen))
-        hashes = np.fromiter((v[1] for v in seen.values()), dtype=np.int64, count=len(seen))
-        order = np.argsort(ids)
-        return _Hashed(stored, ids[order], hashes[order], seen)
+        """The board's rows with their content hashes; a row whose serial is the one it had at the last
+        publication keeps its hash (it is serialised again only if it must be written)."""
+        rows = stored.rows
+        ids, serials = rows.ids, rows.serials
+        hashes = np.empty(len(ids), dtype=np.int64)
+        hit = np.zeros(len(ids), dtype=bool)
+        k_ids, k_serials, k_hashes = self._hashes.get((track, key), (ids[:0], None, hashes[:0]))
+        if serials is not None and k_serials is not None and len(k_ids):
+            at = np.minimum(np.searchsorted(k_ids, ids), len(k_ids) - 1)
+            hit = (k_ids[at] == ids) & (k_serials[at] == serials)
+            hashes[hit] = k_hashes[at[hit]]
+        bodies: dict[int, bytes] = {}
+        for i in np.flatnonzero(~hit).tolist():
+            body = to_json(rows.build(i))
+            hashes[i] = row_hash(body)
+            bodies[int(ids[i])] = body
+        self._hashes[(track, key)] = (ids, serials, hashes)
+        return _Hashed(stored, ids, hashes, bodies)
 
     def _held_by(self, session: Session, track: str, key: str, version: int) -> _Held:
         """What a published board version holds (kept from the last publication, or read)."""
@@ -422,11 +429,11 @@ class _Hashed:
     board: StoredBoard
     ids: np.ndarray
     hashes: np.ndarray
-    seen: dict[int, tuple[Mapping[str, Any], int, bytes | None]]
+    bodies: dict[int, bytes]
 
     def body(self, submission_id: int) -> bytes:
-        row, _, body = self.seen[submission_id]
-        return body if body is not None else to_json(row)
+        body = self.bodies.get(submission_id)
+        return body if body is not None else to_json(self.board.rows.row(submission_id))
 
 
 def request_recompute(session: Session, track: str | None = None) -> int:

@@ -40,17 +40,17 @@ class RankedView:
     entry — an arriving entry moves the rank of everyone below it, and nothing else of theirs.
 
     ``ids``, ``ranks``: rank order. ``ids_by_column`` (ascending) and ``rank_by_column``: by column (a board's
-    ranked entries in submission order; the grid's complete rows). ``bases``: each column's row without
-    ranks (the engine's ``_base``: the same object while its content stays); ``serials``: a number per
-    column that changes whenever its base does (the grid compares them as arrays). ``cells``: the grid's
-    cell ranks, rank order × boards."""
+    ranked entries in submission order; the grid's complete rows). ``row(column)``: that column's row
+    without ranks, built on demand; ``serials``: a number per column that changes whenever that row does
+    (the publisher serialises a row again only then; the grid compares them as arrays). ``cells``: the
+    grid's cell ranks, rank order × boards."""
 
     ids: np.ndarray
     ranks: np.ndarray
     ids_by_column: np.ndarray
     rank_by_column: np.ndarray
-    bases: list[dict[str, Any]]
     serials: np.ndarray
+    row: Callable[[int], dict[str, Any]]
     cells: np.ndarray | None = None
 
 
@@ -117,19 +117,41 @@ def participant_key(row: Mapping[str, Any]) -> str:
     return f"baseline:{row['name']}" if row.get("baseline") else f"participant:{row['participant']}"
 
 
-def classify_row(row: Mapping[str, Any], groups: int) -> tuple[str, str]:
-    """A candidate run's status on a board of ``groups`` groups (``ranked``, ``failed``, ``partial``) and why."""
-    extras = row.get("extras") or {}
-    episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
-    failures = stats.policy_failure_count(extras.get("terminations"))
-    if stats.run_failed(extras.get("terminations"), episodes):
+def ranked_of(
+    episodes: np.ndarray, policy_failed: np.ndarray, submission_failed: np.ndarray
+) -> tuple[int, np.ndarray]:
+    """Who is ranked on a board (module docstring), the one rule: the board's groups (the most episodes of
+    a run that is not failed) and which runs are ranked — neither failed nor short of those groups."""
+    groups = int(episodes[~policy_failed].max()) if (~policy_failed).any() else 0
+    return groups, ~policy_failed & ~submission_failed & (episodes >= groups)
+
+
+def status_reason(
+    episodes: int, failures: int, policy_failed: bool, submission_failed: bool, groups: int
+) -> tuple[str, str]:
+    """A run's status on a board of ``groups`` groups (``ranked``, ``failed``, ``partial``) and why (what
+    :func:`ranked_of` decided, said)."""
+    if policy_failed:
         share = f"{100 * stats.POLICY_FAILURE_SHARE:.0f} %"
         return "failed", f"{failures} of {episodes} episodes ended in a policy failure (more than {share})"
-    if row.get("submission_status") == "failed":
+    if submission_failed:
         return "failed", "the submission failed (some episodes could not be evaluated)"
     if episodes < groups:
         return "partial", f"ran {episodes} of the board's {groups} groups"
     return "ranked", ""
+
+
+def _run_status(row: Mapping[str, Any]) -> tuple[int, int, bool, bool]:
+    """A candidate run's episodes, policy failures, whether those fail it and whether its submission failed."""
+    extras = row.get("extras") or {}
+    episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
+    terminations = extras.get("terminations")
+    return (
+        episodes,
+        stats.policy_failure_count(terminations),
+        stats.run_failed(terminations, episodes),
+        row.get("submission_status") == "failed",
+    )
 
 
 def public_fields(row: Mapping[str, Any]) -> dict[str, Any]:
@@ -163,29 +185,30 @@ class Classified:
 
 def classify(rows: Sequence[Mapping[str, Any]]) -> Classified:
     """Who is ranked on a board (module docstring) from its candidate runs."""
-    counts = [int((r.get("extras") or {}).get("episodes") or r.get("episodes_total") or 0) for r in rows]
-    valid = [
-        n
-        for r, n in zip(rows, counts, strict=True)
-        if not stats.run_failed((r.get("extras") or {}).get("terminations"), n)
-    ]
-    groups = max(valid, default=0)
+    status = [_run_status(r) for r in rows]
+    groups, ranked = ranked_of(
+        np.array([s[0] for s in status], dtype=np.int64),
+        np.array([s[2] for s in status], dtype=bool),
+        np.array([s[3] for s in status], dtype=bool),
+    )
     # How many entries each participant has on this board: the best of many runs of a stochastic policy is
     # an optimistic figure, so its count is shown beside it (docs/benchmark.md, "Who is ranked").
     submitted: dict[str, int] = {}
     for row in rows:
         submitted[participant_key(row)] = submitted.get(participant_key(row), 0) + 1
     ranked_rows, unranked = [], []
-    for row in rows:
-        status, reason = classify_row(row, groups)
-        if status == "ranked":
+    for row, is_ranked, (episodes, failures, policy_failed, submission_failed) in zip(
+        rows, ranked.tolist(), status, strict=True
+    ):
+        if is_ranked:
             ranked_rows.append(row)
         else:
+            why = status_reason(episodes, failures, policy_failed, submission_failed, groups)
             unranked.append(
                 {
                     **public_fields(row),
-                    "status": status,
-                    "reason": reason,
+                    "status": why[0],
+                    "reason": why[1],
                     "entries_submitted": submitted[participant_key(row)],
                 }
             )
@@ -288,15 +311,16 @@ def board_dict(
     entries: Sequence[dict[str, Any]],
     unranked: list[dict[str, Any]],
     best: list[dict[str, Any]],
-    samples: np.ndarray,
-    stable_samples: np.ndarray,
+    samples: np.ndarray | None,
+    stable_samples: np.ndarray | None,
     by_column: np.ndarray | None = None,
     index: dict[int, int] | None = None,
     tops: dict[str, dict[str, list[float]]] | None = None,
 ) -> dict[str, Any]:
     """The board dict from its entries in rank order, unranked ones and best entries, both sorted.
-    ``by_column``: the entries' scores and stable scores by ``_column`` (2 × entries), when at hand;
-    ``index``: each submission's position in ``entries``, when at hand."""
+    ``samples``, ``stable_samples``: the grid's resamples (None: the board engine's, which computes them
+    for its grid); ``by_column``: the entries' scores and stable scores by ``_column`` (2 × entries), when
+    at hand; ``index``: each submission's position in ``entries``, when at hand."""
     if by_column is None:
         n = len(entries)
         at = np.fromiter((e["_column"] for e in entries), dtype=np.intp, count=n)
@@ -309,7 +333,7 @@ def board_dict(
             view: board_tops(np.array([e["score"] for e in listed]), _metric_matrix(keys, listed), keys)
             for view, listed in (("best", best), ("all", entries))
         }
-    return {
+    board = {
         "dataset": dataset,
         "setting": setting,
         "track": track,
@@ -325,13 +349,15 @@ def board_dict(
         "_best": best,  # the default view, ready to page
         # position in "entries"
         "_index": {e["submission_id"]: k for k, e in enumerate(entries)} if index is None else index,
-        # the grid's resamples, a row per entry (by ``_column``: the grid gathers its rows' entries, and rows
-        # of a C-ordered matrix are contiguous); copies: a slice would keep the full resample arrays alive
-        "_samples": np.ascontiguousarray(samples[:GRID_RESAMPLES].T),
-        "_stable_samples": np.ascontiguousarray(stable_samples[:GRID_RESAMPLES].T),
         "_by_column": by_column,  # for the grid's means
         "_tops": tops,  # each view's column tops: what its pages highlight
     }
+    if samples is not None and stable_samples is not None:
+        # the grid's resamples, a row per entry (by ``_column``: the grid gathers its rows' entries, and rows
+        # of a C-ordered matrix are contiguous); copies: a slice would keep the full resample arrays alive
+        board["_samples"] = np.ascontiguousarray(samples[:GRID_RESAMPLES].T)
+        board["_stable_samples"] = np.ascontiguousarray(stable_samples[:GRID_RESAMPLES].T)
+    return board
 
 
 def _mark_best(
@@ -411,20 +437,21 @@ def board_view(
         "total": len(entries),
         "limit": limit,
         "offset": offset,
-        "entries": [_served(e) for e in entries[offset : offset + limit]],
+        "entries": [served_fields(e) for e in entries[offset : offset + limit]],
         "unranked_total": len(unranked),
         "unranked": [dict(e) for e in unranked[:limit]],
         "column_tops": board.get("_tops", {}).get(view, {}),
     }
 
 
-def _served(entry: Mapping[str, Any]) -> dict[str, Any]:
+def served_fields(entry: Mapping[str, Any]) -> dict[str, Any]:
+    """An entry or grid row as served: without what is kept for the engine, the grid and the best view."""
     return {k: v for k, v in entry.items() if not k.startswith("_") and not k.startswith("best_")}
 
 
 def new_grid_row(entry: Mapping[str, Any]) -> dict[str, Any]:
     """A grid row of ``entry``'s submission before its cells are put in (``_columns``: each cell's column on
-    its board; ``_bases``: its board entry's ``_base``, the board engine's, for the grid's own)."""
+    its board)."""
     return {
         "submission_id": entry["submission_id"],
         "name": entry["name"],
@@ -433,7 +460,6 @@ def new_grid_row(entry: Mapping[str, Any]) -> dict[str, Any]:
         "cells": {},
         "unranked": {},
         "_columns": {},
-        "_bases": {},
     }
 
 
@@ -449,7 +475,7 @@ def build_grid(
 ) -> dict[str, Any]:
     """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
     interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board.
-    (The board engine keeps a grid between updates: :class:`robobpp.scoring.grid.GridMatrix`, the same grid.)"""
+    (The board engine keeps a grid between updates: :class:`robobpp.boards.grid.GridMatrix`, the same grid.)"""
     keys = [f"{s}/{d}" for s in settings for d in datasets]
     rows: dict[int, dict[str, Any]] = {}
 
@@ -473,7 +499,6 @@ def build_grid(
                 "pph": (e.get("extras") or {}).get("pph"),
             }
             row["_columns"][key] = e["_column"]
-            row["_bases"][key] = e.get("_base")
         for e in boards[key]["unranked"]:
             (rows.get(e["submission_id"]) or row_for(e))["unranked"][key] = e["status"]
     complete = [r for r in rows.values() if len(r["cells"]) == len(keys) and keys]
@@ -534,33 +559,53 @@ class GridFigures:
         return np.round(self.samples[list(chosen)].T, 12)
 
 
-def grid_figures(
-    boards: Mapping[str, Mapping[str, Any]], keys: Sequence[str], cols: np.ndarray, *, rank_intervals: bool
-) -> GridFigures:
-    """The Mean over boards of rows whose cell on board ``keys[j]`` is column ``cols[i, j]`` of that board:
-    with interval, rank and (``rank_intervals``) the all-rows rank interval."""
+def grid_sums(
+    boards: Mapping[str, Mapping[str, Any]], keys: Sequence[str], cols: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The sums over boards of the relative and stable score samples (float32 each, summed in float64 in
+    the order of ``keys``) of rows whose cell on board ``keys[j]`` is column ``cols[i, j]`` of that board:
+    (rows, :data:`GRID_RESAMPLES`) each."""
     n = cols.shape[0]
     rel = np.zeros((n, GRID_RESAMPLES), dtype=np.float64)  # a row per grid row: its samples contiguous
     stab = np.zeros_like(rel)
-    score_sum = np.zeros(n)
-    stable_sum = np.zeros(n)
     for j, key in enumerate(keys):
         board = boards[key]
         at = cols[:, j]
         samples, stable = board["_samples"], board["_stable_samples"]
         rel[:, : samples.shape[1]] += samples[at]
         stab[:, : stable.shape[1]] += stable[at]
-        by_column = board["_by_column"]
+    return rel, stab
+
+
+def grid_figures(
+    boards: Mapping[str, Mapping[str, Any]],
+    keys: Sequence[str],
+    cols: np.ndarray,
+    *,
+    rank_intervals: bool,
+    sums: tuple[np.ndarray, np.ndarray] | None = None,
+) -> GridFigures:
+    """The Mean over boards of rows whose cell on board ``keys[j]`` is column ``cols[i, j]`` of that board:
+    with interval, rank and (``rank_intervals``) the all-rows rank interval. ``sums``: the rows' sums of
+    samples (:func:`grid_sums`) when at hand (the board engine's grid keeps them); not changed."""
+    n = cols.shape[0]
+    rel_sum, stab_sum = grid_sums(boards, keys, cols) if sums is None else sums
+    score_sum = np.zeros(n)
+    stable_sum = np.zeros(n)
+    for j, key in enumerate(keys):
+        by_column = boards[key]["_by_column"]
+        at = cols[:, j]
         # summed board by board in the order of ``keys``: the same additions as a sum over each row's cells
         score_sum += by_column[0, at]
         stable_sum += by_column[1, at]
-    rel /= len(keys)
-    stab /= len(keys)
+    rel = rel_sum / len(keys)
+    stab = stab_sum / len(keys)
     means = [round(x, 12) for x in (score_sum / len(keys)).tolist()]
     # the mean samples are rounded to 12 decimals (ties must tie); rounding is monotonic, so the interval
     # rounds the order statistics it picks instead of every sample (the same numbers, a 20 MB pass less)
     lo, hi = stats.interval(rel.T, decimals=12)
-    slo, shi = stats.interval(stab.T)
+    # the engine's grid keeps its rows' stable intervals (an entry's stable samples are its own): no sums
+    slo, shi = stats.interval(stab.T) if stab.shape[1] else (np.full(n, np.nan), np.full(n, np.nan))
     rlo = rhi = None
     if rank_intervals:
         rlo, rhi = stats.rank_interval(stats.rank_samples(np.round(rel.T, 12)))
@@ -614,8 +659,8 @@ def grid_view(
         "total": len(rows),
         "limit": limit,
         "offset": offset,
-        "rows": [_served(r) for r in rows[offset : offset + limit]],
+        "rows": [served_fields(r) for r in rows[offset : offset + limit]],
         "apart_total": len(apart),
-        "apart": [_served(r) for r in apart[:limit]],
+        "apart": [served_fields(r) for r in apart[:limit]],
         "column_tops": grid.get("_tops", {}).get(view, {}),
     }

@@ -28,13 +28,13 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from robobpp.boards.grid import GridMatrix
+from robobpp.boards.matrix import BoardMatrix, PartLoader
+from robobpp.boards.ranking import build_board, build_grid
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.replay import CLOSED, PAPER, PROTOCOLS
-from robobpp.scoring.boards import build_board, build_grid
-from robobpp.scoring.engine import BoardMatrix, PartLoader
 from robobpp.scoring.entries import EntryPart, entry_part
-from robobpp.scoring.grid import GridMatrix
 from robobpp.scoring.metrics import PHYSICAL
 
 log = logging.getLogger("robobpp.server")
@@ -97,7 +97,7 @@ def leaderboard(
     protocol: str = CLOSED,
     lookahead: int = 0,
 ) -> dict[str, Any]:
-    """One board, computed now: see :func:`robobpp.scoring.boards.build_board`.
+    """One board, computed now: see :func:`robobpp.boards.ranking.build_board`.
 
     ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
     board is the same under both. ``lookahead``: the board of the submissions that saw that many next boxes
@@ -122,7 +122,7 @@ def overall_grid(
     protocol: str = CLOSED,
     lookahead: int = 0,
 ) -> dict[str, Any]:
-    """The paper's overall table (see :func:`robobpp.scoring.boards.build_grid`), computed now;
+    """The paper's overall table (see :func:`robobpp.boards.ranking.build_grid`), computed now;
     ``protocol="paper"``: its physical columns under the paper protocol (the Mean then averages those);
     ``lookahead``: of the submissions that saw that many next boxes."""
     boards = {
@@ -213,7 +213,7 @@ class _Track:
 
 
 class BoardEngine:
-    """Each track's boards and grids, kept between updates (:class:`robobpp.scoring.engine.BoardMatrix`).
+    """Each track's boards and grids, kept between updates (:class:`robobpp.boards.matrix.BoardMatrix`).
 
     ``update(track)`` reads which finished submissions the track has; the boards of those that arrived,
     changed or left are updated — only the global part of the scoring: each run's own part was stored when
@@ -405,7 +405,12 @@ class BoardEngine:
                 matrix = state.grids.get(grid_key)
                 if matrix is None:
                     matrix = state.grids[grid_key] = GridMatrix(self.datasets, self.settings, track)
-                grid = matrix.grid(shown, rank_intervals=full)
+                matrices = {
+                    f"{st}/{d}": state.boards[board_id(d, st, protocol, lookahead)]
+                    for st in self.settings
+                    for d in self.datasets
+                }
+                grid = matrix.grid(shown, matrices, rank_intervals=full)
                 grid["protocol"], grid["lookahead"] = protocol, lookahead
                 state.out[grid_key] = out[grid_key] = grid
         return out

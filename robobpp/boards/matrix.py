@@ -1,0 +1,709 @@
+"""A board kept between updates, as columns: only the global part of the scoring is redone when entries arrive.
+
+Each entry's own part (its figures as a matrix, metric and stable intervals: :mod:`robobpp.scoring.entries`)
+was computed when its run finished; the board keeps every entry's as matrices (:class:`PartTable`) and the
+rest of what it knows of an entry in arrays, one element per entry: no Python object per entry but its
+public fields, kept as one compact JSON string. What an arriving entry can change on a board is global:
+
+* the min–max of each metric in each resample (the relative score's normalisation). The board keeps them
+  (resamples × metrics). When a new entry lies inside them in every resample — the common case — no other
+  entry's relative score samples move: only the new entry's samples, score interval and the point ranks
+  are computed. When it moves some (a new best or worst), only those resamples of the others are computed
+  again; when an entry leaves, or the board's groups change, every entry's samples are (from the figures
+  kept, in chunks).
+* ranks and rank intervals. Point ranks and the best entries' rank intervals (the default view, one
+  entry per participant) are recomputed on every update. The all-entries rank intervals need every entry's
+  rank in every resample (a sort of each resample: seconds at 10,000 entries, BENCHMARKS.md): they are
+  computed by a full computation (``rank_intervals=True``, the board worker's refresh timer); between two,
+  an entry keeps the interval last computed and a new entry has none (served as null).
+
+Samples are never kept: an entry's are computed again from its figures when needed (the grid's means:
+:meth:`BoardMatrix.grid_samples`). Each update hands out a :class:`~robobpp.boards.ranking.RankedView` whose
+rows are built on demand from a snapshot of the columns, with a serial per row that changes whenever what
+the row shows does (the publisher serialises a row again only then).
+
+The board produced equals :func:`robobpp.boards.ranking.build_board` of the same rows (to the last bit of
+each entry's own samples: an entry's samples are always computed alone), except for those rank intervals.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections import Counter
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import orjson
+
+from robobpp.boards.ranking import (
+    GRID_RESAMPLES,
+    LazyRows,
+    RankedView,
+    best_of_participants,
+    board_dict,
+    board_tops,
+    participant_key,
+    ranked_of,
+    status_reason,
+)
+from robobpp.scoring import stats
+from robobpp.scoring.entries import (
+    EntryPart,
+    PartTable,
+    counts,
+    metric_keys,
+    samples_of,
+    stable_samples,
+    with_timing_noise,
+)
+from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max, stable_scores
+
+#: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
+PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
+#: Entries whose samples are computed at a time (bounds the transient array: chunk × resamples × metrics).
+CHUNK = 512
+#: The grid's resamples computed as a block of whole 8-row blocks of the plan (the matrix product gives the
+#: same bits for a row in any set of rows whose count is a multiple of 8).
+_GRID_ROWS = np.arange(-(-GRID_RESAMPLES // 8) * 8)
+
+
+class _Columns:
+    """Arrays of one element (or row) per entry slot, grown together."""
+
+    def __init__(self, metrics: int) -> None:
+        self.size = 0
+        self.sid = np.zeros(0, np.int64)
+        self.episodes = np.zeros(0, np.int64)
+        self.failures = np.zeros(0, np.int64)
+        self.policy_failed = np.zeros(0, bool)
+        self.submission_failed = np.zeros(0, bool)
+        self.who = np.zeros(0, np.int64)  # participant key, coded
+        self.ids = np.zeros(0, np.int64)  # group ids, coded; -1: no figures
+        self.points = np.zeros((0, metrics))  # point metrics, NaN = missing
+        self.stable = np.zeros(0)  # point stable score
+        self.version = np.zeros(0, np.int64)  # changes whenever the entry's own figures do
+        # scored under the board's current min–max
+        self.scored = np.zeros(0, bool)
+        self.own = np.zeros(0, bool)  # scored with its figures (else its point metrics in every resample)
+        self.score_ci = np.zeros((0, 2))
+        self.stable_ci = np.zeros((0, 2))
+        self.order = np.zeros((0, 4))  # the order statistics its score interval interpolates between
+        self.rank_ci = np.zeros((0, 2), np.int64)  # -1: not computed since it arrived
+        # what its row showed when last handed out, and the row's serial
+        self.shown = np.zeros((0, 9 + metrics))
+        self.serial = np.zeros(0, np.int64)
+
+    def grow(self, needed: int) -> None:
+        if needed <= len(self.sid):
+            return
+        capacity = max(needed, len(self.sid) * 11 // 10 + 16)
+        for name, a in vars(self).items():
+            if isinstance(a, np.ndarray):
+                out = np.zeros((capacity, *a.shape[1:]), dtype=a.dtype)
+                out[: len(a)] = a
+                setattr(self, name, out)
+
+
+@dataclass(frozen=True, slots=True)
+class _Snapshot:
+    """The ranked entries' figures as an update left them (column order: ascending ids): what the rows
+    handed out with that update are built from, on demand — later updates change the columns, never this."""
+
+    keys: tuple[str, ...]
+    public: list[Any]
+    completed: list[Any]
+    scores: np.ndarray
+    score_ci: np.ndarray
+    stable: np.ndarray
+    stable_ci: np.ndarray
+    rank_ci: np.ndarray
+    normalized: np.ndarray
+    intervals: np.ndarray  # (entries, metrics, 2), NaN = none
+    best: np.ndarray
+
+    def row(self, i: int) -> dict[str, Any]:
+        """Column ``i``'s row of the all-entries view without its rank (nor its participant's entry count,
+        which moves with every entry they add: the reader puts it in)."""
+        low, high = (int(x) for x in self.rank_ci[i])
+        intervals = self.intervals[i].tolist()
+        return _public(self.public[i], self.completed[i]) | {
+            "rank": None,
+            "rank_low": None if low < 0 else low,
+            "rank_high": None if high < 0 else high,
+            "score": float(self.scores[i]),
+            "score_low": float(self.score_ci[i, 0]),
+            "score_high": float(self.score_ci[i, 1]),
+            "stable": float(self.stable[i]),
+            "stable_low": float(self.stable_ci[i, 0]),
+            "stable_high": float(self.stable_ci[i, 1]),
+            "normalized": dict(zip(self.keys, self.normalized[i].tolist(), strict=True)),
+            "intervals": {
+                k: [a, b] if math.isfinite(a) else None
+                for k, (a, b) in zip(self.keys, intervals, strict=True)
+            },
+            "best": bool(self.best[i]),
+        }
+
+
+class BoardMatrix:
+    """One board (dataset × setting × protocol × lookahead of a track) kept between updates.
+
+    ``rows`` are what :func:`robobpp.db.queries.board_runs` returns without ``entry``, with ``ids``: the
+    run's group ids as bytes (None without figures). ``load`` reads stored parts by submission id (only for
+    rows upserted without theirs).
+    """
+
+    def __init__(
+        self, dataset: str, setting: str, track: str, protocol: str, load: PartLoader, lookahead: int = 0
+    ) -> None:
+        if setting not in WEIGHTS:
+            raise ValueError(f"unknown setting {setting!r}; expected one of {', '.join(WEIGHTS)}")
+        self.dataset, self.setting, self.track, self.protocol = dataset, setting, track, protocol
+        self.lookahead = lookahead
+        self.load = load
+        self.keys = metric_keys(setting)
+        #: Per metric, the floor of its min–max (``scores.RESOLVED``): the bounds kept are floored, so an entry
+        #: whose time moves only below the floor moves no bound (nobody is renormalised for it)
+        self._floors = np.array([RESOLVED[k][0] if k in RESOLVED else -np.inf for k in self.keys])
+        self._weights = np.array([WEIGHTS[setting][k] for k in self.keys])
+        self._c = _Columns(len(self.keys))
+        self._slot: dict[int, int] = {}
+        self._free: list[int] = []
+        #: Each entry's public fields (JSON, or the dict where JSON would not give it back) and finish time.
+        self._public: list[Any] = []
+        self._completed: list[Any] = []
+        #: What of each entry's row its scoring depends on (a verdict or name changing moves no score).
+        self._scoring: list[bytes] = []
+        self._parts = PartTable(setting)
+        self._codes: dict[Any, int] = {}
+        self._coded: list[Any] = []
+        self._basis: tuple[Any, ...] | None = None
+        self._lo = self._hi = np.zeros((0, 0))
+        self._plan = np.ones((stats.RESAMPLES, 1))
+        #: The ranked entries' slots as last handed out (column order) and which used their figures.
+        self._ranked = np.zeros(0, np.intp)
+        self._usable = np.zeros(0, bool)
+        #: Per resample of the grid's, the update that last changed it for entries already on the board
+        #: (a grid recomputes those of its means); ``stamp``: the board's update count.
+        self.stamp = 0
+        self.resample_stamps = np.zeros(GRID_RESAMPLES, np.int64)
+        #: Bumped whenever entries already on the board were renormalised (a resample's min–max moved).
+        self.epoch = 0
+        #: Counters of what updates did (BENCHMARKS.md): renormalised rows, entries recomputed in full.
+        self.shifted_rows = 0
+        self.recomputed = 0
+
+    def __len__(self) -> int:
+        return len(self._slot)
+
+    def __contains__(self, submission_id: object) -> bool:
+        return submission_id in self._slot
+
+    def submission_ids(self) -> list[int]:
+        return list(self._slot)
+
+    def nbytes(self) -> int:
+        """The bytes of the board's arrays and figures (its public fields aside)."""
+        arrays = [a for a in vars(self._c).values() if isinstance(a, np.ndarray)]
+        return sum(a.nbytes for a in arrays) + self._parts.nbytes()
+
+    def _code(self, value: Any) -> int:
+        code = self._codes.get(value)
+        if code is None:
+            code = self._codes[value] = len(self._coded)
+            self._coded.append(value)
+        return code
+
+    # -- entries arriving and leaving
+
+    def apply(
+        self,
+        upsert: Iterable[Mapping[str, Any]] = (),
+        remove: Iterable[int] = (),
+        parts: Mapping[int, EntryPart | None] | None = None,
+    ) -> None:
+        """Add or replace rows (``parts``: their parts when already at hand), drop submissions."""
+        for sid in remove:
+            slot = self._slot.pop(sid, None)
+            if slot is not None:
+                self._basis = None  # it may have held a min or max: renormalise everyone
+                self._free.append(slot)
+                self._public[slot] = self._completed[slot] = None
+            self._parts.drop(sid)
+        upsert = list(upsert)
+        given = dict(parts or {})
+        lacking = [int(r["submission_id"]) for r in upsert if int(r["submission_id"]) not in given]
+        if lacking:  # its part may have changed: read it again
+            given.update(self.load(lacking))
+        for sid in given:  # a part of None: the run has no figures any more
+            self._parts.drop(sid)
+        self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
+        c = self._c
+        placed: list[tuple[int, Mapping[str, Any]]] = []
+        for row in upsert:
+            sid = int(row["submission_id"])
+            scoring = _scoring_fields(row)
+            slot = self._slot.get(sid)
+            if slot is None:
+                if self._free:
+                    slot = self._free.pop()
+                else:
+                    slot = len(self._public)
+                    c.grow(slot + 1)
+                    self._public.append(None)
+                    self._completed.append(None)
+                    self._scoring.append(b"")
+                self._slot[sid] = slot
+                c.scored[slot] = False
+                c.rank_ci[slot] = -1
+            elif self._scoring[slot] != scoring:
+                self._basis = None
+                c.scored[slot] = False
+                c.rank_ci[slot] = -1
+            self._scoring[slot] = scoring
+            self._set(slot, row)
+            placed.append((slot, row.get("metrics") or {}))
+        if placed:  # each entry's stable score from its own metrics: element-wise, so all at once
+            stable = stable_scores([m for _, m in placed], self.setting)
+            c.stable[[slot for slot, _ in placed]] = stable
+
+    def _set(self, slot: int, row: Mapping[str, Any]) -> None:
+        c = self._c
+        extras = row.get("extras") or {}
+        metrics = row.get("metrics") or {}
+        episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
+        c.sid[slot] = int(row["submission_id"])
+        c.episodes[slot] = episodes
+        c.failures[slot] = stats.policy_failure_count(extras.get("terminations"))
+        c.policy_failed[slot] = stats.run_failed(extras.get("terminations"), episodes)
+        c.submission_failed[slot] = row.get("submission_status") == "failed"
+        c.who[slot] = self._code(participant_key(row))
+        ids = row.get("ids")
+        c.ids[slot] = -1 if ids is None else self._code(ids)
+        c.points[slot] = [_point(metrics.get(k)) for k in self.keys]
+        c.version[slot] = new_serials(1)[0]
+        c.shown[slot] = np.nan  # its row is new
+        public = {k: row.get(k) for k in _PUBLIC}
+        public["metrics"], public["extras"] = metrics, extras
+        self._public[slot] = _packed(public)
+        self._completed[slot] = row.get("completed_at")
+
+    # -- the board
+
+    def board(self, *, rank_intervals: bool = False) -> dict[str, Any]:
+        """The board now (``rank_intervals``: compute every entry's, a full computation)."""
+        c = self._c
+        self.stamp += 1
+        everyone = np.array([self._slot[s] for s in sorted(self._slot)], dtype=np.intp)
+        groups, ranked_mask = ranked_of(
+            c.episodes[everyone], c.policy_failed[everyone], c.submission_failed[everyone]
+        )
+        ranked = everyone[ranked_mask]
+        with_ids = ranked[c.ids[ranked] >= 0]
+        code = int(c.ids[with_ids[0]]) if len(with_ids) else -1
+        ids = self._coded[code] if code >= 0 else None
+        plan = counts(len(ids) // 8) if ids else np.ones((stats.RESAMPLES, 1))
+        usable = c.ids[ranked] == code if code >= 0 else np.zeros(len(ranked), bool)
+        basis = (groups, ids, plan.shape)
+        fresh = np.flatnonzero(~c.scored[ranked])
+        full = (
+            rank_intervals
+            or self._basis != basis
+            or len(ranked) - len(fresh) != int(c.scored[everyone].sum())
+        )
+        self._plan = plan
+        rel_all = None
+        if not full and len(fresh):
+            new = self._samples(ranked[fresh], usable[fresh], plan)
+            lo, hi = self._floored(_fmin(self._lo, new)), self._floored(_fmax(self._hi, new))
+            moved = np.flatnonzero(~_same_rows(lo, self._lo) | ~_same_rows(hi, self._hi))
+            if moved.size:
+                old = np.flatnonzero(c.scored[ranked])
+                self._shift(moved, lo, hi, ranked[old], usable[old], plan)
+            self._score(new, ranked[fresh], usable[fresh])
+        elif full:
+            c.scored[everyone[~ranked_mask]] = False
+            c.rank_ci[everyone[~ranked_mask]] = -1
+            rel_all = self._renormalise(ranked, usable, plan, keep=rank_intervals)
+            self._basis = basis
+            self.epoch += 1
+            self.resample_stamps[:] = self.stamp
+        if rel_all is not None and rank_intervals and len(ranked):
+            low, high = stats.rank_interval(stats.rank_samples(rel_all))
+            c.rank_ci[ranked, 0], c.rank_ci[ranked, 1] = low, high
+        self._ranked, self._usable = ranked, usable
+
+        def best_samples(chosen: list[int]) -> np.ndarray:
+            if rel_all is not None:
+                return rel_all[:, chosen].astype(np.float32)
+            samples = self._samples(ranked[chosen], usable[chosen], plan)
+            return self._relative(samples, self._lo, self._hi).T.astype(np.float32)
+
+        return self._assemble(everyone, ranked, ranked_mask, groups, best_samples)
+
+    # -- the parts of the computation
+
+    def _samples(
+        self, slots: np.ndarray, usable: np.ndarray, plan: np.ndarray, rows: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Entries' metric samples: (entries, resamples, metrics), with their timing noise; an entry without
+        usable figures keeps its point metrics in every resample (as ``score_board`` does). ``plan`` is the
+        rows ``rows`` of the board's plan (default: all of it)."""
+        c = self._c
+        sids = c.sid[slots].tolist()
+        out = np.empty((len(slots), plan.shape[0], len(self.keys)))
+        measured = np.flatnonzero(usable)
+        seeds: list[int | None] = [None] * len(slots)
+        if len(measured):
+            if any(sids[k] not in self._parts for k in measured.tolist()):
+                raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
+            top, bottom = self._parts.stacked([sids[k] for k in measured.tolist()])
+            out[measured] = samples_of(top, bottom, plan)
+            for k in measured.tolist():
+                seeds[k] = self._parts.seed(sids[k])
+        unmeasured = np.flatnonzero(~usable)
+        out[unmeasured] = c.points[slots[unmeasured]][:, None, :]
+        return with_timing_noise(out, seeds, self.setting, rows)
+
+    def _floored(self, bounds: np.ndarray) -> np.ndarray:
+        """Per resample and metric, a min or max as the normalisation uses it (``scores.min_max``: NaN stays)."""
+        return np.maximum(bounds, self._floors) if bounds.size else bounds
+
+    def _relative(self, samples: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Relative score samples (entries, resamples) under a min–max (``scores._min_max_rows``)."""
+        total = np.zeros(samples.shape[:2])
+        for j, weight in enumerate(self._weights):
+            total += weight * min_max(samples[:, :, j], lo[:, j], hi[:, j], self.keys[j])
+        return np.round(total, 12)
+
+    def _score(self, samples: np.ndarray, slots: np.ndarray, usable: np.ndarray) -> np.ndarray:
+        """Score the entries under the current min–max; returns their relative samples.
+
+        An entry's metric and stable intervals are its stored part's (computed when its run finished);
+        one without usable figures has point metrics in every resample, so no metric interval."""
+        c = self._c
+        rel = self._relative(samples, self._lo, self._hi)
+        order, (lo, hi) = _order_and_interval(rel)
+        c.order[slots] = order
+        c.score_ci[slots, 0], c.score_ci[slots, 1] = lo, hi
+        own = usable & np.array([s in self._parts for s in c.sid[slots].tolist()], dtype=bool)
+        c.own[slots] = own
+        if not own.all():
+            stab = stable_samples(samples[~own], self.setting)
+            slo, shi = stats.interval(stab.T)
+            c.stable_ci[slots[~own], 0], c.stable_ci[slots[~own], 1] = slo, shi
+        for slot, sid in zip(slots[own].tolist(), c.sid[slots[own]].tolist(), strict=True):
+            c.stable_ci[slot] = self._parts.intervals(sid)[1]
+        c.scored[slots] = True
+        self.recomputed += len(slots)
+        return rel
+
+    def _shift(
+        self,
+        moved: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        slots: np.ndarray,
+        usable: np.ndarray,
+        plan: np.ndarray,
+    ) -> None:
+        """A new entry moved the min or max of the resamples ``moved``: only those resamples of every other
+        entry change. An entry whose changed samples stay on the same side of each order statistic its score
+        interval uses keeps that interval (those statistics cannot move); the others are recomputed."""
+        pad = (-moved.size) % 8  # the matrix product gives the same bits as the full one in blocks of 8 rows
+        rows = np.concatenate([moved, np.zeros(pad, dtype=moved.dtype)])
+        redo = []
+        for a in range(0, len(slots), CHUNK):
+            chunk = slots[a : a + CHUNK]
+            samples = self._samples(chunk, usable[a : a + CHUNK], plan[rows], rows)[:, : moved.size]
+            before = self._relative(samples, self._lo[moved], self._hi[moved])
+            after = self._relative(samples, lo[moved], hi[moved])
+            order = self._c.order[chunk]
+            side_before, side_after = _side(before, order), _side(after, order)
+            kept = np.all((side_before == side_after) & (side_before >= 0), axis=1)
+            redo.append(np.flatnonzero(~kept) + a)
+        self._lo, self._hi = lo, hi
+        self.resample_stamps[moved[moved < GRID_RESAMPLES]] = self.stamp
+        again = np.concatenate(redo) if redo else np.zeros(0, np.intp)
+        for a in range(0, len(again), CHUNK):
+            at = again[a : a + CHUNK]
+            self._score(self._samples(slots[at], usable[at], plan), slots[at], usable[at])
+        self.shifted_rows += int(moved.size)
+        self.epoch += 1
+
+    def _renormalise(
+        self, ranked: np.ndarray, usable: np.ndarray, plan: np.ndarray, *, keep: bool
+    ) -> np.ndarray | None:
+        """Every entry's samples again: the min–max first, then each entry scored under it. Returns every
+        entry's relative samples (resamples, entries) when ``keep``."""
+        m = len(self.keys)
+        lo = np.full((plan.shape[0], m), np.nan)
+        hi = np.full((plan.shape[0], m), np.nan)
+        for a in range(0, len(ranked), CHUNK):
+            chunk = self._samples(ranked[a : a + CHUNK], usable[a : a + CHUNK], plan)
+            lo, hi = _fmin(lo, chunk), _fmax(hi, chunk)
+        self._lo, self._hi = self._floored(lo), self._floored(hi)
+        rel_all = np.empty((plan.shape[0], len(ranked))) if keep else None
+        for a in range(0, len(ranked), CHUNK):
+            at = slice(a, a + CHUNK)
+            rel = self._score(self._samples(ranked[at], usable[at], plan), ranked[at], usable[at])
+            if rel_all is not None:
+                rel_all[:, at] = rel.T
+        return rel_all
+
+    def _points(self, ranked: np.ndarray) -> tuple[np.ndarray, list[int], np.ndarray, np.ndarray]:
+        """Point scores, competition ranks and normalised metrics (``scores.score_entries``, vectorised:
+        the same operations in the same order, so the same numbers)."""
+        points = self._c.points[ranked]
+        total = np.zeros(len(ranked))
+        norm = np.zeros_like(points)
+        for j, weight in enumerate(self._weights):
+            col = points[:, j]
+            present = np.isfinite(col)
+            if present.any():
+                norm[:, j] = min_max(col, col[present].min(), col[present].max(), self.keys[j])
+            total += weight * norm[:, j]
+        scores = np.array([round(x, 12) for x in total.tolist()])  # as score_entries: ties must tie
+        return scores, competition_ranks(scores.tolist()), norm, points
+
+    def _assemble(
+        self,
+        everyone: np.ndarray,
+        ranked: np.ndarray,
+        ranked_mask: np.ndarray,
+        groups: int,
+        best_samples: Callable[[list[int]], np.ndarray],
+    ) -> dict[str, Any]:
+        """The board dict, as ``boards.assemble_board`` makes it (its rows built on demand)."""
+        c = self._c
+        submitted = Counter(c.who[everyone].tolist())
+        unranked = []
+        for slot in everyone[~ranked_mask].tolist():
+            status, reason = status_reason(
+                int(c.episodes[slot]),
+                int(c.failures[slot]),
+                bool(c.policy_failed[slot]),
+                bool(c.submission_failed[slot]),
+                groups,
+            )
+            unranked.append(
+                _public(self._public[slot], self._completed[slot])
+                | {"status": status, "reason": reason, "entries_submitted": submitted[int(c.who[slot])]}
+            )
+        unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
+        scores, ranks, normalized, points = self._points(ranked)
+        n = len(ranked)
+        sids = c.sid[ranked]
+        rank_of = np.asarray(ranks, dtype=np.int64).reshape(n)
+        who = [self._coded[w] for w in c.who[ranked].tolist()]
+        best_of = best_of_participants(who, sids, rank_of, scores.tolist(), best_samples)
+        chosen = sorted(best_of)
+        best = np.zeros(n, bool)
+        best[chosen] = True
+        # a row's serial changes whenever what it shows does (its rank aside)
+        shown = np.column_stack(
+            [
+                scores,
+                c.score_ci[ranked],
+                c.stable_ci[ranked],
+                c.rank_ci[ranked],
+                best,
+                c.own[ranked],
+                normalized,
+            ]
+        )
+        same = (c.shown[ranked] == shown) | (np.isnan(c.shown[ranked]) & np.isnan(shown))
+        moved = ranked[~np.all(same, axis=1)]
+        c.shown[moved] = shown[~np.all(same, axis=1)]
+        c.serial[moved] = new_serials(len(moved))
+        intervals = np.full((n, len(self.keys), 2), np.nan)
+        for k in np.flatnonzero(c.own[ranked]).tolist():
+            intervals[k] = self._parts.intervals(int(sids[k]))[0]
+        snap = _Snapshot(
+            self.keys,
+            [self._public[s] for s in ranked.tolist()],
+            [self._completed[s] for s in ranked.tolist()],
+            scores,
+            c.score_ci[ranked],
+            c.stable[ranked],
+            c.stable_ci[ranked],
+            c.rank_ci[ranked],
+            normalized,
+            intervals,
+            best,
+        )
+        order = np.lexsort((sids, rank_of))  # rank order, ties by id
+        view = RankedView(sids[order], rank_of[order], sids, rank_of, c.serial[ranked], snap.row)
+        counts_of = [submitted[w] for w in c.who[ranked].tolist()]
+
+        def listed(i: int) -> dict[str, Any]:
+            """Column ``i`` as the all-entries view lists it (``boards.finish_board``'s entry)."""
+            d = snap.row(i) | {"rank": ranks[i], "entries_submitted": counts_of[i], "_column": i}
+            b = best_of.get(i)
+            if b is not None:
+                d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
+            return d
+
+        at = order.tolist()
+        entries = LazyRows(lambda: [listed(i) | {"_base": snap.row(i)} for i in at])
+        best_rows = [
+            listed(i) | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]} for i, b in best_of.items()
+        ]
+        best_rows.sort(key=lambda e: (e["rank"], e["submission_id"]))
+        by_column = np.array([scores, c.stable[ranked]], dtype=np.float64).reshape(2, n)
+        board = board_dict(
+            self.dataset,
+            self.setting,
+            self.track,
+            groups,
+            entries,
+            unranked,
+            best_rows,
+            None,
+            None,
+            by_column,
+            index=dict(zip(view.ids.tolist(), range(n), strict=True)),
+            tops={
+                "best": board_tops(scores[chosen], points[chosen], self.keys),
+                "all": board_tops(scores, points, self.keys),
+            },
+        )
+        board["protocol"] = self.protocol
+        board["lookahead"] = self.lookahead
+        board["_ranked"] = view
+        return board
+
+    # -- what the grid needs
+
+    def versions(self) -> np.ndarray:
+        """Per column of the last board handed out: a number that changes whenever the entry's own samples
+        may have (its figures, or whether they are used)."""
+        c = self._c
+        return c.version[self._ranked] * 2 + self._usable
+
+    def participants(self, columns: np.ndarray) -> list[str]:
+        """Whose entries the last board's columns ``columns`` are (``boards.participant_key``)."""
+        return [self._coded[w] for w in self._c.who[self._ranked[columns]].tolist()]
+
+    def grid_samples(
+        self, columns: np.ndarray, resamples: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The relative and stable score samples (float32, entries × resamples) of the last board's columns
+        ``columns`` under the grid's resamples (``resamples``: those of them), as ``score_board`` gives them."""
+        rows = _GRID_ROWS if resamples is None else resamples
+        pad = (-len(rows)) % 8
+        padded = np.concatenate([rows, np.zeros(pad, dtype=rows.dtype)])
+        take = len(rows) if resamples is not None else GRID_RESAMPLES
+        plan = self._plan[padded]
+        rel = np.empty((len(columns), take), np.float32)
+        stable = np.empty((len(columns), take), np.float32)
+        for a in range(0, len(columns), CHUNK):
+            at = columns[a : a + CHUNK]
+            samples = self._samples(self._ranked[at], self._usable[at], plan, padded)[:, :take]
+            rel[a : a + CHUNK] = self._relative(samples, self._lo[padded[:take]], self._hi[padded[:take]])
+            stable[a : a + CHUNK] = stable_samples(samples, self.setting)
+        return rel, stable
+
+
+def _public(packed: Any, completed: Any) -> dict[str, Any]:
+    """An entry's public fields (``boards.public_fields``) from what the board keeps of them."""
+    fields = orjson.loads(packed) if isinstance(packed, bytes) else dict(packed)
+    return {
+        "submission_id": fields["submission_id"],
+        "name": fields["name"],
+        "participant": fields["participant"],
+        "baseline": fields["baseline"],
+        "metrics": fields["metrics"],
+        "extras": fields["extras"],
+        "completed_at": completed,
+        "verification": fields["verification"],
+    }
+
+
+def _packed(public: dict[str, Any]) -> Any:
+    """Public fields as compact JSON (≈ 0.4 kB where their dicts took ≈ 1.7 kB), or as they are when JSON
+    would not give them back equal (a non-finite float, a key that is not a string)."""
+    try:
+        body = orjson.dumps(public)
+    except TypeError:
+        return public
+    # a copy: orjson's bytes keep the 4 kB buffer they were written into
+    return bytes(memoryview(body)) if orjson.loads(body) == public else public
+
+
+#: The last serial number handed out (rows and entry versions: unique in the process).
+_LAST_SERIAL = [0]
+
+
+def new_serials(n: int) -> np.ndarray:
+    """``n`` new serial numbers (of rows: the grid's too)."""
+    first = _LAST_SERIAL[0] + 1
+    _LAST_SERIAL[0] += n
+    return np.arange(first, first + n, dtype=np.int64)
+
+
+#: What a row shows of its submission beside its run's metrics and extras (``boards.public_fields``).
+_PUBLIC = ("submission_id", "name", "participant", "baseline", "verification")
+
+
+def _scoring_fields(row: Mapping[str, Any]) -> bytes:
+    """What of a row its scoring depends on (a verdict or name changing moves no score), as a digest."""
+    fields = (row.get("metrics"), row.get("extras"), row.get("ids"), row.get("submission_status"))
+    return hashlib.blake2b(repr(fields).encode(), digest_size=16).digest()
+
+
+def _point(value: object) -> float:
+    if isinstance(value, int | float) and not isinstance(value, bool) and np.isfinite(value):
+        return float(value)
+    return np.nan
+
+
+def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Each row's (entries, resamples; no NaN) four order statistics the percentile interval interpolates
+    between, and the interval (``stats.interval``: the same formula, so the same bits)."""
+    r = rel.shape[1]
+    tail = (1.0 - stats.CONFIDENCE) / 2.0
+    ordered = np.sort(rel, axis=1)
+    picks, ends = [], []
+    for q in (tail, 1.0 - tail):
+        position = q * np.maximum(np.full(rel.shape[0], r) - 1, 0)
+        below = np.floor(position).astype(np.intp)
+        above = np.minimum(below + 1, np.maximum(r - 1, 0))
+        low = np.take_along_axis(ordered, below[:, None], axis=1)[:, 0]
+        high = np.take_along_axis(ordered, above[:, None], axis=1)[:, 0]
+        picks += [low, high]
+        ends.append(low + (high - low) * (position - below))
+    return np.stack(picks, axis=1), (ends[0], ends[1])
+
+
+def _side(values: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Where each value lies against an entry's order statistics (entries, 4): 0 below the first, 1
+    strictly between the second and the third, 2 above the fourth, -1 on or between a pair (undecided)."""
+    out = np.full(values.shape, -1, dtype=np.int8)
+    out[values < order[:, 0:1]] = 0
+    out[(values > order[:, 1:2]) & (values < order[:, 2:3])] = 1
+    out[values > order[:, 3:4]] = 2
+    return out
+
+
+def _fmin(lo: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Per resample and metric, the lower of ``lo`` and the entries' samples (NaN = nobody measured)."""
+    if samples.shape[0] == 0:
+        return lo
+    low = np.fmin.reduce(samples, axis=0)
+    return np.asarray(low if lo.size == 0 else np.fmin(lo, low))
+
+
+def _fmax(hi: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    if samples.shape[0] == 0:
+        return hi
+    high = np.fmax.reduce(samples, axis=0)
+    return np.asarray(high if hi.size == 0 else np.fmax(hi, high))
+
+
+def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per resample, whether two min (or max) arrays agree on every metric (NaN = NaN)."""
+    return np.asarray(np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1))

@@ -1,0 +1,62 @@
+"""The board's columnar store of entry parts gives back each part's sum terms and weights bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robobpp.scoring.entries import EntryPart, PartTable, entry_part
+
+
+def _part(rng: np.random.Generator, setting: str, groups: int, holes: bool) -> EntryPart:
+    values = {
+        "space_utilization": rng.random(groups).tolist(),
+        "occupancy": rng.random(groups).tolist(),
+        "decision_time": (0.01 * rng.random(groups)).tolist(),
+        "local_stability": rng.random(groups).tolist(),
+        "static_stability": rng.random(groups).tolist(),
+        "trajectory_length": rng.random(groups).tolist(),
+    }
+    if holes:
+        values["occupancy"][1] = None
+        values["static_stability"][0] = None
+    pooled = {
+        "collapsed_placement": [[float(rng.integers(0, 5)), 40.0] for _ in range(groups)],
+        "dangerous_operation": [
+            [float(rng.integers(0, 3)), float(rng.integers(0, 50))] for _ in range(groups)
+        ],
+    }
+    return entry_part({"ids": list(range(groups)), "values": values, "pooled": pooled}, setting)
+
+
+def test_parts_come_back_bit_for_bit() -> None:
+    rng = np.random.default_rng(1)
+    for setting in ("math", "physics", "execution"):
+        table = PartTable(setting)
+        parts = {sid: _part(rng, setting, 6, holes=sid % 3 == 0) for sid in range(1, 40)}
+        table.put_many({sid: p for sid, p in parts.items() if sid < 30})
+        for sid in range(30, 40):
+            table.put(sid, parts[sid])
+        for sid in (2, 5, 31):  # freed rows are reused
+            table.drop(sid)
+        table.put(2, parts[2])
+        sids = [s for s in parts if s not in (5, 31)]
+        top, bottom = table.stacked(sids)
+        assert np.array_equal(top, np.stack([parts[s].top for s in sids]))
+        assert np.array_equal(bottom, np.stack([parts[s].bottom for s in sids]))
+        for s in sids:
+            assert table.seed(s) == parts[s].seed
+            metric_ci, stable_ci = table.intervals(s)
+            assert np.array_equal(metric_ci, parts[s].metric_ci, equal_nan=True)
+            assert stable_ci == parts[s].stable_ci
+
+
+def test_a_part_the_nan_cannot_say_keeps_its_weights() -> None:
+    rng = np.random.default_rng(2)
+    table = PartTable("math")
+    plain = _part(rng, "math", 4, holes=False)
+    odd = EntryPart("math", plain.ids, plain.top, plain.bottom * 0.5, plain.metric_ci, plain.stable_ci, 7)
+    table.put(1, plain)
+    table.put(2, odd)
+    top, bottom = table.stacked([1, 2])
+    assert np.array_equal(bottom, np.stack([plain.bottom, odd.bottom]))
+    assert np.array_equal(top, np.stack([plain.top, odd.top]))

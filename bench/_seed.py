@@ -41,10 +41,10 @@ from typing import Any
 import numpy as np
 from sqlalchemy import insert, text
 
-from robobpp.db import work
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.work import run_figures
 from robobpp.provenance import recorded_rules
+from robobpp.replay import paper_settings
 from robobpp.scoring import stats
 from robobpp.scoring.entries import (
     EntryPart,
@@ -281,7 +281,7 @@ def _generate(
         settings = ["math"] if kind == "partial" else list(SETTINGS)
         # the server's runs: every setting closed loop, and the physical ones again under the paper protocol
         boards = [(st, "closed") for st in settings] + [
-            (st, "paper") for st in work.paper_settings(settings, "private")
+            (st, "paper") for st in paper_settings(settings, "private")
         ]
         ids.submission += 1
         subs.append(

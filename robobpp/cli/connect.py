@@ -10,8 +10,6 @@ from rich.markup import escape
 
 from robobpp.cli.common import fail, import_from_cwd
 from robobpp.cli.submit import (
-    DATASETS,
-    SETTINGS,
     BoardDatasetsOpt,
     BoardSettingsOpt,
     LookaheadOpt,
@@ -22,6 +20,7 @@ from robobpp.cli.submit import (
     _track,
     err,
 )
+from robobpp.vocabulary import DATASETS, SETTINGS
 
 if TYPE_CHECKING:
     from robobpp.schemas import SubmissionPublic

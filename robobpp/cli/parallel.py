@@ -14,8 +14,9 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
 
 from robobpp.core import EpisodeSpec
-from robobpp.episode import EpisodeResult, run_episode
-from robobpp.replay import CLOSED, PAPER, run_paper_protocol
+from robobpp.episode import EpisodeResult
+from robobpp.replay import play
+from robobpp.vocabulary import CLOSED
 
 _policy: Any = None
 
@@ -30,12 +31,7 @@ def _load(name: str, kwargs: dict[str, Any]) -> None:
 
 
 def _run(spec: EpisodeSpec, settings: tuple[str, ...], lookahead: int, protocol: str) -> list[dict[str, Any]]:
-    results: list[EpisodeResult]
-    if protocol == PAPER:
-        results = list(run_paper_protocol(spec, _policy, settings, lookahead=lookahead).values())
-    else:
-        results = [run_episode(spec, _policy, setting, lookahead=lookahead) for setting in settings]
-    return [r.to_dict() for r in results]
+    return [r.to_dict() for r in play(protocol, spec, _policy, settings, lookahead=lookahead)]
 
 
 def _report_done(on_done: Callable[[int], None], index: int, _future: Future[Any]) -> None:
@@ -54,8 +50,8 @@ def run_parallel(
 ) -> Iterator[list[EpisodeResult]]:
     """Results of ``tasks`` ((spec, settings) pairs), in order; ``on_done(i)`` as each one finishes.
 
-    Closed protocol: one episode per setting. Paper protocol: the Math Pack episode, then its replay in each
-    (physical) setting, all in the same worker (:func:`robobpp.replay.run_paper_protocol`).
+    Each task's episodes under ``protocol`` (a :data:`robobpp.vocabulary.Loop`), all in the same worker
+    (:func:`robobpp.replay.play`).
     """
     # spawn, not fork: a forked child would inherit whatever simulator state the parent holds.
     context = multiprocessing.get_context("spawn")

@@ -19,6 +19,7 @@ from rich.table import Table
 
 from robobpp.cli.common import fail, table_console
 from robobpp.cli.export import WideOpt
+from robobpp.vocabulary import CLOSED, DATASETS, PAPER, SETTINGS
 
 if TYPE_CHECKING:
     from rich.progress import Progress
@@ -27,8 +28,6 @@ if TYPE_CHECKING:
     from robobpp.schemas import EpisodePublic, Leaderboard, OverallGrid, SubmissionPublic
 
 err = Console(stderr=True)
-DATASETS = ("repetitive", "diverse", "longboard")
-SETTINGS = ("math", "physics", "execution")
 
 ServerOpt = Annotated[
     str, typer.Option("--server", envvar="ROBOBPP_SERVER", help="Evaluation server root URL.")
@@ -475,7 +474,7 @@ def leaderboard(
             help="Physics/Execution as closed (closed loop, the benchmark) or paper (the paper's "
             "protocol: the Math Pack actions replayed)."
         ),
-    ] = "closed",
+    ] = CLOSED,
     lookahead: Annotated[
         int,
         typer.Option(
@@ -502,7 +501,7 @@ def leaderboard(
             fail(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
     if view not in ("best", "all"):
         fail(f"unknown view {view!r}; expected best or all")
-    if lookahead and protocol != "closed" and setting != "math":
+    if lookahead and protocol != CLOSED and setting != "math":
         fail("the paper-protocol boards are lookahead 0 only; a lookahead K > 0 has closed-loop boards")
     if dataset is not None and dataset not in DATASETS:
         fail(f"unknown dataset {dataset!r}; expected one of {', '.join(DATASETS)}")
@@ -555,7 +554,7 @@ def _rank(rank: int | None, low: int | None, high: int | None) -> str:
 
 def _board_table(board: Leaderboard) -> Table:
     """Ranks with their 95 % rank interval, scores with their bootstrap interval, failed/partial apart."""
-    protocol = " · paper protocol" if board.protocol == "paper" else ""
+    protocol = " · paper protocol" if board.protocol == PAPER else ""
     protocol += f" · lookahead {board.lookahead}" if board.lookahead else ""
     table = Table(
         title=f"{board.setting}/{board.dataset}{protocol} · {board.track} track · {board.view} "
@@ -608,7 +607,7 @@ def _board_table(board: Leaderboard) -> Table:
 
 def _grid_table(grid: OverallGrid) -> Table:
     """Score (rank) per board and the Mean with intervals; partial or failed submissions after, unranked."""
-    protocol = " · Physics/Execution under the paper protocol" if grid.protocol == "paper" else ""
+    protocol = " · Physics/Execution under the paper protocol" if grid.protocol == PAPER else ""
     protocol += f" · lookahead {grid.lookahead}" if grid.lookahead else ""
     table = Table(title=f"overall{protocol} · {grid.track} track · {grid.view}")
     table.add_column("rank", justify="right")

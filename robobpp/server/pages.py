@@ -24,7 +24,7 @@ from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.schemas import MAX_SUBMISSION_LOOKAHEAD
-from robobpp.scoring.metrics import METRICS, PHYSICAL
+from robobpp.scoring.metrics import METRICS
 from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body, known_lookaheads
@@ -35,6 +35,7 @@ from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root, with_csrf
 from robobpp.server.site.session import Viewer, load_viewer, resolved_in_handler, viewer
+from robobpp.vocabulary import ACTIVE_SUBMISSION, CLOSED, PHYSICAL, BoardTrack, Loop
 from robobpp.web import SETTING_TITLES, environment, tables
 from robobpp.web.trace import TraceError, viewer_payload
 
@@ -42,9 +43,7 @@ router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 router.include_router(account.router)
 router.include_router(operator.router)
 
-Track = Literal["private", "public"]
 #: ``closed`` (the benchmark, the default) or ``paper``: the physical boards under the paper protocol.
-Protocol = Literal["closed", "paper"]
 DatasetPath = Annotated[str, Path(max_length=32)]
 SettingPath = Annotated[str, Path(max_length=16)]
 #: Termination reasons that are not the policy's fault or are plain endings, for colouring badges.
@@ -74,14 +73,14 @@ PAPER_LOOKAHEAD = (
 async def overall_page(
     request: Request,
     settings: SettingsDep,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     page: Page = 1,
-    protocol: Protocol = "closed",
+    protocol: Loop = CLOSED,
     lookahead: Lookahead = 0,
 ) -> HTMLResponse:
     datasets, setting_names = _board_names(settings)
-    if lookahead and protocol != "closed":
+    if lookahead and protocol != CLOSED:
         return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
@@ -172,17 +171,17 @@ async def board_page(
     dataset: DatasetPath,
     setting: SettingPath,
     settings: SettingsDep,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     page: Page = 1,
-    protocol: Protocol = "closed",
+    protocol: Loop = CLOSED,
     lookahead: Lookahead = 0,
 ) -> HTMLResponse:
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
     served = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
-    if lookahead and served != "closed":
+    if lookahead and served != CLOSED:
         return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
@@ -197,7 +196,7 @@ async def board_page(
             lookahead=lookahead,
         )
         title = f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}"
-        if served != "closed":
+        if served != CLOSED:
             title += " · paper protocol"
         if lookahead:
             title += f" · lookahead {lookahead}"
@@ -335,14 +334,14 @@ def _render_submission(
             bootstrap.append(board)
         elif board["unranked"]:  # failed or partial: the board's reason for ranking it apart
             apart[key] = board["unranked"][0]
-    closed = [r for r in view["runs"] if r["protocol"] == "closed"]  # the radar: the benchmark's boards
+    closed = [r for r in view["runs"] if r["protocol"] == CLOSED]  # the radar: the benchmark's boards
     # the results table lists a paper-protocol run right under its closed-loop run
     place = {(r["dataset"], r["setting"]): i for i, r in enumerate(closed)}
     view = {
         **view,
         "runs": sorted(
             view["runs"],
-            key=lambda r: (place.get((r["dataset"], r["setting"]), len(place)), r["protocol"] != "closed"),
+            key=lambda r: (place.get((r["dataset"], r["setting"]), len(place)), r["protocol"] != CLOSED),
         ),
     }
     public = sub.track == "public"
@@ -373,7 +372,7 @@ def _render_submission(
         return Markup(html), tables.histogram([u for u in utilisation if u is not None])
 
     table, histogram = views.get(("page-episodes", owner, public, root(request)), sub, episode_table)
-    closed_entries = {(d, s): e for (d, s, p), e in entries.items() if p == "closed"}
+    closed_entries = {(d, s): e for (d, s, p), e in entries.items() if p == CLOSED}
     charts = {"radar": tables.radar_groups(closed, closed_entries), "utilization": histogram}
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
@@ -387,7 +386,7 @@ def _render_submission(
         owner=owner,
         site=str(request.base_url).rstrip("/"),
         can_cancel=owner
-        and view["status"] in ("queued", "running")
+        and view["status"] in ACTIVE_SUBMISSION
         and (sub.track != "verify" or viewer(request).admin),
         episodes_table=table,
         ranks=ranks,
@@ -409,7 +408,7 @@ def _standing(
     ranks, and the board as seen from that submission alone: its bootstrap (groups, resamples, confidence)
     and, for an entry listed apart, its ``unranked`` row with the board's reason. None where no board can
     show the run (a lookahead K > 0 has no paper-protocol boards)."""
-    if sub.lookahead and queries.board_protocol(setting, protocol) != "closed":
+    if sub.lookahead and queries.board_protocol(setting, protocol) != CLOSED:
         return None
     entry, of = cache.ranked_entry(dataset, setting, sub.track, protocol, sub.id, sub.lookahead)
     for attempt in (0, 1):
@@ -535,7 +534,7 @@ def replay_page(
         )
     base = root(request)
     heading = f"{sub.name} · {ep.dataset} · {ep.setting} · group {ep.group}"
-    if ep.protocol != "closed":  # the Math Pack actions replayed
+    if ep.protocol != CLOSED:  # the Math Pack actions replayed
         heading += " · paper protocol"
     crumbs = [("Leaderboard", f"{base}/")]
     if owner or sub.participant.is_builtin:
@@ -547,7 +546,7 @@ def replay_page(
 
 @router.get("/reproduction", response_class=HTMLResponse)
 async def reproduction_page(
-    request: Request, settings: SettingsDep, track: Track = "private"
+    request: Request, settings: SettingsDep, track: BoardTrack = "private"
 ) -> HTMLResponse:
     from robobpp.paper import paper_tables
     from robobpp.policies import TITLES

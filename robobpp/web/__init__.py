@@ -14,6 +14,7 @@ from typing import Any
 import jinja2
 
 from robobpp.schemas import start_estimate_text
+from robobpp.vocabulary import CLOSED, PAPER
 
 WEB_DIR = Path(__file__).resolve().parent
 TEMPLATES_DIR = WEB_DIR / "templates"
@@ -21,9 +22,9 @@ STATIC_DIR = WEB_DIR / "static"
 
 SETTING_TITLES = {"math": "Math Pack", "physics": "Physics Pack", "execution": "Execution Pack"}
 #: How each protocol is labelled wherever a physical setting's figures are shown (docs/web.md).
-PROTOCOL_TITLES = {"closed": "closed loop (the benchmark)", "paper": "paper protocol (plan in Math, replay)"}
+PROTOCOL_TITLES = {CLOSED: "closed loop (the benchmark)", PAPER: "paper protocol (plan in Math, replay)"}
 #: The same, where a table cell has little room (the full title goes in its tooltip).
-PROTOCOL_SHORT = {"closed": "closed loop", "paper": "paper protocol"}
+PROTOCOL_SHORT = {CLOSED: "closed loop", PAPER: "paper protocol"}
 
 
 def _number(value: Any) -> float | None:

@@ -16,6 +16,7 @@ from robobpp.db import work
 from robobpp.db.migrate import alembic_config, upgrade
 from robobpp.db.models import Base, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.session import make_engine, make_session_factory, transaction
+from robobpp.replay import paper_settings
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.run import claim_and_run
 from tests.server.conftest import OFFLINE
@@ -80,9 +81,9 @@ def test_runs_and_waiting_replays_are_created_with_the_submission(factory) -> No
     statuses = {(e.setting, e.protocol, e.group): e.status for e in _episodes(factory, sid)}
     assert statuses[("physics", "paper", 0)] == "waiting" and statuses[("math", "closed", 1)] == "pending"
     # no Math Pack, nothing to replay; a verification is compared on closed loop only
-    assert work.paper_settings(["physics", "execution"], "private") == []
-    assert work.paper_settings(["math", "physics"], "verify") == []
-    assert work.paper_settings(["math", "execution"], "private") == ["execution"]
+    assert paper_settings(["physics", "execution"], "private") == []
+    assert paper_settings(["math", "physics"], "verify") == []
+    assert paper_settings(["math", "execution"], "private") == ["execution"]
 
 
 def test_waiting_replays_are_never_claimed_before_their_math_episode(factory) -> None:

@@ -11,24 +11,21 @@ from starlette.concurrency import run_in_threadpool
 
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.schemas import (
+    LOOP_HELP,
     MAX_SUBMISSION_LOOKAHEAD,
-    PROTOCOL_HELP,
-    DatasetName,
     Leaderboard,
     OverallGrid,
-    ProtocolName,
     Reproduction,
     ServiceInfo,
-    SettingName,
 )
 from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SettingsDep
 from robobpp.server.problems import ProblemError
 from robobpp.server.runtime import Runtime
 from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key, to_json
+from robobpp.vocabulary import CLOSED, BoardTrack, DatasetName, Loop, SettingName
 
 router = APIRouter(tags=["leaderboards"])
-Track = Literal["private", "public"]
 
 
 def board_cache(request: Request) -> BoardCache:
@@ -99,7 +96,7 @@ def known_lookaheads(cache: BoardCache, track: str) -> list[int] | None:
 
 def lookahead_board(protocol: str, setting: str | None, lookahead: int) -> None:
     """A lookahead K > 0 has closed-loop boards only (docs/server.md, "Boards per lookahead")."""
-    if lookahead and protocol != "closed" and setting != "math":
+    if lookahead and protocol != CLOSED and setting != "math":
         raise ProblemError(
             404,
             "not-found",
@@ -113,7 +110,7 @@ View = Annotated[
     Literal["best", "all"],
     Query(description="best: each participant's best entry (default); all: every entry"),
 ]
-Protocol = Annotated[ProtocolName, Query(description=PROTOCOL_HELP)]
+LoopQuery = Annotated[Loop, Query(description=LOOP_HELP)]
 Limit = Annotated[int, Query(ge=1, le=500)]
 Offset = Annotated[int, Query(ge=0, le=10**7)]
 Lookahead = Annotated[
@@ -135,11 +132,11 @@ Lookahead = Annotated[
 async def overall(
     request: Request,
     settings: SettingsDep,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     limit: Limit = 50,
     offset: Offset = 0,
-    protocol: Protocol = "closed",
+    protocol: LoopQuery = CLOSED,
     lookahead: Lookahead = 0,
 ) -> Response:
     lookahead_board(protocol, None, lookahead)
@@ -163,12 +160,12 @@ async def board(
     request: Request,
     dataset: DatasetName,
     setting: SettingName,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     limit: Limit = 50,
     offset: Offset = 0,
     submission: Annotated[int | None, Query(ge=1, le=2**62, description="Only this submission")] = None,
-    protocol: Protocol = "closed",
+    protocol: LoopQuery = CLOSED,
     lookahead: Lookahead = 0,
 ) -> Response:
     settings_ = request.app.state.settings
@@ -194,7 +191,7 @@ async def board(
     response_model=Reproduction,
     summary="The paper's baselines under the paper protocol beside the paper's published tables",
 )
-async def reproduction_route(request: Request, track: Track = "private") -> Response:
+async def reproduction_route(request: Request, track: BoardTrack = "private") -> Response:
     from robobpp.server.services.reproduction import reproduction
 
     def build(_cache: BoardCache) -> bytes:

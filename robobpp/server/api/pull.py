@@ -38,7 +38,6 @@ from starlette.concurrency import run_in_threadpool
 
 from robobpp import protocol as P
 from robobpp.db.models import EpisodeRow, Submission
-from robobpp.db.work import ACTIVE_SUBMISSION
 from robobpp.server.principal import auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
 from robobpp.server.relay_bus import (
@@ -54,6 +53,7 @@ from robobpp.server.relay_bus import (
 )
 from robobpp.server.relay_bus import GONE as GONE_MESSAGE
 from robobpp.server.relay_bus import TOO_LARGE as TOO_LARGE_MESSAGE
+from robobpp.vocabulary import ACTIVE_SUBMISSION
 
 log = logging.getLogger("robobpp.server.pull")
 router = APIRouter(tags=["pull"])

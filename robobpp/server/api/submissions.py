@@ -12,10 +12,8 @@ from sqlalchemy.orm import Session
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.schemas import (
-    DatasetName,
     EpisodeDetail,
     EpisodePublic,
-    SettingName,
     SubmissionCreate,
     SubmissionPublic,
 )
@@ -25,6 +23,7 @@ from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, admission, verification
 from robobpp.server.services.board_engine import leaderboard
 from robobpp.server.services.submissions import finished_views, listed_forms
+from robobpp.vocabulary import DatasetName, SettingName
 
 router = APIRouter(tags=["submissions"])
 #: Ids are bounded so a huge number is a 422, not an integer overflow inside the database.

@@ -10,13 +10,13 @@ from robobpp.episode import EpisodeResult, run_episode
 from robobpp.policies import load_policy
 from robobpp.replay import (
     PAPER,
-    PROTOCOLS,
-    check_protocol,
+    check_loop,
     recorded_answers,
     replay_episode,
     replay_math_result,
     run_paper_protocol,
 )
+from robobpp.vocabulary import LOOPS
 from tests.conftest import make_spec
 
 
@@ -157,8 +157,8 @@ def test_bad_replays_are_refused_clearly() -> None:
     with pytest.raises(ValueError, match="per-step trace"):
         replay_math_result(EpisodeResult.from_dict(math.to_dict(trace=False)), spec, "physics")
     with pytest.raises(ValueError, match="unknown protocol 'open'"):
-        check_protocol("open")
-    assert PROTOCOLS == ("closed", "paper")
+        check_loop("open")
+    assert LOOPS == ("closed", "paper")
 
 
 def test_results_without_a_protocol_load_as_closed() -> None:

@@ -67,6 +67,13 @@ def board_loop(setting: str, loop: str) -> Loop:
     return PAPER if loop == PAPER and setting in PHYSICAL else CLOSED
 
 
+def has_boards(loop: str, lookahead: int, setting: str | None = None) -> bool:
+    """Whether a lookahead has boards under ``loop`` (of ``setting``; None: the overall grid): a lookahead
+    K > 0 has closed-loop boards only, the paper's tables having been made without lookahead (a Math Pack
+    board is closed loop under both; docs/server.md, "Boards per lookahead")."""
+    return not lookahead or (board_loop(setting, loop) if setting is not None else loop) == CLOSED
+
+
 __all__ = [
     "ACTIVE_SUBMISSION",
     "BOARD_TRACKS",
@@ -90,4 +97,5 @@ __all__ = [
     "SubmissionStatus",
     "Track",
     "board_loop",
+    "has_boards",
 ]

@@ -34,7 +34,7 @@ from robobpp.schemas import (
     TokenPublic,
     clean_name,
 )
-from robobpp.vocabulary import CLOSED, BoardTrack
+from robobpp.vocabulary import CLOSED, BoardTrack, has_boards
 
 API_PREFIX = "/api/v1"
 DEFAULT_SERVER = "http://127.0.0.1:8000"
@@ -457,7 +457,7 @@ class ServerClient:
     def _standing(self, submission: SubmissionPublic, run: Any) -> Standing:
         track: BoardTrack = "public" if submission.track == "public" else "private"
         protocol, lookahead = run.protocol, submission.lookahead
-        if lookahead and protocol != CLOSED and run.setting != "math":
+        if not has_boards(protocol, lookahead, run.setting):
             # the paper-protocol boards are lookahead 0 only: this run is on none
             return Standing(
                 dataset=run.dataset,

@@ -31,11 +31,11 @@ from robobpp.server.api.leaderboards import board_cache, cached_body, known_look
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, progress
 from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key
-from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root, with_csrf
 from robobpp.server.site.session import Viewer, load_viewer, resolved_in_handler, viewer
-from robobpp.vocabulary import ACTIVE_SUBMISSION, CLOSED, PHYSICAL, BoardTrack, Loop
+from robobpp.server.state import state_of
+from robobpp.vocabulary import ACTIVE_SUBMISSION, CLOSED, PHYSICAL, BoardTrack, Loop, board_loop, has_boards
 from robobpp.web import SETTING_TITLES, environment, tables
 from robobpp.web.trace import TraceError, viewer_payload
 
@@ -80,7 +80,7 @@ async def overall_page(
     lookahead: Lookahead = 0,
 ) -> HTMLResponse:
     datasets, setting_names = _board_names(settings)
-    if lookahead and protocol != CLOSED:
+    if not has_boards(protocol, lookahead):
         return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
@@ -117,7 +117,7 @@ async def overall_page(
 
 def _status(request: Request, settings: Any) -> dict[str, Any]:
     """The demo, the backlog and baselines queued again, as the boards' pages say them (services/progress.py)."""
-    with request.app.state.runtime.read_session() as session:
+    with state_of(request.app).runtime.read_session() as session:
         return progress.page_status(session, settings)
 
 
@@ -158,7 +158,7 @@ async def _static(request: Request, key: tuple[Any, ...], build: Callable[[], HT
     who = viewer(request)
     if who.signed_in or who.nonce:
         return await run_in_threadpool(build)
-    pages: dict[tuple[Any, ...], bytes] = request.app.state.__dict__.setdefault("_static_pages", {})
+    pages: dict[tuple[Any, ...], bytes] = state_of(request.app).static_pages
     key = (*key, root(request))
     if key not in pages:
         pages[key] = bytes((await run_in_threadpool(build)).body)
@@ -180,8 +180,8 @@ async def board_page(
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
-    served = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
-    if lookahead and served != CLOSED:
+    served = board_loop(setting, protocol)  # Math Pack: one board for both
+    if not has_boards(served, lookahead):
         return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
@@ -256,15 +256,17 @@ def _visible(request: Request, session: Session, submission_id: int) -> Submissi
 def _page_view(request: Request, session: Session, sub: Submission, owner: bool) -> dict[str, Any]:
     """The submission as the API returns it; a baseline seen by the public loses its policy URL."""
     view = dict(
-        finished_views(request.app.state).get(("view",), sub, lambda: queries.submission_view(session, sub))
+        state_of(request.app).finished_views.get(
+            ("view",), sub, lambda: queries.submission_view(session, sub)
+        )
     )
     if not owner:
         view.pop("policy_url", None)
     view["queue"] = waiting.queue_place(
         session,
         sub,
-        slots=request.app.state.settings.worker_slots,
-        per_worker=request.app.state.settings.episodes_per_worker,
+        slots=state_of(request.app).settings.worker_slots,
+        per_worker=state_of(request.app).settings.episodes_per_worker,
     )
     return view
 
@@ -301,7 +303,7 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
         who.name,
         published,
     )
-    body = finished_views(request.app.state).get(
+    body = state_of(request.app).finished_views.get(
         kind, sub, lambda: bytes(_render_submission(request, session, sub, owner, cache, csrf_slot=True).body)
     )
     return with_csrf(request, body)
@@ -346,7 +348,7 @@ def _render_submission(
     }
     public = sub.track == "public"
     reasons = {**TERMINATION_REASONS, **EXTRA_REASONS}
-    views = finished_views(request.app.state)
+    views = state_of(request.app).finished_views
 
     def episode_table() -> tuple[Markup, dict[str, list[str] | list[int]]]:
         """The episode table and the utilisation histogram: a finished submission's are built once."""
@@ -408,7 +410,7 @@ def _standing(
     ranks, and the board as seen from that submission alone: its bootstrap (groups, resamples, confidence)
     and, for an entry listed apart, its ``unranked`` row with the board's reason. None where no board can
     show the run (a lookahead K > 0 has no paper-protocol boards)."""
-    if sub.lookahead and queries.board_protocol(setting, protocol) != CLOSED:
+    if not has_boards(protocol, sub.lookahead, setting):
         return None
     entry, of = cache.ranked_entry(dataset, setting, sub.track, protocol, sub.id, sub.lookahead)
     for attempt in (0, 1):
@@ -463,15 +465,15 @@ def _submission_status(request: Request, session: Session, submission_id: int) -
             status_code=404,
             headers={"Cache-Control": "no-store"},
         )
-    view = finished_views(request.app.state).get(
+    view = state_of(request.app).finished_views.get(
         ("view",), sub, lambda: queries.submission_view(session, sub)
     )
     runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
     queue = waiting.queue_place(
         session,
         sub,
-        slots=request.app.state.settings.worker_slots,
-        per_worker=request.app.state.settings.episodes_per_worker,
+        slots=state_of(request.app).settings.worker_slots,
+        per_worker=state_of(request.app).settings.episodes_per_worker,
     )
     if queue is not None and queue["estimated_start"] is not None:
         queue = {**queue, "estimated_start": queue["estimated_start"].isoformat()}
@@ -553,7 +555,7 @@ async def reproduction_page(
     from robobpp.server.services.reproduction import reproduction
 
     def build(_cache: BoardCache) -> HTMLResponse:
-        with request.app.state.runtime.read_session() as session:
+        with state_of(request.app).runtime.read_session() as session:
             data = reproduction(session, track)
         titles = {**paper_tables().methods, **TITLES}
         return render(

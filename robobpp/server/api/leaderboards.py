@@ -23,17 +23,15 @@ from robobpp.server.api.deps import SettingsDep
 from robobpp.server.problems import ProblemError
 from robobpp.server.runtime import Runtime
 from robobpp.server.services.boards import BoardCache, BoardsUnavailable, board_key, grid_key, to_json
-from robobpp.vocabulary import CLOSED, BoardTrack, DatasetName, Loop, SettingName
+from robobpp.server.state import state_of
+from robobpp.vocabulary import CLOSED, BoardTrack, DatasetName, Loop, SettingName, has_boards
 
 router = APIRouter(tags=["leaderboards"])
 
 
 def board_cache(request: Request) -> BoardCache:
     """The app's reader of the published boards (services/boards.py)."""
-    cache = getattr(request.app.state, "board_cache", None)
-    if cache is None:
-        cache = request.app.state.board_cache = make_board_cache(request.app.state.runtime)
-    return cache
+    return state_of(request.app).board_cache
 
 
 def make_board_cache(runtime: Runtime, wake: Callable[[], None] | None = None) -> BoardCache:
@@ -96,7 +94,7 @@ def known_lookaheads(cache: BoardCache, track: str) -> list[int] | None:
 
 def lookahead_board(protocol: str, setting: str | None, lookahead: int) -> None:
     """A lookahead K > 0 has closed-loop boards only (docs/server.md, "Boards per lookahead")."""
-    if lookahead and protocol != CLOSED and setting != "math":
+    if not has_boards(protocol, lookahead, setting):
         raise ProblemError(
             404,
             "not-found",
@@ -168,7 +166,7 @@ async def board(
     protocol: LoopQuery = CLOSED,
     lookahead: Lookahead = 0,
 ) -> Response:
-    settings_ = request.app.state.settings
+    settings_ = state_of(request.app).settings
     if dataset not in settings_.datasets or setting not in settings_.enabled_settings:
         raise ProblemError(404, "not-found", "Not found", f"this server has no {dataset} × {setting} board")
     lookahead_board(protocol, setting, lookahead)
@@ -195,7 +193,7 @@ async def reproduction_route(request: Request, track: BoardTrack = "private") ->
     from robobpp.server.services.reproduction import reproduction
 
     def build(_cache: BoardCache) -> bytes:
-        with request.app.state.runtime.read_session() as session:
+        with state_of(request.app).runtime.read_session() as session:
             return to_json(reproduction(session, track))
 
     # the baselines' runs change only when their boards do: built once per publication of the track

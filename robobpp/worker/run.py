@@ -307,7 +307,7 @@ def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worke
             worker,
             lease_s=settings.lease_s,
             max_attempts=settings.max_attempts,
-            max_running_per_participant=settings.max_running_per_participant,
+            max_running_per_participant=settings.participant_max_running,
         )
     if claim is None:
         return None

@@ -2,7 +2,7 @@
 
 For each dataset and policy, on the first ``--groups`` train groups (seed 0, from ``--first-group``): the policy's
 Math Pack episode; that episode replayed open loop in the Physics Pack (the paper's protocol,
-``robobpp.replay.run_paper_protocol``: plan on ideal geometry, replay blind); and the policy run closed loop in the
+``robobpp.replay.run_paper_loop``: plan on ideal geometry, replay blind); and the policy run closed loop in the
 Physics Pack (it observes the pile after every placement). The table sets the three mean Space Utilizations side by
 side with the target "closed ≥ paper protocol − 0.03", and how the episodes ended.
 

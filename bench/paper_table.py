@@ -241,7 +241,7 @@ def run(
         specs,
         policy,
         [setting],
-        protocol=PAPER if replay else CLOSED,
+        loop=PAPER if replay else CLOSED,
         load=lambda name, spec: make_policy(name, spec, item_set),
         setting_for=make_setting,
     )

@@ -217,7 +217,7 @@ def replay_math_result(math: EpisodeResult, spec: EpisodeSpec, setting: Setting 
     )
 
 
-def run_paper_protocol(
+def run_paper_loop(
     spec: EpisodeSpec,
     policy: Policy,
     settings: Sequence[Setting | str],
@@ -252,7 +252,7 @@ def play(
 ) -> list[EpisodeResult]:
     """``spec``'s episodes of ``policy`` in each of ``settings`` (names, or instances), in their order, under
     ``loop``: closed, one episode per setting; paper, one Math Pack episode (whether or not ``settings`` has
-    Math Pack) replayed in each physical setting (:func:`run_paper_protocol`). The one place the two loops part
+    Math Pack) replayed in each physical setting (:func:`run_paper_loop`). The one place the two loops part
     (``robobpp evaluate``, ``robobpp reproduce``, their worker processes)."""
     if check_loop(loop) == CLOSED:
         return [
@@ -264,7 +264,7 @@ def play(
         spec, policy, in_math[0] if in_math else MATH, lookahead=lookahead, time_budget_s=time_budget_s
     )
     physical = [s for s, name in zip(settings, names, strict=True) if name != MATH]
-    runs = run_paper_protocol(spec, policy, physical, math=math)
+    runs = run_paper_loop(spec, policy, physical, math=math)
     return [runs[name] for name in names]
 
 
@@ -351,5 +351,5 @@ __all__ = [
     "recorded_answers",
     "replay_episode",
     "replay_math_result",
-    "run_paper_protocol",
+    "run_paper_loop",
 ]

@@ -108,23 +108,24 @@ def run_baselines(
     policy: str,
     settings: Sequence[str],
     *,
-    protocol: str = PAPER,
+    loop: str = PAPER,
     load: Callable[[str, EpisodeSpec], Policy] | None = None,
     setting_for: Callable[[str], Setting | str] | None = None,
 ) -> Iterator[list[EpisodeResult]]:
-    """Per spec, in this process, the episodes of built-in ``policy`` in each of ``settings`` under ``protocol``.
+    """Per spec, in this process, the episodes of built-in ``policy`` in each of ``settings`` under ``loop``
+    (:data:`robobpp.vocabulary.Loop`).
 
-    Paper protocol: one Math Pack episode, replayed in each physical setting of ``settings`` (the Math episode
+    Paper: one Math Pack episode, replayed in each physical setting of ``settings`` (the Math episode
     is yielded too when ``settings`` has ``math``). Closed: one episode per setting. ``load`` (a policy per
     spec) and ``setting_for`` (a setting instance per name) are hooks for experiments (bench/paper_table.py).
     """
-    check_loop(protocol)
+    check_loop(loop)
     shared = None if load is not None else load_policy(policy)
     make = setting_for or (lambda name: name)
     for spec in specs:
         agent = load(policy, spec) if load is not None else shared
         assert agent is not None
-        yield play(protocol, spec, agent, [make(s) for s in settings])
+        yield play(loop, spec, agent, [make(s) for s in settings])
 
 
 def pph(decision_time: float | None, trajectory_length: float | None) -> float | None:

@@ -125,7 +125,7 @@ def evaluate(
                     tasks,
                     jobs=jobs,
                     lookahead=lookahead,
-                    protocol=protocol,
+                    loop=protocol,
                     on_done=lambda _i: progress.advance(bar),
                 )
             )

@@ -30,8 +30,8 @@ def _load(name: str, kwargs: dict[str, Any]) -> None:
     _policy = load_policy(name, **kwargs)
 
 
-def _run(spec: EpisodeSpec, settings: tuple[str, ...], lookahead: int, protocol: str) -> list[dict[str, Any]]:
-    return [r.to_dict() for r in play(protocol, spec, _policy, settings, lookahead=lookahead)]
+def _run(spec: EpisodeSpec, settings: tuple[str, ...], lookahead: int, loop: str) -> list[dict[str, Any]]:
+    return [r.to_dict() for r in play(loop, spec, _policy, settings, lookahead=lookahead)]
 
 
 def _report_done(on_done: Callable[[int], None], index: int, _future: Future[Any]) -> None:
@@ -45,12 +45,12 @@ def run_parallel(
     *,
     jobs: int,
     lookahead: int = 0,
-    protocol: str = CLOSED,
+    loop: str = CLOSED,
     on_done: Callable[[int], None] | None = None,
 ) -> Iterator[list[EpisodeResult]]:
     """Results of ``tasks`` ((spec, settings) pairs), in order; ``on_done(i)`` as each one finishes.
 
-    Each task's episodes under ``protocol`` (a :data:`robobpp.vocabulary.Loop`), all in the same worker
+    Each task's episodes under ``loop`` (a :data:`robobpp.vocabulary.Loop`), all in the same worker
     (:func:`robobpp.replay.play`).
     """
     # spawn, not fork: a forked child would inherit whatever simulator state the parent holds.
@@ -58,7 +58,7 @@ def run_parallel(
     with ProcessPoolExecutor(
         jobs, mp_context=context, initializer=_load, initargs=(policy, policy_kwargs)
     ) as pool:
-        futures = [pool.submit(_run, spec, settings, lookahead, protocol) for spec, settings in tasks]
+        futures = [pool.submit(_run, spec, settings, lookahead, loop) for spec, settings in tasks]
         if on_done is not None:
             for i, future in enumerate(futures):
                 future.add_done_callback(functools.partial(_report_done, on_done, i))

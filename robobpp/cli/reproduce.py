@@ -146,7 +146,7 @@ def _run(
             for name in names:
                 progress.update(bar, description=f"{name} · {d} · {protocol}")
                 if jobs == 1:
-                    for episodes in run_baselines(specs[d], name, settings, protocol=protocol):
+                    for episodes in run_baselines(specs[d], name, settings, loop=protocol):
                         results += episodes
                         progress.advance(bar)
                     continue
@@ -154,7 +154,7 @@ def _run(
 
                 tasks = [(spec, tuple(settings)) for spec in specs[d]]
                 for episodes in run_parallel(
-                    name, {}, tasks, jobs=jobs, protocol=protocol, on_done=lambda _i: progress.advance(bar)
+                    name, {}, tasks, jobs=jobs, loop=protocol, on_done=lambda _i: progress.advance(bar)
                 ):
                     results += episodes
     return results

@@ -331,7 +331,7 @@ class ServerClient:
             params["lookahead"] = lookahead
         board: Leaderboard = self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
         if setting != "math":
-            self._check_protocol(board.protocol, protocol)
+            self._check_loop(board.protocol, protocol)
         self._check_lookahead(board.lookahead, lookahead)
         return board
 
@@ -354,7 +354,7 @@ class ServerClient:
         if lookahead:
             params["lookahead"] = lookahead
         grid: OverallGrid = self._get("/leaderboards", OverallGrid, params=params)
-        self._check_protocol(grid.protocol, protocol)
+        self._check_loop(grid.protocol, protocol)
         self._check_lookahead(grid.lookahead, lookahead)
         return grid
 
@@ -369,7 +369,7 @@ class ServerClient:
                 kind="protocol",
             )
 
-    def _check_protocol(self, served: str, asked: str) -> None:
+    def _check_loop(self, served: str, asked: str) -> None:
         """A server from before protocols ignores ``protocol=paper`` and serves closed-loop boards: say so."""
         if served != asked:
             raise ServerError(

@@ -30,7 +30,7 @@ from robobpp.replay import paper_settings, plan_of
 from robobpp.scoring.entries import part_of_run
 from robobpp.scoring.metrics import aggregate
 from robobpp.scoring.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
-from robobpp.vocabulary import ACTIVE_SUBMISSION, CLOSED, PAPER, TERMINAL_EPISODE
+from robobpp.vocabulary import ACTIVE_SUBMISSION, CLOSED, PAPER, QUEUED_EPISODE, TERMINAL_EPISODE
 
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
 WORKER_LOST = "worker_lost"
@@ -750,7 +750,7 @@ def cancel_submission(session: Session, sub: Submission) -> bool:
     now = utcnow()
     session.execute(
         update(EpisodeRow)
-        .where(EpisodeRow.submission_id == sub.id, EpisodeRow.status.in_(("waiting", "pending", "running")))
+        .where(EpisodeRow.submission_id == sub.id, EpisodeRow.status.in_(QUEUED_EPISODE))
         .values(status="cancelled", lease_token=None, finished_at=now)
         .execution_options(synchronize_session=False)
     )

@@ -540,7 +540,7 @@ def real_spec(dataset: str, split: str, group: int, groups: int):
 def test_the_server_replay_equals_the_local_paper_protocol(tmp_path, real_data) -> None:
     """The workers' paper-protocol episode is the one ``robobpp evaluate --protocol paper`` plays locally."""
     from robobpp.policies import load_policy
-    from robobpp.replay import run_paper_protocol
+    from robobpp.replay import run_paper_loop
 
     url = f"sqlite:///{tmp_path / 'real.sqlite3'}"
     engine = make_engine(url)
@@ -551,9 +551,7 @@ def test_the_server_replay_equals_the_local_paper_protocol(tmp_path, real_data) 
     while claim_and_run(factory, options, "local:test:1") is not None:
         pass
     replay = next(e for e in _episodes(factory, sid) if e.protocol == "paper")
-    local = run_paper_protocol(real_spec("longboard", "train", 0, 1), load_policy("dbl"), ["physics"])[
-        "physics"
-    ]
+    local = run_paper_loop(real_spec("longboard", "train", 0, 1), load_policy("dbl"), ["physics"])["physics"]
     assert replay.status == "done" and local.protocol == "paper"
     assert (replay.termination, replay.boxes_placed, replay.physics_version) == (
         local.termination,

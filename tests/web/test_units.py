@@ -485,7 +485,7 @@ def _reproduction_page(data: dict, docs_url: str) -> str:
             docs_url=docs_url,
             table_captions={},
             data=data,
-            PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
+            LOOP_TITLES={"paper": "paper protocol", "closed": "closed loop"},
             SETTING_TITLES={"physics": "Physics Pack"},
         )
     )

@@ -34,7 +34,8 @@ from typing import Any
 
 from _common import machine
 
-DATASETS = ("repetitive", "diverse", "longboard")
+from robobpp.vocabulary import DATASETS
+
 #: The paper's seven heuristics, in its order, and PCT.
 POLICIES = ("dbl", "hm", "lsah", "onlinebph", "br", "macs", "sdfpack", "pct")
 #: The target: the closed loop may fall this far below the paper protocol, no further.

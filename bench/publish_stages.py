@@ -29,8 +29,8 @@ from robobpp.server.bootstrap import bootstrap
 from robobpp.server.runtime import Runtime
 from robobpp.server.services import board_worker
 from robobpp.server.services import boards as boards_service
+from robobpp.vocabulary import DATASETS
 
-DATASETS = ("repetitive", "diverse", "longboard")
 STAGES: collections.defaultdict[str, float] = collections.defaultdict(float)
 
 

@@ -18,7 +18,7 @@ from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission
 from robobpp.policies import BASELINES, LEARNED, TITLES
 from robobpp.replay import paper_settings
 from robobpp.sim.physics.config import PHYSICS_VERSION
-from robobpp.vocabulary import CLOSED, PAPER, PHYSICAL
+from robobpp.vocabulary import BOARD_TRACKS, CLOSED, PAPER, PHYSICAL
 
 log = logging.getLogger("robobpp.server")
 
@@ -77,7 +77,7 @@ def ensure_baselines(
     ).scalar_one()
     created = 0
     names = (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines
-    for track in ("private", "public") if settings.public_baselines else ("private",):
+    for track in BOARD_TRACKS if settings.public_baselines else ("private",):
         latest: dict[str, Submission] = {}
         for sub in session.execute(
             select(Submission)

@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
-from robobpp.vocabulary import CLOSED, BoardTrack, DatasetName, Loop, SettingName
+from robobpp.vocabulary import CLOSED, BoardTrack, DatasetName, EntryStatus, Loop, SettingName, UnrankedStatus
 
 Name = Annotated[
     str,
@@ -263,7 +263,7 @@ class LeaderboardEntry(BaseModel):
 class UnrankedEntry(BaseModel):
     """A failed or partial entry: shown apart, never ranked, never in a normalisation."""
 
-    status: Literal["failed", "partial"]
+    status: UnrankedStatus
     reason: str
     submission_id: int
     name: str
@@ -335,7 +335,7 @@ class GridRow(BaseModel):
     name: str
     participant: str
     baseline: bool
-    status: Literal["ranked", "partial", "failed"]
+    status: EntryStatus
     boards: int
     cells: dict[str, GridCell]
     unranked: dict[str, str] = Field(default_factory=dict, description="Boards where it is failed or partial")

@@ -44,6 +44,12 @@ TRACKS: Final[tuple[Track, ...]] = get_args(Track)
 BoardTrack = Literal["private", "public"]
 BOARD_TRACKS: Final[tuple[BoardTrack, ...]] = get_args(BoardTrack)
 
+#: An entry's standing on a board: ranked, or shown apart and never ranked (``partial``: it ran fewer groups
+#: than the board's other entries; ``failed``: too many of its episodes ended in a policy failure;
+#: docs/benchmark.md, "Who is ranked").
+EntryStatus = Literal["ranked", "partial", "failed"]
+UnrankedStatus = Literal["partial", "failed"]
+
 #: A submission's life: ``queued → running → completed | failed | cancelled``.
 SubmissionStatus = Literal["queued", "running", "completed", "failed", "cancelled"]
 SUBMISSION_STATUSES: Final[tuple[SubmissionStatus, ...]] = get_args(SubmissionStatus)
@@ -91,11 +97,13 @@ __all__ = [
     "TRACKS",
     "BoardTrack",
     "DatasetName",
+    "EntryStatus",
     "EpisodeStatus",
     "Loop",
     "SettingName",
     "SubmissionStatus",
     "Track",
+    "UnrankedStatus",
     "board_loop",
     "has_boards",
 ]

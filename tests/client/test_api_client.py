@@ -78,9 +78,9 @@ def api(server: ServerProcess, token: str) -> Iterator[ServerClient]:
 
 @pytest.fixture(scope="module")
 def cli() -> CliRunner:
-    from robobpp.cli import _register
+    from robobpp.cli import register_commands
 
-    _register()
+    register_commands()
     return CliRunner()
 
 

@@ -375,11 +375,11 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
 
     from typer.testing import CliRunner
 
-    from robobpp.cli import _register
     from robobpp.cli import app as cli_app
+    from robobpp.cli import register_commands
     from robobpp.client.serve import BackgroundServer
 
-    _register()
+    register_commands()
     cli = CliRunner()
     with BackgroundServer(app) as served:
         shown = cli.invoke(

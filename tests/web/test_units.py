@@ -339,9 +339,9 @@ def test_protocol_page_example_policy_really_packs() -> None:
 def test_view_cli_single_episode_and_bad_file(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
-    _register()
+    register_commands()
     one = tmp_path / "one.json"
     one.write_text(json.dumps(_episode(8)))
     out = tmp_path / "one.html"

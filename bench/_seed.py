@@ -59,9 +59,8 @@ from robobpp.scoring.entries import (
 from robobpp.scoring.metrics import POOLED, metrics_for
 from robobpp.scoring.stats import group_figures
 from robobpp.sim.physics.config import PHYSICS_VERSION
+from robobpp.vocabulary import DATASETS, SETTINGS
 
-DATASETS = ("repetitive", "diverse", "longboard")
-SETTINGS = ("math", "physics", "execution")
 GROUPS = 30
 TEAMS = 100
 BOXES = 80  # each episode's boxes; 40 of them placed

@@ -19,7 +19,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _seed import SETTINGS
 from bench_server import bench_settings, seed_rows
 from sqlalchemy import text
 
@@ -29,7 +28,7 @@ from robobpp.server.bootstrap import bootstrap
 from robobpp.server.runtime import Runtime
 from robobpp.server.services import board_worker
 from robobpp.server.services import boards as boards_service
-from robobpp.vocabulary import DATASETS
+from robobpp.vocabulary import DATASETS, SETTINGS
 
 STAGES: collections.defaultdict[str, float] = collections.defaultdict(float)
 

@@ -41,10 +41,10 @@ from typing import Any
 import numpy as np
 from sqlalchemy import insert, text
 
-from robobpp.db import work
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.work import run_figures
 from robobpp.provenance import recorded_rules
+from robobpp.replay import paper_settings
 from robobpp.scoring import stats
 from robobpp.scoring.entries import (
     EntryPart,
@@ -59,9 +59,8 @@ from robobpp.scoring.entries import (
 from robobpp.scoring.metrics import POOLED, metrics_for
 from robobpp.scoring.stats import group_figures
 from robobpp.sim.physics.config import PHYSICS_VERSION
+from robobpp.vocabulary import DATASETS, SETTINGS
 
-DATASETS = ("repetitive", "diverse", "longboard")
-SETTINGS = ("math", "physics", "execution")
 GROUPS = 30
 TEAMS = 100
 BOXES = 80  # each episode's boxes; 40 of them placed
@@ -281,7 +280,7 @@ def _generate(
         settings = ["math"] if kind == "partial" else list(SETTINGS)
         # the server's runs: every setting closed loop, and the physical ones again under the paper protocol
         boards = [(st, "closed") for st in settings] + [
-            (st, "paper") for st in work.paper_settings(settings, "private")
+            (st, "paper") for st in paper_settings(settings, "private")
         ]
         ids.submission += 1
         subs.append(

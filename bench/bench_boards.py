@@ -36,17 +36,14 @@ from typing import Any
 
 import httpx
 from _common import machine
-from _seed import SETTINGS
 from bench_server import bench_settings, children, seed_rows, start_server
 from bench_server import rss_mb as process_rss_mb
 from sqlalchemy import text
 
 from robobpp.boards.engine import BoardEngine, compute_snapshot
-from robobpp.scoring.metrics import PHYSICAL
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.runtime import Runtime
-
-DATASETS = ("repetitive", "diverse", "longboard")
+from robobpp.vocabulary import CLOSED, DATASETS, LOOPS, PHYSICAL, SETTINGS
 
 
 def timed(fn: Any) -> tuple[Any, float, float]:
@@ -186,7 +183,7 @@ def board_paths(submission_id: int) -> list[str]:
         f"/api/v1/leaderboards/{d}/{st}?view=all&submission={submission_id}&protocol={protocol}"
         for d in DATASETS
         for st in SETTINGS
-        for protocol in (("closed", "paper") if st in PHYSICAL else ("closed",))
+        for protocol in (LOOPS if st in PHYSICAL else (CLOSED,))
     ]
 
 

@@ -26,6 +26,7 @@ from robobpp.client.remote import RemotePolicy
 from robobpp.datasets import episode_specs
 from robobpp.episode import run_episode
 from robobpp.policies import BASELINES, LEARNED, load_policy
+from robobpp.vocabulary import DATASETS
 from robobpp.worker.builtin import ServedBuiltin
 
 SECRET = "participant-secret-1"
@@ -79,9 +80,7 @@ def resolution(policy: str, dataset: str, groups: int, rounds: int) -> None:
 
 def overhead(setting: str) -> None:
     names = [*BASELINES, *LEARNED]
-    specs = [
-        s for d in ("repetitive", "diverse", "longboard") for s in episode_specs(d, "test", groups=2, seed=0)
-    ]
+    specs = [s for d in DATASETS for s in episode_specs(d, "test", groups=2, seed=0)]
     ways: dict[str, Callable[[str], Any]] = {
         "in-process": load_policy,
         "served by the worker": lambda n: ServedBuiltin(n, step_timeout_s=10, episode_timeout_s=1800),

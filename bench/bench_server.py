@@ -39,7 +39,7 @@ from typing import Any
 import httpx
 from _common import machine, median, percentile
 from _load import read_concurrently
-from _seed import DATASETS, GROUPS, SETTINGS, seed
+from _seed import GROUPS, seed
 from pydantic import SecretStr
 from sqlalchemy import text
 
@@ -50,6 +50,7 @@ from robobpp.policies.dbl import DBL
 from robobpp.server.app import create_app
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.config import Settings
+from robobpp.vocabulary import DATASETS, SETTINGS
 
 ADMIN = "bench-admin-token-0123456789abcdef"
 

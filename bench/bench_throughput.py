@@ -36,6 +36,7 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
     from robobpp.db.migrate import upgrade
     from robobpp.db.models import EpisodeRow, Participant, Submission
     from robobpp.db.session import make_engine, make_session_factory
+    from robobpp.vocabulary import ACTIVE_SUBMISSION
     from robobpp.worker.celery_app import make_celery
     from robobpp.worker.celery_executor import CeleryExecutor, count_workers
     from robobpp.worker.options import WorkerOptions
@@ -104,7 +105,7 @@ def _measure(setting: str, workers: int, episodes: int, broker: str) -> dict[str
         while True:
             with factory() as s:
                 status = s.execute(select(Submission.status).where(Submission.id == sub)).scalar_one()
-            if status not in ("queued", "running"):
+            if status not in ACTIVE_SUBMISSION:
                 break
             time.sleep(0.1)
         elapsed = time.monotonic() - t0

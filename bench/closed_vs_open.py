@@ -2,7 +2,7 @@
 
 For each dataset and policy, on the first ``--groups`` train groups (seed 0, from ``--first-group``): the policy's
 Math Pack episode; that episode replayed open loop in the Physics Pack (the paper's protocol,
-``robobpp.replay.run_paper_protocol``: plan on ideal geometry, replay blind); and the policy run closed loop in the
+``robobpp.replay.run_paper_loop``: plan on ideal geometry, replay blind); and the policy run closed loop in the
 Physics Pack (it observes the pile after every placement). The table sets the three mean Space Utilizations side by
 side with the target "closed ≥ paper protocol − 0.03", and how the episodes ended.
 
@@ -34,7 +34,8 @@ from typing import Any
 
 from _common import machine
 
-DATASETS = ("repetitive", "diverse", "longboard")
+from robobpp.vocabulary import DATASETS
+
 #: The paper's seven heuristics, in its order, and PCT.
 POLICIES = ("dbl", "hm", "lsah", "onlinebph", "br", "macs", "sdfpack", "pct")
 #: The target: the closed loop may fall this far below the paper protocol, no further.

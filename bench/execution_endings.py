@@ -25,10 +25,11 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
-from paper_table import DATASETS, POLICIES, paper_figures
+from paper_table import POLICIES, paper_figures
 
 from robobpp.reproduction import spearman
 from robobpp.sim.execution.pack import PLACE_FAILURES
+from robobpp.vocabulary import DATASETS
 
 
 def load(paths: list[str]) -> dict[str, dict[str, list[dict[str, Any]]]]:
@@ -70,7 +71,8 @@ def main() -> None:
     runs = load(args.json)
     rules = {"as run": "", "failed place": "place", "3rd dangerous": "dangerous", "both": "both"}
     table: dict[str, dict[str, dict[str, float]]] = {}
-    for dataset in [d for d in DATASETS if d in runs]:
+    played: list[str] = [d for d in DATASETS if d in runs]  # the loop variable is reused for the table's keys
+    for dataset in played:
         groups = max(e["group"] for cell in runs[dataset].values() for e in cell) + 1
         specs = episode_specs(dataset, "train", groups)
         for policy in [q for q in POLICIES if q in runs[dataset]]:

@@ -44,10 +44,9 @@ import numpy as np
 from _common import machine
 
 from robobpp.paper import PAPER_HEURISTICS, paper_tables
-from robobpp.replay import CLOSED, PAPER
 from robobpp.reproduction import compare, markdown
+from robobpp.vocabulary import CLOSED, DATASETS, PAPER, PHYSICAL, SETTINGS
 
-DATASETS = ("repetitive", "diverse", "longboard")
 #: The paper's seven heuristics, in its order (``--policies pct`` adds its learned policy).
 POLICIES = PAPER_HEURISTICS
 
@@ -166,7 +165,7 @@ def episode_record(r: Any) -> dict[str, Any]:
         "termination_detail": r.termination_detail,
         "counters": dict(r.counters),
     }
-    if r.setting in ("physics", "execution"):
+    if r.setting in PHYSICAL:
         # How far the step (the robot's motion, the release and the settle) moved the boxes placed before it:
         # the largest horizontal shift of their centres between the poses recorded after the previous step
         # and after this one (cm).
@@ -241,7 +240,7 @@ def run(
         specs,
         policy,
         [setting],
-        protocol=PAPER if replay else CLOSED,
+        loop=PAPER if replay else CLOSED,
         load=lambda name, spec: make_policy(name, spec, item_set),
         setting_for=make_setting,
     )
@@ -253,7 +252,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--setting", choices=("math", "physics", "execution"), default="math")
+    parser.add_argument("--setting", choices=SETTINGS, default="math")
     parser.add_argument("--groups", type=int, default=30)
     parser.add_argument(
         "--first-group",

@@ -19,7 +19,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _seed import SETTINGS
 from bench_server import bench_settings, seed_rows
 from sqlalchemy import text
 
@@ -29,8 +28,8 @@ from robobpp.boards import store as board_store
 from robobpp.boards import worker as board_worker
 from robobpp.server.bootstrap import bootstrap
 from robobpp.server.runtime import Runtime
+from robobpp.vocabulary import DATASETS, SETTINGS
 
-DATASETS = ("repetitive", "diverse", "longboard")
 STAGES: collections.defaultdict[str, float] = collections.defaultdict(float)
 
 

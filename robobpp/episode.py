@@ -26,6 +26,7 @@ from robobpp.core import (
 from robobpp.policies.base import Policy, PolicyError
 from robobpp.scoring import metrics as M
 from robobpp.sim import MATH_RULES_VERSION, Setting, make_setting
+from robobpp.vocabulary import CLOSED, LOOPS, PAPER
 
 #: Termination codes. Feasibility and settings add their own (``out_of_bounds``, ``too_high``, ``collapse``...).
 COMPLETED = "completed"
@@ -34,11 +35,6 @@ POLICY_ERROR = "policy_error"
 EPISODE_TIMEOUT = "episode_timeout"
 COLLAPSE = "collapse"
 
-#: How an episode in a physical setting is run (docs/benchmark.md, "Two protocols"): ``closed`` (the policy
-#: observes the setting at every step; the default) or ``paper`` (Math Pack actions replayed open loop,
-#: :mod:`robobpp.replay`), which also counts as the reference counts (:meth:`Episode.result`).
-PROTOCOLS: tuple[str, ...] = ("closed", "paper")
-CLOSED, PAPER = PROTOCOLS
 
 TERMINATION_REASONS: dict[str, str] = {
     COMPLETED: "every box was placed",
@@ -123,7 +119,7 @@ class EpisodeResult:
     sampler_version: str | None = None
     #: How the episode was run: ``closed`` (the policy observed this setting's state at every step) or
     #: ``paper`` (its Math Pack actions replayed open loop here, :mod:`robobpp.replay`).
-    protocol: str = "closed"
+    protocol: str = CLOSED
 
     def to_dict(self, trace: bool = True) -> dict[str, Any]:
         data = asdict(self)
@@ -169,8 +165,10 @@ class Episode:
     def __init__(
         self, spec: EpisodeSpec, setting: Setting | str, *, lookahead: int = 0, protocol: str = CLOSED
     ) -> None:
-        if protocol not in PROTOCOLS:
-            raise ValueError(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
+        if (
+            protocol not in LOOPS
+        ):  # how the episode is played (robobpp.vocabulary.Loop; paper: Episode.result)
+            raise ValueError(f"unknown protocol {protocol!r}; expected one of {', '.join(LOOPS)}")
         self.spec = spec
         self.protocol = protocol
         self.setting = make_setting(setting) if isinstance(setting, str) else setting

@@ -27,9 +27,10 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from robobpp.episode import TERMINATION_REASONS, TERMINATION_SHORT
-from robobpp.paper import DATASET_ORDER, SETTING_ORDER, place_in_order
+from robobpp.paper import place_in_order
 from robobpp.provenance import FIELDS, merge, one_line
 from robobpp.scoring.metrics import METRIC_BY_KEY, METRICS, metrics_for
+from robobpp.vocabulary import CLOSED, DATASETS, PAPER, SETTINGS
 
 FORMATS = ("csv", "md", "latex")
 
@@ -90,7 +91,7 @@ def endings(terminations: Mapping[str, int]) -> str:
 def table_order(dataset: str, setting: str) -> tuple[tuple[int, str], tuple[int, str]]:
     """Sort key of a (dataset, setting) row as the paper's tables order them: repetitive, diverse, longboard;
     within a dataset math, physics, execution (the order ``robobpp evaluate`` prints)."""
-    return place_in_order(dataset, DATASET_ORDER), place_in_order(setting, SETTING_ORDER)
+    return place_in_order(dataset, DATASETS), place_in_order(setting, SETTINGS)
 
 
 def source_line(server: str | None, exported: date) -> str:
@@ -195,7 +196,7 @@ def group_csv(payload: Mapping[str, Any]) -> str:
                     payload.get("policy"),
                     e["dataset"],
                     e["setting"],
-                    e.get("protocol", "closed"),
+                    e.get("protocol", CLOSED),
                     run.get("lookahead"),
                     e["split"],
                     e["group"],
@@ -269,7 +270,7 @@ def board_provenance(board: Mapping[str, Any]) -> dict[str, Any]:
     return {
         **produced,
         "anchors": board.get("anchors"),
-        "protocol": board.get("protocol", "closed"),
+        "protocol": board.get("protocol", CLOSED),
         "lookahead": board.get("lookahead", 0),
         "split": SPLIT_OF_TRACK.get(str(board.get("track")), board.get("track")),
         "groups": board.get("groups"),
@@ -322,7 +323,7 @@ def board_csv(board: Mapping[str, Any]) -> str:
         board["dataset"],
         board["setting"],
         board.get("track"),
-        board.get("protocol", "closed"),
+        board.get("protocol", CLOSED),
         board.get("lookahead", 0),
     ]
     for status, entries in (("ranked", board.get("entries") or []), (None, board.get("unranked") or [])):
@@ -362,7 +363,7 @@ def board_sheet(
     """A board as a summary table: rank (interval), entry, metrics, both scores with their intervals; its
     note says which server it came from and when (today, UTC, unless ``exported`` is given)."""
     keys = list(board.get("metrics") or [])
-    protocol = " · paper protocol" if board.get("protocol") == "paper" else ""  # closed loop goes unsaid
+    protocol = " · paper protocol" if board.get("protocol") == PAPER else ""  # closed loop goes unsaid
     sheet = Sheet(
         f"{board['setting']}/{board['dataset']}{protocol}{lookahead_title(board.get('lookahead'))} · "
         f"{board.get('track')} track",
@@ -428,7 +429,7 @@ def grid_csv(grid: Mapping[str, Any]) -> str:
     for r in [*(grid.get("rows") or []), *(grid.get("apart") or [])]:
         row = [
             grid.get("track"),
-            grid.get("protocol", "closed"),
+            grid.get("protocol", CLOSED),
             grid.get("lookahead", 0),
             r.get("status"),
             r.get("rank"),

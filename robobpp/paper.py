@@ -15,11 +15,6 @@ from dataclasses import dataclass, field
 from functools import cache
 from importlib import resources
 
-#: The order of the paper's tables: settings, and datasets within a setting (the reproduction's tables and
-#: every export's rows follow it).
-SETTING_ORDER = ("math", "physics", "execution")
-DATASET_ORDER = ("repetitive", "diverse", "longboard")
-
 
 def place_in_order(item: str, order: Sequence[str]) -> tuple[int, str]:
     """Sort key: ``order``'s items first, in its order, then the rest by name."""

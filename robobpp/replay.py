@@ -1,9 +1,14 @@
-"""The paper protocol: plan every action in Math Pack, then replay the action list open loop in a physical setting.
+"""The paper's loop: plan every action in Math Pack, then replay the action list open loop in a physical setting.
 
 This is how the paper's Physics and Execution tables were made (the reference simulator is a replayer: it reads
 the actions an algorithm computed offline on idealised geometry and executes them; physics never feeds back).
-robobpp's own protocol, ``closed``, lets the policy observe the physical state at every step instead
-(docs/benchmark.md, "Two protocols").
+robobpp's own loop, ``closed``, lets the policy observe the physical state at every step instead
+(docs/benchmark.md, "Two protocols"; the two are :data:`robobpp.vocabulary.Loop`).
+
+Closed and paper part in one place: :func:`play` runs a group's episodes under either loop. So does the
+server's: which runs of a submission are replayed (:func:`paper_settings`) and the plan a Math Pack episode
+hands its replays, written (:func:`plan_of`) and read back (:func:`math_result_of`), are decided here, for
+the database (robobpp.db.work) and the workers (robobpp.worker.run) alike.
 
 The replay runs through the one episode loop (:func:`robobpp.episode.run_episode`) with a playback policy, and
 ends and counts as the reference does (docs/benchmark.md, "Two protocols"): an action is checked against the
@@ -18,6 +23,7 @@ setting ended it earlier.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 from robobpp.core import (
     Action,
@@ -29,26 +35,29 @@ from robobpp.core import (
     Observation,
     Placement,
 )
-from robobpp.episode import CLOSED, COMPLETED, PAPER, PROTOCOLS, EpisodeResult, run_episode
+from robobpp.episode import COMPLETED, EpisodeResult, StepRecord, run_episode
 from robobpp.policies.base import Policy, PolicyError
 from robobpp.sim import Setting, make_setting
 from robobpp.sim.base import StepOutcome
 from robobpp.sim.math_pack import MathPack
+from robobpp.vocabulary import BOARD_TRACKS, CLOSED, LOOPS, MATH, PAPER, PHYSICAL, Loop
 
-#: The settings the paper protocol replays in (in Math Pack both protocols are the same episode).
-PAPER_SETTINGS: tuple[str, ...] = ("physics", "execution")
+#: The board modules' name of :data:`robobpp.vocabulary.LOOPS` (kept until their rewrite).
+PROTOCOLS = LOOPS
 
-PROTOCOL_DESCRIPTIONS: dict[str, str] = {
+LOOP_DESCRIPTIONS: dict[str, str] = {
     CLOSED: "the policy observes the setting's state at every step (closed loop)",
     PAPER: "the policy plans in Math Pack, its actions are replayed open loop in the setting, as in the paper",
 }
 
 
-def check_protocol(protocol: str) -> str:
-    """``protocol`` if it is known; otherwise a ``ValueError`` naming the known ones."""
-    if protocol not in PROTOCOLS:
-        raise ValueError(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
-    return protocol
+def check_loop(loop: str) -> Loop:
+    """``loop`` if it is known; otherwise a ``ValueError`` naming the known ones."""
+    if loop == CLOSED:
+        return CLOSED
+    if loop == PAPER:
+        return PAPER
+    raise ValueError(f"unknown protocol {loop!r}; expected one of {', '.join(LOOPS)}")
 
 
 class Playback:
@@ -187,15 +196,15 @@ def recorded_answers(math: EpisodeResult) -> tuple[list[Action | None], list[flo
 
 def replay_math_result(math: EpisodeResult, spec: EpisodeSpec, setting: Setting | str) -> EpisodeResult:
     """The paper protocol for one episode: ``math``'s actions and decision times replayed in ``setting``."""
-    if math.setting != "math":
+    if math.setting != MATH:
         raise ValueError(
             f"{math.episode_id}: the paper protocol replays a Math Pack episode, not {math.setting}"
         )
     if math.episode_id != spec.episode_id:
         raise ValueError(f"the Math episode {math.episode_id} is not episode {spec.episode_id}")
     name = setting if isinstance(setting, str) else setting.name
-    if name not in PAPER_SETTINGS:
-        raise ValueError(f"the paper protocol replays in {' or '.join(PAPER_SETTINGS)}, not {name!r}")
+    if name not in PHYSICAL:
+        raise ValueError(f"the paper protocol replays in {' or '.join(PHYSICAL)}, not {name!r}")
     answers, times = recorded_answers(math)
     return replay_episode(
         spec,
@@ -208,7 +217,7 @@ def replay_math_result(math: EpisodeResult, spec: EpisodeSpec, setting: Setting 
     )
 
 
-def run_paper_protocol(
+def run_paper_loop(
     spec: EpisodeSpec,
     policy: Policy,
     settings: Sequence[Setting | str],
@@ -222,27 +231,125 @@ def run_paper_protocol(
     ``{"math": ..., setting name: ...}``; the Math episode is closed protocol (there both protocols coincide)."""
     names = [s if isinstance(s, str) else s.name for s in settings]
     for name in names:
-        if name not in PAPER_SETTINGS:
-            raise ValueError(f"the paper protocol replays in {' or '.join(PAPER_SETTINGS)}, not {name!r}")
+        if name not in PHYSICAL:
+            raise ValueError(f"the paper protocol replays in {' or '.join(PHYSICAL)}, not {name!r}")
     if math is None:
-        math = run_episode(spec, policy, "math", lookahead=lookahead, time_budget_s=time_budget_s)
-    out: dict[str, EpisodeResult] = {"math": math}
+        math = run_episode(spec, policy, MATH, lookahead=lookahead, time_budget_s=time_budget_s)
+    out: dict[str, EpisodeResult] = {MATH: math}
     for name, setting in zip(names, settings, strict=True):
         out[name] = replay_math_result(math, spec, setting)
     return out
 
 
+def play(
+    loop: str,
+    spec: EpisodeSpec,
+    policy: Policy,
+    settings: Sequence[Setting | str],
+    *,
+    lookahead: int = 0,
+    time_budget_s: float | None = None,
+) -> list[EpisodeResult]:
+    """``spec``'s episodes of ``policy`` in each of ``settings`` (names, or instances), in their order, under
+    ``loop``: closed, one episode per setting; paper, one Math Pack episode (whether or not ``settings`` has
+    Math Pack) replayed in each physical setting (:func:`run_paper_loop`). The one place the two loops part
+    (``robobpp evaluate``, ``robobpp reproduce``, their worker processes)."""
+    if check_loop(loop) == CLOSED:
+        return [
+            run_episode(spec, policy, s, lookahead=lookahead, time_budget_s=time_budget_s) for s in settings
+        ]
+    names = [s if isinstance(s, str) else s.name for s in settings]
+    in_math = [s for s, name in zip(settings, names, strict=True) if name == MATH]
+    math = run_episode(
+        spec, policy, in_math[0] if in_math else MATH, lookahead=lookahead, time_budget_s=time_budget_s
+    )
+    physical = [s for s, name in zip(settings, names, strict=True) if name != MATH]
+    runs = run_paper_loop(spec, policy, physical, math=math)
+    return [runs[name] for name in names]
+
+
+#: Tracks whose submissions get the paper's loop too (a verification is compared on closed loop only).
+PAPER_TRACKS = BOARD_TRACKS
+
+
+def paper_settings(settings: Sequence[str], track: str) -> list[str]:
+    """The physical settings a server's submission also gets under the paper's loop (docs/server.md, "The
+    paper protocol"): those it chose, when it chose Math Pack too (the plan is its Math episodes' actions)."""
+    if MATH not in settings or track not in PAPER_TRACKS:
+        return []
+    return [s for s in settings if s in PHYSICAL]
+
+
+#: What a plan keeps of each step of the Math Pack episode (a few numbers a box).
+PLAN_STEP_KEYS = (
+    "step",
+    "box",
+    "action",
+    "decision_time",
+    "compute_time",
+    "round_trip",
+    "network_estimate",
+    "placement",
+    "termination",
+)
+#: What a plan keeps of the Math Pack episode's ending.
+PLAN_KEYS = ("termination", "termination_detail", "boxes_placed", "policy", "seed")
+
+
+def plan_of(result: Mapping[str, Any]) -> dict[str, Any]:
+    """What a paper-loop replay needs of a Math Pack episode's result (``EpisodeResult.to_dict()``): each
+    step's action (None: the policy found no placement) and its timing, and how the episode ended. Stored on
+    the replays' episodes for every track, where a private episode keeps no trace; read back by
+    :func:`math_result_of`."""
+    return {
+        "steps": [{k: step.get(k) for k in PLAN_STEP_KEYS} for step in result.get("steps", [])],
+        **{k: result.get(k) for k in PLAN_KEYS},
+    }
+
+
+def math_result_of(plan: Mapping[str, Any], spec: EpisodeSpec) -> EpisodeResult:
+    """The Math Pack episode a plan (:func:`plan_of`) was taken from, as the replay reads it (actions, timings,
+    ending)."""
+    steps = [
+        StepRecord(**{k: v for k, v in step.items() if v is not None or k == "action"})
+        for step in plan["steps"]
+    ]
+    return EpisodeResult(
+        episode_id=spec.episode_id,
+        dataset=spec.dataset,
+        split=spec.split,
+        group=spec.group,
+        setting=MATH,
+        policy=plan.get("policy") or "",
+        seed=int(plan.get("seed") or spec.seed),
+        boxes_total=len(spec.boxes),
+        boxes_placed=int(plan.get("boxes_placed") or 0),
+        termination=plan.get("termination") or "",
+        termination_detail=plan.get("termination_detail") or "",
+        metrics={},
+        counters={},
+        container={},
+        steps=steps,
+    )
+
+
 __all__ = [
     "CLOSED",
+    "LOOP_DESCRIPTIONS",
     "PAPER",
-    "OpenLoop",
-    "PAPER_SETTINGS",
+    "PAPER_TRACKS",
+    "PLAN_KEYS",
+    "PLAN_STEP_KEYS",
     "PROTOCOLS",
-    "PROTOCOL_DESCRIPTIONS",
+    "OpenLoop",
     "Playback",
-    "check_protocol",
+    "check_loop",
+    "math_result_of",
+    "paper_settings",
+    "plan_of",
+    "play",
     "recorded_answers",
     "replay_episode",
     "replay_math_result",
-    "run_paper_protocol",
+    "run_paper_loop",
 ]

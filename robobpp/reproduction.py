@@ -20,13 +20,14 @@ from typing import Any
 import numpy as np
 
 from robobpp.core import EpisodeSpec
-from robobpp.episode import EpisodeResult, run_episode
-from robobpp.paper import DATASET_ORDER, PAPER_BASELINES, SETTING_ORDER, paper_tables, place_in_order
+from robobpp.episode import EpisodeResult
+from robobpp.paper import PAPER_BASELINES, paper_tables, place_in_order
 from robobpp.policies import Policy, load_policy
-from robobpp.replay import PAPER, PAPER_SETTINGS, check_protocol, run_paper_protocol
+from robobpp.replay import check_loop, play
 from robobpp.scoring.metrics import METRIC_BY_KEY, aggregate, metrics_for
 from robobpp.scoring.scores import WEIGHTS, normalize, weighted_sum
 from robobpp.sim import Setting
+from robobpp.vocabulary import DATASETS, PAPER, SETTINGS
 
 #: (setting, dataset, policy, metric)
 Key = tuple[str, str, str, str]
@@ -107,28 +108,24 @@ def run_baselines(
     policy: str,
     settings: Sequence[str],
     *,
-    protocol: str = PAPER,
+    loop: str = PAPER,
     load: Callable[[str, EpisodeSpec], Policy] | None = None,
     setting_for: Callable[[str], Setting | str] | None = None,
 ) -> Iterator[list[EpisodeResult]]:
-    """Per spec, in this process, the episodes of built-in ``policy`` in each of ``settings`` under ``protocol``.
+    """Per spec, in this process, the episodes of built-in ``policy`` in each of ``settings`` under ``loop``
+    (:data:`robobpp.vocabulary.Loop`).
 
-    Paper protocol: one Math Pack episode, replayed in each physical setting of ``settings`` (the Math episode
+    Paper: one Math Pack episode, replayed in each physical setting of ``settings`` (the Math episode
     is yielded too when ``settings`` has ``math``). Closed: one episode per setting. ``load`` (a policy per
     spec) and ``setting_for`` (a setting instance per name) are hooks for experiments (bench/paper_table.py).
     """
-    check_protocol(protocol)
+    check_loop(loop)
     shared = None if load is not None else load_policy(policy)
     make = setting_for or (lambda name: name)
     for spec in specs:
         agent = load(policy, spec) if load is not None else shared
         assert agent is not None
-        if protocol == PAPER:
-            physical = [make(s) for s in settings if s in PAPER_SETTINGS]
-            runs = run_paper_protocol(spec, agent, physical)
-            yield [r for name, r in runs.items() if name in settings]
-        else:
-            yield [run_episode(spec, agent, make(s)) for s in settings]
+        yield play(loop, spec, agent, [make(s) for s in settings])
 
 
 def pph(decision_time: float | None, trajectory_length: float | None) -> float | None:
@@ -241,10 +238,10 @@ class Comparison:
 
     @property
     def settings(self) -> tuple[str, ...]:
-        return _ordered({c.setting for c in self.cells}, SETTING_ORDER)
+        return _ordered({c.setting for c in self.cells}, SETTINGS)
 
     def datasets(self, setting: str) -> tuple[str, ...]:
-        return _ordered({c.dataset for c in self.cells if c.setting == setting}, DATASET_ORDER)
+        return _ordered({c.dataset for c in self.cells if c.setting == setting}, DATASETS)
 
     def policies(self, setting: str) -> tuple[str, ...]:
         """The methods of ``setting``'s tables: ours in the paper's order, then the paper-reported rows."""
@@ -344,8 +341,8 @@ def compare(ours: Mapping[Key, float | None], metrics: Sequence[str] | None = No
             )
     cells.sort(
         key=lambda c: (
-            place_in_order(c.setting, SETTING_ORDER),
-            place_in_order(c.dataset, DATASET_ORDER),
+            place_in_order(c.setting, SETTINGS),
+            place_in_order(c.dataset, DATASETS),
             c.paper_only,
             place_in_order(c.policy, PAPER_ONLY if c.paper_only else PAPER_BASELINES),
             place_in_order(c.metric, compared_metrics(c.setting)),
@@ -418,7 +415,7 @@ def compare_scores(
         theirs = {(v.setting, v.dataset, v.method, v.metric): v.value for v in paper_tables().values}
     boards = sorted(
         {(s, d) for s, d, _, _ in ours},
-        key=lambda sd: (place_in_order(sd[0], SETTING_ORDER), place_in_order(sd[1], DATASET_ORDER)),
+        key=lambda sd: (place_in_order(sd[0], SETTINGS), place_in_order(sd[1], DATASETS)),
     )
     out = []
     for setting, dataset in boards:

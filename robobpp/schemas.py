@@ -15,6 +15,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
+from robobpp.vocabulary import CLOSED, BoardTrack, DatasetName, EntryStatus, Loop, SettingName, UnrankedStatus
+
 Name = Annotated[
     str,
     StringConstraints(
@@ -30,8 +32,6 @@ def clean_name(raw: str, fallback: str = "policy") -> str:
     return name or fallback
 
 
-DatasetName = Literal["repetitive", "diverse", "longboard"]
-SettingName = Literal["math", "physics", "execution"]
 #: ``push``: the workers call the policy's URL. ``pull``: the participant's client connects out to the server
 #: (``robobpp connect``), for policies behind NAT or a firewall; the workers drive it through that connection.
 SubmissionMode = Literal["push", "pull"]
@@ -39,9 +39,8 @@ SubmissionMode = Literal["push", "pull"]
 PULL_URL = "pull:"
 
 
-#: How a physical setting's episodes were played (``robobpp.replay.PROTOCOLS``).
-ProtocolName = Literal["closed", "paper"]
-PROTOCOL_HELP = (
+#: The API field ``protocol`` is a :data:`robobpp.vocabulary.Loop` (its name on the wire since before the word).
+LOOP_HELP = (
     "closed: closed loop, the policy asked at every step (the benchmark); paper: the paper's protocol, the "
     "submission's Math Pack actions replayed open loop (a Math Pack board is the same under both)"
 )
@@ -111,7 +110,7 @@ class SubmissionCreate(Strict):
     )
     datasets: list[DatasetName] | None = Field(default=None, min_length=1, max_length=3)
     settings: list[SettingName] | None = Field(default=None, min_length=1, max_length=3)
-    track: Literal["private", "public"] = "private"
+    track: BoardTrack = "private"
     lookahead: int = Field(default=0, ge=0, le=MAX_SUBMISSION_LOOKAHEAD)
 
     @model_validator(mode="after")
@@ -136,7 +135,7 @@ class Progress(BaseModel):
 class RunPublic(BaseModel):
     dataset: str
     setting: str
-    protocol: ProtocolName = "closed"
+    protocol: Loop = CLOSED
     status: str
     episodes_total: int
     metrics: dict[str, float | None] | None
@@ -206,7 +205,7 @@ class EpisodePublic(BaseModel):
     id: int
     dataset: str
     setting: str
-    protocol: ProtocolName = "closed"
+    protocol: Loop = CLOSED
     split: str
     group: int
     status: str
@@ -264,7 +263,7 @@ class LeaderboardEntry(BaseModel):
 class UnrankedEntry(BaseModel):
     """A failed or partial entry: shown apart, never ranked, never in a normalisation."""
 
-    status: Literal["failed", "partial"]
+    status: UnrankedStatus
     reason: str
     submission_id: int
     name: str
@@ -291,7 +290,7 @@ class Leaderboard(BaseModel):
     dataset: str
     setting: str
     track: str
-    protocol: ProtocolName = Field("closed", description=PROTOCOL_HELP)
+    protocol: Loop = Field(CLOSED, description=LOOP_HELP)
     lookahead: int = Field(0, description=LOOKAHEAD_HELP)
     lookaheads: list[int] = Field(default_factory=lambda: [0], description=LOOKAHEADS_HELP)
     metrics: list[str]
@@ -336,7 +335,7 @@ class GridRow(BaseModel):
     name: str
     participant: str
     baseline: bool
-    status: Literal["ranked", "partial", "failed"]
+    status: EntryStatus
     boards: int
     cells: dict[str, GridCell]
     unranked: dict[str, str] = Field(default_factory=dict, description="Boards where it is failed or partial")
@@ -356,7 +355,7 @@ class OverallGrid(BaseModel):
     datasets: list[str]
     settings: list[str]
     track: str
-    protocol: ProtocolName = Field("closed", description=PROTOCOL_HELP)
+    protocol: Loop = Field(CLOSED, description=LOOP_HELP)
     lookahead: int = Field(0, description=LOOKAHEAD_HELP)
     lookaheads: list[int] = Field(default_factory=lambda: [0], description=LOOKAHEADS_HELP)
     boards: int
@@ -389,7 +388,7 @@ class ReproductionRun(BaseModel):
     setting: str
     dataset: str
     policy: str
-    protocol: ProtocolName
+    protocol: Loop
     submission_id: int
     groups: int
 
@@ -448,7 +447,7 @@ class Reproduction(BaseModel):
     """The paper's baselines under the paper protocol (stored runs of this server) beside the paper's tables."""
 
     track: str
-    protocol: ProtocolName
+    protocol: Loop
     paper: str
     tables: dict[str, str] = Field(description="The paper's table labels and captions")
     runs: list[ReproductionRun]

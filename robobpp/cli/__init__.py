@@ -38,7 +38,8 @@ def _root(
     """Closed-loop benchmark and evaluation service for robotic online 3D bin packing."""
 
 
-def _register() -> None:
+def register_commands() -> None:
+    """Add every area's commands to :data:`app` (``main`` does; so do tests that drive the whole CLI)."""
     # Imported here so `robobpp --help` stays fast and each area owns its own module.
     from robobpp.cli import (
         accounts,
@@ -72,7 +73,7 @@ def _register() -> None:
 def main() -> None:
     from robobpp.extras import MissingExtraError, missing_extra
 
-    _register()
+    register_commands()
     try:
         app()
     except MissingExtraError as exc:

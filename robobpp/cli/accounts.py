@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from robobpp.cli.common import table_console
-from robobpp.cli.submit import JsonOpt, ServerOpt, TokenOpt, _client, err
+from robobpp.cli.submit import JsonOpt, ServerOpt, TokenOpt, api_client, err
 
 participants_app = typer.Typer(no_args_is_help=True, help="Participants of the evaluation server (admin).")
 tokens_app = typer.Typer(no_args_is_help=True, help="API tokens: list and revoke.")
@@ -47,7 +47,7 @@ def create_command(
     token: TokenOpt = None,
 ) -> None:
     """Create a participant and print its first API token (admin token needed)."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         created = client.create_participant(name)
     _show_new_token(created, as_json)
 
@@ -60,7 +60,7 @@ def new_token_command(
     token: TokenOpt = None,
 ) -> None:
     """Issue another API token for a participant (admin token needed)."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         created = client.issue_token(participant_id)
     _show_new_token(created, as_json)
 
@@ -68,7 +68,7 @@ def new_token_command(
 @tokens_app.command("list")
 def list_command(as_json: JsonOpt = False, server: ServerOpt = SERVER, token: TokenOpt = None) -> None:
     """Your tokens (the admin sees every participant's): prefix, created, revoked."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         rows = client.tokens()
     if as_json:
         print("[" + ",".join(r.model_dump_json() for r in rows) + "]")
@@ -93,6 +93,6 @@ def revoke_command(
     token: TokenOpt = None,
 ) -> None:
     """Revoke a token: it stops working at once."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         row = client.revoke_token(token_id)
     print(f"token {row.id} ({row.prefix}…) revoked")

@@ -22,6 +22,7 @@ from robobpp.provenance import merged
 from robobpp.scoring import stats
 from robobpp.scoring.metrics import METRIC_BY_KEY, metrics_for
 from robobpp.scoring.scores import score_board
+from robobpp.vocabulary import CLOSED
 
 
 def register(root: typer.Typer) -> None:
@@ -41,13 +42,13 @@ def load_entries(paths: list[Path]) -> list[dict[str, Any]]:
             episodes = payload["episodes"]
             for run in payload["runs"]:
                 # closed loop and the paper protocol are different boards (files from before protocols: closed)
-                protocol = str(run.get("protocol", "closed"))
+                protocol = str(run.get("protocol", CLOSED))
                 mine = [
                     e
                     for e in episodes
                     if e["dataset"] == run["dataset"]
                     and e["setting"] == run["setting"]
-                    and e.get("protocol", "closed") == protocol
+                    and e.get("protocol", CLOSED) == protocol
                 ]
                 figures = stats.group_figures(
                     (
@@ -161,7 +162,7 @@ def compare(
     boards = score_boards(load_entries(results))
     out = table_console()
     for (dataset, setting, protocol), rows in boards.items():
-        board = f"{dataset} · {setting}" + (f" · protocol {protocol}" if protocol != "closed" else "")
+        board = f"{dataset} · {setting}" + (f" · protocol {protocol}" if protocol != CLOSED else "")
         table = Table(title=board, caption="[dim]brackets: bootstrap 95 % interval over groups[/]")
         table.add_column("rank", justify="right")
         table.add_column("policy")

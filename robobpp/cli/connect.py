@@ -10,18 +10,17 @@ from rich.markup import escape
 
 from robobpp.cli.common import fail, import_from_cwd
 from robobpp.cli.submit import (
-    DATASETS,
-    SETTINGS,
     BoardDatasetsOpt,
     BoardSettingsOpt,
     LookaheadOpt,
     ServerOpt,
     TokenOpt,
     TrackOpt,
-    _names,
-    _track,
     err,
+    parse_names,
+    parse_track,
 )
+from robobpp.vocabulary import DATASETS, SETTINGS
 
 if TYPE_CHECKING:
     from robobpp.schemas import SubmissionPublic
@@ -55,7 +54,7 @@ def connect_command(
     """Evaluate a policy in pull mode: open outbound connections to the server and serve its episodes
     through them until the submission finishes (works behind NAT and firewalls; no port to open)."""
     from robobpp.cli.progress import LineProgress
-    from robobpp.cli.submit import _finish, _print_results, progress_task
+    from robobpp.cli.submit import exit_unless_completed, print_results, progress_task
     from robobpp.client.api import ServerClient, ServerError
     from robobpp.client.connect import connect
     from robobpp.policies import PolicyLoadError, load_policy
@@ -69,8 +68,8 @@ def connect_command(
         load_policy(policy)  # fail here, in plain words, rather than in every connection
     except PolicyLoadError as exc:
         fail(str(exc))
-    datasets = _names(dataset, DATASETS, "dataset")
-    settings = _names(setting, SETTINGS, "setting")
+    datasets = parse_names(dataset, DATASETS, "dataset")
+    settings = parse_names(setting, SETTINGS, "setting")
 
     def factory() -> object:  # one instance per connection: --parallel episodes run side by side
         return load_policy(policy)
@@ -94,14 +93,14 @@ def connect_command(
                 name=name,
                 datasets=datasets,
                 settings=settings,
-                track=_track(track),
+                track=parse_track(track),
                 lookahead=lookahead,
                 parallel=parallel,
                 on_event=lambda m: progress.console.print(escape(m), soft_wrap=True),
                 on_progress=show,
             )
         with ServerClient(server, token) as client:
-            _print_results(client, final)
+            print_results(client, final)
     except ServerError as exc:
         fail(escape(str(exc)), code=1)
     except KeyboardInterrupt:
@@ -109,7 +108,7 @@ def connect_command(
             "stopped; the episodes in flight wait for the client to come back (robobpp connect --submission)"
         )
         raise typer.Exit(130) from None
-    _finish(final)
+    exit_unless_completed(final)
 
 
 def register(root: typer.Typer) -> None:

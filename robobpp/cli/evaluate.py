@@ -19,8 +19,10 @@ from robobpp.scoring import stats
 from robobpp.scoring.metrics import aggregate, metrics_for
 from robobpp.scoring.scores import score_board
 from robobpp.scoring.stats import POLICY_FAILURES
+from robobpp.vocabulary import CLOSED, LOOPS, PAPER, PHYSICAL
 
 if TYPE_CHECKING:
+    from robobpp.core import EpisodeSpec
     from robobpp.episode import EpisodeResult
 
 console = Console(stderr=True)
@@ -62,20 +64,20 @@ def evaluate(
             "protocol, the policy plans in Math Pack and its actions are replayed open loop in physics "
             "and execution (docs/benchmark.md, 'Two protocols')."
         ),
-    ] = "closed",
+    ] = CLOSED,
 ) -> None:
     """Evaluate a policy locally and print a results table. Exit code 3: every episode ended in a policy failure."""
     from robobpp.client.loading import PolicyLoadError, load_policy
     from robobpp.datasets import DATASETS, SPLITS, DatasetError, episode_specs
-    from robobpp.episode import run_episode
-    from robobpp.replay import PAPER, PAPER_SETTINGS, PROTOCOLS, run_paper_protocol
-    from robobpp.sim import SETTINGS, require_setting
+    from robobpp.replay import play
+    from robobpp.sim import require_setting
+    from robobpp.vocabulary import SETTINGS
 
     datasets = parse_choices(dataset, DATASETS, "dataset")
     settings = parse_choices(setting, SETTINGS, "setting")
-    if protocol not in PROTOCOLS:
-        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
-    replayed = [name for name in settings if name in PAPER_SETTINGS]
+    if protocol not in LOOPS:
+        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(LOOPS)}")
+    replayed = [name for name in settings if name in PHYSICAL]
     if protocol == PAPER and not replayed:
         fail(
             "--protocol paper replays the Math Pack actions in physics or execution; in Math Pack both "
@@ -96,9 +98,10 @@ def evaluate(
         specs = {name: episode_specs(name, split=split, groups=groups, seed=seed) for name in datasets}
     except DatasetError as exc:
         fail(str(exc))
+    tasks: list[tuple[EpisodeSpec, tuple[str, ...]]]
     if protocol == PAPER:
         # One task per group: the Math Pack episode, then its replay in each physical setting asked for.
-        tasks = [(spec, tuple(replayed)) for name in datasets for spec in specs[name]]
+        tasks = [(spec, ("math", *replayed)) for name in datasets for spec in specs[name]]
     else:
         tasks = [(spec, (s,)) for name in datasets for s in settings for spec in specs[name]]
     with LineProgress(console) as progress:
@@ -109,12 +112,7 @@ def evaluate(
                 progress.update(
                     bar, description=f"{agent.name} · {spec.dataset} · {protocol} · {','.join(names)}"
                 )
-                if protocol == PAPER:
-                    groups_run.append(
-                        list(run_paper_protocol(spec, agent, names, lookahead=lookahead).values())
-                    )
-                else:
-                    groups_run.append([run_episode(spec, agent, names[0], lookahead=lookahead)])
+                groups_run.append(play(protocol, spec, agent, names, lookahead=lookahead))
                 progress.advance(bar)
         else:
             from robobpp.cli.parallel import run_parallel
@@ -127,7 +125,7 @@ def evaluate(
                     tasks,
                     jobs=jobs,
                     lookahead=lookahead,
-                    protocol=protocol,
+                    loop=protocol,
                     on_done=lambda _i: progress.advance(bar),
                 )
             )
@@ -247,15 +245,15 @@ def _with_interval(value: float | None, interval: list[float] | None, digits: in
 def _table(
     policy: str,
     summary: list[dict[str, Any]],
-    protocol: str = "closed",
+    protocol: str = CLOSED,
     provenance: dict[str, Any] | None = None,
 ) -> Table:
-    from robobpp.replay import PROTOCOL_DESCRIPTIONS
+    from robobpp.replay import LOOP_DESCRIPTIONS
 
     keys = [m for m in metrics_for("execution") if any(m.key in row["metrics"] for row in summary)]
     table = Table(
         title=f"robobpp evaluate · {escape(policy)} · protocol {protocol}",
-        caption=f"{protocol}: {PROTOCOL_DESCRIPTIONS[protocol]}\n[dim]brackets: bootstrap "
+        caption=f"{protocol}: {LOOP_DESCRIPTIONS[protocol]}\n[dim]brackets: bootstrap "
         f"{100 * stats.CONFIDENCE:.0f} % interval over groups · {escape(one_line(provenance or {}))}[/]",
     )
     table.add_column("dataset")

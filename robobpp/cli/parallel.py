@@ -14,8 +14,9 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
 
 from robobpp.core import EpisodeSpec
-from robobpp.episode import EpisodeResult, run_episode
-from robobpp.replay import CLOSED, PAPER, run_paper_protocol
+from robobpp.episode import EpisodeResult
+from robobpp.replay import play
+from robobpp.vocabulary import CLOSED
 
 _policy: Any = None
 
@@ -29,13 +30,8 @@ def _load(name: str, kwargs: dict[str, Any]) -> None:
     _policy = load_policy(name, **kwargs)
 
 
-def _run(spec: EpisodeSpec, settings: tuple[str, ...], lookahead: int, protocol: str) -> list[dict[str, Any]]:
-    results: list[EpisodeResult]
-    if protocol == PAPER:
-        results = list(run_paper_protocol(spec, _policy, settings, lookahead=lookahead).values())
-    else:
-        results = [run_episode(spec, _policy, setting, lookahead=lookahead) for setting in settings]
-    return [r.to_dict() for r in results]
+def _run(spec: EpisodeSpec, settings: tuple[str, ...], lookahead: int, loop: str) -> list[dict[str, Any]]:
+    return [r.to_dict() for r in play(loop, spec, _policy, settings, lookahead=lookahead)]
 
 
 def _report_done(on_done: Callable[[int], None], index: int, _future: Future[Any]) -> None:
@@ -49,20 +45,20 @@ def run_parallel(
     *,
     jobs: int,
     lookahead: int = 0,
-    protocol: str = CLOSED,
+    loop: str = CLOSED,
     on_done: Callable[[int], None] | None = None,
 ) -> Iterator[list[EpisodeResult]]:
     """Results of ``tasks`` ((spec, settings) pairs), in order; ``on_done(i)`` as each one finishes.
 
-    Closed protocol: one episode per setting. Paper protocol: the Math Pack episode, then its replay in each
-    (physical) setting, all in the same worker (:func:`robobpp.replay.run_paper_protocol`).
+    Each task's episodes under ``loop`` (a :data:`robobpp.vocabulary.Loop`), all in the same worker
+    (:func:`robobpp.replay.play`).
     """
     # spawn, not fork: a forked child would inherit whatever simulator state the parent holds.
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(
         jobs, mp_context=context, initializer=_load, initargs=(policy, policy_kwargs)
     ) as pool:
-        futures = [pool.submit(_run, spec, settings, lookahead, protocol) for spec, settings in tasks]
+        futures = [pool.submit(_run, spec, settings, lookahead, loop) for spec, settings in tasks]
         if on_done is not None:
             for i, future in enumerate(futures):
                 future.add_done_callback(functools.partial(_report_done, on_done, i))

@@ -69,7 +69,8 @@ def check_command(
     """Run a short episode against a policy server and report every protocol violation."""
     from robobpp.client.check import check_policy_server, dataset_check_spec
     from robobpp.datasets import DATASETS, DatasetError
-    from robobpp.sim import SETTINGS, require_setting
+    from robobpp.sim import require_setting
+    from robobpp.vocabulary import SETTINGS
 
     if setting not in SETTINGS:
         fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")

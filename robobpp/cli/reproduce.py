@@ -12,6 +12,7 @@ from rich.table import Table
 
 from robobpp.cli.common import fail, parse_choices, table_console
 from robobpp.cli.progress import LineProgress
+from robobpp.vocabulary import LOOPS, PAPER
 
 console = Console(stderr=True)
 
@@ -37,7 +38,7 @@ def reproduce(
     seed: Annotated[int, typer.Option(help="Sampling seed of the groups.")] = 0,
     protocol: Annotated[
         str, typer.Option(help="paper (the paper's: Math Pack plans replayed open loop) or closed.")
-    ] = "paper",
+    ] = PAPER,
     metrics: Annotated[
         str, typer.Option(help="Comma list of metric keys to show (default: every metric the paper has).")
     ] = "",
@@ -62,12 +63,12 @@ def reproduce(
     from robobpp.episode import EpisodeResult
     from robobpp.paper import PAPER_BASELINES, paper_tables
     from robobpp.policies import BUILTIN, TITLES
-    from robobpp.replay import PAPER, PROTOCOLS
     from robobpp.reproduction import compare, compared_metrics, figures_from_results, markdown
-    from robobpp.sim import SETTINGS, require_setting
+    from robobpp.sim import require_setting
+    from robobpp.vocabulary import SETTINGS
 
-    if protocol not in PROTOCOLS:
-        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
+    if protocol not in LOOPS:
+        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(LOOPS)}")
     if split not in SPLITS:
         fail(f"unknown split {split!r}; expected one of {', '.join(SPLITS)}")
     shown = None
@@ -76,7 +77,7 @@ def reproduce(
         shown = parse_choices(metrics, known, "metric")
     if merge:
         results, meta = _merged(merge, EpisodeResult)
-        settings = [s for s in SETTINGS if any(r.setting == s for r in results)]
+        settings: list[str] = [s for s in SETTINGS if any(r.setting == s for r in results)]
     else:
         datasets = parse_choices(dataset, DATASETS, "dataset")
         settings = parse_choices(setting, SETTINGS, "setting")
@@ -134,7 +135,6 @@ def _run(
     jobs: int,
 ) -> list[Any]:
     from robobpp.datasets import episode_specs
-    from robobpp.replay import PAPER, PAPER_SETTINGS
     from robobpp.reproduction import run_baselines
 
     # A group's boxes depend on its index only, so groups first_group.. are those of a longer run.
@@ -146,20 +146,17 @@ def _run(
             for name in names:
                 progress.update(bar, description=f"{name} · {d} · {protocol}")
                 if jobs == 1:
-                    for episodes in run_baselines(specs[d], name, settings, protocol=protocol):
+                    for episodes in run_baselines(specs[d], name, settings, loop=protocol):
                         results += episodes
                         progress.advance(bar)
                     continue
                 from robobpp.cli.parallel import run_parallel
 
-                if protocol == PAPER:
-                    tasks = [(spec, tuple(s for s in settings if s in PAPER_SETTINGS)) for spec in specs[d]]
-                else:
-                    tasks = [(spec, tuple(settings)) for spec in specs[d]]
+                tasks = [(spec, tuple(settings)) for spec in specs[d]]
                 for episodes in run_parallel(
-                    name, {}, tasks, jobs=jobs, protocol=protocol, on_done=lambda _i: progress.advance(bar)
+                    name, {}, tasks, jobs=jobs, loop=protocol, on_done=lambda _i: progress.advance(bar)
                 ):
-                    results += [r for r in episodes if r.setting in settings]
+                    results += episodes
     return results
 
 

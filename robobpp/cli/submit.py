@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -19,6 +19,7 @@ from rich.table import Table
 
 from robobpp.cli.common import fail, table_console
 from robobpp.cli.export import WideOpt
+from robobpp.vocabulary import BOARD_TRACKS, CLOSED, DATASETS, PAPER, SETTINGS, BoardTrack, has_boards
 
 if TYPE_CHECKING:
     from rich.progress import Progress
@@ -27,8 +28,6 @@ if TYPE_CHECKING:
     from robobpp.schemas import EpisodePublic, Leaderboard, OverallGrid, SubmissionPublic
 
 err = Console(stderr=True)
-DATASETS = ("repetitive", "diverse", "longboard")
-SETTINGS = ("math", "physics", "execution")
 
 ServerOpt = Annotated[
     str, typer.Option("--server", envvar="ROBOBPP_SERVER", help="Evaluation server root URL.")
@@ -59,13 +58,13 @@ def register(root: typer.Typer) -> None:
 
 
 @contextlib.contextmanager
-def _client(server: str, token: str | None, *, need_token: bool = True) -> Iterator[ServerClient]:
+def api_client(server: str, token: str | None, *, need_token: bool = True) -> Iterator[ServerClient]:
     """A client whose every failure becomes one line and exit code 1 (no tracebacks)."""
     from robobpp.client.api import ServerClient, ServerError
 
     if need_token and not (token or "").strip():
         fail("no API token: pass --token or set ROBOBPP_TOKEN", code=2)
-    if (token or "").strip() and _plain_http_elsewhere(server):
+    if (token or "").strip() and plain_http_elsewhere(server):
         err.print(
             "[yellow]warning:[/] the API token goes over plain http to another machine; use https",
             soft_wrap=True,
@@ -77,7 +76,7 @@ def _client(server: str, token: str | None, *, need_token: bool = True) -> Itera
         fail(escape(str(exc)), code=1)
 
 
-def _plain_http_elsewhere(server: str) -> bool:
+def plain_http_elsewhere(server: str) -> bool:
     """Whether the token would cross a network unencrypted (loopback is fine: dev servers, tests)."""
     import ipaddress
     from urllib.parse import urlsplit
@@ -93,13 +92,15 @@ def _plain_http_elsewhere(server: str) -> bool:
         return True
 
 
-def _track(value: str) -> Any:
-    if value not in ("private", "public"):
-        fail(f"unknown track {value!r}; expected private or public")
-    return value
+def parse_track(value: str) -> BoardTrack:
+    """``--track``: a track with boards, else one line and exit code 1."""
+    for track in BOARD_TRACKS:
+        if value == track:
+            return track
+    fail(f"unknown track {value!r}; expected {' or '.join(BOARD_TRACKS)}")
 
 
-def _names(values: list[str] | None, allowed: tuple[str, ...], what: str) -> list[str] | None:
+def parse_names(values: list[str] | None, allowed: tuple[str, ...], what: str) -> list[str] | None:
     """Repeated options and comma lists both work: ``--dataset diverse,longboard`` or twice ``--dataset``."""
     if not values:
         return None
@@ -146,16 +147,16 @@ def submit(
     token: TokenOpt = None,
 ) -> None:
     """Submit a policy server for evaluation (the server checks it answers /info first)."""
-    datasets = _names(dataset, DATASETS, "dataset")
-    settings = _names(setting, SETTINGS, "setting")
-    with _client(server, token) as client:
+    datasets = parse_names(dataset, DATASETS, "dataset")
+    settings = parse_names(setting, SETTINGS, "setting")
+    with api_client(server, token) as client:
         sub = client.submit(
             policy_url,
             secret=secret,
             name=name,
             datasets=datasets,
             settings=settings,
-            track=_track(track),
+            track=parse_track(track),
             lookahead=lookahead,
         )
         boards = len(sub.runs)
@@ -167,15 +168,15 @@ def submit(
             print(sub.id)
             return
         final = _follow(client, sub, poll)
-        _print_results(client, final)
-    _finish(final)
+        print_results(client, final)
+    exit_unless_completed(final)
 
 
 #: How long ``submit --wait`` and ``connect`` wait for the boards to include a finished submission.
 BOARD_WAIT_S = 30.0
 
 
-def _print_results(client: ServerClient, sub: SubmissionPublic, wait_s: float = BOARD_WAIT_S) -> None:
+def print_results(client: ServerClient, sub: SubmissionPublic, wait_s: float = BOARD_WAIT_S) -> None:
     """The finished submission's table with its score and rank: boards are recomputed in the background a
     moment after a submission finishes, so wait (bounded) until they include it, and say so if they do not."""
     standings = client.standings(sub, wait_s=wait_s)
@@ -244,7 +245,7 @@ def _queued(sub: SubmissionPublic) -> str:
     return f" · position {q.position}{eta}"
 
 
-def _finish(sub: SubmissionPublic) -> None:
+def exit_unless_completed(sub: SubmissionPublic) -> None:
     """Exit 0 only for a completed evaluation: scripts and CI can gate on ``submit --wait``."""
     if sub.status == "completed":
         return
@@ -261,7 +262,7 @@ def _print_standings(sub: SubmissionPublic, standings: list[Standing]) -> None:
     width = max((len(s.board) for s in standings), default=0)
     for s in standings:
         style = "bold green" if s.rank == 1 else None
-        out.print(f"{s.board:<{width}}  {_standing_line(s)}", style=style, soft_wrap=True)
+        out.print(f"{s.board:<{width}}  {standing_line(s)}", style=style, soft_wrap=True)
     if any(s.metrics for s in standings):
         out.print(_metrics_table(standings))
     for line in _legend(standings):
@@ -275,7 +276,7 @@ RUN_ENDINGS = {
 }
 
 
-def _standing_line(s: Standing) -> str:
+def standing_line(s: Standing) -> str:
     """A board's line: its score, rank and stable score with the board's intervals ("score 0.812 [0.790,
     0.835] · rank 2 (1–3) of 9 · stable 0.640 [0.612, 0.668]"), or why it has none."""
     if s.rank is not None:
@@ -349,7 +350,7 @@ def list_command(
     token: TokenOpt = None,
 ) -> None:
     """Your submissions, newest first."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         subs = client.submissions(limit=limit)
     if as_json:
         print("[" + ",".join(s.model_dump_json() for s in subs) + "]")
@@ -382,7 +383,7 @@ def show_command(
     token: TokenOpt = None,
 ) -> None:
     """One submission: status, progress, and each board's metrics, score and rank."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         sub = client.submission(submission_id)
         if as_json:
             print(sub.model_dump_json(indent=2))
@@ -405,7 +406,7 @@ def cancel_command(
     submission_id: IdArg, server: ServerOpt = "http://127.0.0.1:8000", token: TokenOpt = None
 ) -> None:
     """Cancel an evaluation: its unfinished episodes are dropped."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         sub = client.cancel(submission_id)
     print(f"submission {sub.id} {sub.status} ({sub.progress.episodes_cancelled} episodes cancelled)")
 
@@ -418,7 +419,7 @@ def episodes_command(
     token: TokenOpt = None,
 ) -> None:
     """Per-episode results and termination reasons."""
-    with _client(server, token) as client:
+    with api_client(server, token) as client:
         rows = client.episodes(submission_id)
     if as_json:
         print("[" + ",".join(e.model_dump_json() for e in rows) + "]")
@@ -475,7 +476,7 @@ def leaderboard(
             help="Physics/Execution as closed (closed loop, the benchmark) or paper (the paper's "
             "protocol: the Math Pack actions replayed)."
         ),
-    ] = "closed",
+    ] = CLOSED,
     lookahead: Annotated[
         int,
         typer.Option(
@@ -502,19 +503,19 @@ def leaderboard(
             fail(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
     if view not in ("best", "all"):
         fail(f"unknown view {view!r}; expected best or all")
-    if lookahead and protocol != "closed" and setting != "math":
+    if not has_boards(protocol, lookahead, setting):
         fail("the paper-protocol boards are lookahead 0 only; a lookahead K > 0 has closed-loop boards")
     if dataset is not None and dataset not in DATASETS:
         fail(f"unknown dataset {dataset!r}; expected one of {', '.join(DATASETS)}")
     if setting is not None and setting not in SETTINGS:
         fail(f"unknown setting {setting!r}; expected one of {', '.join(SETTINGS)}")
-    with _client(server, token, need_token=False) as client:
+    with api_client(server, token, need_token=False) as client:
         data = (
             client.leaderboard(
-                dataset, setting, _track(track), view=view, protocol=protocol, lookahead=lookahead
+                dataset, setting, parse_track(track), view=view, protocol=protocol, lookahead=lookahead
             )
             if dataset and setting
-            else client.grid(_track(track), view=view, protocol=protocol, lookahead=lookahead)
+            else client.grid(parse_track(track), view=view, protocol=protocol, lookahead=lookahead)
         )
     if as_json:
         print(data.model_dump_json(indent=2))
@@ -555,7 +556,7 @@ def _rank(rank: int | None, low: int | None, high: int | None) -> str:
 
 def _board_table(board: Leaderboard) -> Table:
     """Ranks with their 95 % rank interval, scores with their bootstrap interval, failed/partial apart."""
-    protocol = " · paper protocol" if board.protocol == "paper" else ""
+    protocol = " · paper protocol" if board.protocol == PAPER else ""
     protocol += f" · lookahead {board.lookahead}" if board.lookahead else ""
     table = Table(
         title=f"{board.setting}/{board.dataset}{protocol} · {board.track} track · {board.view} "
@@ -608,7 +609,7 @@ def _board_table(board: Leaderboard) -> Table:
 
 def _grid_table(grid: OverallGrid) -> Table:
     """Score (rank) per board and the Mean with intervals; partial or failed submissions after, unranked."""
-    protocol = " · Physics/Execution under the paper protocol" if grid.protocol == "paper" else ""
+    protocol = " · Physics/Execution under the paper protocol" if grid.protocol == PAPER else ""
     protocol += f" · lookahead {grid.lookahead}" if grid.lookahead else ""
     table = Table(title=f"overall{protocol} · {grid.track} track · {grid.view}")
     table.add_column("rank", justify="right")

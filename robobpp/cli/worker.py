@@ -12,11 +12,14 @@ from __future__ import annotations
 import os
 import secrets
 import socket
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from robobpp.cli.common import fail, settings_problem
+
+if TYPE_CHECKING:  # imported when a worker starts (pydantic-settings is the server extra's)
+    from robobpp.server.config import Settings
 
 POOLS = ("multiplex", "prefork", "solo", "threads")
 
@@ -25,7 +28,7 @@ def register(root: typer.Typer) -> None:
     root.command("worker")(worker)
 
 
-def worker_settings() -> Any:
+def worker_settings() -> Settings:
     """The settings a worker runs with: the server's, from the same environment variables.
 
     A worker serves no API and never reads the admin token, so a worker machine need not hold it: when

@@ -34,12 +34,12 @@ from robobpp.schemas import (
     TokenPublic,
     clean_name,
 )
+from robobpp.vocabulary import CLOSED, BoardTrack, has_boards
 
 API_PREFIX = "/api/v1"
 DEFAULT_SERVER = "http://127.0.0.1:8000"
 #: Submission statuses after which nothing changes any more.
 FINISHED = frozenset({"completed", "failed", "cancelled"})
-Track = Literal["private", "public"]
 M = TypeVar("M")
 
 
@@ -88,7 +88,7 @@ class Standing:
     #: boards are recomputed in the background, a moment after a submission finishes.
     board_status: str | None = None
     #: ``closed`` or ``paper`` (a physical setting's Math Pack actions replayed; docs/server.md).
-    protocol: str = "closed"
+    protocol: str = CLOSED
     #: The score against fixed anchors (never moves when others arrive; None while not ranked): alone on a
     #: board, the relative ``score`` is 0 by construction, and this is the figure that says how well it did.
     stable: float | None = None
@@ -118,7 +118,7 @@ class Standing:
     def board(self) -> str:
         return (
             f"{self.setting}/{self.dataset}"
-            + (" (paper protocol)" if self.protocol != "closed" else "")
+            + (" (paper protocol)" if self.protocol != CLOSED else "")
             + (f" (lookahead {self.lookahead})" if self.lookahead else "")
         )
 
@@ -261,7 +261,7 @@ class ServerClient:
         name: str | None = None,
         datasets: list[str] | None = None,
         settings: list[str] | None = None,
-        track: Track = "private",
+        track: BoardTrack = "private",
         *,
         lookahead: int = 0,
         mode: Literal["push", "pull"] = "push",
@@ -310,13 +310,13 @@ class ServerClient:
         self,
         dataset: str,
         setting: str,
-        track: Track = "private",
+        track: BoardTrack = "private",
         *,
         view: str = "best",
         limit: int = 50,
         offset: int = 0,
         submission: int | None = None,
-        protocol: str = "closed",
+        protocol: str = CLOSED,
         lookahead: int = 0,
     ) -> Leaderboard:
         """One page of a board: each participant's best entry (``view="best"``) or ``"all"`` entries;
@@ -325,36 +325,36 @@ class ServerClient:
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
         if submission is not None:
             params["submission"] = submission
-        if protocol != "closed":  # the default goes unsaid: a server from before protocols answers alike
+        if protocol != CLOSED:  # the default goes unsaid: a server from before protocols answers alike
             params["protocol"] = protocol
         if lookahead:
             params["lookahead"] = lookahead
         board: Leaderboard = self._get(f"/leaderboards/{dataset}/{setting}", Leaderboard, params=params)
         if setting != "math":
-            self._check_protocol(board.protocol, protocol)
+            self._check_loop(board.protocol, protocol)
         self._check_lookahead(board.lookahead, lookahead)
         return board
 
     def grid(
         self,
-        track: Track = "private",
+        track: BoardTrack = "private",
         *,
         view: str = "best",
         limit: int = 50,
         offset: int = 0,
-        protocol: str = "closed",
+        protocol: str = CLOSED,
         lookahead: int = 0,
     ) -> OverallGrid:
         """The overall grid: ranked rows (a score and rank per ``setting/dataset`` board, and the Mean) and
         the partial or failed ones apart; ``protocol="paper"``: its physical columns under the paper protocol;
         ``lookahead``: of the submissions that saw that many next boxes."""
         params: dict[str, Any] = {"track": track, "view": view, "limit": limit, "offset": offset}
-        if protocol != "closed":
+        if protocol != CLOSED:
             params["protocol"] = protocol
         if lookahead:
             params["lookahead"] = lookahead
         grid: OverallGrid = self._get("/leaderboards", OverallGrid, params=params)
-        self._check_protocol(grid.protocol, protocol)
+        self._check_loop(grid.protocol, protocol)
         self._check_lookahead(grid.lookahead, lookahead)
         return grid
 
@@ -369,7 +369,7 @@ class ServerClient:
                 kind="protocol",
             )
 
-    def _check_protocol(self, served: str, asked: str) -> None:
+    def _check_loop(self, served: str, asked: str) -> None:
         """A server from before protocols ignores ``protocol=paper`` and serves closed-loop boards: say so."""
         if served != asked:
             raise ServerError(
@@ -455,9 +455,9 @@ class ServerClient:
             time.sleep(poll_s)
 
     def _standing(self, submission: SubmissionPublic, run: Any) -> Standing:
-        track: Track = "public" if submission.track == "public" else "private"
+        track: BoardTrack = "public" if submission.track == "public" else "private"
         protocol, lookahead = run.protocol, submission.lookahead
-        if lookahead and protocol != "closed" and run.setting != "math":
+        if not has_boards(protocol, lookahead, run.setting):
             # the paper-protocol boards are lookahead 0 only: this run is on none
             return Standing(
                 dataset=run.dataset,

@@ -31,8 +31,9 @@ from websockets.sync.client import connect as ws_connect
 
 from robobpp import __version__
 from robobpp.client import frames
-from robobpp.client.api import FINISHED, ServerClient, ServerError, Track
+from robobpp.client.api import FINISHED, ServerClient, ServerError
 from robobpp.schemas import SubmissionPublic
+from robobpp.vocabulary import BoardTrack
 
 log = logging.getLogger("robobpp.connect")
 
@@ -205,7 +206,7 @@ def connect(
     name: str | None = None,
     datasets: list[str] | None = None,
     settings: list[str] | None = None,
-    track: Track = "private",
+    track: BoardTrack = "private",
     lookahead: int = 0,
     parallel: int = 1,
     on_event: Callable[[str], None] | None = None,

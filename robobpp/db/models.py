@@ -25,6 +25,8 @@ from sqlalchemy import (
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 from sqlalchemy.types import TypeDecorator
 
+from robobpp.vocabulary import CLOSED
+
 
 def utcnow() -> datetime:
     return datetime.now(UTC)
@@ -53,15 +55,11 @@ class Base(DeclarativeBase):
     type_annotation_map = {datetime: UTCDateTime(), dict[str, Any]: JSON(), list[Any]: JSON()}
 
 
-# Status vocabularies (strings, so reports and SQL read alike).
-SUBMISSION_STATUSES = ("queued", "running", "completed", "failed", "cancelled")
-#: ``waiting``: a paper-protocol episode whose Math Pack episode has not finished yet (nothing to replay);
-#: it becomes ``pending`` (or ``failed``) in the transaction that records that Math episode.
-EPISODE_STATUSES = ("waiting", "pending", "running", "done", "failed", "cancelled")
-TERMINAL_EPISODE = ("done", "failed", "cancelled")
-#: A run's and an episode's ``protocol`` is one of ``robobpp.replay.PROTOCOLS`` (docs/benchmark.md): ``closed``,
-#: the policy asked at every step and seeing this setting's real pile (the benchmark), or ``paper``, the
-#: submission's Math Pack actions and decision times replayed open loop in a physical setting (no policy call).
+# Statuses, tracks and a run's and an episode's ``protocol`` (its loop) are the strings of robobpp.vocabulary,
+# so reports and SQL read alike. ``protocol`` is a :data:`robobpp.vocabulary.Loop`: ``closed``, the policy asked
+# at every step and seeing this setting's real pile (the benchmark), or ``paper``, the submission's Math Pack
+# actions and decision times replayed open loop in a physical setting (no policy call); the column keeps the
+# name it was created with (migration 0007).
 
 
 class Participant(Base):
@@ -160,8 +158,8 @@ class RunRow(Base):
     submission_id: Mapped[int] = mapped_column(ForeignKey("submissions.id", ondelete="CASCADE"), index=True)
     dataset: Mapped[str] = mapped_column(String(32))
     setting: Mapped[str] = mapped_column(String(16))
-    #: One of :data:`PROTOCOLS` (0007; rows stored before are ``closed``).
-    protocol: Mapped[str] = mapped_column(String(8), default="closed", server_default="closed")
+    #: A :data:`robobpp.vocabulary.Loop` (0007; rows stored before are ``closed``).
+    protocol: Mapped[str] = mapped_column(String(8), default=CLOSED, server_default=CLOSED)
     status: Mapped[str] = mapped_column(String(16), default="pending")
     episodes_total: Mapped[int] = mapped_column(default=0)
     metrics: Mapped[dict[str, Any] | None] = mapped_column(default=None)
@@ -196,8 +194,8 @@ class EpisodeRow(Base):
     setting: Mapped[str] = mapped_column(String(16))
     split: Mapped[str] = mapped_column(String(16))
     group: Mapped[int] = mapped_column(Integer)
-    #: One of :data:`PROTOCOLS` (0007; rows stored before are ``closed``).
-    protocol: Mapped[str] = mapped_column(String(8), default="closed", server_default="closed")
+    #: A :data:`robobpp.vocabulary.Loop` (0007; rows stored before are ``closed``).
+    protocol: Mapped[str] = mapped_column(String(8), default=CLOSED, server_default=CLOSED)
     status: Mapped[str] = mapped_column(String(16), default="pending")
     attempts: Mapped[int] = mapped_column(default=0)
     worker: Mapped[str | None] = mapped_column(String(128), default=None)

@@ -27,13 +27,24 @@ from sqlalchemy.orm import Session, joinedload
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db.models import ApiToken, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.provenance import merge, merged
-from robobpp.scoring.metrics import PHYSICAL
 from robobpp.scoring.scores import ANCHORS_VERSION
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
+from robobpp.vocabulary import (
+    ACTIVE_SUBMISSION,
+    CLOSED,
+    DATASETS,
+    PAPER,
+    PHYSICAL,
+    QUEUED_EPISODE,
+    SETTINGS,
+    TRACKS,
+    board_loop,
+)
 
-SETTINGS_ORDER = ("math", "physics", "execution")
-DATASETS_ORDER = ("repetitive", "diverse", "longboard")
+# The board modules' names of the vocabulary's orders (kept until their rewrite).
+SETTINGS_ORDER = SETTINGS
+DATASETS_ORDER = DATASETS
 
 
 def hash_token(token: str) -> str:
@@ -75,12 +86,12 @@ def live_prefix_owner(session: Session, prefix: str) -> int | None:
 #: The episode statuses ``/metrics`` counts: the queue. Finished episodes are history (millions of rows);
 #: counting them per scrape cost 0.6 s at 2.7 M rows, while the queue is read from ix_episodes_claim.
 #: ``waiting``: paper-protocol replays whose Math Pack episode is still to come (docs/server.md).
-QUEUE_STATUSES = ("waiting", "pending", "running")
+QUEUE_STATUSES = QUEUED_EPISODE
 
 
 def episode_status_counts(session: Session) -> dict[str, int]:
     """Episodes waiting or running (an index range scan: its cost follows the queue, not the history)."""
-    counts = dict.fromkeys(QUEUE_STATUSES, 0)
+    counts: dict[str, int] = dict.fromkeys(QUEUE_STATUSES, 0)
     for status in QUEUE_STATUSES:  # one equality lookup each: both backends stay on the index
         counts[status] = int(
             session.execute(
@@ -112,9 +123,9 @@ def queue_snapshot(session: Session) -> tuple[dict[str, int], dict[str, int], tu
     submissions by status, and :func:`last_finished`. Each part is an index lookup whose cost follows the
     queue, not the history."""
     row = session.execute(_queue_statement()).one()
-    q, a = len(QUEUE_STATUSES), len(ACTIVE_SUBMISSION_STATUSES)
-    episodes = {s: int(n) for s, n in zip(QUEUE_STATUSES, row[:q], strict=True)}
-    active = {s: int(n) for s, n in zip(ACTIVE_SUBMISSION_STATUSES, row[q : q + a], strict=True)}
+    q, a = len(QUEUE_STATUSES), len(ACTIVE_SUBMISSION)
+    episodes: dict[str, int] = {s: int(n) for s, n in zip(QUEUE_STATUSES, row[:q], strict=True)}
+    active: dict[str, int] = {s: int(n) for s, n in zip(ACTIVE_SUBMISSION, row[q : q + a], strict=True)}
     return episodes, active, tuple(row[q + a :])
 
 
@@ -127,19 +138,13 @@ def _queue_statement() -> Select[Any]:
     ]
     parts += [
         select(func.count()).select_from(Submission).where(Submission.status == s).scalar_subquery()
-        for s in ACTIVE_SUBMISSION_STATUSES
+        for s in ACTIVE_SUBMISSION
     ]
     parts += [
         select(func.max(Submission.finished_at)).where(Submission.track == t).scalar_subquery()
         for t in TRACKS
     ]
     return select(*parts)
-
-
-ACTIVE_SUBMISSION_STATUSES = ("queued", "running")
-
-#: Every track a submission may have (``Submission.track``).
-TRACKS = ("private", "public", "verify")
 
 
 def last_finished(session: Session) -> tuple[Any, ...]:
@@ -170,20 +175,19 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
         .select_from(Submission)
         .where(
             Submission.participant_id == participant_id,
-            Submission.status.in_(("queued", "running")),
+            Submission.status.in_(ACTIVE_SUBMISSION),
             Submission.track != "verify",
         )
     ).scalar_one()
     return int(day), int(active)
 
 
-def board_protocol(setting: str, protocol: str) -> str:
-    """The protocol whose runs a board shows: in Math Pack both protocols are the same episodes (closed)."""
-    return protocol if setting in PHYSICAL else "closed"
+#: The board modules' name of :func:`robobpp.vocabulary.board_loop` (kept until their rewrite).
+board_protocol = board_loop
 
 
 def board_rows(
-    session: Session, dataset: str, setting: str, track: str, protocol: str = "closed", lookahead: int = 0
+    session: Session, dataset: str, setting: str, track: str, protocol: str = CLOSED, lookahead: int = 0
 ) -> list[dict[str, Any]]:
     """Every completed run on the board of a finished submission (failed ones too: they are shown apart),
     with its per-group ``figures``; ``lookahead``: the board of submissions that saw that many next boxes."""
@@ -414,7 +418,7 @@ def submissions_progress(
                 EpisodeRow.submission_id, EpisodeRow.dataset, EpisodeRow.setting, EpisodeRow.protocol
             ).join(first, EpisodeRow.id == first.c.id)
         ):
-            phases[sid] = f"{setting}/{dataset}" + (" (paper protocol)" if protocol != "closed" else "")
+            phases[sid] = f"{setting}/{dataset}" + (" (paper protocol)" if protocol != CLOSED else "")
     return {sid: _progress(c, phases.get(sid)) for sid, c in counts.items()}
 
 
@@ -488,7 +492,7 @@ def submission_provenance(sub: Submission, runs: Sequence[RunRow]) -> dict[str, 
             k: v for k, v in produced.items() if k not in ("protocol", "lookahead", "split", "seed", "groups")
         },
         "anchors": ANCHORS_VERSION,
-        "protocol": merged(r.protocol for r in runs) or "closed",
+        "protocol": merged(r.protocol for r in runs) or CLOSED,
         "lookahead": sub.lookahead,
         "split": SPLIT_OF_TRACK.get(sub.track, sub.track),
         "seed": 0 if sub.track == "public" else None,
@@ -681,8 +685,8 @@ def baseline_runs(session: Session, track: str) -> list[dict[str, Any]]:
             Submission.status.in_(("completed", "failed")),
             RunRow.status == "completed",
             or_(
-                and_(RunRow.setting == "math", RunRow.protocol == "closed"),
-                and_(RunRow.setting.in_(PHYSICAL), RunRow.protocol == "paper", current),
+                and_(RunRow.setting == "math", RunRow.protocol == CLOSED),
+                and_(RunRow.setting.in_(PHYSICAL), RunRow.protocol == PAPER, current),
             ),
         )
         .order_by(RunRow.submission_id)

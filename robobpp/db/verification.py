@@ -39,6 +39,7 @@ from sqlalchemy.orm import Session
 
 from robobpp.db.models import EpisodeRow, RunRow, Submission
 from robobpp.scoring import stats
+from robobpp.vocabulary import CLOSED
 
 #: How a pull episode that no client of the participant served ends (robobpp/worker/run.py releases it with
 #: ``pull mode: <NoClient>``; robobpp/worker/pull.py words NoClient "no client … connected within …").
@@ -68,7 +69,7 @@ def run_interval(session: Session, submission_id: int, dataset: str, setting: st
             RunRow.submission_id == submission_id,
             RunRow.dataset == dataset,
             RunRow.setting == setting,
-            RunRow.protocol == "closed",
+            RunRow.protocol == CLOSED,
             RunRow.status == "completed",
         )
     ).scalar_one_or_none()
@@ -97,7 +98,7 @@ def _values(session: Session, submission_id: int, dataset: str, setting: str) ->
             EpisodeRow.submission_id == submission_id,
             EpisodeRow.dataset == dataset,
             EpisodeRow.setting == setting,
-            EpisodeRow.protocol == "closed",
+            EpisodeRow.protocol == CLOSED,
             EpisodeRow.status == "done",
         )
     ).scalars()
@@ -156,7 +157,7 @@ def _policy_failed_boards(session: Session, submission_id: int) -> list[tuple[st
     """The boards (dataset, setting) where the run's policy failures exceed the allowed share."""
     rows = session.execute(
         select(RunRow.dataset, RunRow.setting, RunRow.extras).where(
-            RunRow.submission_id == submission_id, RunRow.protocol == "closed"
+            RunRow.submission_id == submission_id, RunRow.protocol == CLOSED
         )
     ).all()
     return [

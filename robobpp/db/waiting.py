@@ -32,6 +32,7 @@ from sqlalchemy.orm import Session
 
 from robobpp.db.models import EpisodeRow, Participant, Submission, utcnow
 from robobpp.db.work import fair_key, is_baseline, participant_loads
+from robobpp.vocabulary import ACTIVE_SUBMISSION
 
 #: Finished episodes whose mean duration is a setting's typical episode time (recent ones: the load of today).
 RECENT_EPISODES = 100
@@ -253,7 +254,7 @@ def _own_before(session: Session, sub: Submission) -> int:
     for sid, url, status, total in session.execute(
         select(Submission.id, Submission.policy_url, Submission.status, Submission.episodes_total).where(
             Submission.participant_id == sub.participant_id,
-            Submission.status.in_(("queued", "running")),
+            Submission.status.in_(ACTIVE_SUBMISSION),
             Submission.id != sub.id,
         )
     ):
@@ -358,7 +359,7 @@ def backlog(session: Session, workers: int, now: datetime | None = None) -> Back
     now = now or utcnow()
     active = session.execute(
         select(Submission.id, Submission.status, Submission.episodes_total).where(
-            Submission.status.in_(("queued", "running"))
+            Submission.status.in_(ACTIVE_SUBMISSION)
         )
     ).all()
     if not active:

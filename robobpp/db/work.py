@@ -23,16 +23,17 @@ from typing import Any, cast
 from sqlalchemy import CursorResult, Result, and_, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
-from robobpp.db.models import TERMINAL_EPISODE, EpisodeRow, Participant, RunRow, Submission, utcnow
+from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.verification import record_verdict
 from robobpp.provenance import environment, merge, merged
+from robobpp.replay import paper_settings, plan_of
 from robobpp.scoring.entries import part_of_run
-from robobpp.scoring.metrics import PHYSICAL, aggregate
+from robobpp.scoring.metrics import aggregate
 from robobpp.scoring.stats import POLICY_FAILURE_SHARE, group_figures, run_failed
+from robobpp.vocabulary import ACTIVE_SUBMISSION, CLOSED, PAPER, QUEUED_EPISODE, TERMINAL_EPISODE
 
 #: Extra termination code of an episode whose workers kept dying (not the policy's fault).
 WORKER_LOST = "worker_lost"
-ACTIVE_SUBMISSION = ("queued", "running")
 #: Which groups a track plays: the private split, the public train groups, or the private pool's hold-out
 #: draw (verifications only; docs/server.md, threat model).
 SPLIT_OF_TRACK = {"private": "test", "public": "train", "verify": "holdout"}
@@ -57,7 +58,7 @@ class Claim:
     keep_trace: bool
     mode: str = "push"
     #: ``paper``: replay the plan stored on the episode (:func:`episode_plan`), no policy involved.
-    protocol: str = "closed"
+    protocol: str = CLOSED
 
 
 def create_submission(
@@ -77,8 +78,8 @@ def create_submission(
 ) -> Submission:
     """The submission with one run per (dataset, setting) and one episode per group, in one transaction."""
     split = SPLIT_OF_TRACK[track]
-    boards = [(d, s, "closed") for d in datasets for s in settings]
-    boards += [(d, s, "paper") for d in datasets for s in paper_settings(settings, track)]
+    boards = [(d, s, CLOSED) for d in datasets for s in settings]
+    boards += [(d, s, PAPER) for d in datasets for s in paper_settings(settings, track)]
     sub = Submission(
         participant=participant,
         name=name,
@@ -102,7 +103,7 @@ def create_submission(
         session.add(run)
         session.flush()
         # a replay waits for its Math Pack episode (``waiting`` is never claimed): see ``_settle_replays``
-        status = "pending" if protocol == "closed" else "waiting"
+        status = "pending" if protocol == CLOSED else "waiting"
         session.execute(
             insert(EpisodeRow),
             [  # one bulk INSERT: submitting stays cheap
@@ -125,39 +126,6 @@ def create_submission(
     return sub
 
 
-#: Tracks whose submissions get the paper protocol (a verification is compared on closed loop only).
-PAPER_TRACKS = ("private", "public")
-
-
-def paper_settings(settings: list[str], track: str) -> list[str]:
-    """The physical settings a submission also gets under the paper protocol (docs/server.md, "The paper
-    protocol"): those it chose, when it chose Math Pack too (the plan is its Math episodes' actions)."""
-    if "math" not in settings or track not in PAPER_TRACKS:
-        return []
-    return [s for s in settings if s in PHYSICAL]
-
-
-def plan_of(result: dict[str, Any]) -> dict[str, Any]:
-    """What a paper-protocol replay needs of a Math Pack episode's result: each step's action (None: the
-    policy found no placement) and its timing, and how the episode ended. A few numbers a box: stored for
-    every track, where a private episode keeps no trace."""
-    keys = (
-        "step",
-        "box",
-        "action",
-        "decision_time",
-        "compute_time",
-        "round_trip",
-        "network_estimate",
-        "placement",
-        "termination",
-    )
-    return {
-        "steps": [{k: step.get(k) for k in keys} for step in result.get("steps", [])],
-        **{k: result.get(k) for k in ("termination", "termination_detail", "boxes_placed", "policy", "seed")},
-    }
-
-
 def _settle_replays(
     session: Session,
     math_episode_id: int,
@@ -178,13 +146,13 @@ def _settle_replays(
             EpisodeRow.protocol,
         ).where(EpisodeRow.id == math_episode_id)
     ).one()
-    if ep.setting != "math" or ep.protocol != "closed":
+    if ep.setting != "math" or ep.protocol != CLOSED:
         return
     replays = and_(
         EpisodeRow.submission_id == ep.submission_id,
         EpisodeRow.dataset == ep.dataset,
         EpisodeRow.group == ep.group,
-        EpisodeRow.protocol == "paper",
+        EpisodeRow.protocol == PAPER,
         EpisodeRow.status == "waiting",
     )
     if failure is None:
@@ -567,7 +535,7 @@ def heartbeat(
 
 
 def episode_plan(session: Session, episode_id: int) -> dict[str, Any] | None:
-    """A paper-protocol episode's plan (:func:`plan_of` of its Math Pack episode)."""
+    """A paper-protocol episode's plan (:func:`robobpp.replay.plan_of` of its Math Pack episode)."""
     return session.execute(select(EpisodeRow.plan).where(EpisodeRow.id == episode_id)).scalar_one_or_none()
 
 
@@ -764,7 +732,7 @@ def _policy_failed_runs(session: Session, submission_id: int) -> list[str]:
     """The boards (``setting/dataset``) where the policy failed beyond the allowed share (never ranked)."""
     runs = session.execute(  # closed loop: a replay repeats its Math episode's policy failures
         select(RunRow.dataset, RunRow.setting, RunRow.extras).where(
-            RunRow.submission_id == submission_id, RunRow.protocol == "closed"
+            RunRow.submission_id == submission_id, RunRow.protocol == CLOSED
         )
     ).all()
     return [
@@ -782,7 +750,7 @@ def cancel_submission(session: Session, sub: Submission) -> bool:
     now = utcnow()
     session.execute(
         update(EpisodeRow)
-        .where(EpisodeRow.submission_id == sub.id, EpisodeRow.status.in_(("waiting", "pending", "running")))
+        .where(EpisodeRow.submission_id == sub.id, EpisodeRow.status.in_(QUEUED_EPISODE))
         .values(status="cancelled", lease_token=None, finished_at=now)
         .execution_options(synchronize_session=False)
     )

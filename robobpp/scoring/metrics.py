@@ -8,6 +8,10 @@ from typing import Literal
 
 from robobpp.core import ContainerSpec, ContainerState, FinalBox, Placement
 
+# Re-exported: the episode and the board modules read the physical settings here (declared in the vocabulary).
+from robobpp.vocabulary import PHYSICAL as PHYSICAL
+from robobpp.vocabulary import SETTINGS
+
 
 @dataclass(frozen=True, slots=True)
 class MetricDef:
@@ -18,13 +22,10 @@ class MetricDef:
     settings: tuple[str, ...]
 
 
-ALL_SETTINGS = ("math", "physics", "execution")
-PHYSICAL = ("physics", "execution")
-
 METRICS: tuple[MetricDef, ...] = (
-    MetricDef("space_utilization", "Space Utilization", "up", "", ALL_SETTINGS),
-    MetricDef("occupancy", "Occupancy", "up", "", ALL_SETTINGS),
-    MetricDef("decision_time", "Decision Time", "down", "s", ALL_SETTINGS),
+    MetricDef("space_utilization", "Space Utilization", "up", "", SETTINGS),
+    MetricDef("occupancy", "Occupancy", "up", "", SETTINGS),
+    MetricDef("decision_time", "Decision Time", "down", "s", SETTINGS),
     MetricDef("local_stability", "Local Stability", "down", "m", PHYSICAL),
     MetricDef("static_stability", "Static Stability", "up", "", PHYSICAL),
     MetricDef("trajectory_length", "Trajectory Length", "down", "m", ("execution",)),

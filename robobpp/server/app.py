@@ -23,6 +23,7 @@ from robobpp.server.config import Settings
 from robobpp.server.headers import SecurityHeaders
 from robobpp.server.limits import BodySizeLimit
 from robobpp.server.prometheus import install_metrics
+from robobpp.server.state import AppState
 
 if TYPE_CHECKING:  # both executors are imported only when the server starts one (Celery is slow to import)
     from robobpp.boards.worker import BoardWorker, WorkerProcess
@@ -70,6 +71,34 @@ def start_executor(settings: Settings) -> CeleryExecutor | LocalExecutor | None:
     return executor
 
 
+def make_state(settings: Settings) -> AppState:
+    """Every part of an app's state, made before it serves (the lifespan starts what runs: workers, board
+    worker, the relay's bus on its first client)."""
+    from robobpp.server.api.leaderboards import make_board_cache
+    from robobpp.server.probes import ProbeGate
+    from robobpp.server.ratelimit import AuthLimits
+    from robobpp.server.relay_hub import PullHub, make_bus
+    from robobpp.server.runtime import Runtime
+    from robobpp.server.services.submissions import FinishedViews
+
+    state = AppState()
+    state.settings = settings
+    state.runtime = Runtime(settings)
+    state.probe_gate = ProbeGate(
+        settings.probe_concurrency,
+        settings.probe_per_participant,
+        min(settings.probe_timeout_s, settings.step_timeout_s),
+    )
+    state.auth_limit = AuthLimits(settings.auth_failures_per_minute, 60.0)
+    state.finished_views = FinishedViews()
+    state.operator_rows = None
+    state.pull_hub = PullHub(make_bus(settings.pull_bus_url, settings.sqlalchemy_url))
+    state.board_cache = make_board_cache(state.runtime)
+    state.board_worker = None
+    state.static_pages = {}
+    return state
+
+
 def create_app(
     settings: Settings | None = None, *, start_workers: bool | None = None, first_start: bool = True
 ) -> FastAPI:
@@ -86,7 +115,7 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         from robobpp.server.bootstrap import bootstrap
 
-        runtime = app.state.runtime
+        runtime = state.runtime
         # threads coming back from SQL take the GIL from the event loop within this long (CPython: 5 ms,
         # which under 20 readers queued every SQL-reading route behind the loop; BENCHMARKS.md)
         sys.setswitchinterval(settings.switch_interval_s)
@@ -98,14 +127,15 @@ def create_app(
             await _run_sync(bootstrap, runtime)
         from robobpp.server.api.leaderboards import make_board_cache
 
-        # the boards are computed by one board worker per deployment and published in SQL (boards/worker.py);
-        # this process reads them (boards/reader.py)
-        board_worker = app.state.board_worker = start_board_worker(runtime)
+        # the boards are computed by one board worker per deployment and published in SQL; this process
+        # reads them (boards/worker.py, boards/reader.py)
+        board_worker = state.board_worker = start_board_worker(runtime)
         if board_worker is not None:
             from robobpp.boards.worker import await_first_publication
 
             await _run_sync(await_first_publication, runtime.read_session, FIRST_PUBLICATION_S)
-        app.state.board_cache = make_board_cache(runtime, board_worker.wake if board_worker else None)
+        if board_worker is not None:  # the reader made with the app, now woken by this process's worker
+            state.board_cache = make_board_cache(runtime, board_worker.wake)
         executor = start_executor(settings) if run_workers else None
         if (
             executor is not None
@@ -123,10 +153,8 @@ def create_app(
                 progress.stop()
             if executor is not None:
                 executor.stop()
-            app.state.probe_gate.shutdown()
-            hub = getattr(app.state, "pull_hub", None)
-            if hub is not None:  # the relay's bus (its Redis subscription, when it has one)
-                await hub.bus.close()
+            state.probe_gate.shutdown()
+            await state.pull_hub.close()  # the relay's bus (its Redis subscription, when it has one)
             if board_worker is not None:
                 await _run_sync(board_worker.stop)
             runtime.dispose()
@@ -139,17 +167,7 @@ def create_app(
         docs_url=None,  # served below from the vendored Swagger UI: /docs works with no internet access
         openapi_url="/openapi.json",
     )
-    from robobpp.server.runtime import Runtime
-
-    app.state.settings = settings
-    app.state.runtime = Runtime(settings)
-    from robobpp.server.probes import ProbeGate
-
-    app.state.probe_gate = ProbeGate(
-        settings.probe_concurrency,
-        settings.probe_per_participant,
-        min(settings.probe_timeout_s, settings.step_timeout_s),
-    )
+    app.state = state = make_state(settings)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
     app.add_middleware(SecurityHeaders)
     problems.install(app)

@@ -16,8 +16,9 @@ from robobpp.db import queries, work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import EpisodeRow, Participant, RunRow, Submission
 from robobpp.policies import BASELINES, LEARNED, TITLES
-from robobpp.scoring.metrics import PHYSICAL
+from robobpp.replay import paper_settings
 from robobpp.sim.physics.config import PHYSICS_VERSION
+from robobpp.vocabulary import BOARD_TRACKS, CLOSED, PAPER, PHYSICAL
 
 log = logging.getLogger("robobpp.server")
 
@@ -76,7 +77,7 @@ def ensure_baselines(
     ).scalar_one()
     created = 0
     names = (*BASELINES, *LEARNED) if settings.baselines is None else settings.baselines
-    for track in ("private", "public") if settings.public_baselines else ("private",):
+    for track in BOARD_TRACKS if settings.public_baselines else ("private",):
         latest: dict[str, Submission] = {}
         for sub in session.execute(
             select(Submission)
@@ -117,7 +118,7 @@ def stale_reason(session: Session, sub: Submission, settings: Any) -> str | None
     reasons = []
     runs = session.execute(
         select(RunRow.episodes_total, RunRow.extras).where(
-            RunRow.submission_id == sub.id, RunRow.protocol == "closed"
+            RunRow.submission_id == sub.id, RunRow.protocol == CLOSED
         )
     ).all()
     played = min((int(n or 0) for n, _e in runs), default=settings.groups)
@@ -137,7 +138,7 @@ def stale_reason(session: Session, sub: Submission, settings: Any) -> str | None
     if reasons:
         return "; ".join(reasons)
     protocols = set(session.execute(select(RunRow.protocol).where(RunRow.submission_id == sub.id)).scalars())
-    if work.paper_settings(list(sub.settings), sub.track) and "paper" not in protocols:
+    if paper_settings(list(sub.settings), sub.track) and PAPER not in protocols:
         return "it has no paper-protocol runs (evaluated before the server computed them)"
     old = session.execute(
         select(EpisodeRow.physics_version)

@@ -1,8 +1,9 @@
 """Server settings: one pydantic-settings object, read from ``ROBOBPP_*`` environment variables.
 
-This module imports nothing else of robobpp: ``robobpp worker`` reads it too, and a worker must not pull
-in the server, nor the server's settings the worker (``robobpp.worker.options.worker_options`` turns
-them into the worker's plain options).
+This module imports only the vocabulary and the worker's settings (:class:`robobpp.worker.options.WorkerSettings`,
+which it inherits: what a worker reads is declared there, once): ``robobpp worker`` reads it too, and a
+worker must not pull in the server, nor the server's settings the rest of the worker
+(``robobpp.worker.options.worker_options`` turns them into the worker's plain options).
 
 Why one object: every part of the service (API, workers, CLI) sees the same configuration, and the one
 place that refuses unsafe defaults (a missing or weak admin token outside dev) cannot be bypassed.
@@ -13,11 +14,13 @@ from __future__ import annotations
 import os
 import secrets
 from functools import cached_property
-from pathlib import Path
 from typing import Literal
 
 from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from robobpp.vocabulary import DATASETS
+from robobpp.worker.options import WorkerSettings
 
 #: URL schemes of the brokers the pull relay's bus speaks (server/relay_bus.py, server/relay_amqp.py).
 BUS_SCHEMES = ("redis://", "rediss://", "unix://", "amqp://", "amqps://", "pyamqp://")
@@ -30,18 +33,14 @@ class InsecureSettingsError(ValueError):
     """The settings would run a non-dev server with a default or weak secret."""
 
 
-class Settings(BaseSettings):
-    """Everything the server, its workers and its CLI read from the environment."""
+class Settings(BaseSettings, WorkerSettings):
+    """Everything the server, its workers and its CLI read from the environment (what a worker reads:
+    :class:`~robobpp.worker.options.WorkerSettings`, inherited)."""
 
     model_config = SettingsConfigDict(env_prefix="ROBOBPP_", extra="ignore", validate_default=True)
 
     #: ``dev`` allows a generated admin token; ``prod`` demands a strong one from the environment.
     env: Literal["dev", "prod"] = "dev"
-    #: SQLAlchemy URL; empty means a SQLite file inside ``state_dir``.
-    database_url: str = ""
-    state_dir: Path = Path("robobpp-data")
-    #: Where the private split lives (built on first start if absent).
-    private_dir: Path = Path("datasets_private")
     admin_token: SecretStr | None = None
     #: Policy URLs may point at private/loopback/link-local addresses (local dev, tests, the demo).
     allow_private_policy_urls: bool = False
@@ -54,44 +53,9 @@ class Settings(BaseSettings):
 
     # evaluation
     workers: int = Field(default=2, ge=0, le=64)
-    #: Episodes one worker process keeps in flight: a further one is claimed only while every episode in flight
-    #: waits on its participant's policy (docs/server.md, "Evaluation"); 1: one episode at a time.
-    episodes_per_worker: int = Field(default=16, ge=1, le=256)
-    #: Evaluation groups per dataset (30 on the real leaderboard, fewer for the demo).
-    groups: int = Field(default=30, ge=1, le=1000)
-    datasets: tuple[str, ...] = ("repetitive", "diverse", "longboard")
-    #: Boxes of each episode played at most: the first ones of its group (0: every box, as the benchmark).
-    #: The demo plays a few so that its boards fill within minutes; never on a real leaderboard.
-    max_boxes: int = Field(default=0, ge=0)
+    datasets: tuple[str, ...] = DATASETS
     #: Settings a submission may ask for; physics/execution join when their modules import.
     settings: tuple[str, ...] = ()
-    #: ``module:function(dataset, split, group, groups) -> EpisodeSpec`` override (tests, offline demo).
-    spec_provider: str = ""
-    #: Worker lease; renewed every quarter lease (heartbeat), swept every quarter lease: a dead worker's
-    #: episode is back in the queue within 1.25 leases (25 s with the default).
-    lease_s: float = Field(default=20.0, gt=0)
-    #: Episodes of one participant's remote policies running at once, whatever the number of workers. One by
-    #: default: a policy server is then never asked two decisions at once, so its Decision Time is its own (a
-    #: server that answers one request at a time, as the SDK's, would count the wait for another episode's
-    #: decision as thinking, and its network probes would queue behind it; docs/protocol.md, "Decision time and
-    #: the network").
-    participant_max_running: int = Field(default=1, ge=1, le=1000)
-    #: Celery executor (scaled deployment): ``redis://…`` or ``amqp://…``; empty = local process pool.
-    broker_url: str = ""
-    #: Broker queue the episode tasks go to (one per deployment; tests use a fresh one per run).
-    celery_queue: str = "robobpp-episodes"
-    max_attempts: int = Field(default=3, ge=1, le=20)
-    poll_interval_s: float = Field(default=0.5, gt=0)
-    step_timeout_s: float = Field(default=10.0, gt=0)
-    episode_timeout_s: float = Field(default=1800.0, gt=0)
-    response_cap_bytes: int = Field(default=64 * 1024, ge=1024)
-    # pull mode (robobpp connect): workers reach the participants' clients through this server's relay
-    #: The server's URL as the workers see it; ``robobpp serve`` fills in its own address when empty.
-    pull_relay_url: str = ""
-    #: How long a worker waits for a participant's client before handing the episode back for a retry.
-    pull_wait_s: float = Field(default=30.0, gt=0)
-    #: How long a worker waits for a dropped client to come back before the episode ends with policy_error.
-    pull_reconnect_s: float = Field(default=30.0, gt=0)
     #: Broker the API processes' pull relays meet through (``redis://…`` or ``amqp://…``); empty: ``broker_url``,
     #: else the relay lives in the one API process (docs/deploy.md, "Several API processes").
     pull_broker_url: str = ""
@@ -188,12 +152,6 @@ class Settings(BaseSettings):
         path.write_text(token + "\n")
         path.chmod(0o600)
         return token
-
-    @property
-    def sqlalchemy_url(self) -> str:
-        if self.database_url:
-            return self.database_url
-        return f"sqlite:///{(self.state_dir / 'robobpp.sqlite3').resolve()}"
 
     @property
     def worker_slots(self) -> int:

@@ -26,16 +26,17 @@ from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.schemas import MAX_SUBMISSION_LOOKAHEAD
-from robobpp.scoring.metrics import METRICS, PHYSICAL
+from robobpp.scoring.metrics import METRICS
 from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SessionDep, SettingsDep, in_read_session
 from robobpp.server.api.leaderboards import board_cache, cached_body, known_lookaheads
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, progress
-from robobpp.server.services.submissions import finished_views
 from robobpp.server.site import account, operator
 from robobpp.server.site.render import not_found, render, root, with_csrf
 from robobpp.server.site.session import Viewer, load_viewer, resolved_in_handler, viewer
+from robobpp.server.state import state_of
+from robobpp.vocabulary import ACTIVE_SUBMISSION, CLOSED, PHYSICAL, BoardTrack, Loop, board_loop, has_boards
 from robobpp.web import SETTING_TITLES, environment, tables
 from robobpp.web.trace import TraceError, viewer_payload
 
@@ -43,9 +44,7 @@ router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
 router.include_router(account.router)
 router.include_router(operator.router)
 
-Track = Literal["private", "public"]
 #: ``closed`` (the benchmark, the default) or ``paper``: the physical boards under the paper protocol.
-Protocol = Literal["closed", "paper"]
 DatasetPath = Annotated[str, Path(max_length=32)]
 SettingPath = Annotated[str, Path(max_length=16)]
 #: Termination reasons that are not the policy's fault or are plain endings, for colouring badges.
@@ -75,14 +74,14 @@ PAPER_LOOKAHEAD = (
 async def overall_page(
     request: Request,
     settings: SettingsDep,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     page: Page = 1,
-    protocol: Protocol = "closed",
+    protocol: Loop = CLOSED,
     lookahead: Lookahead = 0,
 ) -> HTMLResponse:
     datasets, setting_names = _board_names(settings)
-    if lookahead and protocol != "closed":
+    if not has_boards(protocol, lookahead):
         return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
@@ -119,7 +118,7 @@ async def overall_page(
 
 def _status(request: Request, settings: Any) -> dict[str, Any]:
     """The demo, the backlog and baselines queued again, as the boards' pages say them (services/progress.py)."""
-    with request.app.state.runtime.read_session() as session:
+    with state_of(request.app).runtime.read_session() as session:
         return progress.page_status(session, settings)
 
 
@@ -160,7 +159,7 @@ async def _static(request: Request, key: tuple[Any, ...], build: Callable[[], HT
     who = viewer(request)
     if who.signed_in or who.nonce:
         return await run_in_threadpool(build)
-    pages: dict[tuple[Any, ...], bytes] = request.app.state.__dict__.setdefault("_static_pages", {})
+    pages: dict[tuple[Any, ...], bytes] = state_of(request.app).static_pages
     key = (*key, root(request))
     if key not in pages:
         pages[key] = bytes((await run_in_threadpool(build)).body)
@@ -173,17 +172,17 @@ async def board_page(
     dataset: DatasetPath,
     setting: SettingPath,
     settings: SettingsDep,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     page: Page = 1,
-    protocol: Protocol = "closed",
+    protocol: Loop = CLOSED,
     lookahead: Lookahead = 0,
 ) -> HTMLResponse:
     datasets, setting_names = _board_names(settings)
     if dataset not in datasets or setting not in setting_names:
         return not_found(request, f"There is no leaderboard for dataset “{dataset}” and setting “{setting}”.")
-    served = queries.board_protocol(setting, protocol)  # Math Pack: one board for both
-    if lookahead and served != "closed":
+    served = board_loop(setting, protocol)  # Math Pack: one board for both
+    if not has_boards(served, lookahead):
         return not_found(request, PAPER_LOOKAHEAD)
 
     def build(cache: BoardCache) -> HTMLResponse:
@@ -198,7 +197,7 @@ async def board_page(
             lookahead=lookahead,
         )
         title = f"{DATASETS[dataset].title} · {SETTING_TITLES[setting]}"
-        if served != "closed":
+        if served != CLOSED:
             title += " · paper protocol"
         if lookahead:
             title += f" · lookahead {lookahead}"
@@ -258,15 +257,17 @@ def _visible(request: Request, session: Session, submission_id: int) -> Submissi
 def _page_view(request: Request, session: Session, sub: Submission, owner: bool) -> dict[str, Any]:
     """The submission as the API returns it; a baseline seen by the public loses its policy URL."""
     view = dict(
-        finished_views(request.app.state).get(("view",), sub, lambda: queries.submission_view(session, sub))
+        state_of(request.app).finished_views.get(
+            ("view",), sub, lambda: queries.submission_view(session, sub)
+        )
     )
     if not owner:
         view.pop("policy_url", None)
     view["queue"] = waiting.queue_place(
         session,
         sub,
-        slots=request.app.state.settings.worker_slots,
-        per_worker=request.app.state.settings.episodes_per_worker,
+        slots=state_of(request.app).settings.worker_slots,
+        per_worker=state_of(request.app).settings.episodes_per_worker,
     )
     return view
 
@@ -303,7 +304,7 @@ def _submission_page(request: Request, session: Session, submission_id: int) -> 
         who.name,
         published,
     )
-    body = finished_views(request.app.state).get(
+    body = state_of(request.app).finished_views.get(
         kind, sub, lambda: bytes(_render_submission(request, session, sub, owner, cache, csrf_slot=True).body)
     )
     return with_csrf(request, body)
@@ -336,19 +337,19 @@ def _render_submission(
             bootstrap.append(board)
         elif board["unranked"]:  # failed or partial: the board's reason for ranking it apart
             apart[key] = board["unranked"][0]
-    closed = [r for r in view["runs"] if r["protocol"] == "closed"]  # the radar: the benchmark's boards
+    closed = [r for r in view["runs"] if r["protocol"] == CLOSED]  # the radar: the benchmark's boards
     # the results table lists a paper-protocol run right under its closed-loop run
     place = {(r["dataset"], r["setting"]): i for i, r in enumerate(closed)}
     view = {
         **view,
         "runs": sorted(
             view["runs"],
-            key=lambda r: (place.get((r["dataset"], r["setting"]), len(place)), r["protocol"] != "closed"),
+            key=lambda r: (place.get((r["dataset"], r["setting"]), len(place)), r["protocol"] != CLOSED),
         ),
     }
     public = sub.track == "public"
     reasons = {**TERMINATION_REASONS, **EXTRA_REASONS}
-    views = finished_views(request.app.state)
+    views = state_of(request.app).finished_views
 
     def episode_table() -> tuple[Markup, dict[str, list[str] | list[int]]]:
         """The episode table and the utilisation histogram: a finished submission's are built once."""
@@ -374,7 +375,7 @@ def _render_submission(
         return Markup(html), tables.histogram([u for u in utilisation if u is not None])
 
     table, histogram = views.get(("page-episodes", owner, public, root(request)), sub, episode_table)
-    closed_entries = {(d, s): e for (d, s, p), e in entries.items() if p == "closed"}
+    closed_entries = {(d, s): e for (d, s, p), e in entries.items() if p == CLOSED}
     charts = {"radar": tables.radar_groups(closed, closed_entries), "utilization": histogram}
     ran = {r["setting"] for r in view["runs"]}
     columns = [m for m in METRICS if ran & set(m.settings)]
@@ -388,7 +389,7 @@ def _render_submission(
         owner=owner,
         site=str(request.base_url).rstrip("/"),
         can_cancel=owner
-        and view["status"] in ("queued", "running")
+        and view["status"] in ACTIVE_SUBMISSION
         and (sub.track != "verify" or viewer(request).admin),
         episodes_table=table,
         ranks=ranks,
@@ -410,7 +411,7 @@ def _standing(
     ranks, and the board as seen from that submission alone: its bootstrap (groups, resamples, confidence)
     and, for an entry listed apart, its ``unranked`` row with the board's reason. None where no board can
     show the run (a lookahead K > 0 has no paper-protocol boards)."""
-    if sub.lookahead and queries.board_protocol(setting, protocol) != "closed":
+    if not has_boards(protocol, sub.lookahead, setting):
         return None
     entry, of = cache.ranked_entry(dataset, setting, sub.track, protocol, sub.id, sub.lookahead)
     for attempt in (0, 1):
@@ -465,15 +466,15 @@ def _submission_status(request: Request, session: Session, submission_id: int) -
             status_code=404,
             headers={"Cache-Control": "no-store"},
         )
-    view = finished_views(request.app.state).get(
+    view = state_of(request.app).finished_views.get(
         ("view",), sub, lambda: queries.submission_view(session, sub)
     )
     runs = [{k: r[k] for k in ("dataset", "setting", "status", "episodes_total")} for r in view["runs"]]
     queue = waiting.queue_place(
         session,
         sub,
-        slots=request.app.state.settings.worker_slots,
-        per_worker=request.app.state.settings.episodes_per_worker,
+        slots=state_of(request.app).settings.worker_slots,
+        per_worker=state_of(request.app).settings.episodes_per_worker,
     )
     if queue is not None and queue["estimated_start"] is not None:
         queue = {**queue, "estimated_start": queue["estimated_start"].isoformat()}
@@ -536,7 +537,7 @@ def replay_page(
         )
     base = root(request)
     heading = f"{sub.name} · {ep.dataset} · {ep.setting} · group {ep.group}"
-    if ep.protocol != "closed":  # the Math Pack actions replayed
+    if ep.protocol != CLOSED:  # the Math Pack actions replayed
         heading += " · paper protocol"
     crumbs = [("Leaderboard", f"{base}/")]
     if owner or sub.participant.is_builtin:
@@ -548,14 +549,14 @@ def replay_page(
 
 @router.get("/reproduction", response_class=HTMLResponse)
 async def reproduction_page(
-    request: Request, settings: SettingsDep, track: Track = "private"
+    request: Request, settings: SettingsDep, track: BoardTrack = "private"
 ) -> HTMLResponse:
     from robobpp.paper import paper_tables
     from robobpp.policies import TITLES
     from robobpp.server.services.reproduction import reproduction
 
     def build(_cache: BoardCache) -> HTMLResponse:
-        with request.app.state.runtime.read_session() as session:
+        with state_of(request.app).runtime.read_session() as session:
             data = reproduction(session, track)
         titles = {**paper_tables().methods, **TITLES}
         return render(

@@ -13,6 +13,7 @@ from robobpp.db import queries
 from robobpp.db.models import Participant
 from robobpp.server.config import Settings
 from robobpp.server.ratelimit import AuthLimits, client_address, token_prefix
+from robobpp.server.runtime import Runtime
 
 
 @dataclass(slots=True)
@@ -29,11 +30,10 @@ class Principal:
         return self.participant.id if self.participant else None
 
 
+# The services import Principal, and the app's state names the services' caches: this module reads the state
+# untyped (robobpp.server.state.AppState declares what it reads), so that the state can name the services.
 def auth_limit(request: HTTPConnection) -> AuthLimits:
-    limit = getattr(request.app.state, "auth_limit", None)
-    if limit is None:
-        settings: Settings = request.app.state.settings
-        limit = request.app.state.auth_limit = AuthLimits(settings.auth_failures_per_minute, 60.0)
+    limit: AuthLimits = request.app.state.auth_limit
     return limit
 
 
@@ -60,7 +60,8 @@ def principal_for_token(request: HTTPConnection, token: str) -> Principal | None
         if is_admin_token(request, token):
             return Principal(None, admin=True)
         # A short transaction of its own: handlers that call the network (URL probes) must not hold one open.
-        with request.app.state.runtime.read_session() as session:
+        runtime: Runtime = request.app.state.runtime
+        with runtime.read_session() as session:
             row = queries.active_token(session, token)
             if row is not None:
                 return Principal(row.participant, token_id=row.id)

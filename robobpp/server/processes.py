@@ -39,6 +39,7 @@ from multiprocessing.process import BaseProcess
 from typing import Any
 
 from robobpp import logs
+from robobpp.server.state import state_of
 from robobpp.worker.lifeline import Lifeline
 
 log = logging.getLogger("robobpp.server")
@@ -94,7 +95,7 @@ def api_process(
     logs.configure()
     settings = Settings(**overrides)
     app = create_app(settings, start_workers=False, first_start=False)
-    app.state.runtime.executor = SupervisorsWorkers(workers_alive, lifeline)
+    state_of(app).runtime.executor = SupervisorsWorkers(workers_alive, lifeline)
     config = uvicorn.Config(
         app,
         log_level="info",

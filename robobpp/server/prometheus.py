@@ -31,6 +31,8 @@ from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from robobpp.server.state import state_of
+
 FINISHED_SUBMISSIONS = ("completed", "failed", "cancelled")
 #: Request latency buckets (s): the 100 ms page target is one of the edges.
 LATENCY_BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
@@ -66,7 +68,7 @@ class _QueueCollector(Collector):
             labels=["track"],
         )
         try:
-            with self.app.state.runtime.read_session() as session:  # one transaction for the whole scrape
+            with state_of(self.app).runtime.read_session() as session:  # one transaction for the whole scrape
                 queue, active, marker = queries.queue_snapshot(session)  # one round trip
                 if self._finished is None or self._finished[0] != marker:
                     finished = queries.submission_status_counts(session, FINISHED_SUBMISSIONS)
@@ -205,7 +207,7 @@ def install_metrics(app: FastAPI) -> None:
     )
     rendered = _RenderedRequests(_every_process(requests_registry))
     registry.register(_QueueCollector(app))
-    app.state.metrics_registry = registry
+    state_of(app).metrics_registry = registry
 
     app.add_middleware(_CountRequests, requests=requests, latency=latency, rendered=rendered)
 
@@ -213,7 +215,7 @@ def install_metrics(app: FastAPI) -> None:
     def metrics(request: Request) -> Response:
         # The queue's size, request counts and latencies per route are the operator's: they map activity
         # (who submits when, what is slow) for anyone else. Public only when ROBOBPP_METRICS_PUBLIC says so.
-        settings = request.app.state.settings
+        settings = state_of(request.app).settings
         if not settings.metrics_public and not _is_admin(request, settings.effective_admin_token):
             return Response(
                 "metrics need the admin token (Authorization: Bearer …)\n",

@@ -12,9 +12,7 @@ from robobpp.core import FinalBox
 from robobpp.extras import require
 from robobpp.sim.base import Setting, StepOutcome
 from robobpp.sim.math_pack import MATH_RULES_VERSION
-
-SETTINGS: tuple[str, ...] = ("math", "physics", "execution")
-
+from robobpp.vocabulary import SETTINGS  # re-exported: the settings make_setting knows
 
 #: The packages each setting needs beyond the SDK, and the extra that brings them.
 NEEDS: dict[str, tuple[tuple[str, ...], str, str]] = {

@@ -14,16 +14,17 @@ from typing import Any
 import jinja2
 
 from robobpp.schemas import start_estimate_text
+from robobpp.vocabulary import CLOSED, PAPER
 
 WEB_DIR = Path(__file__).resolve().parent
 TEMPLATES_DIR = WEB_DIR / "templates"
 STATIC_DIR = WEB_DIR / "static"
 
 SETTING_TITLES = {"math": "Math Pack", "physics": "Physics Pack", "execution": "Execution Pack"}
-#: How each protocol is labelled wherever a physical setting's figures are shown (docs/web.md).
-PROTOCOL_TITLES = {"closed": "closed loop (the benchmark)", "paper": "paper protocol (plan in Math, replay)"}
+#: How each loop (robobpp.vocabulary.Loop) is labelled wherever a physical setting's figures are shown (docs/web.md).
+LOOP_TITLES = {CLOSED: "closed loop (the benchmark)", PAPER: "paper protocol (plan in Math, replay)"}
 #: The same, where a table cell has little room (the full title goes in its tooltip).
-PROTOCOL_SHORT = {"closed": "closed loop", "paper": "paper protocol"}
+LOOP_SHORT = {CLOSED: "closed loop", PAPER: "paper protocol"}
 
 
 def _number(value: Any) -> float | None:
@@ -91,6 +92,6 @@ def environment() -> jinja2.Environment:
     env.filters["metric"] = fmt_metric
     env.filters["start_estimate"] = start_estimate_text
     env.globals["SETTING_TITLES"] = SETTING_TITLES
-    env.globals["PROTOCOL_TITLES"] = PROTOCOL_TITLES
-    env.globals["PROTOCOL_SHORT"] = PROTOCOL_SHORT
+    env.globals["LOOP_TITLES"] = LOOP_TITLES
+    env.globals["LOOP_SHORT"] = LOOP_SHORT
     return env

@@ -31,7 +31,7 @@ from robobpp.worker.celery_names import (
     queue_of,
     task_id,
 )
-from robobpp.worker.options import WorkerOptions, worker_options
+from robobpp.worker.options import WorkerOptions, WorkerSettings, worker_options
 
 SUPPORTED_SCHEMES = ("redis", "rediss", "amqp", "amqps", "pyamqp")
 
@@ -116,9 +116,9 @@ def make_celery(
     return app
 
 
-def app_from_settings(settings: Any) -> Celery:
-    """The app for a settings object with ``broker_url``, ``celery_queue`` and the worker's options
-    (:class:`robobpp.server.config.Settings`; duck-typed so this module never imports the server)."""
+def app_from_settings(settings: WorkerSettings) -> Celery:
+    """The app for a worker's settings (the server's :class:`robobpp.server.config.Settings` are some): its
+    broker, queue and options."""
     if not settings.broker_url:
         raise BrokerURLError("ROBOBPP_BROKER_URL is empty: the Celery executor needs a broker")
     return make_celery(

@@ -33,6 +33,7 @@ from robobpp.db import work
 from robobpp.db.models import EpisodeRow, utcnow
 from robobpp.db.session import make_engine, make_session_factory
 from robobpp.worker.celery_names import options_of, queue_of
+from robobpp.worker.options import WorkerSettings
 from robobpp.worker.outage import OutageLog
 from robobpp.worker.tasks import enqueue
 
@@ -256,7 +257,7 @@ def count_workers(app: Celery, timeout: float = 1.0) -> int:
     return len(replies)
 
 
-def executor_from_settings(settings: object) -> CeleryExecutor:
+def executor_from_settings(settings: WorkerSettings) -> CeleryExecutor:
     """The server's hook: ``Settings`` with a broker URL → a started-on-demand executor."""
     from robobpp.worker.celery_app import app_from_settings
 

@@ -21,7 +21,7 @@ episode task on a pool of ``episodes_per_worker`` threads, and each task takes i
 the threads are Celery's and the claim loop is the broker's delivery; the rule and the bounds are these.
 
 Bounded per process (``episodes_per_worker``; 1 is one episode at a time, exactly as before) and per participant
-(``max_running_per_participant``, checked by the claim over all workers). Each episode keeps its own policy
+(``participant_max_running``, checked by the claim over all workers). Each episode keeps its own policy
 connection, simulator world and lease thread (:func:`robobpp.worker.run.run_claimed`, as before): claims,
 heartbeats and completions are the same SQL calls under the same lease tokens, so leases, retries and
 exactly-once completion hold as before. A worker process that dies takes its episodes with it; they share the
@@ -127,7 +127,7 @@ class Multiplexer:
                     self.worker,
                     lease_s=self.options.lease_s,
                     max_attempts=self.options.max_attempts,
-                    max_running_per_participant=self.options.max_running_per_participant,
+                    max_running_per_participant=self.options.participant_max_running,
                 )
             if claim is None:
                 return None

@@ -22,10 +22,11 @@ from typing import Any, Protocol
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from robobpp.core import EpisodeSpec
 from robobpp.db import work
 from robobpp.db.work import Claim
-from robobpp.episode import EpisodeResult, StepRecord, run_episode
+from robobpp.episode import StepRecord, run_episode
+from robobpp.replay import math_result_of, replay_math_result
+from robobpp.vocabulary import PAPER
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.outage import OutageLog
 from robobpp.worker.specs import episode_spec
@@ -188,7 +189,7 @@ def run_claimed(
 
     ``gate``: held by the caller; let go of while the episode waits on a participant's policy (never on a
     built-in's, nor during a replay), held again before the episode computes on."""
-    if claim.protocol == "paper":
+    if claim.protocol == PAPER:
         return replay_claimed(factory, claim, settings)
     try:
         spec = episode_spec(
@@ -282,8 +283,6 @@ def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: Worke
             plan = work.episode_plan(s, claim.episode_id)
         if plan is None:
             raise RuntimeError("the paper-protocol episode has no plan (its Math Pack episode left none)")
-        from robobpp.replay import replay_math_result
-
         lease.start()
         result = replay_math_result(math_result_of(plan, spec), spec, claim.setting)
     except Exception as exc:  # noqa: BLE001 - a crash of the simulator: record it, bounded retries
@@ -300,31 +299,6 @@ def replay_claimed(factory: sessionmaker[Session], claim: Claim, settings: Worke
         return work.complete_episode(s, claim.episode_id, claim.token, data, keep_trace=claim.keep_trace)
 
 
-def math_result_of(plan: dict[str, Any], spec: EpisodeSpec) -> EpisodeResult:
-    """The Math Pack episode a plan was taken from, as the replay reads it (actions, timings, ending)."""
-    steps = [
-        StepRecord(**{k: v for k, v in step.items() if v is not None or k == "action"})
-        for step in plan["steps"]
-    ]
-    return EpisodeResult(
-        episode_id=spec.episode_id,
-        dataset=spec.dataset,
-        split=spec.split,
-        group=spec.group,
-        setting="math",
-        policy=plan.get("policy") or "",
-        seed=int(plan.get("seed") or spec.seed),
-        boxes_total=len(spec.boxes),
-        boxes_placed=int(plan.get("boxes_placed") or 0),
-        termination=plan.get("termination") or "",
-        termination_detail=plan.get("termination_detail") or "",
-        metrics={},
-        counters={},
-        container={},
-        steps=steps,
-    )
-
-
 def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worker: str) -> bool | None:
     """Claim the next episode and run it. ``None`` when there was nothing to do."""
     with factory() as s, s.begin():
@@ -333,7 +307,7 @@ def claim_and_run(factory: sessionmaker[Session], settings: WorkerOptions, worke
             worker,
             lease_s=settings.lease_s,
             max_attempts=settings.max_attempts,
-            max_running_per_participant=settings.max_running_per_participant,
+            max_running_per_participant=settings.participant_max_running,
         )
     if claim is None:
         return None

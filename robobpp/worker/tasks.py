@@ -123,7 +123,7 @@ def _claim_and_run(
             lease_s=options.lease_s,
             max_attempts=options.max_attempts,
             episode_id=episode_id,
-            max_running_per_participant=options.max_running_per_participant,
+            max_running_per_participant=options.participant_max_running,
         )
         if claim is None:
             # Still pending means its participant already has its share of episodes running: send it again

@@ -24,6 +24,7 @@ from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import EpisodeRow, Participant, Submission
 from robobpp.db.session import make_engine, make_session_factory
+from robobpp.vocabulary import ACTIVE_SUBMISSION
 
 ROOT = Path(__file__).resolve().parents[2]
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
@@ -229,9 +230,7 @@ def cancel_active_submissions(factory: Any) -> None:
     """Cancel what the module's earlier tests left unfinished: a Celery message is a ticket for the fairest
     episode with one out, so a claim by id may take a leftover instead of the test's own episode."""
     with factory() as s, s.begin():
-        for left in s.execute(
-            select(Submission).where(Submission.status.in_(work.ACTIVE_SUBMISSION))
-        ).scalars():
+        for left in s.execute(select(Submission).where(Submission.status.in_(ACTIVE_SUBMISSION))).scalars():
             work.cancel_submission(s, left)
 
 

@@ -71,22 +71,22 @@ def test_the_task_refuses_a_hostile_payload_before_touching_the_database() -> No
 
 
 def test_worker_command_without_a_broker_fails_clearly(monkeypatch: pytest.MonkeyPatch) -> None:
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
     monkeypatch.delenv("ROBOBPP_BROKER_URL", raising=False)
     monkeypatch.setenv("ROBOBPP_DATABASE_URL", "postgresql+psycopg://postgres@127.0.0.1/test")
-    _register()
+    register_commands()
     result = CliRunner().invoke(app, ["worker", "--concurrency", "1"])
     assert result.exit_code == 2
     assert "ROBOBPP_BROKER_URL" in result.output
 
 
 def test_worker_command_refuses_a_non_broker_url(monkeypatch: pytest.MonkeyPatch) -> None:
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
     monkeypatch.setenv("ROBOBPP_BROKER_URL", "http://127.0.0.1:9/")
     monkeypatch.setenv("ROBOBPP_DATABASE_URL", "postgresql+psycopg://postgres@127.0.0.1/test")
-    _register()
+    register_commands()
     result = CliRunner().invoke(app, ["worker"])
     assert result.exit_code == 2
     assert "redis://" in result.output

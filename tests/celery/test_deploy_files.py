@@ -46,9 +46,9 @@ def _substitute(value: str) -> str:
 
 def _cli_group() -> Any:
     """The click group typer builds (typer vendors its own click, so no isinstance check)."""
-    from robobpp.cli import _register
+    from robobpp.cli import register_commands
 
-    _register()
+    register_commands()
     return typer.main.get_command(cli_app)
 
 

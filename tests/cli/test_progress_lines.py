@@ -38,10 +38,10 @@ def test_on_a_terminal_only_the_bar_is_drawn():
 
 @pytest.mark.network
 def test_evaluate_redirected_to_a_log_prints_progress_lines(real_data, monkeypatch):
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
     monkeypatch.setattr(progress_module, "PROGRESS_LINE_S", 0.0)
-    _register()
+    register_commands()
     result = CliRunner().invoke(
         app, ["evaluate", "--policy", "dbl", "--dataset", "repetitive", "--setting", "math", "--groups", "2"]
     )

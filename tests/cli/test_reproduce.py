@@ -11,7 +11,7 @@ import pytest
 from robobpp.datasets import episode_specs
 from robobpp.episode import EpisodeResult
 from robobpp.policies import load_policy
-from robobpp.replay import run_paper_protocol
+from robobpp.replay import run_paper_loop
 from robobpp.reproduction import EXPECTED
 from tests.cli.test_evaluate import robobpp
 
@@ -88,7 +88,7 @@ def test_evaluate_protocol_reaches_the_json(real_data: Path, tmp_path: Path) -> 
     # the Math plan was run but Math Pack was not asked for: only the replays are reported
     assert [(e["setting"], e["protocol"]) for e in data["episodes"]] == [("physics", "paper")] * 2
     specs = episode_specs("diverse", groups=2)
-    local = [run_paper_protocol(s, load_policy("dbl"), ["physics"])["physics"] for s in specs]
+    local = [run_paper_loop(s, load_policy("dbl"), ["physics"])["physics"] for s in specs]
     for got, want in zip(data["episodes"], local, strict=True):
         assert got["episode_id"] == want.episode_id and got["termination"] == want.termination
         assert got["boxes_placed"] == want.boxes_placed

@@ -79,9 +79,9 @@ def api(server: ServerProcess, token: str) -> Iterator[ServerClient]:
 
 @pytest.fixture(scope="module")
 def cli() -> CliRunner:
-    from robobpp.cli import _register
+    from robobpp.cli import register_commands
 
-    _register()
+    register_commands()
     return CliRunner()
 
 
@@ -321,7 +321,7 @@ def test_a_failed_submission_says_why_it_has_no_score_rank_or_interval(
 def test_a_rank_without_its_interval_yet_says_when_it_comes() -> None:
     """On a large board a new entry's all-entries rank interval waits for the board's next full computation
     (docs/server.md): the line says so rather than pass the rank alone off as certain."""
-    from robobpp.cli.submit import _standing_line
+    from robobpp.cli.submit import standing_line
 
     common: dict[str, Any] = dict(
         dataset="diverse", setting="math", status="completed", metrics={}, metric_keys=[], entries=14
@@ -329,9 +329,9 @@ def test_a_rank_without_its_interval_yet_says_when_it_comes() -> None:
     figures: dict[str, Any] = dict(
         score=0.5, score_low=0.4, score_high=0.6, stable=0.7, stable_low=0.65, stable_high=0.75
     )
-    waiting = _standing_line(Standing(**common, **figures, rank=3, board_status="ranked"))
+    waiting = standing_line(Standing(**common, **figures, rank=3, board_status="ranked"))
     assert "rank 3 of 14 [dim](its rank interval comes with the board's next full computation)[/]" in waiting
-    known = _standing_line(Standing(**common, **figures, rank=3, rank_low=2, rank_high=5))
+    known = standing_line(Standing(**common, **figures, rank=3, rank_low=2, rank_high=5))
     assert "rank 3 [dim](2–5)[/] of 14 · " in known and "full computation" not in known
 
 
@@ -456,6 +456,6 @@ def test_wait_gives_up_on_an_unreachable_server_after_its_patience() -> None:
     ],
 )
 def test_plain_http_to_another_machine_is_flagged(url: str, warn: bool) -> None:
-    from robobpp.cli.submit import _plain_http_elsewhere
+    from robobpp.cli.submit import plain_http_elsewhere
 
-    assert _plain_http_elsewhere(url) is warn
+    assert plain_http_elsewhere(url) is warn

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from robobpp.cli import _register, app
+from robobpp.cli import app, register_commands
 from robobpp.client.check import check_policy_server
 from robobpp.client.loading import load_policy
 from robobpp.client.remote import RemotePolicy
@@ -19,7 +19,7 @@ from tests.client.hostile import HostileServer
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "policy_server.py"
 runner = CliRunner()
-_register()
+register_commands()
 
 
 def _cli(*args: str):

@@ -10,8 +10,9 @@ from pathlib import Path
 from sqlalchemy import select
 
 from robobpp.db.models import EpisodeRow, RunRow, Submission
-from robobpp.db.work import paper_settings, run_figures
+from robobpp.db.work import run_figures
 from robobpp.provenance import recorded_rules
+from robobpp.replay import paper_settings
 from robobpp.scoring.entries import part_of_run
 from robobpp.scoring.stats import group_figures
 from robobpp.server.bootstrap import bootstrap

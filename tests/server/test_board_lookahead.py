@@ -154,12 +154,12 @@ def test_api_pages_cli_and_exports_show_which_lookahead_a_board_is(app: Any) -> 
     assert '<td data-role="rank">1<div class="muted small">of 1</div></td>' in own
 
     # the CLI over HTTP, and its exports
-    from robobpp.cli import _register
     from robobpp.cli import app as cli_app
+    from robobpp.cli import register_commands
     from robobpp.client.api import ServerClient
     from robobpp.client.serve import BackgroundServer
 
-    _register()
+    register_commands()
     cli = CliRunner()
     with BackgroundServer(app) as served:
 

@@ -302,15 +302,15 @@ def test_refresh_boards_command_has_the_worker_recompute(quiet_app, monkeypatch:
     stay served until it has."""
     from typer.testing import CliRunner
 
-    from robobpp.cli import _register
     from robobpp.cli import app as cli_app
+    from robobpp.cli import register_commands
 
     app = quiet_app
     submit(app, "alice", "builtin:random", name="first-entry")
     drain(app)
     assert publisher(app).publish("private") and publisher(app).publish("public")
     monkeypatch.setenv("ROBOBPP_DATABASE_URL", app.state.settings.sqlalchemy_url)
-    _register()
+    register_commands()
     shown = CliRunner().invoke(cli_app, ["db", "refresh-boards", "--track", "private"])
     assert shown.exit_code == 0, shown.output
     assert "recompute 1 track(s)" in shown.output

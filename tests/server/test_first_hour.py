@@ -190,13 +190,13 @@ def test_serve_logs_with_times_and_progress_and_ctrl_c_ends_it_without_a_traceba
 def test_connect_prints_progress_lines_off_a_terminal(make_server, tmp_path, monkeypatch) -> None:
     from typer.testing import CliRunner
 
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
     from robobpp.cli import progress as progress_module
 
     server = make_server(f"sqlite:///{tmp_path / 'connect.sqlite3'}", ROBOBPP_EVALUATE_BASELINES="0")
     token = new_participant(server.client(), "natted")
     monkeypatch.setattr(progress_module, "PROGRESS_LINE_S", 0.0)
-    _register()
+    register_commands()
     result = CliRunner().invoke(
         app,
         ["connect", "dbl", "--dataset", "diverse", "--setting", "math"],

@@ -111,7 +111,7 @@ def _multiplexer(tmp_path, policy_url: str, runner, limit: int = 4):
         work.create_submission(
             s, p, name="x", policy_url=policy_url, datasets=["diverse"], settings=["math"], groups=4
         )
-    options = WorkerOptions(database_url=url, episodes_per_worker=limit, max_running_per_participant=10)
+    options = WorkerOptions(database_url=url, episodes_per_worker=limit, participant_max_running=10)
     return Multiplexer(factory, options, "local:test:1", runner=runner)
 
 

@@ -16,6 +16,7 @@ from robobpp.db import work
 from robobpp.db.migrate import alembic_config, upgrade
 from robobpp.db.models import Base, EpisodeRow, Participant, RunRow, Submission, utcnow
 from robobpp.db.session import make_engine, make_session_factory, transaction
+from robobpp.replay import paper_settings
 from robobpp.worker.options import WorkerOptions
 from robobpp.worker.run import claim_and_run
 from tests.server.conftest import OFFLINE
@@ -80,9 +81,9 @@ def test_runs_and_waiting_replays_are_created_with_the_submission(factory) -> No
     statuses = {(e.setting, e.protocol, e.group): e.status for e in _episodes(factory, sid)}
     assert statuses[("physics", "paper", 0)] == "waiting" and statuses[("math", "closed", 1)] == "pending"
     # no Math Pack, nothing to replay; a verification is compared on closed loop only
-    assert work.paper_settings(["physics", "execution"], "private") == []
-    assert work.paper_settings(["math", "physics"], "verify") == []
-    assert work.paper_settings(["math", "execution"], "private") == ["execution"]
+    assert paper_settings(["physics", "execution"], "private") == []
+    assert paper_settings(["math", "physics"], "verify") == []
+    assert paper_settings(["math", "execution"], "private") == ["execution"]
 
 
 def test_waiting_replays_are_never_claimed_before_their_math_episode(factory) -> None:
@@ -375,11 +376,11 @@ def test_boards_grid_pages_and_api_serve_both_protocols(protocol_app, db_url: st
 
     from typer.testing import CliRunner
 
-    from robobpp.cli import _register
     from robobpp.cli import app as cli_app
+    from robobpp.cli import register_commands
     from robobpp.client.serve import BackgroundServer
 
-    _register()
+    register_commands()
     cli = CliRunner()
     with BackgroundServer(app) as served:
         printed = cli.invoke(
@@ -540,7 +541,7 @@ def real_spec(dataset: str, split: str, group: int, groups: int):
 def test_the_server_replay_equals_the_local_paper_protocol(tmp_path, real_data) -> None:
     """The workers' paper-protocol episode is the one ``robobpp evaluate --protocol paper`` plays locally."""
     from robobpp.policies import load_policy
-    from robobpp.replay import run_paper_protocol
+    from robobpp.replay import run_paper_loop
 
     url = f"sqlite:///{tmp_path / 'real.sqlite3'}"
     engine = make_engine(url)
@@ -551,9 +552,7 @@ def test_the_server_replay_equals_the_local_paper_protocol(tmp_path, real_data) 
     while claim_and_run(factory, options, "local:test:1") is not None:
         pass
     replay = next(e for e in _episodes(factory, sid) if e.protocol == "paper")
-    local = run_paper_protocol(real_spec("longboard", "train", 0, 1), load_policy("dbl"), ["physics"])[
-        "physics"
-    ]
+    local = run_paper_loop(real_spec("longboard", "train", 0, 1), load_policy("dbl"), ["physics"])["physics"]
     assert replay.status == "done" and local.protocol == "paper"
     assert (replay.termination, replay.boxes_placed, replay.physics_version) == (
         local.termination,

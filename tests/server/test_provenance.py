@@ -124,9 +124,9 @@ def test_submissions_runs_boards_and_exports_carry_provenance(make_server, polic
     assert shown.count('data-role="entries-submitted"') == 1 and "best of 2" in shown  # the best view
     assert 'id="provenance"' in page and "math_rules" in page and "secret (the test draw)" in page
 
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
-    _register()
+    register_commands()
     env = {"ROBOBPP_SERVER": server.url, "ROBOBPP_TOKEN": "", "ROBOBPP_POLICY_SECRET": ""}
     runner = CliRunner()
 

@@ -108,9 +108,9 @@ def _commands(code: str) -> list[list[str]]:
 
 @functools.cache
 def _cli() -> Any:
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
-    _register()
+    register_commands()
     return typer.main.get_command(app)
 
 

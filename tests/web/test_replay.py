@@ -128,9 +128,9 @@ def test_robobpp_view_writes_a_self_contained_page(
 ) -> None:
     from typer.testing import CliRunner
 
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
-    _register()
+    register_commands()
     out = tmp_path / "viewer.html"
     result = CliRunner().invoke(app, ["view", str(trace_file), "--output", str(out), "--no-open"])
     assert result.exit_code == 0, result.output

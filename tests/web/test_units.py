@@ -349,9 +349,9 @@ def test_protocol_page_example_policy_really_packs() -> None:
 def test_view_cli_single_episode_and_bad_file(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from robobpp.cli import _register, app
+    from robobpp.cli import app, register_commands
 
-    _register()
+    register_commands()
     one = tmp_path / "one.json"
     one.write_text(json.dumps(_episode(8)))
     out = tmp_path / "one.html"
@@ -495,7 +495,7 @@ def _reproduction_page(data: dict, docs_url: str) -> str:
             docs_url=docs_url,
             table_captions={},
             data=data,
-            PROTOCOL_TITLES={"paper": "paper protocol", "closed": "closed loop"},
+            LOOP_TITLES={"paper": "paper protocol", "closed": "closed loop"},
             SETTING_TITLES={"physics": "Physics Pack"},
         )
     )

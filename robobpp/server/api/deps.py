@@ -13,13 +13,14 @@ from starlette.concurrency import run_in_threadpool
 from robobpp.server.config import Settings
 from robobpp.server.principal import Principal, auth_refused_for, is_admin_token, principal_for_token
 from robobpp.server.problems import ProblemError
+from robobpp.server.state import state_of
 
 T = TypeVar("T")
 _bearer = HTTPBearer(auto_error=False, description="An API token, or the admin token")
 
 
 async def get_settings(request: Request) -> Settings:  # async: no worker thread for an attribute read
-    settings: Settings = request.app.state.settings
+    settings: Settings = state_of(request.app).settings
     return settings
 
 
@@ -29,7 +30,7 @@ READ_METHODS = frozenset({"GET", "HEAD"})
 
 def get_session(request: Request) -> Iterator[Session]:
     """One transaction per request: committed after the handler, rolled back if it raises."""
-    runtime = request.app.state.runtime
+    runtime = state_of(request.app).runtime
     with runtime.read_session() if request.method in READ_METHODS else runtime.session() as session:
         yield session
 
@@ -90,7 +91,7 @@ async def in_read_session(request: Request, work: Callable[[Session], T]) -> T:
     thread hand-off, not one per dependency (the session's opening and closing, the handler)."""
 
     def run() -> T:
-        with request.app.state.runtime.read_session() as session:
+        with state_of(request.app).runtime.read_session() as session:
             return work(session)
 
     return await run_in_threadpool(run)

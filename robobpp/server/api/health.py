@@ -7,12 +7,14 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy import text
 
+from robobpp.server.state import state_of
+
 router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", summary="Health check (database reachable, workers alive)")
 def healthz(request: Request) -> JSONResponse:
-    runtime = request.app.state.runtime
+    runtime = state_of(request.app).runtime
     try:
         with runtime.read_engine.connect() as connection:
             connection.execute(text("SELECT 1"))

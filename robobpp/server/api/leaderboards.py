@@ -13,31 +13,26 @@ from robobpp.boards.reader import BoardCache
 from robobpp.boards.store import BoardsUnavailable, board_key, grid_key, to_json
 from robobpp.episode import TERMINATION_REASONS
 from robobpp.schemas import (
+    LOOP_HELP,
     MAX_SUBMISSION_LOOKAHEAD,
-    PROTOCOL_HELP,
-    DatasetName,
     Leaderboard,
     OverallGrid,
-    ProtocolName,
     Reproduction,
     ServiceInfo,
-    SettingName,
 )
 from robobpp.scoring.scores import WEIGHTS
 from robobpp.server.api.deps import SettingsDep
 from robobpp.server.problems import ProblemError
 from robobpp.server.runtime import Runtime
+from robobpp.server.state import state_of
+from robobpp.vocabulary import CLOSED, BoardTrack, DatasetName, Loop, SettingName, has_boards
 
 router = APIRouter(tags=["leaderboards"])
-Track = Literal["private", "public"]
 
 
 def board_cache(request: Request) -> BoardCache:
     """The app's reader of the published boards (boards/reader.py)."""
-    cache = getattr(request.app.state, "board_cache", None)
-    if cache is None:
-        cache = request.app.state.board_cache = make_board_cache(request.app.state.runtime)
-    return cache
+    return state_of(request.app).board_cache
 
 
 def make_board_cache(runtime: Runtime, wake: Callable[[], None] | None = None) -> BoardCache:
@@ -100,7 +95,7 @@ def known_lookaheads(cache: BoardCache, track: str) -> list[int] | None:
 
 def lookahead_board(protocol: str, setting: str | None, lookahead: int) -> None:
     """A lookahead K > 0 has closed-loop boards only (docs/server.md, "Boards per lookahead")."""
-    if lookahead and protocol != "closed" and setting != "math":
+    if not has_boards(protocol, lookahead, setting):
         raise ProblemError(
             404,
             "not-found",
@@ -114,7 +109,7 @@ View = Annotated[
     Literal["best", "all"],
     Query(description="best: each participant's best entry (default); all: every entry"),
 ]
-Protocol = Annotated[ProtocolName, Query(description=PROTOCOL_HELP)]
+LoopQuery = Annotated[Loop, Query(description=LOOP_HELP)]
 Limit = Annotated[int, Query(ge=1, le=500)]
 Offset = Annotated[int, Query(ge=0, le=10**7)]
 Lookahead = Annotated[
@@ -136,11 +131,11 @@ Lookahead = Annotated[
 async def overall(
     request: Request,
     settings: SettingsDep,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     limit: Limit = 50,
     offset: Offset = 0,
-    protocol: Protocol = "closed",
+    protocol: LoopQuery = CLOSED,
     lookahead: Lookahead = 0,
 ) -> Response:
     lookahead_board(protocol, None, lookahead)
@@ -164,15 +159,15 @@ async def board(
     request: Request,
     dataset: DatasetName,
     setting: SettingName,
-    track: Track = "private",
+    track: BoardTrack = "private",
     view: View = "best",
     limit: Limit = 50,
     offset: Offset = 0,
     submission: Annotated[int | None, Query(ge=1, le=2**62, description="Only this submission")] = None,
-    protocol: Protocol = "closed",
+    protocol: LoopQuery = CLOSED,
     lookahead: Lookahead = 0,
 ) -> Response:
-    settings_ = request.app.state.settings
+    settings_ = state_of(request.app).settings
     if dataset not in settings_.datasets or setting not in settings_.enabled_settings:
         raise ProblemError(404, "not-found", "Not found", f"this server has no {dataset} × {setting} board")
     lookahead_board(protocol, setting, lookahead)
@@ -195,11 +190,11 @@ async def board(
     response_model=Reproduction,
     summary="The paper's baselines under the paper protocol beside the paper's published tables",
 )
-async def reproduction_route(request: Request, track: Track = "private") -> Response:
+async def reproduction_route(request: Request, track: BoardTrack = "private") -> Response:
     from robobpp.server.services.reproduction import reproduction
 
     def build(_cache: BoardCache) -> bytes:
-        with request.app.state.runtime.read_session() as session:
+        with state_of(request.app).runtime.read_session() as session:
             return to_json(reproduction(session, track))
 
     # the baselines' runs change only when their boards do: built once per publication of the track

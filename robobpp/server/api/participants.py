@@ -10,6 +10,7 @@ from starlette.concurrency import run_in_threadpool
 from robobpp.schemas import Me, ParticipantCreate, TokenCreated, TokenPublic
 from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, SettingsDep
 from robobpp.server.services import accounts
+from robobpp.server.state import state_of
 
 router = APIRouter(tags=["participants"])
 Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
@@ -41,7 +42,7 @@ async def me(request: Request, principal: PrincipalDep, settings: SettingsDep) -
         return Me(admin=principal.admin, participant=None)
 
     def read() -> Me:
-        with request.app.state.runtime.read_session() as session:
+        with state_of(request.app).runtime.read_session() as session:
             return accounts.me_of(session, principal, settings)
 
     return await run_in_threadpool(read)

@@ -26,34 +26,32 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import hashlib
 import json
 import logging
-from collections import defaultdict
 from typing import Any
 
 from fastapi import APIRouter, WebSocket
 from sqlalchemy import select
+from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 
 from robobpp import protocol as P
 from robobpp.db.models import EpisodeRow, Submission
-from robobpp.db.work import ACTIVE_SUBMISSION
 from robobpp.server.principal import auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
 from robobpp.server.relay_bus import (
     FRAME,
     PAIR,
     PAIRED,
-    PARTICIPANT_BUS_CALLS,
     RELEASE,
     WATCH_S,
     Endpoint,
-    LocalBus,
-    RedisBus,
 )
 from robobpp.server.relay_bus import GONE as GONE_MESSAGE
 from robobpp.server.relay_bus import TOO_LARGE as TOO_LARGE_MESSAGE
+from robobpp.server.relay_hub import PullHub
+from robobpp.server.state import state_of
+from robobpp.vocabulary import ACTIVE_SUBMISSION
 
 log = logging.getLogger("robobpp.server.pull")
 router = APIRouter(tags=["pull"])
@@ -73,88 +71,9 @@ MAX_WAIT_S = 300.0
 PAIR_REPLY_S = 5.0
 
 
-class PullHub:
-    """This process's side of the relay: its bus and the caps' counts of its open client connections.
-
-    The caps are per API process, like the connection limits (server/connections.py): they bound what one
-    process holds open (file handles, memory), which is what a flood of idle sockets costs. Below them, each
-    participant's connections share :data:`~robobpp.server.relay_bus.PARTICIPANT_BUS_CALLS` bus calls in
-    flight (:meth:`bus_slot`): however many connections one participant opens at once, it holds that many
-    of the broker's pooled connections at most, and the others' calls still find one.
-    """
-
-    def __init__(self, bus: LocalBus) -> None:
-        self.bus = bus
-        self._started = False
-        self._starting = asyncio.Lock()
-        #: Open client connections (idle or busy) per submission and per participant: the caps' counts.
-        self.open_per_submission: defaultdict[int, int] = defaultdict(int)
-        self.open_per_participant: defaultdict[int, int] = defaultdict(int)
-        self._bus_slots: dict[int, asyncio.Semaphore] = {}
-
-    def bus_slot(self, participant_id: int) -> asyncio.Semaphore:
-        """What a participant's client connections hold around each call to the bus (see the class)."""
-        slot = self._bus_slots.get(participant_id)
-        if slot is None:
-            slot = self._bus_slots[participant_id] = asyncio.Semaphore(PARTICIPANT_BUS_CALLS)
-        return slot
-
-    async def start(self) -> PullHub:
-        async with self._starting:
-            if not self._started:
-                await self.bus.start()
-                self._started = True
-        return self
-
-    def admit(
-        self, submission_id: int, participant_id: int, per_submission: int, per_participant: int
-    ) -> bool:
-        """Count a new client connection in, unless its submission or participant is at its cap (a flood of
-        idle sockets costs file handles and memory, and serves nothing: one per episode served at once)."""
-        if (
-            self.open_per_submission[submission_id] >= per_submission
-            or self.open_per_participant[participant_id] >= per_participant
-        ):
-            return False
-        self.open_per_submission[submission_id] += 1
-        self.open_per_participant[participant_id] += 1
-        return True
-
-    def leave(self, submission_id: int, participant_id: int) -> None:
-        for table, key in (
-            (self.open_per_submission, submission_id),
-            (self.open_per_participant, participant_id),
-        ):
-            table[key] -= 1
-            if table[key] <= 0:
-                del table[key]
-        if participant_id not in self.open_per_participant:
-            self._bus_slots.pop(participant_id, None)
-
-
-def make_bus(broker_url: str, database_url: str) -> LocalBus:
-    """The bus a deployment's settings call for: Redis or RabbitMQ when one is configured, else in-process.
-
-    ``database_url`` names the deployment: every API process of one deployment shares its database, and two
-    deployments sharing one broker (tests, staging beside production) never see each other's sockets.
-    """
-    if not broker_url:
-        return LocalBus()
-    deployment = hashlib.sha256(database_url.encode()).hexdigest()[:16]
-    if broker_url.startswith(("amqp://", "amqps://", "pyamqp://")):
-        from robobpp.server.relay_amqp import AmqpBus
-
-        return AmqpBus(broker_url, deployment)
-    return RedisBus(broker_url, deployment)
-
-
-async def hub_of(app: Any) -> PullHub:
-    """The app's relay hub, its bus started on first use (the app's lifespan closes it)."""
-    hub = getattr(app.state, "pull_hub", None)
-    if hub is None:
-        settings = app.state.settings
-        hub = app.state.pull_hub = PullHub(make_bus(settings.pull_bus_url, settings.sqlalchemy_url))
-    return await hub.start()
+async def hub_of(app: Starlette) -> PullHub:
+    """The app's relay hub (made with the app), its bus started on first use (the app's lifespan closes it)."""
+    return await state_of(app).pull_hub.start()
 
 
 def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[int, int]:
@@ -168,7 +87,7 @@ def _client_submission(ws: WebSocket, token: str, submission_id: int) -> tuple[i
         raise ProblemError(
             401, "unauthorized", "Unauthorized", "the API token is not valid (unknown or revoked)"
         )
-    with ws.app.state.runtime.session() as session:
+    with state_of(ws.app).runtime.session() as session:
         sub = session.get(Submission, submission_id)
         if sub is None or not (principal.admin or sub.participant_id == principal.participant_id):
             raise ProblemError(404, "not-found", "Not found", f"no submission {submission_id} of yours")
@@ -209,7 +128,7 @@ async def client_connects(ws: WebSocket, submission: int) -> None:
     except ProblemError as exc:
         await ws.close(FINISHED if exc.status == 410 else REFUSED, f"{exc.title}: {exc.detail}"[:120])
         return
-    settings = ws.app.state.settings
+    settings = state_of(ws.app).settings
     hub = await hub_of(ws.app)
     if not hub.admit(
         submission_id, participant_id, settings.pull_max_per_submission, settings.pull_max_per_participant
@@ -404,7 +323,7 @@ async def _to_worker(ws: WebSocket, endpoint: Endpoint, peer: str) -> int:
 @router.websocket("/pull/episodes/{episode_id}")
 async def worker_drives(ws: WebSocket, episode_id: int, wait: float = 30.0) -> None:
     """A worker holding the episode's lease: paired with an idle client of its submission, then relayed."""
-    runtime = ws.app.state.runtime
+    runtime = state_of(ws.app).runtime
     lease = ws.headers.get("x-robobpp-lease", "")
     submission_id = await run_in_threadpool(_worker_submission, runtime, episode_id, lease) if lease else None
     await ws.accept()

@@ -13,10 +13,8 @@ from robobpp.boards.engine import leaderboard
 from robobpp.db import queries, waiting
 from robobpp.db.models import Submission
 from robobpp.schemas import (
-    DatasetName,
     EpisodeDetail,
     EpisodePublic,
-    SettingName,
     SubmissionCreate,
     SubmissionPublic,
 )
@@ -24,7 +22,9 @@ from robobpp.server.api.deps import AdminDep, PrincipalDep, SessionDep, Settings
 from robobpp.server.config import Settings
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, admission, verification
-from robobpp.server.services.submissions import finished_views, listed_forms
+from robobpp.server.services.submissions import listed_forms
+from robobpp.server.state import state_of
+from robobpp.vocabulary import DatasetName, SettingName
 
 router = APIRouter(tags=["submissions"])
 #: Ids are bounded so a huge number is a 422, not an integer overflow inside the database.
@@ -40,7 +40,7 @@ Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
 async def create_submission(
     request: Request, body: SubmissionCreate, principal: PrincipalDep, settings: SettingsDep
 ) -> SubmissionPublic:
-    state = request.app.state
+    state = state_of(request.app)
     return await admission.submit(state.runtime, state.probe_gate, body, principal, settings)
 
 
@@ -52,7 +52,7 @@ async def list_submissions(
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> Response:
     owner = None if principal.admin else principal.participant_id
-    views = finished_views(request.app.state)
+    views = state_of(request.app).finished_views
 
     def listed(session: Session) -> bytes:
         return (
@@ -79,14 +79,14 @@ def _json(session: Session, sub: Submission, slots: int, per_worker: int) -> byt
 async def get_submission(request: Request, submission_id: Id, principal: PrincipalDep) -> Response:
     def one(session: Session) -> bytes:
         sub = access.visible(session, principal, submission_id)
-        return finished_views(request.app.state).get(
+        return state_of(request.app).finished_views.get(
             ("api",),
             sub,
             lambda: _json(
                 session,
                 sub,
-                request.app.state.settings.worker_slots,
-                request.app.state.settings.episodes_per_worker,
+                state_of(request.app).settings.worker_slots,
+                state_of(request.app).settings.episodes_per_worker,
             ),
         )
 
@@ -113,7 +113,7 @@ async def episodes(request: Request, submission_id: Id, principal: PrincipalDep)
     def listed(session: Session) -> bytes:
         sub = access.visible(session, principal, submission_id)
         public = access.seen_by_public(sub, principal)
-        return finished_views(request.app.state).get(
+        return state_of(request.app).finished_views.get(
             ("api-episodes", public),
             sub,
             lambda: _EPISODES.dump_json(
@@ -163,7 +163,7 @@ def verify(
     request: Request, submission_id: Id, principal: AdminDep, settings: SettingsDep
 ) -> SubmissionPublic:
     """Answers the verification submission (track ``verify``); the original's ``verification`` follows it."""
-    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+    with state_of(request.app).runtime.session() as session:  # committed before the answer leaves
         return _verify_one(session, submission_id, settings)
 
 
@@ -188,7 +188,7 @@ def verify_top(
     top: Annotated[int, Query(ge=1, le=50)] = 3,
 ) -> list[SubmissionPublic]:
     """The ``top`` best-ranked private entries that have no verdict and no verification running yet."""
-    with request.app.state.runtime.session() as session:  # committed before the answer leaves
+    with state_of(request.app).runtime.session() as session:  # committed before the answer leaves
         return _verify_top(session, dataset, setting, settings, top)
 
 

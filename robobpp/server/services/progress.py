@@ -19,6 +19,7 @@ from sqlalchemy.orm import Session
 
 from robobpp.db.models import Participant, Submission, utcnow
 from robobpp.db.waiting import Backlog, backlog
+from robobpp.vocabulary import ACTIVE_SUBMISSION, TRACKS
 from robobpp.web import SETTING_TITLES
 
 log = logging.getLogger("robobpp.server")
@@ -28,7 +29,6 @@ POLL_S = 5.0
 #: Seconds between backlog lines while work waits.
 BACKLOG_LINE_S = 60.0
 #: Tracks whose finished submissions are reported (``finished_at`` is indexed with the track).
-TRACKS = ("private", "public", "verify")
 
 
 def duration(seconds: float) -> str:
@@ -163,7 +163,7 @@ def page_status(session: Session, settings: Any) -> dict[str, Any]:
         history.setdefault((sub.policy_url, sub.track), []).append(sub)
     for subs in history.values():
         latest, older = subs[-1], [s for s in subs[:-1] if s.status == "completed"]
-        if latest.status in ("queued", "running") and older:
+        if latest.status in ACTIVE_SUBMISSION and older:
             reason = stale_reason(session, older[-1], settings)
             if reason is not None:
                 again.setdefault(reason, []).append(latest.name)

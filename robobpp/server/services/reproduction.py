@@ -13,8 +13,9 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from robobpp.db import queries
-from robobpp.paper import DATASET_ORDER, PAPER_BASELINES, SETTING_ORDER
+from robobpp.paper import PAPER_BASELINES
 from robobpp.reproduction import Key, compare, with_derived
+from robobpp.vocabulary import DATASETS, PAPER, SETTINGS
 
 BUILTIN_PREFIX = "builtin:"
 
@@ -42,6 +43,6 @@ def reproduction(session: Session, track: str) -> dict[str, Any]:
                 "groups": int((run["extras"] or {}).get("episodes") or 0),
             }
         )
-    order = {name: i for i, name in enumerate((*SETTING_ORDER, *DATASET_ORDER, *PAPER_BASELINES))}
+    order = {name: i for i, name in enumerate((*SETTINGS, *DATASETS, *PAPER_BASELINES))}
     runs.sort(key=lambda r: (order[r["setting"]], order[r["dataset"]], order[r["policy"]]))
-    return {"track": track, "protocol": "paper", "runs": runs, **compare(ours).to_dict()}
+    return {"track": track, "protocol": PAPER, "runs": runs, **compare(ours).to_dict()}

@@ -88,14 +88,6 @@ class FinishedViews:
         return [found[sub.id] if sub.id in found else built[sub.id] for sub in subs]
 
 
-def finished_views(state: Any) -> FinishedViews:
-    """The app's cache (``request.app.state``), created on first use."""
-    views = getattr(state, "finished_views", None)
-    if views is None:
-        views = state.finished_views = FinishedViews()
-    return views
-
-
 def listed_forms(
     views: FinishedViews,
     session: Session,

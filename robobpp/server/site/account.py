@@ -23,10 +23,11 @@ from robobpp.schemas import SubmissionCreate, SubmissionPublic
 from robobpp.server.principal import Principal, auth_refused_for, principal_for_token
 from robobpp.server.problems import ProblemError
 from robobpp.server.services import access, accounts, admission
-from robobpp.server.services.submissions import finished_views, listed_forms
+from robobpp.server.services.submissions import listed_forms
 from robobpp.server.site import session as web_session
 from robobpp.server.site.render import CSRF_SLOT, not_found, redirect, refused, render, root
 from robobpp.server.site.session import Viewer, load_viewer, resolved_in_handler, viewer
+from robobpp.server.state import state_of
 from robobpp.web import environment
 
 router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
@@ -138,7 +139,7 @@ def submission_rows(
 
     # one more than a page: whether an older page exists, without counting every submission
     rows = listed_forms(
-        finished_views(request.app.state),
+        state_of(request.app).finished_views,
         session,
         owner,
         ACCOUNT_PAGE_SIZE + 1,
@@ -158,8 +159,8 @@ Page = Annotated[int, Query(ge=1, le=10**5)]
 @router.get("/account", response_class=HTMLResponse)
 @resolved_in_handler
 def account_page(request: Request, page: Page = 1) -> Response:
-    settings = request.app.state.settings
-    with request.app.state.runtime.read_session() as session:
+    settings = state_of(request.app).settings
+    with state_of(request.app).runtime.read_session() as session:
         who = viewer(request, session)
         principal = principal_of(request, who, session)
         if principal is None:
@@ -192,7 +193,7 @@ def revoke_own_token(request: Request, token_id: Id, csrf: Text = "") -> Respons
     if not web_session.csrf_ok(request, csrf):
         return refused(request, BAD_CSRF)
     try:
-        with request.app.state.runtime.session() as session:
+        with state_of(request.app).runtime.session() as session:
             accounts.revoke_token(session, principal, token_id)
     except ProblemError as exc:
         return problem_page(request, exc)
@@ -204,7 +205,7 @@ def revoke_own_token(request: Request, token_id: Id, csrf: Text = "") -> Respons
 
 
 def _form_defaults(request: Request) -> dict[str, Any]:
-    settings = request.app.state.settings
+    settings = state_of(request.app).settings
     return {
         "name": "",
         "mode": "push",
@@ -219,7 +220,7 @@ def _form_defaults(request: Request) -> dict[str, Any]:
 def _submit_page(
     request: Request, values: dict[str, Any], error: str | None, status_code: int = 200
 ) -> Response:
-    settings = request.app.state.settings
+    settings = state_of(request.app).settings
     return render(
         request,
         "submit.html",
@@ -289,7 +290,7 @@ async def submit(
             if mode == "pull":
                 fields["policy_url"] = None  # a URL left in the hidden push field is not an error
         body = SubmissionCreate.model_validate(fields)
-        state = request.app.state
+        state = state_of(request.app)
         created = await admission.submit(state.runtime, state.probe_gate, body, principal, state.settings)
     except (ProblemError, ValidationError) as exc:
         status = exc.status if isinstance(exc, ProblemError) else 422
@@ -305,7 +306,7 @@ def cancel(request: Request, submission_id: Id, csrf: Text = "") -> Response:
     if not web_session.csrf_ok(request, csrf):
         return refused(request, BAD_CSRF)
     try:
-        with request.app.state.runtime.session() as session:
+        with state_of(request.app).runtime.session() as session:
             access.cancel(session, principal, submission_id)
     except ProblemError as exc:
         if exc.status == 404:

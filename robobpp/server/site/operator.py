@@ -24,6 +24,7 @@ from robobpp.server.site import session as web_session
 from robobpp.server.site.account import BAD_CSRF, Page, Text, problem_page, problem_text, submission_rows
 from robobpp.server.site.render import not_found, redirect, refused, render, root
 from robobpp.server.site.session import load_viewer, resolved_in_handler, viewer
+from robobpp.server.state import state_of
 from robobpp.web import environment
 
 router = APIRouter(include_in_schema=False, dependencies=[Depends(load_viewer)])
@@ -54,12 +55,12 @@ def _participants_page(
     check_admin: bool = False,
 ) -> Response:
     """``check_admin``: the viewer is resolved here, in this page's transaction (the GET route)."""
-    state = request.app.state
+    state = state_of(request.app)
     with state.runtime.read_session() as session:
         if check_admin and not viewer(request, session).admin:
             return not_found(request, "There is no such page.")
         # the counts change only with a new participant, token or submission, or a revoked token
-        version, kept = queries.participants_version(session), getattr(state, "operator_rows", None)
+        version, kept = queries.participants_version(session), state.operator_rows
         if kept is not None and kept[0] == version:
             rows = kept[1]
         else:
@@ -98,7 +99,7 @@ def create_participant(request: Request, name: Text = "", csrf: Text = "") -> Re
         return refusal
     try:
         body = ParticipantCreate.model_validate({"name": name})
-        with request.app.state.runtime.session() as session:
+        with state_of(request.app).runtime.session() as session:
             created = accounts.create_participant(session, body.name)
     except (ProblemError, ValidationError) as exc:
         status = exc.status if isinstance(exc, ProblemError) else 422
@@ -114,7 +115,7 @@ def _participant_page(
     status_code: int = 200,
     page: int = 1,
 ) -> Response:
-    with request.app.state.runtime.read_session() as session:
+    with state_of(request.app).runtime.read_session() as session:
         participant = session.get(Participant, participant_id)
         if participant is None:
             return not_found(request, f"There is no participant {participant_id}.")
@@ -153,7 +154,7 @@ def issue_token(request: Request, participant_id: Id, csrf: Text = "") -> Respon
     if (refusal := _refuse_form(request, csrf)) is not None:
         return refusal
     try:
-        with request.app.state.runtime.session() as session:
+        with state_of(request.app).runtime.session() as session:
             created = accounts.issue_token_for(session, participant_id)
     except ProblemError as exc:
         return problem_page(request, exc)
@@ -165,7 +166,7 @@ def revoke_token(request: Request, token_id: Id, csrf: Text = "") -> Response:
     if (refusal := _refuse_form(request, csrf)) is not None:
         return refusal
     try:
-        with request.app.state.runtime.session() as session:
+        with state_of(request.app).runtime.session() as session:
             token = accounts.revoke_token(session, ADMIN, token_id)
     except ProblemError as exc:
         return problem_page(request, exc)

@@ -29,6 +29,7 @@ from starlette.concurrency import run_in_threadpool
 
 from robobpp.db.models import ApiToken, Participant, WebSession, utcnow
 from robobpp.server.config import Settings
+from robobpp.server.state import state_of
 
 COOKIE = "robobpp_session"
 #: A browser session lasts at most this long; signing in again starts a new one.
@@ -71,7 +72,7 @@ def _load(request: Request) -> dict[str, Any]:
     if not raw or len(raw) > 1024:
         return {}
     try:
-        data = _serializer(request.app.state.settings).loads(raw, max_age=MAX_AGE_S)
+        data = _serializer(state_of(request.app).settings).loads(raw, max_age=MAX_AGE_S)
     except BadSignature:  # also expired (SignatureExpired is a BadSignature)
         return {}
     return data if isinstance(data, dict) else {}
@@ -100,7 +101,7 @@ def reading(request: Request, session: Session | None) -> Iterator[Session]:
     if session is not None:
         yield session
         return
-    with request.app.state.runtime.read_session() as own:
+    with state_of(request.app).runtime.read_session() as own:
         yield own
 
 
@@ -182,7 +183,7 @@ async def load_viewer(request: Request) -> Viewer | None:
 
 def start(request: Request, response: Response, *, token_id: int | None = None, admin: bool = False) -> None:
     """Sign in: a new session row and a fresh nonce (a nonce seen before sign-in is worth nothing after)."""
-    with request.app.state.runtime.session() as session:
+    with state_of(request.app).runtime.session() as session:
         row = WebSession(token_id=None if admin else token_id, admin=admin)
         session.add(row)
         session.flush()
@@ -206,7 +207,7 @@ def end(request: Request, response: Response) -> None:
     working too; the browser's cookie is deleted."""
     session_id = viewer(request).session_id
     if session_id is not None:
-        with request.app.state.runtime.session() as session:
+        with state_of(request.app).runtime.session() as session:
             row = session.get(WebSession, session_id)
             if row is not None and row.revoked_at is None:
                 row.revoked_at = utcnow()
@@ -223,7 +224,7 @@ def csrf_ok(request: Request, token: str) -> bool:
 
 
 def _write(request: Request, response: Response, data: dict[str, Any]) -> None:
-    value = _serializer(request.app.state.settings).dumps(data)
+    value = _serializer(state_of(request.app).settings).dumps(data)
     response.set_cookie(
         COOKIE,
         value,

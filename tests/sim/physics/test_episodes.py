@@ -8,7 +8,7 @@ from robobpp.core import ContainerSpec
 from robobpp.datasets.synthetic import synthetic_episode_specs
 from robobpp.episode import TERMINATION_REASONS, run_episode
 from robobpp.policies import load_policy
-from robobpp.replay import run_paper_protocol
+from robobpp.replay import run_paper_loop
 from tests.sim.physics._physics_specs import repetitive_like
 
 SMALL = ContainerSpec(80, 60, 100)
@@ -56,7 +56,7 @@ def test_dbl_runs_an_80_box_group(source: str) -> None:
         # Physics version 3's DBL kept to supported positions and filled all 80. The reference's DBL tests no
         # support: box 34 goes where it tips off the pallet. Seeing the pile, it does as well as its Math plan
         # replayed blind (the paper protocol), which ends there too.
-        blind = run_paper_protocol(spec, load_policy("dbl"), ["physics"])["physics"]
+        blind = run_paper_loop(spec, load_policy("dbl"), ["physics"])["physics"]
         assert result.termination == blind.termination == "collapse" and result.boxes_placed >= 30
         utilisation, blind_utilisation = (
             result.metrics["space_utilization"],

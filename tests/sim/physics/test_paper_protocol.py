@@ -12,13 +12,13 @@ from robobpp.episode import EpisodeResult, run_episode
 from robobpp.policies import load_policy
 from robobpp.replay import (
     PAPER,
-    PROTOCOLS,
-    check_protocol,
+    check_loop,
     recorded_answers,
     replay_episode,
     replay_math_result,
-    run_paper_protocol,
+    run_paper_loop,
 )
+from robobpp.vocabulary import LOOPS
 from tests.conftest import make_spec
 
 
@@ -49,7 +49,7 @@ def _answers(result: EpisodeResult) -> list[tuple[object, float]]:
 def test_the_replay_plays_exactly_the_math_actions_and_times() -> None:
     # Identical flat boxes on the floor and in a second layer: nothing tips, every box is placed.
     spec = make_spec([(20, 20, 10)] * 12, container=(60, 40, 50), threshold=4.0)
-    runs = run_paper_protocol(spec, load_policy("dbl"), ["physics"])
+    runs = run_paper_loop(spec, load_policy("dbl"), ["physics"])
     math, physics = runs["math"], runs["physics"]
     assert math.protocol == "closed" and math.setting == "math" and math.termination == "completed"
     assert physics.protocol == PAPER and physics.setting == "physics" and physics.policy == "dbl"
@@ -122,7 +122,7 @@ def test_an_infeasible_replayed_action_ends_the_replay(
 def test_an_early_math_ending_is_the_replay_ending() -> None:
     # Math finds no place for the third box (the container is full): the replay places two and ends alike.
     spec = make_spec([(20, 20, 15), (20, 20, 15), (20, 20, 15)], container=(40, 20, 20))
-    runs = run_paper_protocol(spec, load_policy("dbl"), ["physics"])
+    runs = run_paper_loop(spec, load_policy("dbl"), ["physics"])
     math, physics = runs["math"], runs["physics"]
     assert math.termination == "no_feasible_placement" and math.boxes_placed == 2
     assert (physics.termination, physics.termination_detail) == (math.termination, math.termination_detail)
@@ -159,8 +159,8 @@ def test_bad_replays_are_refused_clearly() -> None:
     with pytest.raises(ValueError, match="per-step trace"):
         replay_math_result(EpisodeResult.from_dict(math.to_dict(trace=False)), spec, "physics")
     with pytest.raises(ValueError, match="unknown protocol 'open'"):
-        check_protocol("open")
-    assert PROTOCOLS == ("closed", "paper")
+        check_loop("open")
+    assert LOOPS == ("closed", "paper")
 
 
 def test_results_without_a_protocol_load_as_closed() -> None:
@@ -172,7 +172,7 @@ def test_results_without_a_protocol_load_as_closed() -> None:
 
 def test_the_replay_drives_the_execution_pack_too() -> None:
     spec = make_spec([(30, 30, 20)] * 4, container=(120, 100, 100), threshold=4.0)
-    runs = run_paper_protocol(spec, load_policy("dbl"), ["execution"])
+    runs = run_paper_loop(spec, load_policy("dbl"), ["execution"])
     math, execution = runs["math"], runs["execution"]
     assert execution.protocol == PAPER and execution.setting == "execution"
     assert execution.termination == "completed" and _answers(execution) == _answers(math)

@@ -42,9 +42,6 @@ from robobpp.sim.base import StepOutcome
 from robobpp.sim.math_pack import MathPack
 from robobpp.vocabulary import BOARD_TRACKS, CLOSED, LOOPS, MATH, PAPER, PHYSICAL, Loop
 
-#: The board modules' name of :data:`robobpp.vocabulary.LOOPS` (kept until their rewrite).
-PROTOCOLS = LOOPS
-
 LOOP_DESCRIPTIONS: dict[str, str] = {
     CLOSED: "the policy observes the setting's state at every step (closed loop)",
     PAPER: "the policy plans in Math Pack, its actions are replayed open loop in the setting, as in the paper",
@@ -340,7 +337,6 @@ __all__ = [
     "PAPER_TRACKS",
     "PLAN_KEYS",
     "PLAN_STEP_KEYS",
-    "PROTOCOLS",
     "OpenLoop",
     "Playback",
     "check_loop",

@@ -33,9 +33,9 @@ from robobpp.boards.matrix import BoardMatrix, PartLoader
 from robobpp.boards.ranking import build_board, build_grid
 from robobpp.db import queries
 from robobpp.db.models import Submission
-from robobpp.replay import CLOSED, PAPER, PROTOCOLS
 from robobpp.scoring.entries import EntryPart, entry_part
 from robobpp.scoring.metrics import PHYSICAL
+from robobpp.vocabulary import CLOSED, DATASETS, LOOPS, PAPER, SETTINGS, board_loop
 
 log = logging.getLogger("robobpp.server")
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -51,7 +51,7 @@ _LOOKAHEAD_GRID = "grid-lookahead-"
 def board_id(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> tuple[str, ...]:
     """A board's key in the engine (module docstring): the one place it is built. A Math Pack board is one
     board under both protocols; a lookahead K > 0 has closed-loop boards only."""
-    protocol = queries.board_protocol(setting, protocol)
+    protocol = board_loop(setting, protocol)
     if lookahead:
         if protocol != CLOSED:
             raise ValueError("a lookahead K > 0 has closed-loop boards only")
@@ -85,7 +85,7 @@ def lookahead_of(key: BoardKey) -> int:
 
 def lookahead_protocols(lookahead: int) -> tuple[str, ...]:
     """The protocols a lookahead has boards under: both for 0, the closed loop only for K > 0."""
-    return PROTOCOLS if lookahead == 0 else (CLOSED,)
+    return LOOPS if lookahead == 0 else (CLOSED,)
 
 
 def leaderboard(
@@ -102,7 +102,7 @@ def leaderboard(
     ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
     board is the same under both. ``lookahead``: the board of the submissions that saw that many next boxes
     (0: the leaderboard's)."""
-    protocol = queries.board_protocol(setting, protocol)
+    protocol = board_loop(setting, protocol)
     if lookahead and protocol != CLOSED:
         raise ValueError("a lookahead K > 0 has closed-loop boards only")
     board = build_board(
@@ -116,8 +116,8 @@ def leaderboard(
 def overall_grid(
     session: Session,
     *,
-    datasets: tuple[str, ...] = queries.DATASETS_ORDER,
-    settings: tuple[str, ...] = queries.SETTINGS_ORDER,
+    datasets: tuple[str, ...] = DATASETS,
+    settings: tuple[str, ...] = SETTINGS,
     track: str = "private",
     protocol: str = CLOSED,
     lookahead: int = 0,
@@ -227,8 +227,8 @@ class BoardEngine:
     def __init__(
         self,
         session_factory: SessionFactory,
-        datasets: tuple[str, ...] = queries.DATASETS_ORDER,
-        settings: tuple[str, ...] = queries.SETTINGS_ORDER,
+        datasets: tuple[str, ...] = DATASETS,
+        settings: tuple[str, ...] = SETTINGS,
     ) -> None:
         self.session_factory = session_factory
         self.datasets, self.settings = tuple(datasets), tuple(settings)

@@ -40,9 +40,8 @@ from robobpp.boards.store import (
     row_part,
     version_parts,
 )
-from robobpp.db import queries
 from robobpp.db.models import BoardPart
-from robobpp.replay import CLOSED
+from robobpp.vocabulary import CLOSED, DATASETS, SETTINGS, board_loop
 
 #: Locks a reader spreads its single-flight reads over (:class:`BoardCache`).
 STRIPES = 32
@@ -66,8 +65,8 @@ class BoardCache:
         *,
         refresh_s: float = 0.0,
         wait_s: float = 2.0,
-        datasets: tuple[str, ...] = queries.DATASETS_ORDER,
-        settings: tuple[str, ...] = queries.SETTINGS_ORDER,
+        datasets: tuple[str, ...] = DATASETS,
+        settings: tuple[str, ...] = SETTINGS,
         wake: Callable[[], None] | None = None,
         parts_size: int = 4096,
         responses_size: int = 512,
@@ -406,7 +405,7 @@ class BoardCache:
     ) -> tuple[dict[str, Any] | None, int]:
         """A submission's ranked entry on a board (as served) or None, and how many entries are ranked
         (``lookahead``: the submission's; a lookahead K > 0 has no paper-protocol boards: None, 0)."""
-        if lookahead and queries.board_protocol(setting, protocol) != CLOSED:
+        if lookahead and board_loop(setting, protocol) != CLOSED:
             return None, 0
         for attempt in (0, 1):
             try:

@@ -29,12 +29,11 @@ from sqlalchemy.orm import Session
 from robobpp import __version__
 from robobpp.boards.ranking import RankedView, participant_key, served_fields
 from robobpp.datasets.sampling import SAMPLER_VERSION
-from robobpp.db import queries
 from robobpp.db.models import BoardPart, BoardPublication, Submission
-from robobpp.replay import CLOSED
 from robobpp.scoring.scores import ANCHORS_VERSION, RESOLVED
 from robobpp.sim.math_pack import MATH_RULES_VERSION
 from robobpp.sim.physics.config import PHYSICS_VERSION
+from robobpp.vocabulary import CLOSED, board_loop
 
 log = logging.getLogger("robobpp.server")
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -97,7 +96,7 @@ def board_source(session: Session, track: str, datasets: Sequence[str], settings
 def board_key(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> str:
     """A board's key in the publication (a Math Pack board is one board under both protocols):
     ``repetitive/math/closed``; of a lookahead K > 0, ``repetitive/math/closed/lookahead-K``."""
-    return f"{dataset}/{setting}/{queries.board_protocol(setting, protocol)}" + _lookahead_part(lookahead)
+    return f"{dataset}/{setting}/{board_loop(setting, protocol)}" + _lookahead_part(lookahead)
 
 
 def grid_key(protocol: str = CLOSED, lookahead: int = 0) -> str:

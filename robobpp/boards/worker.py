@@ -62,10 +62,10 @@ from robobpp.boards.store import (
     version_parts,
 )
 from robobpp.db.models import BoardPart, BoardPublication, utcnow
+from robobpp.vocabulary import BOARD_TRACKS
 from robobpp.worker.lifeline import Lifeline
 
 log = logging.getLogger("robobpp.server")
-TRACKS = ("private", "public")
 
 
 def published_key(key: tuple[str, ...] | str) -> str:
@@ -448,7 +448,9 @@ def _matched(session: Session, statement: Update) -> int:
     return cast(CursorResult[Any], session.execute(statement)).rowcount
 
 
-def await_first_publication(read: SessionFactory, timeout_s: float, tracks: tuple[str, ...] = TRACKS) -> bool:
+def await_first_publication(
+    read: SessionFactory, timeout_s: float, tracks: tuple[str, ...] = BOARD_TRACKS
+) -> bool:
     """Wait (at most ``timeout_s``) until every track has been published once: a server starting on a
     database that has none (a fresh one, or the first start after migration 0011) answers its first readers
     with boards rather than 503. A server restarted on published boards returns at once."""
@@ -484,7 +486,7 @@ class BoardWorker:
         poll_s: float = 0.5,
         full_s: float = 300.0,
         cheap_s: float = 1.0,
-        tracks: tuple[str, ...] = TRACKS,
+        tracks: tuple[str, ...] = BOARD_TRACKS,
     ) -> None:
         self.publisher, self.poll_s, self.full_s, self.tracks = publisher, poll_s, full_s, tracks
         self.cheap_s = cheap_s

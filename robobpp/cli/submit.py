@@ -490,10 +490,10 @@ def leaderboard(
     token: TokenOpt = None,
 ) -> None:
     """One leaderboard (metrics, score, rank), or the overall grid when no board is given."""
-    from robobpp.replay import PROTOCOLS
+    from robobpp.vocabulary import LOOPS
 
-    if protocol not in PROTOCOLS:
-        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
+    if protocol not in LOOPS:
+        fail(f"unknown protocol {protocol!r}; expected one of {', '.join(LOOPS)}")
     if (dataset is None) != (setting is None):
         fail("give both --dataset and --setting for one board, or neither for the overall grid")
     if fmt is not None:

@@ -33,18 +33,14 @@ from robobpp.sim.physics.config import PHYSICS_VERSION
 from robobpp.vocabulary import (
     ACTIVE_SUBMISSION,
     CLOSED,
-    DATASETS,
     PAPER,
     PHYSICAL,
     QUEUED_EPISODE,
-    SETTINGS,
     TRACKS,
     board_loop,
 )
 
 # The board modules' names of the vocabulary's orders (kept until their rewrite).
-SETTINGS_ORDER = SETTINGS
-DATASETS_ORDER = DATASETS
 
 
 def hash_token(token: str) -> str:
@@ -182,10 +178,6 @@ def quota_usage(session: Session, participant_id: int, now: datetime | None = No
     return int(day), int(active)
 
 
-#: The board modules' name of :func:`robobpp.vocabulary.board_loop` (kept until their rewrite).
-board_protocol = board_loop
-
-
 def board_rows(
     session: Session, dataset: str, setting: str, track: str, protocol: str = CLOSED, lookahead: int = 0
 ) -> list[dict[str, Any]]:
@@ -283,7 +275,7 @@ def _board_where(track: str, boards: Sequence[tuple[str, str, str]] | None) -> l
                     and_(
                         RunRow.dataset == d,
                         RunRow.setting == st,
-                        RunRow.protocol == board_protocol(st, p),
+                        RunRow.protocol == board_loop(st, p),
                     )
                     for d, st, p in boards
                 )
@@ -315,7 +307,7 @@ def run_figures_of(
         .where(
             RunRow.dataset == dataset,
             RunRow.setting == setting,
-            RunRow.protocol == board_protocol(setting, protocol),
+            RunRow.protocol == board_loop(setting, protocol),
             Submission.track == track,
             RunRow.submission_id.in_(list(submission_ids)),
         )
@@ -333,7 +325,7 @@ def run_entries_of(
         .where(
             RunRow.dataset == dataset,
             RunRow.setting == setting,
-            RunRow.protocol == board_protocol(setting, protocol),
+            RunRow.protocol == board_loop(setting, protocol),
             Submission.track == track,
         )
     )

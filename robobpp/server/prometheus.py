@@ -90,14 +90,14 @@ class _QueueCollector(Collector):
         """Each track's published boards (boards/worker.py), whichever process computed them."""
         from sqlalchemy import select
 
-        from robobpp.boards.worker import TRACKS
         from robobpp.db.models import BoardPublication
+        from robobpp.vocabulary import BOARD_TRACKS
 
         return [
             (track, published, took)
             for track, published, took in session.execute(
                 select(BoardPublication.track, BoardPublication.version, BoardPublication.seconds).where(
-                    BoardPublication.track.in_(TRACKS)  # by primary key, as every scrape query
+                    BoardPublication.track.in_(BOARD_TRACKS)  # by primary key, as every scrape query
                 )
             ).all()
         ]

@@ -430,18 +430,7 @@ def board_view(
         found = find_entry(board, submission_id)
         entries = [found] if found is not None else []
         unranked = [e for e in unranked if e["submission_id"] == submission_id]
-    head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
-    return {
-        **head,
-        "view": view,
-        "total": len(entries),
-        "limit": limit,
-        "offset": offset,
-        "entries": [served_fields(e) for e in entries[offset : offset + limit]],
-        "unranked_total": len(unranked),
-        "unranked": [dict(e) for e in unranked[:limit]],
-        "column_tops": board.get("_tops", {}).get(view, {}),
-    }
+    return _page(board, view, limit, offset, ("entries", entries), ("unranked", unranked), dict)
 
 
 def served_fields(entry: Mapping[str, Any]) -> dict[str, Any]:
@@ -652,15 +641,31 @@ def grid_view(
     """One page of the grid: each participant's best complete submission (ranked among them) or all rows."""
     rows: list[Mapping[str, Any]] = grid["_best"] if view == "best" else grid["rows"]
     apart: list[Mapping[str, Any]] = grid["_best_apart"] if view == "best" else grid["apart"]
-    head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
+    return _page(grid, view, limit, offset, ("rows", rows), ("apart", apart), served_fields)
+
+
+def _page(
+    doc: Mapping[str, Any],
+    view: str,
+    limit: int,
+    offset: int,
+    listed: tuple[str, Sequence[Mapping[str, Any]]],
+    aside: tuple[str, Sequence[Mapping[str, Any]]],
+    aside_row: Callable[[Mapping[str, Any]], dict[str, Any]],
+) -> dict[str, Any]:
+    """A page of a board or of the grid as served: its public fields, then ``offset``..``offset + limit`` of the
+    ranked list and the first ``limit`` of those set aside (unranked entries, rows apart), with the counts and
+    the view's column tops."""
+    (listed_key, rows), (aside_key, apart) = listed, aside
+    head = {k: v for k, v in doc.items() if not k.startswith("_") and k not in (listed_key, aside_key)}
     return {
         **head,
         "view": view,
         "total": len(rows),
         "limit": limit,
         "offset": offset,
-        "rows": [served_fields(r) for r in rows[offset : offset + limit]],
-        "apart_total": len(apart),
-        "apart": [served_fields(r) for r in apart[:limit]],
-        "column_tops": grid.get("_tops", {}).get(view, {}),
+        listed_key: [served_fields(r) for r in rows[offset : offset + limit]],
+        f"{aside_key}_total": len(apart),
+        aside_key: [aside_row(r) for r in apart[:limit]],
+        "column_tops": doc.get("_tops", {}).get(view, {}),
     }

@@ -117,9 +117,8 @@ class _Channel:
     def __init__(self, height: float) -> None:
         self.height = height
         self._top = np.float32(height)
-        self._kept: tuple[ContainerState, np.ndarray, np.ndarray] | None = (
-            None  # state, its heightmap, channel
-        )
+        # the state, its heightmap array, and the channel kept for them
+        self._kept: tuple[ContainerState, np.ndarray, np.ndarray] | None = None
         self._seen = 0
         self._clip = False  # whether a cell of the kept state went above the container's height
 

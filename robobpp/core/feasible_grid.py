@@ -90,7 +90,7 @@ class FeasibleGrids:
     ``tests/core/test_feasible_grid.py`` checks box after box against :func:`feasible_grid`. Runs of equal boxes
     are common (most consecutive boxes of a Repetitive group; about 14 sizes per group of 80). A size not kept
     on a state with few raises (``ContainerState.from_empty``: its heightmap is the empty container's raised by
-    them) starts from its grid on the empty container (kept per size too) and catches up. A state with a
+    them) starts from its grid on the empty container (the bounds alone) and catches up. A state with a
     replaced heightmap (a physical setting observes a new one after every step) or a long catch-up recomputes.
 
     The returned grid is the instance's own and changes on later calls: copy what you keep.
@@ -136,33 +136,28 @@ class FeasibleGrids:
         """The box's grid on the empty container, to catch up with all of ``state``'s raises: every position where
         the footprint fits the container, if the box fits under its top at all (what :func:`orientation_fits`
         gives on a heightmap of zeros, without sliding over it)."""
-        kept = self._empty_kept(state, box)
+        kept = self._kept_of(
+            state, box, np.zeros((*self.container.grid_shape, len(self.orientations)), bool), 0
+        )
         if kept.base >= 0.0:  # the floor leaves room for the box
             nx, ny = self.container.grid_shape
-            for orientation, (length, width, _) in fitting_orientations(
-                box, self.container, self.orientations
-            ):
-                lc, wc = cells_spanned(length), cells_spanned(width)
-                kept.grid[
-                    : max(0, nx - lc + 1), : max(0, ny - wc + 1), self.orientations.index(orientation)
-                ] = True
+            for orientation, _ in fitting_orientations(box, self.container, self.orientations):
+                index = self.orientations.index(orientation)
+                lc, wc = kept.spans[index]
+                kept.grid[: max(0, nx - lc + 1), : max(0, ny - wc + 1), index] = True
         return kept
 
-    def _empty_kept(self, state: ContainerState, box: Box) -> _Kept:
-        """An all-False grid for ``box``, at ``state``'s start (nothing seen yet)."""
-        grid = np.zeros((*self.container.grid_shape, len(self.orientations)), bool)
+    def _compute(self, state: ContainerState, box: Box) -> _Kept:
+        grid = feasible_grid(state.heightmap, box, self.container, self.orientations)
+        return self._kept_of(state, box, grid, len(state.raises))
+
+    def _kept_of(self, state: ContainerState, box: Box, grid: np.ndarray, seen: int) -> _Kept:
+        """``grid`` for ``box``, up to date with ``seen`` of ``state``'s raises."""
         spans = [
             (cells_spanned(length), cells_spanned(width))
             for length, width, _ in (box.dims(o) for o in self.orientations)
         ]
-        return _Kept(grid, highest_base(box.height, self._limit), spans, state, state.heightmap, 0)
-
-    def _compute(self, state: ContainerState, box: Box) -> _Kept:
-        kept = self._empty_kept(state, box)
-        for orientation, _, fits in orientation_fits(state.heightmap, box, self.container, self.orientations):
-            kept.grid[: fits.shape[0], : fits.shape[1], self.orientations.index(orientation)] = fits
-        kept.seen = len(state.raises)
-        return kept
+        return _Kept(grid, highest_base(box.height, self._limit), spans, state, state.heightmap, seen)
 
     def _catch_up(self, kept: _Kept) -> None:
         raises = kept.state.raises

@@ -405,9 +405,10 @@ def _figures(
         else:
             top[:, :, j] = values[key]
     # the run's part: robobpp's own functions on the stacked runs (entries.entry_part, one run at a time)
-    samples = samples_of(top, bottom, counts(GROUPS))  # (runs, resamples, metrics)
+    top, bottom = top.astype(np.float32), bottom.astype(np.float32)
+    samples = samples_of(top, bottom, counts(GROUPS))  # (metrics, runs, resamples)
     m = len(keys)
-    lo, hi = stats.interval(samples.transpose(1, 0, 2).reshape(samples.shape[1], n * m))
+    lo, hi = stats.interval(samples.transpose(2, 1, 0).reshape(samples.shape[2], n * m))
     metric_ci = np.stack([lo.reshape(n, m), hi.reshape(n, m)], axis=2)
     seeds = [part_seed(top[x], bottom[x], setting) for x in range(n)]
     slo, shi = stats.interval(stable_samples(with_timing_noise(samples, seeds, setting), setting).T)

@@ -65,9 +65,8 @@ from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
 #: Entries whose samples are computed at a time (bounds the transient array: chunk × resamples × metrics).
 CHUNK = 512
-#: The grid's resamples computed as a block of whole 8-row blocks of the plan (the matrix product gives the
-#: same bits for a row in any set of rows whose count is a multiple of 8).
-_GRID_ROWS = np.arange(-(-GRID_RESAMPLES // 8) * 8)
+#: The grid's resamples: the first of the plan's.
+_GRID_ROWS = np.arange(GRID_RESAMPLES)
 
 
 class _Columns:
@@ -349,23 +348,28 @@ class BoardMatrix:
     def _samples(
         self, slots: np.ndarray, usable: np.ndarray, plan: np.ndarray, rows: np.ndarray | None = None
     ) -> np.ndarray:
-        """Entries' metric samples: (entries, resamples, metrics), with their timing noise; an entry without
+        """Entries' metric samples: (metrics, entries, resamples), with their timing noise; an entry without
         usable figures keeps its point metrics in every resample (as ``score_board`` does). ``plan`` is the
         rows ``rows`` of the board's plan (default: all of it)."""
         c = self._c
         sids = c.sid[slots].tolist()
-        out = np.empty((len(slots), plan.shape[0], len(self.keys)))
-        measured = np.flatnonzero(usable)
+        measured = np.flatnonzero(usable).tolist()
         seeds: list[int | None] = [None] * len(slots)
-        if len(measured):
-            if any(sids[k] not in self._parts for k in measured.tolist()):
+        if measured:
+            chosen = [sids[k] for k in measured]
+            if any(s not in self._parts for s in chosen):
                 raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
-            top, bottom = self._parts.stacked([sids[k] for k in measured.tolist()])
-            out[measured] = samples_of(top, bottom, plan)
-            for k in measured.tolist():
-                seeds[k] = self._parts.seed(sids[k])
-        unmeasured = np.flatnonzero(~usable)
-        out[unmeasured] = c.points[slots[unmeasured]][:, None, :]
+            top, bottom = self._parts.stacked(chosen)
+            for k, seed in zip(measured, self._parts.seeds(chosen), strict=True):
+                seeds[k] = seed
+        if len(measured) == len(slots):
+            out = samples_of(top, bottom, plan)
+        else:
+            out = np.empty((len(self.keys), len(slots), plan.shape[0]))
+            if measured:
+                out[:, measured] = samples_of(top, bottom, plan)
+            unmeasured = np.flatnonzero(~usable)
+            out[:, unmeasured] = c.points[slots[unmeasured]].T[:, :, None]
         return with_timing_noise(out, seeds, self.setting, rows)
 
     def _floored(self, bounds: np.ndarray) -> np.ndarray:
@@ -373,10 +377,11 @@ class BoardMatrix:
         return np.maximum(bounds, self._floors) if bounds.size else bounds
 
     def _relative(self, samples: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Relative score samples (entries, resamples) under a min–max (``scores._min_max_rows``)."""
-        total = np.zeros(samples.shape[:2])
+        """Relative score samples (entries, resamples) of (metrics, entries, resamples) samples under a
+        min–max (resamples, metrics) (``scores._min_max_rows``)."""
+        total = np.zeros(samples.shape[1:])
         for j, weight in enumerate(self._weights):
-            total += weight * min_max(samples[:, :, j], lo[:, j], hi[:, j], self.keys[j])
+            total += weight * min_max(samples[j], lo[:, j], hi[:, j], self.keys[j])
         return np.round(total, 12)
 
     def _score(self, samples: np.ndarray, slots: np.ndarray, usable: np.ndarray) -> np.ndarray:
@@ -392,7 +397,7 @@ class BoardMatrix:
         own = usable & np.array([s in self._parts for s in c.sid[slots].tolist()], dtype=bool)
         c.own[slots] = own
         if not own.all():
-            stab = stable_samples(samples[~own], self.setting)
+            stab = stable_samples(samples[:, ~own], self.setting)
             slo, shi = stats.interval(stab.T)
             c.stable_ci[slots[~own], 0], c.stable_ci[slots[~own], 1] = slo, shi
         for slot, sid in zip(slots[own].tolist(), c.sid[slots[own]].tolist(), strict=True):
@@ -413,12 +418,10 @@ class BoardMatrix:
         """A new entry moved the min or max of the resamples ``moved``: only those resamples of every other
         entry change. An entry whose changed samples stay on the same side of each order statistic its score
         interval uses keeps that interval (those statistics cannot move); the others are recomputed."""
-        pad = (-moved.size) % 8  # the matrix product gives the same bits as the full one in blocks of 8 rows
-        rows = np.concatenate([moved, np.zeros(pad, dtype=moved.dtype)])
         redo = []
         for a in range(0, len(slots), CHUNK):
             chunk = slots[a : a + CHUNK]
-            samples = self._samples(chunk, usable[a : a + CHUNK], plan[rows], rows)[:, : moved.size]
+            samples = self._samples(chunk, usable[a : a + CHUNK], plan[moved], moved)
             before = self._relative(samples, self._lo[moved], self._hi[moved])
             after = self._relative(samples, lo[moved], hi[moved])
             order = self._c.order[chunk]
@@ -594,16 +597,13 @@ class BoardMatrix:
         """The relative and stable score samples (float32, entries × resamples) of the last board's columns
         ``columns`` under the grid's resamples (``resamples``: those of them), as ``score_board`` gives them."""
         rows = _GRID_ROWS if resamples is None else resamples
-        pad = (-len(rows)) % 8
-        padded = np.concatenate([rows, np.zeros(pad, dtype=rows.dtype)])
-        take = len(rows) if resamples is not None else GRID_RESAMPLES
-        plan = self._plan[padded]
-        rel = np.empty((len(columns), take), np.float32)
-        stable = np.empty((len(columns), take), np.float32)
+        plan = self._plan[rows]
+        rel = np.empty((len(columns), len(rows)), np.float32)
+        stable = np.empty((len(columns), len(rows)), np.float32)
         for a in range(0, len(columns), CHUNK):
             at = columns[a : a + CHUNK]
-            samples = self._samples(self._ranked[at], self._usable[at], plan, padded)[:, :take]
-            rel[a : a + CHUNK] = self._relative(samples, self._lo[padded[:take]], self._hi[padded[:take]])
+            samples = self._samples(self._ranked[at], self._usable[at], plan, rows)
+            rel[a : a + CHUNK] = self._relative(samples, self._lo[rows], self._hi[rows])
             stable[a : a + CHUNK] = stable_samples(samples, self.setting)
         return rel, stable
 
@@ -690,17 +690,18 @@ def _side(values: np.ndarray, order: np.ndarray) -> np.ndarray:
 
 
 def _fmin(lo: np.ndarray, samples: np.ndarray) -> np.ndarray:
-    """Per resample and metric, the lower of ``lo`` and the entries' samples (NaN = nobody measured)."""
-    if samples.shape[0] == 0:
+    """Per resample and metric (resamples, metrics), the lower of ``lo`` and the entries' (metrics, entries,
+    resamples) samples (NaN = nobody measured)."""
+    if samples.shape[1] == 0:
         return lo
-    low = np.fmin.reduce(samples, axis=0)
+    low = np.fmin.reduce(samples, axis=1).T
     return np.asarray(low if lo.size == 0 else np.fmin(lo, low))
 
 
 def _fmax(hi: np.ndarray, samples: np.ndarray) -> np.ndarray:
-    if samples.shape[0] == 0:
+    if samples.shape[1] == 0:
         return hi
-    high = np.fmax.reduce(samples, axis=0)
+    high = np.fmax.reduce(samples, axis=1).T
     return np.asarray(high if hi.size == 0 else np.fmax(hi, high))
 
 

@@ -6,12 +6,13 @@ entry arriving or leaving can change it. A board update then only does the globa
 resample, ranks: :mod:`robobpp.boards.matrix`).
 
 Stored form (``runs.entry``, :meth:`EntryPart.encode`): a small header, then little-endian arrays — the group
-ids, the per-group figures as two groups × metrics float64 matrices (what a resample sums: the value, 0 when
+ids, the per-group figures as two groups × metrics float32 matrices (what a resample sums: the value, 0 when
 unmeasured, or a pooled ratio's numerator; and its weight: 1 measured / 0 not, or the denominator), each
 metric's interval and the stable score's, and the seed of its timing noise
-(:func:`robobpp.scoring.stats.timing_seed`). float64, not float32: the figures are the recorded numbers bit
-for bit, so a board built from them equals one built from the recorded JSON figures. Decoding is a view of
-the bytes (no copy, no parsing): a board reloads 10,000 parts in milliseconds.
+(:func:`robobpp.scoring.stats.timing_seed`). float32: every resample reads the figures so
+(:func:`robobpp.scoring.stats.as_resampled`), so a board built from them equals one built from the recorded
+JSON figures. Decoding is a view of the bytes (no copy, no parsing): a board reloads 10,000 parts in
+milliseconds.
 """
 
 from __future__ import annotations
@@ -26,11 +27,12 @@ import numpy as np
 
 from robobpp.scoring import stats
 from robobpp.scoring.metrics import POOLED
-from robobpp.scoring.scores import RESOLVED, WEIGHTS, anchored, timed
+from robobpp.scoring.scores import RESOLVED, WEIGHTS, anchored, timing_spread
 
 #: Bumped when the stored layout or what it holds changes; a part of another format is recomputed.
 #: 3: the timing noise's seed; the stable interval with Decision Time under anchors-v2 and timing noise.
-FORMAT = 3
+#: 4: the figures as float32, as every resample reads them.
+FORMAT = 4
 _HEADER = struct.Struct("<4sHHHH")  # magic, format, groups, metrics, resamples / 1 (0 = the default)
 _MAGIC = b"RBPE"
 
@@ -55,8 +57,8 @@ class EntryPart:
 
     setting: str
     ids: np.ndarray  # (groups,) int64, ascending
-    top: np.ndarray  # (groups, metrics): per-group sum terms (value, or pooled numerator; 0 when unmeasured)
-    bottom: np.ndarray  # (groups, metrics): per-group weights (1 measured / 0 not, or pooled denominator)
+    top: np.ndarray  # (groups, metrics) float32: per-group sum terms (value, or pooled numerator; 0 unmeasured)
+    bottom: np.ndarray  # (groups, metrics) float32: per-group weights (1 measured / 0 not, or pooled denominator)
     metric_ci: np.ndarray  # (metrics, 2), NaN = no interval
     stable_ci: tuple[float, float]
     seed: int = 0  # of its timing noise: stats.timing_seed of its per-group Decision Times
@@ -66,13 +68,10 @@ class EntryPart:
         return int(self.ids.shape[0])
 
     def samples(self, plan: np.ndarray | None = None) -> np.ndarray:
-        """Each metric's run figure under each resample: (resamples, metrics), NaN = unmeasured.
-
-        The same computation for an entry wherever it is done (``numpy.matmul`` of one entry gives the same
-        bits alone or stacked with others), so a board updated entry by entry equals one built at once."""
+        """Each metric's run figure under each resample: (resamples, metrics), NaN = unmeasured."""
         samples: np.ndarray = samples_of(
             self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan
-        )[0]
+        )[:, 0, :].T
         return samples
 
     def encode(self) -> bytes:
@@ -81,8 +80,8 @@ class EntryPart:
             (
                 _HEADER.pack(_MAGIC, FORMAT, self.groups, m, 0),
                 self.ids.astype("<i8").tobytes(),
-                self.top.astype("<f8").tobytes(),
-                self.bottom.astype("<f8").tobytes(),
+                self.top.astype("<f4").tobytes(),
+                self.bottom.astype("<f4").tobytes(),
                 self.metric_ci.astype("<f8").tobytes(),
                 np.array(self.stable_ci, dtype="<f8").tobytes(),
                 np.array([self.seed], dtype="<u8").tobytes(),
@@ -101,10 +100,10 @@ class EntryPart:
         at = _HEADER.size
         ids = np.frombuffer(data, "<i8", groups, at)
         at += 8 * groups
-        top = np.frombuffer(data, "<f8", groups * m, at).reshape(groups, m)
-        at += 8 * groups * m
-        bottom = np.frombuffer(data, "<f8", groups * m, at).reshape(groups, m)
-        at += 8 * groups * m
+        top = np.frombuffer(data, "<f4", groups * m, at).reshape(groups, m)
+        at += 4 * groups * m
+        bottom = np.frombuffer(data, "<f4", groups * m, at).reshape(groups, m)
+        at += 4 * groups * m
         metric_ci = np.frombuffer(data, "<f8", 2 * m, at).reshape(m, 2)
         at += 16 * m
         stable_ci = np.frombuffer(data, "<f8", 2, at)
@@ -113,14 +112,30 @@ class EntryPart:
 
 
 def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndarray:
-    """Run figures of stacked entries under each resample: (entries, resamples, metrics), NaN = unmeasured
-    (``top``/``bottom``: entries × groups × metrics; the ratio of resampled sums, as
-    :func:`robobpp.scoring.stats.metric_samples` computes it)."""
-    num, den = np.matmul(plan[None], top), np.matmul(plan[None], bottom)
+    """Run figures of stacked entries under each resample: (metrics, entries, resamples), NaN = unmeasured
+    (``top``/``bottom``: entries × groups × metrics, float32; the ratio of resampled sums, as
+    :func:`robobpp.scoring.stats.metric_samples` computes it).
+
+    Metric-major, so that each metric's samples are one contiguous (entries, resamples) block for what
+    follows (normalisation, timing noise). One matrix product for every entry and metric; the sums are exact
+    (:func:`robobpp.scoring.stats.as_resampled`), so an entry's samples are the same bits alone or stacked
+    with others. A weight column that is 1 in every group (a metric measured in every group) sums to the
+    group count in every resample: no product for it."""
+    k, g, m = top.shape
+    r = plan.shape[0]
+    columns = np.ascontiguousarray(top.transpose(2, 0, 1), dtype=np.float64).reshape(m * k, g)
+    means = (columns @ plan.T).reshape(m, k, r)
+    weighed = ~np.all(bottom == 1.0, axis=1).T  # (metrics, entries): a weight column that is not all 1
     with np.errstate(invalid="ignore", divide="ignore"):
-        num /= den
-    num[den <= 0] = np.nan
-    means: np.ndarray = num
+        if weighed.any():
+            weights = np.ascontiguousarray(bottom.transpose(2, 0, 1)[weighed], dtype=np.float64)
+            sums = weights @ plan.T
+            means[weighed] /= sums
+            means[weighed] = np.where(sums <= 0, np.nan, means[weighed])
+        plain = ~weighed
+        if plain.any():
+            total = plan.sum(axis=1)  # the group count, exactly, in every resample
+            means[plain] /= total
     return means
 
 
@@ -141,14 +156,15 @@ def entry_part(figures: Mapping[str, Any], setting: str) -> EntryPart:
             ).reshape(g)
             ok = np.isfinite(values)
             top[:, j], bottom[:, j] = np.where(ok, values, 0.0), ok
+    top, bottom = top.astype(np.float32), bottom.astype(np.float32)
     metric_ci = np.full((len(keys), 2), np.nan)
     stable_ci = (0.0, 0.0)
     seed = part_seed(top, bottom, setting)
     if g:
         s = samples_of(top[None], bottom[None], counts(g))
-        lo, hi = stats.interval(s[0])
+        lo, hi = stats.interval(s[:, 0, :].T)
         metric_ci[:, 0], metric_ci[:, 1] = lo, hi
-        slo, shi = stats.interval(stable_samples(with_timing_noise(s, [seed], setting)[0], setting)[:, None])
+        slo, shi = stats.interval(stable_samples(with_timing_noise(s, [seed], setting), setting).T)
         stable_ci = (float(slo[0]), float(shi[0]))
     return EntryPart(setting, ids, top, bottom, metric_ci, stable_ci, seed)
 
@@ -164,20 +180,31 @@ def part_seed(top: np.ndarray, bottom: np.ndarray, setting: str) -> int:
 def with_timing_noise(
     samples: np.ndarray, seeds: Sequence[int | None], setting: str, rows: np.ndarray | None = None
 ) -> np.ndarray:
-    """Entries' (entries, resamples, metrics) samples, in place, with each one's Decision Time moved by its
-    timing noise (:func:`robobpp.scoring.scores.timed`; None: no noise); ``rows``: which resamples of the plan."""
+    """Entries' (metrics, entries, resamples) samples, in place, with each one's Decision Time moved by its
+    timing noise (:func:`robobpp.scoring.scores.timed`'s arithmetic; None: no noise); ``rows``: which
+    resamples of the plan."""
+    rows = np.arange(samples.shape[2]) if rows is None else rows
+    noisy = [i for i, seed in enumerate(seeds) if seed is not None]
+    if not noisy:
+        return samples
+    unit = stats.timing_noise(np.array([seeds[i] for i in noisy], dtype=np.uint64), rows)
     for key in RESOLVED:
-        j = metric_keys(setting).index(key)
-        samples[:, :, j] = timed(samples[:, :, j].T, seeds, rows).T
+        times = samples[metric_keys(setting).index(key)]
+        everyone = len(noisy) == times.shape[0]
+        t = times if everyone else times[noisy]
+        moved = timing_spread(t)
+        moved *= unit
+        t += moved
+        if not everyone:
+            times[noisy] = t
     return samples
 
 
 def stable_samples(samples: np.ndarray, setting: str) -> np.ndarray:
-    """The stable score under each resample from an entry's (resamples, metrics) samples (or a stack of
-    entries': (..., resamples, metrics) → (..., resamples))."""
-    total = np.zeros(samples.shape[:-1])
+    """The stable score under each resample from (metrics, ...) samples: (...)."""
+    total = np.zeros(samples.shape[1:])
     for j, (key, weight) in enumerate(WEIGHTS[setting].items()):
-        total += weight * anchored(samples[..., j], key)
+        total += weight * anchored(samples[j], key)
     return total
 
 
@@ -192,11 +219,11 @@ class PartTable:
     """Many entries' parts as matrices, one block per distinct group-id list: what a board keeps of each
     entry between updates, so that any entry's samples can be computed again without SQL.
 
-    A block holds one float64 matrix (entries × groups × metrics): the sum term where the group was measured
+    A block holds one float32 matrix (entries × groups × metrics): the sum term where the group was measured
     and NaN where it was not (a metric that is not pooled has weight 1 or 0, and sum term 0 where it is 0,
     so the NaN says both); a pooled metric's weights (its denominators) in a second matrix. The sum terms
     and weights :meth:`stacked` gives back are the parts' own, bit for bit. Beside them, per entry: the
-    metric and stable intervals and the timing seed (what :meth:`EntryPart.decode` reads). About 1.2 kB an
+    metric and stable intervals and the timing seed (what :meth:`EntryPart.decode` reads). About 0.7 kB an
     entry of a 30-group Physics board, where an :class:`EntryPart` kept its stored bytes and five arrays
     (≈ 3.5 kB with their Python objects)."""
 
@@ -260,6 +287,10 @@ class PartTable:
         ids, row = self._where[submission_id]
         return int(self._blocks[ids].seeds[row])
 
+    def seeds(self, submission_ids: Sequence[int]) -> list[int]:
+        """The entries' timing seeds (:meth:`seed` of each)."""
+        return [int(self._blocks[ids].seeds[row]) for ids, row in map(self._where.__getitem__, submission_ids)]
+
     def intervals(self, submission_id: int) -> tuple[np.ndarray, tuple[float, float]]:
         """The entry's metric intervals (metrics × 2, NaN = none) and stable interval."""
         ids, row = self._where[submission_id]
@@ -275,8 +306,8 @@ class _Block:
 
     def __init__(self, groups: int, metrics: int, pooled: np.ndarray) -> None:
         self.groups, self.metrics, self.pooled = groups, metrics, pooled.copy()
-        self.figures = np.zeros((0, groups, metrics))
-        self.weights = np.zeros((0, groups, int(pooled.sum())))
+        self.figures = np.zeros((0, groups, metrics), np.float32)
+        self.weights = np.zeros((0, groups, int(pooled.sum())), np.float32)
         self.metric_ci = np.zeros((0, metrics, 2))
         self.stable_ci = np.zeros((0, 2))
         self.seeds = np.zeros(0, dtype=np.uint64)

@@ -175,8 +175,15 @@ def timed(samples: np.ndarray, seeds: Sequence[int | None], rows: np.ndarray | N
     unit = stats.timing_noise(np.array([seeds[i] for i in noisy], dtype=np.uint64), rows).T
     out = samples.copy()
     times = out[:, noisy]
-    out[:, noisy] = times + unit * (DECISION_RESOLUTION_S + DECISION_RESOLUTION_SHARE * times)
+    out[:, noisy] = times + unit * timing_spread(times)
     return out
+
+
+def timing_spread(times: np.ndarray) -> np.ndarray:
+    """How far timing noise may move each time (a new array): the measurement's resolution at that time."""
+    spread: np.ndarray = DECISION_RESOLUTION_SHARE * times
+    spread += DECISION_RESOLUTION_S
+    return spread
 
 
 def competition_ranks(scores: Sequence[float]) -> list[int]:

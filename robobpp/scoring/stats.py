@@ -79,6 +79,18 @@ def _number(value: object) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
+def as_resampled(values: Any) -> np.ndarray:
+    """Per-group figures as every resample reads them: float64 arrays of float32 values (NaN kept).
+
+    A resample's figure is a sum of counts × figures. Held as float32 (24 significant bits), every term is
+    exact in float64, and so is the sum of a board's 30 terms whose magnitudes lie within 2**19 of each other:
+    the same resampled figure whatever the order of summation (one BLAS kernel or another, one machine or
+    another), and a board keeps half the bytes. The
+    rounding moves a figure by at most 6e-8 of itself, far below what any metric resolves."""
+    rounded: np.ndarray = np.asarray(values, dtype=np.float64).astype(np.float32).astype(np.float64)
+    return rounded
+
+
 def resample_counts(groups: int, resamples: int = RESAMPLES, seed: int = SEED) -> np.ndarray:
     """How often each group is drawn in each resample: an int array (resamples, groups)."""
     rng = np.random.default_rng([seed, groups])
@@ -86,9 +98,9 @@ def resample_counts(groups: int, resamples: int = RESAMPLES, seed: int = SEED) -
 
 
 def timing_seed(values: Sequence[float | None] | np.ndarray) -> int:
-    """The seed of an entry's timing noise: its per-group figures of the metric (None or NaN = unmeasured),
-    as little-endian float64 bytes, hashed with :data:`SEED` (BLAKE2b, 64 bits)."""
-    column = np.asarray(values, dtype=np.float64).reshape(-1)
+    """The seed of an entry's timing noise: its per-group figures of the metric (None or NaN = unmeasured;
+    as resamples read them, :func:`as_resampled`), as little-endian float64 bytes, hashed with :data:`SEED` (BLAKE2b, 64 bits)."""
+    column = as_resampled(values).reshape(-1)
     canonical = np.where(np.isfinite(column), column, np.nan).astype("<f8")  # one NaN, whatever its origin
     key = SEED.to_bytes(8, "little")
     return int.from_bytes(hashlib.blake2b(canonical.tobytes(), digest_size=8, key=key).digest(), "little")
@@ -124,12 +136,12 @@ def metric_samples(figures: Sequence[Mapping[str, Any]], key: str, counts: np.nd
     missing = [np.nan] * g
     if any(key in (f.get("pooled") or {}) for f in figures):
         empty = [[0.0, 0.0]] * g
-        pairs = np.array([(f.get("pooled") or {}).get(key) or empty for f in figures], dtype=np.float64)
+        pairs = as_resampled([(f.get("pooled") or {}).get(key) or empty for f in figures])
         pairs = pairs.reshape(len(figures), g, 2)
         top, bottom = counts @ pairs[:, :, 0].T, counts @ pairs[:, :, 1].T
     else:
         # dtype=float turns None (unmeasured) into NaN in one C pass
-        vals = np.array([(f.get("values") or {}).get(key) or missing for f in figures], dtype=np.float64)
+        vals = as_resampled([(f.get("values") or {}).get(key) or missing for f in figures])
         vals = vals.reshape(len(figures), g)
         ok = np.isfinite(vals)
         top, bottom = counts @ np.where(ok, vals, 0.0).T, counts @ ok.T.astype(np.float64)

@@ -53,9 +53,9 @@ from robobpp.scoring import stats
 from robobpp.scoring.entries import (
     EntryPart,
     PartTable,
+    Stacked,
     counts,
     metric_keys,
-    samples_of,
     stable_samples,
     with_timing_noise,
 )
@@ -65,6 +65,9 @@ from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
 #: Entries whose samples are computed at a time (bounds the transient array: chunk × resamples × metrics).
 CHUNK = 512
+#: Samples computed at a time in a full computation (metrics × entries × a block of resamples: 64 MB).
+BLOCK_VALUES = 8_000_000
+_NONE = np.zeros((0, 0))
 #: The grid's resamples: the first of the plan's.
 _GRID_ROWS = np.arange(GRID_RESAMPLES)
 
@@ -104,6 +107,18 @@ class _Columns:
                 out = np.zeros((capacity, *a.shape[1:]), dtype=a.dtype)
                 out[: len(a)] = a
                 setattr(self, name, out)
+
+
+@dataclass(frozen=True, slots=True)
+class _Stack:
+    """Entries' figures ready to be resampled (:meth:`BoardMatrix._resample`): the measured ones stacked,
+    the others' point metrics (metrics, entries), every entry's timing seed (None: no noise)."""
+
+    stacked: Stacked | None
+    measured: np.ndarray
+    unmeasured: np.ndarray
+    points: np.ndarray
+    seeds: list[int | None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -326,7 +341,7 @@ class BoardMatrix:
         elif full:
             c.scored[everyone[~ranked_mask]] = False
             c.rank_ci[everyone[~ranked_mask]] = -1
-            rel_all = self._renormalise(ranked, usable, plan, keep=rank_intervals)
+            rel_all = self._renormalise(ranked, usable, plan)
             self._basis = basis
             self.epoch += 1
             self.resample_stamps[:] = self.stamp
@@ -351,26 +366,34 @@ class BoardMatrix:
         """Entries' metric samples: (metrics, entries, resamples), with their timing noise; an entry without
         usable figures keeps its point metrics in every resample (as ``score_board`` does). ``plan`` is the
         rows ``rows`` of the board's plan (default: all of it)."""
-        c = self._c
-        sids = c.sid[slots].tolist()
-        measured = np.flatnonzero(usable).tolist()
+        return self._resample(self._stack(slots, usable), plan, rows)
+
+    def _stack(self, slots: np.ndarray, usable: np.ndarray) -> _Stack:
+        """What the entries' samples are made of, for :meth:`_resample`."""
+        sids = self._c.sid[slots].tolist()
+        measured = np.flatnonzero(usable)
+        chosen = [sids[k] for k in measured.tolist()]
+        if any(s not in self._parts for s in chosen):
+            raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
         seeds: list[int | None] = [None] * len(slots)
-        if measured:
-            chosen = [sids[k] for k in measured]
-            if any(s not in self._parts for s in chosen):
-                raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
-            top, bottom = self._parts.stacked(chosen)
-            for k, seed in zip(measured, self._parts.seeds(chosen), strict=True):
+        stacked = None
+        if chosen:
+            stacked = Stacked.of(*self._parts.stacked(chosen))
+            for k, seed in zip(measured.tolist(), self._parts.seeds(chosen), strict=True):
                 seeds[k] = seed
-        if len(measured) == len(slots):
-            out = samples_of(top, bottom, plan)
+        unmeasured = np.flatnonzero(~usable)
+        return _Stack(stacked, measured, unmeasured, self._c.points[slots[unmeasured]].T, seeds)
+
+    def _resample(self, stack: _Stack, plan: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`_samples` of stacked entries under the plan's rows ``rows``."""
+        if stack.stacked is not None and not len(stack.unmeasured):
+            out = stack.stacked.samples(plan)
         else:
-            out = np.empty((len(self.keys), len(slots), plan.shape[0]))
-            if measured:
-                out[:, measured] = samples_of(top, bottom, plan)
-            unmeasured = np.flatnonzero(~usable)
-            out[:, unmeasured] = c.points[slots[unmeasured]].T[:, :, None]
-        return with_timing_noise(out, seeds, self.setting, rows)
+            out = np.empty((len(self.keys), len(stack.seeds), plan.shape[0]))
+            if stack.stacked is not None:
+                out[:, stack.measured] = stack.stacked.samples(plan)
+            out[:, stack.unmeasured] = stack.points[:, :, None]
+        return with_timing_noise(out, stack.seeds, self.setting, rows)
 
     def _floored(self, bounds: np.ndarray) -> np.ndarray:
         """Per resample and metric, a min or max as the normalisation uses it (``scores.min_max``: NaN stays)."""
@@ -381,30 +404,43 @@ class BoardMatrix:
         min–max (resamples, metrics) (``scores._min_max_rows``)."""
         total = np.zeros(samples.shape[1:])
         for j, weight in enumerate(self._weights):
-            total += weight * min_max(samples[j], lo[:, j], hi[:, j], self.keys[j])
+            normalised = min_max(samples[j], lo[:, j], hi[:, j], self.keys[j])
+            normalised *= weight
+            total += normalised
         return np.round(total, 12)
 
     def _score(self, samples: np.ndarray, slots: np.ndarray, usable: np.ndarray) -> np.ndarray:
-        """Score the entries under the current min–max; returns their relative samples.
+        """Score the entries under the current min–max; returns their relative samples (entries, resamples)."""
+        rel = self._relative(samples, self._lo, self._hi)
+        self._scored(rel, slots, usable, samples)
+        return rel
+
+    def _scored(
+        self, rel: np.ndarray, slots: np.ndarray, usable: np.ndarray, samples: np.ndarray | None = None
+    ) -> None:
+        """Keep the entries' score intervals from their relative samples (entries, resamples).
 
         An entry's metric and stable intervals are its stored part's (computed when its run finished);
-        one without usable figures has point metrics in every resample, so no metric interval."""
+        one without usable figures has point metrics in every resample, so no metric interval, and its
+        stable interval from its ``samples`` (computed again when not given)."""
         c = self._c
-        rel = self._relative(samples, self._lo, self._hi)
         order, (lo, hi) = _order_and_interval(rel)
         c.order[slots] = order
         c.score_ci[slots, 0], c.score_ci[slots, 1] = lo, hi
         own = usable & np.array([s in self._parts for s in c.sid[slots].tolist()], dtype=bool)
         c.own[slots] = own
         if not own.all():
-            stab = stable_samples(samples[:, ~own], self.setting)
-            slo, shi = stats.interval(stab.T)
+            apart = (
+                samples[:, ~own]
+                if samples is not None
+                else self._samples(slots[~own], usable[~own], self._plan)
+            )
+            slo, shi = stats.interval(stable_samples(apart, self.setting).T)
             c.stable_ci[slots[~own], 0], c.stable_ci[slots[~own], 1] = slo, shi
         for slot, sid in zip(slots[own].tolist(), c.sid[slots[own]].tolist(), strict=True):
             c.stable_ci[slot] = self._parts.intervals(sid)[1]
         c.scored[slots] = True
         self.recomputed += len(slots)
-        return rel
 
     def _shift(
         self,
@@ -437,24 +473,29 @@ class BoardMatrix:
         self.shifted_rows += int(moved.size)
         self.epoch += 1
 
-    def _renormalise(
-        self, ranked: np.ndarray, usable: np.ndarray, plan: np.ndarray, *, keep: bool
-    ) -> np.ndarray | None:
-        """Every entry's samples again: the min–max first, then each entry scored under it. Returns every
-        entry's relative samples (resamples, entries) when ``keep``."""
-        m = len(self.keys)
-        lo = np.full((plan.shape[0], m), np.nan)
-        hi = np.full((plan.shape[0], m), np.nan)
-        for a in range(0, len(ranked), CHUNK):
-            chunk = self._samples(ranked[a : a + CHUNK], usable[a : a + CHUNK], plan)
-            lo, hi = _fmin(lo, chunk), _fmax(hi, chunk)
-        self._lo, self._hi = self._floored(lo), self._floored(hi)
-        rel_all = np.empty((plan.shape[0], len(ranked))) if keep else None
-        for a in range(0, len(ranked), CHUNK):
+    def _renormalise(self, ranked: np.ndarray, usable: np.ndarray, plan: np.ndarray) -> np.ndarray:
+        """Every entry's samples again, a block of resamples at a time: a block's samples of every entry give
+        its min–max, then every entry's relative scores in it. Keeps the min–max and each entry's score
+        interval; returns every entry's relative samples (resamples, entries)."""
+        m, n, r = len(self.keys), len(ranked), plan.shape[0]
+        rel_all = np.empty((r, n))
+        lo, hi = np.full((r, m), np.nan), np.full((r, m), np.nan)
+        if n:
+            stack = self._stack(ranked, usable)
+            step = max(8, BLOCK_VALUES // (m * n))
+            for a in range(0, r, step):
+                rows = np.arange(a, min(r, a + step))
+                samples = self._resample(stack, plan[rows], rows)
+                lo[rows], hi[rows] = (
+                    self._floored(_fmin(_NONE, samples)),
+                    self._floored(_fmax(_NONE, samples)),
+                )
+                rel_all[rows] = self._relative(samples, lo[rows], hi[rows]).T
+                del samples
+        self._lo, self._hi = lo, hi
+        for a in range(0, n, CHUNK):
             at = slice(a, a + CHUNK)
-            rel = self._score(self._samples(ranked[at], usable[at], plan), ranked[at], usable[at])
-            if rel_all is not None:
-                rel_all[:, at] = rel.T
+            self._scored(np.ascontiguousarray(rel_all[:, at].T), ranked[at], usable[at])
         return rel_all
 
     def _points(self, ranked: np.ndarray) -> tuple[np.ndarray, list[int], np.ndarray, np.ndarray]:
@@ -663,17 +704,15 @@ def _point(value: object) -> float:
 
 def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Each row's (entries, resamples; no NaN) four order statistics the percentile interval interpolates
-    between, and the interval (``stats.interval``: the same formula, so the same bits)."""
+    between, and the interval (``stats.interval``: the same formula, so the same bits), by one partial sort."""
     r = rel.shape[1]
     tail = (1.0 - stats.CONFIDENCE) / 2.0
-    ordered = np.sort(rel, axis=1)
+    positions = [q * max(r - 1, 0) for q in (tail, 1.0 - tail)]
+    pairs = [(int(np.floor(p)), min(int(np.floor(p)) + 1, max(r - 1, 0))) for p in positions]
+    ordered = np.partition(rel, sorted({i for pair in pairs for i in pair}), axis=1)
     picks, ends = [], []
-    for q in (tail, 1.0 - tail):
-        position = q * np.maximum(np.full(rel.shape[0], r) - 1, 0)
-        below = np.floor(position).astype(np.intp)
-        above = np.minimum(below + 1, np.maximum(r - 1, 0))
-        low = np.take_along_axis(ordered, below[:, None], axis=1)[:, 0]
-        high = np.take_along_axis(ordered, above[:, None], axis=1)[:, 0]
+    for position, (below, above) in zip(positions, pairs, strict=True):
+        low, high = ordered[:, below], ordered[:, above]
         picks += [low, high]
         ends.append(low + (high - low) * (position - below))
     return np.stack(picks, axis=1), (ends[0], ends[1])

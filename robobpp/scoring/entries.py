@@ -57,8 +57,12 @@ class EntryPart:
 
     setting: str
     ids: np.ndarray  # (groups,) int64, ascending
-    top: np.ndarray  # (groups, metrics) float32: per-group sum terms (value, or pooled numerator; 0 unmeasured)
-    bottom: np.ndarray  # (groups, metrics) float32: per-group weights (1 measured / 0 not, or pooled denominator)
+    top: (
+        np.ndarray
+    )  # (groups, metrics) float32: per-group sum terms (value, or pooled numerator; 0 unmeasured)
+    bottom: (
+        np.ndarray
+    )  # (groups, metrics) float32: per-group weights (1 measured / 0 not, or pooled denominator)
     metric_ci: np.ndarray  # (metrics, 2), NaN = no interval
     stable_ci: tuple[float, float]
     seed: int = 0  # of its timing noise: stats.timing_seed of its per-group Decision Times
@@ -111,32 +115,60 @@ class EntryPart:
         return cls(setting, ids, top, bottom, metric_ci, (float(stable_ci[0]), float(stable_ci[1])), seed)
 
 
-def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndarray:
-    """Run figures of stacked entries under each resample: (metrics, entries, resamples), NaN = unmeasured
-    (``top``/``bottom``: entries × groups × metrics, float32; the ratio of resampled sums, as
-    :func:`robobpp.scoring.stats.metric_samples` computes it).
+@dataclass(frozen=True, slots=True)
+class Stacked:
+    """Stacked entries' figures laid out for resampling (:meth:`samples`): made once, resampled a block of
+    resamples at a time (a board's full computation)."""
 
-    Metric-major, so that each metric's samples are one contiguous (entries, resamples) block for what
-    follows (normalisation, timing noise). One matrix product for every entry and metric; the sums are exact
-    (:func:`robobpp.scoring.stats.as_resampled`), so an entry's samples are the same bits alone or stacked
-    with others. A weight column that is 1 in every group (a metric measured in every group) sums to the
-    group count in every resample: no product for it."""
-    k, g, m = top.shape
-    r = plan.shape[0]
-    columns = np.ascontiguousarray(top.transpose(2, 0, 1), dtype=np.float64).reshape(m * k, g)
-    means = (columns @ plan.T).reshape(m, k, r)
-    weighed = ~np.all(bottom == 1.0, axis=1).T  # (metrics, entries): a weight column that is not all 1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        if weighed.any():
-            weights = np.ascontiguousarray(bottom.transpose(2, 0, 1)[weighed], dtype=np.float64)
-            sums = weights @ plan.T
-            means[weighed] /= sums
-            means[weighed] = np.where(sums <= 0, np.nan, means[weighed])
-        plain = ~weighed
-        if plain.any():
-            total = plan.sum(axis=1)  # the group count, exactly, in every resample
-            means[plain] /= total
-    return means
+    columns: np.ndarray  # (metrics × entries, groups) float64: the sum terms, metric-major
+    weighed: np.ndarray  # (metrics, entries): a weight column that is not 1 in every group
+    weights: np.ndarray  # (weighed, groups) float64: those weight columns
+    metrics: int
+    entries: int
+
+    @classmethod
+    def of(cls, top: np.ndarray, bottom: np.ndarray) -> Stacked:
+        """From ``top``/``bottom``: entries × groups × metrics (float32, :class:`EntryPart`'s)."""
+        k, g, m = top.shape
+        columns = np.ascontiguousarray(top.transpose(2, 0, 1), dtype=np.float64).reshape(m * k, g)
+        weighed = ~np.all(bottom == 1.0, axis=1).T
+        weights = np.ascontiguousarray(bottom.transpose(2, 0, 1)[weighed], dtype=np.float64)
+        return cls(columns, weighed, weights, m, k)
+
+    def samples(self, plan: np.ndarray) -> np.ndarray:
+        """The run figures under each resample of ``plan`` (resamples × groups): (metrics, entries,
+        resamples), NaN = unmeasured; the ratio of resampled sums, as
+        :func:`robobpp.scoring.stats.metric_samples` computes it.
+
+        Metric-major, so that each metric's samples are one contiguous (entries, resamples) block for what
+        follows (normalisation, timing noise). One matrix product for every entry and metric; the sums are
+        exact (:func:`robobpp.scoring.stats.as_resampled`), so an entry's samples are the same bits alone
+        or stacked with others, in any block of resamples. A weight column that is 1 in every group (a
+        metric measured in every group) sums to the group count in every resample: no product for it."""
+        r = plan.shape[0]
+        means = (self.columns @ plan.T).reshape(self.metrics, self.entries, r)
+        sums = self.weights @ plan.T if self.weights.shape[0] else None
+        total = plan.sum(axis=1)  # the group count, exactly, in every resample
+        row_of = np.cumsum(self.weighed.reshape(-1)) - 1  # (metric, entry) -> its row of ``weights``
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for j in range(self.metrics):  # in place, a metric at a time (no copy of the samples)
+                weighed = self.weighed[j]
+                if not weighed.any():
+                    means[j] /= total
+                    continue
+                assert sums is not None
+                rows = np.flatnonzero(weighed)
+                at = row_of[j * self.entries + rows]
+                means[j, rows] = np.where(sums[at] <= 0, np.nan, means[j, rows] / sums[at])
+                plain = np.flatnonzero(~weighed)
+                means[j, plain] /= total
+        return means
+
+
+def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndarray:
+    """Run figures of stacked entries (``top``/``bottom``: entries × groups × metrics, float32) under each
+    resample: (metrics, entries, resamples) (:meth:`Stacked.samples`)."""
+    return Stacked.of(top, bottom).samples(plan)
 
 
 def entry_part(figures: Mapping[str, Any], setting: str) -> EntryPart:
@@ -289,7 +321,9 @@ class PartTable:
 
     def seeds(self, submission_ids: Sequence[int]) -> list[int]:
         """The entries' timing seeds (:meth:`seed` of each)."""
-        return [int(self._blocks[ids].seeds[row]) for ids, row in map(self._where.__getitem__, submission_ids)]
+        return [
+            int(self._blocks[ids].seeds[row]) for ids, row in map(self._where.__getitem__, submission_ids)
+        ]
 
     def intervals(self, submission_id: int) -> tuple[np.ndarray, tuple[float, float]]:
         """The entry's metric intervals (metrics × 2, NaN = none) and stable interval."""

@@ -183,21 +183,38 @@ def _order_stat(ordered: np.ndarray, finite: np.ndarray, q: float, decimals: int
 
 
 def rank_samples(scores: np.ndarray) -> np.ndarray:
-    """Competition ranks (1 + strictly better entries) of each row of a (resamples, entries) score array."""
-    out = np.empty(scores.shape, dtype=np.int32)
-    n = scores.shape[1]
-    for b in range(scores.shape[0]):
-        ascending = np.sort(scores[b])
-        out[b] = 1 + n - np.searchsorted(ascending, scores[b], side="right")
+    """Competition ranks (1 + strictly better entries) of each row of a (resamples, entries) score array.
+
+    One sort of every row at once; an entry's rank is read off the end of its run of equal scores (every
+    entry of a run of ties shares it), then put back in entry order. At 1,000 resamples × 10,000 entries:
+    0.6 s where a sort and a binary search per row took 1.1 s (BENCHMARKS.md, "Board updates")."""
+    r, n = scores.shape
+    out = np.empty((r, n), dtype=np.int32)
+    if n == 0:
+        return out
+    order = np.argsort(scores, axis=1)
+    ascending = np.take_along_axis(scores, order, axis=1)
+    # the last position of each run of equal scores, carried back over the run
+    last = np.full((r, n), n - 1, dtype=np.int32)
+    ends = ascending[:, 1:] != ascending[:, :-1]
+    positions = np.arange(n - 1, dtype=np.int32)
+    last[:, :-1] = np.where(ends, positions, n - 1)
+    last = np.minimum.accumulate(last[:, ::-1], axis=1)[:, ::-1]
+    np.put_along_axis(out, order, n - last, axis=1)  # strictly better: the n - 1 - last above its run
     return out
 
 
 def rank_interval(ranks: np.ndarray, confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray]:
-    """Integer rank interval per entry: the ranks it takes in the central ``confidence`` of resamples."""
+    """Integer rank interval per entry: the ranks it takes in the central ``confidence`` of resamples
+    (``numpy.quantile``'s ``lower`` and ``higher`` order statistics, found by one partial sort)."""
     tail = (1.0 - confidence) / 2.0
-    lo = np.quantile(ranks, tail, axis=0, method="lower")
-    hi = np.quantile(ranks, 1.0 - tail, axis=0, method="higher")
-    return lo.astype(int), hi.astype(int)
+    r = ranks.shape[0]
+    if r == 0:
+        raise ValueError("a rank interval needs resamples")
+    low = int(np.floor(tail * (r - 1)))
+    high = int(np.ceil((1.0 - tail) * (r - 1)))
+    picked = np.partition(ranks, sorted({low, high}), axis=0)
+    return picked[low].astype(int), picked[high].astype(int)
 
 
 def groups_needed(

@@ -28,7 +28,6 @@ each entry's own samples: an entry's samples are always computed alone), except 
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -94,8 +93,9 @@ class _Columns:
         self.stable_ci = np.zeros((0, 2))
         self.order = np.zeros((0, 4))  # the order statistics its score interval interpolates between
         self.rank_ci = np.zeros((0, 2), np.int64)  # -1: not computed since it arrived
-        # what its row showed when last handed out, and the row's serial
-        self.shown = np.zeros((0, 9 + metrics))
+        self.scoring = np.zeros(0, np.int64)  # a hash of what of its row its scoring depends on
+        # a hash of what its row showed when last handed out, and the row's serial
+        self.shown = np.zeros(0, np.uint64)
         self.serial = np.zeros(0, np.int64)
 
     def grow(self, needed: int) -> None:
@@ -189,8 +189,6 @@ class BoardMatrix:
         #: Each entry's public fields (JSON, or the dict where JSON would not give it back) and finish time.
         self._public: list[Any] = []
         self._completed: list[Any] = []
-        #: What of each entry's row its scoring depends on (a verdict or name changing moves no score).
-        self._scoring: list[bytes] = []
         self._parts = PartTable(setting)
         self._codes: dict[Any, int] = {}
         self._coded: list[Any] = []
@@ -256,7 +254,7 @@ class BoardMatrix:
             self._parts.drop(sid)
         self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
         c = self._c
-        placed: list[tuple[int, Mapping[str, Any]]] = []
+        slots: list[int] = []
         for row in upsert:
             sid = int(row["submission_id"])
             scoring = _scoring_fields(row)
@@ -269,41 +267,47 @@ class BoardMatrix:
                     c.grow(slot + 1)
                     self._public.append(None)
                     self._completed.append(None)
-                    self._scoring.append(b"")
                 self._slot[sid] = slot
                 c.scored[slot] = False
                 c.rank_ci[slot] = -1
-            elif self._scoring[slot] != scoring:
+            elif c.scoring[slot] != scoring:
                 self._basis = None
                 c.scored[slot] = False
                 c.rank_ci[slot] = -1
-            self._scoring[slot] = scoring
-            self._set(slot, row)
-            placed.append((slot, row.get("metrics") or {}))
-        if placed:  # each entry's stable score from its own metrics: element-wise, so all at once
-            stable = stable_scores([m for _, m in placed], self.setting)
-            c.stable[[slot for slot, _ in placed]] = stable
+            c.scoring[slot] = scoring
+            slots.append(slot)
+        if slots:
+            self._set(np.array(slots, dtype=np.intp), upsert)
 
-    def _set(self, slot: int, row: Mapping[str, Any]) -> None:
+    def _set(self, slots: np.ndarray, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Keep the rows' figures in their slots: a column at a time (a board's start sets 10,000)."""
         c = self._c
-        extras = row.get("extras") or {}
-        metrics = row.get("metrics") or {}
-        episodes = int(extras.get("episodes") or row.get("episodes_total") or 0)
-        c.sid[slot] = int(row["submission_id"])
-        c.episodes[slot] = episodes
-        c.failures[slot] = stats.policy_failure_count(extras.get("terminations"))
-        c.policy_failed[slot] = stats.run_failed(extras.get("terminations"), episodes)
-        c.submission_failed[slot] = row.get("submission_status") == "failed"
-        c.who[slot] = self._code(participant_key(row))
-        ids = row.get("ids")
-        c.ids[slot] = -1 if ids is None else self._code(ids)
-        c.points[slot] = [_point(metrics.get(k)) for k in self.keys]
-        c.version[slot] = new_serials(1)[0]
-        c.shown[slot] = np.nan  # its row is new
-        public = {k: row.get(k) for k in _PUBLIC}
-        public["metrics"], public["extras"] = metrics, extras
-        self._public[slot] = _packed(public)
-        self._completed[slot] = row.get("completed_at")
+        extras = [row.get("extras") or {} for row in rows]
+        metrics = [row.get("metrics") or {} for row in rows]
+        episodes = [
+            int(e.get("episodes") or row.get("episodes_total") or 0)
+            for e, row in zip(extras, rows, strict=True)
+        ]
+        terminations = [e.get("terminations") for e in extras]
+        c.sid[slots] = [int(row["submission_id"]) for row in rows]
+        c.episodes[slots] = episodes
+        c.failures[slots] = [stats.policy_failure_count(t) for t in terminations]
+        c.policy_failed[slots] = [stats.run_failed(t, n) for t, n in zip(terminations, episodes, strict=True)]
+        c.submission_failed[slots] = [row.get("submission_status") == "failed" for row in rows]
+        c.who[slots] = [self._code(participant_key(row)) for row in rows]
+        c.ids[slots] = [-1 if row.get("ids") is None else self._code(row["ids"]) for row in rows]
+        c.points[slots] = np.array([[_point(m.get(k)) for k in self.keys] for m in metrics]).reshape(
+            len(rows), len(self.keys)
+        )
+        c.version[slots] = new_serials(len(rows))
+        c.shown[slots] = 0  # its row is new (no row hashes to 0 but by a 2**-64 chance)
+        for slot, row, m, e in zip(slots.tolist(), rows, metrics, extras, strict=True):
+            public = {k: row.get(k) for k in _PUBLIC}
+            public["metrics"], public["extras"] = m, e
+            self._public[slot] = _packed(public)
+            self._completed[slot] = row.get("completed_at")
+        # each entry's stable score from its own metrics: element-wise, so all at once
+        c.stable[slots] = stable_scores(metrics, self.setting)
 
     # -- the board
 
@@ -559,9 +563,10 @@ class BoardMatrix:
                 normalized,
             ]
         )
-        same = (c.shown[ranked] == shown) | (np.isnan(c.shown[ranked]) & np.isnan(shown))
-        moved = ranked[~np.all(same, axis=1)]
-        c.shown[moved] = shown[~np.all(same, axis=1)]
+        digest = _row_hashes(shown)
+        differs = c.shown[ranked] != digest
+        moved = ranked[differs]
+        c.shown[moved] = digest[differs]
         c.serial[moved] = new_serials(len(moved))
         intervals = np.full((n, len(self.keys), 2), np.nan)
         for k in np.flatnonzero(c.own[ranked]).tolist():
@@ -690,10 +695,32 @@ def new_serials(n: int) -> np.ndarray:
 _PUBLIC = ("submission_id", "name", "participant", "baseline", "verification")
 
 
-def _scoring_fields(row: Mapping[str, Any]) -> bytes:
-    """What of a row its scoring depends on (a verdict or name changing moves no score), as a digest."""
-    fields = (row.get("metrics"), row.get("extras"), row.get("ids"), row.get("submission_status"))
-    return hashlib.blake2b(repr(fields).encode(), digest_size=16).digest()
+def _scoring_fields(row: Mapping[str, Any]) -> int:
+    """What of a row its scoring depends on (a verdict or name changing moves no score), as a hash (of this
+    process: only compared with what the board kept)."""
+    fields = (row.get("metrics"), row.get("extras"), row.get("submission_status"))
+    try:
+        body = orjson.dumps(fields, option=orjson.OPT_NON_STR_KEYS)
+    except TypeError:
+        body = repr(fields).encode()
+    return hash((body, row.get("ids")))
+
+
+#: Odd multipliers of :func:`_row_hashes`, one per column a row shows.
+_MIX = np.random.default_rng(20_251_129).integers(0, 2**63, size=64, dtype=np.uint64) * np.uint64(
+    2
+) + np.uint64(1)
+
+
+def _row_hashes(shown: np.ndarray) -> np.ndarray:
+    """A 64-bit hash per row of what rows show (rows × columns, float64; NaN = NaN): the sum of each value's
+    bits times an odd number per column, modulo 2**64. A change of one value always changes it (an odd factor
+    is invertible); of several, by a 2**-64 chance. 8 bytes an entry where the figures took 136."""
+    canonical = np.where(np.isnan(shown), np.nan, shown + 0.0)  # one NaN; -0.0 and 0.0 alike
+    with np.errstate(over="ignore"):
+        bits = canonical.view(np.uint64) * _MIX[: shown.shape[1]]
+    hashes: np.ndarray = np.add.reduce(bits, axis=1, dtype=np.uint64)
+    return hashes
 
 
 def _point(value: object) -> float:

@@ -40,6 +40,7 @@ import orjson
 from robobpp.boards.ranking import (
     GRID_RESAMPLES,
     LazyRows,
+    Positions,
     RankedView,
     best_of_participants,
     board_dict,
@@ -97,6 +98,8 @@ class _Columns:
         # a hash of what its row showed when last handed out, and the row's serial
         self.shown = np.zeros(0, np.uint64)
         self.serial = np.zeros(0, np.int64)
+        # its metrics' key order, coded (-1: its metrics are kept in its public fields, not as its points)
+        self.named = np.zeros(0, np.int64)
 
     def grow(self, needed: int) -> None:
         if needed <= len(self.sid):
@@ -129,6 +132,11 @@ class _Snapshot:
     keys: tuple[str, ...]
     public: list[Any]
     completed: list[Any]
+    points: np.ndarray  # (entries, metrics): the point metrics, whence a row's metrics not kept in ``public``
+    named: (
+        np.ndarray
+    )  # per entry: its metrics' key order, coded in ``coded`` (-1: its metrics are in ``public``)
+    coded: list[Any]
     scores: np.ndarray
     score_ci: np.ndarray
     stable: np.ndarray
@@ -143,7 +151,9 @@ class _Snapshot:
         which moves with every entry they add: the reader puts it in)."""
         low, high = (int(x) for x in self.rank_ci[i])
         intervals = self.intervals[i].tolist()
-        return _public(self.public[i], self.completed[i]) | {
+        code = int(self.named[i])
+        metrics = None if code < 0 else _metrics(self.coded[code], self.keys, self.points[i])
+        return _public(self.public[i], self.completed[i], metrics) | {
             "rank": None,
             "rank_low": None if low < 0 else low,
             "rank_high": None if high < 0 else high,
@@ -301,13 +311,26 @@ class BoardMatrix:
         )
         c.version[slots] = new_serials(len(rows))
         c.shown[slots] = 0  # its row is new (no row hashes to 0 but by a 2**-64 chance)
+        named = []
         for slot, row, m, e in zip(slots.tolist(), rows, metrics, extras, strict=True):
             public = {k: row.get(k) for k in _PUBLIC}
-            public["metrics"], public["extras"] = m, e
+            # metrics that are exactly the board's point metrics are not kept twice (≈ 250 bytes an entry)
+            kept = len(m) == len(self.keys) and all(type(m.get(k)) is float for k in self.keys)
+            kept = kept and all(math.isfinite(v) for v in m.values())
+            named.append(self._code(tuple(m)) if kept else -1)
+            if not kept:
+                public["metrics"] = m
+            public["extras"] = e
             self._public[slot] = _packed(public)
             self._completed[slot] = row.get("completed_at")
+        c.named[slots] = named
         # each entry's stable score from its own metrics: element-wise, so all at once
         c.stable[slots] = stable_scores(metrics, self.setting)
+
+    def _metrics_of(self, slot: int) -> dict[str, float] | None:
+        """An entry's metrics when they are kept as its points (None: they are in its public fields)."""
+        code = int(self._c.named[slot])
+        return None if code < 0 else _metrics(self._coded[code], self.keys, self._c.points[slot])
 
     # -- the board
 
@@ -538,7 +561,7 @@ class BoardMatrix:
                 groups,
             )
             unranked.append(
-                _public(self._public[slot], self._completed[slot])
+                _public(self._public[slot], self._completed[slot], self._metrics_of(slot))
                 | {"status": status, "reason": reason, "entries_submitted": submitted[int(c.who[slot])]}
             )
         unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
@@ -575,6 +598,9 @@ class BoardMatrix:
             self.keys,
             [self._public[s] for s in ranked.tolist()],
             [self._completed[s] for s in ranked.tolist()],
+            points,
+            c.named[ranked],
+            self._coded,  # only ever appended to
             scores,
             c.score_ci[ranked],
             c.stable[ranked],
@@ -614,7 +640,7 @@ class BoardMatrix:
             None,
             None,
             by_column,
-            index=dict(zip(view.ids.tolist(), range(n), strict=True)),
+            index=Positions(sids, order),
             tops={
                 "best": board_tops(scores[chosen], points[chosen], self.keys),
                 "all": board_tops(scores, points, self.keys),
@@ -654,9 +680,18 @@ class BoardMatrix:
         return rel, stable
 
 
-def _public(packed: Any, completed: Any) -> dict[str, Any]:
-    """An entry's public fields (``boards.public_fields``) from what the board keeps of them."""
+def _metrics(order: tuple[str, ...], keys: tuple[str, ...], points: np.ndarray) -> dict[str, float]:
+    """An entry's metrics dict (keys in ``order``) from its point metrics (in the board's ``keys``)."""
+    values = dict(zip(keys, points.tolist(), strict=True))
+    return {k: values[k] for k in order}
+
+
+def _public(packed: Any, completed: Any, metrics: dict[str, float] | None = None) -> dict[str, Any]:
+    """An entry's public fields (``boards.public_fields``) from what the board keeps of them (``metrics``:
+    when they are not among them)."""
     fields = orjson.loads(packed) if isinstance(packed, bytes) else dict(packed)
+    if metrics is not None:
+        fields["metrics"] = metrics
     return {
         "submission_id": fields["submission_id"],
         "name": fields["name"],

@@ -146,7 +146,7 @@ class Stacked:
         or stacked with others, in any block of resamples. A weight column that is 1 in every group (a
         metric measured in every group) sums to the group count in every resample: no product for it."""
         r = plan.shape[0]
-        means = (self.columns @ plan.T).reshape(self.metrics, self.entries, r)
+        means: np.ndarray = (self.columns @ plan.T).reshape(self.metrics, self.entries, r)
         sums = self.weights @ plan.T if self.weights.shape[0] else None
         total = plan.sum(axis=1)  # the group count, exactly, in every resample
         row_of = np.cumsum(self.weighed.reshape(-1)) - 1  # (metric, entry) -> its row of ``weights``

@@ -148,7 +148,8 @@ def metric_samples(figures: Sequence[Mapping[str, Any]], key: str, counts: np.nd
     with np.errstate(invalid="ignore", divide="ignore"):
         top /= bottom
     top[bottom <= 0] = np.nan
-    return top
+    means: np.ndarray = top
+    return means
 
 
 def interval(

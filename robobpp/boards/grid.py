@@ -285,8 +285,7 @@ class GridMatrix:
                 row["best_rank"], row["best_rank_low"], row["best_rank_high"] = b
             return row
 
-        in_order = order.tolist()
-        rows = LazyRows(lambda: [listed(i) | {"_base": built.row(i)} for i in in_order])
+        rows = LazyRows(lambda: [listed(i) | {"_base": built.row(i)} for i in order.tolist()])
         best = [listed(i) | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]} for i, b in best_of.items()]
         best.sort(key=lambda r: (r["rank"], r["submission_id"]))
         return rows, best, view

@@ -616,14 +616,14 @@ class BoardMatrix:
 
         def listed(i: int) -> dict[str, Any]:
             """Column ``i`` as the all-entries view lists it (``boards.finish_board``'s entry)."""
-            d = snap.row(i) | {"rank": ranks[i], "entries_submitted": counts_of[i], "_column": i}
+            d = snap.row(i) | {"rank": int(rank_of[i]), "entries_submitted": counts_of[i], "_column": i}
             b = best_of.get(i)
             if b is not None:
                 d["best_rank"], d["best_rank_low"], d["best_rank_high"] = b
             return d
 
-        at = order.tolist()
-        entries = LazyRows(lambda: [listed(i) | {"_base": snap.row(i)} for i in at])
+        # arrays, not lists, in what the rows are built from (10,000 int objects a board otherwise)
+        entries = LazyRows(lambda: [listed(i) | {"_base": snap.row(i)} for i in order.tolist()])
         best_rows = [
             listed(i) | {"rank": b[0], "rank_low": b[1], "rank_high": b[2]} for i, b in best_of.items()
         ]

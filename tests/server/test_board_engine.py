@@ -8,6 +8,7 @@ import json
 import math
 import random
 import re
+import struct
 import weakref
 from collections import UserList
 from collections.abc import Iterator, Mapping
@@ -372,6 +373,50 @@ def test_the_migration_computes_the_parts_of_runs_finished_before_it(db_url: str
                 assert run.entry == part_of_run(run.figures, "math")
     finally:
         engine.dispose()
+
+
+def test_the_migration_recomputes_the_parts_of_an_older_format(db_url: str, factory: Any) -> None:
+    add_submission(factory, "team-0", 0.5, seed=3)
+    with factory() as s:
+        runs = s.execute(select(RunRow).order_by(RunRow.id)).scalars().all()
+        current = {run.id: part_of_run(run.figures, run.setting) for run in runs}
+        settings = {run.id: run.setting for run in runs}
+    assert len(current) >= 3
+    older: dict[int, bytes | None] = {}
+    for k, (run_id, entry) in enumerate(current.items()):  # as format 3 stored them (one run without any)
+        assert entry is not None
+        part = EntryPart.decode(entry, settings[run_id])
+        assert part is not None
+        older[run_id] = None if k == 0 else _format_3(part)
+        assert older[run_id] is None or EntryPart.decode(older[run_id], settings[run_id]) is None
+    engine = make_engine(db_url)
+    try:
+        with engine.begin() as c:
+            for run_id, stored in older.items():
+                c.execute(text("UPDATE runs SET entry = :e WHERE id = :i"), {"e": stored, "i": run_id})
+            c.execute(text("UPDATE alembic_version SET version_num = '0012'"))
+        upgrade(db_url)
+        with factory() as s:
+            after = dict(s.execute(select(RunRow.id, RunRow.entry)).tuples().all())
+        assert after == current
+    finally:
+        engine.dispose()
+
+
+def _format_3(part: EntryPart) -> bytes:
+    """A part as format 3 stored it (float64 figures)."""
+    header = struct.pack("<4sHHHH", b"RBPE", 3, part.groups, part.top.shape[1], 0)
+    return b"".join(
+        (
+            header,
+            part.ids.astype("<i8").tobytes(),
+            part.top.astype("<f8").tobytes(),
+            part.bottom.astype("<f8").tobytes(),
+            part.metric_ci.astype("<f8").tobytes(),
+            np.array(part.stable_ci, dtype="<f8").tobytes(),
+            np.array([part.seed], dtype="<u8").tobytes(),
+        )
+    )
 
 
 class _Cycle:

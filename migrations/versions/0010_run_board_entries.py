@@ -11,9 +11,6 @@ figures keeps NULL (its boards show its point figures without an interval, as be
 
 from __future__ import annotations
 
-import json
-from typing import Any
-
 import sqlalchemy as sa
 from alembic import op
 
@@ -22,54 +19,13 @@ down_revision = "0009"
 branch_labels = None
 depends_on = None
 
-BATCH = 2000
-
 
 def upgrade() -> None:
     with op.batch_alter_table("runs") as batch:
         batch.add_column(sa.Column("entry", sa.LargeBinary(), nullable=True))
-    fill_entries(op.get_bind())
+    from robobpp.db.entries import fill_entries  # the scoring of this revision's code
 
-
-def fill_entries(connection: Any) -> int:
-    """Compute ``runs.entry`` of every completed run with figures that has none; returns how many."""
-    from robobpp.scoring.entries import part_of_run  # the scoring of this revision's code
-
-    runs = sa.table(
-        "runs",
-        sa.column("id", sa.Integer()),
-        sa.column("setting", sa.String()),
-        sa.column("status", sa.String()),
-        sa.column("figures", sa.Text()),
-        sa.column("entry", sa.LargeBinary()),
-    )
-    done, last = 0, 0
-    while True:
-        rows = connection.execute(
-            sa.select(runs.c.id, runs.c.setting, sa.cast(runs.c.figures, sa.Text()))
-            .where(
-                runs.c.id > last,
-                runs.c.status == "completed",
-                runs.c.figures.is_not(None),
-                runs.c.entry.is_(None),
-            )
-            .order_by(runs.c.id)
-            .limit(BATCH)
-        ).all()
-        if not rows:
-            return done
-        values = []
-        for run_id, setting, figures in rows:
-            entry = part_of_run(json.loads(figures) if isinstance(figures, str) else figures, setting)
-            if entry is not None:
-                values.append({"run_id": run_id, "entry": entry})
-        if values:
-            connection.execute(
-                runs.update().where(runs.c.id == sa.bindparam("run_id")).values(entry=sa.bindparam("entry")),
-                values,
-            )
-        done += len(values)
-        last = rows[-1][0]
+    fill_entries(op.get_bind(), missing_only=True)
 
 
 def downgrade() -> None:

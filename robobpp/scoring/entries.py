@@ -37,6 +37,14 @@ _HEADER = struct.Struct("<4sHHHH")  # magic, format, groups, metrics, resamples 
 _MAGIC = b"RBPE"
 
 
+def stored_format(data: bytes) -> int | None:
+    """The format a stored part was written in (None: not a part)."""
+    if len(data) < _HEADER.size:
+        return None
+    magic, fmt, *_ = _HEADER.unpack_from(data)
+    return int(fmt) if magic == _MAGIC else None
+
+
 @cache
 def metric_keys(setting: str) -> tuple[str, ...]:
     """The scored metrics of a setting, in the order of its weights (the order scores sum them)."""

@@ -59,7 +59,7 @@ from robobpp.scoring.entries import (
     stable_samples,
     with_timing_noise,
 )
-from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max, stable_scores
+from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max, stable_scores_of
 
 #: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
@@ -306,9 +306,10 @@ class BoardMatrix:
         c.submission_failed[slots] = [row.get("submission_status") == "failed" for row in rows]
         c.who[slots] = [self._code(participant_key(row)) for row in rows]
         c.ids[slots] = [-1 if row.get("ids") is None else self._code(row["ids"]) for row in rows]
-        c.points[slots] = np.array([[_point(m.get(k)) for k in self.keys] for m in metrics]).reshape(
+        points = np.array([[_point(m.get(k)) for k in self.keys] for m in metrics]).reshape(
             len(rows), len(self.keys)
         )
+        c.points[slots] = points
         c.version[slots] = new_serials(len(rows))
         c.shown[slots] = 0  # its row is new (no row hashes to 0 but by a 2**-64 chance)
         named = []
@@ -325,7 +326,7 @@ class BoardMatrix:
             self._completed[slot] = row.get("completed_at")
         c.named[slots] = named
         # each entry's stable score from its own metrics: element-wise, so all at once
-        c.stable[slots] = stable_scores(metrics, self.setting)
+        c.stable[slots] = stable_scores_of(points, self.setting)
 
     def _metrics_of(self, slot: int) -> dict[str, float] | None:
         """An entry's metrics when they are kept as its points (None: they are in its public fields)."""

@@ -106,10 +106,17 @@ def anchored(values: np.ndarray, key: str) -> np.ndarray:
 
 def stable_scores(entries: Sequence[Mapping[str, object]], setting: str) -> list[float]:
     """Each entry's stable score from its own raw metrics alone (no other entry can move it)."""
-    total = np.zeros(len(entries))
-    for key, weight in WEIGHTS[setting].items():
-        total += weight * anchored(_column(entries, key), key)
-    return [round(float(v), 12) for v in total]
+    columns = [_column(entries, key) for key in WEIGHTS[setting]]
+    return stable_scores_of(np.column_stack(columns) if columns else np.zeros((len(entries), 0)), setting)
+
+
+def stable_scores_of(points: np.ndarray, setting: str) -> list[float]:
+    """:func:`stable_scores` of entries given as their metrics: entries × the setting's metrics (in the order
+    of its weights), NaN = missing."""
+    total = np.zeros(points.shape[0])
+    for j, (key, weight) in enumerate(WEIGHTS[setting].items()):
+        total += weight * anchored(points[:, j], key)
+    return [round(v, 12) for v in total.tolist()]
 
 
 def _column(entries: Sequence[Mapping[str, object]], key: str) -> np.ndarray:

@@ -192,17 +192,23 @@ def rank_samples(scores: np.ndarray) -> np.ndarray:
     integer keys that carry the column was no faster)."""
     r, n = scores.shape
     out = np.empty((r, n), dtype=np.int32)
-    if n == 0:
-        return out
-    order = np.argsort(scores, axis=1)
-    ascending = np.take_along_axis(scores, order, axis=1)
-    # the last position of each run of equal scores, carried back over the run
-    last = np.full((r, n), n - 1, dtype=np.int32)
-    ends = ascending[:, 1:] != ascending[:, :-1]
-    last[:, :-1] = np.where(ends, np.arange(n - 1, dtype=np.int32), n - 1)
-    last = np.minimum.accumulate(last[:, ::-1], axis=1)[:, ::-1]
-    np.put_along_axis(out, order, n - last, axis=1)  # strictly better: the n - 1 - last above its run
+    step = max(1, _RANKED_AT_ONCE // max(n, 1))  # rows at a time: 24 bytes a score of transient arrays
+    for a in range(0, r if n else 0, step):
+        block = scores[a : a + step]
+        order = np.argsort(block, axis=1)
+        ascending = np.take_along_axis(block, order, axis=1)
+        # the last position of each run of equal scores, carried back over the run
+        last = np.full(block.shape, n - 1, dtype=np.int32)
+        ends = ascending[:, 1:] != ascending[:, :-1]
+        last[:, :-1] = np.where(ends, np.arange(n - 1, dtype=np.int32), n - 1)
+        last = np.minimum.accumulate(last[:, ::-1], axis=1)[:, ::-1]
+        # strictly better: the n - 1 - last above its run
+        np.put_along_axis(out[a : a + step], order, n - last, axis=1)
     return out
+
+
+#: Scores ranked at a time by :func:`rank_samples` (bounds its transient arrays to ≈ 100 MB).
+_RANKED_AT_ONCE = 4_000_000
 
 
 def rank_interval(ranks: np.ndarray, confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray]:

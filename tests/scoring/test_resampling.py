@@ -116,7 +116,11 @@ def test_the_timing_seed_is_the_same_from_the_recorded_figures_and_from_the_part
         assert stats.timing_seed(recorded) == part.seed == part_seed(part.top, part.bottom, SETTING)
 
 
-def test_ranks_of_every_resample_are_one_plus_the_strictly_better() -> None:
+@pytest.mark.parametrize("at_once", [4_000_000, 7 * 40, 1])  # one block, blocks of 7 resamples, one row each
+def test_ranks_of_every_resample_are_one_plus_the_strictly_better(
+    at_once: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(stats, "_RANKED_AT_ONCE", at_once)
     rng = np.random.default_rng(11)
     scores = np.round(rng.random((50, 40)), 1)  # many ties
     ranks = stats.rank_samples(scores)

@@ -65,7 +65,8 @@ from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
 #: Entries whose samples are computed at a time (bounds the transient array: chunk × resamples × metrics).
 CHUNK = 512
-#: Samples computed at a time in a full computation (metrics × entries × a block of resamples: 64 MB).
+#: Samples computed at a time in a full computation (metrics × entries × a block of resamples: 64 MB; more
+#: past 15,000 entries, a block being at least 64 resamples).
 BLOCK_VALUES = 8_000_000
 _NONE = np.zeros((0, 0))
 #: The grid's resamples: the first of the plan's.
@@ -510,7 +511,8 @@ class BoardMatrix:
         lo, hi = np.full((r, m), np.nan), np.full((r, m), np.nan)
         if n:
             stack = self._stack(ranked, usable)
-            step = max(8, BLOCK_VALUES // (m * n))
+            # at least 64 resamples a block: each block's matrix product reads every entry's figures once
+            step = max(64, BLOCK_VALUES // (m * n))
             for a in range(0, r, step):
                 rows = np.arange(a, min(r, a + step))
                 samples = self._resample(stack, plan[rows], rows)

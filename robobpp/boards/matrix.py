@@ -10,10 +10,10 @@ public fields, kept as one compact JSON string. What an arriving entry can chang
   entry's relative score samples move: only the new entry's samples, score interval and the point ranks
   are computed. When it moves some (a new best or worst), only those resamples of the others are computed
   again; when an entry leaves, or the board's groups change, every entry's samples are (from the figures
-  kept, in chunks).
+  kept: a block of resamples of every entry at a time, each sample computed once).
 * ranks and rank intervals. Point ranks and the best entries' rank intervals (the default view, one
   entry per participant) are recomputed on every update. The all-entries rank intervals need every entry's
-  rank in every resample (a sort of each resample: seconds at 10,000 entries, BENCHMARKS.md): they are
+  rank in every resample (a sort of each resample: 0.6 s a board at 10,000 entries, BENCHMARKS.md): they are
   computed by a full computation (``rank_intervals=True``, the board worker's refresh timer); between two,
   an entry keeps the interval last computed and a new entry has none (served as null).
 
@@ -23,7 +23,8 @@ rows are built on demand from a snapshot of the columns, with a serial per row t
 the row shows does (the publisher serialises a row again only then).
 
 The board produced equals :func:`robobpp.boards.ranking.build_board` of the same rows (to the last bit of
-each entry's own samples: an entry's samples are always computed alone), except for those rank intervals.
+each entry's own samples: its float32 figures make every resampled sum exact, so its samples are the same
+computed alone, among others or in any block of resamples), except for those rank intervals.
 """
 
 from __future__ import annotations
@@ -134,9 +135,7 @@ class _Snapshot:
     public: list[Any]
     completed: list[Any]
     points: np.ndarray  # (entries, metrics): the point metrics, whence a row's metrics not kept in ``public``
-    named: (
-        np.ndarray
-    )  # per entry: its metrics' key order, coded in ``coded`` (-1: its metrics are in ``public``)
+    named: np.ndarray  # per entry: its metrics' key order in ``coded`` (-1: its metrics are in ``public``)
     coded: list[Any]
     scores: np.ndarray
     score_ci: np.ndarray

@@ -465,8 +465,8 @@ class BoardMatrix:
             )
             slo, shi = stats.interval(stable_samples(apart, self.setting).T)
             c.stable_ci[slots[~own], 0], c.stable_ci[slots[~own], 1] = slo, shi
-        for slot, sid in zip(slots[own].tolist(), c.sid[slots[own]].tolist(), strict=True):
-            c.stable_ci[slot] = self._parts.intervals(sid)[1]
+        if own.any():
+            c.stable_ci[slots[own]] = self._parts.intervals_of(c.sid[slots[own]].tolist())[1]
         c.scored[slots] = True
         self.recomputed += len(slots)
 
@@ -594,8 +594,9 @@ class BoardMatrix:
         c.shown[moved] = digest[differs]
         c.serial[moved] = new_serials(len(moved))
         intervals = np.full((n, len(self.keys), 2), np.nan)
-        for k in np.flatnonzero(c.own[ranked]).tolist():
-            intervals[k] = self._parts.intervals(int(sids[k]))[0]
+        own = np.flatnonzero(c.own[ranked])
+        if len(own):
+            intervals[own] = self._parts.intervals_of(sids[own].tolist())[0]
         snap = _Snapshot(
             self.keys,
             [self._public[s] for s in ranked.tolist()],

@@ -43,11 +43,20 @@ def test_parts_come_back_bit_for_bit() -> None:
         top, bottom = table.stacked(sids)
         assert np.array_equal(top, np.stack([parts[s].top for s in sids]))
         assert np.array_equal(bottom, np.stack([parts[s].bottom for s in sids]))
-        for s in sids:
+        metric_all, stable_all = table.intervals_of(sids)
+        for k, s in enumerate(sids):
             assert table.seed(s) == parts[s].seed
             metric_ci, stable_ci = table.intervals(s)
             assert np.array_equal(metric_ci, parts[s].metric_ci, equal_nan=True)
             assert stable_ci == parts[s].stable_ci
+            assert np.array_equal(metric_all[k], parts[s].metric_ci, equal_nan=True)
+            assert tuple(stable_all[k]) == parts[s].stable_ci
+        other = _part(rng, setting, 5, holes=False)  # another group-id list: another block
+        table.put(99, other)
+        metric_two, stable_two = table.intervals_of([99, sids[0]])
+        assert np.array_equal(metric_two[0], other.metric_ci, equal_nan=True)
+        assert np.array_equal(metric_two[1], parts[sids[0]].metric_ci, equal_nan=True)
+        assert tuple(stable_two[0]) == other.stable_ci
 
 
 def test_a_part_the_nan_cannot_say_keeps_its_weights() -> None:

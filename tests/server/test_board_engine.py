@@ -398,7 +398,7 @@ def test_the_migration_recomputes_the_parts_of_an_older_format(db_url: str, fact
             c.execute(text("UPDATE alembic_version SET version_num = '0012'"))
         upgrade(db_url)
         with factory() as s:
-            after = dict(s.execute(select(RunRow.id, RunRow.entry)).tuples().all())
+            after = {run_id: entry for run_id, entry in s.execute(select(RunRow.id, RunRow.entry))}
         assert after == current
     finally:
         engine.dispose()

@@ -27,7 +27,7 @@ import numpy as np
 
 from robobpp.scoring import stats
 from robobpp.scoring.metrics import POOLED
-from robobpp.scoring.scores import RESOLVED, WEIGHTS, anchored, timing_spread
+from robobpp.scoring.scores import RESOLVED, WEIGHTS, add_timing_noise, anchored
 
 #: Bumped when the stored layout or what it holds changes; a part of another format is recomputed.
 #: 3: the timing noise's seed; the stable interval with Decision Time under anchors-v2 and timing noise.
@@ -78,13 +78,6 @@ class EntryPart:
     @property
     def groups(self) -> int:
         return int(self.ids.shape[0])
-
-    def samples(self, plan: np.ndarray | None = None) -> np.ndarray:
-        """Each metric's run figure under each resample: (resamples, metrics), NaN = unmeasured."""
-        samples: np.ndarray = samples_of(
-            self.top[None], self.bottom[None], counts(self.groups) if plan is None else plan
-        )[:, 0, :].T
-        return samples
 
     def encode(self) -> bytes:
         m = len(metric_keys(self.setting))
@@ -221,22 +214,10 @@ def with_timing_noise(
     samples: np.ndarray, seeds: Sequence[int | None], setting: str, rows: np.ndarray | None = None
 ) -> np.ndarray:
     """Entries' (metrics, entries, resamples) samples, in place, with each one's Decision Time moved by its
-    timing noise (:func:`robobpp.scoring.scores.timed`'s arithmetic; None: no noise); ``rows``: which
-    resamples of the plan."""
+    timing noise (:func:`robobpp.scoring.scores.add_timing_noise`); ``rows``: which resamples of the plan."""
     rows = np.arange(samples.shape[2]) if rows is None else rows
-    noisy = [i for i, seed in enumerate(seeds) if seed is not None]
-    if not noisy:
-        return samples
-    unit = stats.timing_noise(np.array([seeds[i] for i in noisy], dtype=np.uint64), rows)
     for key in RESOLVED:
-        times = samples[metric_keys(setting).index(key)]
-        everyone = len(noisy) == times.shape[0]
-        t = times if everyone else times[noisy]
-        moved = timing_spread(t)
-        moved *= unit
-        t += moved
-        if not everyone:
-            times[noisy] = t
+        add_timing_noise(samples[metric_keys(setting).index(key)], seeds, rows)
     return samples
 
 

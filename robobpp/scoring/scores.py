@@ -181,27 +181,31 @@ def normalize(values: Sequence[float | None], key: str) -> list[float]:
 
 
 def timed(samples: np.ndarray, seeds: Sequence[int | None], rows: np.ndarray | None = None) -> np.ndarray:
-    """Decision Time samples (resamples, entries) with each entry's timing noise: a uniform draw within ± the
-    resolution of each sample's time (:func:`stats.timing_noise`; ``seeds``: each entry's
-    :func:`stats.timing_seed`, None = no noise: an entry without per-group figures); ``rows``: which resamples
-    of the plan these are (default: all, in order). Element-wise, so an entry's samples are the same computed
-    alone or among others, by ``score_board`` or by the board engine."""
-    rows = np.arange(samples.shape[0]) if rows is None else rows
-    noisy = [i for i, seed in enumerate(seeds) if seed is not None]
-    if not noisy:
-        return samples
-    unit = stats.timing_noise(np.array([seeds[i] for i in noisy], dtype=np.uint64), rows).T
+    """Decision Time samples (resamples, entries) with each entry's timing noise (:func:`add_timing_noise`),
+    as a new array; ``rows``: which resamples of the plan these are (default: all, in order)."""
     out = samples.copy()
-    times = out[:, noisy]
-    out[:, noisy] = times + unit * timing_spread(times)
+    add_timing_noise(out.T, seeds, np.arange(samples.shape[0]) if rows is None else rows)
     return out
 
 
-def timing_spread(times: np.ndarray) -> np.ndarray:
-    """How far timing noise may move each time (a new array): the measurement's resolution at that time."""
-    spread: np.ndarray = DECISION_RESOLUTION_SHARE * times
-    spread += DECISION_RESOLUTION_S
-    return spread
+def add_timing_noise(times: np.ndarray, seeds: Sequence[int | None], rows: np.ndarray) -> None:
+    """Move Decision Time samples (entries, resamples ``rows`` of the plan), in place, by each entry's timing
+    noise: a uniform draw within ± the resolution of each sample's time (:func:`stats.timing_noise`;
+    ``seeds``: each entry's :func:`stats.timing_seed`, None = no noise: an entry without per-group figures).
+    Element-wise, so an entry's samples are the same computed alone or among others, by ``score_board`` or
+    by the board engine."""
+    noisy = [i for i, seed in enumerate(seeds) if seed is not None]
+    if not noisy:
+        return
+    unit = stats.timing_noise(np.array([seeds[i] for i in noisy], dtype=np.uint64), rows)
+    everyone = len(noisy) == times.shape[0]
+    t = times if everyone else times[noisy]  # every entry (the usual case): no copy
+    moved = DECISION_RESOLUTION_SHARE * t
+    moved += DECISION_RESOLUTION_S
+    moved *= unit
+    t += moved
+    if not everyone:
+        times[noisy] = t
 
 
 def competition_ranks(scores: Sequence[float]) -> list[int]:

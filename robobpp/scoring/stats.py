@@ -192,8 +192,10 @@ def rank_samples(scores: np.ndarray) -> np.ndarray:
     integer keys that carry the column was no faster)."""
     r, n = scores.shape
     out = np.empty((r, n), dtype=np.int32)
-    step = max(1, _RANKED_AT_ONCE // max(n, 1))  # rows at a time: 24 bytes a score of transient arrays
-    for a in range(0, r if n else 0, step):
+    if n == 0:
+        return out
+    step = max(1, _RANKED_AT_ONCE // n)  # rows at a time: 24 bytes a score of transient arrays
+    for a in range(0, r, step):
         block = scores[a : a + step]
         order = np.argsort(block, axis=1)
         ascending = np.take_along_axis(block, order, axis=1)

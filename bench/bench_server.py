@@ -339,7 +339,7 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
                 boards[f"{st}/{d}"] = leaderboard(s, d, st)
                 out.append(
                     (
-                        f"board {st}/{d} ({len(boards[f'{st}/{d}']['entries'])} ranked)",
+                        f"board {st}/{d} ({len(boards[f'{st}/{d}'].entries)} ranked)",
                         time.perf_counter() - t0,
                         time.process_time() - c0,
                     )
@@ -353,7 +353,7 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
                 boards[f"{st}/{d}"] = leaderboard(s, d, st, protocol="paper")
                 out.append(
                     (
-                        f"board {st}/{d}, paper protocol ({len(boards[f'{st}/{d}']['entries'])} ranked)",
+                        f"board {st}/{d}, paper protocol ({len(boards[f'{st}/{d}'].entries)} ranked)",
                         time.perf_counter() - t0,
                         time.process_time() - c0,
                     )

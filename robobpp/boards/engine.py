@@ -31,6 +31,7 @@ from sqlalchemy.orm import Session
 from robobpp.boards.grid import GridMatrix
 from robobpp.boards.matrix import BoardMatrix, PartLoader
 from robobpp.boards.ranking import build_board, build_grid
+from robobpp.boards.records import Board, Grid, Published, as_board, with_lookaheads
 from robobpp.db import queries
 from robobpp.db.models import Submission
 from robobpp.scoring.entries import EntryPart, entry_part
@@ -42,8 +43,6 @@ SessionFactory = Callable[[], AbstractContextManager[Session]]
 #: A full computation that has run this long says how far it is after each board (at 100,000 submissions one
 #: takes 18 minutes, during which the worker was silent).
 PROGRESS_AFTER_S = 30.0
-#: What a board carries for its track's grids only (resample matrices, scores by column): never handed out.
-_GRID_ONLY = ("_samples", "_stable_samples", "_by_column")
 BoardKey = tuple[str, ...] | str
 _LOOKAHEAD_GRID = "grid-lookahead-"
 
@@ -96,7 +95,7 @@ def leaderboard(
     track: str = "private",
     protocol: str = CLOSED,
     lookahead: int = 0,
-) -> dict[str, Any]:
+) -> Board:
     """One board, computed now: see :func:`robobpp.boards.ranking.build_board`.
 
     ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
@@ -108,8 +107,7 @@ def leaderboard(
     board = build_board(
         queries.board_rows(session, dataset, setting, track, protocol, lookahead), dataset, setting, track
     )
-    board["protocol"] = protocol
-    board["lookahead"] = lookahead
+    board.protocol, board.lookahead = protocol, lookahead
     return board
 
 
@@ -121,7 +119,7 @@ def overall_grid(
     track: str = "private",
     protocol: str = CLOSED,
     lookahead: int = 0,
-) -> dict[str, Any]:
+) -> Grid:
     """The paper's overall table (see :func:`robobpp.boards.ranking.build_grid`), computed now;
     ``protocol="paper"``: its physical columns under the paper protocol (the Mean then averages those);
     ``lookahead``: of the submissions that saw that many next boxes."""
@@ -131,7 +129,7 @@ def overall_grid(
         for d in datasets
     }
     grid = build_grid(boards, datasets, settings, track)
-    grid["protocol"], grid["lookahead"] = protocol, lookahead
+    grid.protocol, grid.lookahead = protocol, lookahead
     return grid
 
 
@@ -152,16 +150,16 @@ def track_lookaheads(
 
 def compute_snapshot(
     session: Session, datasets: tuple[str, ...], settings: tuple[str, ...], track: str
-) -> dict[str, Any]:
-    """Every board of a track and its overall grids, computed now: ``{"boards": {(dataset, setting): board,
-    (dataset, setting, "paper"): board, (dataset, setting, "closed", "K"): board}, "grid": grid, "grid-paper":
-    grid, "grid-lookahead-K": grid}`` — closed loop, the physical settings under the paper protocol (a Math Pack
-    board is the same under both), and the closed loop of each lookahead K > 0 with entries (keys:
+) -> dict[BoardKey, Published]:
+    """Every board of a track and its overall grids, computed now, by key as the engine hands them out:
+    ``(dataset, setting)``, ``(dataset, setting, "paper")``, ``(dataset, setting, "closed", "K")``, ``"grid"``,
+    ``"grid-paper"``, ``"grid-lookahead-K"`` — closed loop, the physical settings under the paper protocol (a
+    Math Pack board is the same under both), and the closed loop of each lookahead K > 0 with entries (keys:
     :func:`board_id`, :func:`grid_id`). The boards lose the resample arrays only the grids need (tens of MB at
     10,000 entries)."""
     lookaheads = track_lookaheads(session, track, datasets, settings)
-    boards: dict[tuple[str, ...], dict[str, Any]] = {}
-    grids: dict[str, dict[str, Any]] = {}
+    boards: dict[tuple[str, ...], Board] = {}
+    grids: dict[str, Grid] = {}
     for lookahead in lookaheads:
         for protocol in lookahead_protocols(lookahead):
             for st in settings:
@@ -175,13 +173,12 @@ def compute_snapshot(
                 f"{st}/{d}": boards[board_id(d, st, protocol, lookahead)] for st in settings for d in datasets
             }
             grid = build_grid(shown, datasets, settings, track)
-            grids[grid_id(protocol, lookahead)] = grid | {"protocol": protocol, "lookahead": lookahead}
-    for b in boards.values():
-        for name in _GRID_ONLY:
-            b.pop(name, None)
-    for out in (*boards.values(), *grids.values()):
-        out["lookaheads"] = lookaheads
-    return {"boards": boards, **grids}
+            grid.protocol, grid.lookahead = protocol, lookahead
+            grids[grid_id(protocol, lookahead)] = grid
+    out: dict[BoardKey, Published] = {key: board.served() for key, board in boards.items()}
+    out.update(grids)
+    with_lookaheads(out.values(), lookaheads)
+    return out
 
 
 def finished_submissions(session: Session, track: str) -> dict[int, tuple[Any, ...]]:
@@ -205,7 +202,7 @@ class _Track:
 
     seen: dict[int, tuple[Any, ...]]
     boards: dict[tuple[str, ...], BoardMatrix]
-    out: dict[BoardKey, dict[str, Any]] = field(default_factory=dict)
+    out: dict[BoardKey, Published] = field(default_factory=dict)
     #: The grids kept between updates, by grid key.
     grids: dict[str, GridMatrix] = field(default_factory=dict)
     #: The lookaheads with boards (0 always), as every board and grid handed out says.
@@ -259,7 +256,7 @@ class BoardEngine:
             for d in self.datasets
         ]
 
-    def update(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+    def update(self, track: str) -> dict[BoardKey, Published]:
         """The track's boards and grids that changed since the last call, now current."""
         with self._lock:
             if track not in self._tracks:
@@ -268,7 +265,7 @@ class BoardEngine:
             with _collector_paused(full=False, large=self._large):
                 return self._update(track)
 
-    def _update(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+    def _update(self, track: str) -> dict[BoardKey, Published]:
         state = self._tracks[track]
         with self.session_factory() as session:
             seen = finished_submissions(session, track)
@@ -298,7 +295,7 @@ class BoardEngine:
         state.seen = seen
         self._drop_empty(state)  # and its last takes them away
         touched &= state.boards.keys()
-        changed_out: dict[BoardKey, dict[str, Any]] = {}
+        changed_out: dict[BoardKey, Published] = {}
         for key in touched:
             state.out[key] = state.boards[key].board()
             changed_out[key] = state.out[key]
@@ -306,16 +303,15 @@ class BoardEngine:
             changed_out.update(self._grids(track, state, {board_of(k)[3] for k in touched}, full=False))
         if state.lookaheads != before:  # every board and grid names the lookaheads: all handed out again
             changed_out = dict(state.out)
-        for board in changed_out.values():
-            board["lookaheads"] = state.lookaheads
+        with_lookaheads(changed_out.values(), state.lookaheads)
         return {k: _served(v) for k, v in changed_out.items()}
 
-    def refresh(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+    def refresh(self, track: str) -> dict[BoardKey, Published]:
         """Every board and grid of the track computed in full (rank intervals of every entry included)."""
         with self._lock, _collector_paused(full=True, large=self._large):
             return self._full(track)
 
-    def current(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+    def current(self, track: str) -> dict[BoardKey, Published]:
         """Every board and grid of the track as of the last update (empty before the first)."""
         with self._lock:
             state = self._tracks.get(track)
@@ -347,7 +343,7 @@ class BoardEngine:
                 state.out.pop(grid_id(protocol, lookahead), None)
             state.lookaheads = [k for k in state.lookaheads if k != lookahead]
 
-    def _full(self, track: str) -> dict[BoardKey, dict[str, Any]]:
+    def _full(self, track: str) -> dict[BoardKey, Published]:
         with self.session_factory() as session:
             seen = finished_submissions(session, track)
             lookaheads = track_lookaheads(session, track, self.datasets, self.settings)
@@ -385,19 +381,18 @@ class BoardEngine:
         self._drop_empty(state)
         self._grids(track, state, set(state.lookaheads), full=True)
         self._tracks[track] = state
-        for board in state.out.values():
-            board["lookaheads"] = state.lookaheads
+        with_lookaheads(state.out.values(), state.lookaheads)
         return {k: _served(v) for k, v in state.out.items()}
 
     def _grids(
         self, track: str, state: _Track, lookaheads: set[int], *, full: bool
-    ) -> dict[BoardKey, dict[str, Any]]:
+    ) -> dict[BoardKey, Published]:
         """The grids of ``lookaheads`` from their boards (those of other lookaheads cannot have moved)."""
-        out: dict[BoardKey, dict[str, Any]] = {}
+        out: dict[BoardKey, Published] = {}
         for lookahead in sorted(lookaheads):
             for protocol in lookahead_protocols(lookahead):
                 shown = {
-                    f"{st}/{d}": state.out[board_id(d, st, protocol, lookahead)]
+                    f"{st}/{d}": as_board(state.out[board_id(d, st, protocol, lookahead)])
                     for st in self.settings
                     for d in self.datasets
                 }
@@ -410,8 +405,9 @@ class BoardEngine:
                     for st in self.settings
                     for d in self.datasets
                 }
-                grid = matrix.grid(shown, matrices, rank_intervals=full)
-                grid["protocol"], grid["lookahead"] = protocol, lookahead
+                grid = matrix.grid(
+                    shown, matrices, rank_intervals=full, protocol=protocol, lookahead=lookahead
+                )
                 state.out[grid_key] = out[grid_key] = grid
         return out
 
@@ -549,6 +545,6 @@ def _row(run: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in run.items() if k not in ("part", "dataset", "setting", "protocol", "lookahead")}
 
 
-def _served(board: dict[str, Any]) -> dict[str, Any]:
-    """A board as handed out: without the arrays only the grids need."""
-    return {k: v for k, v in board.items() if k not in _GRID_ONLY}
+def _served(item: Published) -> Published:
+    """A board or grid as handed out: a copy, a board without the arrays only the grids need."""
+    return item.served()

@@ -23,16 +23,14 @@ from robobpp.boards.matrix import BoardMatrix, new_serials
 from robobpp.boards.ranking import (
     GRID_RESAMPLES,
     GRID_ROW_FIGURES,
-    LazyRows,
-    RankedView,
     best_of_participants,
     grid_figures,
     new_grid_row,
     participant_key,
     top_values,
 )
+from robobpp.boards.records import Board, Grid, LazyRows, RankedView, Row, Tops, empty_tops
 from robobpp.scoring import stats
-from robobpp.scoring.scores import RANKED_BY
 
 #: A cell's figures as its board entry shows them (``build_grid``'s cell, in its order; ``pph`` last).
 _CELL_FIGURES = (
@@ -67,7 +65,7 @@ class _Rows:
     cols: np.ndarray
     figures: np.ndarray  # rows × _FIGURES (NaN: no rank interval)
 
-    def row(self, i: int) -> dict[str, Any]:
+    def row(self, i: int) -> Row:
         """Row ``i`` without its ranks (``build_grid``'s row as the publisher stores it)."""
         boards = [v.row(int(self.cols[i, j])) for j, v in enumerate(self.views)]
         f = self.figures[i].tolist()
@@ -120,15 +118,17 @@ class GridMatrix:
 
     def grid(
         self,
-        boards: Mapping[str, Mapping[str, Any]],
+        boards: Mapping[str, Board],
         matrices: Mapping[str, BoardMatrix],
         *,
         rank_intervals: bool,
-    ) -> dict[str, Any]:
+        protocol: str,
+        lookahead: int,
+    ) -> Grid:
         """The grid of ``boards`` (``setting/dataset`` -> the board ``matrices[key]`` handed out last): as
         ``build_grid`` makes it, with every row's rank interval computed (``rank_intervals``) or as last
         computed."""
-        views: list[RankedView] = [boards[key]["_ranked"] for key in self.keys]
+        views = [_ranked(boards[key]) for key in self.keys]
         complete = np.zeros(0, dtype=np.int64)
         if views:
             complete = views[0].ids_by_column
@@ -144,36 +144,37 @@ class GridMatrix:
             serials[:, j] = v.serials[cols[:, j]]
             versions[:, j] = matrices[key].versions()[cols[:, j]]
             cell_ranks[:, j] = v.rank_by_column[cols[:, j]]
-        tops: dict[str, dict[str, list[float]]] = {"best": {}, "all": {}}
+        tops: Tops = {"best": {}, "all": {}}
         if n:
             rows, best, view = self._ranked(
                 boards, matrices, views, complete, cols, serials, versions, cell_ranks, rank_intervals
             )
             chosen = np.isin(complete, [r["submission_id"] for r in best])
             for j, key in enumerate(self.keys):  # each view's column tops: what its pages highlight
-                scores = boards[key]["_by_column"][0, cols[:, j]]
+                scores = boards[key].grid_inputs().by_column[0, cols[:, j]]
                 tops["all"][key], tops["best"][key] = top_values(scores), top_values(scores[chosen])
         else:
             none = np.zeros(0, dtype=np.int64)
             rows, best = LazyRows(list), []
             view = RankedView(none, none, none, none, none, _no_row, cell_ranks)
             self._forget()
-            tops = {v: {key: [] for key in self.keys} for v in ("best", "all")}
+            tops = empty_tops(self.keys)
         apart = self._apart(boards, views, complete)
         ranked = {participant_key(r) for r in best}
-        return {
-            "datasets": self.datasets,
-            "settings": self.settings,
-            "track": self.track,
-            "boards": k,
-            "ranked_by": RANKED_BY,
-            "rows": rows,
-            "apart": apart,
-            "_best": best,
-            "_best_apart": [r for r in apart if participant_key(r) not in ranked],
-            "_ranked": view,
-            "_tops": tops,
-        }
+        best_apart = [r for r in apart if participant_key(r) not in ranked]
+        return Grid(
+            self.datasets,
+            self.settings,
+            self.track,
+            rows,
+            apart,
+            best,
+            best_apart,
+            tops,
+            protocol,
+            lookahead,
+            ranked=view,
+        )
 
     def _samples(
         self, matrices: Mapping[str, BoardMatrix], cols: np.ndarray, resamples: np.ndarray | None
@@ -191,7 +192,7 @@ class GridMatrix:
 
     def _ranked(
         self,
-        boards: Mapping[str, Mapping[str, Any]],
+        boards: Mapping[str, Board],
         matrices: Mapping[str, BoardMatrix],
         views: list[RankedView],
         complete: np.ndarray,
@@ -200,7 +201,7 @@ class GridMatrix:
         versions: np.ndarray,
         cell_ranks: np.ndarray,
         rank_intervals: bool,
-    ) -> tuple[LazyRows, list[dict[str, Any]], RankedView]:
+    ) -> tuple[LazyRows, list[Row], RankedView]:
         """The complete rows: their Mean, best rows, serials (new where a row moved; its ranks aside)."""
         n = len(complete)
         at = np.minimum(np.searchsorted(self._sids, complete), max(len(self._sids) - 1, 0))
@@ -269,7 +270,7 @@ class GridMatrix:
             complete[order], ranks[order], complete, ranks, row_serials, built.row, cell_ranks[order]
         )
 
-        def listed(i: int) -> dict[str, Any]:
+        def listed(i: int) -> Row:
             """Row ``i`` as the all-rows view lists it (``build_grid``'s row)."""
             base = built.row(i)
             row = base | {
@@ -290,13 +291,11 @@ class GridMatrix:
         best.sort(key=lambda r: (r["rank"], r["submission_id"]))
         return rows, best, view
 
-    def _apart(
-        self, boards: Mapping[str, Mapping[str, Any]], views: list[RankedView], complete: np.ndarray
-    ) -> list[dict[str, Any]]:
+    def _apart(self, boards: Mapping[str, Board], views: list[RankedView], complete: np.ndarray) -> list[Row]:
         """The rows of submissions not ranked on every board (``build_grid``'s, a few hundred)."""
-        rows: dict[int, dict[str, Any]] = {}
+        rows: dict[int, Row] = {}
 
-        def row_for(e: Mapping[str, Any]) -> dict[str, Any]:
+        def row_for(e: Mapping[str, Any]) -> Row:
             row = rows.get(e["submission_id"])
             if row is None:
                 row = rows[e["submission_id"]] = new_grid_row(e)
@@ -310,7 +309,7 @@ class GridMatrix:
                 row = row_for(base)
                 row["cells"][key] = _cell(base) | {"rank": int(v.rank_by_column[c])}
                 row["_columns"][key] = c
-            for e in boards[key]["unranked"]:
+            for e in boards[key].unranked:
                 row_for(e)["unranked"][key] = e["status"]
         out = list(rows.values())
         for r in out:
@@ -321,5 +320,13 @@ class GridMatrix:
         return out
 
 
-def _no_row(column: int) -> dict[str, Any]:
+def _no_row(column: int) -> Row:
     raise IndexError(column)
+
+
+def _ranked(board: Board) -> RankedView:
+    if board.ranked is None:
+        raise ValueError(
+            f"the {board.setting}/{board.dataset} board is not the board engine's (no ranked view)"
+        )
+    return board.ranked

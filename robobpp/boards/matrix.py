@@ -40,16 +40,13 @@ import orjson
 
 from robobpp.boards.ranking import (
     GRID_RESAMPLES,
-    LazyRows,
-    Positions,
-    RankedView,
     best_of_participants,
-    board_dict,
     board_tops,
     participant_key,
     ranked_of,
     status_reason,
 )
+from robobpp.boards.records import Board, ForGrid, LazyRows, Positions, RankedView, Row
 from robobpp.scoring import stats
 from robobpp.scoring.entries import (
     EntryPart,
@@ -146,7 +143,7 @@ class _Snapshot:
     intervals: np.ndarray  # (entries, metrics, 2), NaN = none
     best: np.ndarray
 
-    def row(self, i: int) -> dict[str, Any]:
+    def row(self, i: int) -> Row:
         """Column ``i``'s row of the all-entries view without its rank (nor its participant's entry count,
         which moves with every entry they add: the reader puts it in)."""
         low, high = (int(x) for x in self.rank_ci[i])
@@ -335,7 +332,7 @@ class BoardMatrix:
 
     # -- the board
 
-    def board(self, *, rank_intervals: bool = False) -> dict[str, Any]:
+    def board(self, *, rank_intervals: bool = False) -> Board:
         """The board now (``rank_intervals``: compute every entry's, a full computation)."""
         c = self._c
         self.stamp += 1
@@ -549,8 +546,8 @@ class BoardMatrix:
         ranked_mask: np.ndarray,
         groups: int,
         best_samples: Callable[[list[int]], np.ndarray],
-    ) -> dict[str, Any]:
-        """The board dict, as ``boards.assemble_board`` makes it (its rows built on demand)."""
+    ) -> Board:
+        """The board, as ``ranking.assemble_board`` makes it (its rows built on demand)."""
         c = self._c
         submitted = Counter(c.who[everyone].tolist())
         unranked = []
@@ -617,7 +614,7 @@ class BoardMatrix:
         view = RankedView(sids[order], rank_of[order], sids, rank_of, c.serial[ranked], snap.row)
         counts_of = [submitted[w] for w in c.who[ranked].tolist()]
 
-        def listed(i: int) -> dict[str, Any]:
+        def listed(i: int) -> Row:
             """Column ``i`` as the all-entries view lists it (``boards.finish_board``'s entry)."""
             d = snap.row(i) | {"rank": int(rank_of[i]), "entries_submitted": counts_of[i], "_column": i}
             b = best_of.get(i)
@@ -632,7 +629,7 @@ class BoardMatrix:
         ]
         best_rows.sort(key=lambda e: (e["rank"], e["submission_id"]))
         by_column = np.array([scores, c.stable[ranked]], dtype=np.float64).reshape(2, n)
-        board = board_dict(
+        return Board(
             self.dataset,
             self.setting,
             self.track,
@@ -640,19 +637,16 @@ class BoardMatrix:
             entries,
             unranked,
             best_rows,
-            None,
-            None,
-            by_column,
-            index=Positions(sids, order),
-            tops={
+            Positions(sids, order),
+            {
                 "best": board_tops(scores[chosen], points[chosen], self.keys),
                 "all": board_tops(scores, points, self.keys),
             },
+            self.protocol,
+            self.lookahead,
+            ranked=view,
+            for_grid=ForGrid(by_column),
         )
-        board["protocol"] = self.protocol
-        board["lookahead"] = self.lookahead
-        board["_ranked"] = view
-        return board
 
     # -- what the grid needs
 

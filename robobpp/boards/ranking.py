@@ -1,6 +1,8 @@
 """Boards and the overall grid from stored runs: who is ranked, scores with intervals, each participant's best.
 
-Pure functions of plain dicts (no database), so the server, the pages and the tests build boards alike.
+Pure functions of the runs' rows (no database) giving :class:`~robobpp.boards.records.Board` and
+:class:`~robobpp.boards.records.Grid` records, so the engine's equality test, the CLI and the tests build boards
+alike.
 
 Honest entries (docs/benchmark.md, "Who is ranked"): an entry is ranked on a board only when it is
 *valid* (its submission finished without failure and at most ``stats.POLICY_FAILURE_SHARE`` of its episodes
@@ -11,89 +13,19 @@ no other entry's score. In the overall grid, the Mean ranks only submissions ran
 
 from __future__ import annotations
 
-from collections import UserList
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from robobpp.boards.records import Board, ForGrid, Grid, Row
 from robobpp.scoring import stats
 from robobpp.scoring.metrics import METRIC_BY_KEY, metrics_for
-from robobpp.scoring.scores import (
-    ANCHORS_VERSION,
-    RANKED_BY,
-    WEIGHTS,
-    BoardScores,
-    competition_ranks,
-    score_board,
-)
+from robobpp.scoring.scores import BoardScores, competition_ranks, score_board
 
 #: Resamples kept per board for the overall grid's Mean interval (of the board's ``stats.RESAMPLES``).
 GRID_RESAMPLES = 250
-
-
-@dataclass(frozen=True, slots=True)
-class RankedView:
-    """A board's (or the grid's) all-entries view as arrays, as the board engine hands it out beside the
-    entries (``board["_ranked"]``): what publishing and the grid need without building a ranked dict per
-    entry — an arriving entry moves the rank of everyone below it, and nothing else of theirs.
-
-    ``ids``, ``ranks``: rank order. ``ids_by_column`` (ascending) and ``rank_by_column``: by column (a board's
-    ranked entries in submission order; the grid's complete rows). ``row(column)``: that column's row
-    without ranks, built on demand; ``serials``: a number per column that changes whenever that row does
-    (the publisher serialises a row again only then; the grid compares them as arrays). ``cells``: the
-    grid's cell ranks, rank order × boards."""
-
-    ids: np.ndarray
-    ranks: np.ndarray
-    ids_by_column: np.ndarray
-    rank_by_column: np.ndarray
-    serials: np.ndarray
-    row: Callable[[int], dict[str, Any]]
-    cells: np.ndarray | None = None
-
-
-class Positions(Mapping[int, int]):
-    """Each ranked submission's position in a board's rank order, read off its arrays (``board["_index"]``
-    of the board engine's boards): 16 bytes an entry where a dict took about 100."""
-
-    def __init__(self, ids_by_column: np.ndarray, order: np.ndarray) -> None:
-        self._ids = ids_by_column  # ascending
-        self._position = np.empty(len(order), dtype=np.int64)
-        self._position[order] = np.arange(len(order))
-
-    def __getitem__(self, submission_id: int) -> int:
-        at = int(np.searchsorted(self._ids, submission_id))
-        if at >= len(self._ids) or self._ids[at] != submission_id:
-            raise KeyError(submission_id)
-        return int(self._position[at])
-
-    def __iter__(self) -> Iterator[int]:
-        return iter(self._ids.tolist())
-
-    def __len__(self) -> int:
-        return len(self._ids)
-
-
-class LazyRows(UserList[dict[str, Any]]):
-    """A list built on first use: the board engine's ranked entries (or grid rows) as dicts with their ranks,
-    which only the pages of a small deployment and the tests read (publishing uses the :class:`RankedView`)."""
-
-    def __init__(self, build: Callable[[], list[dict[str, Any]]] | Iterable[dict[str, Any]] = ()) -> None:
-        #: how to build UserList's ``data`` on first use (a slice or copy of a built one is built at once)
-        self._build: Callable[[], list[dict[str, Any]]] | None = build if callable(build) else None
-        self._data: list[dict[str, Any]] = [] if callable(build) else list(build)
-
-    @property
-    def data(self) -> list[dict[str, Any]]:
-        if self._build is not None:
-            self._data, self._build = self._build(), None
-        return self._data
-
-    @data.setter
-    def data(self, value: list[dict[str, Any]]) -> None:
-        self._data, self._build = value, None
 
 
 #: How many distinct best values of each column a board's pages highlight.
@@ -237,12 +169,11 @@ def classify(rows: Sequence[Mapping[str, Any]]) -> Classified:
     return Classified(groups, ranked_rows, unranked, submitted)
 
 
-def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, track: str) -> dict[str, Any]:
+def build_board(rows: Sequence[Mapping[str, Any]], dataset: str, setting: str, track: str) -> Board:
     """One board from its candidate runs (``submission_id``, ``name``, ``participant``, ``baseline``,
     ``submission_status``, ``episodes_total``, ``metrics``, ``extras``, ``figures``, ``completed_at``).
 
-    ``entries`` are the ranked ones, best first; ``unranked`` the failed and partial ones. Keys starting
-    with ``_`` are for the grid and never served.
+    ``entries`` are the ranked ones, best first; ``unranked`` the failed and partial ones.
     """
     sorted_out = classify(rows)
     scores = score_board(sorted_out.ranked, setting)
@@ -258,8 +189,8 @@ def assemble_board(
     sorted_out: Classified,
     scores: BoardScores,
     best_samples: Callable[[list[int]], np.ndarray],
-) -> dict[str, Any]:
-    """The board dict from its ranked entries' scores (``scores`` follows ``sorted_out.ranked``; its
+) -> Board:
+    """The board from its ranked entries' scores (``scores`` follows ``sorted_out.ranked``; its
     ``samples`` need only the grid's first :data:`GRID_RESAMPLES` resamples; ``best_samples(columns)``: the
     relative score samples of those columns under every resample, for the best entries' rank intervals).
     A rank interval of None is one not computed yet (the all-entries view between two full computations)."""
@@ -304,15 +235,21 @@ def finish_board(
     setting: str,
     track: str,
     groups: int,
-    entries: list[dict[str, Any]],
-    unranked: list[dict[str, Any]],
+    entries: list[Row],
+    unranked: list[Row],
     samples: np.ndarray,
     stable_samples: np.ndarray,
     best_samples: Callable[[list[int]], np.ndarray],
-) -> dict[str, Any]:
-    """The board dict from its ranked entries (input order, ``_column`` = position) and unranked ones."""
+) -> Board:
+    """The board from its ranked entries (input order, ``_column`` = position) and unranked ones; ``samples``,
+    ``stable_samples``: the entries' relative and stable score samples (resamples × entries; the grid keeps
+    its first :data:`GRID_RESAMPLES`)."""
     _mark_best(entries, best_samples)
+    by_column = np.zeros((2, len(entries)))
+    by_column[0] = [e["score"] for e in entries]
+    by_column[1] = [e["stable"] for e in entries]
     order = sorted(range(len(entries)), key=lambda i: (entries[i]["rank"], entries[i]["submission_id"]))
+    ranked = [entries[i] for i in order]
     unranked = sorted(unranked, key=lambda e: (e["status"], e["submission_id"]))
     best = [
         {**e, "rank": e["best_rank"], "rank_low": e["best_rank_low"], "rank_high": e["best_rank_high"]}
@@ -320,66 +257,30 @@ def finish_board(
         if e["best"]
     ]
     best.sort(key=lambda e: (e["rank"], e["submission_id"]))
-    return board_dict(
-        dataset, setting, track, groups, [entries[i] for i in order], unranked, best, samples, stable_samples
-    )
-
-
-def board_dict(
-    dataset: str,
-    setting: str,
-    track: str,
-    groups: int,
-    entries: Sequence[dict[str, Any]],
-    unranked: list[dict[str, Any]],
-    best: list[dict[str, Any]],
-    samples: np.ndarray | None,
-    stable_samples: np.ndarray | None,
-    by_column: np.ndarray | None = None,
-    index: Mapping[int, int] | None = None,
-    tops: dict[str, dict[str, list[float]]] | None = None,
-) -> dict[str, Any]:
-    """The board dict from its entries in rank order, unranked ones and best entries, both sorted.
-    ``samples``, ``stable_samples``: the grid's resamples (None: the board engine's, which computes them
-    for its grid); ``by_column``: the entries' scores and stable scores by ``_column`` (2 × entries), when
-    at hand; ``index``: each submission's position in ``entries``, when at hand."""
-    if by_column is None:
-        n = len(entries)
-        at = np.fromiter((e["_column"] for e in entries), dtype=np.intp, count=n)
-        by_column = np.zeros((2, n))
-        by_column[0, at] = np.fromiter((e["score"] for e in entries), dtype=np.float64, count=n)
-        by_column[1, at] = np.fromiter((e["stable"] for e in entries), dtype=np.float64, count=n)
-    if tops is None:  # each view's column tops (the board engine hands them in from its arrays)
-        keys = [m.key for m in metrics_for(setting)]
-        tops = {
-            view: board_tops(np.array([e["score"] for e in listed]), _metric_matrix(keys, listed), keys)
-            for view, listed in (("best", best), ("all", entries))
-        }
-    board = {
-        "dataset": dataset,
-        "setting": setting,
-        "track": track,
-        "metrics": [m.key for m in metrics_for(setting)],
-        "weights": WEIGHTS[setting],
-        "ranked_by": RANKED_BY,
-        "anchors": ANCHORS_VERSION,
-        "groups": groups,
-        "resamples": stats.RESAMPLES,
-        "confidence": stats.CONFIDENCE,
-        "entries": entries,
-        "unranked": unranked,
-        "_best": best,  # the default view, ready to page
-        # position in "entries"
-        "_index": {e["submission_id"]: k for k, e in enumerate(entries)} if index is None else index,
-        "_by_column": by_column,  # for the grid's means
-        "_tops": tops,  # each view's column tops: what its pages highlight
+    keys = [m.key for m in metrics_for(setting)]
+    tops = {
+        view: board_tops(np.array([e["score"] for e in listed]), _metric_matrix(keys, listed), keys)
+        for view, listed in (("best", best), ("all", ranked))
     }
-    if samples is not None and stable_samples is not None:
-        # the grid's resamples, a row per entry (by ``_column``: the grid gathers its rows' entries, and rows
-        # of a C-ordered matrix are contiguous); copies: a slice would keep the full resample arrays alive
-        board["_samples"] = np.ascontiguousarray(samples[:GRID_RESAMPLES].T)
-        board["_stable_samples"] = np.ascontiguousarray(stable_samples[:GRID_RESAMPLES].T)
-    return board
+    # the grid's resamples, a row per entry (by ``_column``: the grid gathers its rows' entries, and rows of a
+    # C-ordered matrix are contiguous); copies: a slice would keep the full resample arrays alive
+    for_grid = ForGrid(
+        by_column,
+        np.ascontiguousarray(samples[:GRID_RESAMPLES].T),
+        np.ascontiguousarray(stable_samples[:GRID_RESAMPLES].T),
+    )
+    return Board(
+        dataset,
+        setting,
+        track,
+        groups,
+        ranked,
+        unranked,
+        best,
+        {e["submission_id"]: k for k, e in enumerate(ranked)},
+        tops,
+        for_grid=for_grid,
+    )
 
 
 def _mark_best(
@@ -427,18 +328,14 @@ def best_of_participants(
     return {i: (best_ranks[k], int(low[k]), int(high[k])) for k, i in enumerate(chosen)}
 
 
-def find_entry(board: Mapping[str, Any], submission_id: int) -> Mapping[str, Any] | None:
-    """A submission's ranked entry on a board, or None (a dictionary lookup on a board built here)."""
-    entries = board.get("entries") or []
-    index = board.get("_index")
-    if index is None:
-        return next((e for e in entries if e.get("submission_id") == submission_id), None)
-    i = index.get(submission_id)
-    return entries[i] if i is not None else None
+def find_entry(board: Board, submission_id: int) -> Row | None:
+    """A submission's ranked entry on a board, or None."""
+    i = board.index.get(submission_id)
+    return board.entries[i] if i is not None else None
 
 
 def board_view(
-    board: Mapping[str, Any],
+    board: Board,
     view: str = "best",
     limit: int = 50,
     offset: int = 0,
@@ -446,13 +343,14 @@ def board_view(
 ) -> dict[str, Any]:
     """One page of a board as served: ``best`` (each participant's best entry, ranked among them) or
     ``all`` entries; ``submission_id`` narrows to one submission (ranked or not)."""
-    entries: Sequence[Mapping[str, Any]] = board["_best"] if view == "best" else board["entries"]
-    unranked: Sequence[Mapping[str, Any]] = board["unranked"]
+    entries: Sequence[Row] = board.best if view == "best" else board.entries
+    unranked: Sequence[Row] = board.unranked
     if submission_id is not None:
         found = find_entry(board, submission_id)
         entries = [found] if found is not None else []
         unranked = [e for e in unranked if e["submission_id"] == submission_id]
-    return _page(board, view, limit, offset, ("entries", entries), ("unranked", unranked), dict)
+    head, tops = board.head(), board.tops.get(view, {})
+    return _page(head, tops, view, limit, offset, ("entries", entries), ("unranked", unranked), dict)
 
 
 def served_fields(entry: Mapping[str, Any]) -> dict[str, Any]:
@@ -479,11 +377,11 @@ GRID_ROW_FIGURES = ("mean", "mean_low", "mean_high", "stable", "stable_low", "st
 
 
 def build_grid(
-    boards: Mapping[str, Mapping[str, Any]],
+    boards: Mapping[str, Board],
     datasets: Sequence[str],
     settings: Sequence[str],
     track: str,
-) -> dict[str, Any]:
+) -> Grid:
     """The overall grid: a cell per board a submission is ranked on; the Mean (with interval and rank
     interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board.
     (The board engine keeps a grid between updates: :class:`robobpp.boards.grid.GridMatrix`, the same grid.)"""
@@ -495,7 +393,7 @@ def build_grid(
         return row
 
     for key in keys:
-        for e in boards[key]["entries"]:
+        for e in boards[key].entries:
             row = rows.get(e["submission_id"]) or row_for(e)
             row["cells"][key] = {
                 "score": e["score"],
@@ -510,7 +408,7 @@ def build_grid(
                 "pph": (e.get("extras") or {}).get("pph"),
             }
             row["_columns"][key] = e["_column"]
-        for e in boards[key]["unranked"]:
+        for e in boards[key].unranked:
             (rows.get(e["submission_id"]) or row_for(e))["unranked"][key] = e["status"]
     complete = [r for r in rows.values() if len(r["cells"]) == len(keys) and keys]
     _grid_means(complete, boards, keys)
@@ -531,21 +429,12 @@ def build_grid(
     ]
     best.sort(key=lambda r: (r["rank"], r["submission_id"]))
     ranked = {participant_key(r) for r in best}
-    return {
-        "_tops": {
-            view: {k: top_values(r["cells"][k]["score"] for r in listed) for k in keys}
-            for view, listed in (("best", best), ("all", complete))
-        },
-        "datasets": list(datasets),
-        "settings": list(settings),
-        "track": track,
-        "boards": len(keys),
-        "ranked_by": RANKED_BY,
-        "rows": complete,
-        "apart": apart,
-        "_best": best,
-        "_best_apart": [r for r in apart if participant_key(r) not in ranked],
+    tops = {
+        view: {k: top_values(r["cells"][k]["score"] for r in listed) for k in keys}
+        for view, listed in (("best", best), ("all", complete))
     }
+    best_apart = [r for r in apart if participant_key(r) not in ranked]
+    return Grid(list(datasets), list(settings), track, complete, apart, best, best_apart, tops)
 
 
 @dataclass
@@ -571,7 +460,7 @@ class GridFigures:
 
 
 def grid_sums(
-    boards: Mapping[str, Mapping[str, Any]], keys: Sequence[str], cols: np.ndarray
+    boards: Mapping[str, Board], keys: Sequence[str], cols: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """The sums over boards of the relative and stable score samples (float32 each, summed in float64 in
     the order of ``keys``) of rows whose cell on board ``keys[j]`` is column ``cols[i, j]`` of that board:
@@ -580,16 +469,20 @@ def grid_sums(
     rel = np.zeros((n, GRID_RESAMPLES), dtype=np.float64)  # a row per grid row: its samples contiguous
     stab = np.zeros_like(rel)
     for j, key in enumerate(keys):
-        board = boards[key]
+        inputs = boards[key].grid_inputs()
+        samples, stable = inputs.samples, inputs.stable_samples
+        if samples is None or stable is None:
+            raise ValueError(
+                f"the {key} board carries no resamples for the grid (the engine's grid sums its own)"
+            )
         at = cols[:, j]
-        samples, stable = board["_samples"], board["_stable_samples"]
         rel[:, : samples.shape[1]] += samples[at]
         stab[:, : stable.shape[1]] += stable[at]
     return rel, stab
 
 
 def grid_figures(
-    boards: Mapping[str, Mapping[str, Any]],
+    boards: Mapping[str, Board],
     keys: Sequence[str],
     cols: np.ndarray,
     *,
@@ -604,7 +497,7 @@ def grid_figures(
     score_sum = np.zeros(n)
     stable_sum = np.zeros(n)
     for j, key in enumerate(keys):
-        by_column = boards[key]["_by_column"]
+        by_column = boards[key].grid_inputs().by_column
         at = cols[:, j]
         # summed board by board in the order of ``keys``: the same additions as a sum over each row's cells
         score_sum += by_column[0, at]
@@ -628,8 +521,8 @@ def grid_figures(
 
 
 def _grid_means(
-    rows: list[dict[str, Any]],
-    boards: Mapping[str, Mapping[str, Any]],
+    rows: list[Row],
+    boards: Mapping[str, Board],
     keys: Sequence[str],
 ) -> None:
     """Mean over boards with interval, rank and rank interval; then each participant's best row."""
@@ -657,17 +550,17 @@ def _grid_means(
     _mark_best(rows, f.best_samples, score="mean")
 
 
-def grid_view(
-    grid: Mapping[str, Any], view: str = "best", limit: int = 50, offset: int = 0
-) -> dict[str, Any]:
+def grid_view(grid: Grid, view: str = "best", limit: int = 50, offset: int = 0) -> dict[str, Any]:
     """One page of the grid: each participant's best complete submission (ranked among them) or all rows."""
-    rows: list[Mapping[str, Any]] = grid["_best"] if view == "best" else grid["rows"]
-    apart: list[Mapping[str, Any]] = grid["_best_apart"] if view == "best" else grid["apart"]
-    return _page(grid, view, limit, offset, ("rows", rows), ("apart", apart), served_fields)
+    rows: Sequence[Row] = grid.best if view == "best" else grid.rows
+    apart: Sequence[Row] = grid.best_apart if view == "best" else grid.apart
+    head, tops = grid.head(), grid.tops.get(view, {})
+    return _page(head, tops, view, limit, offset, ("rows", rows), ("apart", apart), served_fields)
 
 
 def _page(
-    doc: Mapping[str, Any],
+    head: dict[str, Any],
+    tops: dict[str, list[float]],
     view: str,
     limit: int,
     offset: int,
@@ -679,7 +572,6 @@ def _page(
     ranked list and the first ``limit`` of those set aside (unranked entries, rows apart), with the counts and
     the view's column tops."""
     (listed_key, rows), (aside_key, apart) = listed, aside
-    head = {k: v for k, v in doc.items() if not k.startswith("_") and k not in (listed_key, aside_key)}
     return {
         **head,
         "view": view,
@@ -689,5 +581,5 @@ def _page(
         listed_key: [served_fields(r) for r in rows[offset : offset + limit]],
         f"{aside_key}_total": len(apart),
         aside_key: [aside_row(r) for r in apart[:limit]],
-        "column_tops": doc.get("_tops", {}).get(view, {}),
+        "column_tops": tops,
     }

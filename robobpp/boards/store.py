@@ -27,7 +27,8 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from robobpp import __version__
-from robobpp.boards.ranking import RankedView, participant_key, served_fields
+from robobpp.boards.ranking import participant_key, served_fields
+from robobpp.boards.records import Board, Grid, Published, RankedView, Row
 from robobpp.datasets.sampling import SAMPLER_VERSION
 from robobpp.db.models import BoardPart, BoardPublication, Submission
 from robobpp.scoring.scores import ANCHORS_VERSION, RESOLVED
@@ -245,38 +246,34 @@ def _rankless(entry: Mapping[str, Any]) -> Mapping[str, Any]:
     return row
 
 
-def board_parts(board: Mapping[str, Any]) -> StoredBoard:
-    """A board (``robobpp.boards.ranking.build_board``) as stored (:class:`StoredBoard`): chunks
-    ``best:<i>`` and ``unranked:<i>``; a page of one submission finds it by the order's ids or the head's
-    unranked ids."""
-    entries = board["entries"]
+def board_parts(board: Board) -> StoredBoard:
+    """A board as stored (:class:`StoredBoard`): chunks ``best:<i>`` and ``unranked:<i>``; a page of one
+    submission finds it by the order's ids or the head's unranked ids."""
     lists = {
-        "best": [served_fields(e) for e in board["_best"]],
-        "unranked": [dict(e) for e in board["unranked"]],
+        "best": [served_fields(e) for e in board.best],
+        "unranked": [dict(e) for e in board.unranked],
     }
-    head = {k: v for k, v in board.items() if not k.startswith("_") and k not in ("entries", "unranked")}
-    ids, ranks, rows = _all_entries(board, entries, _rankless)
+    ids, ranks, rows = _all_entries(board.ranked, board.entries, _rankless)
     counts = {"best": len(lists["best"]), "all": len(ids), "unranked": len(lists["unranked"])}
     # every participant with a ranked entry has a best one, which carries their count
-    submitted = {participant_key(e): e["entries_submitted"] for e in board["_best"]}
+    submitted = {participant_key(e): e["entries_submitted"] for e in board.best}
     unranked = [e["submission_id"] for e in lists["unranked"]]
     chunks: dict[str, bytes] = {}
     for name, items in lists.items():
         chunks |= _chunked(name, items)
-    head = {"head": head, "counts": counts, "submitted": submitted, "unranked": unranked}
-    head["tops"] = board.get("_tops", {})  # each view's column tops (what a page highlights)
+    head = {"head": board.head(), "counts": counts, "submitted": submitted, "unranked": unranked}
+    head["tops"] = board.tops  # each view's column tops (what a page highlights)
     return StoredBoard(head, chunks, ids, ranks, None, rows)
 
 
 def _all_entries(
-    board: Mapping[str, Any],
-    entries: Sequence[Mapping[str, Any]],
+    view: RankedView | None,
+    entries: Sequence[Row],
     rankless: Callable[[Mapping[str, Any]], Mapping[str, Any]],
 ) -> tuple[np.ndarray, np.ndarray, StoredRows]:
     """The all-entries view's ids and ranks (rank order) and rows without ranks: from the board engine's
     arrays when it gave them (no ranked dict per entry, a row built only when it must be serialised), else
     from the entries."""
-    view: RankedView | None = board.get("_ranked")
     if view is not None:
         return view.ids, view.ranks, StoredRows(view.ids_by_column, view.row, view.serials)
     ids = np.fromiter((e["submission_id"] for e in entries), dtype=np.int64, count=len(entries))
@@ -286,7 +283,7 @@ def _all_entries(
 
 
 def grid_cell_keys(head: Mapping[str, Any]) -> list[str]:
-    """The grid's boards in the order of the stored cell ranks (as ``build_grid`` orders them)."""
+    """The grid's boards in the order of the stored cell ranks (:attr:`Grid.keys`), from its stored head."""
     return [f"{s}/{d}" for s in head["settings"] for d in head["datasets"]]
 
 
@@ -299,35 +296,35 @@ def _rankless_row(row: Mapping[str, Any]) -> Mapping[str, Any]:
     return {**served, "rank": None, "cells": cells}
 
 
-def grid_parts(grid: Mapping[str, Any]) -> StoredBoard:
+def grid_parts(grid: Grid) -> StoredBoard:
     """The overall grid as stored: chunks of ``best``, ``apart-best`` and ``apart-all`` (the rows of
     submissions not ranked on every board), and its ranked rows with their cell ranks (:class:`StoredBoard`)."""
-    rows = grid["rows"]
+    rows = grid.rows
     lists = {
-        "best": [served_fields(r) for r in grid["_best"]],
-        "apart-best": [served_fields(r) for r in grid["_best_apart"]],
-        "apart-all": [served_fields(r) for r in grid["apart"]],
+        "best": [served_fields(r) for r in grid.best],
+        "apart-best": [served_fields(r) for r in grid.best_apart],
+        "apart-all": [served_fields(r) for r in grid.apart],
     }
-    head = {k: v for k, v in grid.items() if k not in ("rows", "apart") and not k.startswith("_")}
-    ids, ranks, stored = _all_entries(grid, rows, _rankless_row)
+    ids, ranks, stored = _all_entries(grid.ranked, rows, _rankless_row)
     counts = {k: len(v) for k, v in lists.items()} | {"all": len(ids)}
     chunks: dict[str, bytes] = {}
     for name, items in lists.items():
         chunks |= _chunked(name, items)
-    view: RankedView | None = grid.get("_ranked")
+    view = grid.ranked
     if view is not None and view.cells is not None:
         cells = view.cells
     else:
-        keys = grid_cell_keys(grid)
+        keys = grid.keys
         cells = np.array([[r["cells"][k]["rank"] for k in keys] for r in rows], dtype=np.int64).reshape(
             len(rows), len(keys)
         )
-    head_part = {"head": head, "counts": counts, "tops": grid.get("_tops", {})}
+    head_part = {"head": grid.head(), "counts": counts, "tops": grid.tops}
     return StoredBoard(head_part, chunks, ids, ranks, cells, stored)
 
 
-def parts_of(key: str, value: Mapping[str, Any]) -> StoredBoard:
-    return grid_parts(value) if key.startswith("grid/") else board_parts(value)
+def parts_of(item: Published) -> StoredBoard:
+    """A board or grid as stored."""
+    return grid_parts(item) if isinstance(item, Grid) else board_parts(item)
 
 
 @dataclass(frozen=True)

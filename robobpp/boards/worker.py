@@ -42,6 +42,7 @@ from sqlalchemy.orm import Session
 
 from robobpp import logs
 from robobpp.boards.engine import BoardEngine, board_of, grid_of
+from robobpp.boards.records import Published
 from robobpp.boards.store import (
     LAYOUT,
     ROW_PREFIX,
@@ -82,9 +83,9 @@ class Engine(Protocol):
         """Every board and grid the track has now (a lookahead's come and go with its entries)."""
         ...
 
-    def update(self, track: str) -> Mapping[tuple[str, ...] | str, Mapping[str, Any]]: ...
+    def update(self, track: str) -> Mapping[tuple[str, ...] | str, Published]: ...
 
-    def refresh(self, track: str) -> Mapping[tuple[str, ...] | str, Mapping[str, Any]]: ...
+    def refresh(self, track: str) -> Mapping[tuple[str, ...] | str, Published]: ...
 
 
 class BoardPublisher:
@@ -240,8 +241,8 @@ class BoardPublisher:
             done.set()
             beat.join()
 
-    def _stored(self, track: str, key: str, board: Mapping[str, Any]) -> _Hashed:
-        return self._rows_hashed(track, key, parts_of(key, board))
+    def _stored(self, track: str, key: str, board: Published) -> _Hashed:
+        return self._rows_hashed(track, key, parts_of(board))
 
     def _rows_hashed(self, track: str, key: str, stored: StoredBoard) -> _Hashed:
         """The board's rows with their content hashes; a row whose serial is the one it had at the last

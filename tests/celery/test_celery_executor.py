@@ -193,7 +193,7 @@ def test_leaderboard_equals_the_local_executor(fleet: Fleet, factory: Any, tmp_p
 
     def board(f: Any, subs: list[int]) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
         with f() as s:
-            entries = leaderboard(s, "repetitive", "math", track="public")["entries"]
+            entries = leaderboard(s, "repetitive", "math", track="public").entries
         mine = [e for e in entries if e["submission_id"] in subs]
         assert len(mine) == len(subs)
         return [

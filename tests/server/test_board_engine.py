@@ -3,6 +3,7 @@ what changed is returned."""
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import json
 import math
@@ -11,7 +12,7 @@ import re
 import struct
 import weakref
 from collections import UserList
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ from sqlalchemy import select, text
 
 from robobpp.boards import engine as board_engine
 from robobpp.boards.engine import BoardEngine, compute_snapshot
+from robobpp.boards.records import Board, Grid, Published, as_board, as_grid
 from robobpp.db import work
 from robobpp.db.migrate import upgrade
 from robobpp.db.models import Participant, RunRow, Submission, utcnow
@@ -141,17 +143,30 @@ def add_submission(
         return sub.id
 
 
-def scratch(factory: Any) -> dict[Any, Any]:
+def scratch(factory: Any) -> dict[Any, Published]:
     """Every board and grid of the private track computed from scratch, by engine key."""
     with factory() as s:
-        snap = compute_snapshot(s, DATASETS, SETTINGS, "private")
-    return {**snap.pop("boards"), **snap}
+        return dict(compute_snapshot(s, DATASETS, SETTINGS, "private"))
 
 
 def same(a: Any, b: Any, path: str = "", *, ranks: bool = True, tol: float = 0.0) -> None:
     """``a`` equals ``b``: floats within ``tol`` (0: bit for bit); without ``ranks``, the all-entries rank
     intervals of ``a`` may be None (not computed yet) or as last computed."""
-    if isinstance(a, dict):
+    if isinstance(a, Board | Grid):
+        assert type(a) is type(b), path
+        for item in (a, b):
+            if (
+                item.ranked is not None
+            ):  # the engine's arrays of the same entries: checked against the entries
+                ranked_view(item)
+        for f in dataclasses.fields(a):
+            mine, theirs = getattr(a, f.name), getattr(b, f.name)
+            if f.name == "ranked":
+                continue
+            if f.name == "index":  # the engine's positions read off its arrays, the reference's a dict
+                mine, theirs = dict(mine), dict(theirs)
+            same(mine, theirs, f"{path}/{f.name}", ranks=ranks, tol=tol)
+    elif isinstance(a, dict):
         for x in (a, b):
             if "_base" in x:  # the engine's row without ranks, kept between updates: what it shows now
                 served = {k: v for k, v in x.items() if not k.startswith("_") and not k.startswith("best_")}
@@ -160,17 +175,13 @@ def same(a: Any, b: Any, path: str = "", *, ranks: bool = True, tol: float = 0.0
                 if "cells" not in served:  # a board's row is stored without its participant's entry count
                     served.pop("entries_submitted")
                 assert x["_base"] == served | {"rank": None}, path
-        # without it, which engine rows the grid's were made of, and the engine's arrays of the same entries
-        # (``_ranked``: checked against the entries below)
-        for x in (a, b):
-            if "_ranked" in x:
-                ranked_view(x)
-        a, b = ({k: v for k, v in x.items() if k not in ("_base", "_bases", "_ranked")} for x in (a, b))
+        # without it, and which engine rows the grid's were made of
+        a, b = ({k: v for k, v in x.items() if k not in ("_base", "_bases")} for x in (a, b))
         assert set(a) == set(b), (path, set(a) ^ set(b))
         for k in a:
             # the best entries' rank intervals are always current; the others (entries, grid rows and cells)
             # as of the last full computation
-            if not ranks and k in ("rank_low", "rank_high") and not re.search(r"/_best\[\d+\]$", path):
+            if not ranks and k in ("rank_low", "rank_high") and not re.search(r"/best\[\d+\]$", path):
                 continue
             same(a[k], b[k], f"{path}/{k}", ranks=ranks, tol=tol)
     elif isinstance(a, list | tuple | UserList):
@@ -183,11 +194,12 @@ def same(a: Any, b: Any, path: str = "", *, ranks: bool = True, tol: float = 0.0
         assert a == b, (path, a, b)
 
 
-def ranked_view(board: Mapping[str, Any]) -> None:
+def ranked_view(board: Published) -> None:
     """A board's (or the grid's) arrays show its all-entries view: ids and ranks in rank order, each
     column's row without ranks."""
-    view = board["_ranked"]
-    entries = board.get("entries", board.get("rows"))
+    view = board.ranked
+    assert view is not None
+    entries = board.entries if isinstance(board, Board) else board.rows
     assert view.ids.tolist() == [e["submission_id"] for e in entries]
     assert view.ranks.tolist() == [e["rank"] for e in entries]
     by_id = {e["submission_id"]: e for e in entries}
@@ -195,11 +207,17 @@ def ranked_view(board: Mapping[str, Any]) -> None:
         assert view.row(column) == by_id[sid]["_base"]
         assert view.rank_by_column[column] == by_id[sid]["rank"]
     if view.cells is not None:
-        keys = [f"{s}/{d}" for s in board["settings"] for d in board["datasets"]]
+        assert isinstance(board, Grid)
+        keys = [f"{s}/{d}" for s in board.settings for d in board.datasets]
         assert view.cells.tolist() == [[e["cells"][k]["rank"] for k in keys] for e in entries]
 
 
-def full(factory: Any) -> dict[Any, Any]:
+def view_of(item: Published) -> Any:
+    assert item.ranked is not None
+    return item.ranked
+
+
+def full(factory: Any) -> dict[Any, Published]:
     """The track computed in full by a fresh engine."""
     return BoardEngine(factory, DATASETS, SETTINGS).update("private")
 
@@ -231,16 +249,16 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     def serials(view: Any) -> dict[int, int]:
         return dict(zip(view.ids_by_column.tolist(), view.serials.tolist(), strict=True))
 
-    grid_rows = serials(engine._tracks["private"].out["grid"]["_ranked"])
+    grid_rows = serials(view_of(engine._tracks["private"].out["grid"]))
     middling = add_submission(factory, "team-5", 0.5, seed=100, episodes=middle)
     changed = engine.update("private")
     assert matrix.epoch == epoch, "a middling entry renormalised the board"
     # the grid rows it moved only in rank keep their serial (not serialised nor written again)
-    now = serials(changed["grid"]["_ranked"])
+    now = serials(view_of(changed["grid"]))
     assert set(now) - set(grid_rows) == {middling}
     assert all(now[sid] == serial for sid, serial in grid_rows.items())
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
-    new_entry = changed[("diverse", "math")]["entries"]
+    new_entry = as_board(changed[("diverse", "math")]).entries
     assert any(e["submission_id"] == middling and e["rank_low"] is None for e in new_entry)
 
     # an entry above everyone in one group only: the maximum moves in the resamples that draw that group
@@ -250,7 +268,7 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     for d in DATASETS:
         lifted[(d, "math")][0]["space_utilization"] = 1.0
     rows_before, recomputed = matrix.shifted_rows, matrix.recomputed
-    before_view = engine._tracks["private"].out[("diverse", "math")]["_ranked"]
+    before_view = view_of(engine._tracks["private"].out[("diverse", "math")])
     rows = {sid: before_view.row(c) for c, sid in enumerate(before_view.ids_by_column.tolist())}
     before_serials = serials(before_view)
     add_submission(factory, "team-8", 0.5, seed=103, episodes=lifted)
@@ -258,7 +276,7 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     shifted = matrix.shifted_rows - rows_before
     assert 0 < shifted < 500 and matrix.recomputed - recomputed < len(matrix.submission_ids())
     # an entry scored again keeps its serial (not serialised nor written again) unless what it shows moved
-    view = changed[("diverse", "math")]["_ranked"]
+    view = view_of(changed[("diverse", "math")])
     for c, sid in enumerate(view.ids_by_column.tolist()):
         if sid in rows:
             moved = view.row(c) != rows[sid]
@@ -267,26 +285,27 @@ def test_an_incremental_update_equals_the_full_computation(factory: Any) -> None
     assert all(before_view.row(c) == rows[sid] for c, sid in enumerate(before_view.ids_by_column.tolist()))
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
     # no samples are kept per entry: the board keeps figures and a few numbers per entry
-    assert "_samples" not in engine._tracks["private"].out[("diverse", "math")]
+    kept = as_board(engine._tracks["private"].out[("diverse", "math")])
+    assert kept.for_grid is not None and kept.for_grid.samples is None
 
     # a new best: it moves the maximum, every entry is renormalised
     best = add_submission(factory, "team-6", 3.0, seed=101)
     changed = engine.update("private")
     assert matrix.epoch > epoch
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
-    assert changed[("diverse", "math")]["entries"][0]["submission_id"] == best
+    assert as_board(changed[("diverse", "math")]).entries[0]["submission_id"] == best
 
     # a Math-only submission touches the Math boards and the grids only
     partial = add_submission(factory, "team-7", 0.5, seed=102, settings=("math",))
     changed = engine.update("private")
     assert set(changed) == {(d, "math") for d in DATASETS} | {"grid", "grid-paper"}
-    assert any(r["submission_id"] == partial for r in changed["grid"]["apart"])
+    assert any(r["submission_id"] == partial for r in as_grid(changed["grid"]).apart)
 
     # removal of the best: the maximum moves back
     with transaction(factory) as s:
         s.delete(s.get(Submission, best))
     changed = engine.update("private")
-    assert all(e["submission_id"] != best for e in changed[("diverse", "math")]["entries"])
+    assert all(e["submission_id"] != best for e in as_board(changed[("diverse", "math")]).entries)
     same(changed, {k: v for k, v in full(factory).items() if k in changed}, ranks=False)
 
     # the refresh computes every rank interval: then everything equals a full computation, bit for bit; the
@@ -482,10 +501,9 @@ def test_the_engine_equals_the_from_scratch_boards_on_a_seeded_set(db_url: str, 
     try:
         _seed.seed(runtime, 25, episodes_every=25, newest=1, progress=False)  # one failed, one partial
 
-        def from_scratch() -> dict[Any, Any]:
+        def from_scratch() -> dict[Any, Published]:
             with runtime.read_session() as s:
-                snap = compute_snapshot(s, _seed.DATASETS, _seed.SETTINGS, "private")
-            return {**snap.pop("boards"), **snap}
+                return dict(compute_snapshot(s, _seed.DATASETS, _seed.SETTINGS, "private"))
 
         engine = BoardEngine(runtime.read_session, _seed.DATASETS, _seed.SETTINGS)
         first = engine.update("private")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 
 from robobpp.boards.engine import BoardEngine, board_id, grid_id, lookahead_of
 from robobpp.boards.ranking import build_board
+from robobpp.boards.records import Board, Grid, Published, as_board
 from robobpp.db import queries
 from robobpp.db.models import BoardPart, Submission
 from robobpp.db.session import transaction
@@ -31,9 +32,14 @@ __all__ = ["factory"]  # the fixture, shared with the engine's tests
 TEN = [board_id(d, st, "closed", 10) for st in SETTINGS for d in DATASETS]
 
 
-def shown_ids(board: dict[str, Any]) -> set[int]:
-    """Every submission a board or grid lists, ranked or apart."""
-    listed = [*board.get("entries", board.get("rows", [])), *board.get("unranked", board.get("apart", []))]
+def shown_ids(item: Published | Mapping[str, Any]) -> set[int]:
+    """Every submission a board or grid lists, ranked or apart (the engine's, or a page as served)."""
+    if isinstance(item, Board):
+        listed = [*item.entries, *item.unranked]
+    elif isinstance(item, Grid):
+        listed = [*item.rows, *item.apart]
+    else:
+        listed = [*item.get("entries", item.get("rows", [])), *item.get("unranked", item.get("apart", []))]
     return {e["submission_id"] for e in listed}
 
 
@@ -41,9 +47,9 @@ def test_a_lookahead_ranks_on_boards_of_its_own(factory: Any) -> None:
     zero = [add_submission(factory, f"team-{i % 3}", 0.2 + 0.1 * i, seed=i, paper=True) for i in range(5)]
     engine = BoardEngine(factory, DATASETS, SETTINGS)
     first = engine.update("private")
-    assert set(first) == set(engine.keys("private")) and all(b["lookaheads"] == [0] for b in first.values())
+    assert set(first) == set(engine.keys("private")) and all(b.lookaheads == [0] for b in first.values())
     before = {
-        k: [(e["submission_id"], e["score"]) for e in b["entries"]]
+        k: [(e["submission_id"], e["score"]) for e in as_board(b).entries]
         for k, b in first.items()
         if isinstance(k, tuple)
     }
@@ -56,20 +62,20 @@ def test_a_lookahead_ranks_on_boards_of_its_own(factory: Any) -> None:
     # the set of lookaheads moved: every board and grid says so, all handed out again
     assert set(changed) == set(engine.keys("private")) == set(first) | {*TEN, grid_id("closed", 10)}
     for key, board in changed.items():
-        assert board["lookaheads"] == [0, 10] and board["lookahead"] == lookahead_of(key)
+        assert board.lookaheads == [0, 10] and board.lookahead == lookahead_of(key)
         assert shown_ids(board) == ({seer, other} if lookahead_of(key) else set(zero)), key
     # nothing of the lookahead-0 boards moved: the seer entered none of their normalisations
-    assert {k: [(e["submission_id"], e["score"]) for e in changed[k]["entries"]] for k in before} == before
+    assert {
+        k: [(e["submission_id"], e["score"]) for e in as_board(changed[k]).entries] for k in before
+    } == before
     # the lookahead-10 board is the board of those two alone: its own ranks and normalisation
     with factory() as s:
         rows = queries.board_rows(s, "diverse", "math", "private", lookahead=10)
     alone = build_board(rows, "diverse", "math", "private")
-    ten = changed[board_id("diverse", "math", "closed", 10)]
-    assert [(e["submission_id"], e["rank"]) for e in ten["entries"]] == [(seer, 1), (other, 2)]
-    assert [e["score"] for e in ten["entries"]] == pytest.approx(
-        [e["score"] for e in alone["entries"]], abs=1e-12
-    )
-    assert ten["entries"][0]["normalized"]["space_utilization"] == 1.0
+    ten = as_board(changed[board_id("diverse", "math", "closed", 10)])
+    assert [(e["submission_id"], e["rank"]) for e in ten.entries] == [(seer, 1), (other, 2)]
+    assert [e["score"] for e in ten.entries] == pytest.approx([e["score"] for e in alone.entries], abs=1e-12)
+    assert ten.entries[0]["normalized"]["space_utilization"] == 1.0
     same(changed, scratch(factory), ranks=False, tol=1e-12)
 
     # an arrival of one lookahead touches the boards and grid of that lookahead only
@@ -86,7 +92,7 @@ def test_a_lookahead_ranks_on_boards_of_its_own(factory: Any) -> None:
             s.delete(sub)
     changed = engine.update("private")
     assert set(changed) == set(engine.keys("private")) == set(first)
-    assert all(b["lookaheads"] == [0] for b in changed.values())
+    assert all(b.lookaheads == [0] for b in changed.values())
     same(changed, scratch(factory), ranks=False, tol=1e-12)
 
 

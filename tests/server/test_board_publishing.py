@@ -13,7 +13,7 @@ import threading
 import time
 import weakref
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from robobpp.boards import worker as board_worker_module
 from robobpp.boards.engine import BoardEngine, compute_snapshot
 from robobpp.boards.ranking import board_view, grid_view
 from robobpp.boards.reader import BoardCache
+from robobpp.boards.records import Board, Published, Row, as_board, as_grid
 from robobpp.boards.store import board_key, to_json
 from robobpp.boards.worker import BoardPublisher, BoardWorker, request_recompute
 from robobpp.db.models import BoardPart, BoardPublication
@@ -116,7 +117,7 @@ def test_pages_read_by_index_equal_the_computed_board(quiet_app, monkeypatch: py
         return json.loads(to_json(data))
 
     for dataset in DATASETS:
-        board = snap["boards"][(dataset, "math")]
+        board = as_board(snap[(dataset, "math")])
         for view in ("best", "all"):
             for limit, offset in ((50, 0), (1, 0), (3, 1), (2, 2), (5, 3), (1, 10)):
                 got = cache.board_page(dataset, "math", "private", "closed", view, limit, offset)
@@ -127,8 +128,8 @@ def test_pages_read_by_index_equal_the_computed_board(quiet_app, monkeypatch: py
     for view in ("best", "all"):
         for limit, offset in ((50, 0), (1, 1), (3, 0)):
             got = cache.grid_page("private", "closed", view, limit, offset)
-            assert got == plain(grid_view(snap["grid"], view, limit, offset)), (view, limit, offset)
-    assert len(snap["grid"]["rows"]) == 3 and len(snap["grid"]["apart"]) == 1
+            assert got == plain(grid_view(as_grid(snap["grid"]), view, limit, offset)), (view, limit, offset)
+    assert len(as_grid(snap["grid"]).rows) == 3 and len(as_grid(snap["grid"]).apart) == 1
 
 
 def test_a_finished_submission_appears_on_every_board_route_after_the_worker_runs(quiet_app) -> None:
@@ -336,7 +337,7 @@ def _contents(worker: BoardPublisher) -> dict[tuple[Any, int], tuple[str, Any]]:
     computed them: its content without ranks, and its ranks."""
     out = {}
     for key, board in worker.engine.current("private").items():  # type: ignore[attr-defined]
-        for e in board.get("entries", board.get("rows")):
+        for e in board.entries if isinstance(board, Board) else board.rows:
             ranks = (e["rank"], {k: c["rank"] for k, c in e.get("cells", {}).items()})
             out[(key, e["submission_id"])] = (_rankless(e), ranks)
     return out
@@ -363,7 +364,7 @@ def test_an_update_writes_only_the_entry_rows_whose_content_changed(quiet_app) -
     shown = worker.engine.current("private")  # type: ignore[attr-defined]
     for dataset in DATASETS:
         got = cache.board_page(dataset, "math", "private", "closed", "all")
-        assert got == json.loads(to_json(board_view(shown[(dataset, "math")], "all")))
+        assert got == json.loads(to_json(board_view(as_board(shown[(dataset, "math")]), "all")))
         # a page of one entry carries the whole view's column tops (what its pages highlight)
         one = cache.board_page(dataset, "math", "private", "closed", "all", limit=1, offset=2)
         scores = [e["score"] for e in got["entries"]]
@@ -372,7 +373,9 @@ def test_an_update_writes_only_the_entry_rows_whose_content_changed(quiet_app) -
             one["column_tops"]["space_utilization"]
             == sorted({e["metrics"]["space_utilization"] for e in got["entries"]}, reverse=True)[:4]
         )
-    assert cache.grid_page("private", "closed", "all") == json.loads(to_json(grid_view(shown["grid"], "all")))
+    assert cache.grid_page("private", "closed", "all") == json.loads(
+        to_json(grid_view(as_grid(shown["grid"]), "all"))
+    )
 
 
 def test_a_reader_of_the_previous_version_never_sees_rows_of_the_next(quiet_app) -> None:
@@ -384,7 +387,7 @@ def test_a_reader_of_the_previous_version_never_sees_rows_of_the_next(quiet_app)
     drain(app)
     worker = publisher(app)
     assert worker.publish("private")
-    before = board_view(worker.engine.current("private")[("diverse", "math")], "all")  # type: ignore[attr-defined]
+    before = board_view(as_board(worker.engine.current("private")[("diverse", "math")]), "all")  # type: ignore[attr-defined]
     slow = reader(app, refresh_s=3600)  # keeps the version it read first
     assert slow.board_page("diverse", "math", view="best")["total"] == 2
     submit(app, "c", "builtin:lsah")
@@ -408,7 +411,7 @@ class Scripted:
     """An engine that hands out the boards it is given (one Math board), as the real one would."""
 
     def __init__(self) -> None:
-        self.board: dict[str, Any] = {}
+        self.board = _board([])
 
     def keys(self, track: str) -> list[Any]:
         return [("diverse", "math")]
@@ -419,9 +422,11 @@ class Scripted:
     refresh = update
 
 
-def _board(entries: list[tuple[int, float]], owners: dict[int, str] | None = None) -> dict[str, Any]:
+def _board(
+    entries: list[tuple[int, float]], owners: dict[int, str] | None = None, unranked: Sequence[Row] = ()
+) -> Board:
     """A board of entries (submission id, score), ranked by score; ``owners``: participants by submission id
-    (by default each its own)."""
+    (by default each its own); ``unranked``: its unranked entries."""
     owner = {sid: (owners or {}).get(sid, f"p{sid}") for sid, _ in entries}
     counts = Counter(owner.values())
     rows = []
@@ -437,11 +442,8 @@ def _board(entries: list[tuple[int, float]], owners: dict[int, str] | None = Non
             | {"rank_low": None, "rank_high": None, "score": score, "best": True, "_column": rank - 1}
             | {"entries_submitted": counts[owner[sid]]}
         )
-    return {"dataset": "diverse", "setting": "math", "track": "private", "protocol": "closed"} | {
-        "entries": rows,
-        "unranked": [],
-        "_best": rows,
-    }
+    index = {sid: i for i, (sid, _) in enumerate(sorted(entries, key=lambda e: -e[1]))}
+    return Board("diverse", "math", "private", 0, rows, list(unranked), rows, index, {})
 
 
 def test_an_entry_ranked_above_others_writes_its_row_alone(quiet_app) -> None:
@@ -521,11 +523,11 @@ def test_an_unchanged_chunk_is_written_once_and_old_parts_go(quiet_app) -> None:
     scripted = Scripted()
     worker = publisher(app, scripted)
     entries = [(i, 1.0 - i / 500) for i in range(1, 251)]  # three chunks of the best view
-    scripted.board = _board(entries) | {"unranked": _unranked(900, 901)}
+    scripted.board = _board(entries, unranked=_unranked(900, 901))
     assert worker.publish("private", force=True)
     first = published(app)[0]
     for k, score in enumerate((0.001, 0.0005, 0.0001)):  # each below everyone: only the last best chunk moves
-        scripted.board = _board([*entries, (300 + k, score)]) | {"unranked": _unranked(900, 901)}
+        scripted.board = _board([*entries, (300 + k, score)], unranked=_unranked(900, 901))
         entries.append((300 + k, score))
         assert worker.publish("private", force=True)
         version = published(app)[0]
@@ -543,9 +545,9 @@ def test_an_unchanged_chunk_is_written_once_and_old_parts_go(quiet_app) -> None:
         assert {(n, v) for v, names in stored.items() for n in names} == shown
     assert reader(app).board_page("diverse", "math", submission_id=901)["unranked"][0]["submission_id"] == 901
     # the unranked entries change: their chunk is written again, and the first one goes once no version shows it
-    scripted.board = _board(entries) | {"unranked": _unranked(900)}
+    scripted.board = _board(entries, unranked=_unranked(900))
     assert worker.publish("private", force=True)
-    scripted.board = _board(entries[:-1]) | {"unranked": _unranked(900)}
+    scripted.board = _board(entries[:-1], unranked=_unranked(900))
     assert worker.publish("private", force=True)
     assert "unranked:0" not in _stored_parts(app).get(first, set())
     assert _stored_parts(app)[first] == {"best:0", "best:1"}  # still shown
@@ -665,7 +667,7 @@ def test_a_publication_serialises_each_board_as_it_writes_it(
     alive_at_each: list[int] = []
     real = BoardPublisher._stored
 
-    def watched(self: BoardPublisher, track: str, key: str, board: Mapping[str, Any]) -> Any:
+    def watched(self: BoardPublisher, track: str, key: str, board: Published) -> Any:
         gc.collect()
         alive_at_each.append(sum(r() is not None for r in made))
         hashed = real(self, track, key, board)

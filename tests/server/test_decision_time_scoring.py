@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from robobpp.boards.engine import BoardEngine
+from robobpp.boards.records import as_board
 from robobpp.db.migrate import upgrade
 from robobpp.db.session import make_engine, make_session_factory
 from robobpp.scoring import stats
@@ -196,7 +197,7 @@ def test_the_engine_applies_the_rule_and_equals_the_full_computation(factory: An
     same(engine.refresh("private"), scratch(factory), tol=1e-12)
     for setting in SETTINGS:
         for dataset in DATASETS:
-            by_id = {e["submission_id"]: e for e in scratch(factory)[(dataset, setting)]["entries"]}
+            by_id = {e["submission_id"]: e for e in as_board(scratch(factory)[(dataset, setting)]).entries}
             a, b = by_id[in_process], by_id[served]
             assert a["rank"] == b["rank"] and a["score"] == b["score"] and a["stable"] == b["stable"]
             assert a["rank_low"] <= b["rank_high"] and b["rank_low"] <= a["rank_high"]
@@ -214,7 +215,7 @@ def test_the_engine_applies_the_rule_and_equals_the_full_computation(factory: An
     changed = engine.update("private")
     assert matrix.epoch > epoch
     same(engine.refresh("private"), scratch(factory), tol=1e-12)
-    by_id = {e["submission_id"]: e for e in scratch(factory)[("diverse", "math")]["entries"]}
+    by_id = {e["submission_id"]: e for e in as_board(scratch(factory)[("diverse", "math")]).entries}
     assert by_id[slow]["rank"] > by_id[faster]["rank"] == by_id[in_process]["rank"]
     assert by_id[slow]["rank_low"] > max(by_id[s]["rank_high"] for s in (in_process, faster))
     assert by_id[slow]["rank"] > by_id[served]["rank"]

@@ -67,7 +67,7 @@ def test_a_board_shows_only_the_current_math_rules_and_sampler(factory) -> None:
         recorded = s.execute(select(RunRow.extras).where(RunRow.submission_id == now)).scalar_one()[
             "provenance"
         ]
-        names = sorted(e["name"] for e in leaderboard(s, "diverse", "math", track="private")["entries"])
+        names = sorted(e["name"] for e in leaderboard(s, "diverse", "math", track="private").entries)
     assert SAMPLER_VERSION == "2"  # what "before versions" (version 1) and "sampler 1" are kept apart from
     assert names == ["boxes not drawn by the sampler", "now"], hand_built
     assert recorded == {

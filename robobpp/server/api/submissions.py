@@ -195,7 +195,7 @@ def verify_top(
 def _verify_top(
     session: Session, dataset: str, setting: str, settings: Settings, top: int
 ) -> list[SubmissionPublic]:
-    entries = leaderboard(session, dataset, setting)["entries"][:top]
+    entries = leaderboard(session, dataset, setting).entries[:top]
     started = verification.verify_top(session, entries, settings.groups)
     for sub in started:
         session.refresh(sub)

@@ -90,7 +90,7 @@ def test_a_physics_board_shows_only_the_current_version(factory) -> None:
     _finished_submission(factory, "old", "1")
     _finished_submission(factory, "unversioned", None)
     with transaction(factory) as s:
-        physics = [e["name"] for e in leaderboard(s, "diverse", "physics", track="private")["entries"]]
-        math = sorted(e["name"] for e in leaderboard(s, "diverse", "math", track="private")["entries"])
+        physics = [e["name"] for e in leaderboard(s, "diverse", "physics", track="private").entries]
+        math = sorted(e["name"] for e in leaderboard(s, "diverse", "math", track="private").entries)
     assert physics == ["now"]
     assert math == ["now", "old", "unversioned"]  # geometry has no physics version

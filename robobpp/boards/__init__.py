@@ -2,6 +2,8 @@
 
 Data flows one way, engine → store → readers:
 
+* :mod:`~robobpp.boards.records`: what a board and a grid travel as (typed records; their rows are the JSON
+  objects a page serves);
 * :mod:`~robobpp.boards.ranking`: the one ranking rule (who is ranked, failed or partial), a board and the
   overall grid computed from scratch from plain rows, and the views a page shows of them;
 * :mod:`~robobpp.boards.matrix` and :mod:`~robobpp.boards.grid`: one board and one grid kept between

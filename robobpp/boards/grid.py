@@ -3,7 +3,7 @@
 :func:`robobpp.boards.ranking.build_grid` builds the grid from boards' ranked entries, a dict per cell: at
 10,000 submissions 90,000 cells per grid, rebuilt on every update, most of them only because an arriving
 entry moved their rank. :class:`GridMatrix` builds the same grid from each board's
-:class:`~robobpp.boards.ranking.RankedView`: which submissions are ranked on every board, their columns and
+:class:`~robobpp.boards.records.RankedView`: which submissions are ranked on every board, their columns and
 cell ranks are array operations, and the Mean is :func:`~robobpp.boards.ranking.grid_figures` (the same
 arithmetic) of sums of the boards' samples the grid keeps, one float64 matrix (rows × resamples). A row's
 sums are computed again (from the boards' figures, :meth:`~robobpp.boards.matrix.BoardMatrix.grid_samples`)

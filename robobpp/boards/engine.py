@@ -16,6 +16,7 @@ lookaheads that have entries. Every board and grid carries its ``lookahead`` and
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import gc
 import logging
 import threading
@@ -107,8 +108,7 @@ def leaderboard(
     board = build_board(
         queries.board_rows(session, dataset, setting, track, protocol, lookahead), dataset, setting, track
     )
-    board.protocol, board.lookahead = protocol, lookahead
-    return board
+    return dataclasses.replace(board, protocol=protocol, lookahead=lookahead)
 
 
 def overall_grid(
@@ -129,8 +129,7 @@ def overall_grid(
         for d in datasets
     }
     grid = build_grid(boards, datasets, settings, track)
-    grid.protocol, grid.lookahead = protocol, lookahead
-    return grid
+    return dataclasses.replace(grid, protocol=protocol, lookahead=lookahead)
 
 
 def board_triples(datasets: Sequence[str], settings: Sequence[str]) -> list[tuple[str, str, str]]:
@@ -173,11 +172,12 @@ def compute_snapshot(
                 f"{st}/{d}": boards[board_id(d, st, protocol, lookahead)] for st in settings for d in datasets
             }
             grid = build_grid(shown, datasets, settings, track)
-            grid.protocol, grid.lookahead = protocol, lookahead
-            grids[grid_id(protocol, lookahead)] = grid
+            grids[grid_id(protocol, lookahead)] = dataclasses.replace(
+                grid, protocol=protocol, lookahead=lookahead
+            )
     out: dict[BoardKey, Published] = {key: board.served() for key, board in boards.items()}
     out.update(grids)
-    with_lookaheads(out.values(), lookaheads)
+    with_lookaheads(out, list(out), lookaheads)
     return out
 
 
@@ -295,16 +295,16 @@ class BoardEngine:
         state.seen = seen
         self._drop_empty(state)  # and its last takes them away
         touched &= state.boards.keys()
-        changed_out: dict[BoardKey, Published] = {}
+        out: list[BoardKey] = []
         for key in touched:
             state.out[key] = state.boards[key].board()
-            changed_out[key] = state.out[key]
+            out.append(key)
         if touched:
-            changed_out.update(self._grids(track, state, {board_of(k)[3] for k in touched}, full=False))
+            out += self._grids(track, state, {board_of(k)[3] for k in touched}, full=False)
         if state.lookaheads != before:  # every board and grid names the lookaheads: all handed out again
-            changed_out = dict(state.out)
-        with_lookaheads(changed_out.values(), state.lookaheads)
-        return {k: _served(v) for k, v in changed_out.items()}
+            out = list(state.out)
+        with_lookaheads(state.out, out, state.lookaheads)
+        return {k: state.out[k].served() for k in out}
 
     def refresh(self, track: str) -> dict[BoardKey, Published]:
         """Every board and grid of the track computed in full (rank intervals of every entry included)."""
@@ -315,7 +315,7 @@ class BoardEngine:
         """Every board and grid of the track as of the last update (empty before the first)."""
         with self._lock:
             state = self._tracks.get(track)
-            return {} if state is None else {k: _served(v) for k, v in state.out.items()}
+            return {} if state is None else {k: v.served() for k, v in state.out.items()}
 
     def _add_lookaheads(self, track: str, state: _Track, lookaheads: set[int]) -> None:
         """Empty boards for the lookaheads that have none yet."""
@@ -381,14 +381,13 @@ class BoardEngine:
         self._drop_empty(state)
         self._grids(track, state, set(state.lookaheads), full=True)
         self._tracks[track] = state
-        with_lookaheads(state.out.values(), state.lookaheads)
-        return {k: _served(v) for k, v in state.out.items()}
+        with_lookaheads(state.out, list(state.out), state.lookaheads)
+        return {k: v.served() for k, v in state.out.items()}
 
-    def _grids(
-        self, track: str, state: _Track, lookaheads: set[int], *, full: bool
-    ) -> dict[BoardKey, Published]:
-        """The grids of ``lookaheads`` from their boards (those of other lookaheads cannot have moved)."""
-        out: dict[BoardKey, Published] = {}
+    def _grids(self, track: str, state: _Track, lookaheads: set[int], *, full: bool) -> list[BoardKey]:
+        """The grids of ``lookaheads`` from their boards (those of other lookaheads cannot have moved): kept in
+        ``state.out``; their keys."""
+        out: list[BoardKey] = []
         for lookahead in sorted(lookaheads):
             for protocol in lookahead_protocols(lookahead):
                 shown = {
@@ -408,7 +407,8 @@ class BoardEngine:
                 grid = matrix.grid(
                     shown, matrices, rank_intervals=full, protocol=protocol, lookahead=lookahead
                 )
-                state.out[grid_key] = out[grid_key] = grid
+                state.out[grid_key] = grid
+                out.append(grid_key)
         return out
 
     def _key_of(self, run: Mapping[str, Any]) -> tuple[str, ...]:
@@ -543,8 +543,3 @@ def _interned(ids: bytes) -> bytes:
 
 def _row(run: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in run.items() if k not in ("part", "dataset", "setting", "protocol", "lookahead")}
-
-
-def _served(item: Published) -> Published:
-    """A board or grid as handed out: a copy, a board without the arrays only the grids need."""
-    return item.served()

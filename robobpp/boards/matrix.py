@@ -547,7 +547,7 @@ class BoardMatrix:
         groups: int,
         best_samples: Callable[[list[int]], np.ndarray],
     ) -> Board:
-        """The board, as ``ranking.assemble_board`` makes it (its rows built on demand)."""
+        """The board, as :func:`~robobpp.boards.ranking.assemble_board` makes it (its rows built on demand)."""
         c = self._c
         submitted = Counter(c.who[everyone].tolist())
         unranked = []

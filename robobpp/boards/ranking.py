@@ -108,7 +108,7 @@ def _run_status(row: Mapping[str, Any]) -> tuple[int, int, bool, bool]:
     )
 
 
-def public_fields(row: Mapping[str, Any]) -> dict[str, Any]:
+def public_fields(row: Mapping[str, Any]) -> Row:
     """What a board shows of a candidate run's row."""
     keys = (
         "submission_id",
@@ -133,7 +133,7 @@ class Classified:
 
     groups: int
     ranked: list[Mapping[str, Any]]
-    unranked: list[dict[str, Any]]
+    unranked: list[Row]
     submitted: dict[str, int]
 
 
@@ -283,9 +283,7 @@ def finish_board(
     )
 
 
-def _mark_best(
-    entries: list[dict[str, Any]], samples: Callable[[list[int]], np.ndarray], score: str = "score"
-) -> None:
+def _mark_best(entries: list[Row], samples: Callable[[list[int]], np.ndarray], score: str = "score") -> None:
     """Flag each participant's best entry (a board's entry or a grid row, ranked by ``score``) and rank the
     best ones among themselves (with intervals; ``samples(columns)``: those entries' score samples)."""
     best: dict[str, int] = {}
@@ -353,12 +351,12 @@ def board_view(
     return _page(head, tops, view, limit, offset, ("entries", entries), ("unranked", unranked), dict)
 
 
-def served_fields(entry: Mapping[str, Any]) -> dict[str, Any]:
+def served_fields(entry: Mapping[str, Any]) -> Row:
     """An entry or grid row as served: without what is kept for the engine, the grid and the best view."""
     return {k: v for k, v in entry.items() if not k.startswith("_") and not k.startswith("best_")}
 
 
-def new_grid_row(entry: Mapping[str, Any]) -> dict[str, Any]:
+def new_grid_row(entry: Mapping[str, Any]) -> Row:
     """A grid row of ``entry``'s submission before its cells are put in (``_columns``: each cell's column on
     its board)."""
     return {
@@ -386,9 +384,9 @@ def build_grid(
     interval) only for submissions ranked on every board. ``boards`` maps ``setting/dataset`` to a board.
     (The board engine keeps a grid between updates: :class:`robobpp.boards.grid.GridMatrix`, the same grid.)"""
     keys = [f"{s}/{d}" for s in settings for d in datasets]
-    rows: dict[int, dict[str, Any]] = {}
+    rows: dict[int, Row] = {}
 
-    def row_for(e: Mapping[str, Any]) -> dict[str, Any]:
+    def row_for(e: Mapping[str, Any]) -> Row:
         row = rows[e["submission_id"]] = new_grid_row(e)  # built once per submission, not once per board
         return row
 

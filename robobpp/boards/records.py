@@ -14,7 +14,7 @@ import dataclasses
 from collections import UserList
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from robobpp.scoring.metrics import metrics_for
 from robobpp.scoring.scores import ANCHORS_VERSION, RANKED_BY, WEIGHTS
 from robobpp.vocabulary import CLOSED
 
+K = TypeVar("K")
 #: A board's entry or a grid's row, as a page serves it (with its ``_`` keys, which it does not).
 Row = dict[str, Any]
 #: Each view's (``best``, ``all``) column tops: the best distinct values a page of that view highlights.
@@ -103,14 +104,15 @@ class ForGrid:
     stable_samples: np.ndarray | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class Board:
     """One board: its ranked entries in rank order, the unranked ones, each participant's best ranked among
     them (the default view), and what its pages and its track's grid read.
 
     ``lookaheads``: the track's lookaheads with boards, once the board is part of a track's set (None: a board
     computed alone). ``index``: each ranked submission's position in ``entries``. ``ranked``: the all-entries
-    view as arrays (the board engine's; None: read it off ``entries``). ``for_grid``: None once handed out."""
+    view as arrays (the board engine's; None: read it off ``entries``). ``for_grid``: None once handed out.
+    Frozen: a board handed out never changes (the engine makes a new one; its rows are never changed either)."""
 
     dataset: str
     setting: str
@@ -159,7 +161,7 @@ class Board:
         return self.for_grid
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class Grid:
     """The overall grid: the rows of submissions ranked on every board (rank order; the Mean ranks them),
     the rows apart (ranked on fewer boards, or failed), and each participant's best of both."""
@@ -197,8 +199,8 @@ class Grid:
         return head
 
     def served(self) -> Grid:
-        """The grid as handed out: a copy (the engine names its track's lookaheads on the one it keeps)."""
-        return dataclasses.replace(self)
+        """The grid as handed out: itself (nothing of it is for the engine alone)."""
+        return self
 
 
 #: What a track's engine hands out: its boards and grids by key.
@@ -225,7 +227,7 @@ def empty_tops(keys: Sequence[str]) -> Tops:
     return {view: {key: [] for key in keys} for view in ("best", "all")}
 
 
-def with_lookaheads(items: Iterable[Published], lookaheads: list[int]) -> None:
-    """Name the track's lookaheads on each board and grid (every one says which its track has)."""
-    for item in items:
-        item.lookaheads = lookaheads
+def with_lookaheads(items: dict[K, Published], keys: Iterable[K], lookaheads: list[int]) -> None:
+    """Name the track's lookaheads on the boards and grids of ``keys`` (every one says which its track has)."""
+    for key in keys:
+        items[key] = dataclasses.replace(items[key], lookaheads=lookaheads)

@@ -104,14 +104,11 @@ def queue_place(
     first_of = {pid: loads[pid].first_submission for pid, n in ahead_of.items() if n}
     times = EpisodeTimes(session, now, first_of.values())
 
-    # In places: a built-in's episode holds ``per_worker`` of them (a worker), a participant's one.
-    def places(builtin: bool) -> int:
-        return per_worker if builtin else 1
-
     work = [
-        (times.of_submission(first_of[pid]), ahead_of[pid] * places(loads[pid].builtin)) for pid in first_of
+        (times.of_submission(first_of[pid]), ahead_of[pid] * places(loads[pid].builtin, per_worker))
+        for pid in first_of
     ]
-    remaining = [t for e in times.running for t in [times.remaining(e)] * places(e.builtin)]
+    remaining = [t for e in times.running for t in [times.remaining(e)] * places(e.builtin, per_worker)]
     estimate = None
     if all(t is not None for t in remaining) and all(t is not None for t, _ in work):
         start = start_after(
@@ -127,6 +124,12 @@ def queue_place(
         "estimated_start_s": estimate,
         "estimated_start": None if estimate is None else now + timedelta(seconds=estimate),
     }
+
+
+def places(builtin: bool, per_worker: int) -> int:
+    """The places of a worker's ``per_worker`` one episode holds: a built-in's all of them (it computes all
+    along), a participant's one (it waits on its policy; robobpp/worker/multiplex.py)."""
+    return per_worker if builtin else 1
 
 
 def start_after(free_in: Sequence[float], pool: int, work: Sequence[tuple[float, int]]) -> float:
@@ -347,39 +350,48 @@ class Backlog:
     baselines: dict[str, int]
     #: Mean duration of the last finished episodes (None: none finished yet).
     mean_episode_s: float | None
-    #: Seconds until the last episode ends at that mean on ``workers`` slots (None: nothing measured yet).
+    #: Seconds until the last episode ends at that mean on ``workers`` workers of ``per_worker`` places each
+    #: (None: nothing measured yet).
     expected_s: float | None
     expected_end: datetime | None
 
 
-def backlog(session: Session, workers: int, now: datetime | None = None) -> Backlog | None:
-    """The unfinished work (``None`` when every submission has finished), and when it should end with
-    ``workers`` episodes running at once. Reads the active submissions and their episodes by the (submission,
-    status) index, never the backlog row by row: queued submissions count by their ``episodes_total``."""
+def backlog(
+    session: Session, workers: int, now: datetime | None = None, *, per_worker: int = 1
+) -> Backlog | None:
+    """The unfinished work (``None`` when every submission has finished), and when it should end on
+    ``workers`` workers each keeping ``per_worker`` episodes in flight (a built-in's episode takes a whole
+    worker, a participant's one place: :func:`places`). Reads the active submissions and their episodes by the
+    (submission, status) index, never the backlog row by row: queued submissions count by their
+    ``episodes_total``."""
     now = now or utcnow()
     active = session.execute(
-        select(Submission.id, Submission.status, Submission.episodes_total).where(
-            Submission.status.in_(ACTIVE_SUBMISSION)
-        )
+        select(Submission.id, Submission.status, Submission.episodes_total, Participant.is_builtin)
+        .join(Participant, Participant.id == Submission.participant_id)
+        .where(Submission.status.in_(ACTIVE_SUBMISSION))
     ).all()
     if not active:
         return None
-    queued = [total for _, status, total in active if status == "queued"]
-    running_ids = [sid for sid, status, _ in active if status == "running"]
-    left = sum(queued)
+    builtin = {sid: bool(is_builtin) for sid, _, _, is_builtin in active}
+    queued = [(sid, total) for sid, status, total, _ in active if status == "queued"]
+    running_ids = [sid for sid, status, _, _ in active if status == "running"]
+    left = sum(total for _, total in queued)
+    # the places the work left holds, one episode after another: what the pool's places share
+    held = sum(total * places(builtin[sid], per_worker) for sid, total in queued)
     episodes_running = 0
     if running_ids:
-        for status, n in session.execute(
-            select(EpisodeRow.status, func.count())
+        for sid, status, n in session.execute(
+            select(EpisodeRow.submission_id, EpisodeRow.status, func.count())
             .where(
                 EpisodeRow.submission_id.in_(running_ids),
                 EpisodeRow.status.in_(("pending", "waiting", "running")),
             )
-            .group_by(EpisodeRow.status)
+            .group_by(EpisodeRow.submission_id, EpisodeRow.status)
         ):
             left += int(n)
+            held += int(n) * places(builtin[sid], per_worker)
             if status == "running":
-                episodes_running = int(n)
+                episodes_running += int(n)
     latest: dict[tuple[str, str], str] = {}
     for url, track, status in session.execute(
         select(Submission.policy_url, Submission.track, Submission.status)
@@ -394,7 +406,7 @@ def backlog(session: Session, workers: int, now: datetime | None = None) -> Back
     mean_s = _typical_s(session).get("")
     expected = None
     if mean_s is not None:
-        expected = round(math.ceil(left / max(1, workers)) * mean_s, 1)
+        expected = round(math.ceil(held / max(1, workers * per_worker)) * mean_s, 1)
     return Backlog(
         queued=len(queued),
         running=len(running_ids),

@@ -145,7 +145,9 @@ def create_app(
         if first_start and run_workers:  # the process that started the workers logs their progress
             from robobpp.server.services.progress import ProgressLog
 
-            progress = ProgressLog(runtime.read_session, settings.workers).start()
+            progress = ProgressLog(
+                runtime.read_session, settings.workers, per_worker=settings.episodes_per_worker
+            ).start()
         try:
             yield
         finally:

@@ -212,7 +212,9 @@ def serve_processes(
     supervisor: Supervisor | None = None
     try:
         executor = start_executor(settings)
-        progress = ProgressLog(runtime.read_session, settings.workers).start()
+        progress = ProgressLog(
+            runtime.read_session, settings.workers, per_worker=settings.episodes_per_worker
+        ).start()
         board_worker = start_board_worker(runtime)
         if board_worker is not None:
             await_first_publication(runtime.read_session, FIRST_PUBLICATION_S)

@@ -45,7 +45,7 @@ def clock(when: datetime) -> str:
     return when.astimezone().strftime("%H:%M:%S")
 
 
-def backlog_line(b: Backlog, workers: int) -> str:
+def backlog_line(b: Backlog, workers: int, per_worker: int = 1) -> str:
     """One sentence: what waits, what runs, the baselines' state and when it all should end."""
     done = b.baselines.get("completed", 0) + b.baselines.get("failed", 0)
     total = sum(b.baselines.values())
@@ -59,7 +59,8 @@ def backlog_line(b: Backlog, workers: int) -> str:
         return text + "; expected end: after the first episodes finish"
     return (
         f"{text}; expected end {clock(b.expected_end)} (in about {duration(b.expected_s)}: "
-        f"{b.mean_episode_s or 0:.1f} s an episode on {workers} worker(s))"
+        f"{b.mean_episode_s or 0:.1f} s an episode on {workers} worker(s)"
+        + (f" of {per_worker} places each)" if per_worker > 1 else ")")
     )
 
 
@@ -71,11 +72,13 @@ class ProgressLog:
         session: Callable[[], AbstractContextManager[Session]],
         workers: int,
         *,
+        per_worker: int = 1,
         poll_s: float = POLL_S,
         every_s: float = BACKLOG_LINE_S,
     ) -> None:
         self._session = session
         self._workers = max(1, workers)
+        self._per_worker = max(1, per_worker)
         self._poll_s = poll_s
         self._every_s = every_s
         self._stop = threading.Event()
@@ -99,7 +102,7 @@ class ProgressLog:
             try:
                 with self._session() as session:
                     finished = list(self._finished(session))
-                    b = backlog(session, self._workers)
+                    b = backlog(session, self._workers, per_worker=self._per_worker)
             except Exception:
                 log.debug("progress log: could not read the database", exc_info=True)
                 continue
@@ -112,7 +115,7 @@ class ProgressLog:
                 continue
             now = time.monotonic()
             if finished or not had_work or now - last_line >= self._every_s:
-                log.info("%s", backlog_line(b, self._workers))
+                log.info("%s", backlog_line(b, self._workers, self._per_worker))
                 last_line = now
             had_work = True
 
@@ -148,7 +151,7 @@ def page_status(session: Session, settings: Any) -> dict[str, Any]:
             f"{settings.groups} group(s) per dataset{boxes}, "
             f"{', '.join(SETTING_TITLES.get(s, s) for s in settings.enabled_settings)}"
         )
-    b = backlog(session, settings.workers)
+    b = backlog(session, settings.workers, per_worker=settings.episodes_per_worker)
     if b is not None:
         out["backlog"] = b
         out["as_of"] = utcnow()

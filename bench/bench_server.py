@@ -350,7 +350,7 @@ def cold_figures(runtime: Any) -> list[tuple[str, float, float]]:
         for st in SETTINGS[1:]:  # the physical boards again, under the paper protocol
             for d in DATASETS:
                 t0, c0 = time.perf_counter(), time.process_time()
-                boards[f"{st}/{d}"] = leaderboard(s, d, st, protocol="paper")
+                boards[f"{st}/{d}"] = leaderboard(s, d, st, loop="paper")
                 out.append(
                     (
                         f"board {st}/{d}, paper protocol ({len(boards[f'{st}/{d}'].entries)} ranked)",

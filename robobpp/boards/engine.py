@@ -48,32 +48,32 @@ BoardKey = tuple[str, ...] | str
 _LOOKAHEAD_GRID = "grid-lookahead-"
 
 
-def board_id(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> tuple[str, ...]:
+def board_id(dataset: str, setting: str, loop: str = CLOSED, lookahead: int = 0) -> tuple[str, ...]:
     """A board's key in the engine (module docstring): the one place it is built. A Math Pack board is one
     board under both protocols; a lookahead K > 0 has closed-loop boards only."""
-    protocol = board_loop(setting, protocol)
+    loop = board_loop(setting, loop)
     if lookahead:
-        if protocol != CLOSED:
+        if loop != CLOSED:
             raise ValueError("a lookahead K > 0 has closed-loop boards only")
         return (dataset, setting, CLOSED, str(lookahead))
-    return (dataset, setting) if protocol == CLOSED else (dataset, setting, protocol)
+    return (dataset, setting) if loop == CLOSED else (dataset, setting, loop)
 
 
-def grid_id(protocol: str = CLOSED, lookahead: int = 0) -> str:
+def grid_id(loop: str = CLOSED, lookahead: int = 0) -> str:
     """A grid's key in the engine: ``grid``, ``grid-paper``, ``grid-lookahead-K``."""
     if lookahead:
         return f"{_LOOKAHEAD_GRID}{lookahead}"
-    return "grid" if protocol == CLOSED else f"grid-{protocol}"
+    return "grid" if loop == CLOSED else f"grid-{loop}"
 
 
 def board_of(key: tuple[str, ...]) -> tuple[str, str, str, int]:
-    """What a board key names: (dataset, setting, protocol, lookahead)."""
-    protocol = key[2] if len(key) > 2 else CLOSED
-    return key[0], key[1], protocol, int(key[3]) if len(key) > 3 else 0
+    """What a board key names: (dataset, setting, loop, lookahead)."""
+    loop = key[2] if len(key) > 2 else CLOSED
+    return key[0], key[1], loop, int(key[3]) if len(key) > 3 else 0
 
 
 def grid_of(key: str) -> tuple[str, int]:
-    """What a grid key names: (protocol, lookahead)."""
+    """What a grid key names: (loop, lookahead)."""
     if key.startswith(_LOOKAHEAD_GRID):
         return CLOSED, int(key.removeprefix(_LOOKAHEAD_GRID))
     return (PAPER if key.endswith(PAPER) else CLOSED), 0
@@ -83,7 +83,7 @@ def lookahead_of(key: BoardKey) -> int:
     return grid_of(key)[1] if isinstance(key, str) else board_of(key)[3]
 
 
-def lookahead_protocols(lookahead: int) -> tuple[str, ...]:
+def lookahead_loops(lookahead: int) -> tuple[str, ...]:
     """The protocols a lookahead has boards under: both for 0, the closed loop only for K > 0."""
     return LOOPS if lookahead == 0 else (CLOSED,)
 
@@ -94,21 +94,21 @@ def leaderboard(
     setting: str,
     *,
     track: str = "private",
-    protocol: str = CLOSED,
+    loop: str = CLOSED,
     lookahead: int = 0,
 ) -> Board:
     """One board, computed now: see :func:`robobpp.boards.ranking.build_board`.
 
-    ``protocol="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
+    ``loop="paper"``: a physical setting's paper-protocol runs (the Math actions replayed); a Math Pack
     board is the same under both. ``lookahead``: the board of the submissions that saw that many next boxes
     (0: the leaderboard's)."""
-    protocol = board_loop(setting, protocol)
-    if lookahead and protocol != CLOSED:
+    loop = board_loop(setting, loop)
+    if lookahead and loop != CLOSED:
         raise ValueError("a lookahead K > 0 has closed-loop boards only")
     board = build_board(
-        queries.board_rows(session, dataset, setting, track, protocol, lookahead), dataset, setting, track
+        queries.board_rows(session, dataset, setting, track, loop, lookahead), dataset, setting, track
     )
-    return dataclasses.replace(board, protocol=protocol, lookahead=lookahead)
+    return dataclasses.replace(board, loop=loop, lookahead=lookahead)
 
 
 def overall_grid(
@@ -117,23 +117,23 @@ def overall_grid(
     datasets: tuple[str, ...] = DATASETS,
     settings: tuple[str, ...] = SETTINGS,
     track: str = "private",
-    protocol: str = CLOSED,
+    loop: str = CLOSED,
     lookahead: int = 0,
 ) -> Grid:
     """The paper's overall table (see :func:`robobpp.boards.ranking.build_grid`), computed now;
-    ``protocol="paper"``: its physical columns under the paper protocol (the Mean then averages those);
+    ``loop="paper"``: its physical columns under the paper protocol (the Mean then averages those);
     ``lookahead``: of the submissions that saw that many next boxes."""
     boards = {
-        f"{s}/{d}": leaderboard(session, d, s, track=track, protocol=protocol, lookahead=lookahead)
+        f"{s}/{d}": leaderboard(session, d, s, track=track, loop=loop, lookahead=lookahead)
         for s in settings
         for d in datasets
     }
     grid = build_grid(boards, datasets, settings, track)
-    return dataclasses.replace(grid, protocol=protocol, lookahead=lookahead)
+    return dataclasses.replace(grid, loop=loop, lookahead=lookahead)
 
 
 def board_triples(datasets: Sequence[str], settings: Sequence[str]) -> list[tuple[str, str, str]]:
-    """The (dataset, setting, protocol) of a track's lookahead-0 boards: every run any board shows is on one."""
+    """The (dataset, setting, loop) of a track's lookahead-0 boards: every run any board shows is on one."""
     return [(d, st, CLOSED) for st in settings for d in datasets] + [
         (d, st, PAPER) for st in settings if st in PHYSICAL for d in datasets
     ]
@@ -160,21 +160,17 @@ def compute_snapshot(
     boards: dict[tuple[str, ...], Board] = {}
     grids: dict[str, Grid] = {}
     for lookahead in lookaheads:
-        for protocol in lookahead_protocols(lookahead):
+        for loop in lookahead_loops(lookahead):
             for st in settings:
                 for d in datasets:
-                    key = board_id(d, st, protocol, lookahead)
+                    key = board_id(d, st, loop, lookahead)
                     if key not in boards:
-                        boards[key] = leaderboard(
-                            session, d, st, track=track, protocol=protocol, lookahead=lookahead
-                        )
+                        boards[key] = leaderboard(session, d, st, track=track, loop=loop, lookahead=lookahead)
             shown = {
-                f"{st}/{d}": boards[board_id(d, st, protocol, lookahead)] for st in settings for d in datasets
+                f"{st}/{d}": boards[board_id(d, st, loop, lookahead)] for st in settings for d in datasets
             }
             grid = build_grid(shown, datasets, settings, track)
-            grids[grid_id(protocol, lookahead)] = dataclasses.replace(
-                grid, protocol=protocol, lookahead=lookahead
-            )
+            grids[grid_id(loop, lookahead)] = dataclasses.replace(grid, loop=loop, lookahead=lookahead)
     out: dict[BoardKey, Published] = {key: board.served() for key, board in boards.items()}
     out.update(grids)
     with_lookaheads(out, list(out), lookaheads)
@@ -244,15 +240,15 @@ class BoardEngine:
         out: list[BoardKey] = []
         for lookahead in state.lookaheads if state is not None else [0]:
             out += self._board_keys(lookahead)
-            out += [grid_id(p, lookahead) for p in lookahead_protocols(lookahead)]
+            out += [grid_id(p, lookahead) for p in lookahead_loops(lookahead)]
         return out
 
     def _board_keys(self, lookahead: int = 0) -> list[tuple[str, ...]]:
         return [
-            board_id(d, st, protocol, lookahead)
-            for protocol in lookahead_protocols(lookahead)
+            board_id(d, st, loop, lookahead)
+            for loop in lookahead_loops(lookahead)
             for st in self.settings
-            if protocol == CLOSED or st in PHYSICAL
+            if loop == CLOSED or st in PHYSICAL
             for d in self.datasets
         ]
 
@@ -326,8 +322,8 @@ class BoardEngine:
             state.lookaheads = sorted({*state.lookaheads, lookahead})
 
     def _matrix(self, track: str, key: tuple[str, ...]) -> BoardMatrix:
-        dataset, setting, protocol, lookahead = board_of(key)
-        return BoardMatrix(dataset, setting, track, protocol, self._loader(track, key), lookahead)
+        dataset, setting, loop, lookahead = board_of(key)
+        return BoardMatrix(dataset, setting, track, loop, self._loader(track, key), lookahead)
 
     def _drop_empty(self, state: _Track) -> None:
         """Forget the boards and grids of each lookahead K > 0 no entry is on any longer."""
@@ -338,9 +334,9 @@ class BoardEngine:
             for key in keys:
                 del state.boards[key]
                 state.out.pop(key, None)
-            for protocol in lookahead_protocols(lookahead):
-                state.grids.pop(grid_id(protocol, lookahead), None)
-                state.out.pop(grid_id(protocol, lookahead), None)
+            for loop in lookahead_loops(lookahead):
+                state.grids.pop(grid_id(loop, lookahead), None)
+                state.out.pop(grid_id(loop, lookahead), None)
             state.lookaheads = [k for k in state.lookaheads if k != lookahead]
 
     def _full(self, track: str) -> dict[BoardKey, Published]:
@@ -389,31 +385,29 @@ class BoardEngine:
         ``state.out``; their keys."""
         out: list[BoardKey] = []
         for lookahead in sorted(lookaheads):
-            for protocol in lookahead_protocols(lookahead):
+            for loop in lookahead_loops(lookahead):
                 shown = {
-                    f"{st}/{d}": as_board(state.out[board_id(d, st, protocol, lookahead)])
+                    f"{st}/{d}": as_board(state.out[board_id(d, st, loop, lookahead)])
                     for st in self.settings
                     for d in self.datasets
                 }
-                grid_key = grid_id(protocol, lookahead)
+                grid_key = grid_id(loop, lookahead)
                 matrix = state.grids.get(grid_key)
                 if matrix is None:
                     matrix = state.grids[grid_key] = GridMatrix(self.datasets, self.settings, track)
                 matrices = {
-                    f"{st}/{d}": state.boards[board_id(d, st, protocol, lookahead)]
+                    f"{st}/{d}": state.boards[board_id(d, st, loop, lookahead)]
                     for st in self.settings
                     for d in self.datasets
                 }
-                grid = matrix.grid(
-                    shown, matrices, rank_intervals=full, protocol=protocol, lookahead=lookahead
-                )
+                grid = matrix.grid(shown, matrices, rank_intervals=full, loop=loop, lookahead=lookahead)
                 state.out[grid_key] = grid
                 out.append(grid_key)
         return out
 
     def _key_of(self, run: Mapping[str, Any]) -> tuple[str, ...]:
-        protocol = PAPER if run["setting"] in PHYSICAL and run["protocol"] == PAPER else CLOSED
-        return board_id(run["dataset"], run["setting"], protocol, int(run.get("lookahead") or 0))
+        loop = PAPER if run["setting"] in PHYSICAL and run["protocol"] == PAPER else CLOSED
+        return board_id(run["dataset"], run["setting"], loop, int(run.get("lookahead") or 0))
 
     def _runs(
         self,
@@ -425,7 +419,7 @@ class BoardEngine:
         """The track's runs on this engine's boards (``keys``: on those; else of every lookahead), each with
         its ``part`` (and the group ``ids``)."""
         if keys is None:
-            # the boards' (dataset, setting, protocol) of every lookahead; a lookahead K > 0 has no
+            # the boards' (dataset, setting, loop) of every lookahead; a lookahead K > 0 has no
             # paper-protocol boards: its replays are shown on none
             runs = queries.board_runs(
                 session,
@@ -437,11 +431,11 @@ class BoardEngine:
         else:
             runs = []
             for key in keys:
-                d, st, protocol, lookahead = board_of(key)
+                d, st, loop, lookahead = board_of(key)
                 runs += queries.board_runs(
                     session,
                     track,
-                    boards=[(d, st, protocol)],
+                    boards=[(d, st, loop)],
                     submission_ids=submission_ids,
                     lookahead=lookahead,
                 )
@@ -452,9 +446,9 @@ class BoardEngine:
             if run["part"] is None:
                 missing.setdefault(self._key_of(run), []).append(run)
         for key, lacking in missing.items():  # stored before 0010 or by an older version: computed here
-            d, st, protocol, _ = board_of(key)
+            d, st, loop, _ = board_of(key)
             figures = queries.run_figures_of(
-                session, track, d, st, protocol, [r["submission_id"] for r in lacking]
+                session, track, d, st, loop, [r["submission_id"] for r in lacking]
             )
             for run in lacking:
                 f = figures.get(run["submission_id"])
@@ -464,18 +458,18 @@ class BoardEngine:
         return runs
 
     def _loader(self, track: str, key: tuple[str, ...]) -> PartLoader:
-        dataset, setting, protocol, _ = board_of(key)
+        dataset, setting, loop, _ = board_of(key)
 
         def load(submission_ids: Sequence[int]) -> dict[int, EntryPart | None]:
             with self.session_factory() as session:
-                stored = queries.run_entries_of(session, track, dataset, setting, protocol, submission_ids)
+                stored = queries.run_entries_of(session, track, dataset, setting, loop, submission_ids)
                 parts = {
                     sid: None if entry is None else EntryPart.decode(entry, setting)
                     for sid, entry in stored.items()
                 }
                 lacking = [sid for sid in submission_ids if parts.get(sid) is None]
                 if lacking:
-                    figures = queries.run_figures_of(session, track, dataset, setting, protocol, lacking)
+                    figures = queries.run_figures_of(session, track, dataset, setting, loop, lacking)
                     for sid in lacking:
                         f = figures.get(sid)
                         parts[sid] = entry_part(f, setting) if f and f.get("ids") else None

@@ -92,7 +92,7 @@ class _Rows:
 
 
 class GridMatrix:
-    """One overall grid (of a track and protocol) kept between updates (module docstring)."""
+    """One overall grid (of a track and loop) kept between updates (module docstring)."""
 
     def __init__(self, datasets: Sequence[str], settings: Sequence[str], track: str) -> None:
         self.datasets, self.settings, self.track = list(datasets), list(settings), track
@@ -122,7 +122,7 @@ class GridMatrix:
         matrices: Mapping[str, BoardMatrix],
         *,
         rank_intervals: bool,
-        protocol: str,
+        loop: str,
         lookahead: int,
     ) -> Grid:
         """The grid of ``boards`` (``setting/dataset`` -> the board ``matrices[key]`` handed out last): as
@@ -171,7 +171,7 @@ class GridMatrix:
             best,
             best_apart,
             tops,
-            protocol,
+            loop,
             lookahead,
             ranked=view,
         )

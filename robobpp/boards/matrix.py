@@ -170,7 +170,7 @@ class _Snapshot:
 
 
 class BoardMatrix:
-    """One board (dataset × setting × protocol × lookahead of a track) kept between updates.
+    """One board (dataset × setting × loop × lookahead of a track) kept between updates.
 
     ``rows`` are what :func:`robobpp.db.queries.board_runs` returns without ``entry``, with ``ids``: the
     run's group ids as bytes (None without figures). ``load`` reads stored parts by submission id (only for
@@ -178,11 +178,11 @@ class BoardMatrix:
     """
 
     def __init__(
-        self, dataset: str, setting: str, track: str, protocol: str, load: PartLoader, lookahead: int = 0
+        self, dataset: str, setting: str, track: str, loop: str, load: PartLoader, lookahead: int = 0
     ) -> None:
         if setting not in WEIGHTS:
             raise ValueError(f"unknown setting {setting!r}; expected one of {', '.join(WEIGHTS)}")
-        self.dataset, self.setting, self.track, self.protocol = dataset, setting, track, protocol
+        self.dataset, self.setting, self.track, self.loop = dataset, setting, track, loop
         self.lookahead = lookahead
         self.load = load
         self.keys = metric_keys(setting)
@@ -642,7 +642,7 @@ class BoardMatrix:
                 "best": board_tops(scores[chosen], points[chosen], self.keys),
                 "all": board_tops(scores, points, self.keys),
             },
-            self.protocol,
+            self.loop,
             self.lookahead,
             ranked=view,
             for_grid=ForGrid(by_column),

@@ -329,7 +329,7 @@ class BoardCache:
         dataset: str,
         setting: str,
         track: str = "private",
-        protocol: str = CLOSED,
+        loop: str = CLOSED,
         view: str = "best",
         limit: int = 50,
         offset: int = 0,
@@ -338,7 +338,7 @@ class BoardCache:
     ) -> dict[str, Any]:
         """One page of a board, as ``robobpp.boards.ranking.board_view`` pages the full board
         (``lookahead``: the board of the submissions that saw that many next boxes)."""
-        key = board_key(dataset, setting, protocol, lookahead)
+        key = board_key(dataset, setting, loop, lookahead)
         stored = self._head(track, key)
         counts = stored["counts"]
         if submission_id is None:
@@ -373,14 +373,14 @@ class BoardCache:
     def grid_page(
         self,
         track: str = "private",
-        protocol: str = CLOSED,
+        loop: str = CLOSED,
         view: str = "best",
         limit: int = 50,
         offset: int = 0,
         lookahead: int = 0,
     ) -> dict[str, Any]:
         """One page of the overall grid, as ``robobpp.boards.ranking.grid_view`` pages the full grid."""
-        key = grid_key(protocol, lookahead)
+        key = grid_key(loop, lookahead)
         stored = self._head(track, key)
         counts = stored["counts"]
         apart = f"apart-{view}"
@@ -401,19 +401,17 @@ class BoardCache:
         }
 
     def ranked_entry(
-        self, dataset: str, setting: str, track: str, protocol: str, submission_id: int, lookahead: int = 0
+        self, dataset: str, setting: str, track: str, loop: str, submission_id: int, lookahead: int = 0
     ) -> tuple[dict[str, Any] | None, int]:
         """A submission's ranked entry on a board (as served) or None, and how many entries are ranked
         (``lookahead``: the submission's; a lookahead K > 0 has no paper-protocol boards: None, 0)."""
-        if lookahead and board_loop(setting, protocol) != CLOSED:
+        if lookahead and board_loop(setting, loop) != CLOSED:
             return None, 0
         for attempt in (0, 1):
             try:
-                page = self.board_page(
-                    dataset, setting, track, protocol, "all", 1, 0, submission_id, lookahead
-                )
+                page = self.board_page(dataset, setting, track, loop, "all", 1, 0, submission_id, lookahead)
                 return (page["entries"][0] if page["entries"] else None), self._counts(
-                    track, board_key(dataset, setting, protocol, lookahead)
+                    track, board_key(dataset, setting, loop, lookahead)
                 )
             except VersionGone:
                 if attempt:

@@ -109,8 +109,9 @@ class Board:
     """One board: its ranked entries in rank order, the unranked ones, each participant's best ranked among
     them (the default view), and what its pages and its track's grid read.
 
-    ``lookaheads``: the track's lookaheads with boards, once the board is part of a track's set (None: a board
-    computed alone). ``index``: each ranked submission's position in ``entries``. ``ranked``: the all-entries
+    ``loop``: how its runs were played (:data:`robobpp.vocabulary.Loop`; served as ``protocol``, the API's name
+    for it). ``lookaheads``: the track's lookaheads with boards, once the board is part of a track's set
+    (None: a board computed alone). ``index``: each ranked submission's position in ``entries``. ``ranked``: the all-entries
     view as arrays (the board engine's; None: read it off ``entries``). ``for_grid``: None once handed out.
     Frozen: a board handed out never changes (the engine makes a new one; its rows are never changed either)."""
 
@@ -123,7 +124,7 @@ class Board:
     best: list[Row]
     index: Mapping[int, int]
     tops: Tops
-    protocol: str = CLOSED
+    loop: str = CLOSED
     lookahead: int = 0
     lookaheads: list[int] | None = None
     ranked: RankedView | None = None
@@ -142,7 +143,7 @@ class Board:
             "groups": self.groups,
             "resamples": stats.RESAMPLES,
             "confidence": stats.CONFIDENCE,
-            "protocol": self.protocol,
+            "protocol": self.loop,
             "lookahead": self.lookahead,
         }
         if self.lookaheads is not None:
@@ -174,7 +175,7 @@ class Grid:
     best: list[Row]
     best_apart: list[Row]
     tops: Tops
-    protocol: str = CLOSED
+    loop: str = CLOSED
     lookahead: int = 0
     lookaheads: list[int] | None = None
     ranked: RankedView | None = None
@@ -191,7 +192,7 @@ class Grid:
             "track": self.track,
             "boards": len(self.datasets) * len(self.settings),
             "ranked_by": RANKED_BY,
-            "protocol": self.protocol,
+            "protocol": self.loop,
             "lookahead": self.lookahead,
         }
         if self.lookaheads is not None:
@@ -210,9 +211,7 @@ Published = Board | Grid
 def as_board(item: Published) -> Board:
     """``item``, which must be a board (a key of a board was looked up)."""
     if not isinstance(item, Board):
-        raise TypeError(
-            f"a grid where a board was expected ({item.track}, {item.protocol}, {item.lookahead})"
-        )
+        raise TypeError(f"a grid where a board was expected ({item.track}, {item.loop}, {item.lookahead})")
     return item
 
 

@@ -94,15 +94,15 @@ def board_source(session: Session, track: str, datasets: Sequence[str], settings
     return source
 
 
-def board_key(dataset: str, setting: str, protocol: str = CLOSED, lookahead: int = 0) -> str:
+def board_key(dataset: str, setting: str, loop: str = CLOSED, lookahead: int = 0) -> str:
     """A board's key in the publication (a Math Pack board is one board under both protocols):
     ``repetitive/math/closed``; of a lookahead K > 0, ``repetitive/math/closed/lookahead-K``."""
-    return f"{dataset}/{setting}/{board_loop(setting, protocol)}" + _lookahead_part(lookahead)
+    return f"{dataset}/{setting}/{board_loop(setting, loop)}" + _lookahead_part(lookahead)
 
 
-def grid_key(protocol: str = CLOSED, lookahead: int = 0) -> str:
+def grid_key(loop: str = CLOSED, lookahead: int = 0) -> str:
     """A grid's key in the publication: ``grid/closed``, ``grid/paper``, ``grid/closed/lookahead-K``."""
-    return f"grid/{protocol}" + _lookahead_part(lookahead)
+    return f"grid/{loop}" + _lookahead_part(lookahead)
 
 
 _LOOKAHEAD_PART = "/lookahead-"

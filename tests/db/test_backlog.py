@@ -4,7 +4,8 @@ wait on their policies), while a built-in's episode holds the whole worker."""
 from __future__ import annotations
 
 import math
-from datetime import timedelta
+from collections.abc import Sequence
+from datetime import datetime, timedelta
 from typing import Any
 
 import pytest
@@ -25,6 +26,9 @@ def factory(db_url: str) -> Any:
     engine.dispose()
 
 
+REMOTE = "http://127.0.0.1:9/policy"
+
+
 def _submit(s: Any, who: str, *, builtin: bool, groups: int, url: str) -> Submission:
     p = s.execute(select(Participant).where(Participant.name == who)).scalar_one_or_none()
     if p is None:
@@ -36,19 +40,21 @@ def _submit(s: Any, who: str, *, builtin: bool, groups: int, url: str) -> Submis
     )
 
 
+def _finished(s: Any, seconds: Sequence[float], now: datetime) -> None:
+    """A finished submission whose episodes took ``seconds`` each (what the mean episode time is read from)."""
+    past = _submit(s, "past", builtin=False, groups=len(seconds), url=REMOTE)
+    past.status = "completed"
+    episodes = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == past.id)).scalars()
+    for took, e in zip(seconds, episodes, strict=True):
+        e.status, e.started_at = "done", now - timedelta(seconds=100)
+        e.finished_at = e.started_at + timedelta(seconds=took)
+
+
 def test_the_expected_end_shares_the_pool_places_between_participants_and_built_ins(factory: Any) -> None:
     now = utcnow()
     with transaction(factory) as s:
-        # a finished submission whose two episodes took 10 s and 20 s: the mean episode, 15 s
-        done = _submit(s, "past", builtin=False, groups=2, url="http://127.0.0.1:9/policy")
-        done.status = "completed"
-        episodes = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == done.id)).scalars()
-        for seconds, e in zip((10, 20), episodes, strict=True):
-            e.status, e.started_at = "done", now - timedelta(seconds=100)
-            e.finished_at = e.started_at + timedelta(seconds=seconds)
-        _submit(
-            s, "alice", builtin=False, groups=6, url="http://127.0.0.1:9/policy"
-        )  # 6 episodes, 1 place each
+        _finished(s, (10, 20), now)  # the mean episode: 15 s
+        _submit(s, "alice", builtin=False, groups=6, url=REMOTE)  # 6 episodes, a place each
         _submit(s, "robobpp", builtin=True, groups=3, url="builtin:dbl")  # 3 episodes, a whole worker each
     with factory() as s:
         one = waiting.backlog(s, workers=2, now=now)
@@ -67,20 +73,13 @@ def test_the_expected_end_shares_the_pool_places_between_participants_and_built_
 def test_running_submissions_count_their_episodes_left_in_places_too(factory: Any) -> None:
     now = utcnow()
     with transaction(factory) as s:
-        past = _submit(s, "past", builtin=False, groups=1, url="http://127.0.0.1:9/policy")
-        past.status = "completed"
-        e = s.execute(select(EpisodeRow).where(EpisodeRow.submission_id == past.id)).scalar_one()
-        e.status, e.started_at, e.finished_at = (
-            "done",
-            now - timedelta(seconds=30),
-            now - timedelta(seconds=20),
-        )
+        _finished(s, (10,), now)
         _submit(s, "robobpp", builtin=True, groups=4, url="builtin:dbl")
     with transaction(factory) as s:  # the built-in's first episode claimed: it runs, 4 episodes left
         claim = work.claim_episode(s, "w0", lease_s=60, max_attempts=3)
         assert claim is not None
     with transaction(factory) as s:
-        _submit(s, "alice", builtin=False, groups=4, url="http://127.0.0.1:9/policy")
+        _submit(s, "alice", builtin=False, groups=4, url=REMOTE)
     with factory() as s:
         b = waiting.backlog(s, workers=1, now=now, per_worker=4)
     assert b is not None and b.running == 1 and b.queued == 1

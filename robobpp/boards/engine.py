@@ -284,9 +284,7 @@ class BoardEngine:
             present = {int(r["submission_id"]) for r in upsert}
             gone = [s for s in (*removed, *changed) if s in matrix and s not in present]
             if upsert or gone:
-                matrix.apply(
-                    [_row(r) for r in upsert], gone, parts={r["submission_id"]: r["part"] for r in upsert}
-                )
+                matrix.apply(upsert, gone, parts={r["submission_id"]: r["part"] for r in upsert})
                 touched.add(key)
         state.seen = seen
         self._drop_empty(state)  # and its last takes them away
@@ -357,7 +355,7 @@ class BoardEngine:
                 rows = self._runs(session, track, None, keys=[key])
             present = {int(r["submission_id"]) for r in rows}
             matrix.apply(
-                [_row(r) for r in rows],
+                rows,
                 [s for s in matrix.submission_ids() if s not in present],
                 parts={r["submission_id"]: r["part"] for r in rows},
             )
@@ -533,7 +531,3 @@ _IDS: dict[bytes, bytes] = {}
 def _interned(ids: bytes) -> bytes:
     """One object per distinct group-id list (every entry of a board has the same)."""
     return _IDS.setdefault(ids, ids)
-
-
-def _row(run: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in run.items() if k not in ("part", "dataset", "setting", "protocol", "lookahead")}

@@ -303,18 +303,14 @@ class BoardMatrix:
         c.submission_failed[slots] = [row.get("submission_status") == "failed" for row in rows]
         c.who[slots] = [self._code(participant_key(row)) for row in rows]
         c.ids[slots] = [-1 if row.get("ids") is None else self._code(row["ids"]) for row in rows]
-        points = np.array([[_point(m.get(k)) for k in self.keys] for m in metrics]).reshape(
-            len(rows), len(self.keys)
-        )
+        points, plain = _points_of(metrics, self.keys)
         c.points[slots] = points
         c.version[slots] = new_serials(len(rows))
         c.shown[slots] = 0  # its row is new (no row hashes to 0 but by a 2**-64 chance)
         named = []
-        for slot, row, m, e in zip(slots.tolist(), rows, metrics, extras, strict=True):
+        for slot, row, m, e, kept in zip(slots.tolist(), rows, metrics, extras, plain.tolist(), strict=True):
             public = {k: row.get(k) for k in _PUBLIC}
             # metrics that are exactly the board's point metrics are not kept twice (≈ 250 bytes an entry)
-            kept = len(m) == len(self.keys) and all(type(m.get(k)) is float for k in self.keys)
-            kept = kept and all(math.isfinite(v) for v in m.values())
             named.append(self._code(tuple(m)) if kept else -1)
             if not kept:
                 public["metrics"] = m
@@ -759,6 +755,26 @@ def _point(value: object) -> float:
     if isinstance(value, int | float) and not isinstance(value, bool) and np.isfinite(value):
         return float(value)
     return np.nan
+
+
+def _points_of(metrics: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Entries' point metrics (entries × ``keys``, NaN where missing, not a number or not finite) and whether
+    each entry's metrics are exactly those points (its keys are ``keys``, every value a finite float: then
+    they need not be kept beside them). Values that are all floats, the common case, are taken as they are."""
+    rows: list[list[Any]] = []
+    exact: list[bool] = []
+    for m in metrics:
+        values = [m.get(k) for k in keys]
+        if all(type(v) is float for v in values):
+            rows.append(values)
+            exact.append(len(m) == len(keys))
+        else:
+            rows.append([_point(v) for v in values])
+            exact.append(False)
+    points = np.array(rows, dtype=np.float64).reshape(len(metrics), len(keys))
+    finite = np.isfinite(points)
+    points[~finite] = np.nan
+    return points, np.array(exact, dtype=bool).reshape(len(metrics)) & finite.all(axis=1)
 
 
 def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:

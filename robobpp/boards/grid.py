@@ -23,10 +23,10 @@ from robobpp.boards.matrix import BoardMatrix, new_serials
 from robobpp.boards.ranking import (
     GRID_RESAMPLES,
     GRID_ROW_FIGURES,
+    best_apart,
     best_of_participants,
     grid_figures,
     new_grid_row,
-    participant_key,
     top_values,
 )
 from robobpp.boards.records import Board, Grid, LazyRows, RankedView, Row, Tops, empty_tops
@@ -160,8 +160,6 @@ class GridMatrix:
             self._forget()
             tops = empty_tops(self.keys)
         apart = self._apart(boards, views, complete)
-        ranked = {participant_key(r) for r in best}
-        best_apart = [r for r in apart if participant_key(r) not in ranked]
         return Grid(
             self.datasets,
             self.settings,
@@ -169,7 +167,7 @@ class GridMatrix:
             rows,
             apart,
             best,
-            best_apart,
+            best_apart(best, apart),
             tops,
             loop,
             lookahead,

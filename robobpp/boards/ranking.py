@@ -251,12 +251,7 @@ def finish_board(
     order = sorted(range(len(entries)), key=lambda i: (entries[i]["rank"], entries[i]["submission_id"]))
     ranked = [entries[i] for i in order]
     unranked = sorted(unranked, key=lambda e: (e["status"], e["submission_id"]))
-    best = [
-        {**e, "rank": e["best_rank"], "rank_low": e["best_rank_low"], "rank_high": e["best_rank_high"]}
-        for e in entries
-        if e["best"]
-    ]
-    best.sort(key=lambda e: (e["rank"], e["submission_id"]))
+    best = _best_view(entries)
     keys = [m.key for m in metrics_for(setting)]
     tops = {
         view: board_tops(np.array([e["score"] for e in listed]), _metric_matrix(keys, listed), keys)
@@ -420,19 +415,30 @@ def build_grid(
             apart.append(r)
     complete.sort(key=lambda r: (r["rank"], r["submission_id"]))
     apart.sort(key=lambda r: (r["status"], -r["boards"], r["submission_id"]))
-    best = [
-        {**r, "rank": r["best_rank"], "rank_low": r["best_rank_low"], "rank_high": r["best_rank_high"]}
-        for r in complete
-        if r["best"]
-    ]
-    best.sort(key=lambda r: (r["rank"], r["submission_id"]))
-    ranked = {participant_key(r) for r in best}
+    best = _best_view(complete)
     tops = {
         view: {k: top_values(r["cells"][k]["score"] for r in listed) for k in keys}
         for view, listed in (("best", best), ("all", complete))
     }
-    best_apart = [r for r in apart if participant_key(r) not in ranked]
-    return Grid(list(datasets), list(settings), track, complete, apart, best, best_apart, tops)
+    return Grid(list(datasets), list(settings), track, complete, apart, best, best_apart(best, apart), tops)
+
+
+def _best_view(rows: Sequence[Row]) -> list[Row]:
+    """The default view of ranked rows that :func:`_mark_best` marked: each participant's best, ranked among
+    them (their ``best_rank`` and its interval as their rank), in rank order."""
+    best = [
+        {**r, "rank": r["best_rank"], "rank_low": r["best_rank_low"], "rank_high": r["best_rank_high"]}
+        for r in rows
+        if r["best"]
+    ]
+    best.sort(key=lambda r: (r["rank"], r["submission_id"]))
+    return best
+
+
+def best_apart(best: Sequence[Row], apart: Sequence[Row]) -> list[Row]:
+    """The grid's rows apart that its default view lists: those of participants with no best ranked row."""
+    ranked = {participant_key(r) for r in best}
+    return [r for r in apart if participant_key(r) not in ranked]
 
 
 @dataclass

@@ -304,25 +304,15 @@ class PartTable:
         block = self._blocks[blocks.pop()]
         return block.top_bottom(np.fromiter((self._where[s][1] for s in submission_ids), dtype=np.intp))
 
-    def seed(self, submission_id: int) -> int:
-        ids, row = self._where[submission_id]
-        return int(self._blocks[ids].seeds[row])
-
     def seeds(self, submission_ids: Sequence[int]) -> list[int]:
-        """The entries' timing seeds (:meth:`seed` of each)."""
+        """The entries' timing seeds (each one's part's)."""
         return [
             int(self._blocks[ids].seeds[row]) for ids, row in map(self._where.__getitem__, submission_ids)
         ]
 
-    def intervals(self, submission_id: int) -> tuple[np.ndarray, tuple[float, float]]:
-        """The entry's metric intervals (metrics × 2, NaN = none) and stable interval."""
-        ids, row = self._where[submission_id]
-        block = self._blocks[ids]
-        return block.metric_ci[row], (float(block.stable_ci[row, 0]), float(block.stable_ci[row, 1]))
-
     def intervals_of(self, submission_ids: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`intervals` of many entries: their metric intervals (entries × metrics × 2) and stable
-        intervals (entries × 2), gathered a block at a time."""
+        """The entries' metric intervals (entries × metrics × 2, NaN = none) and stable intervals (entries × 2),
+        gathered a block at a time."""
         metric = np.empty((len(submission_ids), len(self.keys), 2))
         stable = np.empty((len(submission_ids), 2))
         by_block: dict[bytes, tuple[list[int], list[int]]] = {}

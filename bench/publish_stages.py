@@ -3,8 +3,9 @@ middling quality on a seeded database (``bench_boards.py --seed-only``; use a fr
 submissions).
 
 Runs the board worker's publisher in this process: its first (full) publication, then ``--updates`` more, one
-per new finished submission, each with the CPU seconds of its stages (the engine's boards and grids, building
-the stored parts, hashing the rows, the SQL write and its wall time) and the bytes of the parts it built.
+per new finished submission, each with the CPU seconds of its stages (setting the boards' rows from the runs
+read, the engine's boards and grids, building the stored parts, hashing the rows, the SQL write and its wall
+time) and the bytes of the parts it built.
 
     python bench/publish_stages.py --database-url URL [--updates 4]
 """
@@ -56,6 +57,7 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=4)
     args = parser.parse_args()
 
+    timed(scoring_engine.BoardMatrix, "apply", "rows")
     timed(scoring_engine.BoardMatrix, "board", "boards")
     timed(scoring_grid.GridMatrix, "grid", "grids")
     timed(board_worker.BoardPublisher, "_rows_hashed", "hash")
@@ -78,7 +80,8 @@ def main() -> None:
     publisher = board_worker.BoardPublisher(runtime.read_session, runtime.session, DATASETS, SETTINGS)
     started = time.perf_counter()
     publisher.publish("private")
-    print(f"first publication: {time.perf_counter() - started:.1f} s")
+    stages = ", ".join(f"{k} {v:.2f}" for k, v in STAGES.items())
+    print(f"first publication: {time.perf_counter() - started:.1f} s; {stages}")
     with runtime.read_session() as s:
         count = s.execute(text("SELECT count(*) FROM submissions")).scalar_one()
     for _ in range(args.updates):

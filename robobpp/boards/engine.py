@@ -30,7 +30,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from robobpp.boards.grid import GridMatrix
-from robobpp.boards.matrix import BoardMatrix, PartLoader
+from robobpp.boards.matrix import BoardMatrix, PartLoader, SharedFields
 from robobpp.boards.ranking import build_board, build_grid
 from robobpp.boards.records import Board, Grid, Published, as_board, with_lookaheads
 from robobpp.db import queries
@@ -203,6 +203,8 @@ class _Track:
     grids: dict[str, GridMatrix] = field(default_factory=dict)
     #: The lookaheads with boards (0 always), as every board and grid handed out says.
     lookaheads: list[int] = field(default_factory=lambda: [0])
+    #: Each submission's fields every board shows alike, kept once for the track's boards.
+    shared: SharedFields = field(default_factory=SharedFields)
 
 
 class BoardEngine:
@@ -287,6 +289,7 @@ class BoardEngine:
                 matrix.apply(upsert, gone, parts={r["submission_id"]: r["part"] for r in upsert})
                 touched.add(key)
         state.seen = seen
+        state.shared.keep_only(seen)
         self._drop_empty(state)  # and its last takes them away
         touched &= state.boards.keys()
         out: list[BoardKey] = []
@@ -315,13 +318,13 @@ class BoardEngine:
         """Empty boards for the lookaheads that have none yet."""
         for lookahead in sorted(lookaheads - set(state.lookaheads)):
             for key in self._board_keys(lookahead):
-                state.boards[key] = self._matrix(track, key)
+                state.boards[key] = self._matrix(track, key, state.shared)
             # a new list (never changed in place): the boards handed out hold the one they were given
             state.lookaheads = sorted({*state.lookaheads, lookahead})
 
-    def _matrix(self, track: str, key: tuple[str, ...]) -> BoardMatrix:
+    def _matrix(self, track: str, key: tuple[str, ...], shared: SharedFields) -> BoardMatrix:
         dataset, setting, loop, lookahead = board_of(key)
-        return BoardMatrix(dataset, setting, track, loop, self._loader(track, key), lookahead)
+        return BoardMatrix(dataset, setting, track, loop, self._loader(track, key), lookahead, shared)
 
     def _drop_empty(self, state: _Track) -> None:
         """Forget the boards and grids of each lookahead K > 0 no entry is on any longer."""
@@ -343,7 +346,9 @@ class BoardEngine:
             lookaheads = track_lookaheads(session, track, self.datasets, self.settings)
         state = self._tracks.get(track)
         if state is None:
-            state = _Track(seen, {key: self._matrix(track, key) for key in self._board_keys()})
+            shared = SharedFields()
+            boards = {key: self._matrix(track, key, shared) for key in self._board_keys()}
+            state = _Track(seen, boards, shared=shared)
         self._add_lookaheads(track, state, set(lookaheads))
         started = time.monotonic()
         for done, (key, matrix) in enumerate(state.boards.items(), start=1):
@@ -372,6 +377,7 @@ class BoardEngine:
                     elapsed,
                 )
         state.seen = seen
+        state.shared.keep_only(seen)
         self._drop_empty(state)
         self._grids(track, state, set(state.lookaheads), full=True)
         self._tracks[track] = state

@@ -129,6 +129,7 @@ class _Snapshot:
     handed out with that update are built from, on demand — later updates change the columns, never this."""
 
     keys: tuple[str, ...]
+    shared: list[Any]
     public: list[Any]
     completed: list[Any]
     points: np.ndarray  # (entries, metrics): the point metrics, whence a row's metrics not kept in ``public``
@@ -150,7 +151,7 @@ class _Snapshot:
         intervals = self.intervals[i].tolist()
         code = int(self.named[i])
         metrics = None if code < 0 else _metrics(self.coded[code], self.keys, self.points[i])
-        return _public(self.public[i], self.completed[i], metrics) | {
+        return _public(self.shared[i], self.public[i], self.completed[i], metrics) | {
             "rank": None,
             "rank_low": None if low < 0 else low,
             "rank_high": None if high < 0 else high,
@@ -169,6 +170,34 @@ class _Snapshot:
         }
 
 
+class SharedFields:
+    """Each submission's fields that all of its rows show alike (``_PUBLIC``: its id, name, participant,
+    whether it is a baseline, its verdict), packed once for all of a track's boards: the fifteen boards of a
+    track kept fifteen copies (≈ 100 bytes an entry: BENCHMARKS.md, "The board engine"). A board keeps a
+    reference; a submission whose fields change gets a new object (rows handed out keep the old one)."""
+
+    def __init__(self) -> None:
+        self._by_id: dict[int, Any] = {}
+
+    def __len__(self) -> int:
+        return len(self._by_id)
+
+    def packed(self, submission_id: int, fields: dict[str, Any]) -> Any:
+        """``fields`` packed (:func:`_packed`): the object kept for the submission when they are the same."""
+        new = _packed(fields)
+        old = self._by_id.get(submission_id)
+        if old is not None and type(old) is type(new) and old == new:
+            return old
+        self._by_id[submission_id] = new
+        return new
+
+    def keep_only(self, submission_ids: Iterable[int]) -> None:
+        """Forget the submissions not among ``submission_ids`` (those that left the track's boards)."""
+        keep = set(submission_ids)
+        for sid in [s for s in self._by_id if s not in keep]:
+            del self._by_id[sid]
+
+
 class BoardMatrix:
     """One board (dataset × setting × loop × lookahead of a track) kept between updates.
 
@@ -178,7 +207,14 @@ class BoardMatrix:
     """
 
     def __init__(
-        self, dataset: str, setting: str, track: str, loop: str, load: PartLoader, lookahead: int = 0
+        self,
+        dataset: str,
+        setting: str,
+        track: str,
+        loop: str,
+        load: PartLoader,
+        lookahead: int = 0,
+        shared: SharedFields | None = None,
     ) -> None:
         if setting not in WEIGHTS:
             raise ValueError(f"unknown setting {setting!r}; expected one of {', '.join(WEIGHTS)}")
@@ -193,7 +229,10 @@ class BoardMatrix:
         self._c = _Columns(len(self.keys))
         self._slot: dict[int, int] = {}
         self._free: list[int] = []
-        #: Each entry's public fields (JSON, or the dict where JSON would not give it back) and finish time.
+        #: Each entry's public fields (JSON, or the dict where JSON would not give it back) and finish time:
+        #: its submission's (one object for all of the track's boards: ``shared``) and its run's.
+        self.shared = SharedFields() if shared is None else shared
+        self._shared: list[Any] = []
         self._public: list[Any] = []
         self._completed: list[Any] = []
         self._parts = PartTable(setting)
@@ -245,20 +284,20 @@ class BoardMatrix:
         parts: Mapping[int, EntryPart | None] | None = None,
     ) -> None:
         """Add or replace rows (``parts``: their parts when already at hand), drop submissions."""
+        remove = list(remove)
         for sid in remove:
             slot = self._slot.pop(sid, None)
             if slot is not None:
                 self._basis = None  # it may have held a min or max: renormalise everyone
                 self._free.append(slot)
-                self._public[slot] = self._completed[slot] = None
-            self._parts.drop(sid)
+                self._shared[slot] = self._public[slot] = self._completed[slot] = None
+        self._parts.drop_many(remove)
         upsert = list(upsert)
         given = dict(parts or {})
         lacking = [int(r["submission_id"]) for r in upsert if int(r["submission_id"]) not in given]
         if lacking:  # its part may have changed: read it again
             given.update(self.load(lacking))
-        for sid in given:  # a part of None: the run has no figures any more
-            self._parts.drop(sid)
+        self._parts.drop_many(list(given))  # a part of None: the run has no figures any more
         self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
         c = self._c
         slots: list[int] = []
@@ -272,6 +311,7 @@ class BoardMatrix:
                 else:
                     slot = len(self._public)
                     c.grow(slot + 1)
+                    self._shared.append(None)
                     self._public.append(None)
                     self._completed.append(None)
                 self._slot[sid] = slot
@@ -309,13 +349,12 @@ class BoardMatrix:
         c.shown[slots] = 0  # its row is new (no row hashes to 0 but by a 2**-64 chance)
         named = []
         for slot, row, m, e, kept in zip(slots.tolist(), rows, metrics, extras, plain.tolist(), strict=True):
-            public = {k: row.get(k) for k in _PUBLIC}
+            self._shared[slot] = self.shared.packed(
+                int(row["submission_id"]), {k: row.get(k) for k in _PUBLIC}
+            )
             # metrics that are exactly the board's point metrics are not kept twice (≈ 250 bytes an entry)
             named.append(self._code(tuple(m)) if kept else -1)
-            if not kept:
-                public["metrics"] = m
-            public["extras"] = e
-            self._public[slot] = _packed(public)
+            self._public[slot] = _packed({"extras": e} if kept else {"metrics": m, "extras": e})
             self._completed[slot] = row.get("completed_at")
         c.named[slots] = named
         # each entry's stable score from its own metrics: element-wise, so all at once
@@ -394,7 +433,7 @@ class BoardMatrix:
         sids = self._c.sid[slots].tolist()
         measured = np.flatnonzero(usable)
         chosen = [sids[k] for k in measured.tolist()]
-        if any(s not in self._parts for s in chosen):
+        if not self._parts.contains(chosen).all():
             raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
         seeds: list[int | None] = [None] * len(slots)
         stacked = None
@@ -448,7 +487,7 @@ class BoardMatrix:
         order, (lo, hi) = _order_and_interval(rel)
         c.order[slots] = order
         c.score_ci[slots, 0], c.score_ci[slots, 1] = lo, hi
-        own = usable & np.array([s in self._parts for s in c.sid[slots].tolist()], dtype=bool)
+        own = usable & self._parts.contains(c.sid[slots])
         c.own[slots] = own
         if not own.all():
             apart = (
@@ -556,7 +595,7 @@ class BoardMatrix:
                 groups,
             )
             unranked.append(
-                _public(self._public[slot], self._completed[slot], self._metrics_of(slot))
+                _public(self._shared[slot], self._public[slot], self._completed[slot], self._metrics_of(slot))
                 | {"status": status, "reason": reason, "entries_submitted": submitted[int(c.who[slot])]}
             )
         unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
@@ -592,6 +631,7 @@ class BoardMatrix:
             intervals[own] = self._parts.intervals_of(sids[own].tolist())[0]
         snap = _Snapshot(
             self.keys,
+            [self._shared[s] for s in ranked.tolist()],
             [self._public[s] for s in ranked.tolist()],
             [self._completed[s] for s in ranked.tolist()],
             points,
@@ -679,10 +719,12 @@ def _metrics(order: tuple[str, ...], keys: tuple[str, ...], points: np.ndarray) 
     return {k: values[k] for k in order}
 
 
-def _public(packed: Any, completed: Any, metrics: dict[str, float] | None = None) -> dict[str, Any]:
-    """An entry's public fields (``boards.public_fields``) from what the board keeps of them (``metrics``:
-    when they are not among them)."""
-    fields = orjson.loads(packed) if isinstance(packed, bytes) else dict(packed)
+def _public(
+    shared: Any, packed: Any, completed: Any, metrics: dict[str, float] | None = None
+) -> dict[str, Any]:
+    """An entry's public fields (``boards.public_fields``) from what the board keeps of them: its
+    submission's (``shared``) and its run's (``metrics``: when they are not among them)."""
+    fields = _unpacked(shared) | _unpacked(packed)
     if metrics is not None:
         fields["metrics"] = metrics
     return {
@@ -695,6 +737,10 @@ def _public(packed: Any, completed: Any, metrics: dict[str, float] | None = None
         "completed_at": completed,
         "verification": fields["verification"],
     }
+
+
+def _unpacked(packed: Any) -> dict[str, Any]:
+    return orjson.loads(packed) if isinstance(packed, bytes) else dict(packed)
 
 
 def _packed(public: dict[str, Any]) -> Any:

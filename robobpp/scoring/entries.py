@@ -253,81 +253,134 @@ class PartTable:
         self.keys = metric_keys(setting)
         #: the columns whose weights are kept (the pooled ones; every column once a part breaks the rule)
         self._pooled = np.array([k in POOLED for k in self.keys], dtype=bool)
-        self._blocks: dict[bytes, _Block] = {}
-        #: submission id -> (its block's group ids, its row there)
-        self._where: dict[int, tuple[bytes, int]] = {}
+        self._blocks: list[_Block | None] = []  # by number; None: emptied
+        self._numbers: dict[bytes, int] = {}  # group ids -> block number
+        # Where each entry's part is, sorted by submission id: three arrays (16 bytes an entry, where a dict
+        # of tuples took ≈ 110: BENCHMARKS.md), looked up many at a time by binary search.
+        self._sids = np.zeros(0, np.int64)
+        self._block = np.zeros(0, np.int32)
+        self._row = np.zeros(0, np.int32)
+
+    def _positions(self, submission_ids: Sequence[int] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each id's position in the sorted arrays, and whether it is there."""
+        sids = np.asarray(submission_ids, dtype=np.int64).reshape(-1)
+        at = np.searchsorted(self._sids, sids)
+        found = np.zeros(len(sids), dtype=bool)
+        if len(self._sids):
+            inside = at < len(self._sids)
+            found[inside] = self._sids[at[inside]] == sids[inside]
+        return at, found
+
+    def _located(self, submission_ids: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """The entries' block numbers and rows (KeyError: an entry without a part)."""
+        at, found = self._positions(submission_ids)
+        if not found.all():
+            raise KeyError(int(np.asarray(submission_ids, dtype=np.int64)[~found][0]))
+        return self._block[at], self._row[at]
 
     def __contains__(self, submission_id: object) -> bool:
-        return submission_id in self._where
+        if not isinstance(submission_id, int | np.integer):
+            return False
+        return bool(self._positions([int(submission_id)])[1][0])
+
+    def contains(self, submission_ids: Sequence[int] | np.ndarray) -> np.ndarray:
+        """Per id, whether the table holds its part (:meth:`__contains__` of many)."""
+        return self._positions(submission_ids)[1]
 
     def __len__(self) -> int:
-        return len(self._where)
+        return len(self._sids)
 
     def put(self, submission_id: int, part: EntryPart) -> None:
         """Keep ``part`` as the entry's (replacing the one it had)."""
-        self.drop(submission_id)
-        ids = part.ids.tobytes()
-        block = self._blocks.get(ids)
-        if block is None:
-            block = self._blocks[ids] = _Block(part.groups, len(self.keys), self._pooled)
-        self._where[submission_id] = (ids, block.add(part))
+        self.put_many({submission_id: part})
 
     def put_many(self, parts: Mapping[int, EntryPart]) -> None:
-        """:meth:`put` of many at once (a board's start: one allocation per block, not one per entry)."""
+        """Keep many parts (replacing those the entries had): one allocation per block, not one per entry."""
+        if not parts:
+            return
+        self.drop_many(list(parts))
         by_ids: dict[bytes, list[tuple[int, EntryPart]]] = {}
         for sid, part in parts.items():
-            self.drop(sid)
-            by_ids.setdefault(part.ids.tobytes(), []).append((sid, part))
+            by_ids.setdefault(part.ids.tobytes(), []).append((int(sid), part))
+        sids, blocks, rows = [], [], []
         for ids, items in by_ids.items():
-            block = self._blocks.get(ids)
-            if block is None:
-                block = self._blocks[ids] = _Block(items[0][1].groups, len(self.keys), self._pooled)
-            for sid, row in zip(
-                (sid for sid, _ in items), block.add_many([p for _, p in items]), strict=True
-            ):
-                self._where[sid] = (ids, row)
+            number = self._numbers.get(ids)
+            if number is None:
+                number = self._numbers[ids] = len(self._blocks)
+                self._blocks.append(_Block(items[0][1].groups, len(self.keys), self._pooled))
+            block = self._blocks[number]
+            assert block is not None
+            rows += block.add_many([p for _, p in items])
+            sids += [sid for sid, _ in items]
+            blocks += [number] * len(items)
+        sid_array = np.array(sids, dtype=np.int64)
+        order = np.argsort(sid_array, kind="stable")
+        at = np.searchsorted(self._sids, sid_array[order])
+        self._sids = np.insert(self._sids, at, sid_array[order])
+        self._block = np.insert(self._block, at, np.array(blocks, dtype=np.int32)[order])
+        self._row = np.insert(self._row, at, np.array(rows, dtype=np.int32)[order])
 
     def drop(self, submission_id: int) -> None:
-        where = self._where.pop(submission_id, None)
-        if where is not None:
-            block = self._blocks[where[0]]
-            block.remove(where[1])
+        self.drop_many([submission_id])
+
+    def drop_many(self, submission_ids: Sequence[int]) -> None:
+        """Forget the entries' parts (an id without one is skipped)."""
+        at, found = self._positions(submission_ids)
+        at = np.unique(at[found])
+        if not len(at):
+            return
+        for number, row in zip(self._block[at].tolist(), self._row[at].tolist(), strict=True):
+            block = self._blocks[number]
+            assert block is not None
+            block.remove(row)
             if block.size == 0:
-                del self._blocks[where[0]]
+                self._blocks[number] = None
+                del self._numbers[next(k for k, v in self._numbers.items() if v == number)]
+        self._sids, self._block, self._row = (
+            np.delete(self._sids, at),
+            np.delete(self._block, at),
+            np.delete(self._row, at),
+        )
+
+    def _by_block(self, submission_ids: Sequence[int]) -> list[tuple[_Block, np.ndarray, np.ndarray]]:
+        """The entries grouped by block: each block, the entries' positions in ``submission_ids``, their rows."""
+        numbers, rows = self._located(submission_ids)
+        out = []
+        for number in np.unique(numbers).tolist():
+            block = self._blocks[number]
+            assert block is not None
+            at = np.flatnonzero(numbers == number)
+            out.append((block, at, rows[at]))
+        return out
 
     def stacked(self, submission_ids: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """The entries' sum terms and weights, each (entries, groups, metrics): their parts' ``top`` and
         ``bottom`` stacked (every entry of the same group ids)."""
-        blocks = {self._where[s][0] for s in submission_ids}
-        if len(blocks) != 1:
+        found = self._by_block(submission_ids)
+        if len(found) != 1:
             raise ValueError("stacked parts must share their group ids")
-        block = self._blocks[blocks.pop()]
-        return block.top_bottom(np.fromiter((self._where[s][1] for s in submission_ids), dtype=np.intp))
+        block, _, rows = found[0]
+        return block.top_bottom(rows.astype(np.intp))
 
     def seeds(self, submission_ids: Sequence[int]) -> list[int]:
         """The entries' timing seeds (each one's part's)."""
-        return [
-            int(self._blocks[ids].seeds[row]) for ids, row in map(self._where.__getitem__, submission_ids)
-        ]
+        out = np.zeros(len(submission_ids), dtype=np.uint64)
+        for block, at, rows in self._by_block(submission_ids):
+            out[at] = block.seeds[rows]
+        return [int(s) for s in out.tolist()]
 
     def intervals_of(self, submission_ids: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """The entries' metric intervals (entries × metrics × 2, NaN = none) and stable intervals (entries × 2),
         gathered a block at a time."""
         metric = np.empty((len(submission_ids), len(self.keys), 2))
         stable = np.empty((len(submission_ids), 2))
-        by_block: dict[bytes, tuple[list[int], list[int]]] = {}
-        for k, sid in enumerate(submission_ids):
-            ids, row = self._where[sid]
-            at, rows = by_block.setdefault(ids, ([], []))
-            at.append(k)
-            rows.append(row)
-        for ids, (at, rows) in by_block.items():
-            block = self._blocks[ids]
+        for block, at, rows in self._by_block(submission_ids):
             metric[at], stable[at] = block.metric_ci[rows], block.stable_ci[rows]
         return metric, stable
 
     def nbytes(self) -> int:
-        return sum(b.nbytes() for b in self._blocks.values())
+        where = self._sids.nbytes + self._block.nbytes + self._row.nbytes
+        return where + sum(b.nbytes() for b in self._blocks if b is not None)
 
 
 class _Block:

@@ -66,3 +66,38 @@ def test_a_part_the_nan_cannot_say_keeps_its_weights() -> None:
     top, bottom = table.stacked([1, 2])
     assert np.array_equal(bottom, np.stack([plain.bottom, odd.bottom]))
     assert np.array_equal(top, np.stack([plain.top, odd.top]))
+
+
+def test_entries_are_found_replaced_and_dropped_many_at_a_time() -> None:
+    """The table finds entries by id in sorted arrays: ids in any order, replaced parts moving to another
+    block, ids it never had, and a block emptied and made again."""
+    rng = np.random.default_rng(3)
+    table = PartTable("physics")
+    six = {sid: _part(rng, "physics", 6, holes=sid % 2 == 0) for sid in (50, 7, 31, 12, 99, 3)}
+    table.put_many(six)
+    assert len(table) == 6
+    assert table.contains([3, 4, 99, 100, -1]).tolist() == [True, False, True, False, False]
+    assert 31 in table and 32 not in table and "31" not in table
+    # replaced by a part of other group ids: it leaves its block for another
+    five = _part(rng, "physics", 5, holes=False)
+    table.put(31, five)
+    assert len(table) == 6
+    top, _ = table.stacked([31])
+    assert np.array_equal(top[0], five.top)
+    with np.testing.assert_raises(ValueError):  # two blocks
+        table.stacked([31, 50])
+    table.drop_many([50, 1000, 3, 50])  # an unknown id and a repeated one are skipped
+    assert len(table) == 4 and table.contains([50, 3]).tolist() == [False, False]
+    with np.testing.assert_raises(KeyError):
+        table.stacked([7, 50])
+    order = [99, 7, 12]  # any order comes back in that order
+    top, bottom = table.stacked(order)
+    assert np.array_equal(top, np.stack([six[s].top for s in order]))
+    assert np.array_equal(bottom, np.stack([six[s].bottom for s in order]))
+    assert table.seeds([12, 31, 99]) == [six[12].seed, five.seed, six[99].seed]
+    table.drop(31)  # its block is empty now, and made again by the next part of those ids
+    again = _part(rng, "physics", 5, holes=True)
+    table.put(8, again)
+    metric, stable = table.intervals_of([8, 7])
+    assert np.array_equal(metric[0], again.metric_ci, equal_nan=True)
+    assert tuple(stable[1]) == six[7].stable_ci

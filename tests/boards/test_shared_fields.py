@@ -1,0 +1,64 @@
+"""A submission's own fields (name, participant, verdict…) are kept once for all of a track's boards, and a
+row handed out keeps what it showed when a verdict later changes."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from robobpp.boards.matrix import BoardMatrix, SharedFields
+
+
+def _run(sid: int, utilization: float, verification: str | None = None) -> dict[str, Any]:
+    return {
+        "submission_id": sid,
+        "name": f"policy {sid}",
+        "participant": f"team {sid % 2}",
+        "baseline": sid == 1,
+        "submission_status": "completed",
+        "episodes_total": 3,
+        "metrics": {"space_utilization": utilization, "occupancy": 0.8, "decision_time": 0.01},
+        "extras": {"episodes": 3, "terminations": {"completed": 3}, "boxes_placed_mean": 10 * utilization},
+        "figures": None,
+        "completed_at": None,
+        "verification": verification,
+        "ids": None,
+    }
+
+
+def _board(shared: SharedFields, dataset: str) -> BoardMatrix:
+    return BoardMatrix(dataset, "math", "private", "closed", lambda sids: dict.fromkeys(sids), shared=shared)
+
+
+def test_boards_of_a_track_share_each_submissions_fields_and_rows_keep_theirs() -> None:
+    shared = SharedFields()
+    boards = {d: _board(shared, d) for d in ("repetitive", "diverse")}
+    for k, board in enumerate(boards.values()):
+        board.apply(
+            [_run(sid, 0.1 * sid + 0.05 * k) for sid in (1, 2, 3)], [], parts=dict.fromkeys((1, 2, 3))
+        )
+    assert len(shared) == 3  # one per submission, not one per board and submission
+    # the point: both boards hold the same object for each submission (one copy in memory)
+    kept = [{id(x) for x in b._shared if x is not None} for b in boards.values()]
+    assert len(kept[0]) == 3 and kept[0] == kept[1]
+    packed = shared.packed(2, {"submission_id": 2, "name": "policy 2"})
+    assert (
+        shared.packed(2, {"submission_id": 2, "name": "policy 2"}) is packed
+    )  # equal fields: the same object
+    before = {d: b.board() for d, b in boards.items()}
+    rows = {d: {e["submission_id"]: e for e in b.entries} for d, b in before.items()}
+    for dataset in boards:
+        assert rows[dataset][3]["name"] == "policy 3" and rows[dataset][3]["participant"] == "team 1"
+        assert rows[dataset][1]["baseline"] is True and rows[dataset][2]["baseline"] is False
+        assert rows[dataset][3]["verification"] is None
+    # each board's own run fields stay its own
+    assert math.isclose(rows["repetitive"][3]["extras"]["boxes_placed_mean"], 3.0)
+    assert math.isclose(rows["diverse"][3]["extras"]["boxes_placed_mean"], 3.5)
+    # a verdict arrives: the board updated shows it, the board handed out before does not change
+    boards["diverse"].apply([_run(3, 0.35, "verified")], [], parts={3: None})
+    after = {e["submission_id"]: e for e in boards["diverse"].board().entries}
+    assert after[3]["verification"] == "verified"
+    assert {e["submission_id"]: e for e in before["diverse"].entries}[3]["verification"] is None
+    # submissions that left every board are forgotten
+    shared.keep_only([1, 3])
+    assert len(shared) == 2

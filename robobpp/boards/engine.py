@@ -517,13 +517,14 @@ def _collector_paused(*, full: bool, large: Callable[[], bool]) -> Iterator[None
         if freeze:
             gc.freeze()
         if full:
-            _trim()
+            trim_heap()
 
 
-def _trim() -> None:
-    """Hand the C heap's free pages back to the system after a full computation: it replaces every entry's
-    objects, and glibc keeps what the old ones freed (0.4 GB after the start, 1.2 GB after a refresh at 10,000
-    submissions: BENCHMARKS.md, "Board updates"). Nothing elsewhere than glibc."""
+def trim_heap() -> None:
+    """Hand the C heap's free pages back to the system after a full computation, or a publication: a full
+    computation replaces every entry's objects and glibc keeps what the old ones freed (0.4 GB after the
+    start, 1.2 GB after a refresh at 10,000 submissions), a publication what its rows' bodies took (150 MB
+    after a first publication at 10,000: BENCHMARKS.md, "The board engine"). Nothing elsewhere than glibc."""
     try:
         trim = ctypes.CDLL(None).malloc_trim
     except (OSError, AttributeError):

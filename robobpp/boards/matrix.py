@@ -33,6 +33,7 @@ import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -77,12 +78,12 @@ class _Columns:
     def __init__(self, metrics: int) -> None:
         self.size = 0
         self.sid = np.zeros(0, np.int64)
-        self.episodes = np.zeros(0, np.int64)
-        self.failures = np.zeros(0, np.int64)
+        self.episodes = np.zeros(0, np.int32)
+        self.failures = np.zeros(0, np.int32)
         self.policy_failed = np.zeros(0, bool)
         self.submission_failed = np.zeros(0, bool)
-        self.who = np.zeros(0, np.int64)  # participant key, coded
-        self.ids = np.zeros(0, np.int64)  # group ids, coded; -1: no figures
+        self.who = np.zeros(0, np.int32)  # participant key, coded
+        self.ids = np.zeros(0, np.int32)  # group ids, coded; -1: no figures
         self.points = np.zeros((0, metrics))  # point metrics, NaN = missing
         self.stable = np.zeros(0)  # point stable score
         self.version = np.zeros(0, np.int64)  # changes whenever the entry's own figures do
@@ -92,13 +93,15 @@ class _Columns:
         self.score_ci = np.zeros((0, 2))
         self.stable_ci = np.zeros((0, 2))
         self.order = np.zeros((0, 4))  # the order statistics its score interval interpolates between
-        self.rank_ci = np.zeros((0, 2), np.int64)  # -1: not computed since it arrived
+        self.rank_ci = np.zeros((0, 2), np.int32)  # -1: not computed since it arrived
         self.scoring = np.zeros(0, np.int64)  # a hash of what of its row its scoring depends on
         # a hash of what its row showed when last handed out, and the row's serial
         self.shown = np.zeros(0, np.uint64)
         self.serial = np.zeros(0, np.int64)
         # its metrics' key order, coded (-1: its metrics are kept in its public fields, not as its points)
-        self.named = np.zeros(0, np.int64)
+        self.named = np.zeros(0, np.int32)
+        # its run's finish time (``_times``: NaT where none, or where it is kept beside as it is)
+        self.completed = np.zeros(0, "datetime64[us]")
 
     def grow(self, needed: int) -> None:
         if needed <= len(self.sid):
@@ -131,7 +134,8 @@ class _Snapshot:
     keys: tuple[str, ...]
     shared: list[Any]
     public: list[Any]
-    completed: list[Any]
+    completed: np.ndarray  # datetime64[us]
+    odd_completed: dict[int, Any]  # by column: finish times the array does not hold (``_times``)
     points: np.ndarray  # (entries, metrics): the point metrics, whence a row's metrics not kept in ``public``
     named: np.ndarray  # per entry: its metrics' key order in ``coded`` (-1: its metrics are in ``public``)
     coded: list[Any]
@@ -151,7 +155,8 @@ class _Snapshot:
         intervals = self.intervals[i].tolist()
         code = int(self.named[i])
         metrics = None if code < 0 else _metrics(self.coded[code], self.keys, self.points[i])
-        return _public(self.shared[i], self.public[i], self.completed[i], metrics) | {
+        completed = _time(self.completed[i], self.odd_completed.get(i))
+        return _public(self.shared[i], self.public[i], completed, metrics) | {
             "rank": None,
             "rank_low": None if low < 0 else low,
             "rank_high": None if high < 0 else high,
@@ -234,7 +239,9 @@ class BoardMatrix:
         self.shared = SharedFields() if shared is None else shared
         self._shared: list[Any] = []
         self._public: list[Any] = []
-        self._completed: list[Any] = []
+        #: finish times the columns do not hold as they were, by slot (``_times``; a naive datetime, what the
+        #: database gives, is in ``_Columns.completed``)
+        self._odd_completed: dict[int, Any] = {}
         self._parts = PartTable(setting)
         self._codes: dict[Any, int] = {}
         self._coded: list[Any] = []
@@ -290,7 +297,8 @@ class BoardMatrix:
             if slot is not None:
                 self._basis = None  # it may have held a min or max: renormalise everyone
                 self._free.append(slot)
-                self._shared[slot] = self._public[slot] = self._completed[slot] = None
+                self._shared[slot] = self._public[slot] = None
+                self._odd_completed.pop(slot, None)
         self._parts.drop_many(remove)
         upsert = list(upsert)
         given = dict(parts or {})
@@ -313,7 +321,6 @@ class BoardMatrix:
                     c.grow(slot + 1)
                     self._shared.append(None)
                     self._public.append(None)
-                    self._completed.append(None)
                 self._slot[sid] = slot
                 c.scored[slot] = False
                 c.rank_ci[slot] = -1
@@ -355,8 +362,14 @@ class BoardMatrix:
             # metrics that are exactly the board's point metrics are not kept twice (≈ 250 bytes an entry)
             named.append(self._code(tuple(m)) if kept else -1)
             self._public[slot] = _packed({"extras": e} if kept else {"metrics": m, "extras": e})
-            self._completed[slot] = row.get("completed_at")
         c.named[slots] = named
+        at, odd = _times([row.get("completed_at") for row in rows])
+        c.completed[slots] = at
+        if self._odd_completed:
+            for slot in slots.tolist():
+                self._odd_completed.pop(slot, None)
+        for k, value in odd.items():
+            self._odd_completed[int(slots[k])] = value
         # each entry's stable score from its own metrics: element-wise, so all at once
         c.stable[slots] = stable_scores_of(points, self.setting)
 
@@ -595,7 +608,12 @@ class BoardMatrix:
                 groups,
             )
             unranked.append(
-                _public(self._shared[slot], self._public[slot], self._completed[slot], self._metrics_of(slot))
+                _public(
+                    self._shared[slot],
+                    self._public[slot],
+                    _time(c.completed[slot], self._odd_completed.get(slot)),
+                    self._metrics_of(slot),
+                )
                 | {"status": status, "reason": reason, "entries_submitted": submitted[int(c.who[slot])]}
             )
         unranked.sort(key=lambda e: (e["status"], e["submission_id"]))
@@ -633,7 +651,10 @@ class BoardMatrix:
             self.keys,
             [self._shared[s] for s in ranked.tolist()],
             [self._public[s] for s in ranked.tolist()],
-            [self._completed[s] for s in ranked.tolist()],
+            c.completed[ranked],
+            {i: self._odd_completed[s] for i, s in enumerate(ranked.tolist()) if s in self._odd_completed}
+            if self._odd_completed
+            else {},
             points,
             c.named[ranked],
             self._coded,  # only ever appended to
@@ -737,6 +758,22 @@ def _public(
         "completed_at": completed,
         "verification": fields["verification"],
     }
+
+
+def _times(values: Sequence[Any]) -> tuple[np.ndarray, dict[int, Any]]:
+    """Finish times as datetime64[us] (NaT: none), 8 bytes an entry where a datetime object took 56; and, by
+    position, those an array would not give back as they were (an aware time, another type: kept as they are).
+    A naive datetime, what the database gives, comes back equal (microseconds, as datetime holds them)."""
+    plain = [v if type(v) is datetime and v.tzinfo is None else None for v in values]
+    odd = {k: v for k, v in enumerate(values) if v is not None and plain[k] is None}
+    return np.array(plain, dtype="datetime64[us]").reshape(len(values)), odd
+
+
+def _time(at: np.datetime64, odd: Any = None) -> Any:
+    """A finish time :func:`_times` kept (``odd``: the one kept beside the array, if any)."""
+    if odd is not None:
+        return odd
+    return None if np.isnat(at) else at.item()
 
 
 def _unpacked(packed: Any) -> dict[str, Any]:

@@ -41,7 +41,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from robobpp import logs
-from robobpp.boards.engine import BoardEngine, board_of, grid_of
+from robobpp.boards.engine import BoardEngine, board_of, grid_of, trim_heap
 from robobpp.boards.records import Published
 from robobpp.boards.store import (
     LAYOUT,
@@ -157,6 +157,7 @@ class BoardPublisher:
             known = set(map(published_key, self.engine.keys(track)))
             computed_s = time.perf_counter() - started
             published = self._write(track, source, stored, known, computed_s)
+            trim_heap()  # the rows' bodies are gone: the heap they took goes back to the system
             self.last_cpu_seconds = time.process_time() - cpu
             log.info(
                 "the %s boards took %.2f s of CPU in this process; computed in %.2f s, written in %.2f s",

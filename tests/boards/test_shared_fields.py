@@ -62,3 +62,32 @@ def test_boards_of_a_track_share_each_submissions_fields_and_rows_keep_theirs() 
     # submissions that left every board are forgotten
     shared.keep_only([1, 3])
     assert len(shared) == 2
+
+
+def test_finish_times_come_back_as_they_were() -> None:
+    """A board keeps naive finish times (what the database gives) in an array, anything else beside it: every
+    row shows its run's time as recorded — to the microsecond, with its zone, or none."""
+    from datetime import UTC, datetime, timedelta, timezone
+
+    times: dict[int, Any] = {
+        1: datetime(2026, 11, 29, 16, 20, 5, 123456),
+        2: datetime(2026, 11, 29, 16, 20, 5, 123456, tzinfo=UTC),
+        3: datetime(1999, 1, 1, 0, 0, 0, 1, tzinfo=timezone(timedelta(hours=-5))),
+        4: None,
+        5: "2026-11-29T16:20:05Z",
+    }
+    board = _board(SharedFields(), "diverse")
+    board.apply(
+        [_run(sid, 0.1 * sid) | {"completed_at": at} for sid, at in times.items()],
+        [],
+        parts=dict.fromkeys(times),
+    )
+    first = board.board()
+    shown = {e["submission_id"]: e["completed_at"] for e in first.entries}
+    assert shown == times
+    assert shown[1].tzinfo is None and shown[2].tzinfo is UTC and shown[3].utcoffset() == timedelta(hours=-5)
+    # a run finishing again moves its own time only; the rows handed out before keep theirs
+    board.apply([_run(2, 0.2) | {"completed_at": datetime(2027, 1, 1)}], [], parts={2: None})
+    again = {e["submission_id"]: e["completed_at"] for e in board.board().entries}
+    assert again == times | {2: datetime(2027, 1, 1)}
+    assert {e["submission_id"]: e["completed_at"] for e in first.entries} == times

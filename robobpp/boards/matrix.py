@@ -103,6 +103,18 @@ class _Columns:
         # its run's finish time (``_times``: NaT where none, or where it is kept beside as it is)
         self.completed = np.zeros(0, "datetime64[us]")
 
+    def freeze(self) -> None:
+        """Make the columns a snapshot reads (``SHOWN``) read-only: the snapshot holds them, not copies."""
+        for name in SHOWN:
+            getattr(self, name).flags.writeable = False
+
+    def thaw(self) -> None:
+        """Copy the frozen columns before they are written (the snapshot keeps the ones it holds)."""
+        for name in SHOWN:
+            column = getattr(self, name)
+            if not column.flags.writeable:
+                setattr(self, name, column.copy())
+
     def grow(self, needed: int) -> None:
         if needed <= len(self.sid):
             return
@@ -126,24 +138,34 @@ class _Stack:
     seeds: list[int | None]
 
 
+#: The columns a snapshot reads by slot (frozen while it may: ``_Columns.freeze``).
+SHOWN = ("points", "named", "score_ci", "stable", "stable_ci", "rank_ci", "completed")
+
+
 @dataclass(frozen=True, slots=True)
 class _Snapshot:
-    """The ranked entries' figures as an update left them (column order: ascending ids): what the rows
-    handed out with that update are built from, on demand — later updates change the columns, never this."""
+    """The ranked entries' figures as an update left them: what the rows handed out with that update are built
+    from, on demand — later updates change the columns, never this.
+
+    By slot (``slots[i]``: column ``i``'s), it reads the board's own columns and lists, frozen when the
+    snapshot is made and copied by the board before it next writes them (copy on write: one copy of them in
+    memory between updates, where a snapshot of copies doubled them); by column, what the update computed for
+    it alone (scores, normalised metrics, metric intervals, best flags)."""
 
     keys: tuple[str, ...]
+    slots: np.ndarray
     shared: list[Any]
     public: list[Any]
     completed: np.ndarray  # datetime64[us]
-    odd_completed: dict[int, Any]  # by column: finish times the array does not hold (``_times``)
-    points: np.ndarray  # (entries, metrics): the point metrics, whence a row's metrics not kept in ``public``
-    named: np.ndarray  # per entry: its metrics' key order in ``coded`` (-1: its metrics are in ``public``)
+    odd_completed: dict[int, Any]  # finish times the array does not hold (``_times``)
+    points: np.ndarray  # (slots, metrics): the point metrics, whence a row's metrics not kept in ``public``
+    named: np.ndarray  # its metrics' key order in ``coded`` (-1: its metrics are in ``public``)
     coded: list[Any]
-    scores: np.ndarray
     score_ci: np.ndarray
     stable: np.ndarray
     stable_ci: np.ndarray
     rank_ci: np.ndarray
+    scores: np.ndarray  # by column from here on
     normalized: np.ndarray
     intervals: np.ndarray  # (entries, metrics, 2), NaN = none
     best: np.ndarray
@@ -151,21 +173,22 @@ class _Snapshot:
     def row(self, i: int) -> Row:
         """Column ``i``'s row of the all-entries view without its rank (nor its participant's entry count,
         which moves with every entry they add: the reader puts it in)."""
-        low, high = (int(x) for x in self.rank_ci[i])
+        s = int(self.slots[i])
+        low, high = (int(x) for x in self.rank_ci[s])
         intervals = self.intervals[i].tolist()
-        code = int(self.named[i])
-        metrics = None if code < 0 else _metrics(self.coded[code], self.keys, self.points[i])
-        completed = _time(self.completed[i], self.odd_completed.get(i))
-        return _public(self.shared[i], self.public[i], completed, metrics) | {
+        code = int(self.named[s])
+        metrics = None if code < 0 else _metrics(self.coded[code], self.keys, self.points[s])
+        completed = _time(self.completed[s], self.odd_completed.get(s))
+        return _public(self.shared[s], self.public[s], completed, metrics) | {
             "rank": None,
             "rank_low": None if low < 0 else low,
             "rank_high": None if high < 0 else high,
             "score": float(self.scores[i]),
-            "score_low": float(self.score_ci[i, 0]),
-            "score_high": float(self.score_ci[i, 1]),
-            "stable": float(self.stable[i]),
-            "stable_low": float(self.stable_ci[i, 0]),
-            "stable_high": float(self.stable_ci[i, 1]),
+            "score_low": float(self.score_ci[s, 0]),
+            "score_high": float(self.score_ci[s, 1]),
+            "stable": float(self.stable[s]),
+            "stable_low": float(self.stable_ci[s, 0]),
+            "stable_high": float(self.stable_ci[s, 1]),
             "normalized": dict(zip(self.keys, self.normalized[i].tolist(), strict=True)),
             "intervals": {
                 k: [a, b] if math.isfinite(a) else None
@@ -242,6 +265,8 @@ class BoardMatrix:
         #: finish times the columns do not hold as they were, by slot (``_times``; a naive datetime, what the
         #: database gives, is in ``_Columns.completed``)
         self._odd_completed: dict[int, Any] = {}
+        #: whether the last snapshot holds the lists above (copied before they are next written)
+        self._lists_shown = False
         self._parts = PartTable(setting)
         self._codes: dict[Any, int] = {}
         self._coded: list[Any] = []
@@ -275,6 +300,14 @@ class BoardMatrix:
         arrays = [a for a in vars(self._c).values() if isinstance(a, np.ndarray)]
         return sum(a.nbytes for a in arrays) + self._parts.nbytes()
 
+    def _thaw(self) -> None:
+        """Copy what the last snapshot holds before writing it (``_Snapshot``: copy on write)."""
+        self._c.thaw()
+        if self._lists_shown:
+            self._shared, self._public = list(self._shared), list(self._public)
+            self._odd_completed = dict(self._odd_completed)
+            self._lists_shown = False
+
     def _code(self, value: Any) -> int:
         code = self._codes.get(value)
         if code is None:
@@ -291,6 +324,7 @@ class BoardMatrix:
         parts: Mapping[int, EntryPart | None] | None = None,
     ) -> None:
         """Add or replace rows (``parts``: their parts when already at hand), drop submissions."""
+        self._thaw()
         remove = list(remove)
         for sid in remove:
             slot = self._slot.pop(sid, None)
@@ -382,6 +416,7 @@ class BoardMatrix:
 
     def board(self, *, rank_intervals: bool = False) -> Board:
         """The board now (``rank_intervals``: compute every entry's, a full computation)."""
+        self._thaw()
         c = self._c
         self.stamp += 1
         everyone = np.array([self._slot[s] for s in sorted(self._slot)], dtype=np.intp)
@@ -647,22 +682,23 @@ class BoardMatrix:
         own = np.flatnonzero(c.own[ranked])
         if len(own):
             intervals[own] = self._parts.intervals_of(sids[own].tolist())[0]
+        c.freeze()
+        self._lists_shown = True
         snap = _Snapshot(
             self.keys,
-            [self._shared[s] for s in ranked.tolist()],
-            [self._public[s] for s in ranked.tolist()],
-            c.completed[ranked],
-            {i: self._odd_completed[s] for i, s in enumerate(ranked.tolist()) if s in self._odd_completed}
-            if self._odd_completed
-            else {},
-            points,
-            c.named[ranked],
+            ranked.copy(),
+            self._shared,
+            self._public,
+            c.completed,
+            self._odd_completed,
+            c.points,
+            c.named,
             self._coded,  # only ever appended to
+            c.score_ci,
+            c.stable,
+            c.stable_ci,
+            c.rank_ci,
             scores,
-            c.score_ci[ranked],
-            c.stable[ranked],
-            c.stable_ci[ranked],
-            c.rank_ci[ranked],
             normalized,
             intervals,
             best,

@@ -51,6 +51,7 @@ from robobpp.boards.records import Board, ForGrid, LazyRows, Positions, RankedVi
 from robobpp.scoring import stats
 from robobpp.scoring.entries import (
     EntryPart,
+    MetricIntervals,
     PartTable,
     Stacked,
     counts,
@@ -167,7 +168,7 @@ class _Snapshot:
     rank_ci: np.ndarray
     scores: np.ndarray  # by column from here on
     normalized: np.ndarray
-    intervals: np.ndarray  # (entries, metrics, 2), NaN = none
+    intervals: MetricIntervals
     best: np.ndarray
 
     def row(self, i: int) -> Row:
@@ -175,7 +176,7 @@ class _Snapshot:
         which moves with every entry they add: the reader puts it in)."""
         s = int(self.slots[i])
         low, high = (int(x) for x in self.rank_ci[s])
-        intervals = self.intervals[i].tolist()
+        intervals = self.intervals.of(i).tolist()
         code = int(self.named[s])
         metrics = None if code < 0 else _metrics(self.coded[code], self.keys, self.points[s])
         completed = _time(self.completed[s], self.odd_completed.get(s))
@@ -678,10 +679,7 @@ class BoardMatrix:
         moved = ranked[differs]
         c.shown[moved] = digest[differs]
         c.serial[moved] = new_serials(len(moved))
-        intervals = np.full((n, len(self.keys), 2), np.nan)
-        own = np.flatnonzero(c.own[ranked])
-        if len(own):
-            intervals[own] = self._parts.intervals_of(sids[own].tolist())[0]
+        intervals = self._parts.shown_intervals(sids, c.own[ranked])
         c.freeze()
         self._lists_shown = True
         snap = _Snapshot(

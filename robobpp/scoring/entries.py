@@ -378,9 +378,49 @@ class PartTable:
             metric[at], stable[at] = block.metric_ci[rows], block.stable_ci[rows]
         return metric, stable
 
+    def shown_intervals(self, submission_ids: np.ndarray, own: np.ndarray) -> MetricIntervals:
+        """The metric intervals of the entries whose ``own`` is set (the others: none), as a board's snapshot
+        reads them later: the blocks' arrays themselves, frozen, and each entry's block and row in them. A
+        block copies its array before it next writes it (copy on write), so what a snapshot reads never
+        changes — 8 bytes an entry where a copy of its intervals took ≈ 100."""
+        numbers = np.full(len(submission_ids), -1, dtype=np.int32)
+        rows = np.zeros(len(submission_ids), dtype=np.int32)
+        at = np.flatnonzero(own)
+        if len(at):
+            numbers[at], rows[at] = self._located(np.asarray(submission_ids)[at].tolist())
+        arrays = []
+        for block in self._blocks:
+            if block is None:
+                arrays.append(_NO_INTERVALS)
+                continue
+            block.metric_ci.flags.writeable = False
+            arrays.append(block.metric_ci)
+        return MetricIntervals(tuple(arrays), numbers, rows, len(self.keys))
+
     def nbytes(self) -> int:
         where = self._sids.nbytes + self._block.nbytes + self._row.nbytes
         return where + sum(b.nbytes() for b in self._blocks if b is not None)
+
+
+_NO_INTERVALS = np.zeros((0, 0, 2))
+
+
+@dataclass(frozen=True, slots=True)
+class MetricIntervals:
+    """Entries' metric intervals as :meth:`PartTable.shown_intervals` hands them out: ``of(i)`` is entry
+    ``i``'s (metrics × 2; NaN: none), read from the part table's frozen arrays."""
+
+    arrays: tuple[np.ndarray, ...]
+    numbers: np.ndarray  # per entry its block's number (-1: no intervals)
+    rows: np.ndarray
+    metrics: int
+
+    def of(self, i: int) -> np.ndarray:
+        number = int(self.numbers[i])
+        if number < 0:
+            return np.full((self.metrics, 2), np.nan)
+        interval: np.ndarray = self.arrays[number][int(self.rows[i])]
+        return interval
 
 
 class _Block:
@@ -444,6 +484,8 @@ class _Block:
         self._used += len(parts) - len(reused)
         self.figures[rows] = np.where(plain & (bottom == 0.0), np.nan, top)
         self.weights[rows] = bottom[..., self.pooled]
+        if not self.metric_ci.flags.writeable:  # a board's snapshot reads it (``shown_intervals``)
+            self.metric_ci = self.metric_ci.copy()
         self.metric_ci[rows] = np.stack([p.metric_ci for p in parts]).reshape(len(parts), self.metrics, 2)
         self.stable_ci[rows] = [p.stable_ci for p in parts]
         self.seeds[rows] = [p.seed for p in parts]

@@ -101,8 +101,10 @@ class _Columns:
         self.serial = np.zeros(0, np.int64)
         # its metrics' key order, coded (-1: its metrics are kept in its public fields, not as its points)
         self.named = np.zeros(0, np.int32)
-        # its run's finish time (``_times``: NaT where none, or where it is kept beside as it is)
+        # its run's finish time (``_times``): wall time (NaT where none, or where it is kept beside as it
+        # is) and time zone, coded
         self.completed = np.zeros(0, "datetime64[us]")
+        self.zone = np.zeros(0, np.int32)
 
     def freeze(self) -> None:
         """Make the columns a snapshot reads (``SHOWN``) read-only: the snapshot holds them, not copies."""
@@ -140,7 +142,7 @@ class _Stack:
 
 
 #: The columns a snapshot reads by slot (frozen while it may: ``_Columns.freeze``).
-SHOWN = ("points", "named", "score_ci", "stable", "stable_ci", "rank_ci", "completed")
+SHOWN = ("points", "named", "score_ci", "stable", "stable_ci", "rank_ci", "completed", "zone")
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,8 +159,9 @@ class _Snapshot:
     slots: np.ndarray
     shared: list[Any]
     public: list[Any]
-    completed: np.ndarray  # datetime64[us]
-    odd_completed: dict[int, Any]  # finish times the array does not hold (``_times``)
+    completed: np.ndarray  # datetime64[us], with ``zone`` (``_times``)
+    zone: np.ndarray
+    odd_completed: dict[int, Any]  # finish times the arrays do not hold
     points: np.ndarray  # (slots, metrics): the point metrics, whence a row's metrics not kept in ``public``
     named: np.ndarray  # its metrics' key order in ``coded`` (-1: its metrics are in ``public``)
     coded: list[Any]
@@ -179,7 +182,7 @@ class _Snapshot:
         intervals = self.intervals.of(i).tolist()
         code = int(self.named[s])
         metrics = None if code < 0 else _metrics(self.coded[code], self.keys, self.points[s])
-        completed = _time(self.completed[s], self.odd_completed.get(s))
+        completed = _time(self.completed[s], self.coded[self.zone[s]], self.odd_completed.get(s))
         return _public(self.shared[s], self.public[s], completed, metrics) | {
             "rank": None,
             "rank_low": None if low < 0 else low,
@@ -398,8 +401,8 @@ class BoardMatrix:
             named.append(self._code(tuple(m)) if kept else -1)
             self._public[slot] = _packed({"extras": e} if kept else {"metrics": m, "extras": e})
         c.named[slots] = named
-        at, odd = _times([row.get("completed_at") for row in rows])
-        c.completed[slots] = at
+        at, zones, odd = _times([row.get("completed_at") for row in rows], self._code)
+        c.completed[slots], c.zone[slots] = at, zones
         if self._odd_completed:
             for slot in slots.tolist():
                 self._odd_completed.pop(slot, None)
@@ -647,7 +650,7 @@ class BoardMatrix:
                 _public(
                     self._shared[slot],
                     self._public[slot],
-                    _time(c.completed[slot], self._odd_completed.get(slot)),
+                    _time(c.completed[slot], self._coded[c.zone[slot]], self._odd_completed.get(slot)),
                     self._metrics_of(slot),
                 )
                 | {"status": status, "reason": reason, "entries_submitted": submitted[int(c.who[slot])]}
@@ -688,6 +691,7 @@ class BoardMatrix:
             self._shared,
             self._public,
             c.completed,
+            c.zone,
             self._odd_completed,
             c.points,
             c.named,
@@ -794,20 +798,37 @@ def _public(
     }
 
 
-def _times(values: Sequence[Any]) -> tuple[np.ndarray, dict[int, Any]]:
-    """Finish times as datetime64[us] (NaT: none), 8 bytes an entry where a datetime object took 56; and, by
-    position, those an array would not give back as they were (an aware time, another type: kept as they are).
-    A naive datetime, what the database gives, comes back equal (microseconds, as datetime holds them)."""
-    plain = [v if type(v) is datetime and v.tzinfo is None else None for v in values]
-    odd = {k: v for k, v in enumerate(values) if v is not None and plain[k] is None}
-    return np.array(plain, dtype="datetime64[us]").reshape(len(values)), odd
+def _times(
+    values: Sequence[Any], code: Callable[[Any], int]
+) -> tuple[np.ndarray, np.ndarray, dict[int, Any]]:
+    """Finish times as arrays: the wall time as datetime64[us] (NaT: none) and the time zone coded by
+    ``code`` — 12 bytes an entry where a datetime object took 56 (a database's times share one zone
+    object). By position, those the arrays would not give back as they were (another type; a time in a
+    repeated hour, ``fold``), kept as they are. A datetime comes back equal, its zone the same object."""
+    plain: list[datetime | None] = []
+    zones: list[int] = []
+    odd: dict[int, Any] = {}
+    for k, value in enumerate(values):
+        if type(value) is datetime and not value.fold:
+            plain.append(value.replace(tzinfo=None))
+            zones.append(code(value.tzinfo))
+        else:
+            plain.append(None)
+            zones.append(code(None))
+            if value is not None:
+                odd[k] = value
+    at = np.array(plain, dtype="datetime64[us]").reshape(len(values))
+    return at, np.array(zones, dtype=np.int32).reshape(len(values)), odd
 
 
-def _time(at: np.datetime64, odd: Any = None) -> Any:
-    """A finish time :func:`_times` kept (``odd``: the one kept beside the array, if any)."""
+def _time(at: np.datetime64, zone: Any, odd: Any = None) -> Any:
+    """A finish time :func:`_times` kept (``zone``: its decoded zone; ``odd``: the one kept beside)."""
     if odd is not None:
         return odd
-    return None if np.isnat(at) else at.item()
+    if np.isnat(at):
+        return None
+    wall = at.item()  # datetime64[us] gives a datetime back
+    return wall.replace(tzinfo=zone) if isinstance(wall, datetime) else wall
 
 
 def _unpacked(packed: Any) -> dict[str, Any]:

@@ -65,8 +65,8 @@ def test_boards_of_a_track_share_each_submissions_fields_and_rows_keep_theirs() 
 
 
 def test_finish_times_come_back_as_they_were() -> None:
-    """A board keeps naive finish times (what the database gives) in an array, anything else beside it: every
-    row shows its run's time as recorded — to the microsecond, with its zone, or none."""
+    """A board keeps finish times as arrays (wall time, zone), anything else beside them: every row shows its
+    run's time as recorded — to the microsecond, with its zone, or none."""
     from datetime import UTC, datetime, timedelta, timezone
 
     times: dict[int, Any] = {
@@ -75,6 +75,7 @@ def test_finish_times_come_back_as_they_were() -> None:
         3: datetime(1999, 1, 1, 0, 0, 0, 1, tzinfo=timezone(timedelta(hours=-5))),
         4: None,
         5: "2026-11-29T16:20:05Z",
+        6: datetime(2026, 10, 25, 1, 30, fold=1),  # the second 1:30 of a repeated hour
     }
     board = _board(SharedFields(), "diverse")
     board.apply(
@@ -86,6 +87,7 @@ def test_finish_times_come_back_as_they_were() -> None:
     shown = {e["submission_id"]: e["completed_at"] for e in first.entries}
     assert shown == times
     assert shown[1].tzinfo is None and shown[2].tzinfo is UTC and shown[3].utcoffset() == timedelta(hours=-5)
+    assert shown[6].fold == 1
     # a run finishing again moves its own time only; the rows handed out before keep theirs
     board.apply([_run(2, 0.2) | {"completed_at": datetime(2027, 1, 1)}], [], parts={2: None})
     again = {e["submission_id"]: e["completed_at"] for e in board.board().entries}

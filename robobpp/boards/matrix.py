@@ -51,6 +51,7 @@ from robobpp.boards.records import Board, ForGrid, LazyRows, Positions, RankedVi
 from robobpp.scoring import stats
 from robobpp.scoring.entries import (
     EntryPart,
+    IdIndex,
     MetricIntervals,
     PartTable,
     Stacked,
@@ -259,7 +260,7 @@ class BoardMatrix:
         self._floors = np.array([RESOLVED[k][0] if k in RESOLVED else -np.inf for k in self.keys])
         self._weights = np.array([WEIGHTS[setting][k] for k in self.keys])
         self._c = _Columns(len(self.keys))
-        self._slot: dict[int, int] = {}
+        self._slot = IdIndex()  # submission id -> its slot in the columns
         self._free: list[int] = []
         #: Each entry's public fields (JSON, or the dict where JSON would not give it back) and finish time:
         #: its submission's (one object for all of the track's boards: ``shared``) and its run's.
@@ -294,10 +295,12 @@ class BoardMatrix:
         return len(self._slot)
 
     def __contains__(self, submission_id: object) -> bool:
-        return submission_id in self._slot
+        if not isinstance(submission_id, int | np.integer):
+            return False
+        return bool(self._slot.contains([int(submission_id)])[0])
 
     def submission_ids(self) -> list[int]:
-        return list(self._slot)
+        return [int(s) for s in self._slot.ids.tolist()]
 
     def nbytes(self) -> int:
         """The bytes of the board's arrays and figures (its public fields aside)."""
@@ -330,13 +333,11 @@ class BoardMatrix:
         """Add or replace rows (``parts``: their parts when already at hand), drop submissions."""
         self._thaw()
         remove = list(remove)
-        for sid in remove:
-            slot = self._slot.pop(sid, None)
-            if slot is not None:
-                self._basis = None  # it may have held a min or max: renormalise everyone
-                self._free.append(slot)
-                self._shared[slot] = self._public[slot] = None
-                self._odd_completed.pop(slot, None)
+        for slot in self._slot.remove(remove).tolist():
+            self._basis = None  # it may have held a min or max: renormalise everyone
+            self._free.append(slot)
+            self._shared[slot] = self._public[slot] = None
+            self._odd_completed.pop(slot, None)
         self._parts.drop_many(remove)
         upsert = list(upsert)
         given = dict(parts or {})
@@ -347,11 +348,13 @@ class BoardMatrix:
         self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
         c = self._c
         slots: list[int] = []
-        for row in upsert:
-            sid = int(row["submission_id"])
+        sids = [int(row["submission_id"]) for row in upsert]
+        new: dict[int, int] = {}  # the slots given in this call (a row may come twice)
+        for row, sid, slot in zip(upsert, sids, self._slot.get(sids).tolist(), strict=True):
             scoring = _scoring_fields(row)
-            slot = self._slot.get(sid)
-            if slot is None:
+            if slot < 0:
+                slot = new.get(sid, -1)
+            if slot < 0:
                 if self._free:
                     slot = self._free.pop()
                 else:
@@ -359,7 +362,7 @@ class BoardMatrix:
                     c.grow(slot + 1)
                     self._shared.append(None)
                     self._public.append(None)
-                self._slot[sid] = slot
+                new[sid] = slot
                 c.scored[slot] = False
                 c.rank_ci[slot] = -1
             elif c.scoring[slot] != scoring:
@@ -368,6 +371,8 @@ class BoardMatrix:
                 c.rank_ci[slot] = -1
             c.scoring[slot] = scoring
             slots.append(slot)
+        if new:
+            self._slot.add(list(new), list(new.values()))
         if slots:
             self._set(np.array(slots, dtype=np.intp), upsert)
 
@@ -423,7 +428,7 @@ class BoardMatrix:
         self._thaw()
         c = self._c
         self.stamp += 1
-        everyone = np.array([self._slot[s] for s in sorted(self._slot)], dtype=np.intp)
+        everyone = self._slot.values.astype(np.intp)  # by ascending id
         groups, ranked_mask = ranked_of(
             c.episodes[everyone], c.policy_failed[everyone], c.submission_failed[everyone]
         )

@@ -236,6 +236,55 @@ def part_of_run(figures: Mapping[str, Any] | None, setting: str) -> bytes | None
     return entry_part(figures, setting).encode()
 
 
+class IdIndex:
+    """Submission ids mapped to integers, as two arrays sorted by id: 16 bytes an id where a dict of Python
+    ints took ≈ 100 (BENCHMARKS.md, "The board engine"), looked up many at a time by binary search. What a
+    board keeps per entry is reached through it (:class:`PartTable`'s rows, a board's slots)."""
+
+    def __init__(self) -> None:
+        self.ids = np.zeros(0, np.int64)  # ascending
+        self.values = np.zeros(0, np.int64)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def _positions(self, ids: Sequence[int] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each id's position in the sorted arrays, and whether it is there."""
+        wanted = np.asarray(ids, dtype=np.int64).reshape(-1)
+        at = np.searchsorted(self.ids, wanted)
+        found = np.zeros(len(wanted), dtype=bool)
+        if len(self.ids):
+            inside = at < len(self.ids)
+            found[inside] = self.ids[at[inside]] == wanted[inside]
+        return at, found
+
+    def contains(self, ids: Sequence[int] | np.ndarray) -> np.ndarray:
+        return self._positions(ids)[1]
+
+    def get(self, ids: Sequence[int] | np.ndarray) -> np.ndarray:
+        """Each id's value, -1 where it has none."""
+        at, found = self._positions(ids)
+        out = np.full(len(found), -1, dtype=np.int64)
+        out[found] = self.values[at[found]]
+        return out
+
+    def add(self, ids: Sequence[int] | np.ndarray, values: Sequence[int] | np.ndarray) -> None:
+        """Map ids that are not there (each once) to values."""
+        new = np.asarray(ids, dtype=np.int64).reshape(-1)
+        order = np.argsort(new, kind="stable")
+        at = np.searchsorted(self.ids, new[order])
+        self.ids = np.insert(self.ids, at, new[order])
+        self.values = np.insert(self.values, at, np.asarray(values, dtype=np.int64).reshape(-1)[order])
+
+    def remove(self, ids: Sequence[int] | np.ndarray) -> np.ndarray:
+        """Forget the ids (those not there are skipped); their values."""
+        at, found = self._positions(ids)
+        at = np.unique(at[found])
+        gone: np.ndarray = self.values[at]
+        self.ids, self.values = np.delete(self.ids, at), np.delete(self.values, at)
+        return gone
+
+
 class PartTable:
     """Many entries' parts as matrices, one block per distinct group-id list: what a board keeps of each
     entry between updates, so that any entry's samples can be computed again without SQL.
@@ -255,40 +304,27 @@ class PartTable:
         self._pooled = np.array([k in POOLED for k in self.keys], dtype=bool)
         self._blocks: list[_Block | None] = []  # by number; None: emptied
         self._numbers: dict[bytes, int] = {}  # group ids -> block number
-        # Where each entry's part is, sorted by submission id: three arrays (16 bytes an entry, where a dict
-        # of tuples took ≈ 110: BENCHMARKS.md), looked up many at a time by binary search.
-        self._sids = np.zeros(0, np.int64)
-        self._block = np.zeros(0, np.int32)
-        self._row = np.zeros(0, np.int32)
-
-    def _positions(self, submission_ids: Sequence[int] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Each id's position in the sorted arrays, and whether it is there."""
-        sids = np.asarray(submission_ids, dtype=np.int64).reshape(-1)
-        at = np.searchsorted(self._sids, sids)
-        found = np.zeros(len(sids), dtype=bool)
-        if len(self._sids):
-            inside = at < len(self._sids)
-            found[inside] = self._sids[at[inside]] == sids[inside]
-        return at, found
+        #: where each entry's part is: its block's number and row, as ``number << 32 | row``
+        self._where = IdIndex()
 
     def _located(self, submission_ids: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """The entries' block numbers and rows (KeyError: an entry without a part)."""
-        at, found = self._positions(submission_ids)
-        if not found.all():
-            raise KeyError(int(np.asarray(submission_ids, dtype=np.int64)[~found][0]))
-        return self._block[at], self._row[at]
+        where = self._where.get(submission_ids)
+        if (where < 0).any():
+            raise KeyError(int(np.asarray(submission_ids, dtype=np.int64)[where < 0][0]))
+        return where >> 32, where & 0xFFFFFFFF
 
     def __contains__(self, submission_id: object) -> bool:
         if not isinstance(submission_id, int | np.integer):
             return False
-        return bool(self._positions([int(submission_id)])[1][0])
+        return bool(self._where.contains([int(submission_id)])[0])
 
     def contains(self, submission_ids: Sequence[int] | np.ndarray) -> np.ndarray:
         """Per id, whether the table holds its part (:meth:`__contains__` of many)."""
-        return self._positions(submission_ids)[1]
+        return self._where.contains(submission_ids)
 
     def __len__(self) -> int:
-        return len(self._sids)
+        return len(self._where)
 
     def put(self, submission_id: int, part: EntryPart) -> None:
         """Keep ``part`` as the entry's (replacing the one it had)."""
@@ -313,34 +349,21 @@ class PartTable:
             rows += block.add_many([p for _, p in items])
             sids += [sid for sid, _ in items]
             blocks += [number] * len(items)
-        sid_array = np.array(sids, dtype=np.int64)
-        order = np.argsort(sid_array, kind="stable")
-        at = np.searchsorted(self._sids, sid_array[order])
-        self._sids = np.insert(self._sids, at, sid_array[order])
-        self._block = np.insert(self._block, at, np.array(blocks, dtype=np.int32)[order])
-        self._row = np.insert(self._row, at, np.array(rows, dtype=np.int32)[order])
+        self._where.add(sids, (np.array(blocks, dtype=np.int64) << 32) | np.array(rows, dtype=np.int64))
 
     def drop(self, submission_id: int) -> None:
         self.drop_many([submission_id])
 
     def drop_many(self, submission_ids: Sequence[int]) -> None:
         """Forget the entries' parts (an id without one is skipped)."""
-        at, found = self._positions(submission_ids)
-        at = np.unique(at[found])
-        if not len(at):
-            return
-        for number, row in zip(self._block[at].tolist(), self._row[at].tolist(), strict=True):
+        gone = self._where.remove(submission_ids)
+        for number, row in zip((gone >> 32).tolist(), (gone & 0xFFFFFFFF).tolist(), strict=True):
             block = self._blocks[number]
             assert block is not None
             block.remove(row)
             if block.size == 0:
                 self._blocks[number] = None
                 del self._numbers[next(k for k, v in self._numbers.items() if v == number)]
-        self._sids, self._block, self._row = (
-            np.delete(self._sids, at),
-            np.delete(self._block, at),
-            np.delete(self._row, at),
-        )
 
     def _by_block(self, submission_ids: Sequence[int]) -> list[tuple[_Block, np.ndarray, np.ndarray]]:
         """The entries grouped by block: each block, the entries' positions in ``submission_ids``, their rows."""
@@ -398,7 +421,7 @@ class PartTable:
         return MetricIntervals(tuple(arrays), numbers, rows, len(self.keys))
 
     def nbytes(self) -> int:
-        where = self._sids.nbytes + self._block.nbytes + self._row.nbytes
+        where = self._where.ids.nbytes + self._where.values.nbytes
         return where + sum(b.nbytes() for b in self._blocks if b is not None)
 
 

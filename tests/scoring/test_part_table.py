@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from robobpp.scoring.entries import EntryPart, PartTable, entry_part
+from robobpp.scoring.entries import EntryPart, IdIndex, PartTable, entry_part
 
 
 def _part(rng: np.random.Generator, setting: str, groups: int, holes: bool) -> EntryPart:
@@ -101,3 +101,15 @@ def test_entries_are_found_replaced_and_dropped_many_at_a_time() -> None:
     metric, stable = table.intervals_of([8, 7])
     assert np.array_equal(metric[0], again.metric_ci, equal_nan=True)
     assert tuple(stable[1]) == six[7].stable_ci
+
+
+def test_an_id_index_maps_ids_in_any_order_and_skips_unknown_ones() -> None:
+    index = IdIndex()
+    index.add([40, 7, 19], [0, 1, 2])
+    index.add([3], [9])
+    assert index.ids.tolist() == [3, 7, 19, 40] and len(index) == 4
+    assert index.get([19, 5, 40, 3, 100]).tolist() == [2, -1, 0, 9, -1]
+    assert index.contains([7, 8]).tolist() == [True, False]
+    assert sorted(index.remove([7, 8, 40, 7]).tolist()) == [0, 1]  # unknown and repeated ids skipped
+    assert index.get([3, 7, 19, 40]).tolist() == [9, -1, 2, -1]
+    assert index.remove([]).tolist() == [] and len(index) == 2

@@ -1,0 +1,75 @@
+"""What the board engine keeps after its first, full computation of a seeded database's private track
+(``bench_boards.py --seed-only``): Python's traced allocations still alive (``tracemalloc``), grouped by the
+line that made them, and the process's resident memory before and after; or, with ``--publish``, the
+board worker's publisher instead of the engine alone (its first publication, written to the database: use a
+fresh copy), resident after it.
+
+    OPENBLAS_NUM_THREADS=1 python bench/engine_memory.py --database-url URL [--top 15] [--no-trace]
+    OPENBLAS_NUM_THREADS=1 python bench/engine_memory.py --database-url URL --publish --no-trace
+
+Tracing slows the computation about fivefold; ``--no-trace`` gives the resident figures and the CPU seconds
+alone. Resident memory is read from ``/proc/self/statm`` (Linux).
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+from bench_server import bench_settings
+
+from robobpp.boards.engine import BoardEngine
+from robobpp.boards.worker import worker_for_url
+from robobpp.server.bootstrap import bootstrap
+from robobpp.server.runtime import Runtime
+from robobpp.vocabulary import DATASETS, SETTINGS
+
+
+def resident_mb() -> float:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * resource.getpagesize() / 2**20
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--database-url", required=True)
+    parser.add_argument("--top", type=int, default=15, help="allocation sites to list")
+    parser.add_argument("--no-trace", action="store_true", help="resident memory and CPU only")
+    parser.add_argument("--publish", action="store_true", help="the publisher's first publication")
+    args = parser.parse_args()
+
+    runtime = Runtime(bench_settings(args.database_url, Path(tempfile.mkdtemp(prefix="robobpp-memory-"))))
+    bootstrap(runtime)
+    before = resident_mb()
+    if not args.no_trace:
+        tracemalloc.start()
+    cpu, wall = time.process_time(), time.perf_counter()
+    if args.publish:
+        worker = worker_for_url(args.database_url, DATASETS, SETTINGS)
+        worker.publisher.publish("private")
+    else:
+        BoardEngine(runtime.read_session, DATASETS, SETTINGS).update("private")
+    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    what = "the publisher's first publication" if args.publish else "the engine's start"
+    print(f"{what}: {wall:.1f} s, {cpu:.1f} s CPU")
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"resident: {before:.0f} MB before, {resident_mb():.0f} MB after (peak {peak:.0f} MB)")
+    if args.no_trace:
+        return
+    snapshot = tracemalloc.take_snapshot()
+    tracemalloc.stop()
+    lines = snapshot.statistics("lineno")
+    print(f"traced, alive: {sum(s.size for s in lines) / 2**20:.1f} MB")
+    for stat in lines[: args.top]:
+        frame = stat.traceback[0]
+        where = f"{Path(frame.filename).name}:{frame.lineno}"
+        print(f"  {stat.size / 2**20:8.1f} MB  {stat.count:9,d} objects  {where}")
+    runtime.dispose()
+
+
+if __name__ == "__main__":
+    main()

@@ -653,33 +653,42 @@ def test_a_reader_keeps_only_the_current_version_of_a_boards_order(quiet_app) ->
     assert len(versions) == 1 and versions[0] > first
 
 
-def test_a_publication_serialises_each_board_as_it_writes_it(
-    quiet_app, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A first publication serialises every row of every board; holding every board's bodies at once was
-    gigabytes at 100,000 submissions. Each board's are made when it is written, the previous board's gone."""
-    app = quiet_app
+def _bodies_watched(app: Any, monkeypatch: pytest.MonkeyPatch) -> tuple[BoardPublisher, list[int], Any]:
+    """Two finished submissions and a publisher whose serialised boards are watched: each board's bodies
+    as a weak reference (``made``), and how many of those made before were alive when the next was made."""
     for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
         submit(app, who, url)
     drain(app)
-    worker = publisher(app)
     made: list[weakref.ref[Any]] = []
     alive_at_each: list[int] = []
     real = BoardPublisher._stored
 
     def watched(self: BoardPublisher, track: str, key: str, board: Published) -> Any:
-        gc.collect()
-        alive_at_each.append(sum(r() is not None for r in made))
+        alive_at_each.append(_alive(made))
         hashed = real(self, track, key, board)
         made.append(weakref.ref(hashed))
         return hashed
 
     monkeypatch.setattr(BoardPublisher, "_stored", watched)
+    return publisher(app), alive_at_each, made
+
+
+def _alive(refs: list[weakref.ref[Any]]) -> int:
+    gc.collect()
+    return sum(r() is not None for r in refs)
+
+
+def test_a_publication_serialises_each_board_as_it_writes_it(
+    quiet_app, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A first publication serialises every row of every board; holding every board's bodies at once was
+    gigabytes at 100,000 submissions. Each board's are made when it is written, the previous board's gone."""
+    worker, alive_at_each, made = _bodies_watched(quiet_app, monkeypatch)
     assert worker.publish("private")
     assert len(made) >= 3, "every board and grid of the track is serialised"
     # the board written last is still referenced when the next is made, no earlier one
     assert max(alive_at_each) <= 1, alive_at_each
-    assert names(TestClient(app)), "and the publication is served"
+    assert names(TestClient(quiet_app)), "and the publication is served"
 
 
 def _together(n: int, call: Any) -> list[Any]:
@@ -857,26 +866,9 @@ def test_a_publication_hands_its_bodies_heap_back_once_they_are_gone(
     when no board's bodies are referenced any longer, and publishes what it computed."""
     import robobpp.boards.worker as board_worker
 
-    app = quiet_app
-    for who, url in (("a", "builtin:dbl"), ("b", "builtin:random")):
-        submit(app, who, url)
-    drain(app)
-    worker = publisher(app)
-    made: list[weakref.ref[Any]] = []
+    worker, _, made = _bodies_watched(quiet_app, monkeypatch)
     alive_at_trim: list[int] = []
-    real = BoardPublisher._stored
-
-    def watched(self: BoardPublisher, track: str, key: str, board: Published) -> Any:
-        hashed = real(self, track, key, board)
-        made.append(weakref.ref(hashed))
-        return hashed
-
-    def trimmed() -> None:
-        gc.collect()
-        alive_at_trim.append(sum(r() is not None for r in made))
-
-    monkeypatch.setattr(BoardPublisher, "_stored", watched)
-    monkeypatch.setattr(board_worker, "trim_heap", trimmed)
+    monkeypatch.setattr(board_worker, "trim_heap", lambda: alive_at_trim.append(_alive(made)))
     assert worker.publish("private")
     assert made and alive_at_trim == [0], (len(made), alive_at_trim)
-    assert names(TestClient(app)), "and the publication is served"
+    assert names(TestClient(quiet_app)), "and the publication is served"

@@ -501,10 +501,23 @@ class BoardMatrix:
         unmeasured = np.flatnonzero(~usable)
         return _Stack(stacked, measured, unmeasured, self._c.points[slots[unmeasured]].T, seeds)
 
-    def _resample(self, stack: _Stack, plan: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`_samples` of stacked entries under the plan's rows ``rows``."""
+    def _resample(
+        self,
+        stack: _Stack,
+        plan: np.ndarray,
+        rows: np.ndarray | None = None,
+        scratch: dict[int, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """:meth:`_samples` of stacked entries under the plan's rows ``rows`` (``scratch``: arrays to reuse,
+        by shape, for blocks whose samples are dropped before the next block's are made)."""
         if stack.stacked is not None and not len(stack.unmeasured):
-            out = stack.stacked.samples(plan)
+            buffer = None
+            if scratch is not None:
+                buffer = scratch.get(plan.shape[0])
+                if buffer is None:
+                    shape = (stack.stacked.metrics * stack.stacked.entries, plan.shape[0])
+                    buffer = scratch[plan.shape[0]] = np.empty(shape)
+            out = stack.stacked.samples(plan, buffer)
         else:
             out = np.empty((len(self.keys), len(stack.seeds), plan.shape[0]))
             if stack.stacked is not None:
@@ -601,9 +614,10 @@ class BoardMatrix:
             stack = self._stack(ranked, usable)
             # at least 64 resamples a block: each block's matrix product reads every entry's figures once
             step = max(64, BLOCK_VALUES // (m * n))
+            scratch: dict[int, np.ndarray] = {}  # one block's samples, written over by the next block's
             for a in range(0, r, step):
                 rows = np.arange(a, min(r, a + step))
-                samples = self._resample(stack, plan[rows], rows)
+                samples = self._resample(stack, plan[rows], rows, scratch)
                 lo[rows], hi[rows] = (
                     self._floored(_fmin(_NONE, samples)),
                     self._floored(_fmax(_NONE, samples)),

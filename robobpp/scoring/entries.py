@@ -136,7 +136,7 @@ class Stacked:
         weights = np.ascontiguousarray(bottom.transpose(2, 0, 1)[weighed], dtype=np.float64)
         return cls(columns, weighed, weights, m, k)
 
-    def samples(self, plan: np.ndarray) -> np.ndarray:
+    def samples(self, plan: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The run figures under each resample of ``plan`` (resamples × groups): (metrics, entries,
         resamples), NaN = unmeasured; the ratio of resampled sums, as
         :func:`robobpp.scoring.stats.metric_samples` computes it.
@@ -145,9 +145,12 @@ class Stacked:
         follows (normalisation, timing noise). One matrix product for every entry and metric; the sums are
         exact (:func:`robobpp.scoring.stats.as_resampled`), so an entry's samples are the same bits alone
         or stacked with others, in any block of resamples. A weight column that is 1 in every group (a
-        metric measured in every group) sums to the group count in every resample: no product for it."""
+        metric measured in every group) sums to the group count in every resample: no product for it.
+        ``out``: a (metrics × entries, resamples) float64 array to write them into (a full computation reuses
+        one for its blocks: a new 64 MB array is 64 MB of fresh pages the kernel must zero)."""
         r = plan.shape[0]
-        means: np.ndarray = (self.columns @ plan.T).reshape(self.metrics, self.entries, r)
+        product = self.columns @ plan.T if out is None else np.matmul(self.columns, plan.T, out=out)
+        means: np.ndarray = product.reshape(self.metrics, self.entries, r)
         sums = self.weights @ plan.T if self.weights.shape[0] else None
         total = plan.sum(axis=1)  # the group count, exactly, in every resample
         row_of = np.cumsum(self.weighed.reshape(-1)) - 1  # (metric, entry) -> its row of ``weights``

@@ -159,6 +159,8 @@ def board_table(board: Mapping[str, Any]) -> dict[str, Any]:
             {
                 "rank": e.get("rank"),
                 "rank_text": rank_span(e.get("rank"), e.get("rank_low"), e.get("rank_high")),
+                # ranked, its interval not computed yet (an entry that arrived since the last full computation)
+                "rank_pending": e.get("rank") is not None and e.get("rank_low") is None,
                 "score": e.get("score"),
                 "score_ci": span(e.get("score_low"), e.get("score_high")),
                 "stable": e.get("stable"),

@@ -267,8 +267,8 @@ class BoardMatrix:
         self.shared = SharedFields() if shared is None else shared
         self._shared: list[Any] = []
         self._public: list[Any] = []
-        #: finish times the columns do not hold as they were, by slot (``_times``; a naive datetime, what the
-        #: database gives, is in ``_Columns.completed``)
+        #: finish times the columns do not hold as they were, by slot (``_times``; a datetime, what the
+        #: database gives, is in ``_Columns.completed`` and ``zone``)
         self._odd_completed: dict[int, Any] = {}
         #: whether the last snapshot holds the lists above (copied before they are next written)
         self._lists_shown = False
@@ -295,9 +295,7 @@ class BoardMatrix:
         return len(self._slot)
 
     def __contains__(self, submission_id: object) -> bool:
-        if not isinstance(submission_id, int | np.integer):
-            return False
-        return bool(self._slot.contains([int(submission_id)])[0])
+        return submission_id in self._slot
 
     def submission_ids(self) -> list[int]:
         return [int(s) for s in self._slot.ids.tolist()]
@@ -344,7 +342,8 @@ class BoardMatrix:
         lacking = [int(r["submission_id"]) for r in upsert if int(r["submission_id"]) not in given]
         if lacking:  # its part may have changed: read it again
             given.update(self.load(lacking))
-        self._parts.drop_many(list(given))  # a part of None: the run has no figures any more
+        # a part of None: the run has no figures any more (``put_many`` replaces the others)
+        self._parts.drop_many([sid for sid, part in given.items() if part is None])
         self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
         c = self._c
         slots: list[int] = []

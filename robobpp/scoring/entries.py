@@ -261,6 +261,9 @@ class IdIndex:
             found[inside] = self.ids[at[inside]] == wanted[inside]
         return at, found
 
+    def __contains__(self, id_: object) -> bool:
+        return isinstance(id_, int | np.integer) and bool(self._positions([int(id_)])[1][0])
+
     def contains(self, ids: Sequence[int] | np.ndarray) -> np.ndarray:
         return self._positions(ids)[1]
 
@@ -318,9 +321,7 @@ class PartTable:
         return where >> 32, where & 0xFFFFFFFF
 
     def __contains__(self, submission_id: object) -> bool:
-        if not isinstance(submission_id, int | np.integer):
-            return False
-        return bool(self._where.contains([int(submission_id)])[0])
+        return submission_id in self._where
 
     def contains(self, submission_ids: Sequence[int] | np.ndarray) -> np.ndarray:
         """Per id, whether the table holds its part (:meth:`__contains__` of many)."""

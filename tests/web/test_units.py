@@ -559,37 +559,14 @@ def test_a_ranked_entry_without_its_rank_interval_yet_says_so() -> None:
     """Between two full computations an entry that arrived has a rank but no rank interval: the board marks
     it "(…)" and says why, where a bare "8" would read as a certain rank."""
 
-    def page(board: dict) -> str:
-        return (
-            environment()
-            .get_template("board.html")
-            .render(
-                root="",
-                static="/static",
-                title="t",
-                nav="",
-                dataset=__import__("robobpp.datasets").datasets.DATASETS["diverse"],
-                setting="math",
-                track="private",
-                table=board_table(board),
-                weights={"a": 1.0},
-                top=4,
-                other_boards=[],
-                SETTING_TITLES={"math": "Math Pack"},
-                view="all",
-                pages=pages({"total": 2, "limit": 50}, 1),
-                board={"anchors": "anchors-v1", "confidence": 0.95, "groups": 30, "resamples": 1000},
-            )
-        )
-
     board = _board()
     board["entries"][0] |= {"rank_low": 1, "rank_high": 2}
     rows = board_table(board)["rows"]
     assert [r["rank_pending"] for r in rows] == [False, True]
-    html = page(board)
+    html = _board_page(board["entries"], 30)
     assert html.count('data-role="rank-pending"') == 1 and "its rank interval still to come" in html
     board["entries"][1] |= {"rank_low": 1, "rank_high": 2}
-    html = page(board)
+    html = _board_page(board["entries"], 30)
     assert 'data-role="rank-pending"' not in html and "still to come" not in html
     unranked = {**_board(), "entries": [_board()["entries"][0] | {"rank": None}]}
     assert board_table(unranked)["rows"][0]["rank_pending"] is False

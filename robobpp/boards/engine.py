@@ -29,7 +29,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from robobpp.boards.grid import GridMatrix
+from robobpp.boards.grid import GridMatrix, GridSums
 from robobpp.boards.matrix import BoardMatrix, PartLoader, SharedFields
 from robobpp.boards.ranking import build_board, build_grid
 from robobpp.boards.records import Board, Grid, Published, as_board, with_lookaheads
@@ -207,6 +207,15 @@ class _Track:
     shared: SharedFields = field(default_factory=SharedFields)
 
 
+@dataclass(frozen=True, slots=True)
+class _Gathering:
+    """A full computation's grid sums (:class:`~robobpp.boards.grid.GridSums`): by grid key, and by board key
+    the sums that board is added to, with its cell's key in the grid."""
+
+    by_grid: dict[str, GridSums]
+    by_board: dict[tuple[str, ...], list[tuple[GridSums, str]]]
+
+
 class BoardEngine:
     """Each track's boards and grids, kept between updates (:class:`robobpp.boards.matrix.BoardMatrix`).
 
@@ -350,6 +359,7 @@ class BoardEngine:
             boards = {key: self._matrix(track, key, shared) for key in self._board_keys()}
             state = _Track(seen, boards, shared=shared)
         self._add_lookaheads(track, state, set(lookaheads))
+        gathering = self._gathering(state)
         started = time.monotonic()
         for done, (key, matrix) in enumerate(state.boards.items(), start=1):
             # One board's runs at a time, read after ``seen`` (so never older than it), computed and dropped
@@ -365,7 +375,12 @@ class BoardEngine:
                 parts={r["submission_id"]: r["part"] for r in rows},
             )
             del rows
-            state.out[key] = matrix.board(rank_intervals=True)
+            state.out[key] = matrix.board(rank_intervals=True, for_grid=key in gathering.by_board)
+            if key in gathering.by_board:
+                ids, rel, stable = matrix.take_grid_samples()
+                for sums, cell in gathering.by_board[key]:
+                    sums.add(cell, ids, rel, stable)
+                del rel, stable
             if (elapsed := time.monotonic() - started) >= PROGRESS_AFTER_S:
                 log.info(
                     "computing the %s boards in full: %d of %d done (%s, %d entries) after %.0f s",
@@ -379,14 +394,37 @@ class BoardEngine:
         state.seen = seen
         state.shared.keep_only(seen)
         self._drop_empty(state)
-        self._grids(track, state, set(state.lookaheads), full=True)
+        self._grids(track, state, set(state.lookaheads), full=True, gathered=gathering.by_grid)
         self._tracks[track] = state
         with_lookaheads(state.out, list(state.out), state.lookaheads)
         return {k: v.served() for k, v in state.out.items()}
 
-    def _grids(self, track: str, state: _Track, lookaheads: set[int], *, full: bool) -> list[BoardKey]:
+    def _gathering(self, state: _Track) -> _Gathering:
+        """A full computation's sums for each grid of the track, by grid and by the boards each one reads."""
+        out = _Gathering({}, {})
+        for lookahead in state.lookaheads:
+            for loop in lookahead_loops(lookahead):
+                cells = [
+                    (board_id(d, st, loop, lookahead), f"{st}/{d}")
+                    for st in self.settings
+                    for d in self.datasets
+                ]
+                sums = out.by_grid[grid_id(loop, lookahead)] = GridSums([cell for _, cell in cells])
+                for key, cell in cells:
+                    out.by_board.setdefault(key, []).append((sums, cell))
+        return out
+
+    def _grids(
+        self,
+        track: str,
+        state: _Track,
+        lookaheads: set[int],
+        *,
+        full: bool,
+        gathered: Mapping[str, GridSums] | None = None,
+    ) -> list[BoardKey]:
         """The grids of ``lookaheads`` from their boards (those of other lookaheads cannot have moved): kept in
-        ``state.out``; their keys."""
+        ``state.out``; their keys. ``gathered``: each grid's sums as a full computation gathered them."""
         out: list[BoardKey] = []
         for lookahead in sorted(lookaheads):
             for loop in lookahead_loops(lookahead):
@@ -404,7 +442,14 @@ class BoardEngine:
                     for st in self.settings
                     for d in self.datasets
                 }
-                grid = matrix.grid(shown, matrices, rank_intervals=full, loop=loop, lookahead=lookahead)
+                grid = matrix.grid(
+                    shown,
+                    matrices,
+                    rank_intervals=full,
+                    loop=loop,
+                    lookahead=lookahead,
+                    gathered=(gathered or {}).get(grid_key),
+                )
                 state.out[grid_key] = grid
                 out.append(grid_key)
         return out

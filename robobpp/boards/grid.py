@@ -91,6 +91,55 @@ class _Rows:
         }
 
 
+class GridSums:
+    """A grid's sums of its boards' grid samples, gathered while a full computation makes its boards one after
+    the other (each board's samples are at hand then, and dropped with the board's computation): where the
+    grid would compute every board's samples of every row again (``GridMatrix._samples``).
+
+    The sums are added board by board in the order of the grid's keys, as ``GridMatrix._samples`` adds them
+    (float additions: the same order, the same bits); a board offered out of that order turns the sums off
+    (the grid computes its own). Rows are the submissions ranked on every board so far (ids ascending)."""
+
+    def __init__(self, keys: Sequence[str]) -> None:
+        self.keys = list(keys)
+        self._next = 0  # the index in ``keys`` of the board to add next; -1: turned off
+        self.ids = np.zeros(0, np.int64)
+        self.rel = np.zeros((0, GRID_RESAMPLES))
+        self.stable = np.zeros((0, GRID_RESAMPLES))
+
+    def add(self, key: str, ids_by_column: np.ndarray, rel: np.ndarray, stable: np.ndarray) -> None:
+        """Board ``key``'s grid samples (columns × resamples, ``BoardMatrix.take_grid_samples``) of the
+        submissions ``ids_by_column`` (ascending)."""
+        if self._next < 0 or self._next >= len(self.keys) or self.keys[self._next] != key:
+            self._next = -1
+            self.ids, self.rel, self.stable = self.ids[:0], self.rel[:0], self.stable[:0]
+            return
+        if self._next == 0:
+            self.ids = np.asarray(ids_by_column, np.int64)
+            self.rel = np.zeros((len(self.ids), rel.shape[1]))
+            self.stable = np.zeros_like(self.rel)
+        else:
+            kept = np.isin(self.ids, ids_by_column, assume_unique=True)
+            if not kept.all():
+                self.ids, self.rel, self.stable = self.ids[kept], self.rel[kept], self.stable[kept]
+        self._next += 1
+        at = np.searchsorted(ids_by_column, self.ids)
+        self.rel += rel[at]
+        self.stable += stable[at]
+
+    def rows(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The sums of the rows of submissions ``ids`` (relative, stable), or None when some are not here
+        (or not every board was added)."""
+        if self._next != len(self.keys) or not len(self.ids):
+            return None
+        at = np.minimum(np.searchsorted(self.ids, ids), len(self.ids) - 1)
+        if not np.array_equal(self.ids[at], ids):
+            return None
+        if len(at) == len(self.ids):  # every row, in order: no copy
+            return self.rel, self.stable
+        return self.rel[at], self.stable[at]
+
+
 class GridMatrix:
     """One overall grid (of a track and loop) kept between updates (module docstring)."""
 
@@ -124,10 +173,11 @@ class GridMatrix:
         rank_intervals: bool,
         loop: str,
         lookahead: int,
+        gathered: GridSums | None = None,
     ) -> Grid:
         """The grid of ``boards`` (``setting/dataset`` -> the board ``matrices[key]`` handed out last): as
         ``build_grid`` makes it, with every row's rank interval computed (``rank_intervals``) or as last
-        computed."""
+        computed. ``gathered``: its rows' sums as a full computation of the boards gathered them."""
         views = [_ranked(boards[key]) for key in self.keys]
         complete = np.zeros(0, dtype=np.int64)
         if views:
@@ -147,7 +197,16 @@ class GridMatrix:
         tops: Tops = {"best": {}, "all": {}}
         if n:
             rows, best, view = self._ranked(
-                boards, matrices, views, complete, cols, serials, versions, cell_ranks, rank_intervals
+                boards,
+                matrices,
+                views,
+                complete,
+                cols,
+                serials,
+                versions,
+                cell_ranks,
+                rank_intervals,
+                gathered,
             )
             chosen = np.isin(complete, [r["submission_id"] for r in best])
             for j, key in enumerate(self.keys):  # each view's column tops: what its pages highlight
@@ -199,6 +258,7 @@ class GridMatrix:
         versions: np.ndarray,
         cell_ranks: np.ndarray,
         rank_intervals: bool,
+        gathered: GridSums | None,
     ) -> tuple[LazyRows, list[Row], RankedView]:
         """The complete rows: their Mean, best rows, serials (new where a row moved; its ranks aside)."""
         n = len(complete)
@@ -218,7 +278,8 @@ class GridMatrix:
         sums[kept], stable_ci[kept] = self._sums[at[kept]], self._stable_ci[at[kept]]
         fresh = np.flatnonzero(~kept)
         if len(fresh):
-            rel, stable = self._samples(matrices, cols[fresh], None)
+            found = gathered.rows(complete[fresh]) if gathered is not None else None
+            rel, stable = self._samples(matrices, cols[fresh], None) if found is None else found
             sums[fresh] = rel
             slo, shi = stats.interval((stable / len(self.keys)).T)
             stable_ci[fresh, 0], stable_ci[fresh, 1] = np.round(slo, 6), np.round(shi, 6)

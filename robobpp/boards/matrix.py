@@ -69,6 +69,9 @@ CHUNK = 512
 #: Samples computed at a time in a full computation (metrics × entries × a block of resamples: 64 MB; more
 #: past 15,000 entries, a block being at least 64 resamples).
 BLOCK_VALUES = 8_000_000
+#: Samples of one metric a full computation works on at a time within a block (entries × the block's resamples:
+#: 1.3 MB, about a core's level-2 cache): each pass over a tile finds it in the cache.
+TILE_VALUES = 160_000
 _NONE = np.zeros((0, 0))
 #: The grid's resamples: the first of the plan's.
 _GRID_ROWS = np.arange(GRID_RESAMPLES)
@@ -285,6 +288,8 @@ class BoardMatrix:
         #: (a grid recomputes those of its means); ``stamp``: the board's update count.
         self.stamp = 0
         self.resample_stamps = np.zeros(GRID_RESAMPLES, np.int64)
+        #: A full computation's grid samples of every column, until the engine takes them (take_grid_samples).
+        self._grid_kept: tuple[np.ndarray, np.ndarray] | None = None
         #: Bumped whenever entries already on the board were renormalised (a resample's min–max moved).
         self.epoch = 0
         #: Counters of what updates did (BENCHMARKS.md): renormalised rows, entries recomputed in full.
@@ -422,8 +427,9 @@ class BoardMatrix:
 
     # -- the board
 
-    def board(self, *, rank_intervals: bool = False) -> Board:
-        """The board now (``rank_intervals``: compute every entry's, a full computation)."""
+    def board(self, *, rank_intervals: bool = False, for_grid: bool = False) -> Board:
+        """The board now (``rank_intervals``: compute every entry's, a full computation; ``for_grid``: a full
+        computation keeps its entries' grid samples for :meth:`take_grid_samples`)."""
         self._thaw()
         c = self._c
         self.stamp += 1
@@ -457,7 +463,7 @@ class BoardMatrix:
         elif full:
             c.scored[everyone[~ranked_mask]] = False
             c.rank_ci[everyone[~ranked_mask]] = -1
-            rel_all = self._renormalise(ranked, usable, plan)
+            rel_all = self._renormalise(ranked, usable, plan, for_grid=for_grid)
             self._basis = basis
             self.epoch += 1
             self.resample_stamps[:] = self.stamp
@@ -602,32 +608,72 @@ class BoardMatrix:
         self.shifted_rows += int(moved.size)
         self.epoch += 1
 
-    def _renormalise(self, ranked: np.ndarray, usable: np.ndarray, plan: np.ndarray) -> np.ndarray:
+    def _renormalise(
+        self, ranked: np.ndarray, usable: np.ndarray, plan: np.ndarray, *, for_grid: bool = False
+    ) -> np.ndarray:
         """Every entry's samples again, a block of resamples at a time: a block's samples of every entry give
         its min–max, then every entry's relative scores in it. Keeps the min–max and each entry's score
-        interval; returns every entry's relative samples (resamples, entries)."""
+        interval; returns every entry's relative samples (resamples, entries). ``for_grid``: keeps, too, what
+        :meth:`grid_samples` would compute again for every entry (:meth:`take_grid_samples`).
+
+        Within a block, each pass works through the entries a cache-sized tile at a time (:data:`TILE_VALUES`):
+        a tile's samples are made, moved by their timing noise and folded into the block's min–max while they
+        are in the cache, then normalised a tile at a time; streaming the whole 64 MB block through memory for
+        each of these steps made the computation wait on memory, not arithmetic. Every step is element-wise
+        or exact (minima, maxima, exact sums), so the tiles give the same bits as the whole block."""
         m, n, r = len(self.keys), len(ranked), plan.shape[0]
         rel_all = np.empty((r, n))
         lo, hi = np.full((r, m), np.nan), np.full((r, m), np.nan)
+        width = min(r, GRID_RESAMPLES)
+        grid = (np.empty((n, width), np.float32), np.empty((n, width), np.float32)) if for_grid else None
         if n:
             stack = self._stack(ranked, usable)
-            # at least 64 resamples a block: each block's matrix product reads every entry's figures once
+            # at least 64 resamples a block: each block's matrix products read every entry's figures once
             step = max(64, BLOCK_VALUES // (m * n))
             scratch: dict[int, np.ndarray] = {}  # one block's samples, written over by the next block's
             for a in range(0, r, step):
                 rows = np.arange(a, min(r, a + step))
-                samples = self._resample(stack, plan[rows], rows, scratch)
-                lo[rows], hi[rows] = (
-                    self._floored(_fmin(_NONE, samples)),
-                    self._floored(_fmax(_NONE, samples)),
-                )
-                rel_all[rows] = self._relative(samples, lo[rows], hi[rows]).T
+                tile = max(16, TILE_VALUES // len(rows))
+                samples, low, high = self._block(stack, plan[rows], rows, scratch, tile)
+                block = slice(a, a + len(rows))
+                lo[block], hi[block] = self._floored(low), self._floored(high)
+                for e in range(0, n, tile):
+                    rel = self._relative(samples[:, e : e + tile], lo[block], hi[block])
+                    rel_all[block, e : e + tile] = rel.T
+                    if grid is not None and a < width:  # what grid_samples makes of these samples
+                        w = min(len(rows), width - a)
+                        grid[0][e : e + tile, a : a + w] = rel[:, :w]
+                        grid[1][e : e + tile, a : a + w] = stable_samples(
+                            samples[:, e : e + tile, :w], self.setting
+                        )
                 del samples
         self._lo, self._hi = lo, hi
+        self._grid_kept = grid
         for a in range(0, n, CHUNK):
             at = slice(a, a + CHUNK)
             self._scored(np.ascontiguousarray(rel_all[:, at].T), ranked[at], usable[at])
         return rel_all
+
+    def _block(
+        self, stack: _Stack, plan: np.ndarray, rows: np.ndarray, scratch: dict[int, np.ndarray], tile: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_resample` of every stacked entry under the plan's rows ``rows`` and their minima and maxima
+        (resamples, metrics), made a tile of ``tile`` entries at a time when every entry is measured."""
+        stacked = stack.stacked
+        if stacked is None or len(stack.unmeasured):
+            samples = self._resample(stack, plan, rows, scratch)
+            return samples, _fmin(_NONE, samples), _fmax(_NONE, samples)
+        out = scratch.get(len(rows))
+        if out is None:
+            out = scratch[len(rows)] = np.empty((stacked.metrics, stacked.entries, len(rows)))
+        low, high = _NONE, _NONE
+        for e in range(0, stacked.entries, tile):
+            stop = min(stacked.entries, e + tile)
+            part = with_timing_noise(
+                stacked.tile(plan, e, stop, out[:, e:stop]), stack.seeds[e:stop], self.setting, rows
+            )
+            low, high = _fmin(low, part), _fmax(high, part)
+        return out, low, high
 
     def _points(self, ranked: np.ndarray) -> tuple[np.ndarray, list[int], np.ndarray, np.ndarray]:
         """Point scores, competition ranks and normalised metrics (``scores.score_entries``, vectorised:
@@ -772,6 +818,18 @@ class BoardMatrix:
     def participants(self, columns: np.ndarray) -> list[str]:
         """Whose entries the last board's columns ``columns`` are (``boards.participant_key``)."""
         return [self._coded[w] for w in self._c.who[self._ranked[columns]].tolist()]
+
+    def take_grid_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What :meth:`grid_samples` gives of every column, as the last full computation made them on its way
+        (``board(..., for_grid=True)``), with the columns' submission ids (ascending), handed over once: the
+        grid of a full computation sums them where it computed them all again (a quarter of each board's
+        computation)."""
+        kept, self._grid_kept = self._grid_kept, None
+        if kept is None:
+            raise ValueError(
+                f"{self.dataset}/{self.setting}: no grid samples kept (board(for_grid=True) first)"
+            )
+        return self._c.sid[self._ranked], kept[0], kept[1]
 
     def grid_samples(
         self, columns: np.ndarray, resamples: np.ndarray | None = None

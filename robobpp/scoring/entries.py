@@ -124,6 +124,7 @@ class Stacked:
     columns: np.ndarray  # (metrics × entries, groups) float64: the sum terms, metric-major
     weighed: np.ndarray  # (metrics, entries): a weight column that is not 1 in every group
     weights: np.ndarray  # (weighed, groups) float64: those weight columns
+    weight_row: np.ndarray  # (metrics × entries,): where weighed, its row of ``weights``
     metrics: int
     entries: int
 
@@ -134,7 +135,7 @@ class Stacked:
         columns = np.ascontiguousarray(top.transpose(2, 0, 1), dtype=np.float64).reshape(m * k, g)
         weighed = ~np.all(bottom == 1.0, axis=1).T
         weights = np.ascontiguousarray(bottom.transpose(2, 0, 1)[weighed], dtype=np.float64)
-        return cls(columns, weighed, weights, m, k)
+        return cls(columns, weighed, weights, np.cumsum(weighed.reshape(-1)) - 1, m, k)
 
     def samples(self, plan: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The run figures under each resample of ``plan`` (resamples × groups): (metrics, entries,
@@ -142,31 +143,39 @@ class Stacked:
         :func:`robobpp.scoring.stats.metric_samples` computes it.
 
         Metric-major, so that each metric's samples are one contiguous (entries, resamples) block for what
-        follows (normalisation, timing noise). One matrix product for every entry and metric; the sums are
-        exact (:func:`robobpp.scoring.stats.as_resampled`), so an entry's samples are the same bits alone
-        or stacked with others, in any block of resamples. A weight column that is 1 in every group (a
-        metric measured in every group) sums to the group count in every resample: no product for it.
-        ``out``: a (metrics × entries, resamples) float64 array to write them into (a full computation reuses
-        one for its blocks: a new 64 MB array is 64 MB of fresh pages the kernel must zero)."""
+        follows (normalisation, timing noise). The sums are exact (:func:`robobpp.scoring.stats.as_resampled`),
+        so an entry's samples are the same bits alone or stacked with others, in any block of resamples or
+        of entries (:meth:`tile`). ``out``: a (metrics × entries, resamples) float64 array to write them into
+        (a full computation reuses one for its blocks: a new 64 MB array is 64 MB of fresh pages the kernel
+        must zero)."""
         r = plan.shape[0]
-        product = self.columns @ plan.T if out is None else np.matmul(self.columns, plan.T, out=out)
-        means: np.ndarray = product.reshape(self.metrics, self.entries, r)
-        sums = self.weights @ plan.T if self.weights.shape[0] else None
+        means = (
+            np.empty((self.metrics, self.entries, r))
+            if out is None
+            else out.reshape(self.metrics, self.entries, r)
+        )
+        return self.tile(plan, 0, self.entries, means)
+
+    def tile(self, plan: np.ndarray, start: int, stop: int, out: np.ndarray) -> np.ndarray:
+        """:meth:`samples` of entries ``start``..``stop`` alone, written into ``out`` (metrics, stop − start,
+        resamples; each metric's rows contiguous) and returned: a full computation works through a board a
+        cache-sized tile at a time. A matrix product per metric; a weight column that is 1 in every group (a
+        metric measured in every group) sums to the group count in every resample: no product for it."""
         total = plan.sum(axis=1)  # the group count, exactly, in every resample
-        row_of = np.cumsum(self.weighed.reshape(-1)) - 1  # (metric, entry) -> its row of ``weights``
         with np.errstate(invalid="ignore", divide="ignore"):
             for j in range(self.metrics):  # in place, a metric at a time (no copy of the samples)
-                weighed = self.weighed[j]
+                base = j * self.entries
+                means = np.matmul(self.columns[base + start : base + stop], plan.T, out=out[j])
+                weighed = self.weighed[j, start:stop]
                 if not weighed.any():
-                    means[j] /= total
+                    means /= total
                     continue
-                assert sums is not None
                 rows = np.flatnonzero(weighed)
-                at = row_of[j * self.entries + rows]
-                means[j, rows] = np.where(sums[at] <= 0, np.nan, means[j, rows] / sums[at])
+                sums = self.weights[self.weight_row[base + start + rows]] @ plan.T
+                means[rows] = np.where(sums <= 0, np.nan, means[rows] / sums)
                 plain = np.flatnonzero(~weighed)
-                means[j, plain] /= total
-        return means
+                means[plain] /= total
+        return out
 
 
 def samples_of(top: np.ndarray, bottom: np.ndarray, plan: np.ndarray) -> np.ndarray:

@@ -91,6 +91,13 @@ class _Rows:
         }
 
 
+def stable_interval(sums: np.ndarray, boards: int) -> np.ndarray:
+    """Rows' stable Mean intervals (rows × 2) from their sums of stable score samples over ``boards`` boards
+    (rows × resamples), to the float32 samples' precision."""
+    low, high = stats.interval((sums / boards).T)
+    return np.column_stack([np.round(low, 6), np.round(high, 6)])
+
+
 class GridSums:
     """A grid's sums of its boards' grid samples, gathered while a full computation makes its boards one after
     the other (each board's samples are at hand then, and dropped with the board's computation): where the
@@ -98,7 +105,9 @@ class GridSums:
 
     The sums are added board by board in the order of the grid's keys, as ``GridMatrix._samples`` adds them
     (float additions: the same order, the same bits); a board offered out of that order turns the sums off
-    (the grid computes its own). Rows are the submissions ranked on every board so far (ids ascending)."""
+    (the grid computes its own). Rows are the submissions ranked on every board so far (ids ascending). Once
+    every board is added, the stable sums give way to the rows' stable intervals (what the grid keeps of them):
+    a grid complete before the others frees its share of the peak."""
 
     def __init__(self, keys: Sequence[str]) -> None:
         self.keys = list(keys)
@@ -126,10 +135,12 @@ class GridSums:
         at = np.searchsorted(ids_by_column, self.ids)
         self.rel += rel[at]
         self.stable += stable[at]
+        if self._next == len(self.keys):
+            self.stable = stable_interval(self.stable, len(self.keys))
 
     def rows(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The sums of the rows of submissions ``ids`` (relative, stable), or None when some are not here
-        (or not every board was added)."""
+        """The rows of submissions ``ids``: their sums of relative score samples and their stable intervals
+        (rows × 2), or None when some are not here (or not every board was added)."""
         if self._next != len(self.keys) or not len(self.ids):
             return None
         at = np.minimum(np.searchsorted(self.ids, ids), len(self.ids) - 1)
@@ -279,10 +290,10 @@ class GridMatrix:
         fresh = np.flatnonzero(~kept)
         if len(fresh):
             found = gathered.rows(complete[fresh]) if gathered is not None else None
-            rel, stable = self._samples(matrices, cols[fresh], None) if found is None else found
-            sums[fresh] = rel
-            slo, shi = stats.interval((stable / len(self.keys)).T)
-            stable_ci[fresh, 0], stable_ci[fresh, 1] = np.round(slo, 6), np.round(shi, 6)
+            if found is None:
+                rel, stable = self._samples(matrices, cols[fresh], None)
+                found = rel, stable_interval(stable, len(self.keys))
+            sums[fresh], stable_ci[fresh] = found
         again = np.flatnonzero(kept)
         if moved.any() and len(again):
             resamples = np.flatnonzero(moved)

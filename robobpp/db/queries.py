@@ -225,7 +225,7 @@ def board_runs(
         where.append(RunRow.submission_id.in_(list(submission_ids)))
     if lookahead is not None:  # boards never mix lookaheads (docs/benchmark.md, "Scoring")
         where.append(Submission.lookahead == lookahead)
-    rows = session.execute(
+    rows = session.connection().execute(
         select(
             RunRow.submission_id,
             RunRow.metrics,

@@ -13,7 +13,7 @@ import pytest
 
 from robobpp.boards import matrix
 from robobpp.boards.engine import BoardEngine, _Gathering, compute_snapshot
-from robobpp.boards.grid import GridMatrix, GridSums
+from robobpp.boards.grid import GridMatrix, GridSums, stable_interval
 from robobpp.boards.records import Published
 from tests.server.test_bench_seed import _seed, runtime_for
 from tests.server.test_board_engine import same
@@ -84,7 +84,9 @@ def test_grid_sums_follow_the_grids_order_and_rows() -> None:
     found = sums.rows(np.array([2, 3]))
     assert found is not None
     assert found[0].tolist() == [(rel[1] + rel[0]).tolist(), (rel[2] + rel[1]).tolist()]
-    assert found[1].tolist() == [(stable[1] + stable[0]).tolist(), (stable[2] + stable[1]).tolist()]
+    stable_sums = np.array([stable[1] + stable[0], stable[2] + stable[1]], dtype=np.float64)
+    assert found[1].tolist() == stable_interval(stable_sums, 2).tolist()
+    assert found[1].shape == (2, 2)
     assert sums.rows(np.array([3])) is not None
     assert sums.rows(np.array([1, 2])) is None  # a row it does not have: the grid computes its own
     other = GridSums(keys)

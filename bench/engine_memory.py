@@ -48,6 +48,7 @@ def main() -> None:
     if not args.no_trace:
         tracemalloc.start()
     cpu, wall = time.process_time(), time.perf_counter()
+    usage = resource.getrusage(resource.RUSAGE_SELF)
     if args.publish:
         worker = worker_for_url(args.database_url, DATASETS, SETTINGS)
         worker.publisher.publish("private")
@@ -55,7 +56,9 @@ def main() -> None:
         BoardEngine(runtime.read_session, DATASETS, SETTINGS).update("private")
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     what = "the publisher's first publication" if args.publish else "the engine's start"
-    print(f"{what}: {wall:.1f} s, {cpu:.1f} s CPU")
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    user, system = after.ru_utime - usage.ru_utime, after.ru_stime - usage.ru_stime
+    print(f"{what}: {wall:.1f} s, {cpu:.1f} s CPU ({user:.1f} user + {system:.1f} system)")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"resident: {before:.0f} MB before, {resident_mb():.0f} MB after (peak {peak:.0f} MB)")
     if args.no_trace:

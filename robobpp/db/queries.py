@@ -225,29 +225,33 @@ def board_runs(
         where.append(RunRow.submission_id.in_(list(submission_ids)))
     if lookahead is not None:  # boards never mix lookaheads (docs/benchmark.md, "Scoring")
         where.append(Submission.lookahead == lookahead)
-    rows = session.connection().execute(
-        select(
-            RunRow.submission_id,
-            RunRow.metrics,
-            RunRow.extras,
-            RunRow.figures if figures else RunRow.entry,
-            RunRow.episodes_total,
-            RunRow.completed_at,
-            Submission.name,
-            Submission.status,
-            Participant.name,
-            Participant.is_builtin,
-            Submission.verification,
-            RunRow.dataset,
-            RunRow.setting,
-            RunRow.protocol,
-            Submission.lookahead,
+    rows = (
+        session.connection()
+        .execute(
+            select(
+                RunRow.submission_id,
+                RunRow.metrics,
+                RunRow.extras,
+                RunRow.figures if figures else RunRow.entry,
+                RunRow.episodes_total,
+                RunRow.completed_at,
+                Submission.name,
+                Submission.status,
+                Participant.name,
+                Participant.is_builtin,
+                Submission.verification,
+                RunRow.dataset,
+                RunRow.setting,
+                RunRow.protocol,
+                Submission.lookahead,
+            )
+            .join(Submission, Submission.id == RunRow.submission_id)
+            .join(Participant, Participant.id == Submission.participant_id)
+            .where(*where)
+            .order_by(RunRow.submission_id)
         )
-        .join(Submission, Submission.id == RunRow.submission_id)
-        .join(Participant, Participant.id == Submission.participant_id)
-        .where(*where)
-        .order_by(RunRow.submission_id)
-    ).all()
+        .all()
+    )
     keys = _BOARD_KEYS if figures else tuple("entry" if k == "figures" else k for k in _BOARD_KEYS)
     return [
         dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": board_verdict(r[10])}

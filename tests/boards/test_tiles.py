@@ -24,15 +24,15 @@ def test_tiles_and_blocks_give_the_same_bits(
 ) -> None:
     runtime = runtime_for(db_url, tmp_path)
     try:
-        # 40 submissions: pooled metrics, the paper protocol's boards, one failed and one partial entry
-        _seed.seed(runtime, 40, episodes_every=40, newest=1, progress=False)
+        # 24 submissions: pooled metrics, the paper protocol's boards, one failed and one partial entry
+        _seed.seed(runtime, 24, episodes_every=24, newest=1, progress=False)
 
         def start() -> dict[Any, Published]:
             return BoardEngine(runtime.read_session, _seed.DATASETS, _seed.SETTINGS).update("private")
 
         whole = start()  # every board one block of 1,000 resamples and one tile of its entries
         monkeypatch.setattr(matrix, "BLOCK_VALUES", 1)  # blocks of 64 resamples: 15 of them and one of 40
-        monkeypatch.setattr(matrix, "TILE_VALUES", 1)  # tiles of 16 entries: the last one shorter
+        monkeypatch.setattr(matrix, "TILE_VALUES", 1)  # tiles of 16 entries: a full one and a shorter one
         cut = start()
         same(cut, whole)  # bit for bit
         with runtime.read_session() as s:
@@ -49,7 +49,7 @@ def test_grid_sums_gathered_on_the_way_equal_the_grids_own(
     computes every board's samples of its rows again: the same bits."""
     runtime = runtime_for(db_url, tmp_path)
     try:
-        _seed.seed(runtime, 30, episodes_every=30, newest=1, progress=False)
+        _seed.seed(runtime, 12, episodes_every=12, newest=1, progress=False)
 
         def start() -> dict[Any, Published]:
             return BoardEngine(runtime.read_session, _seed.DATASETS, _seed.SETTINGS).update("private")

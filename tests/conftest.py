@@ -26,10 +26,9 @@ PG_ADMIN_URL = os.environ.get("ROBOBPP_TEST_PG", "postgresql://postgres@127.0.0.
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Tests marked ``slow`` first, the rest in path order. Under xdist each long test (a physics fidelity run
-    takes 4–6 minutes on a 2-core machine) then starts while the other workers still share the many short
-    ones; in path order they came near the end, and one worker ran the last of them alone while the other
-    idled (the suite's wall time on 2 cores: its tail)."""
+    """Tests marked ``slow`` first, the rest in path order. Under xdist's ``worksteal`` (the README's command)
+    each long test (a physics fidelity run takes 4–6 minutes on a 2-core machine) then starts at once, and the
+    workers share the many short ones around it, where in path order a long one could start near the end."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # a stable sort
 
 

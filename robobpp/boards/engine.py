@@ -404,15 +404,15 @@ class BoardEngine:
         out = _Gathering({}, {})
         for lookahead in state.lookaheads:
             for loop in lookahead_loops(lookahead):
-                cells = [
-                    (board_id(d, st, loop, lookahead), f"{st}/{d}")
-                    for st in self.settings
-                    for d in self.datasets
-                ]
-                sums = out.by_grid[grid_id(loop, lookahead)] = GridSums([cell for _, cell in cells])
-                for key, cell in cells:
+                cells = self._grid_cells(loop, lookahead)
+                sums = out.by_grid[grid_id(loop, lookahead)] = GridSums(list(cells))
+                for cell, key in cells.items():
                     out.by_board.setdefault(key, []).append((sums, cell))
         return out
+
+    def _grid_cells(self, loop: str, lookahead: int) -> dict[str, tuple[str, ...]]:
+        """A grid's cells (``setting/dataset``, in the grid's order) -> the key of the board each one shows."""
+        return {f"{st}/{d}": board_id(d, st, loop, lookahead) for st in self.settings for d in self.datasets}
 
     def _grids(
         self,
@@ -428,20 +428,13 @@ class BoardEngine:
         out: list[BoardKey] = []
         for lookahead in sorted(lookaheads):
             for loop in lookahead_loops(lookahead):
-                shown = {
-                    f"{st}/{d}": as_board(state.out[board_id(d, st, loop, lookahead)])
-                    for st in self.settings
-                    for d in self.datasets
-                }
+                cells = self._grid_cells(loop, lookahead)
+                shown = {cell: as_board(state.out[key]) for cell, key in cells.items()}
                 grid_key = grid_id(loop, lookahead)
                 matrix = state.grids.get(grid_key)
                 if matrix is None:
                     matrix = state.grids[grid_key] = GridMatrix(self.datasets, self.settings, track)
-                matrices = {
-                    f"{st}/{d}": state.boards[board_id(d, st, loop, lookahead)]
-                    for st in self.settings
-                    for d in self.datasets
-                }
+                matrices = {cell: state.boards[key] for cell, key in cells.items()}
                 grid = matrix.grid(
                     shown,
                     matrices,

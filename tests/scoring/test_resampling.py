@@ -130,6 +130,54 @@ def test_ranks_of_every_resample_are_one_plus_the_strictly_better(
     assert stats.rank_samples(np.zeros((3, 0))).shape == (3, 0)
 
 
+def _strictly_better(scores: np.ndarray) -> np.ndarray:
+    """1 + the strictly better scores of each row, by definition (a score against every other)."""
+    return (1 + (scores[:, None, :] > scores[:, :, None]).sum(axis=2)).astype(np.int32)
+
+
+@pytest.mark.parametrize(
+    ("case", "by_keys"),
+    [
+        ("read to 12 decimals", True),
+        ("negative and above 1", True),
+        ("ties in every row", True),
+        ("a single entry", True),
+        ("keys that would tie different scores", False),
+        ("too wide for the keys", False),
+    ],
+)
+def test_integer_keys_rank_exactly_or_leave_the_block_to_the_argsort(
+    case: str, by_keys: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rng = np.random.default_rng(14)
+    scores = np.round(rng.random((30, 1 if case == "a single entry" else 300)), 12)
+    if case == "negative and above 1":
+        scores = np.round(scores * 5 - 2, 12)
+    if case == "ties in every row":
+        scores[:, ::3] = np.round(scores[:, ::3], 2)
+        scores[:, 1] = scores[:, 0]
+    if case == "keys that would tie different scores":  # 2e-16 apart: one key unit is 1e-12
+        scores[:, 1] = scores[:, 0] + 2e-16 * (scores[:, 0] < 0.5)
+    if case == "too wide for the keys":
+        scores[:, 0] = 1e9
+    argsorted: list[int] = []
+    by_argsort = stats._ranked_by_argsort
+
+    def counted(block: np.ndarray, out: np.ndarray) -> None:
+        argsorted.append(len(block))
+        by_argsort(block, out)
+
+    monkeypatch.setattr(stats, "_ranked_by_argsort", counted)
+    monkeypatch.setattr(stats, "_RANKED_AT_ONCE", 10 * scores.shape[1])  # three blocks of 10 resamples
+    assert np.array_equal(stats.rank_samples(scores), _strictly_better(scores))
+    assert argsorted == ([] if by_keys else [10, 10, 10])
+
+
+def test_a_nan_score_is_left_to_the_argsort_which_ranks_it_first() -> None:
+    scores = np.array([[0.25, np.nan, 0.5, 0.5]])
+    assert stats.rank_samples(scores).tolist() == [[4, 1, 2, 2]]
+
+
 def test_a_rank_interval_is_numpys_lower_and_higher_quantile() -> None:
     rng = np.random.default_rng(12)
     ranks = rng.integers(1, 30, (1000, 25))

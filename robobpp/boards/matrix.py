@@ -996,12 +996,14 @@ def _points_of(metrics: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> tup
 
 def _order_and_interval(rel: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Each row's (entries, resamples; no NaN) four order statistics the percentile interval interpolates
-    between, and the interval (``stats.interval``: the same formula, so the same bits), by one partial sort."""
+    between, and the interval (``stats.interval``: the same formula, so the same bits), by one sort of each
+    row (numpy's vectorised sort of 1,000 samples takes under half the time of a partition at four
+    positions)."""
     r = rel.shape[1]
     tail = (1.0 - stats.CONFIDENCE) / 2.0
     positions = [q * max(r - 1, 0) for q in (tail, 1.0 - tail)]
     pairs = [(int(np.floor(p)), min(int(np.floor(p)) + 1, max(r - 1, 0))) for p in positions]
-    ordered = np.partition(rel, sorted({i for pair in pairs for i in pair}), axis=1)
+    ordered = np.sort(rel, axis=1)
     picks, ends = [], []
     for position, (below, above) in zip(positions, pairs, strict=True):
         low, high = ordered[:, below], ordered[:, above]

@@ -30,7 +30,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from robobpp.boards.grid import GridMatrix, GridSums
-from robobpp.boards.matrix import BoardMatrix, PartLoader, SharedFields
+from robobpp.boards.matrix import BoardMatrix, PartLoader, SharedFields, Workspace
 from robobpp.boards.ranking import build_board, build_grid
 from robobpp.boards.records import Board, Grid, Published, as_board, with_lookaheads
 from robobpp.db import queries
@@ -360,6 +360,7 @@ class BoardEngine:
             state = _Track(seen, boards, shared=shared)
         self._add_lookaheads(track, state, set(lookaheads))
         gathering = self._gathering(state)
+        workspace = Workspace()  # the large arrays, reused board after board; dropped with this call
         started = time.monotonic()
         for done, (key, matrix) in enumerate(state.boards.items(), start=1):
             # One board's runs at a time, read after ``seen`` (so never older than it), computed and dropped
@@ -375,7 +376,9 @@ class BoardEngine:
                 parts={r["submission_id"]: r["part"] for r in rows},
             )
             del rows
-            state.out[key] = matrix.board(rank_intervals=True, for_grid=key in gathering.by_board)
+            state.out[key] = matrix.board(
+                rank_intervals=True, for_grid=key in gathering.by_board, workspace=workspace
+            )
             if key in gathering.by_board:
                 ids, rel, stable = matrix.take_grid_samples()
                 for sums, cell in gathering.by_board[key]:
@@ -391,6 +394,7 @@ class BoardEngine:
                     len(matrix),
                     elapsed,
                 )
+        del workspace  # before the grids are computed: their arrays are not the boards'
         state.seen = seen
         state.shared.keep_only(seen)
         self._drop_empty(state)

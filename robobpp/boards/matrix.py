@@ -77,6 +77,28 @@ _NONE = np.zeros((0, 0))
 _GRID_ROWS = np.arange(GRID_RESAMPLES)
 
 
+class Workspace:
+    """The large arrays of a full computation, reused from block to block and board to board: every entry's
+    relative scores in every resample (1,000 × entries, float64: 80 MB at 10,000 entries, 800 MB at 100,000),
+    their ranks, a block of samples. Each new array that size is fresh pages the kernel must find and zero: at
+    100,000 submissions a start spent more than a fifth of its CPU in the kernel (BENCHMARKS.md, "The board
+    engine"). The engine holds one for a full computation and drops it after (``BoardEngine._full``); a board
+    computed without one uses its own, for its blocks."""
+
+    def __init__(self) -> None:
+        self._arrays: dict[str, np.ndarray] = {}
+
+    def array(self, name: str, shape: tuple[int, ...], dtype: Any = np.float64) -> np.ndarray:
+        """An uninitialised array ``shape`` of ``dtype`` for ``name``: the memory the last one of that name had,
+        when it fits (so the last one's values are overwritten)."""
+        size = math.prod(shape)
+        kept = self._arrays.get(name)
+        if kept is None or kept.dtype != np.dtype(dtype) or kept.size < size:
+            self._arrays.pop(name, None)  # gone before its successor is made: never both at once
+            kept = self._arrays[name] = np.empty(size, dtype)
+        return kept[:size].reshape(shape)
+
+
 class _Columns:
     """Arrays of one element (or row) per entry slot, grown together."""
 
@@ -430,9 +452,12 @@ class BoardMatrix:
 
     # -- the board
 
-    def board(self, *, rank_intervals: bool = False, for_grid: bool = False) -> Board:
+    def board(
+        self, *, rank_intervals: bool = False, for_grid: bool = False, workspace: Workspace | None = None
+    ) -> Board:
         """The board now (``rank_intervals``: compute every entry's, a full computation; ``for_grid``: a full
-        computation keeps its entries' grid samples for :meth:`take_grid_samples`)."""
+        computation keeps its entries' grid samples for :meth:`take_grid_samples`; ``workspace``: the large
+        arrays of a full computation, shared with the other boards computed in full after this one)."""
         self._thaw()
         c = self._c
         self.stamp += 1
@@ -466,12 +491,15 @@ class BoardMatrix:
         elif full:
             c.scored[everyone[~ranked_mask]] = False
             c.rank_ci[everyone[~ranked_mask]] = -1
-            rel_all = self._renormalise(ranked, usable, plan, for_grid=for_grid)
+            rel_all = self._renormalise(ranked, usable, plan, for_grid=for_grid, workspace=workspace)
             self._basis = basis
             self.epoch += 1
             self.resample_stamps[:] = self.stamp
         if rel_all is not None and rank_intervals and len(ranked):
-            low, high = stats.rank_interval(stats.rank_samples(rel_all))
+            ranks = stats.rank_samples(
+                rel_all, out=(workspace or Workspace()).array("ranks", rel_all.shape, np.int32)
+            )
+            low, high = stats.rank_interval(ranks, overwrite_input=True)
             c.rank_ci[ranked, 0], c.rank_ci[ranked, 1] = low, high
         self._ranked, self._usable = ranked, usable
 
@@ -509,23 +537,10 @@ class BoardMatrix:
         unmeasured = np.flatnonzero(~usable)
         return _Stack(stacked, measured, unmeasured, self._c.points[slots[unmeasured]].T, seeds)
 
-    def _resample(
-        self,
-        stack: _Stack,
-        plan: np.ndarray,
-        rows: np.ndarray | None = None,
-        scratch: dict[int, np.ndarray] | None = None,
-    ) -> np.ndarray:
-        """:meth:`_samples` of stacked entries under the plan's rows ``rows`` (``scratch``: arrays to reuse,
-        by shape, for blocks whose samples are dropped before the next block's are made)."""
+    def _resample(self, stack: _Stack, plan: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`_samples` of stacked entries under the plan's rows ``rows``."""
         if stack.stacked is not None and not len(stack.unmeasured):
-            buffer = None
-            if scratch is not None:
-                buffer = scratch.get(plan.shape[0])
-                if buffer is None:
-                    shape = (stack.stacked.metrics * stack.stacked.entries, plan.shape[0])
-                    buffer = scratch[plan.shape[0]] = np.empty(shape)
-            out = stack.stacked.samples(plan, buffer)
+            out = stack.stacked.samples(plan)
         else:
             out = np.empty((len(self.keys), len(stack.seeds), plan.shape[0]))
             if stack.stacked is not None:
@@ -612,12 +627,19 @@ class BoardMatrix:
         self.epoch += 1
 
     def _renormalise(
-        self, ranked: np.ndarray, usable: np.ndarray, plan: np.ndarray, *, for_grid: bool = False
+        self,
+        ranked: np.ndarray,
+        usable: np.ndarray,
+        plan: np.ndarray,
+        *,
+        for_grid: bool = False,
+        workspace: Workspace | None = None,
     ) -> np.ndarray:
         """Every entry's samples again, a block of resamples at a time: a block's samples of every entry give
         its min–max, then every entry's relative scores in it. Keeps the min–max and each entry's score
-        interval; returns every entry's relative samples (resamples, entries). ``for_grid``: keeps, too, what
-        :meth:`grid_samples` would compute again for every entry (:meth:`take_grid_samples`).
+        interval; returns every entry's relative samples (resamples, entries), made in ``workspace`` when given.
+        ``for_grid``: keeps, too, what :meth:`grid_samples` would compute again for every entry
+        (:meth:`take_grid_samples`).
 
         Within a block, each pass works through the entries a cache-sized tile at a time (:data:`TILE_VALUES`):
         a tile's samples are made, moved by their timing noise and folded into the block's min–max while they
@@ -625,7 +647,8 @@ class BoardMatrix:
         each of these steps made the computation wait on memory, not arithmetic. Every step is element-wise
         or exact (minima, maxima, exact sums), so the tiles give the same bits as the whole block."""
         m, n, r = len(self.keys), len(ranked), plan.shape[0]
-        rel_all = np.empty((r, n))
+        workspace = workspace or Workspace()
+        rel_all = workspace.array("relative", (r, n))
         lo, hi = np.full((r, m), np.nan), np.full((r, m), np.nan)
         width = min(r, GRID_RESAMPLES)
         grid = (np.empty((n, width), np.float32), np.empty((n, width), np.float32)) if for_grid else None
@@ -633,11 +656,11 @@ class BoardMatrix:
             stack = self._stack(ranked, usable)
             # at least 64 resamples a block: each block's matrix products read every entry's figures once
             step = max(64, BLOCK_VALUES // (m * n))
-            scratch: dict[int, np.ndarray] = {}  # one block's samples, written over by the next block's
             for a in range(0, r, step):
                 rows = np.arange(a, min(r, a + step))
                 tile = max(16, TILE_VALUES // len(rows))
-                samples, low, high = self._block(stack, plan[rows], rows, scratch, tile)
+                # one block's samples, written over by the next block's
+                samples, low, high = self._block(stack, plan[rows], rows, workspace, tile)
                 block = slice(a, a + len(rows))
                 lo[block], hi[block] = self._floored(low), self._floored(high)
                 for e in range(0, n, tile):
@@ -658,17 +681,15 @@ class BoardMatrix:
         return rel_all
 
     def _block(
-        self, stack: _Stack, plan: np.ndarray, rows: np.ndarray, scratch: dict[int, np.ndarray], tile: int
+        self, stack: _Stack, plan: np.ndarray, rows: np.ndarray, workspace: Workspace, tile: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`_resample` of every stacked entry under the plan's rows ``rows`` and their minima and maxima
         (resamples, metrics), made a tile of ``tile`` entries at a time when every entry is measured."""
         stacked = stack.stacked
         if stacked is None or len(stack.unmeasured):
-            samples = self._resample(stack, plan, rows, scratch)
+            samples = self._resample(stack, plan, rows)
             return samples, _fmin(_NONE, samples), _fmax(_NONE, samples)
-        out = scratch.get(len(rows))
-        if out is None:
-            out = scratch[len(rows)] = np.empty((stacked.metrics, stacked.entries, len(rows)))
+        out = workspace.array("samples", (stacked.metrics, stacked.entries, len(rows)))
         low, high = _NONE, _NONE
         for e in range(0, stacked.entries, tile):
             stop = min(stacked.entries, e + tile)

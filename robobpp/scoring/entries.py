@@ -137,7 +137,7 @@ class Stacked:
         weights = np.ascontiguousarray(bottom.transpose(2, 0, 1)[weighed], dtype=np.float64)
         return cls(columns, weighed, weights, np.cumsum(weighed.reshape(-1)) - 1, m, k)
 
-    def samples(self, plan: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def samples(self, plan: np.ndarray) -> np.ndarray:
         """The run figures under each resample of ``plan`` (resamples × groups): (metrics, entries,
         resamples), NaN = unmeasured; the ratio of resampled sums, as
         :func:`robobpp.scoring.stats.metric_samples` computes it.
@@ -145,16 +145,8 @@ class Stacked:
         Metric-major, so that each metric's samples are one contiguous (entries, resamples) block for what
         follows (normalisation, timing noise). The sums are exact (:func:`robobpp.scoring.stats.as_resampled`),
         so an entry's samples are the same bits alone or stacked with others, in any block of resamples or
-        of entries (:meth:`tile`). ``out``: a (metrics × entries, resamples) float64 array to write them into
-        (a full computation reuses one for its blocks: a new 64 MB array is 64 MB of fresh pages the kernel
-        must zero)."""
-        r = plan.shape[0]
-        means = (
-            np.empty((self.metrics, self.entries, r))
-            if out is None
-            else out.reshape(self.metrics, self.entries, r)
-        )
-        return self.tile(plan, 0, self.entries, means)
+        of entries (:meth:`tile`)."""
+        return self.tile(plan, 0, self.entries, np.empty((self.metrics, self.entries, plan.shape[0])))
 
     def tile(self, plan: np.ndarray, start: int, stop: int, out: np.ndarray) -> np.ndarray:
         """:meth:`samples` of entries ``start``..``stop`` alone, written into ``out`` (metrics, stop − start,

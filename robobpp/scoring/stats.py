@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -183,33 +184,47 @@ def _order_stat(ordered: np.ndarray, finite: np.ndarray, q: float, decimals: int
     return np.where(finite > 0, value, np.nan)
 
 
-def rank_samples(scores: np.ndarray) -> np.ndarray:
-    """Competition ranks (1 + strictly better entries) of each row of a (resamples, entries) score array.
+def rank_samples(scores: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Competition ranks (1 + strictly better entries) of each row of a (resamples, entries) score array
+    (``out``: an int32 array that shape to write them into).
 
     A block of rows at a time, each ranked by one sort of integer keys that carry their column
-    (:func:`_ranked_by_keys`); a block whose scores do not fit such keys, or whose keys tie scores that are
-    not equal, is ranked by an argsort of its scores (:func:`_ranked_by_argsort`). Both give every entry of a
-    run of ties the run's best rank."""
+    (:func:`_ranked_by_keys`, its arrays made once and reused by every block: a new one per block was fresh
+    pages for the kernel to zero); a block whose scores do not fit such keys, or whose keys tie scores that
+    are not equal, is ranked by an argsort of its scores (:func:`_ranked_by_argsort`). Both give every entry
+    of a run of ties the run's best rank."""
     r, n = scores.shape
-    out = np.empty((r, n), dtype=np.int32)
+    out = np.empty((r, n), dtype=np.int32) if out is None else out
     if n == 0:
         return out
-    step = max(1, _RANKED_AT_ONCE // n)  # rows at a time: ≈ 26 bytes a score of transient arrays
+    step = min(r, max(1, _RANKED_AT_ONCE // n))  # rows at a time: ≈ 26 bytes a score of transient arrays
+    buffers = _KeyBuffers(np.empty((step, n)), np.empty((step, n), np.int64), np.empty((step, n), np.int64))
     for a in range(0, r, step):
         block, ranks = scores[a : a + step], out[a : a + step]
-        if not _ranked_by_keys(block, ranks):
+        if not _ranked_by_keys(block, ranks, buffers):
             _ranked_by_argsort(block, ranks)
     return out
 
 
 #: Scores ranked at a time by :func:`rank_samples` (bounds its transient arrays to ≈ 100 MB).
 _RANKED_AT_ONCE = 4_000_000
+
+
+@dataclass(frozen=True, slots=True)
+class _KeyBuffers:
+    """The arrays :func:`_ranked_by_keys` works in (a block of rows × entries each), reused block after block."""
+
+    scaled: np.ndarray  # float64
+    keys: np.ndarray  # int64
+    columns: np.ndarray  # int64
+
+
 #: Key units per score unit in :func:`_ranked_by_keys`: a board's relative scores are read to 12 decimals
 #: (``scores.EQUAL_DECIMALS``), so two that differ differ by a key unit or more.
 _KEY_SCALE = 1e12
 
 
-def _ranked_by_keys(block: np.ndarray, out: np.ndarray) -> bool:
+def _ranked_by_keys(block: np.ndarray, out: np.ndarray, buffers: _KeyBuffers) -> bool:
     """Rank ``block``'s rows into ``out`` by sorting integer keys, if it can be done exactly; False if not.
 
     An entry's key is its distance below the block's best score in :data:`_KEY_SCALE` units, truncated, with
@@ -227,18 +242,17 @@ def _ranked_by_keys(block: np.ndarray, out: np.ndarray) -> bool:
         return False
     if (best - worst) * _KEY_SCALE >= 2.0 ** min(52, 62 - bits):
         return False
-    scaled = np.subtract(best, block)
+    scaled = np.subtract(best, block, out=buffers.scaled[:r])
     scaled *= _KEY_SCALE
     scaled += 0.5  # a score read to 12 decimals lands mid-unit: its key does not hang on rounding noise
-    keys = scaled.astype(np.int64)
-    del scaled
+    keys = buffers.keys[:r]
+    np.copyto(keys, scaled, casting="unsafe")  # truncated, as ``astype`` does
     keys <<= bits
     keys |= np.arange(n, dtype=np.int64)
     keys.sort(axis=1)
-    columns = keys & ((1 << bits) - 1)
+    columns = np.bitwise_and(keys, (1 << bits) - 1, out=buffers.columns[:r])
     keys >>= bits
     tied = keys[:, 1:] == keys[:, :-1]
-    del keys
     rows, at = np.nonzero(tied) if tied.any() else (np.zeros(0, np.intp), np.zeros(0, np.intp))
     if rows.size and not np.array_equal(block[rows, columns[rows, at]], block[rows, columns[rows, at + 1]]):
         return False
@@ -269,18 +283,24 @@ def _ranked_by_argsort(block: np.ndarray, out: np.ndarray) -> None:
     np.put_along_axis(out, order, n - last, axis=1)
 
 
-def rank_interval(ranks: np.ndarray, confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray]:
+def rank_interval(
+    ranks: np.ndarray, confidence: float = CONFIDENCE, *, overwrite_input: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Integer rank interval per entry: the ranks it takes in the central ``confidence`` of resamples
     (``numpy.quantile``'s ``lower`` and ``higher`` order statistics), read off each entry's sorted ranks: numpy's
     vectorised sort takes half the time of a partition at the two positions (1,000 × 10,000: 0.06 against 0.12
-    CPU-s)."""
+    CPU-s). ``overwrite_input``: sort ``ranks`` in place (each column's ranks come out sorted), not a copy."""
     tail = (1.0 - confidence) / 2.0
     r = ranks.shape[0]
     if r == 0:
         raise ValueError("a rank interval needs resamples")
     low = int(np.floor(tail * (r - 1)))
     high = int(np.ceil((1.0 - tail) * (r - 1)))
-    picked = np.sort(ranks, axis=0)
+    if overwrite_input:
+        ranks.sort(axis=0)
+        picked = ranks
+    else:
+        picked = np.sort(ranks, axis=0)
     return picked[low].astype(int), picked[high].astype(int)
 
 

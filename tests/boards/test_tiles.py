@@ -42,6 +42,43 @@ def test_tiles_and_blocks_give_the_same_bits(
         runtime.dispose()
 
 
+def test_a_workspace_shared_by_every_board_leaves_no_trace(
+    db_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A full computation makes its large arrays in one workspace, board after board (``matrix.Workspace``):
+    each array is written whole before it is read, so memory poisoned before every use, or fresh memory
+    every time, gives the same bits; and the memory is reused (boards of different sizes share it)."""
+    runtime = runtime_for(db_url, tmp_path)
+    try:
+        _seed.seed(runtime, 12, episodes_every=12, newest=1, progress=False)
+
+        def start() -> dict[Any, Published]:
+            return BoardEngine(runtime.read_session, _seed.DATASETS, _seed.SETTINGS).update("private")
+
+        made: list[int] = []
+        handed: list[np.ndarray] = []
+        reused = matrix.Workspace.array
+
+        def poisoned(
+            self: matrix.Workspace, name: str, shape: tuple[int, ...], dtype: Any = np.float64
+        ) -> Any:
+            out = reused(self, name, shape, dtype)
+            made.append(0 if any(np.shares_memory(out, h) for h in handed) else 1)
+            handed.append(out)
+            out[...] = -7 if np.dtype(dtype).kind == "i" else np.nan
+            return out
+
+        monkeypatch.setattr(matrix.Workspace, "array", poisoned)
+        dirty = start()
+        assert 0 < sum(made) < len(made)  # fresh memory for some, reused for the others
+        monkeypatch.setattr(
+            matrix.Workspace, "array", lambda self, name, shape, dtype=np.float64: np.empty(shape, dtype)
+        )
+        same(dirty, start())  # bit for bit
+    finally:
+        runtime.dispose()
+
+
 def test_grid_sums_gathered_on_the_way_equal_the_grids_own(
     db_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -94,7 +94,7 @@ class Workspace:
         size = math.prod(shape)
         kept = self._arrays.get(name)
         if kept is None or kept.dtype != np.dtype(dtype) or kept.size < size:
-            self._arrays.pop(name, None)  # gone before its successor is made: never both at once
+            self._arrays.pop(name, None)  # let go before its successor is made (freed unless a view is held)
             kept = self._arrays[name] = np.empty(size, dtype)
         return kept[:size].reshape(shape)
 
@@ -491,16 +491,15 @@ class BoardMatrix:
         elif full:
             c.scored[everyone[~ranked_mask]] = False
             c.rank_ci[everyone[~ranked_mask]] = -1
-            rel_all = self._renormalise(ranked, usable, plan, for_grid=for_grid, workspace=workspace)
+            workspace = workspace or Workspace()  # a board computed alone makes its own
+            rel_all = self._renormalise(ranked, usable, plan, workspace, for_grid=for_grid)
             self._basis = basis
             self.epoch += 1
             self.resample_stamps[:] = self.stamp
-        if rel_all is not None and rank_intervals and len(ranked):
-            ranks = stats.rank_samples(
-                rel_all, out=(workspace or Workspace()).array("ranks", rel_all.shape, np.int32)
-            )
-            low, high = stats.rank_interval(ranks, overwrite_input=True)
-            c.rank_ci[ranked, 0], c.rank_ci[ranked, 1] = low, high
+            if rank_intervals and len(ranked):
+                ranks = stats.rank_samples(rel_all, out=workspace.array("ranks", rel_all.shape, np.int32))
+                low, high = stats.rank_interval(ranks, overwrite_input=True)
+                c.rank_ci[ranked, 0], c.rank_ci[ranked, 1] = low, high
         self._ranked, self._usable = ranked, usable
 
         def best_samples(chosen: list[int]) -> np.ndarray:
@@ -631,13 +630,13 @@ class BoardMatrix:
         ranked: np.ndarray,
         usable: np.ndarray,
         plan: np.ndarray,
+        workspace: Workspace,
         *,
         for_grid: bool = False,
-        workspace: Workspace | None = None,
     ) -> np.ndarray:
         """Every entry's samples again, a block of resamples at a time: a block's samples of every entry give
         its min–max, then every entry's relative scores in it. Keeps the min–max and each entry's score
-        interval; returns every entry's relative samples (resamples, entries), made in ``workspace`` when given.
+        interval; returns every entry's relative samples (resamples, entries), made in ``workspace``.
         ``for_grid``: keeps, too, what :meth:`grid_samples` would compute again for every entry
         (:meth:`take_grid_samples`).
 
@@ -647,7 +646,6 @@ class BoardMatrix:
         each of these steps made the computation wait on memory, not arithmetic. Every step is element-wise
         or exact (minima, maxima, exact sums), so the tiles give the same bits as the whole block."""
         m, n, r = len(self.keys), len(ranked), plan.shape[0]
-        workspace = workspace or Workspace()
         rel_all = workspace.array("relative", (r, n))
         lo, hi = np.full((r, m), np.nan), np.full((r, m), np.nan)
         width = min(r, GRID_RESAMPLES)

@@ -116,6 +116,27 @@ def test_the_timing_seed_is_the_same_from_the_recorded_figures_and_from_the_part
         assert stats.timing_seed(recorded) == part.seed == part_seed(part.top, part.bottom, SETTING)
 
 
+def _splitmix_draw(seed: int, row: int) -> float:
+    """The timing noise's draw for one entry and resample, as its documentation states it, in Python integers:
+    SplitMix64 of the seed plus (row + 1) golden-ratio steps, its top 53 bits read as [0, 1), mapped to ±1."""
+    mask = 2**64 - 1
+    z = (seed + (row + 1) * 0x9E3779B97F4A7C15) & mask
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & mask
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & mask
+    z ^= z >> 31
+    return 2.0 * ((z >> 11) * 2.0**-53) - 1.0
+
+
+def test_timing_noise_is_splitmix64_of_the_seed_and_the_resample() -> None:
+    """Stored runs and every board must draw the same noise whatever numpy passes compute it."""
+    seeds = [0, 1, 2**64 - 1, 0x0123456789ABCDEF, 2**63]
+    rows = np.array([0, 1, 7, 499, 999])
+    noise = stats.timing_noise(np.array(seeds, dtype=np.uint64), rows)
+    expected = [[_splitmix_draw(s, int(r)) for r in rows] for s in seeds]
+    assert noise.tolist() == expected
+    assert noise.min() >= -1.0 and noise.max() < 1.0
+
+
 @pytest.mark.parametrize("at_once", [4_000_000, 7 * 40, 1])  # one block, blocks of 7 resamples, one row each
 def test_ranks_of_every_resample_are_one_plus_the_strictly_better(
     at_once: int, monkeypatch: pytest.MonkeyPatch

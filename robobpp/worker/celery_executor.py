@@ -216,6 +216,24 @@ def queue_length(app: Celery) -> int:
             return 0
 
 
+def declare_queue(app: Celery) -> None:
+    """Declare the episode queue as the workers do (nothing changes when it exists), on a fresh connection
+    (:func:`queue_length` says why).
+
+    A broker that lost the queue itself (a RabbitMQ restart without persistence, or a deleted queue) drops
+    every message published to it until a worker reconnects and declares it again: the default exchange
+    routes by queue name, and an unroutable message vanishes without an error. The app's producer does not
+    declare it again, for it remembers having declared it once. Redis makes the list on the first push, so
+    this is only a round trip there. Called before lost messages are re-sent, so that the copies reach a queue
+    whether or not a worker is back yet.
+    """
+    queue = app.amqp.queues[queue_of(app)]
+    with app.connection_for_write() as conn:
+        conn.ensure_connection(max_retries=1)
+        with conn.channel() as channel:
+            queue.bind(channel).declare()
+
+
 def resend_lost(factory: sessionmaker[Session], app: Celery) -> list[int]:
     """Send again the pending episodes whose message is neither queued nor with a live worker.
 
@@ -238,6 +256,8 @@ def resend_lost(factory: sessionmaker[Session], app: Celery) -> list[int]:
         if queue_length(app):
             return []
         ids = work.take_unsent(s, stale_after_s=timeout)
+        if ids:
+            declare_queue(app)
         enqueue(app, ids)
     if ids:
         log.warning(
@@ -267,6 +287,7 @@ def executor_from_settings(settings: WorkerSettings) -> CeleryExecutor:
 __all__ = [
     "CeleryExecutor",
     "LeaseSweeper",
+    "declare_queue",
     "delivery_timeout_s",
     "dispatch_unsent",
     "executor_from_settings",

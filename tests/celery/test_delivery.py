@@ -24,6 +24,7 @@ from robobpp.worker.tasks import enqueue
 from tests.celery.conftest import (
     LEASE_S,
     Fleet,
+    _drop_queue,
     cancel_active_submissions,
     episodes,
     new_submission,
@@ -159,6 +160,33 @@ def test_a_backlog_is_not_sent_twice_but_a_drained_queue_is_healed(fleet: Fleet,
     assert resend_lost(factory, app) == sorted(ids)
     wait_for(lambda: queue_length(app) == 3, 10, "the re-sent messages to be queued", lambda: "")
     assert resend_lost(factory, app) == []  # their marks are fresh again: sent once
+    _purge(app)
+
+
+def test_a_queue_the_broker_lost_is_declared_again_before_the_lost_messages_are_sent(
+    fleet: Fleet, factory: Any
+) -> None:
+    """The broker forgets the queue itself, messages and all (RabbitMQ restarted without persistence), and no
+    worker is back to declare it: the re-sent copy must still reach a queue. RabbitMQ drops a message for a
+    queue that does not exist without an error, and the app's producer, which declared the queue once,
+    does not declare it again: before the fix every re-send vanished until a worker reconnected (a flaky
+    failure of the broker-loss test under load)."""
+    sub = new_submission(
+        factory,
+        policy=POLICY,
+        datasets=["repetitive"],
+        groups=2,
+        name=f"lost-queue-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+    )
+    app = _app(fleet)
+    with factory() as s, s.begin():
+        ids = work.take_unsent(s, stale_after_s=3600, ids=[e.id for e in episodes(factory, sub)])
+        enqueue(app, ids)  # the producer declares the queue here, once
+    wait_for(lambda: queue_length(app) == 2, 10, "the two messages to be queued", lambda: "")
+    _backdate(factory, ids, 600)
+    _drop_queue(fleet.env["ROBOBPP_BROKER_URL"], fleet.env["ROBOBPP_CELERY_QUEUE"])
+    assert resend_lost(factory, app) == sorted(ids)
+    wait_for(lambda: queue_length(app) == 2, 10, "the re-sent messages to reach a queue", lambda: "")
     _purge(app)
 
 

@@ -109,3 +109,42 @@ def test_a_command_of_a_missing_extra_names_the_pip_install() -> None:
     assert (
         last == "error: Execution Pack needs ompl, which is not installed: pip install 'robobpp[execution]'"
     )
+
+
+@pytest.mark.parametrize(
+    "imports",
+    [
+        "import robobpp; import gymnasium",
+        "import gymnasium; import robobpp",
+        "import robobpp; import gymnasium.spaces; import gymnasium",
+        "import robobpp.env; import gymnasium",
+    ],
+)
+def test_importing_robobpp_registers_the_env_whenever_gymnasium_comes(imports: str) -> None:
+    """``import robobpp`` registers ``robobpp/Pack-v0`` before or after ``import gymnasium`` (README), without
+    importing Gymnasium itself: the server's and the workers' processes never use it."""
+    done = _run_without_extras(
+        f"""
+        import importlib.resources, sys
+        {imports}
+        import gymnasium
+        assert gymnasium.spec("robobpp/Pack-v0").entry_point == "robobpp.env:PackEnv"
+        assert gymnasium.make("robobpp/Pack-v0").unwrapped.__class__.__name__ == "PackEnv"
+        assert importlib.resources.files("gymnasium").is_dir()  # its loader still reads its files
+        assert not any("Gymnasium" in type(f).__name__ for f in sys.meta_path)  # the hook is gone
+        """,
+        blocked=(),
+    )
+    assert done.returncode == 0, done.stderr
+
+
+def test_the_service_processes_do_not_import_gymnasium() -> None:
+    done = _run_without_extras(
+        """
+        import sys
+        import robobpp, robobpp.boards.worker, robobpp.cli
+        assert "gymnasium" not in sys.modules
+        """,
+        blocked=(),
+    )
+    assert done.returncode == 0, done.stderr

@@ -138,22 +138,29 @@ def test_a_message_reserved_by_a_killed_worker_is_sent_again(fleet: Fleet, facto
     _assert_recorded_once(factory, sub, fleet)
 
 
-def test_a_backlog_is_not_sent_twice_but_a_drained_queue_is_healed(fleet: Fleet, factory: Any) -> None:
-    """No workers: old marks whose messages still wait in the queue are left alone, however old (no
-    duplicates from a backlog); once the queue is empty they are sent again, once."""
+def _queued_long_ago(fleet: Fleet, factory: Any, groups: int, name: str) -> tuple[Any, list[int]]:
+    """A new submission's episodes sent with no worker to take them, queued, and marked sent ten minutes ago:
+    the app that sent them and their ids."""
     sub = new_submission(
         factory,
         policy=POLICY,
         datasets=["repetitive"],
-        groups=3,
-        name=f"backlog-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
+        groups=groups,
+        name=f"{name}-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
     )
     app = _app(fleet)
     with factory() as s, s.begin():
         ids = work.take_unsent(s, stale_after_s=3600, ids=[e.id for e in episodes(factory, sub)])
         enqueue(app, ids)
+    wait_for(lambda: queue_length(app) == groups, 10, "the messages to be queued", lambda: "")
     _backdate(factory, ids, 600)
-    wait_for(lambda: queue_length(app) == 3, 10, "the three messages to be queued", lambda: "")
+    return app, ids
+
+
+def test_a_backlog_is_not_sent_twice_but_a_drained_queue_is_healed(fleet: Fleet, factory: Any) -> None:
+    """No workers: old marks whose messages still wait in the queue are left alone, however old (no
+    duplicates from a backlog); once the queue is empty they are sent again, once."""
+    app, ids = _queued_long_ago(fleet, factory, 3, "backlog")
     assert resend_lost(factory, app) == []  # a backlog: nothing lost
     assert queue_length(app) == 3
     _purge(app)  # the broker loses them
@@ -171,19 +178,7 @@ def test_a_queue_the_broker_lost_is_declared_again_before_the_lost_messages_are_
     queue that does not exist without an error, and the app's producer, which declared the queue once,
     does not declare it again: before the fix every re-send vanished until a worker reconnected (a flaky
     failure of the broker-loss test under load)."""
-    sub = new_submission(
-        factory,
-        policy=POLICY,
-        datasets=["repetitive"],
-        groups=2,
-        name=f"lost-queue-{fleet.env['ROBOBPP_CELERY_QUEUE']}",
-    )
-    app = _app(fleet)
-    with factory() as s, s.begin():
-        ids = work.take_unsent(s, stale_after_s=3600, ids=[e.id for e in episodes(factory, sub)])
-        enqueue(app, ids)  # the producer declares the queue here, once
-    wait_for(lambda: queue_length(app) == 2, 10, "the two messages to be queued", lambda: "")
-    _backdate(factory, ids, 600)
+    app, ids = _queued_long_ago(fleet, factory, 2, "lost-queue")  # the producer declares the queue, once
     _drop_queue(fleet.env["ROBOBPP_BROKER_URL"], fleet.env["ROBOBPP_CELERY_QUEUE"])
     assert resend_lost(factory, app) == sorted(ids)
     wait_for(lambda: queue_length(app) == 2, 10, "the re-sent messages to reach a queue", lambda: "")

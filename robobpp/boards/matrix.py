@@ -242,12 +242,8 @@ class SharedFields:
 
     def packed(self, submission_id: int, fields: dict[str, Any]) -> Any:
         """``fields`` packed (:func:`_packed`): the object kept for the submission when they are the same."""
-        new = _packed(fields)
-        old = self._by_id.get(submission_id)
-        if old is not None and type(old) is type(new) and old == new:
-            return old
-        self._by_id[submission_id] = new
-        return new
+        kept = self._by_id[submission_id] = _same_or(self._by_id.get(submission_id), _packed(fields))
+        return kept
 
     def keep_only(self, submission_ids: Iterable[int]) -> None:
         """Forget the submissions not among ``submission_ids`` (those that left the track's boards)."""
@@ -433,7 +429,11 @@ class BoardMatrix:
             )
             # metrics that are exactly the board's point metrics are not kept twice (≈ 250 bytes an entry)
             named.append(self._code(tuple(m)) if kept else -1)
-            self._public[slot] = _packed({"extras": e} if kept else {"metrics": m, "extras": e})
+            # the object the slot had when it packs the same (a refresh re-sets every row): ≈ 30 MB of small
+            # objects made again among each board's transient rows left the heap holed after a refresh
+            self._public[slot] = _same_or(
+                self._public[slot], _packed({"extras": e} if kept else {"metrics": m, "extras": e})
+            )
         c.named[slots] = named
         at, zones, odd = _times([row.get("completed_at") for row in rows], self._code)
         c.completed[slots], c.zone[slots] = at, zones
@@ -931,6 +931,11 @@ def _time(at: np.datetime64, zone: Any, odd: Any = None) -> Any:
 
 def _unpacked(packed: Any) -> dict[str, Any]:
     return orjson.loads(packed) if isinstance(packed, bytes) else dict(packed)
+
+
+def _same_or(old: Any, new: Any) -> Any:
+    """``old`` when ``new`` packs the same fields (:func:`_packed`), else ``new``: what is kept stays one object."""
+    return old if old is not None and type(old) is type(new) and old == new else new
 
 
 def _packed(public: dict[str, Any]) -> Any:

@@ -211,9 +211,10 @@ def rank_samples(scores: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
     return out
 
 
-#: Scores ranked at a time by :func:`rank_samples`: its transient arrays ≈ 26 MB, so that each pass over a
-#: block of keys finds most of it in the cache (4 million at a time: 1,000 resamples × 10,000 entries ranked
-#: in 0.44 CPU-s where 1 million take 0.33; 100 × 100,000 in 0.52 against 0.46; fewer gain nothing more).
+#: Scores ranked at a time by :func:`rank_samples`: its transient arrays ≈ 26 MB (≈ 100 MB at 4 million, which
+#: a board's full computation held on top of its workspace) and a few per cent faster, each pass over a block
+#: of keys finding more of it in the cache (``bench/board_kernels.py``: 1,000 resamples × 10,000 entries
+#: 0.35–0.37 → 0.32–0.35 CPU-s; 100 × 100,000 0.48 → 0.47).
 _RANKED_AT_ONCE = 1_000_000
 
 

@@ -35,7 +35,7 @@ from robobpp.boards.ranking import build_board, build_grid
 from robobpp.boards.records import Board, Grid, Published, as_board, with_lookaheads
 from robobpp.db import queries
 from robobpp.db.models import Submission
-from robobpp.scoring.entries import EntryPart, entry_part
+from robobpp.scoring.entries import StoredParts, entry_part
 from robobpp.scoring.metrics import PHYSICAL
 from robobpp.vocabulary import CLOSED, DATASETS, LOOPS, PAPER, SETTINGS, board_loop
 
@@ -281,7 +281,7 @@ class BoardEngine:
             removed = [s for s in state.seen if s not in seen]
             if not (added or changed or removed):
                 return {}
-            runs = self._runs(session, track, added + changed) if added or changed else []
+            runs, parts = self._runs(session, track, added + changed) if added or changed else ([], {})
         touched: set[tuple[str, ...]] = set()
         by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for run in runs:
@@ -295,7 +295,7 @@ class BoardEngine:
             present = {int(r["submission_id"]) for r in upsert}
             gone = [s for s in (*removed, *changed) if s in matrix and s not in present]
             if upsert or gone:
-                matrix.apply(upsert, gone, parts={r["submission_id"]: r["part"] for r in upsert})
+                matrix.apply(upsert, gone, parts=parts.get(key))
                 touched.add(key)
         state.seen = seen
         state.shared.keep_only(seen)
@@ -368,14 +368,10 @@ class BoardEngine:
             # part, ≈ 6 kB a run) made the start-up peak far above what the boards keep (100,000
             # submissions: past 21 GB). Its parts pass to the board, read once.
             with self.session_factory() as session:
-                rows = self._runs(session, track, None, keys=[key])
+                rows, parts = self._runs(session, track, None, keys=[key])
             present = {int(r["submission_id"]) for r in rows}
-            matrix.apply(
-                rows,
-                [s for s in matrix.submission_ids() if s not in present],
-                parts={r["submission_id"]: r["part"] for r in rows},
-            )
-            del rows
+            matrix.apply(rows, [s for s in matrix.submission_ids() if s not in present], parts=parts.get(key))
+            del rows, parts
             state.out[key] = matrix.board(
                 rank_intervals=True, for_grid=key in gathering.by_board, workspace=workspace
             )
@@ -461,9 +457,9 @@ class BoardEngine:
         track: str,
         submission_ids: list[int] | None,
         keys: Sequence[tuple[str, ...]] | None = None,
-    ) -> list[dict[str, Any]]:
+    ) -> tuple[list[dict[str, Any]], dict[tuple[str, ...], StoredParts]]:
         """The track's runs on this engine's boards (``keys``: on those; else of every lookahead), each with
-        its ``part`` (and the group ``ids``)."""
+        its group ``ids`` (None: no figures); and by board, its runs' parts (decoded at once)."""
         if keys is None:
             # the boards' (dataset, setting, loop) of every lookahead; a lookahead K > 0 has no
             # paper-protocol boards: its replays are shown on none
@@ -485,40 +481,35 @@ class BoardEngine:
                     submission_ids=submission_ids,
                     lookahead=lookahead,
                 )
-        missing: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+        by_board: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for run in runs:
-            entry = run.pop("entry")
-            run["part"] = None if entry is None else EntryPart.decode(entry, run["setting"])
-            if run["part"] is None:
-                missing.setdefault(self._key_of(run), []).append(run)
-        for key, lacking in missing.items():  # stored before 0010 or by an older version: computed here
+            by_board.setdefault(self._key_of(run), []).append(run)
+        parts: dict[tuple[str, ...], StoredParts] = {}
+        for key, on_board in by_board.items():
             d, st, loop, _ = board_of(key)
-            figures = queries.run_figures_of(
-                session, track, d, st, loop, [r["submission_id"] for r in lacking]
-            )
-            for run in lacking:
-                f = figures.get(run["submission_id"])
-                run["part"] = entry_part(f, run["setting"]) if f and f.get("ids") else None
-        for run in runs:
-            run["ids"] = None if run["part"] is None else _interned(run["part"].ids.tobytes())
-        return runs
+            sids = [int(run["submission_id"]) for run in on_board]
+            found, undecoded = StoredParts.decode(st, sids, [run.pop("entry") for run in on_board])
+            if undecoded:  # stored before 0010 or by an older version: computed here
+                lacking = [sids[k] for k in undecoded]
+                _computed(found, lacking, queries.run_figures_of(session, track, d, st, loop, lacking))
+            for run in on_board:
+                ids = found.ids_of(run["submission_id"])
+                run["ids"] = None if ids is None else _interned(ids)
+            parts[key] = found
+        return runs, parts
 
     def _loader(self, track: str, key: tuple[str, ...]) -> PartLoader:
         dataset, setting, loop, _ = board_of(key)
 
-        def load(submission_ids: Sequence[int]) -> dict[int, EntryPart | None]:
+        def load(submission_ids: Sequence[int]) -> StoredParts:
+            sids = [int(s) for s in submission_ids]
             with self.session_factory() as session:
-                stored = queries.run_entries_of(session, track, dataset, setting, loop, submission_ids)
-                parts = {
-                    sid: None if entry is None else EntryPart.decode(entry, setting)
-                    for sid, entry in stored.items()
-                }
-                lacking = [sid for sid in submission_ids if parts.get(sid) is None]
-                if lacking:
+                stored = queries.run_entries_of(session, track, dataset, setting, loop, sids)
+                parts, undecoded = StoredParts.decode(setting, sids, [stored.get(s) for s in sids])
+                if undecoded:
+                    lacking = [sids[k] for k in undecoded]
                     figures = queries.run_figures_of(session, track, dataset, setting, loop, lacking)
-                    for sid in lacking:
-                        f = figures.get(sid)
-                        parts[sid] = entry_part(f, setting) if f and f.get("ids") else None
+                    _computed(parts, lacking, figures)
             return parts
 
         return load
@@ -580,3 +571,11 @@ _IDS: dict[bytes, bytes] = {}
 def _interned(ids: bytes) -> bytes:
     """One object per distinct group-id list (every entry of a board has the same)."""
     return _IDS.setdefault(ids, ids)
+
+
+def _computed(parts: StoredParts, lacking: Sequence[int], figures: Mapping[int, Any]) -> None:
+    """The parts of runs ``lacking`` a stored one (or one of another format), from their ``figures`` (None:
+    no figures)."""
+    for sid in lacking:
+        f = figures.get(sid)
+        parts.set(sid, entry_part(f, parts.setting) if f and f.get("ids") else None)

@@ -361,13 +361,12 @@ class BoardMatrix:
             self._odd_completed.pop(slot, None)
         self._parts.drop_many(remove)
         upsert = list(upsert)
-        given = dict(parts or {})
+        given: Mapping[int, EntryPart | None] = {} if parts is None else parts
         lacking = [int(r["submission_id"]) for r in upsert if int(r["submission_id"]) not in given]
+        # a part of None: the run has no figures any more (``put_many`` forgets it, replaces the others)
+        self._parts.put_many(given)
         if lacking:  # its part may have changed: read it again
-            given.update(self.load(lacking))
-        # a part of None: the run has no figures any more (``put_many`` replaces the others)
-        self._parts.drop_many([sid for sid, part in given.items() if part is None])
-        self._parts.put_many({sid: part for sid, part in given.items() if part is not None})
+            self._parts.put_many(self.load(lacking))
         c = self._c
         slots: list[int] = []
         sids = [int(row["submission_id"]) for row in upsert]

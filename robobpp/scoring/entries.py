@@ -18,7 +18,7 @@ milliseconds.
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
 from typing import Any
@@ -114,6 +114,177 @@ class EntryPart:
         stable_ci = np.frombuffer(data, "<f8", 2, at)
         seed = int(np.frombuffer(data, "<u8", 1, at + 16)[0])
         return cls(setting, ids, top, bottom, metric_ci, (float(stable_ci[0]), float(stable_ci[1])), seed)
+
+
+def _layout(groups: int, metrics: int) -> np.dtype:
+    """One stored part of ``groups`` groups and ``metrics`` metrics as a numpy record (:meth:`EntryPart.encode`'s
+    layout): parts of the same header decode many at once (:meth:`StoredParts.decode`)."""
+    return np.dtype(
+        [
+            ("header", f"V{_HEADER.size}"),
+            ("ids", "<i8", (groups,)),
+            ("top", "<f4", (groups, metrics)),
+            ("bottom", "<f4", (groups, metrics)),
+            ("metric_ci", "<f8", (metrics, 2)),
+            ("stable_ci", "<f8", (2,)),
+            ("seed", "<u8"),
+        ]
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class PartRows:
+    """Entries' parts of one group-id list as arrays, a row per entry (:class:`EntryPart`'s fields stacked):
+    what :meth:`StoredParts.decode` makes of many stored parts at once, kept by a :class:`PartTable` without
+    an object per entry."""
+
+    submission_ids: np.ndarray  # (entries,) int64
+    ids: np.ndarray  # (groups,) int64: the group ids every row shares
+    top: np.ndarray  # (entries, groups, metrics) float32
+    bottom: np.ndarray  # (entries, groups, metrics) float32
+    metric_ci: np.ndarray  # (entries, metrics, 2)
+    stable_ci: np.ndarray  # (entries, 2)
+    seeds: np.ndarray  # (entries,) uint64
+
+    def part(self, row: int, setting: str) -> EntryPart:
+        stable = self.stable_ci[row]
+        return EntryPart(
+            setting,
+            self.ids,
+            self.top[row],
+            self.bottom[row],
+            self.metric_ci[row],
+            (float(stable[0]), float(stable[1])),
+            int(self.seeds[row]),
+        )
+
+
+class StoredParts(Mapping[int, "EntryPart | None"]):
+    """Entries' parts by submission id, decoded from their stored bytes many at a time (:meth:`decode`).
+
+    A board's start reads 10,000 stored parts; one :class:`EntryPart` each (six array views and an object)
+    and then stacking them again into the board's matrices took ≈ 0.3 s a board (BENCHMARKS.md, "The board
+    engine"), where parts of the same layout read as one array of records take milliseconds. Rows of one
+    group-id list stay together as :class:`PartRows`, which :meth:`PartTable.put_many` keeps as they are; a
+    part set one at a time (:meth:`set`: computed from a run's figures, or None: the run has none) sits beside
+    them. As a mapping, an entry's :class:`EntryPart` is made when asked for."""
+
+    def __init__(self, setting: str) -> None:
+        self.setting = setting
+        self.rows: list[PartRows] = []
+        self.single: dict[int, EntryPart | None] = {}
+        self._at: dict[int, tuple[int, int]] = {}  # submission id -> (its rows, its row)
+
+    @classmethod
+    def decode(
+        cls, setting: str, submission_ids: Sequence[int], data: Sequence[bytes | None]
+    ) -> tuple[StoredParts, list[int]]:
+        """The parts stored in ``data`` (an entry's bytes, or None), and the positions of those that hold none
+        of this format and setting (to be computed again from the run's figures: :meth:`set`). A submission
+        given twice keeps its last."""
+        out = cls(setting)
+        blobs: dict[int, bytes] = {}  # by position: a submission's last
+        undecoded: list[int] = []
+        for k in {int(sid): k for k, sid in enumerate(submission_ids)}.values():
+            blob = data[k]
+            if blob is None or len(blob) < _HEADER.size:
+                undecoded.append(k)
+            else:
+                blobs[k] = blob
+        by_header: dict[tuple[int, bytes], list[int]] = {}
+        for k, blob in blobs.items():
+            by_header.setdefault((len(blob), bytes(blob[: _HEADER.size])), []).append(k)
+        m = len(metric_keys(setting))
+        for (size, header), at in by_header.items():
+            magic, fmt, groups, metrics, _ = _HEADER.unpack(header)
+            layout = _layout(groups, metrics)
+            if magic != _MAGIC or fmt != FORMAT or metrics != m:
+                undecoded += at
+            elif size != layout.itemsize:  # not as this version writes it: one at a time, as it always was
+                for k in at:
+                    out.set(int(submission_ids[k]), EntryPart.decode(blobs[k], setting))
+            else:
+                records = np.frombuffer(b"".join(blobs[k] for k in at), layout)
+                sids = np.array([submission_ids[k] for k in at], dtype=np.int64).reshape(len(at))
+                out._add_records(sids, records)
+        undecoded.sort()
+        return out, undecoded
+
+    def _add_records(self, sids: np.ndarray, records: np.ndarray) -> None:
+        ids = records["ids"]
+        if (ids == ids[0]).all():
+            lists, which = ids[:1], np.zeros(len(ids), np.intp)
+        else:
+            lists, which = np.unique(ids, axis=0, return_inverse=True)
+        for j in range(len(lists)):
+            chosen = records if len(lists) == 1 else records[which.reshape(-1) == j]
+            chosen_sids = sids if len(lists) == 1 else sids[which.reshape(-1) == j]
+            # each field contiguous: read in place, a field's values lie a record apart (1.5 kB), and every
+            # pass over them then waits on memory
+            rows = PartRows(
+                chosen_sids,
+                np.array(lists[j], dtype=np.int64),
+                *(
+                    np.ascontiguousarray(chosen[f])
+                    for f in ("top", "bottom", "metric_ci", "stable_ci", "seed")
+                ),
+            )
+            number = len(self.rows)
+            self.rows.append(rows)
+            for row, sid in enumerate(chosen_sids.tolist()):
+                self._at[sid] = (number, row)
+
+    def set(self, submission_id: int, part: EntryPart | None) -> None:
+        """The entry's part (None: its run has no figures), in place of any it had here."""
+        self._at.pop(submission_id, None)
+        self.single[submission_id] = part
+
+    def __getitem__(self, submission_id: int) -> EntryPart | None:
+        at = self._at.get(submission_id)
+        if at is None:
+            return self.single[submission_id]
+        return self.rows[at[0]].part(at[1], self.setting)
+
+    def __contains__(self, submission_id: object) -> bool:
+        return submission_id in self._at or submission_id in self.single
+
+    def __iter__(self) -> Iterator[int]:
+        yield from self._at
+        yield from self.single
+
+    def __len__(self) -> int:
+        return len(self._at) + len(self.single)
+
+    def ids_of(self, submission_id: int) -> bytes | None:
+        """The entry's group ids as bytes (None: no part)."""
+        at = self._at.get(submission_id)
+        if at is not None:
+            return bytes(self.rows[at[0]].ids.tobytes())
+        part = self.single.get(submission_id)
+        return None if part is None else part.ids.tobytes()
+
+    def live_rows(self) -> list[PartRows]:
+        """The rows whose entries were not set again since (:meth:`set`)."""
+        out = []
+        for number, rows in enumerate(self.rows):
+            keep = np.array(
+                [self._at.get(s, (-1, -1))[0] == number for s in rows.submission_ids.tolist()], dtype=bool
+            ).reshape(len(rows.submission_ids))
+            if keep.all():
+                out.append(rows)
+            elif keep.any():
+                out.append(
+                    PartRows(
+                        rows.submission_ids[keep],
+                        rows.ids,
+                        rows.top[keep],
+                        rows.bottom[keep],
+                        rows.metric_ci[keep],
+                        rows.stable_ci[keep],
+                        rows.seeds[keep],
+                    )
+                )
+        return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -335,26 +506,37 @@ class PartTable:
         """Keep ``part`` as the entry's (replacing the one it had)."""
         self.put_many({submission_id: part})
 
-    def put_many(self, parts: Mapping[int, EntryPart]) -> None:
-        """Keep many parts (replacing those the entries had): one allocation per block, not one per entry."""
+    def put_many(self, parts: Mapping[int, EntryPart | None]) -> None:
+        """Keep many parts (replacing those the entries had; None: the entry has none any more): one
+        allocation per block, not one per entry; the rows of :class:`StoredParts` as they are."""
         if not parts:
             return
         self.drop_many(list(parts))
+        single = parts.single if isinstance(parts, StoredParts) else parts
+        batches = parts.live_rows() if isinstance(parts, StoredParts) else []
         by_ids: dict[bytes, list[tuple[int, EntryPart]]] = {}
-        for sid, part in parts.items():
-            by_ids.setdefault(part.ids.tobytes(), []).append((int(sid), part))
-        sids, blocks, rows = [], [], []
-        for ids, items in by_ids.items():
+        for sid, part in single.items():
+            if part is not None:
+                by_ids.setdefault(part.ids.tobytes(), []).append((int(sid), part))
+        sids: list[np.ndarray] = []
+        blocks: list[np.ndarray] = []
+        rows: list[np.ndarray] = []
+        for items in by_ids.values():
+            batches.append(_stacked_rows([sid for sid, _ in items], [p for _, p in items]))
+        for batch in batches:
+            ids = batch.ids.astype(np.int64).tobytes()
             number = self._numbers.get(ids)
             if number is None:
                 number = self._numbers[ids] = len(self._blocks)
-                self._blocks.append(_Block(items[0][1].groups, len(self.keys), self._pooled))
+                self._blocks.append(_Block(len(batch.ids), len(self.keys), self._pooled))
             block = self._blocks[number]
             assert block is not None
-            rows += block.add_many([p for _, p in items])
-            sids += [sid for sid, _ in items]
-            blocks += [number] * len(items)
-        self._where.add(sids, (np.array(blocks, dtype=np.int64) << 32) | np.array(rows, dtype=np.int64))
+            rows.append(block.add_rows(batch))
+            sids.append(batch.submission_ids)
+            blocks.append(np.full(len(batch.submission_ids), number, dtype=np.int64))
+        if sids:
+            where = (np.concatenate(blocks) << 32) | np.concatenate(rows).astype(np.int64)
+            self._where.add(np.concatenate(sids), where)
 
     def drop(self, submission_id: int) -> None:
         self.drop_many([submission_id])
@@ -489,12 +671,13 @@ class _Block:
         )
 
     def add(self, part: EntryPart) -> int:
-        return self.add_many([part])[0]
+        return int(self.add_rows(_stacked_rows([0], [part]))[0])
 
-    def add_many(self, parts: Sequence[EntryPart]) -> list[int]:
+    def add_rows(self, parts: PartRows) -> np.ndarray:
         """Keep the parts (of this block's group ids); returns their rows."""
-        top = np.stack([p.top for p in parts]).reshape(len(parts), self.groups, self.metrics)
-        bottom = np.stack([p.bottom for p in parts]).reshape(top.shape)
+        n = len(parts.submission_ids)
+        top = parts.top.reshape(n, self.groups, self.metrics)
+        bottom = parts.bottom.reshape(top.shape)
         plain = ~self.pooled
         # a column kept without weights must have weight 1 where measured, and sum term 0 where not
         if not (
@@ -503,22 +686,22 @@ class _Block:
         ):
             self._keep_every_weight()
             plain = ~self.pooled
-        self.reserve(len(parts))
-        reused = self._free[-len(parts) :][::-1]
+        self.reserve(n)
+        reused = self._free[-n:][::-1] if n else []
         del self._free[len(self._free) - len(reused) :]
-        rows = np.array(
-            reused + list(range(self._used, self._used + len(parts) - len(reused))), dtype=np.intp
-        )
-        self._used += len(parts) - len(reused)
-        self.figures[rows] = np.where(plain & (bottom == 0.0), np.nan, top)
-        self.weights[rows] = bottom[..., self.pooled]
+        rows = np.array(reused + list(range(self._used, self._used + n - len(reused))), dtype=np.intp)
+        # new rows only (a board's start): a slice, written in place, where a list of rows is gathered first
+        at: slice | np.ndarray = slice(self._used, self._used + n) if not reused else rows
+        self._used += n - len(reused)
+        self.figures[at] = np.where(plain & (bottom == 0.0), np.nan, top)
+        self.weights[at] = bottom[..., self.pooled]
         if not self.metric_ci.flags.writeable:  # a board's snapshot reads it (``shown_intervals``)
             self.metric_ci = self.metric_ci.copy()
-        self.metric_ci[rows] = np.stack([p.metric_ci for p in parts]).reshape(len(parts), self.metrics, 2)
-        self.stable_ci[rows] = [p.stable_ci for p in parts]
-        self.seeds[rows] = [p.seed for p in parts]
-        self.size += len(parts)
-        return [int(r) for r in rows]
+        self.metric_ci[at] = parts.metric_ci.reshape(n, self.metrics, 2)
+        self.stable_ci[at] = parts.stable_ci.reshape(n, 2)
+        self.seeds[at] = parts.seeds
+        self.size += n
+        return rows
 
     def _keep_every_weight(self) -> None:
         """A part whose weights the NaN cannot say (never written by :func:`entry_part`): keep every
@@ -542,3 +725,17 @@ class _Block:
         top[:, :, plain] = np.where(measured, top[:, :, plain], 0.0)
         bottom[:, :, self.pooled] = self.weights[rows]
         return top, bottom
+
+
+def _stacked_rows(submission_ids: Sequence[int], parts: Sequence[EntryPart]) -> PartRows:
+    """Parts of one group-id list given one by one, as rows."""
+    n = len(parts)
+    return PartRows(
+        np.array(submission_ids, dtype=np.int64).reshape(n),
+        parts[0].ids,
+        np.stack([p.top for p in parts]),
+        np.stack([p.bottom for p in parts]),
+        np.stack([p.metric_ci for p in parts]),
+        np.array([p.stable_ci for p in parts], dtype=np.float64).reshape(n, 2),
+        np.array([p.seed for p in parts], dtype=np.uint64).reshape(n),
+    )

@@ -200,10 +200,18 @@ def rank_samples(scores: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
     of a run of ties the run's best rank."""
     r, n = scores.shape
     out = np.empty((r, n), dtype=np.int32) if out is None else out
+    if out.shape != (r, n) or out.dtype != np.int32 or not out.flags.c_contiguous:
+        raise ValueError(f"ranks go into a C-contiguous int32 array of shape {(r, n)}")
     if n == 0:
         return out
-    step = min(r, max(1, _RANKED_AT_ONCE // n))  # rows at a time: ≈ 26 bytes a score of transient arrays
-    buffers = _KeyBuffers(np.empty((step, n)), np.empty((step, n), np.int64), np.empty((step, n), np.int64))
+    step = min(r, max(1, _RANKED_AT_ONCE // n))  # rows at a time: ≈ 30 bytes a score of transient arrays
+    buffers = _KeyBuffers(
+        np.empty((step, n)),
+        np.empty((step, n), np.int64),
+        np.empty((step, n), np.int64),
+        np.tile(np.arange(1, n + 1, dtype=np.int32), step),
+        np.arange(0, step * n, n, dtype=np.int64)[:, None],
+    )
     for a in range(0, r, step):
         block, ranks = scores[a : a + step], out[a : a + step]
         if not _ranked_by_keys(block, ranks, buffers):
@@ -225,6 +233,8 @@ class _KeyBuffers:
     scaled: np.ndarray  # float64
     keys: np.ndarray  # int64
     columns: np.ndarray  # int64
+    positions: np.ndarray  # int32, flat: 1 … entries, once per row
+    starts: np.ndarray  # int64, (rows, 1): where each row starts in a flat block
 
 
 #: Key units per score unit in :func:`_ranked_by_keys`: a board's relative scores are read to 12 decimals
@@ -264,14 +274,18 @@ def _ranked_by_keys(block: np.ndarray, out: np.ndarray, buffers: _KeyBuffers) ->
     rows, at = np.nonzero(tied) if tied.any() else (np.zeros(0, np.intp), np.zeros(0, np.intp))
     if rows.size and not np.array_equal(block[rows, columns[rows, at]], block[rows, columns[rows, at + 1]]):
         return False
-    np.put_along_axis(out, columns, np.broadcast_to(np.arange(1, n + 1, dtype=np.int32), (r, n)), axis=1)
+    # each entry's position, scattered to its place in the (contiguous) block by one flat index: twice as fast
+    # as ``put_along_axis``, which builds an index per axis
+    columns += buffers.starts[:r]
+    flat = out.reshape(-1)
+    flat[columns.reshape(-1)] = buffers.positions[: r * n]
     if rows.size:  # an entry that ties the one before it takes its run's first position (runs are short)
         later = rows * n + at + 1  # ascending
         starts = np.ones(len(later), dtype=bool)
         starts[1:] = later[1:] != later[:-1] + 1  # (a row's last and the next row's first are ≥ 2 apart)
         first = np.where(starts, later - 1, 0)
         np.maximum.accumulate(first, out=first)
-        out[rows, columns[rows, at + 1]] = first - rows * n + 1
+        flat[columns[rows, at + 1]] = first - rows * n + 1
     return True
 
 

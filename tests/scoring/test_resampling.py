@@ -149,6 +149,11 @@ def test_ranks_of_every_resample_are_one_plus_the_strictly_better(
         for e in range(scores.shape[1]):
             assert ranks[b, e] == 1 + int((scores[b] > scores[b, e]).sum())
     assert stats.rank_samples(np.zeros((3, 0))).shape == (3, 0)
+    into = np.zeros((scores.shape[0], 2 * scores.shape[1]), np.int32)
+    with pytest.raises(ValueError, match="C-contiguous int32"):  # a strided one: refused, not written astray
+        stats.rank_samples(scores, out=into[:, ::2])
+    assert not into.any()
+    assert np.array_equal(stats.rank_samples(scores, out=into[:, : scores.shape[1]].copy()), ranks)
 
 
 def _strictly_better(scores: np.ndarray) -> np.ndarray:

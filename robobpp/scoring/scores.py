@@ -163,8 +163,13 @@ def min_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray, key: str) -> np.
         else:
             np.subtract(hi, out, out=out)
         np.divide(out, span, out=out)
+        spans_usable = bool(np.all(span > 0))
+        # one summing pass tells that every value is finite (a sum of finite values that overflows only sends
+        # it the long way): the mask and its pass are then made only where some value is not
+        if spans_usable and np.isfinite(np.add.reduce(out, axis=None)):
+            return out
     unusable = ~np.isfinite(out)
-    if not np.all(span > 0):
+    if not spans_usable:
         unusable |= ~(span > 0)
     np.copyto(out, 0.0, where=unusable)
     return out

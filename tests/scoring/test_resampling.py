@@ -245,6 +245,16 @@ def test_min_max_in_place_is_the_rule_it_states() -> None:
             want = np.where(np.isfinite(want) & (high - low > 0), want, 0.0)
             assert np.array_equal(out, want)
             assert np.all(out[:, 5] == 0.0)
+    # every value finite, every span positive (the pass that skips the mask) and then one value infinite
+    spread = rng.random((40, 100))
+    lo, hi = spread.min(axis=0), spread.max(axis=0)
+    want = (np.round(spread, 12) - np.round(lo, 12)) / (np.round(hi, 12) - np.round(lo, 12))
+    assert np.array_equal(min_max(spread, lo, hi, "space_utilization"), want)
+    spread[9, 2] = np.inf
+    out = min_max(spread, lo, hi, "space_utilization")
+    assert out[9, 2] == 0.0 and np.array_equal(
+        np.delete(out.ravel(), 9 * 100 + 2), np.delete(want.ravel(), 902)
+    )
 
 
 def test_a_row_hash_changes_with_any_one_value_and_not_with_the_kind_of_nan() -> None:

@@ -11,8 +11,8 @@ unmeasured, or a pooled ratio's numerator; and its weight: 1 measured / 0 not, o
 metric's interval and the stable score's, and the seed of its timing noise
 (:func:`robobpp.scoring.stats.timing_seed`). float32: every resample reads the figures so
 (:func:`robobpp.scoring.stats.as_resampled`), so a board built from them equals one built from the recorded
-JSON figures. Decoding is a view of the bytes (no copy, no parsing): a board reloads 10,000 parts in
-milliseconds.
+JSON figures. Decoding is a view of the bytes (no copy, no parsing); a board's start decodes its parts
+together (:class:`StoredParts`: parts of one layout read as one array of records), 10,000 in milliseconds.
 """
 
 from __future__ import annotations
@@ -332,6 +332,14 @@ class Stacked:
                 weighed = self.weighed[j, start:stop]
                 if not weighed.any():
                     means /= total
+                    continue
+                if (
+                    weighed.all()
+                ):  # a pooled metric: every entry's weights, in place (their rows are in a run)
+                    first = int(self.weight_row[base + start])
+                    sums = self.weights[first : first + stop - start] @ plan.T
+                    np.divide(means, sums, out=means)
+                    means[sums <= 0] = np.nan
                     continue
                 rows = np.flatnonzero(weighed)
                 sums = self.weights[self.weight_row[base + start + rows]] @ plan.T

@@ -85,6 +85,13 @@ def test_an_entry_has_the_same_samples_alone_stacked_and_in_any_block_of_resampl
     rows = np.array([999, 3, 500, 4])  # a few resamples, in any order
     block = Stacked.of(top, bottom).samples(plan[rows])
     assert np.array_equal(block, stacked[:, :, rows], equal_nan=True)
+    # a tile of entries at a time: the pooled metrics' weights (every entry's) and the holes' (some) are read
+    # at the tile's own rows
+    whole = Stacked.of(top, bottom)
+    for start in range(0, 12, 5):
+        stop = min(12, start + 5)
+        tile = whole.tile(plan, start, stop, np.empty((8, stop - start, plan.shape[0])))
+        assert np.array_equal(tile, stacked[:, start:stop], equal_nan=True)
 
 
 def test_the_samples_equal_the_from_scratch_computation_on_the_recorded_figures() -> None:

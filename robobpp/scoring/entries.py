@@ -408,7 +408,9 @@ def stable_samples(samples: np.ndarray, setting: str) -> np.ndarray:
     """The stable score under each resample from (metrics, ...) samples: (...)."""
     total = np.zeros(samples.shape[1:])
     for j, (key, weight) in enumerate(WEIGHTS[setting].items()):
-        total += weight * anchored(samples[j], key)
+        score = anchored(samples[j], key)
+        score *= weight
+        total += score
     return total
 
 

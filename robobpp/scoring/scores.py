@@ -93,14 +93,20 @@ RANKED_BY = "relative"
 def anchored(values: np.ndarray, key: str) -> np.ndarray:
     """The stable normalisation of raw values (0..1, higher = better; NaN → 0, the worst)."""
     zero, one, scale = ANCHORS[key]
-    out: np.ndarray
+    # one new array, then in place (a board's full computation anchors its grid's 2.5 million samples a
+    # board); fmax then fmin clip as ``clip`` does and send NaN to 0 in the same two passes (a zero's sign
+    # may differ from clip's, which no sum of these scores can show: they are added to zeros)
     with np.errstate(invalid="ignore", divide="ignore"):
         if scale == "log":
-            out = (np.log(np.maximum(values, 1e-12)) - math.log(zero)) / (math.log(one) - math.log(zero))
+            out: np.ndarray = np.maximum(values, 1e-12, dtype=np.float64)
+            np.log(out, out=out)
+            out -= math.log(zero)
+            out /= math.log(one) - math.log(zero)
         else:
-            out = (values - zero) / (one - zero)
-    np.clip(out, 0.0, 1.0, out=out)
-    out[np.isnan(out)] = 0.0
+            out = np.subtract(values, zero, dtype=np.float64)
+            out /= one - zero
+    np.fmax(out, 0.0, out=out)
+    np.fmin(out, 1.0, out=out)
     return out
 
 

@@ -163,6 +163,18 @@ def test_anchors_map_bounds_to_zero_and_one() -> None:
     # log scale: 10 s … the floor (20 ms); faster counts as the floor
     assert anchored(np.array([math.sqrt(10 * 0.02)]), "decision_time")[0] == pytest.approx(0.5)
     assert anchored(np.array([0.001, 0.003]), "decision_time").tolist() == [1.0, 1.0]
+    # the rule on any value: the linear or log position between the anchors, clipped to 0..1, NaN the worst
+    values = np.array([-3.0, -0.0, 0.0, 0.004, 0.02, 0.3, 0.5, 0.99, 1.0, 7.0, 12.0, np.inf, -np.inf, np.nan])
+    for key, (zero, one, scale) in ANCHORS.items():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if scale == "log":
+                position = (np.log(np.maximum(values, 1e-12)) - math.log(zero)) / (
+                    math.log(one) - math.log(zero)
+                )
+            else:
+                position = (values - zero) / (one - zero)
+        want = np.nan_to_num(np.clip(position, 0.0, 1.0), nan=0.0)
+        assert np.array_equal(anchored(values, key), want), key
 
 
 def test_paired_difference_of_a_policy_with_itself_is_zero_centred() -> None:

@@ -1,6 +1,9 @@
-"""Two kernels of a board's full computation in isolation: ranking every resample (``stats.rank_samples``) at
-several block sizes, and the timing noise (``stats.timing_noise``). Scores are drawn like a board's relative
-scores (an entry's level plus resample noise, read to 12 decimals). Best of three, CPU seconds.
+"""Kernels of a board's full computation in isolation: ranking every resample (``stats.rank_samples``) at
+several block sizes, the timing noise (``stats.timing_noise``), a tile's relative and stable normalisation
+(``scores.min_max``, ``scores.anchored``), and a board's stored parts decoded and kept by its part table, many
+at a time (``entries.StoredParts``, what the start does) against one by one (``EntryPart.decode``). Scores are
+drawn like a board's relative scores (an entry's level plus resample noise, read to 12 decimals); parts are
+execution runs of 30 groups. Best of three, CPU seconds.
 
     OPENBLAS_NUM_THREADS=1 python bench/board_kernels.py [--entries 10000] [--resamples 1000]
 """
@@ -14,6 +17,8 @@ from collections.abc import Callable
 import numpy as np
 
 from robobpp.scoring import stats
+from robobpp.scoring.entries import EntryPart, PartTable, StoredParts, entry_part
+from robobpp.scoring.scores import ANCHORS, anchored, min_max
 
 
 def best_cpu_s(work: Callable[[], object], runs: int = 3) -> float:
@@ -44,6 +49,38 @@ def main() -> None:
     seeds = rng.integers(0, 2**64, size=3_000, dtype=np.uint64)
     seconds = best_cpu_s(lambda: stats.timing_noise(seeds, np.arange(1_000)))
     print(f"timing_noise, 3,000 entries x 1,000 resamples: {seconds:.3f} CPU-s")
+    tile = rng.random((1_200, 133))  # a tile of a full computation at 10,000 entries
+    lo, hi = tile.min(axis=0), tile.max(axis=0)
+    seconds = best_cpu_s(lambda: [min_max(tile, lo, hi, "occupancy") for _ in range(100)])
+    print(f"min_max, 100 tiles of 1,200 x 133: {seconds:.3f} CPU-s")
+    for key in ("occupancy", "decision_time"):
+
+        def anchor_tiles(key: str = key) -> None:
+            for _ in range(100):
+                anchored(tile, key)
+
+        print(f"anchored ({ANCHORS[key][2]}), 100 tiles of 1,200 x 133: {best_cpu_s(anchor_tiles):.3f} CPU-s")
+    stored = [_part(rng).encode() for _ in range(min(n, 10_000))]
+    sids = list(range(1, len(stored) + 1))
+    many = best_cpu_s(
+        lambda: PartTable("execution").put_many(StoredParts.decode("execution", sids, stored)[0])
+    )
+    alone = best_cpu_s(
+        lambda: PartTable("execution").put_many(
+            {sid: EntryPart.decode(data, "execution") for sid, data in zip(sids, stored, strict=True)}
+        )
+    )
+    print(f"{len(stored):,} stored parts decoded and kept: {many:.3f} CPU-s at once, {alone:.3f} one by one")
+
+
+def _part(rng: np.random.Generator, groups: int = 30) -> EntryPart:
+    keys = ("space_utilization", "occupancy", "decision_time", "local_stability", "static_stability")
+    values = {key: rng.random(groups).tolist() for key in (*keys, "trajectory_length")}
+    pooled = {
+        key: [[float(rng.integers(0, 5)), float(rng.integers(1, 40))] for _ in range(groups)]
+        for key in ("collapsed_placement", "dangerous_operation")
+    }
+    return entry_part({"ids": list(range(groups)), "values": values, "pooled": pooled}, "execution")
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime, timedelta, timezone
 from typing import Any
 
 import numpy as np
@@ -902,20 +902,38 @@ def _times(
     ``code`` — 12 bytes an entry where a datetime object took 56 (a database's times share one zone
     object). By position, those the arrays would not give back as they were (another type; a time in a
     repeated hour, ``fold``), kept as they are. A datetime comes back equal, its zone the same object."""
-    plain: list[datetime | None] = []
+    micros: list[int] = []  # wall time, µs since 1970-01-01 (numpy's datetime64[us] as an integer)
     zones: list[int] = []
     odd: dict[int, Any] = {}
+    offsets: dict[Any, int] = {}  # a fixed-offset zone's offset in µs
     for k, value in enumerate(values):
         if type(value) is datetime and not value.fold:
-            plain.append(value.replace(tzinfo=None))
-            zones.append(code(value.tzinfo))
+            zone = value.tzinfo
+            # datetime arithmetic, not numpy's conversion of datetime objects (5 µs each: 2.6 % of a start);
+            # an aware time less the epoch is UTC, so a fixed offset is added back for the wall time
+            if zone is None:
+                micros.append((value - _EPOCH) // _MICROSECOND)
+            elif type(zone) is timezone:
+                shift = offsets.get(zone)
+                if shift is None:
+                    shift = offsets[zone] = zone.utcoffset(None) // _MICROSECOND
+                micros.append((value - _EPOCH_UTC) // _MICROSECOND + shift)
+            else:  # a zone whose offset moves (DST): the wall time itself
+                micros.append((value.replace(tzinfo=None) - _EPOCH) // _MICROSECOND)
+            zones.append(code(zone))
         else:
-            plain.append(None)
+            micros.append(_NAT)
             zones.append(code(None))
             if value is not None:
                 odd[k] = value
-    at = np.array(plain, dtype="datetime64[us]").reshape(len(values))
+    at = np.array(micros, dtype=np.int64).reshape(len(values)).view("datetime64[us]")
     return at, np.array(zones, dtype=np.int32).reshape(len(values)), odd
+
+
+_EPOCH = datetime(1970, 1, 1)
+_EPOCH_UTC = datetime(1970, 1, 1, tzinfo=UTC)
+_MICROSECOND = timedelta(microseconds=1)
+_NAT = int(np.iinfo(np.int64).min)  # numpy's NaT
 
 
 def _time(at: np.datetime64, zone: Any, odd: Any = None) -> Any:

@@ -68,6 +68,7 @@ def test_finish_times_come_back_as_they_were() -> None:
     """A board keeps finish times as arrays (wall time, zone), anything else beside them: every row shows its
     run's time as recorded — to the microsecond, with its zone, or none."""
     from datetime import UTC, datetime, timedelta, timezone
+    from zoneinfo import ZoneInfo
 
     times: dict[int, Any] = {
         1: datetime(2026, 11, 29, 16, 20, 5, 123456),
@@ -76,6 +77,11 @@ def test_finish_times_come_back_as_they_were() -> None:
         4: None,
         5: "2026-11-29T16:20:05Z",
         6: datetime(2026, 10, 25, 1, 30, fold=1),  # the second 1:30 of a repeated hour
+        7: datetime(2026, 7, 1, 12, 0, 0, 999999, tzinfo=ZoneInfo("Europe/Paris")),  # summer time
+        8: datetime(2026, 1, 1, 12, 0, tzinfo=ZoneInfo("Europe/Paris")),
+        9: datetime(1, 1, 1),  # the first and last a datetime can hold
+        10: datetime(9999, 12, 31, 23, 59, 59, 999999, tzinfo=timezone(timedelta(hours=13, minutes=45))),
+        11: datetime(1969, 12, 31, 23, 59, 59, 999999, tzinfo=timezone(timedelta(minutes=-30))),
     }
     board = _board(SharedFields(), "diverse")
     board.apply(
@@ -88,6 +94,11 @@ def test_finish_times_come_back_as_they_were() -> None:
     assert shown == times
     assert shown[1].tzinfo is None and shown[2].tzinfo is UTC and shown[3].utcoffset() == timedelta(hours=-5)
     assert shown[6].fold == 1
+    for sid in (7, 8, 9, 10, 11):  # the same wall time and zone, not only the same instant
+        assert (shown[sid].replace(tzinfo=None), shown[sid].tzinfo) == (
+            times[sid].replace(tzinfo=None),
+            times[sid].tzinfo,
+        )
     # a run finishing again moves its own time only; the rows handed out before keep theirs
     board.apply([_run(2, 0.2) | {"completed_at": datetime(2027, 1, 1)}], [], parts={2: None})
     again = {e["submission_id"]: e["completed_at"] for e in board.board().entries}

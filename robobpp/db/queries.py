@@ -253,11 +253,13 @@ def board_runs(
         .all()
     )
     keys = _BOARD_KEYS if figures else tuple("entry" if k == "figures" else k for k in _BOARD_KEYS)
-    return [
-        dict(zip(keys, r, strict=True)) | {"baseline": bool(r[9]), "verification": board_verdict(r[10])}
-        for r in rows
-        if current_rules(r[2])
-    ]
+    out = []
+    for r in rows:  # a board's start reads 10,000 a board: one dict each, set in place
+        if current_rules(r[2]):
+            run = dict(zip(keys, r, strict=True))
+            run["baseline"], run["verification"] = bool(r[9]), board_verdict(r[10])
+            out.append(run)
+    return out
 
 
 def _board_where(track: str, boards: Sequence[tuple[str, str, str]] | None) -> list[Any]:
@@ -344,10 +346,8 @@ def current_rules(extras: Mapping[str, Any] | None) -> bool:
     before they were versioned has none: it ran version 1 of both. A version recorded as null: boxes not
     drawn by the sampler (a spec provider's), rules not applied."""
     recorded = (extras or {}).get("provenance") or {}
-    return all(
-        recorded.get(key, "1") in (None, version)
-        for key, version in (("math_rules", MATH_RULES_VERSION), ("sampler", SAMPLER_VERSION))
-    )
+    rules, sampler = recorded.get("math_rules", "1"), recorded.get("sampler", "1")
+    return rules in (None, MATH_RULES_VERSION) and sampler in (None, SAMPLER_VERSION)
 
 
 def board_verdict(verification: dict[str, Any] | None) -> str | None:

@@ -412,8 +412,9 @@ class BoardMatrix:
         terminations = [e.get("terminations") for e in extras]
         c.sid[slots] = [int(row["submission_id"]) for row in rows]
         c.episodes[slots] = episodes
-        c.failures[slots] = [stats.policy_failure_count(t) for t in terminations]
-        c.policy_failed[slots] = [stats.run_failed(t, n) for t, n in zip(terminations, episodes, strict=True)]
+        failures = np.array([stats.policy_failure_count(t) for t in terminations], dtype=np.int64)
+        c.failures[slots] = failures
+        c.policy_failed[slots] = stats.runs_failed(failures, np.array(episodes, dtype=np.int64))
         c.submission_failed[slots] = [row.get("submission_status") == "failed" for row in rows]
         c.who[slots] = [self._code(participant_key(row)) for row in rows]
         c.ids[slots] = [-1 if row.get("ids") is None else self._code(row["ids"]) for row in rows]

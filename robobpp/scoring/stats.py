@@ -52,7 +52,13 @@ def policy_failure_count(terminations: Mapping[str, int] | None) -> int:
 
 def run_failed(terminations: Mapping[str, int] | None, episodes: int) -> bool:
     """Whether a run's policy failures exceed the allowed share (an empty run is failed)."""
-    return episodes <= 0 or policy_failure_count(terminations) > POLICY_FAILURE_SHARE * episodes
+    return bool(runs_failed(np.array([policy_failure_count(terminations)]), np.array([episodes]))[0])
+
+
+def runs_failed(failures: np.ndarray, episodes: np.ndarray) -> np.ndarray:
+    """:func:`run_failed` of many runs, from their policy failure counts and episodes."""
+    failed: np.ndarray = (episodes <= 0) | (failures > POLICY_FAILURE_SHARE * episodes)
+    return failed
 
 
 def group_figures(episodes: Iterable[Mapping[str, Any]], setting: str) -> dict[str, Any]:

@@ -211,6 +211,11 @@ def test_run_failed_share() -> None:
     assert not stats.run_failed({"completed": 27, "policy_timeout": 3}, 30)  # 10 % is allowed
     assert stats.run_failed({"completed": 26, "policy_timeout": 3, "invalid_action": 1}, 30)
     assert not stats.run_failed({"collapse": 30}, 30)  # a packing outcome, not a policy failure
+    assert stats.run_failed({}, 0) and stats.run_failed(None, -1)  # an empty run is failed
+    # many at once (a board sets its runs so): the same verdicts
+    failures = np.array([3, 4, 0, 0, 0, 1, 2])
+    episodes = np.array([30, 30, 30, 0, -1, 10, 10])
+    assert stats.runs_failed(failures, episodes).tolist() == [False, True, False, True, True, False, True]
 
 
 def test_an_interval_of_rounded_samples_rounds_only_its_order_statistics() -> None:

@@ -17,6 +17,7 @@ together (:class:`StoredParts`: parts of one layout read as one array of records
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -146,6 +147,18 @@ class PartRows:
     stable_ci: np.ndarray  # (entries, 2)
     seeds: np.ndarray  # (entries,) uint64
 
+    def taken(self, chosen: np.ndarray) -> PartRows:
+        """The rows ``chosen`` (a mask or indices), as rows of their own."""
+        return PartRows(
+            self.submission_ids[chosen],
+            self.ids,
+            self.top[chosen],
+            self.bottom[chosen],
+            self.metric_ci[chosen],
+            self.stable_ci[chosen],
+            self.seeds[chosen],
+        )
+
     def part(self, row: int, setting: str) -> EntryPart:
         stable = self.stable_ci[row]
         return EntryPart(
@@ -212,27 +225,25 @@ class StoredParts(Mapping[int, "EntryPart | None"]):
 
     def _add_records(self, sids: np.ndarray, records: np.ndarray) -> None:
         ids = records["ids"]
+        # each field contiguous: read in place, a field's values lie a record apart (1.5 kB), and every pass
+        # over them then waits on memory
+        fields = (
+            np.ascontiguousarray(records[f]) for f in ("top", "bottom", "metric_ci", "stable_ci", "seed")
+        )
         if (ids == ids[0]).all():
-            lists, which = ids[:1], np.zeros(len(ids), np.intp)
-        else:
-            lists, which = np.unique(ids, axis=0, return_inverse=True)
-        for j in range(len(lists)):
-            chosen = records if len(lists) == 1 else records[which.reshape(-1) == j]
-            chosen_sids = sids if len(lists) == 1 else sids[which.reshape(-1) == j]
-            # each field contiguous: read in place, a field's values lie a record apart (1.5 kB), and every
-            # pass over them then waits on memory
-            rows = PartRows(
-                chosen_sids,
-                np.array(lists[j], dtype=np.int64),
-                *(
-                    np.ascontiguousarray(chosen[f])
-                    for f in ("top", "bottom", "metric_ci", "stable_ci", "seed")
-                ),
-            )
-            number = len(self.rows)
-            self.rows.append(rows)
-            for row, sid in enumerate(chosen_sids.tolist()):
-                self._at[sid] = (number, row)
+            self._add_rows(PartRows(sids, np.array(ids[0], dtype=np.int64), *fields))
+            return
+        lists, which = np.unique(ids, axis=0, return_inverse=True)
+        every = PartRows(sids, np.zeros(0, np.int64), *fields)  # its group ids: each list's, below
+        for j, group_ids in enumerate(lists):
+            rows = every.taken(which.reshape(-1) == j)
+            self._add_rows(dataclasses.replace(rows, ids=np.array(group_ids, dtype=np.int64)))
+
+    def _add_rows(self, rows: PartRows) -> None:
+        number = len(self.rows)
+        self.rows.append(rows)
+        for row, sid in enumerate(rows.submission_ids.tolist()):
+            self._at[sid] = (number, row)
 
     def set(self, submission_id: int, part: EntryPart | None) -> None:
         """The entry's part (None: its run has no figures), in place of any it had here."""
@@ -259,7 +270,7 @@ class StoredParts(Mapping[int, "EntryPart | None"]):
         """The entry's group ids as bytes (None: no part)."""
         at = self._at.get(submission_id)
         if at is not None:
-            return bytes(self.rows[at[0]].ids.tobytes())
+            return self.rows[at[0]].ids.tobytes()
         part = self.single.get(submission_id)
         return None if part is None else part.ids.tobytes()
 
@@ -273,17 +284,7 @@ class StoredParts(Mapping[int, "EntryPart | None"]):
             if keep.all():
                 out.append(rows)
             elif keep.any():
-                out.append(
-                    PartRows(
-                        rows.submission_ids[keep],
-                        rows.ids,
-                        rows.top[keep],
-                        rows.bottom[keep],
-                        rows.metric_ci[keep],
-                        rows.stable_ci[keep],
-                        rows.seeds[keep],
-                    )
-                )
+                out.append(rows.taken(keep))
         return out
 
 
@@ -333,9 +334,8 @@ class Stacked:
                 if not weighed.any():
                     means /= total
                     continue
-                if (
-                    weighed.all()
-                ):  # a pooled metric: every entry's weights, in place (their rows are in a run)
+                # a pooled metric: every entry's weights, in place (their rows are in a run)
+                if weighed.all():
                     first = int(self.weight_row[base + start])
                     sums = self.weights[first : first + stop - start] @ plan.T
                     np.divide(means, sums, out=means)
@@ -679,9 +679,6 @@ class _Block:
             grown(self.stable_ci),
             grown(self.seeds),
         )
-
-    def add(self, part: EntryPart) -> int:
-        return int(self.add_rows(_stacked_rows([0], [part]))[0])
 
     def add_rows(self, parts: PartRows) -> np.ndarray:
         """Keep the parts (of this block's group ids); returns their rows."""

@@ -22,7 +22,13 @@ COPY pyproject.toml README.md ./
 COPY robobpp ./robobpp
 COPY migrations ./migrations
 COPY alembic.ini ./
-RUN pip install -e ".[all]" \
+COPY setup.py ./
+# gcc for the compiled kernels (robobpp/scoring/_kernels.c), removed once they are built
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends gcc libc6-dev \
+ && pip install -e ".[all]" \
+ && apt-get purge -y gcc libc6-dev && apt-get autoremove -y && rm -rf /var/lib/apt/lists/* \
+ && python -c "import robobpp.scoring._kernels" \
  && mkdir -p /app/datasets_private /data \
  && chown -R robobpp:robobpp /app/datasets_private /data
 

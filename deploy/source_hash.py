@@ -12,8 +12,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What deploy/Dockerfile.debian copies or installs from (the pinned versions of the wheels included).
-INPUTS = ("pyproject.toml", "README.md", "alembic.ini", "requirements/ci.txt", "deploy/Dockerfile.debian",
-          "robobpp", "migrations")  # fmt: skip
+INPUTS = ("pyproject.toml", "setup.py", "README.md", "alembic.ini", "requirements/ci.txt",
+          "deploy/Dockerfile.debian", "robobpp", "migrations")  # fmt: skip
 SKIPPED = ("__pycache__", ".egg-info")
 
 
@@ -24,7 +24,9 @@ def source_hash(root: Path = ROOT) -> str:
         files = [top] if top.is_file() else sorted(p for p in top.rglob("*") if p.is_file())
         for path in files:
             rel = path.relative_to(root).as_posix()
-            if any(part.endswith(SKIPPED) for part in rel.split("/")) or rel.endswith((".pyc", ".pyo")):
+            if any(part.endswith(SKIPPED) for part in rel.split("/")) or rel.endswith(
+                (".pyc", ".pyo", ".so")
+            ):
                 continue
             digest.update(rel.encode() + b"\0" + hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()[:16]

@@ -63,6 +63,7 @@ from robobpp.boards.store import (
     version_parts,
 )
 from robobpp.db.models import BoardPart, BoardPublication, utcnow
+from robobpp.scoring import stats
 from robobpp.vocabulary import BOARD_TRACKS
 from robobpp.worker.lifeline import Lifeline
 
@@ -525,6 +526,11 @@ class BoardWorker:
         self._wake.set()
 
     def start(self) -> None:
+        if not stats.KERNELS:
+            log.warning(
+                "robobpp.scoring._kernels is not built (installed without a C compiler): boards are ranked by "
+                "numpy's sorts, a full computation taking about a third longer"
+            )
         self._thread = threading.Thread(target=self.run, daemon=True, name="board-worker")
         self._thread.start()
 

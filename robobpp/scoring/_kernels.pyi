@@ -1,0 +1,6 @@
+"""Types of the compiled sorting steps (robobpp/scoring/_kernels.c): the arrays are C-contiguous."""
+
+import numpy as np
+
+def rank_rows(scores: np.ndarray, out: np.ndarray, rows: int, n: int, /) -> bool: ...
+def order_statistics(values: np.ndarray, n: int, positions: np.ndarray, out: np.ndarray, /) -> bool: ...

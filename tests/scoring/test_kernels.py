@@ -1,0 +1,183 @@
+"""The compiled sorting steps (robobpp/scoring/_kernels.c) against numpy's way and the definitions: the ranks
+of every resample and the order statistics of every entry's samples, on the data a board makes and on data
+meant to hurt them (ties, clusters, an outlier, sorted rows, values that are not finite)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from robobpp.scoring import stats
+
+needs_kernels = pytest.mark.skipif(not stats.KERNELS, reason="robobpp.scoring._kernels not built")
+
+
+def test_the_kernels_are_built() -> None:
+    """CI (and a development install, CONTRIBUTING.md) builds them: its boards are computed by the kernels, which
+    the tests below hold to numpy's way, not by the fallback alone."""
+    assert stats.KERNELS, "robobpp.scoring._kernels is not built: install a C compiler, then pip install -e ."
+
+
+def _board_scores(rng: np.random.Generator, resamples: int, entries: int) -> np.ndarray:
+    """Relative scores as a board makes them: an entry's level plus resample noise, read to 12 decimals."""
+    levels = rng.random(entries)[None, :] * 0.6
+    return np.round(levels + rng.random((resamples, entries)) * 0.05, 12)
+
+
+def _strictly_better(scores: np.ndarray) -> np.ndarray:
+    return (1 + (scores[:, None, :] > scores[:, :, None]).sum(axis=2)).astype(np.int32)
+
+
+def _ranks_both_ways(scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    by_numpy = stats._ranked_by_numpy(scores, np.empty(scores.shape, np.int32))
+    return stats.rank_samples(scores), by_numpy
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "a board's scores",
+        "ties in every row",
+        "every score equal",
+        "a cluster and an outlier",  # nearly every entry in one bucket: sorted by qsort, not insertion
+        "sorted best first",
+        "sorted worst first",
+        "negative and large",
+        "a single entry",
+        "two entries",
+        "float32",
+        "a strided view",
+    ],
+)
+def test_ranks_are_numpys_and_one_plus_the_strictly_better(case: str) -> None:
+    rng = np.random.default_rng(21)
+    scores = _board_scores(rng, 40, 1 if case == "a single entry" else 2 if case == "two entries" else 300)
+    if case == "ties in every row":
+        scores = np.round(scores, 2)
+    if case == "every score equal":
+        scores[:] = 0.375
+    if case == "a cluster and an outlier":
+        scores[:, 1:] = np.round(0.5 + scores[:, 1:] * 1e-6, 12)
+        scores[:, 0] = -1e6
+    if case == "sorted best first":
+        scores = -np.sort(-scores, axis=1)
+    if case == "sorted worst first":
+        scores = np.sort(scores, axis=1)
+    if case == "negative and large":
+        scores = np.round(scores * 1e6 - 3e5, 6)
+    if case == "float32":
+        scores = scores.astype(np.float32)
+    if case == "a strided view":
+        scores = np.ascontiguousarray(scores.T).T  # Fortran order: copied for the kernel
+    kernels, by_numpy = _ranks_both_ways(scores)
+    assert np.array_equal(kernels, by_numpy)
+    assert np.array_equal(kernels, _strictly_better(np.asarray(scores, np.float64)))
+
+
+def test_ranks_at_a_boards_size_are_numpys() -> None:
+    rng = np.random.default_rng(22)
+    scores = _board_scores(rng, 20, 10_000)
+    scores[:, ::7] = scores[:, 3:4]  # ties scattered over the row
+    kernels, by_numpy = _ranks_both_ways(scores)
+    assert np.array_equal(kernels, by_numpy)
+
+
+@pytest.mark.parametrize("odd", [np.nan, np.inf, -np.inf])
+def test_a_row_that_is_not_finite_is_ranked_by_numpy(odd: float) -> None:
+    scores = np.array([[0.25, 0.5, 0.5, 0.75], [0.25, odd, 0.5, 0.5]])
+    expected = {np.inf: [4, 1, 2, 2], -np.inf: [3, 4, 1, 1]}.get(odd, [4, 1, 2, 2])  # NaN: first, as numpy's
+    assert stats.rank_samples(scores).tolist() == [[4, 2, 2, 1], expected]
+
+
+def test_ranks_of_a_finite_span_too_wide_for_a_double_are_numpys() -> None:
+    scores = np.array([[1.7e308, -1.7e308, 0.0]])  # each finite, their difference not
+    assert stats.rank_samples(scores).tolist() == [[1, 3, 2]]
+
+
+@needs_kernels
+def test_the_kernels_refuse_buffers_of_the_wrong_size() -> None:
+    from robobpp.scoring import _kernels
+
+    scores, out = np.zeros((3, 4)), np.zeros((3, 4), np.int32)
+    with pytest.raises(ValueError, match="scores holds 96 bytes where 128 were expected"):
+        _kernels.rank_rows(scores, out, 4, 4)
+    with pytest.raises(ValueError, match="out holds"):
+        _kernels.rank_rows(scores, np.zeros((3, 3), np.int32), 3, 4)
+    with pytest.raises(ValueError, match="non-negative"):
+        _kernels.rank_rows(scores, out, -3, -4)
+    with pytest.raises(TypeError):
+        _kernels.rank_rows(scores, out.tobytes(), 3, 4)  # type: ignore[arg-type]  # read-only bytes
+    values, at = np.zeros((2, 5)), np.array([1, 3], np.int64)
+    with pytest.raises(ValueError, match="ascending"):
+        _kernels.order_statistics(values, 5, at[::-1].copy(), np.empty((2, 2)))
+    with pytest.raises(ValueError, match="whole rows"):
+        _kernels.order_statistics(values, 3, at, np.empty((2, 2)))
+    with pytest.raises(ValueError, match="out holds"):
+        _kernels.order_statistics(values, 5, at, np.empty((2, 3)))
+
+
+def _sorted_at(values: np.ndarray, positions: list[int]) -> np.ndarray:
+    return np.sort(values, axis=1)[:, positions]
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "samples",
+        "few distinct values",
+        "every value equal",
+        "sorted",
+        "reversed",
+        "an extreme value",
+        "infinities",
+        "a short row",
+    ],
+)
+def test_order_statistics_are_what_a_sort_puts_there(case: str) -> None:
+    rng = np.random.default_rng(23)
+    values = rng.random((64, 1_000))
+    if case == "few distinct values":
+        values = rng.integers(0, 3, values.shape).astype(np.float64)
+    if case == "every value equal":
+        values[:] = 0.5
+    if case == "sorted":
+        values.sort(axis=1)
+    if case == "reversed":
+        values = -np.sort(-values, axis=1)
+    if case == "an extreme value":
+        values[:, 0] = 1e300
+        values[:, 1] = -1e300
+    if case == "infinities":
+        values[:, ::5] = np.inf
+        values[:, 1::5] = -np.inf
+    if case == "a short row":
+        values = values[:, :3].copy()
+    n = values.shape[1]
+    # an interval's four order statistics, a repeated position, both ends, and positions in one half only
+    for positions in ([24, 25, 974, 975], [0, 0, n - 1], [n // 2], [1, 2, 3, 4, 5], [n - 3, n - 2]):
+        at = [min(p, n - 1) for p in positions]
+        assert np.array_equal(stats.order_statistics(values, at), _sorted_at(values, at))
+
+
+def test_order_statistics_of_random_rows_and_positions() -> None:
+    rng = np.random.default_rng(24)
+    for _ in range(300):
+        n = int(rng.integers(1, 400))
+        values = np.round(rng.normal(size=(3, n)), int(rng.integers(0, 4)))
+        at = sorted(rng.integers(0, n, size=int(rng.integers(1, 6))).tolist())
+        assert np.array_equal(stats.order_statistics(values, at), _sorted_at(values, at))
+
+
+def test_order_statistics_of_a_row_with_nan_are_numpys() -> None:
+    values = np.array([[0.5, np.nan, 0.25, 0.75], [0.5, 0.25, 0.125, 1.0]])
+    expected = np.array([[0.25, np.nan], [0.125, 1.0]])  # NaN sorts last
+    assert np.array_equal(stats.order_statistics(values, [0, 3]), expected, equal_nan=True)
+
+
+def test_order_statistics_refuse_positions_out_of_order_or_range() -> None:
+    values = np.zeros((2, 5))
+    for bad in ([3, 1], [5], [-1]):
+        with pytest.raises(ValueError, match="ascending"):
+            stats.order_statistics(values, bad)
+    assert stats.order_statistics(values, []).shape == (2, 0)
+    assert stats.order_statistics(np.zeros((0, 5)), [1]).shape == (0, 1)

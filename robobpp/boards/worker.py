@@ -63,7 +63,7 @@ from robobpp.boards.store import (
     version_parts,
 )
 from robobpp.db.models import BoardPart, BoardPublication, utcnow
-from robobpp.scoring import stats
+from robobpp.scoring import kernels
 from robobpp.vocabulary import BOARD_TRACKS
 from robobpp.worker.lifeline import Lifeline
 
@@ -526,10 +526,10 @@ class BoardWorker:
         self._wake.set()
 
     def start(self) -> None:
-        if not stats.KERNELS:
+        if not kernels.BUILT:
             log.warning(
-                "robobpp.scoring._kernels is not built (installed without a C compiler): boards are ranked by "
-                "numpy's sorts, a full computation taking about a third longer"
+                "robobpp.scoring._kernels is not built (installed without a C compiler): boards are computed "
+                "by numpy alone, a full computation taking about a third longer"
             )
         self._thread = threading.Thread(target=self.run, daemon=True, name="board-worker")
         self._thread.start()

@@ -24,15 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from robobpp.scoring.kernels import compiled
 from robobpp.scoring.metrics import POOLED, metrics_for
-
-try:  # the compiled sorting steps (robobpp/scoring/_kernels.c), built by ``pip install`` where a C compiler is
-    from robobpp.scoring import _kernels
-except ImportError:  # pragma: no cover - installed without one: numpy does those steps, more slowly
-    _kernels = None  # type: ignore[assignment]
-
-#: Whether the compiled kernels are in use (the board worker warns at its start when not; CI's tests require them).
-KERNELS = _kernels is not None
 
 #: Resamples per interval; the ends of a 95 % percentile interval move by well under 1 % of its width
 #: between seeds at this count.
@@ -217,7 +210,7 @@ def rank_samples(scores: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
     if n == 0:
         return out
     # float32 scores rank alike as float64 (the conversion is exact); a copy is a pass, the sort many
-    if _kernels is not None and _kernels.rank_rows(np.ascontiguousarray(scores, np.float64), out, r, n):
+    if compiled is not None and compiled.rank_rows(np.ascontiguousarray(scores, np.float64), out, r, n):
         return out
     return _ranked_by_numpy(scores, out)
 
@@ -367,7 +360,7 @@ def order_statistics(values: np.ndarray, positions: Sequence[int]) -> np.ndarray
     if rows == 0 or len(at) == 0:
         return out
     contiguous = np.ascontiguousarray(values, dtype=np.float64)
-    if _kernels is not None and _kernels.order_statistics(contiguous, n, at, out):
+    if compiled is not None and compiled.order_statistics(contiguous, n, at, out):
         return out
     return np.sort(values, axis=1)[:, at]
 

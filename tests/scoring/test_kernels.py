@@ -7,15 +7,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from robobpp.scoring import stats
+from robobpp.scoring import kernels, stats
 
-needs_kernels = pytest.mark.skipif(not stats.KERNELS, reason="robobpp.scoring._kernels not built")
+needs_kernels = pytest.mark.skipif(not kernels.BUILT, reason="robobpp.scoring._kernels not built")
 
 
 def test_the_kernels_are_built() -> None:
     """CI (and a development install, CONTRIBUTING.md) builds them: its boards are computed by the kernels, which
     the tests below hold to numpy's way, not by the fallback alone."""
-    assert stats.KERNELS, "robobpp.scoring._kernels is not built: install a C compiler, then pip install -e ."
+    assert kernels.BUILT, "robobpp.scoring._kernels is not built: install a C compiler, then pip install -e ."
 
 
 def _board_scores(rng: np.random.Generator, resamples: int, entries: int) -> np.ndarray:

@@ -4,3 +4,14 @@ import numpy as np
 
 def rank_rows(scores: np.ndarray, out: np.ndarray, rows: int, n: int, /) -> bool: ...
 def order_statistics(values: np.ndarray, n: int, positions: np.ndarray, out: np.ndarray, /) -> bool: ...
+def add_timing_noise(
+    times: np.ndarray,
+    seeds: np.ndarray,
+    rows: np.ndarray,
+    share: float,
+    resolution: float,
+    golden: int,
+    mix1: int,
+    mix2: int,
+    /,
+) -> None: ...

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from robobpp.scoring import stats
+from robobpp.scoring.kernels import compiled
 from robobpp.scoring.metrics import METRIC_BY_KEY
 
 #: Weights of each metric in a setting's score (each row sums to 1).
@@ -208,13 +209,19 @@ def add_timing_noise(times: np.ndarray, seeds: Sequence[int | None], rows: np.nd
     noisy = [i for i, seed in enumerate(seeds) if seed is not None]
     if not noisy:
         return
-    unit = stats.timing_noise(np.array([seeds[i] for i in noisy], dtype=np.uint64), rows)
+    drawn = np.array([seeds[i] for i in noisy], dtype=np.uint64)
     everyone = len(noisy) == times.shape[0]
     t = times if everyone else times[noisy]  # every entry (the usual case): no copy
-    moved = DECISION_RESOLUTION_SHARE * t
-    moved += DECISION_RESOLUTION_S
-    moved *= unit
-    t += moved
+    if compiled is not None and t.dtype == np.float64 and t.flags.c_contiguous and t.shape[1] == len(rows):
+        # the draws and the move in one pass (``_kernels.add_timing_noise``: the same steps, so the same bits)
+        plan_rows = np.asarray(rows, dtype=np.uint64)
+        share, resolution = DECISION_RESOLUTION_SHARE, DECISION_RESOLUTION_S
+        compiled.add_timing_noise(t, drawn, plan_rows, share, resolution, *stats.SPLITMIX)
+    else:
+        moved = DECISION_RESOLUTION_SHARE * t
+        moved += DECISION_RESOLUTION_S
+        moved *= stats.timing_noise(drawn, rows)
+        t += moved
     if not everyone:
         times[noisy] = t
 

@@ -114,7 +114,9 @@ def timing_seed(values: Sequence[float | None] | np.ndarray) -> int:
     return int.from_bytes(hashlib.blake2b(canonical.tobytes(), digest_size=8, key=key).digest(), "little")
 
 
-_GOLDEN, _MIX1, _MIX2 = (np.uint64(c) for c in (0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB))
+#: SplitMix64's multipliers (the increment and its two mixing steps), as the kernels take them.
+SPLITMIX = (0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB)
+_GOLDEN, _MIX1, _MIX2 = (np.uint64(c) for c in SPLITMIX)
 
 
 def timing_noise(seeds: np.ndarray, rows: np.ndarray) -> np.ndarray:

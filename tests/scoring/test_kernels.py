@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from robobpp.scoring import kernels, stats
+from robobpp.scoring import kernels, scores, stats
 
 needs_kernels = pytest.mark.skipif(not kernels.BUILT, reason="robobpp.scoring._kernels not built")
 
@@ -181,3 +181,31 @@ def test_order_statistics_refuse_positions_out_of_order_or_range() -> None:
             stats.order_statistics(values, bad)
     assert stats.order_statistics(values, []).shape == (2, 0)
     assert stats.order_statistics(np.zeros((0, 5)), [1]).shape == (0, 1)
+
+
+@pytest.mark.parametrize("seeds", ["every entry", "some entries"])
+def test_the_timing_noise_is_numpys_to_the_bit(seeds: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(41)
+    times = np.round(rng.random((60, 250)) * 3.0, 6)  # seconds, as a board's Decision Time samples
+    drawn: list[int | None] = [int(s) for s in rng.integers(0, 2**64, size=60, dtype=np.uint64)]
+    drawn[:2] = [0, 2**64 - 1]
+    if seeds == "some entries":
+        drawn[::4] = [None] * len(drawn[::4])  # an entry without per-group figures: no noise
+    rows = np.arange(250, 500)  # resamples of the plan other than the first
+    by_kernels = times.copy()
+    scores.add_timing_noise(by_kernels, drawn, rows)
+    monkeypatch.setattr(scores, "compiled", None)
+    by_numpy = times.copy()
+    scores.add_timing_noise(by_numpy, drawn, rows)
+    assert by_kernels.tobytes() == by_numpy.tobytes()
+    assert not np.array_equal(by_numpy, times)  # it moved them
+    assert np.array_equal(by_numpy[::4], times[::4]) == (seeds == "some entries")
+
+
+@needs_kernels
+def test_the_timing_noise_kernel_refuses_what_does_not_fit() -> None:
+    from robobpp.scoring import _kernels
+
+    seeds, rows = np.zeros(3, np.uint64), np.zeros(4, np.uint64)
+    with pytest.raises(ValueError, match="times holds 80 bytes where 96 were expected"):
+        _kernels.add_timing_noise(np.zeros((2, 5)), seeds, rows, 0.2, 0.01, *stats.SPLITMIX)

@@ -1,5 +1,7 @@
-"""Kernels of a board's full computation in isolation: ranking every resample (``stats.rank_samples``) at
-several block sizes, the timing noise (``stats.timing_noise``), a tile's relative and stable normalisation
+"""Kernels of a board's full computation in isolation: ranking every resample (``stats.rank_samples``: compiled,
+and numpy's keys at several block sizes), a chunk of entries' order statistics (compiled selection against
+numpy's sort), the timing noise (``stats.timing_noise``; ``scores.add_timing_noise`` compiled and numpy's), a
+tile's relative and stable normalisation
 (``scores.min_max``, ``scores.anchored``), and a board's stored parts decoded and kept by its part table, many
 at a time (``entries.StoredParts``, what the start does) against one by one (``EntryPart.decode``). Scores are
 drawn like a board's relative scores (an entry's level plus resample noise, read to 12 decimals); parts are
@@ -13,12 +15,14 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
+from unittest import mock
 
 import numpy as np
 
-from robobpp.scoring import stats
+from robobpp.scoring import kernels, stats
+from robobpp.scoring import scores as scores_module
 from robobpp.scoring.entries import EntryPart, PartTable, StoredParts, entry_part
-from robobpp.scoring.scores import ANCHORS, anchored, min_max
+from robobpp.scoring.scores import ANCHORS, add_timing_noise, anchored, min_max
 
 
 def best_cpu_s(work: Callable[[], object], runs: int = 3) -> float:
@@ -39,16 +43,42 @@ def main() -> None:
     n, r = args.entries, args.resamples
     scores = np.round(rng.random(n)[None, :] * 0.6 + rng.random((r, n)) * 0.05, 12)
     out = np.empty(scores.shape, np.int32)
+    if kernels.BUILT:
+        seconds = best_cpu_s(lambda: stats.rank_samples(scores, out=out))
+        print(
+            f"rank_samples, {r:,} x {n:,}, compiled (a counting sort of each resample): {seconds:.3f} CPU-s"
+        )
     default = stats._RANKED_AT_ONCE
     for at_once in (4_000_000, 1_000_000, 400_000):
         stats._RANKED_AT_ONCE = at_once
-        seconds = best_cpu_s(lambda: stats.rank_samples(scores, out=out))
+        seconds = best_cpu_s(lambda: stats._ranked_by_numpy(scores, out))
         mark = " (the default)" if at_once == default else ""
-        print(f"rank_samples, {r:,} x {n:,}, {at_once:,} at a time{mark}: {seconds:.3f} CPU-s")
+        print(f"rank_samples, {r:,} x {n:,}, numpy's keys, {at_once:,} at a time{mark}: {seconds:.3f} CPU-s")
     stats._RANKED_AT_ONCE = default
+    samples = np.ascontiguousarray(
+        scores[:, :512].T
+    )  # a chunk of 512 entries' samples, as a board scores them
+    at = [24, 25, r - 26, r - 25] if r >= 51 else [0, r - 1]
+    chunks = 20
+    if kernels.BUILT:
+        seconds = best_cpu_s(lambda: [stats.order_statistics(samples, at) for _ in range(chunks)])
+        print(f"order statistics, {chunks} chunks of 512 x {r:,}, compiled (selection): {seconds:.3f} CPU-s")
+    seconds = best_cpu_s(lambda: [np.sort(samples, axis=1)[:, at] for _ in range(chunks)])
+    print(f"order statistics, {chunks} chunks of 512 x {r:,}, numpy's sort: {seconds:.3f} CPU-s")
     seeds = rng.integers(0, 2**64, size=3_000, dtype=np.uint64)
     seconds = best_cpu_s(lambda: stats.timing_noise(seeds, np.arange(1_000)))
-    print(f"timing_noise, 3,000 entries x 1,000 resamples: {seconds:.3f} CPU-s")
+    print(f"timing_noise (numpy's draws alone), 3,000 entries x 1,000 resamples: {seconds:.3f} CPU-s")
+    times = rng.random((1_200, 133))
+    drawn: list[int | None] = [int(s) for s in seeds[:1_200]]
+
+    def noise_tiles() -> None:
+        for _ in range(100):
+            add_timing_noise(times, drawn, np.arange(133))
+
+    if kernels.BUILT:
+        print(f"add_timing_noise, 100 tiles of 1,200 x 133, compiled: {best_cpu_s(noise_tiles):.3f} CPU-s")
+    with mock.patch.object(scores_module, "compiled", None):
+        print(f"add_timing_noise, 100 tiles of 1,200 x 133, numpy: {best_cpu_s(noise_tiles):.3f} CPU-s")
     tile = rng.random((1_200, 133))  # a tile of a full computation at 10,000 entries
     lo, hi = tile.min(axis=0), tile.max(axis=0)
     seconds = best_cpu_s(lambda: [min_max(tile, lo, hi, "occupancy") for _ in range(100)])

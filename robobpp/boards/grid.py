@@ -132,9 +132,13 @@ class GridSums:
             if not kept.all():
                 self.ids, self.rel, self.stable = self.ids[kept], self.rel[kept], self.stable[kept]
         self._next += 1
-        at = np.searchsorted(ids_by_column, self.ids)
-        self.rel += rel[at]
-        self.stable += stable[at]
+        if len(self.ids) == len(ids_by_column):  # the same ids (a subset, both ascending): no gather (a copy)
+            self.rel += rel
+            self.stable += stable
+        else:
+            at = np.searchsorted(ids_by_column, self.ids)
+            self.rel += rel[at]
+            self.stable += stable[at]
         if self._next == len(self.keys):
             self.stable = stable_interval(self.stable, len(self.keys))
 

@@ -158,13 +158,15 @@ class _Columns:
 @dataclass(frozen=True, slots=True)
 class _Stack:
     """Entries' figures ready to be resampled (:meth:`BoardMatrix._resample`): the measured ones stacked,
-    the others' point metrics (metrics, entries), every entry's timing seed (None: no noise)."""
+    the others' point metrics (metrics, entries), every entry's timing seed (None: no noise) and the measured
+    ones' as uint64 (``drawn``, in the order of ``measured``)."""
 
     stacked: Stacked | None
     measured: np.ndarray
     unmeasured: np.ndarray
     points: np.ndarray
     seeds: list[int | None]
+    drawn: np.ndarray
 
 
 #: The columns a snapshot reads by slot (frozen while it may: ``_Columns.freeze``).
@@ -529,12 +531,13 @@ class BoardMatrix:
             raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
         seeds: list[int | None] = [None] * len(slots)
         stacked = None
+        drawn = self._parts.seed_array(chosen)
         if chosen:
             stacked = Stacked.of(*self._parts.stacked(chosen))
-            for k, seed in zip(measured.tolist(), self._parts.seeds(chosen), strict=True):
+            for k, seed in zip(measured.tolist(), drawn.tolist(), strict=True):
                 seeds[k] = seed
         unmeasured = np.flatnonzero(~usable)
-        return _Stack(stacked, measured, unmeasured, self._c.points[slots[unmeasured]].T, seeds)
+        return _Stack(stacked, measured, unmeasured, self._c.points[slots[unmeasured]].T, seeds, drawn)
 
     def _resample(self, stack: _Stack, plan: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """:meth:`_samples` of stacked entries under the plan's rows ``rows``."""
@@ -692,7 +695,7 @@ class BoardMatrix:
         for e in range(0, stacked.entries, tile):
             stop = min(stacked.entries, e + tile)
             part = with_timing_noise(
-                stacked.tile(plan, e, stop, out[:, e:stop]), stack.seeds[e:stop], self.setting, rows
+                stacked.tile(plan, e, stop, out[:, e:stop]), stack.drawn[e:stop], self.setting, rows
             )
             low, high = _fmin(low, part), _fmax(high, part)
         return out, low, high

@@ -394,10 +394,14 @@ def part_seed(top: np.ndarray, bottom: np.ndarray, setting: str) -> int:
 
 
 def with_timing_noise(
-    samples: np.ndarray, seeds: Sequence[int | None], setting: str, rows: np.ndarray | None = None
+    samples: np.ndarray,
+    seeds: Sequence[int | None] | np.ndarray,
+    setting: str,
+    rows: np.ndarray | None = None,
 ) -> np.ndarray:
     """Entries' (metrics, entries, resamples) samples, in place, with each one's Decision Time moved by its
-    timing noise (:func:`robobpp.scoring.scores.add_timing_noise`); ``rows``: which resamples of the plan."""
+    timing noise (:func:`robobpp.scoring.scores.add_timing_noise`; ``seeds`` a uint64 array: every entry
+    seeded); ``rows``: which resamples of the plan."""
     rows = np.arange(samples.shape[2]) if rows is None else rows
     for key in RESOLVED:
         add_timing_noise(samples[metric_keys(setting).index(key)], seeds, rows)
@@ -584,10 +588,14 @@ class PartTable:
 
     def seeds(self, submission_ids: Sequence[int]) -> list[int]:
         """The entries' timing seeds (each one's part's)."""
+        return [int(s) for s in self.seed_array(submission_ids).tolist()]
+
+    def seed_array(self, submission_ids: Sequence[int]) -> np.ndarray:
+        """:meth:`seeds` as uint64 (what the timing noise takes: no Python int an entry)."""
         out = np.zeros(len(submission_ids), dtype=np.uint64)
         for block, at, rows in self._by_block(submission_ids):
             out[at] = block.seeds[rows]
-        return [int(s) for s in out.tolist()]
+        return out
 
     def intervals_of(self, submission_ids: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """The entries' metric intervals (entries × metrics × 2, NaN = none) and stable intervals (entries × 2),

@@ -200,17 +200,21 @@ def timed(samples: np.ndarray, seeds: Sequence[int | None], rows: np.ndarray | N
     return out
 
 
-def add_timing_noise(times: np.ndarray, seeds: Sequence[int | None], rows: np.ndarray) -> None:
+def add_timing_noise(times: np.ndarray, seeds: Sequence[int | None] | np.ndarray, rows: np.ndarray) -> None:
     """Move Decision Time samples (entries, resamples ``rows`` of the plan), in place, by each entry's timing
     noise: a uniform draw within ± the resolution of each sample's time (:func:`stats.timing_noise`;
     ``seeds``: each entry's :func:`stats.timing_seed`, None = no noise: an entry without per-group figures).
     Element-wise, so an entry's samples are the same computed alone or among others, by ``score_board`` or
     by the board engine."""
-    noisy = [i for i, seed in enumerate(seeds) if seed is not None]
-    if not noisy:
-        return
-    drawn = np.array([seeds[i] for i in noisy], dtype=np.uint64)
-    everyone = len(noisy) == times.shape[0]
+    if isinstance(seeds, np.ndarray):  # every entry seeded (a board's measured entries): no Python int each
+        noisy: list[int] = []
+        drawn = seeds.astype(np.uint64, copy=False)
+    else:
+        noisy = [i for i, seed in enumerate(seeds) if seed is not None]
+        if not noisy:
+            return
+        drawn = np.array([seeds[i] for i in noisy], dtype=np.uint64)
+    everyone = len(drawn) == times.shape[0]
     t = times if everyone else times[noisy]  # every entry (the usual case): no copy
     if compiled is not None and t.dtype == np.float64 and t.flags.c_contiguous and t.shape[1] == len(rows):
         # the draws and the move in one pass (``_kernels.add_timing_noise``: the same steps, so the same bits)

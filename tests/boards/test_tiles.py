@@ -130,3 +130,15 @@ def test_grid_sums_follow_the_grids_order_and_rows() -> None:
     other.add("math/b", np.array([1]), rel[:1], stable[:1])  # out of the grid's order: turned off
     other.add("math/a", np.array([1]), rel[:1], stable[:1])
     assert other.rows(np.array([1])) is None
+
+
+def test_grid_sums_of_boards_with_the_same_rows_add_them_as_they_come() -> None:
+    """Every row on every board (the usual case): each board's samples are added whole, no gather."""
+    rel = np.arange(12, dtype=np.float32).reshape(3, 4) / 7
+    sums = GridSums(["math/a", "math/b"])
+    sums.add("math/a", np.array([4, 5, 6]), rel, rel)
+    sums.add("math/b", np.array([4, 5, 6]), rel[::-1].copy(), rel)
+    found = sums.rows(np.array([4, 5, 6]))
+    assert found is not None
+    expected = rel.astype(np.float64) + rel[::-1].astype(np.float64)
+    assert found[0].tobytes() == expected.tobytes()

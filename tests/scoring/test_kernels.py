@@ -209,3 +209,35 @@ def test_the_timing_noise_kernel_refuses_what_does_not_fit() -> None:
     seeds, rows = np.zeros(3, np.uint64), np.zeros(4, np.uint64)
     with pytest.raises(ValueError, match="times holds 80 bytes where 96 were expected"):
         _kernels.add_timing_noise(np.zeros((2, 5)), seeds, rows, 0.2, 0.01, *stats.SPLITMIX)
+
+
+@pytest.mark.parametrize("case", ["samples", "unmeasured (NaN)", "nobody measured a resample", "infinities"])
+def test_the_bounds_folded_a_tile_at_a_time_are_numpys(case: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    from robobpp.boards import matrix
+
+    rng = np.random.default_rng(51)
+    samples = rng.random((3, 90, 17))  # metrics × entries × resamples
+    if case == "unmeasured (NaN)":
+        samples[0, ::4] = np.nan
+    if case == "nobody measured a resample":
+        samples[1, :, 5] = np.nan
+    if case == "infinities":
+        samples[2, 3, :] = np.inf
+        samples[2, 4, :] = -np.inf
+    expected = (np.fmin.reduce(samples, axis=1), np.fmax.reduce(samples, axis=1))
+    for way in ("kernels", "numpy"):
+        if way == "numpy":
+            monkeypatch.setattr(matrix, "compiled", None)
+        low, high = np.full((2, 3, 17), np.nan)
+        for start in range(0, 90, 40):  # tiles of 40, 40 and 10 entries
+            matrix._fold(low, high, np.ascontiguousarray(samples[:, start : start + 40]))
+        assert np.array_equal(low, expected[0], equal_nan=True), way
+        assert np.array_equal(high, expected[1], equal_nan=True), way
+
+
+@needs_kernels
+def test_the_fold_refuses_rows_that_do_not_fit() -> None:
+    from robobpp.scoring import _kernels
+
+    with pytest.raises(ValueError, match="whole rows"):
+        _kernels.fold_min_max(np.zeros((3, 5)), np.zeros(4), np.zeros(4))

@@ -61,7 +61,14 @@ from robobpp.scoring.entries import (
     with_timing_noise,
 )
 from robobpp.scoring.kernels import compiled
-from robobpp.scoring.scores import RESOLVED, WEIGHTS, competition_ranks, min_max, stable_scores_of
+from robobpp.scoring.scores import (
+    RESOLVED,
+    WEIGHTS,
+    add_weighted_min_max,
+    competition_ranks,
+    min_max,
+    stable_scores_of,
+)
 
 #: Loads the stored parts of a board's entries by submission id (None: the run has no figures).
 PartLoader = Callable[[Sequence[int]], Mapping[int, EntryPart | None]]
@@ -559,11 +566,12 @@ class BoardMatrix:
         """Relative score samples (entries, resamples) of (metrics, entries, resamples) samples under a
         min–max (resamples, metrics) (``scores._min_max_rows``)."""
         total = np.zeros(samples.shape[1:])
+        last = len(self._weights) - 1
         for j, weight in enumerate(self._weights):
-            normalised = min_max(samples[j], lo[:, j], hi[:, j], self.keys[j])
-            normalised *= weight
-            total += normalised
-        return np.round(total, 12)
+            add_weighted_min_max(
+                total, samples[j], lo[:, j], hi[:, j], self.keys[j], weight, finish=j == last
+            )
+        return total
 
     def _score(self, samples: np.ndarray, slots: np.ndarray, usable: np.ndarray) -> np.ndarray:
         """Score the entries under the current min–max; returns their relative samples (entries, resamples)."""

@@ -9,9 +9,10 @@
  *                    many buckets as the row has values, then a sort within each bucket (a few values each).
  *   order_statistics the values a sort of each row would put at given positions, by selection.
  *
- * And two steps numpy takes several passes over: add_timing_noise, the SplitMix64 draw of every sample's
- * timing noise and its move, in one (numpy: fourteen); fold_min_max, each resample's minimum and maximum over a
- * tile of entries, in one (numpy: two reductions).
+ * And three steps numpy takes several passes over, each in one: add_timing_noise, the SplitMix64 draw of every
+ * sample's timing noise and its move (numpy: fourteen); fold_min_max, each resample's minimum and maximum over a
+ * tile of entries (numpy: two reductions); add_weighted_min_max, a metric's weighted share of the relative
+ * scores (numpy: eight).
  *
  * Both compare the float64 values themselves, so they give exactly what a sort gives (the same bits on any
  * machine); robobpp.scoring.stats keeps numpy's way as the reference and as the fallback where this module
@@ -21,6 +22,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <float.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -340,9 +342,10 @@ done:
     return result;
 }
 
-/* The one loop worth vectorising (an element-wise fold, no branch): compiled twice where the compiler and the C
-   library can pick a version at load time (GCC or Clang on x86-64 glibc), for AVX2 and for any x86-64. The two
-   give the same values: a minimum or maximum is exact. */
+/* The element-wise loops worth vectorising (the fold of bounds, the weighted min-max): compiled twice where the
+   compiler and the C library can pick a version at load time (GCC or Clang on x86-64 glibc), for AVX2 and for
+   any x86-64. The two give the same values: each is IEEE arithmetic in the same order, without fused
+   multiply-adds (setup.py), and a minimum or maximum is exact. */
 #if defined(__x86_64__) && defined(__GLIBC__) && defined(__has_attribute)
 #if __has_attribute(target_clones)
 #define VECTOR_CLONES __attribute__((target_clones("avx2", "default")))
@@ -364,6 +367,96 @@ static void fold_rows(const double *values, Py_ssize_t rows, Py_ssize_t r, doubl
             high[k] = (x > b || b != b) ? x : b;
         }
     }
+}
+
+/* numpy.round(x, 12): x times 10**12, rounded half to even, divided back (numpy's own three steps). */
+static inline double round12(double x)
+{
+    return rint(x * 1e12) / 1e12;
+}
+
+/* numpy.maximum: NaN wins. */
+static inline double nan_max(double a, double b)
+{
+    return (a >= b || a != a) ? a : b;
+}
+
+/* One metric's share of entries' relative scores (scores.min_max, weighted, added), given each resample's
+   anchor (the min for a metric where higher is better, else the max) and span, as min_max makes them. */
+VECTOR_CLONES
+static void add_weighted(const double *values, Py_ssize_t rows, Py_ssize_t r, const double *anchor,
+                         const double *span, double *total, double weight, double floor, int resolved, int up,
+                         int finish)
+{
+    for (Py_ssize_t i = 0; i < rows; i++) {
+        const double *row = values + i * r;
+        double *out = total + i * r;
+        for (Py_ssize_t k = 0; k < r; k++) {
+            double v = round12(row[k]);
+            if (resolved)
+                v = nan_max(v, floor);
+            double n = (up ? v - anchor[k] : anchor[k] - v) / span[k];
+            /* 0 where the value or the span is unusable: not finite, or a span not above 0 (NaN included) */
+            n = (fabs(n) <= DBL_MAX && span[k] > 0) ? n : 0.0;
+            double t = out[k] + n * weight;
+            out[k] = finish ? round12(t) : t;
+        }
+    }
+}
+
+PyDoc_STRVAR(add_weighted_min_max_doc,
+             "add_weighted_min_max(values, lo, hi, total, weight, floor, least, resolved, up, finish) -> None\n\n"
+             "total += weight * scores.min_max(values, lo, hi, key), in place, for ``values`` and ``total`` of "
+             "entries x resamples and ``lo``, ``hi`` per resample (float64, C-contiguous): the same operations in "
+             "the same order, so the same bits. ``resolved``: the metric's min-max has a ``floor`` and a ``least`` "
+             "span (scores.RESOLVED); ``up``: higher is better; ``finish``: round the total to 12 decimals after.");
+
+static PyObject *add_weighted_min_max(PyObject *module, PyObject *args)
+{
+    Py_buffer values, lo, hi, total;
+    double weight, floor, least;
+    int resolved, up, finish;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*dddppp", &values, &lo, &hi, &total, &weight, &floor, &least, &resolved,
+                          &up, &finish))
+        return NULL;
+    PyObject *result = NULL;
+    double *bounds = NULL;
+    const Py_ssize_t r = lo.len / 8;
+    if (r == 0 || lo.len % 8 != 0 || hi.len != lo.len || values.len % lo.len != 0) {
+        PyErr_SetString(PyExc_ValueError, "values must hold whole rows of one value per resample of lo and hi");
+        goto done;
+    }
+    if (!check_length(&total, values.len / 8, 8, "total"))
+        goto done;
+    bounds = PyMem_RawMalloc((size_t)r * 2 * sizeof(double));
+    if (bounds == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    const double *low = lo.buf, *high = hi.buf;
+    double *anchor = bounds, *span = bounds + r;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t k = 0; k < r; k++) {
+        double a = round12(low[k]), b = round12(high[k]);
+        if (resolved) {
+            a = nan_max(a, floor);
+            b = nan_max(b, floor);
+            span[k] = nan_max(b - a, least);
+        }
+        else
+            span[k] = b - a;
+        anchor[k] = up ? a : b;
+    }
+    add_weighted(values.buf, values.len / lo.len, r, anchor, span, total.buf, weight, floor, resolved, up, finish);
+    Py_END_ALLOW_THREADS
+    result = Py_NewRef(Py_None);
+done:
+    PyMem_RawFree(bounds);
+    PyBuffer_Release(&values);
+    PyBuffer_Release(&lo);
+    PyBuffer_Release(&hi);
+    PyBuffer_Release(&total);
+    return result;
 }
 
 PyDoc_STRVAR(fold_min_max_doc,
@@ -446,6 +539,7 @@ static PyMethodDef methods[] = {
     {"order_statistics", order_statistics, METH_VARARGS, order_statistics_doc},
     {"add_timing_noise", add_timing_noise, METH_VARARGS, add_timing_noise_doc},
     {"fold_min_max", fold_min_max, METH_VARARGS, fold_min_max_doc},
+    {"add_weighted_min_max", add_weighted_min_max, METH_VARARGS, add_weighted_min_max_doc},
     {NULL, NULL, 0, NULL},
 };
 

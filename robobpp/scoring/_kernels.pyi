@@ -16,3 +16,16 @@ def add_timing_noise(
     /,
 ) -> None: ...
 def fold_min_max(values: np.ndarray, low: np.ndarray, high: np.ndarray, /) -> None: ...
+def add_weighted_min_max(
+    values: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    total: np.ndarray,
+    weight: float,
+    floor: float,
+    least: float,
+    resolved: bool,
+    up: bool,
+    finish: bool,
+    /,
+) -> None: ...

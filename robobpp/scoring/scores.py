@@ -182,6 +182,37 @@ def min_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray, key: str) -> np.
     return out
 
 
+def add_weighted_min_max(
+    total: np.ndarray,
+    values: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    key: str,
+    weight: float,
+    *,
+    finish: bool = False,
+) -> None:
+    """``total += weight * min_max(values, lo, hi, key)`` in place, for ``values`` and ``total`` of entries ×
+    resamples and ``lo``, ``hi`` per resample: one metric's share of the relative scores; ``finish``: then read
+    the total to :data:`EQUAL_DECIMALS` decimals. In one pass where the kernels are built
+    (``_kernels.add_weighted_min_max``: the same operations in the same order, so the same bits), else by
+    :func:`min_max`'s passes."""
+    fits = values.dtype == total.dtype == np.float64 and values.shape == total.shape == (len(total), len(lo))
+    if compiled is not None and fits and values.flags.c_contiguous and total.flags.c_contiguous:
+        floor, least = RESOLVED.get(key, (-math.inf, 0.0))
+        bounds = np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64)
+        up = METRIC_BY_KEY[key].better == "up"
+        compiled.add_weighted_min_max(
+            values, *bounds, total, weight, floor, least, key in RESOLVED, up, finish
+        )
+        return
+    normalised = min_max(values, lo, hi, key)
+    normalised *= weight
+    total += normalised
+    if finish:
+        np.round(total, EQUAL_DECIMALS, out=total)
+
+
 def normalize(values: Sequence[float | None], key: str) -> list[float]:
     """Metric ``key``'s values normalised over themselves (:func:`min_max`); None scores 0 (the worst)."""
     column = np.array([np.nan if v is None else v for v in values], dtype=np.float64).reshape(len(values))

@@ -241,3 +241,64 @@ def test_the_fold_refuses_rows_that_do_not_fit() -> None:
 
     with pytest.raises(ValueError, match="whole rows"):
         _kernels.fold_min_max(np.zeros((3, 5)), np.zeros(4), np.zeros(4))
+
+
+def _weighted_both_ways(
+    values: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    key: str,
+    finish: bool,
+    monkeypatch: pytest.MonkeyPatch,
+) -> tuple[np.ndarray, np.ndarray]:
+    start = np.round(np.random.default_rng(5).random(values.shape), 3)  # a total already holding some metrics
+    by_kernels, by_numpy = start.copy(), start.copy()
+    scores.add_weighted_min_max(by_kernels, values, lo, hi, key, 0.37, finish=finish)
+    monkeypatch.setattr(scores, "compiled", None)
+    scores.add_weighted_min_max(by_numpy, values, lo, hi, key, 0.37, finish=finish)
+    return by_kernels, by_numpy
+
+
+@pytest.mark.parametrize("key", ["space_utilization", "decision_time", "occupancy"])
+@pytest.mark.parametrize("finish", [False, True])
+@pytest.mark.parametrize(
+    "case",
+    ["samples", "not measured (NaN)", "a span of 0", "an infinity", "below the floor", "bounds of NaN"],
+)
+def test_the_weighted_min_max_is_numpys_to_the_bit(
+    key: str, finish: bool, case: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Relative scores are summed from these: every bit counts (ties must tie, boards must equal the
+    from-scratch ones). Decision Time: lower is better, with a floor and a least span (scores.RESOLVED)."""
+    rng = np.random.default_rng(31)
+    values = rng.random((50, 40)) * (2.0 if key == "decision_time" else 1.0)
+    lo, hi = values.min(axis=0), values.max(axis=0)
+    if case == "not measured (NaN)":
+        values[::3, ::2] = np.nan
+    if case == "a span of 0":
+        lo[:5] = hi[:5]
+    if case == "an infinity":
+        values[1, :] = np.inf
+        hi[:] = np.inf
+    if case == "below the floor":
+        values[:, :10] = 1e-4
+        lo[:10] = 1e-4
+    if case == "bounds of NaN":
+        lo[::4], hi[::3] = np.nan, np.nan
+    by_kernels, by_numpy = _weighted_both_ways(values, lo, hi, key, finish, monkeypatch)
+    assert by_kernels.tobytes() == by_numpy.tobytes()
+
+
+@needs_kernels
+def test_the_weighted_min_max_refuses_what_does_not_fit() -> None:
+    from robobpp.scoring import _kernels
+
+    values, bounds = np.zeros((3, 4)), np.zeros(4)
+    with pytest.raises(ValueError, match="whole rows"):
+        _kernels.add_weighted_min_max(
+            values, np.zeros(3), bounds, np.zeros((3, 4)), 1.0, 0.0, 0.0, False, True, False
+        )
+    with pytest.raises(ValueError, match="total holds"):
+        _kernels.add_weighted_min_max(
+            values, bounds, bounds, np.zeros((3, 3)), 1.0, 0.0, 0.0, False, True, False
+        )

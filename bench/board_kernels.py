@@ -1,8 +1,8 @@
 """Kernels of a board's full computation in isolation: ranking every resample (``stats.rank_samples``: compiled,
 and numpy's keys at several block sizes), a chunk of entries' order statistics (compiled selection against
 numpy's sort), the timing noise (``stats.timing_noise``; ``scores.add_timing_noise`` compiled and numpy's), a
-tile's relative and stable normalisation
-(``scores.min_max``, ``scores.anchored``), and a board's stored parts decoded and kept by its part table, many
+tile's relative and stable normalisation (``scores.min_max``, ``scores.add_weighted_min_max`` compiled and numpy's,
+``scores.anchored``), a tile's bounds (``matrix._fold``, compiled and numpy's), and a board's stored parts decoded and kept by its part table, many
 at a time (``entries.StoredParts``, what the start does) against one by one (``EntryPart.decode``). Scores are
 drawn like a board's relative scores (an entry's level plus resample noise, read to 12 decimals); parts are
 execution runs of 30 groups. Best of three, CPU seconds.
@@ -19,10 +19,11 @@ from unittest import mock
 
 import numpy as np
 
+from robobpp.boards import matrix
 from robobpp.scoring import kernels, stats
 from robobpp.scoring import scores as scores_module
 from robobpp.scoring.entries import EntryPart, PartTable, StoredParts, entry_part
-from robobpp.scoring.scores import ANCHORS, add_timing_noise, anchored, min_max
+from robobpp.scoring.scores import ANCHORS, add_timing_noise, add_weighted_min_max, anchored, min_max
 
 
 def best_cpu_s(work: Callable[[], object], runs: int = 3) -> float:
@@ -83,6 +84,31 @@ def main() -> None:
     lo, hi = tile.min(axis=0), tile.max(axis=0)
     seconds = best_cpu_s(lambda: [min_max(tile, lo, hi, "occupancy") for _ in range(100)])
     print(f"min_max, 100 tiles of 1,200 x 133: {seconds:.3f} CPU-s")
+    total = np.zeros_like(tile)
+
+    def weighted_tiles() -> None:
+        for _ in range(100):
+            add_weighted_min_max(total, tile, lo, hi, "decision_time", 0.1, finish=True)
+
+    if kernels.BUILT:
+        print(
+            f"add_weighted_min_max, 100 tiles of 1,200 x 133, compiled: {best_cpu_s(weighted_tiles):.3f} CPU-s"
+        )
+    with mock.patch.object(scores_module, "compiled", None):
+        print(
+            f"add_weighted_min_max, 100 tiles of 1,200 x 133, numpy: {best_cpu_s(weighted_tiles):.3f} CPU-s"
+        )
+    part = rng.random((8, 1_200, 133))  # every metric's samples of a tile
+    low, high = np.full((2, 8, 133), np.nan)
+
+    def fold_tiles() -> None:
+        for _ in range(100):
+            matrix._fold(low, high, part)
+
+    if kernels.BUILT:
+        print(f"bounds folded, 100 tiles of 8 x 1,200 x 133, compiled: {best_cpu_s(fold_tiles):.3f} CPU-s")
+    with mock.patch.object(matrix, "compiled", None):
+        print(f"bounds folded, 100 tiles of 8 x 1,200 x 133, numpy: {best_cpu_s(fold_tiles):.3f} CPU-s")
     for key in ("occupancy", "decision_time"):
 
         def anchor_tiles(key: str = key) -> None:

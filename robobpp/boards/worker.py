@@ -517,6 +517,11 @@ class BoardWorker:
         return published
 
     def run(self, alive: Callable[[], bool] = lambda: True) -> None:
+        if not kernels.BUILT:  # in a thread of the server or a process of its own, said once as it starts
+            log.warning(
+                "robobpp.scoring._kernels is not built (installed without a C compiler): boards are computed "
+                "by numpy alone, a full computation taking about half again as long"
+            )
         while not self._stop.is_set() and alive():
             self._wake.clear()
             self.run_once()
@@ -526,11 +531,6 @@ class BoardWorker:
         self._wake.set()
 
     def start(self) -> None:
-        if not kernels.BUILT:
-            log.warning(
-                "robobpp.scoring._kernels is not built (installed without a C compiler): boards are computed "
-                "by numpy alone, a full computation taking about a third longer"
-            )
         self._thread = threading.Thread(target=self.run, daemon=True, name="board-worker")
         self._thread.start()
 

@@ -218,11 +218,31 @@ static double pivot_near(const double *sample, Py_ssize_t n, Py_ssize_t target)
 }
 
 /*
+ * Copy v[0, n) into spare: the values below ``low`` at its start (``below`` of them), those above ``high``
+ * (low <= high) at its end (``above``); the others are dropped. No branch on the comparison: both stores always
+ * happen and only one count moves, so the two slots meet only at the last value.
+ */
+static void split(const double *v, double *spare, Py_ssize_t n, double low, double high, Py_ssize_t *below,
+                  Py_ssize_t *above)
+{
+    Py_ssize_t b = 0, a = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double x = v[i];
+        spare[b] = x;
+        spare[n - 1 - a] = x;
+        b += x < low;
+        a += x > high;
+    }
+    *below = b;
+    *above = a;
+}
+
+/*
  * The values a sort of v[0, n) puts at positions ``at`` (ascending, relative to the range's first, ``first``),
- * into ``out``. A split copies the range into ``spare`` (n values) as the values below a pivot at its start and
- * those above at its end, without a branch on the comparison (what makes it fast on unpredictable samples);
- * the values equal to the pivot need no place. Each side with a position in it is split again, ``v`` now the
- * spare.
+ * into ``out``. A split (``split``) copies the range into ``spare`` (n values) as the values below a pivot at its
+ * start and those above at its end, without a branch on the comparison (what makes it fast on unpredictable
+ * samples); the values equal to the pivot need no place. Each side with a position in it is split again, ``v``
+ * now the spare.
  */
 static void select_positions(double *v, double *spare, Py_ssize_t n, const int64_t *at, Py_ssize_t picks,
                              Py_ssize_t first, double *out, int splits)
@@ -243,37 +263,25 @@ static void select_positions(double *v, double *spare, Py_ssize_t n, const int64
     Py_ssize_t middle = 0; /* the first position in the range's upper half */
     while (middle < picks && 2 * (at[middle] - first) < n)
         middle++;
+    Py_ssize_t below, above;
     if (middle > 0 && middle < picks) {
         /* positions in both halves (an interval's two ends): one pass keeps the values below a pivot past the
            lower positions and those above one before the upper positions, and drops the middle */
         const double low_pivot = pivot_near(sample, n, at[middle - 1] - first);
         const double high_pivot = pivot_near(sample, n, at[middle] - first);
-        Py_ssize_t below = 0, above = 0;
-        for (Py_ssize_t i = 0; i < n; i++) {
-            double x = v[i];
-            spare[below] = x;
-            spare[n - 1 - above] = x;
-            below += x < low_pivot;
-            above += x > high_pivot;
-        }
-        if (low_pivot < high_pivot && at[middle - 1] - first < below && at[middle] - first >= n - above) {
-            select_positions(spare, v, below, at, middle, first, out, splits + 1);
-            select_positions(spare + n - above, v + n - above, above, at + middle, picks - middle,
-                             first + n - above, out + middle, splits + 1);
-            return;
+        if (low_pivot < high_pivot) {
+            split(v, spare, n, low_pivot, high_pivot, &below, &above);
+            if (at[middle - 1] - first < below && at[middle] - first >= n - above) {
+                select_positions(spare, v, below, at, middle, first, out, splits + 1);
+                select_positions(spare + n - above, v + n - above, above, at + middle, picks - middle,
+                                 first + n - above, out + middle, splits + 1);
+                return;
+            }
         }
         /* a position fell in the middle dropped (the sample misled): split around one pivot instead */
     }
     const double pivot = pivot_near(sample, n, at[picks / 2] - first);
-    Py_ssize_t below = 0, above = 0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        /* both stores always happen; only one count moves (the two slots meet only at the last value) */
-        double x = v[i];
-        spare[below] = x;
-        spare[n - 1 - above] = x;
-        below += x < pivot;
-        above += x > pivot;
-    }
+    split(v, spare, n, pivot, pivot, &below, &above);
     const Py_ssize_t equal_end = n - above; /* positions [below, equal_end) hold the pivot */
     Py_ssize_t low = 0;
     while (low < picks && at[low] - first < below)

@@ -1,5 +1,5 @@
 """The one thing pyproject.toml does not declare yet (setuptools calls its table for it experimental): the
-compiled sorting steps of a board's full computation, robobpp/scoring/_kernels.c (plain C, no headers beyond
+compiled steps of a board's full computation, robobpp/scoring/_kernels.c (plain C, no headers beyond
 Python's). Optional: without a C compiler the package installs all the same and numpy does those steps, more
 slowly (docs/server.md, "How boards are computed")."""
 

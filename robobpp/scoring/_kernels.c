@@ -1,22 +1,24 @@
 /*
- * The two sorting steps of a board's full computation, compiled (docs/server.md, "How boards are computed").
+ * Five steps of a board's full computation, compiled (docs/server.md, "How boards are computed").
  *
  * A start at 10,000 submissions ranks 15 boards x 1,000 resamples x 10,000 entries and reads four order
  * statistics of each entry's 1,000 relative-score samples. numpy does both by sorting (its fastest sort, the
- * vectorised quicksort, is a third of the start: BENCHMARKS.md, "The board engine"); neither needs a full sort:
+ * vectorised quicksort, was a third of the start: BENCHMARKS.md, "The board engine"); neither needs a full sort:
  *
  *   rank_rows        competition ranks (1 + values strictly greater) of each row, by a counting sort into as
  *                    many buckets as the row has values, then a sort within each bucket (a few values each).
  *   order_statistics the values a sort of each row would put at given positions, by selection.
  *
- * And three steps numpy takes several passes over, each in one: add_timing_noise, the SplitMix64 draw of every
- * sample's timing noise and its move (numpy: fourteen); fold_min_max, each resample's minimum and maximum over a
- * tile of entries (numpy: two reductions); add_weighted_min_max, a metric's weighted share of the relative
- * scores (numpy: eight).
+ * Both compare the float64 values themselves, so they give exactly what a sort gives. And three steps numpy
+ * takes several passes over, each in one, with the same floating-point operations in the same order:
  *
- * Both compare the float64 values themselves, so they give exactly what a sort gives (the same bits on any
- * machine); robobpp.scoring.stats keeps numpy's way as the reference and as the fallback where this module
- * was not built (no C compiler), and tests/scoring/test_kernels.py holds the two equal.
+ *   add_timing_noise      the SplitMix64 draw of every sample's timing noise and its move (numpy: fourteen).
+ *   fold_min_max          each resample's minimum and maximum over a tile of entries (numpy: two reductions).
+ *   add_weighted_min_max  a metric's weighted share of the relative scores (numpy: eight).
+ *
+ * So every step gives the same bits as numpy's, on any machine. robobpp.scoring keeps numpy's way as the
+ * reference and as the fallback where this module was not built (no C compiler), and
+ * tests/scoring/test_kernels.py holds the two equal.
  *
  * Plain C and the buffer protocol: no numpy headers at build time. The GIL is released while they run.
  */
@@ -552,7 +554,7 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "_kernels", "The sorting steps of a board's full computation, compiled.", -1, methods,
+    PyModuleDef_HEAD_INIT, "_kernels", "Five steps of a board's full computation, compiled.", -1, methods,
 };
 
 PyMODINIT_FUNC PyInit__kernels(void)

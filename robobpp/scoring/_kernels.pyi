@@ -1,4 +1,4 @@
-"""Types of the compiled sorting steps (robobpp/scoring/_kernels.c): the arrays are C-contiguous."""
+"""Types of the compiled steps of a board's full computation (robobpp/scoring/_kernels.c): arrays C-contiguous."""
 
 import numpy as np
 

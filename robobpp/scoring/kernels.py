@@ -1,6 +1,7 @@
-"""The compiled sorting steps of a board's full computation (``_kernels.c``: ranks and order statistics), or None
-where the package was installed without a C compiler: then numpy does them, more slowly (docs/server.md, "How
-boards are computed"). Each caller keeps numpy's way as its reference and fallback."""
+"""The compiled steps of a board's full computation (``_kernels.c``: ranks, order statistics and three
+element-wise passes), or None where the package was installed without a C compiler: then numpy does them, more
+slowly, to the same bits (docs/server.md, "How boards are computed"). Each caller keeps numpy's way as its
+reference and fallback."""
 
 from __future__ import annotations
 

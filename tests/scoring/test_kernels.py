@@ -1,6 +1,7 @@
-"""The compiled sorting steps (robobpp/scoring/_kernels.c) against numpy's way and the definitions: the ranks
-of every resample and the order statistics of every entry's samples, on the data a board makes and on data
-meant to hurt them (ties, clusters, an outlier, sorted rows, values that are not finite)."""
+"""The compiled steps (robobpp/scoring/_kernels.c) against numpy's way and the definitions: the ranks of every
+resample, the order statistics of every entry's samples, the timing noise, the bounds and the weighted min–max,
+on the data a board makes and on data meant to hurt them (ties, clusters, an outlier, sorted rows, NaN,
+infinities, spans of 0)."""
 
 from __future__ import annotations
 

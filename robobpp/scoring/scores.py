@@ -238,6 +238,8 @@ def add_timing_noise(times: np.ndarray, seeds: Sequence[int | None] | np.ndarray
     Element-wise, so an entry's samples are the same computed alone or among others, by ``score_board`` or
     by the board engine."""
     if isinstance(seeds, np.ndarray):  # every entry seeded (a board's measured entries): no Python int each
+        if len(seeds) != times.shape[0]:
+            raise ValueError(f"{len(seeds)} seeds for {times.shape[0]} entries: an array seeds every entry")
         noisy: list[int] = []
         drawn = seeds.astype(np.uint64, copy=False)
     else:

@@ -203,6 +203,18 @@ def test_the_timing_noise_is_numpys_to_the_bit(seeds: str, monkeypatch: pytest.M
     assert np.array_equal(by_numpy[::4], times[::4]) == (seeds == "some entries")
 
 
+def test_the_timing_noise_of_seeds_as_an_array_is_the_lists() -> None:
+    rng = np.random.default_rng(42)
+    times = rng.random((5, 30))
+    seeds = rng.integers(0, 2**64, size=5, dtype=np.uint64)
+    by_array, by_list = times.copy(), times.copy()
+    scores.add_timing_noise(by_array, seeds, np.arange(30))
+    scores.add_timing_noise(by_list, [int(s) for s in seeds], np.arange(30))
+    assert by_array.tobytes() == by_list.tobytes()
+    with pytest.raises(ValueError, match="4 seeds for 5 entries"):
+        scores.add_timing_noise(times, seeds[:4], np.arange(30))
+
+
 @needs_kernels
 def test_the_timing_noise_kernel_refuses_what_does_not_fit() -> None:
     from robobpp.scoring import _kernels

@@ -13,7 +13,7 @@ public fields, kept as one compact JSON string. What an arriving entry can chang
   kept: a block of resamples of every entry at a time, each sample computed once).
 * ranks and rank intervals. Point ranks and the best entries' rank intervals (the default view, one
   entry per participant) are recomputed on every update. The all-entries rank intervals need every entry's
-  rank in every resample (a sort of each resample: 0.3 s a board at 10,000 entries, BENCHMARKS.md): they are
+  rank in every resample (each resample ranked: 0.1 s a board at 10,000 entries, BENCHMARKS.md): they are
   computed by a full computation (``rank_intervals=True``, the board worker's refresh timer); between two,
   an entry keeps the interval last computed and a new entry has none (served as null).
 

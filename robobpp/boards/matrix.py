@@ -166,15 +166,25 @@ class _Columns:
 @dataclass(frozen=True, slots=True)
 class _Stack:
     """Entries' figures ready to be resampled (:meth:`BoardMatrix._resample`): the measured ones stacked,
-    the others' point metrics (metrics, entries), every entry's timing seed (None: no noise) and the measured
-    ones' as uint64 (``drawn``, in the order of ``measured``)."""
+    the others' point metrics (metrics, entries), the measured ones' timing seeds (uint64, in the order of
+    ``measured``; the others have no noise)."""
 
     stacked: Stacked | None
     measured: np.ndarray
     unmeasured: np.ndarray
     points: np.ndarray
-    seeds: list[int | None]
     drawn: np.ndarray
+
+    @property
+    def entries(self) -> int:
+        return len(self.measured) + len(self.unmeasured)
+
+    def seeds(self) -> list[int | None]:
+        """Every entry's timing seed, None where it has none (what the noise takes when some are unmeasured)."""
+        seeds: list[int | None] = [None] * self.entries
+        for k, seed in zip(self.measured.tolist(), self.drawn.tolist(), strict=True):
+            seeds[k] = seed
+        return seeds
 
 
 #: The columns a snapshot reads by slot (frozen while it may: ``_Columns.freeze``).
@@ -537,26 +547,20 @@ class BoardMatrix:
         chosen = [sids[k] for k in measured.tolist()]
         if not self._parts.contains(chosen).all():
             raise ValueError(f"{self.dataset}/{self.setting}: an entry with group ids has no stored part")
-        seeds: list[int | None] = [None] * len(slots)
-        stacked = None
-        drawn = self._parts.seed_array(chosen)
-        if chosen:
-            stacked = Stacked.of(*self._parts.stacked(chosen))
-            for k, seed in zip(measured.tolist(), drawn.tolist(), strict=True):
-                seeds[k] = seed
+        stacked = Stacked.of(*self._parts.stacked(chosen)) if chosen else None
         unmeasured = np.flatnonzero(~usable)
-        return _Stack(stacked, measured, unmeasured, self._c.points[slots[unmeasured]].T, seeds, drawn)
+        points = self._c.points[slots[unmeasured]].T
+        return _Stack(stacked, measured, unmeasured, points, self._parts.seeds(chosen))
 
     def _resample(self, stack: _Stack, plan: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """:meth:`_samples` of stacked entries under the plan's rows ``rows``."""
         if stack.stacked is not None and not len(stack.unmeasured):
-            out = stack.stacked.samples(plan)
-        else:
-            out = np.empty((len(self.keys), len(stack.seeds), plan.shape[0]))
-            if stack.stacked is not None:
-                out[:, stack.measured] = stack.stacked.samples(plan)
-            out[:, stack.unmeasured] = stack.points[:, :, None]
-        return with_timing_noise(out, stack.seeds, self.setting, rows)
+            return with_timing_noise(stack.stacked.samples(plan), stack.drawn, self.setting, rows)
+        out = np.empty((len(self.keys), stack.entries, plan.shape[0]))
+        if stack.stacked is not None:
+            out[:, stack.measured] = stack.stacked.samples(plan)
+        out[:, stack.unmeasured] = stack.points[:, :, None]
+        return with_timing_noise(out, stack.seeds(), self.setting, rows)
 
     def _floored(self, bounds: np.ndarray) -> np.ndarray:
         """Per resample and metric, a min or max as the normalisation uses it (``scores.min_max``: NaN stays)."""
@@ -1094,9 +1098,8 @@ def _fold(low: np.ndarray, high: np.ndarray, part: np.ndarray) -> None:
     """Fold a tile's samples (metrics, entries, resamples; each metric's rows contiguous) into running minima and
     maxima (metrics, resamples; NaN: nobody measured yet), as ``numpy.fmin`` and ``fmax``: in one compiled pass
     where the kernels are built (numpy's reductions made two)."""
-    if compiled is None:
-        np.fmin(low, np.fmin.reduce(part, axis=1), out=low)
-        np.fmax(high, np.fmax.reduce(part, axis=1), out=high)
+    if compiled is None:  # numpy's reductions (``_fmin``, ``_fmax``: resamples × metrics)
+        low[...], high[...] = _fmin(low.T, part).T, _fmax(high.T, part).T
         return
     for j in range(part.shape[0]):
         compiled.fold_min_max(part[j], low[j], high[j])

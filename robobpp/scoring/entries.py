@@ -586,12 +586,8 @@ class PartTable:
         block, _, rows = found[0]
         return block.top_bottom(rows.astype(np.intp))
 
-    def seeds(self, submission_ids: Sequence[int]) -> list[int]:
-        """The entries' timing seeds (each one's part's)."""
-        return [int(s) for s in self.seed_array(submission_ids).tolist()]
-
-    def seed_array(self, submission_ids: Sequence[int]) -> np.ndarray:
-        """:meth:`seeds` as uint64 (what the timing noise takes: no Python int an entry)."""
+    def seeds(self, submission_ids: Sequence[int]) -> np.ndarray:
+        """The entries' timing seeds (each one's part's), uint64: what the timing noise takes."""
         out = np.zeros(len(submission_ids), dtype=np.uint64)
         for block, at, rows in self._by_block(submission_ids):
             out[at] = block.seeds[rows]

@@ -92,7 +92,7 @@ def test_a_table_keeps_decoded_rows_as_it_keeps_parts_given_one_by_one() -> None
         top, bottom = table.stacked(sids)
         assert np.array_equal(top, np.stack([expected[s].top for s in sids]))
         assert np.array_equal(bottom, np.stack([expected[s].bottom for s in sids]))
-        assert table.seeds(sids) == [expected[s].seed for s in sids]
+        assert table.seeds(sids).tolist() == [expected[s].seed for s in sids]
         metric, stable = table.intervals_of(sids)
         for k, s in enumerate(sids):
             assert np.array_equal(metric[k], expected[s].metric_ci, equal_nan=True)
